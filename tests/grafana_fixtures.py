@@ -1,0 +1,145 @@
+"""Fixtures for the Grafana tests: one real HTTP server loaded with use-case data.
+
+``grafana_server`` serves ``app_factory(store_url)`` (so the backend is the
+suite's: a temporary DuckDB file today, PostgreSQL when the lead parametrizes
+``store_url_factory``) with uvicorn on a free localhost port, in a thread of
+the test process, and feeds it a short seeded burst of each demo simulator
+through the demo's own runner: real Orion notifications over real HTTP.
+
+Each burst is bounded in *simulated* time (``speedup x duration``), so the
+data depends only on the seed. The simulated spans end at the moment the
+feed starts; ``LoadedService.range_ms`` covers them all.
+
+Import with ``from tests.grafana_fixtures import grafana_http, grafana_server  # noqa: F401``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import httpx
+import pytest
+import uvicorn
+
+from tests.support.server import free_port
+from tsdb_service.demo.runner import RunConfig, run
+from tsdb_service.demo.usecases import SIMULATORS
+
+ROOT = Path(__file__).resolve().parents[1]
+SEED = 5_2024
+CONCURRENCY = 16  # per simulator: bigger commit groups, a faster feed
+# name -> (speedup, wall duration): simulated seconds = speedup x duration.
+BURSTS = {
+    "lawnmower": (20_000.0, 0.06),  # 20 simulated minutes: a mowing cycle or two
+    "warehouse": (20_000.0, 0.018),  # 6 minutes: several door passes
+    "drone": (200_000.0, 0.036),  # 2 hours: some 25 missions
+}
+
+
+@dataclass
+class LoadedService:
+    url: str
+    stats: dict
+    fed_at_ms: int
+
+    @property
+    def range_ms(self) -> tuple[int, int]:
+        """A time range holding every fed sample (simulated spans end at ``fed_at_ms``)."""
+        longest = max(speedup * seconds for speedup, seconds in BURSTS.values())
+        return self.fed_at_ms - int(longest * 1000) - 60_000, self.fed_at_ms + 60_000
+
+
+class _ThreadedServer(uvicorn.Server):
+    def install_signal_handlers(self) -> None:  # a test thread must not take pytest's signals
+        pass
+
+
+async def _feed(url: str, end_ms: int) -> dict:
+    """Every burst's simulated span ends at ``end_ms``."""
+    end = datetime.fromtimestamp(end_ms / 1000, tz=UTC)
+    runs = [
+        run([SIMULATORS[name]], RunConfig(url, speedup=speedup, duration=seconds, seed=SEED, concurrency=CONCURRENCY,
+                                          start=end - timedelta(seconds=speedup * seconds)))
+        for name, (speedup, seconds) in BURSTS.items()
+    ]  # fmt: skip
+    stats = {}
+    for result in await asyncio.gather(*runs):
+        stats.update(result)
+    return stats
+
+
+class _Shared:
+    """One loaded server for the whole session. Each test module that imports
+    ``grafana_server`` gets its own (session-scoped) fixture definition, so
+    the server itself is shared here and stopped when the last user is done."""
+
+    service: LoadedService | None = None
+    server: _ThreadedServer | None = None
+    thread: threading.Thread | None = None
+    users = 0
+
+
+def _start(app_factory, store_url_factory) -> LoadedService:
+    # One writer thread: with several, concurrent first notifications of an entity can
+    # race on new series ids in the DuckDB store (reported to the lead).
+    app = app_factory(store_url_factory("grafana"), writer_threads=1)
+    port = free_port()
+    server = _ThreadedServer(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on"))
+    thread = threading.Thread(target=server.run, name="grafana-test-server", daemon=True)
+    thread.start()
+    _Shared.server, _Shared.thread = server, thread
+    deadline = time.monotonic() + 30
+    while not server.started:
+        if not thread.is_alive() or time.monotonic() > deadline:
+            raise RuntimeError("the test server did not start")
+        time.sleep(0.02)
+    url = f"http://127.0.0.1:{port}"
+    fed_at = int(time.time() * 1000)
+    stats = asyncio.run(_feed(url, fed_at))
+    for name, row in stats.items():
+        assert row.sent > 100 and row.failed == 0, f"{name}: {row}"
+    return LoadedService(url, stats, fed_at)
+
+
+def _stop() -> None:
+    if _Shared.server is not None:
+        _Shared.server.should_exit = True
+        _Shared.thread.join(timeout=30)
+    _Shared.service = _Shared.server = _Shared.thread = None
+
+
+@pytest.fixture(scope="session")
+def grafana_server(app_factory, store_url_factory):
+    _Shared.users += 1
+    try:
+        if _Shared.service is None:
+            try:
+                _Shared.service = _start(app_factory, store_url_factory)
+            except BaseException:
+                _stop()
+                raise
+        yield _Shared.service
+    finally:
+        _Shared.users -= 1
+        if _Shared.users == 0:
+            _stop()
+
+
+@pytest.fixture(scope="session")
+def grafana_http(grafana_server):
+    with httpx.Client(base_url=grafana_server.url, timeout=30.0) as client:
+        yield client
+
+
+def panels_of(doc: dict) -> list[dict]:
+    """Every panel of a dashboard, rows included (collapsed rows hold their panels)."""
+    out = []
+    for panel in doc.get("panels", []):
+        out.append(panel)
+        out.extend(panel.get("panels", []))
+    return out

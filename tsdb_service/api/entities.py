@@ -1,0 +1,57 @@
+"""``/v2/entities``: the entity list, one entity's history, and its deletion."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request
+from starlette.concurrency import run_in_threadpool
+from starlette.responses import Response
+
+from ..history.params import delete_query, entity_list_query
+from ..history.query import Shape
+from ..history.service import delete_target, run_entity_list
+from ..storage.base import DeleteSamples
+from .history import answer_history
+from .responses import JSON
+from .tenancy import tenant_of
+
+router = APIRouter(tags=["entities"])
+
+
+@router.get("/v2/entities", summary="Entity ids with their type and latest time index")
+def list_entities(request: Request) -> JSON:
+    query = entity_list_query(
+        request.query_params, request.headers, tenant_of(request), request.app.state.settings.default_limit
+    )
+    return JSON(run_entity_list(request.app.state.store.querier(), query))
+
+
+@router.get("/v2/entities/{entity_id}", summary="History of N attributes of one entity")
+def entity(entity_id: str, request: Request) -> JSON:
+    return answer_history(request, Shape.ENTITY, entity_id=entity_id)
+
+
+@router.get("/v2/entities/{entity_id}/value", summary="History of N attributes of one entity (values only)")
+def entity_value(entity_id: str, request: Request) -> JSON:
+    return answer_history(request, Shape.ENTITY, entity_id=entity_id, values_only=True)
+
+
+@router.get("/v2/entities/{entity_id}/attrs/{attr_name}", summary="History of one attribute of one entity")
+def entity_attr(entity_id: str, attr_name: str, request: Request) -> JSON:
+    return answer_history(request, Shape.ENTITY_ATTR, entity_id=entity_id, attr=attr_name)
+
+
+@router.get(
+    "/v2/entities/{entity_id}/attrs/{attr_name}/value",
+    summary="History of one attribute of one entity (values only)",
+)
+def entity_attr_value(entity_id: str, attr_name: str, request: Request) -> JSON:
+    return answer_history(request, Shape.ENTITY_ATTR, entity_id=entity_id, attr=attr_name, values_only=True)
+
+
+@router.delete("/v2/entities/{entity_id}", status_code=204, summary="Delete the history of one entity")
+async def delete_entity(entity_id: str, request: Request) -> Response:
+    query = delete_query(request.query_params, request.headers, tenant_of(request), entity_id=entity_id)
+    store = request.app.state.store
+    sids, time = await run_in_threadpool(delete_target, store.querier(), query)
+    await store.write(DeleteSamples(tuple(sids), time.start, time.end))
+    return Response(status_code=204)

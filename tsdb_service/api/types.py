@@ -1,0 +1,49 @@
+"""``/v2/types/{entityType}``: the history of every entity of a type."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request
+from starlette.concurrency import run_in_threadpool
+from starlette.responses import Response
+
+from ..history.params import delete_query
+from ..history.query import Shape
+from ..history.service import delete_target
+from ..storage.base import DeleteSamples
+from .history import answer_history
+from .responses import JSON
+from .tenancy import tenant_of
+
+router = APIRouter(tags=["types"])
+
+
+@router.get("/v2/types/{entity_type}", summary="History of N attributes of the entities of a type")
+def entity_type(entity_type: str, request: Request) -> JSON:
+    return answer_history(request, Shape.TYPE, entity_type=entity_type)
+
+
+@router.get("/v2/types/{entity_type}/value", summary="History of N attributes of a type's entities (values only)")
+def entity_type_value(entity_type: str, request: Request) -> JSON:
+    return answer_history(request, Shape.TYPE, entity_type=entity_type, values_only=True)
+
+
+@router.get("/v2/types/{entity_type}/attrs/{attr_name}", summary="History of one attribute of a type's entities")
+def type_attr(entity_type: str, attr_name: str, request: Request) -> JSON:
+    return answer_history(request, Shape.TYPE_ATTR, entity_type=entity_type, attr=attr_name)
+
+
+@router.get(
+    "/v2/types/{entity_type}/attrs/{attr_name}/value",
+    summary="History of one attribute of a type's entities (values only)",
+)
+def type_attr_value(entity_type: str, attr_name: str, request: Request) -> JSON:
+    return answer_history(request, Shape.TYPE_ATTR, entity_type=entity_type, attr=attr_name, values_only=True)
+
+
+@router.delete("/v2/types/{entity_type}", status_code=204, summary="Delete the history of every entity of a type")
+async def delete_type(entity_type: str, request: Request) -> Response:
+    query = delete_query(request.query_params, request.headers, tenant_of(request), entity_type=entity_type)
+    store = request.app.state.store
+    sids, time = await run_in_threadpool(delete_target, store.querier(), query)
+    await store.write(DeleteSamples(tuple(sids), time.start, time.end))
+    return Response(status_code=204)

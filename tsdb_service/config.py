@@ -1,0 +1,48 @@
+"""Settings from flags and ``TSDB_*`` environment variables.
+
+``get_settings()`` is the one place the app reads configuration; tests and
+the CLI override it by passing a ``Settings`` to ``create_app``.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+MIB = 1024 * 1024
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="TSDB_", extra="ignore")
+
+    db: str = Field(
+        "./data/tsdb.duckdb",
+        description="A DuckDB file path (embedded default) or a postgresql:// URL.",
+    )
+    host: str = Field("0.0.0.0", description="Address to bind, as QuantumLeap does.")
+    port: int = Field(8668, description="QuantumLeap's port.")
+    workers: int = Field(1, ge=1, description="uvicorn workers; PostgreSQL only.")
+    max_body_bytes: int = Field(1 * MIB, ge=1024, description="Larger notifications get 413.")
+    default_limit: int = Field(10_000, ge=1, description="Rows returned when no limit is given.")
+    compact_rows: int = Field(
+        500_000, ge=1000, description="Move the hot table into the sorted one at this many rows."
+    )
+    major_compact_runs: int = Field(
+        8, ge=1, description="Rewrite the sorted table after this many compactions into it."
+    )
+    writer_threads: int = Field(
+        3, ge=1, le=16, description="Group-commit writer threads (commits overlap while one waits)."
+    )
+    log_level: str = "info"
+    access_log: bool = False
+
+    @property
+    def backend(self) -> str:
+        return "postgresql" if self.db.startswith(("postgresql://", "postgres://")) else "duckdb"
+
+
+@lru_cache(maxsize=1)
+def get_settings() -> Settings:
+    return Settings()

@@ -1,0 +1,234 @@
+"""CLI: ``demo``, ``subscribe``, ``queries run|build`` and ``notifications build``.
+
+Imports of the simulators and HTTP clients happen inside the commands, so
+``tsdb-service serve`` does not pay for them at start-up.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import random
+import signal
+import sys
+from pathlib import Path
+
+USE_CASE_NAMES = ("lawnmower", "warehouse", "drone")
+
+
+def register(subparsers, command) -> None:
+    """Add this feature's subcommands to the ``tsdb-service`` parser."""
+    _add_demo(subparsers)
+    _add_subscribe(subparsers)
+    _add_queries(subparsers)
+    _add_notifications(subparsers)
+    for name, fn in (
+        ("demo", cmd_demo),
+        ("subscribe", cmd_subscribe),
+        ("queries", cmd_queries),
+        ("notifications", cmd_notifications),
+    ):
+        command(name)(fn)
+
+
+# -- parsers
+
+
+def _add_demo(sub) -> None:
+    p = sub.add_parser(
+        "demo",
+        help="run the service and the three use-case simulators (the one-command demo)",
+        description="Start tsdb-service on the embedded DuckDB file and feed it Orion notifications "
+        "from the lawnmower, warehouse and drone simulators until Ctrl-C or --duration.",
+    )
+    p.add_argument("--db", default="./data/tsdb.duckdb", help="DuckDB file (default ./data/tsdb.duckdb)")
+    p.add_argument("--host", default="127.0.0.1", help="address the demo's service binds (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8668, help="port of the demo's service (default 8668)")
+    p.add_argument("--no-serve", action="store_true", help="do not start a service; feed the one at --url")
+    p.add_argument("--url", help="service to feed with --no-serve (default http://localhost:8668)")
+    p.add_argument("--speedup", type=_positive, default=1.0, help="simulated seconds per wall second (default 1)")
+    p.add_argument("--duration", type=_positive, help="wall seconds to run (default: until Ctrl-C)")
+    p.add_argument("--seed", type=int, help="make the run reproducible (default: a random seed, printed)")
+    p.add_argument(
+        "--use-case", action="append", metavar="NAME",
+        help=f"only these simulators ({', '.join(USE_CASE_NAMES)}; repeat or comma-separate)",
+    )  # fmt: skip
+    p.add_argument("--concurrency", type=int, default=16, help="notifications in flight at most (default 16)")
+
+
+def _add_subscribe(sub) -> None:
+    p = sub.add_parser("subscribe", help="create a use case's subscription on a real Orion broker")
+    p.add_argument("--broker", required=True, help="the broker's base URL, e.g. http://orion:1026")
+    p.add_argument("--use-case", required=True, choices=[*USE_CASE_NAMES, "all"])
+    p.add_argument(
+        "--notify-url", default=None,
+        help="where the broker sends notifications (default http://tsdb-service:8668/v2/notify)",
+    )  # fmt: skip
+
+
+def _add_queries(sub) -> None:
+    p = sub.add_parser("queries", help="the request collection: run it or regenerate queries/")
+    actions = p.add_subparsers(dest="queries_action", required=True)
+    run = actions.add_parser("run", help="run the collection against a service, a PASS/FAIL line per request")
+    run.add_argument("--url", default="http://localhost:8668", help="service base URL")
+    run.add_argument("--only", help="only requests whose name contains this text")
+    run.add_argument("--from-date", dest="from_date", help="fromDate of the period queries (ISO-8601)")
+    run.add_argument("--to-date", dest="to_date", help="toDate of the period queries (ISO-8601)")
+    build = actions.add_parser("build", help="write the Postman collection and the .http file")
+    build.add_argument("--out", default="queries", help="folder (default ./queries)")
+
+
+def _add_notifications(sub) -> None:
+    p = sub.add_parser("notifications", help="the Orion subscriptions and recorded notifications")
+    actions = p.add_subparsers(dest="notifications_action", required=True)
+    build = actions.add_parser("build", help="write notifications/<use case>/ from the simulators")
+    build.add_argument("--out", default="notifications", help="folder (default ./notifications)")
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError("must be positive")
+    return value
+
+
+# -- demo
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from . import usecases
+    from .serve import LocalService
+
+    try:
+        simulators = usecases.select(args.use_case)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    seed = args.seed if args.seed is not None else random.SystemRandom().randrange(1_000_000)
+    service = None
+    if args.no_serve:
+        url = (args.url or "http://localhost:8668").rstrip("/")
+    else:
+        log_path = Path(args.db).with_suffix(".demo-server.log")
+        service = LocalService(args.db, args.host, args.port, log_path).start()
+        url = service.url
+    try:
+        _print_banner(args, url, seed, service)
+        stats = asyncio.run(_run_demo(simulators, url, args, seed))
+    finally:
+        if service is not None:
+            service.stop()
+    failed = sum(row.failed for row in stats.values())
+    sent = sum(row.sent for row in stats.values())
+    print(f"\n{sent} notifications sent, {sent - failed} acknowledged, {failed} failed (seed {seed}).")
+    if service is not None:
+        print(f"The data stays in {args.db}: `tsdb-service serve --db {args.db}` to explore it again.")
+    return 1 if failed else 0
+
+
+async def _run_demo(simulators, url: str, args: argparse.Namespace, seed: int):
+    from .runner import Progress, RunConfig, run
+
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    loop.add_signal_handler(signal.SIGINT, stop.set)  # first Ctrl-C: drain and stop cleanly
+    loop.add_signal_handler(signal.SIGTERM, stop.set)
+    config = RunConfig(url=url, speedup=args.speedup, duration=args.duration, seed=seed, concurrency=args.concurrency)
+    try:
+        return await run(simulators, config, progress=Progress(), stop=stop)
+    finally:
+        loop.remove_signal_handler(signal.SIGINT)
+        loop.remove_signal_handler(signal.SIGTERM)
+
+
+def _print_banner(args: argparse.Namespace, url: str, seed: int, service) -> None:
+    from .collection import DEMO_EXAMPLES, by_name, curl
+
+    where = f"(DuckDB file {args.db}; log {service.log_path})" if service else "(already running)"
+    until = f"for {args.duration:g} s" if args.duration else "until Ctrl-C"
+    print(f"tsdb-service demo: feeding {url} {where}")
+    print(f"  API docs     {url}/docs")
+    print(f"  dashboards   {url}/dashboards")
+    print(f"  history API  {url}/v2/entities  (headers Fiware-Service / Fiware-ServicePath)")
+    print("  requests     queries/tsdb-service.postman_collection.json, queries/tsdb-service.http")
+    print("Try:")
+    for name in DEMO_EXAMPLES:
+        print(f"  # {name}\n  {curl(by_name(name), url)}")
+    print(f"Simulating x{args.speedup:g} {until}, seed {seed}:")
+    if args.speedup > 1 and not args.duration:
+        print("  (open-ended at a speedup: simulated time starts now and runs ahead of the clock;"
+              " give --duration to end the replay at the present instead)")
+    sys.stdout.flush()
+
+
+# -- subscribe
+
+
+def cmd_subscribe(args: argparse.Namespace) -> int:
+    from .subscriptions import DEFAULT_NOTIFY_URL, post_subscription
+    from .usecases import SIMULATORS
+
+    names = USE_CASE_NAMES if args.use_case == "all" else (args.use_case,)
+    all_ok = True
+    for name in names:
+        ok, answer = post_subscription(args.broker, SIMULATORS[name], args.notify_url or DEFAULT_NOTIFY_URL)
+        print(f"{name}: {answer}")
+        all_ok &= ok
+    return 0 if all_ok else 1
+
+
+# -- queries
+
+
+def cmd_queries(args: argparse.Namespace) -> int:
+    if args.queries_action == "build":
+        return _queries_build(Path(args.out))
+    return _queries_run(args)
+
+
+def _queries_build(out: Path) -> int:
+    for path in write_collection(out):
+        print(f"wrote {path}")
+    return 0
+
+
+def write_collection(out: Path) -> list[Path]:
+    """Write both exports of the collection into ``out``."""
+    from .collection import http_file, postman_collection
+    from .subscriptions import dumps
+
+    out.mkdir(parents=True, exist_ok=True)
+    postman = out / "tsdb-service.postman_collection.json"
+    postman.write_bytes(dumps(postman_collection()))
+    http = out / "tsdb-service.http"
+    http.write_text(http_file())
+    return [postman, http]
+
+
+def _queries_run(args: argparse.Namespace) -> int:
+    from .collection import matching, run_all
+
+    queries = matching(args.only)
+    if not queries:
+        print(f"no request name contains {args.only!r}", file=sys.stderr)
+        return 2
+    variables = {k: v for k, v in (("fromDate", args.from_date), ("toDate", args.to_date)) if v}
+    outcomes = run_all(args.url.rstrip("/"), queries, variables)
+    for outcome in outcomes:
+        verdict = "PASS" if outcome.ok else "FAIL"
+        detail = "" if outcome.ok else f": {outcome.detail}"
+        print(f"{verdict}  {outcome.query.name}  ({outcome.elapsed_ms:.0f} ms){detail}")
+    failed = sum(not o.ok for o in outcomes)
+    print(f"{len(outcomes) - failed} of {len(outcomes)} requests passed")
+    return 1 if failed else 0
+
+
+# -- notifications
+
+
+def cmd_notifications(args: argparse.Namespace) -> int:
+    from .subscriptions import write_examples
+
+    for path in write_examples(Path(args.out)):
+        print(f"wrote {path}")
+    return 0

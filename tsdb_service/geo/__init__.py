@@ -1,0 +1,1 @@
+"""Location handling: NGSI geo encodings normalised to GeoJSON."""

@@ -1,0 +1,179 @@
+"""NGSIv2 geo-queries (``georel``, ``geometry``, ``coords``) as a frozen filter.
+
+Parsing turns the three parameters into a ``GeoFilter`` or a 400 that says
+what is wrong. Matching has two stages: a bounding box that SQL can apply to
+the stored min/max columns (cheap, may over-match), then the exact predicate
+with shapely, with distances measured on the WGS84 ellipsoid.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import orjson
+import shapely
+from shapely.geometry import LineString, Point, Polygon, box, shape
+from shapely.geometry.base import BaseGeometry
+
+from ..errors import BadRequest
+from .geodesic import geodesic_distance_m, radius_bbox
+
+GEORELS = ("near", "coveredBy", "intersects", "equals", "disjoint")
+GEOMETRIES = ("point", "line", "polygon", "box")
+
+
+@dataclass(frozen=True, slots=True)
+class BBox:
+    min_lon: float
+    min_lat: float
+    max_lon: float
+    max_lat: float
+
+
+@dataclass(frozen=True)
+class GeoFilter:
+    georel: str
+    geometry_kind: str
+    shape: BaseGeometry  # lon/lat order
+    max_distance: float | None = None  # metres, for near
+    min_distance: float | None = None
+
+    @property
+    def prefilter(self) -> tuple[str, BBox] | None:
+        """What SQL may check on a sample's stored bounding box:
+        ("intersects", box) — the sample's box must overlap ``box``;
+        ("within", box) — the sample's box must lie inside ``box``;
+        None — no safe prefilter (disjoint, minDistance-only)."""
+        if self.georel == "near":
+            if self.max_distance is None:
+                return None
+            bbox = radius_bbox(self.shape.x, self.shape.y, self.max_distance)
+            return None if bbox is None else ("intersects", BBox(*bbox))
+        if self.georel == "disjoint":
+            return None
+        bounds = BBox(*self.shape.bounds)
+        if self.georel in ("coveredBy", "equals"):
+            return ("within", bounds)
+        return ("intersects", bounds)
+
+    def matches(self, geojson: str | dict) -> bool:
+        """The exact predicate against one stored (normalised) geometry."""
+        try:
+            candidate = shape(orjson.loads(geojson) if isinstance(geojson, str) else geojson)
+        except (ValueError, TypeError, AttributeError, KeyError, shapely.errors.GEOSException):
+            return False
+        if candidate.is_empty:
+            return False
+        if self.georel == "near":
+            distance = geodesic_distance_m(self.shape, candidate)
+            if self.max_distance is not None and distance > self.max_distance:
+                return False
+            if self.min_distance is not None and distance < self.min_distance:
+                return False
+            return True
+        if self.georel == "coveredBy":
+            return self.shape.covers(candidate)
+        if self.georel == "intersects":
+            return self.shape.intersects(candidate)
+        if self.georel == "disjoint":
+            return self.shape.disjoint(candidate)
+        return self.shape.equals(candidate)  # equals
+
+
+def parse_geo(georel: str | None, geometry: str | None, coords: str | None) -> GeoFilter | None:
+    """The three parameters travel together: all absent means no filter."""
+    given = {"georel": georel, "geometry": geometry, "coords": coords}
+    if all(v in (None, "") for v in given.values()):
+        return None
+    missing = [name for name, value in given.items() if value in (None, "")]
+    if missing:
+        raise BadRequest(f"geo-query needs georel, geometry and coords together; missing: {', '.join(missing)}")
+    relation, max_d, min_d = _parse_georel(georel)  # type: ignore[arg-type]
+    if geometry not in GEOMETRIES:
+        raise BadRequest(f"unknown geometry {geometry!r}: use one of {', '.join(GEOMETRIES)}")
+    points = _parse_coords(coords)  # type: ignore[arg-type]
+    geom = _build_geometry(geometry, points)
+    if relation == "near" and geometry != "point":
+        raise BadRequest("georel=near needs geometry=point")
+    return GeoFilter(relation, geometry, geom, max_d, min_d)
+
+
+def _parse_georel(text: str) -> tuple[str, float | None, float | None]:
+    parts = [p.strip() for p in text.split(";")]
+    relation = parts[0]
+    if relation not in GEORELS:
+        raise BadRequest(f"unknown georel {relation!r}: use one of {', '.join(GEORELS)}")
+    if relation != "near":
+        if len(parts) > 1:
+            raise BadRequest(f"georel={relation} takes no modifiers, got {';'.join(parts[1:])!r}")
+        return relation, None, None
+    limits: dict[str, float] = {}
+    for modifier in parts[1:]:
+        name, sep, value = modifier.partition(":")
+        if not sep or name not in ("maxDistance", "minDistance"):
+            raise BadRequest(f"bad near modifier {modifier!r}: use maxDistance:<metres> and/or minDistance:<metres>")
+        if name in limits:
+            raise BadRequest(f"{name} given twice")
+        limits[name] = _metres(name, value)
+    if not limits:
+        raise BadRequest("georel=near needs maxDistance:<metres> and/or minDistance:<metres>")
+    max_d, min_d = limits.get("maxDistance"), limits.get("minDistance")
+    if max_d is not None and min_d is not None and min_d > max_d:
+        raise BadRequest(f"minDistance {min_d:g} is greater than maxDistance {max_d:g}")
+    return relation, max_d, min_d
+
+
+def _metres(name: str, value: str) -> float:
+    try:
+        metres = float(value)
+    except ValueError:
+        raise BadRequest(f"{name} must be a number of metres, got {value!r}") from None
+    if not math.isfinite(metres) or metres < 0:
+        raise BadRequest(f"{name} must be a non-negative number of metres, got {value!r}")
+    return metres
+
+
+def _parse_coords(text: str) -> list[tuple[float, float]]:
+    """``lat,lon;lat,lon;...`` into (lon, lat) pairs."""
+    points = []
+    for i, pair in enumerate(text.split(";")):
+        parts = pair.split(",")
+        if len(parts) != 2:
+            raise BadRequest(f"coords point {i + 1} ({pair!r}) must be 'lat,lon'")
+        try:
+            lat, lon = float(parts[0]), float(parts[1])
+        except ValueError:
+            raise BadRequest(f"coords point {i + 1} ({pair!r}) is not two numbers") from None
+        if not (math.isfinite(lat) and -90 <= lat <= 90):
+            raise BadRequest(f"coords point {i + 1}: latitude {parts[0].strip()} is outside -90..90")
+        if not (math.isfinite(lon) and -180 <= lon <= 180):
+            raise BadRequest(f"coords point {i + 1}: longitude {parts[1].strip()} is outside -180..180")
+        points.append((lon, lat))
+    return points
+
+
+def _build_geometry(kind: str, points: list[tuple[float, float]]) -> BaseGeometry:
+    if kind == "point":
+        if len(points) != 1:
+            raise BadRequest(f"geometry=point needs exactly one 'lat,lon', got {len(points)}")
+        return Point(points[0])
+    if kind == "line":
+        if len(points) < 2:
+            raise BadRequest("geometry=line needs at least two points")
+        return LineString(points)
+    if kind == "box":
+        if len(points) != 2:
+            raise BadRequest("geometry=box needs exactly two opposite corners")
+        (lon1, lat1), (lon2, lat2) = points
+        if lon1 == lon2 or lat1 == lat2:
+            raise BadRequest("geometry=box corners must differ in both latitude and longitude")
+        return box(min(lon1, lon2), min(lat1, lat2), max(lon1, lon2), max(lat1, lat2))
+    if len(points) < 4:
+        raise BadRequest("geometry=polygon needs at least four points, the last equal to the first")
+    if points[0] != points[-1]:
+        raise BadRequest("geometry=polygon must be closed: the last point must equal the first")
+    polygon = Polygon(points)
+    if not polygon.is_valid:
+        raise BadRequest(f"geometry=polygon is not a valid polygon: {shapely.is_valid_reason(polygon)}")
+    return polygon

@@ -1,0 +1,61 @@
+"""Distances on the WGS84 ellipsoid.
+
+QuantumLeap's PostgreSQL path turns metres into degrees with a flat
+0.000009°/m, which overstates east-west distances away from the equator
+(by 2x at 60°N). We measure with pyproj's ``Geod`` (Karney's algorithm).
+For a point we use the exact inverse geodesic; for a line or area we
+project it onto an azimuthal equidistant plane centred on the query point,
+where distance from the centre equals the geodesic distance.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+from pyproj import CRS, Geod, Transformer
+from shapely.geometry import Point
+from shapely.geometry.base import BaseGeometry
+from shapely.ops import transform
+
+WGS84 = Geod(ellps="WGS84")
+
+
+def geodesic_distance_m(origin: Point, other: BaseGeometry) -> float:
+    """Metres from ``origin`` to the nearest point of ``other`` (0 if it covers it)."""
+    if other.geom_type == "Point":
+        _, _, metres = WGS84.inv(origin.x, origin.y, other.x, other.y)
+        return float(metres)
+    if other.covers(origin):
+        return 0.0
+    to_plane = _aeqd(round(origin.x, 9), round(origin.y, 9))
+    projected = transform(to_plane, other)
+    return float(projected.distance(Point(0.0, 0.0)))
+
+
+@lru_cache(maxsize=256)
+def _aeqd(lon: float, lat: float):
+    crs = CRS.from_proj4(f"+proj=aeqd +lat_0={lat} +lon_0={lon} +ellps=WGS84 +units=m")
+    return Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform
+
+
+def radius_bbox(lon: float, lat: float, metres: float) -> tuple[float, float, float, float] | None:
+    """A lon/lat box containing every point within ``metres`` of (lon, lat),
+    or None when it would wrap a pole or the antimeridian (no safe box)."""
+    if metres <= 0:
+        return (lon, lat, lon, lat)
+    _, north, _ = WGS84.fwd(lon, lat, 0, metres)
+    _, south, _ = WGS84.fwd(lon, lat, 180, metres)
+    if north >= 89.9 or south <= -89.9 or north < lat or south > lat:
+        return None
+    # The widest east-west reach is at the circle's highest-|lat| edge, not at
+    # the centre: measure along that parallel.
+    widest_lat = north if abs(north) > abs(south) else south
+    east, _, _ = WGS84.fwd(lon, widest_lat, 90, metres)
+    west, _, _ = WGS84.fwd(lon, widest_lat, -90, metres)
+    d_east, d_west = east - lon, lon - west
+    if d_east <= 0 or d_west <= 0 or lon + d_east > 180 or lon - d_west < -180:
+        return None
+    # 1% margin: the geodesic circle is not exactly bounded by those points.
+    margin_lon = 0.01 * max(d_east, d_west)
+    margin_lat = 0.01 * (north - south)
+    return (lon - d_west - margin_lon, south - margin_lat, lon + d_east + margin_lon, north + margin_lat)

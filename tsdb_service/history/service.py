@@ -1,0 +1,453 @@
+"""Answering history queries: series resolution, sample reads, result rows.
+
+The flow for every read is the same: resolve the request's series ids on the
+catalog (no sample is touched), read samples by those ids through the
+``Querier``, then build per-entity results that ``history.shape`` renders.
+Everything here is backend-neutral.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import orjson
+
+from ..errors import Conflict, NotFound, TsdbError
+from ..model import Kind
+from ..storage.base import Querier
+from ..storage.catalog import SeriesRef
+from ..storage.sql import AggBranch
+from .query import (
+    AggrMethod,
+    AggrScope,
+    DeleteQuery,
+    EntityFilter,
+    EntityListQuery,
+    HistoryQuery,
+    LastValueQuery,
+    Scope,
+    Shape,
+    TimeRange,
+    ValuePath,
+)
+from .valuepath import extract
+
+_SINGLE_ENTITY = (Shape.ENTITY_ATTR, Shape.ENTITY)
+
+
+class AggrNotApplicable(TsdbError):
+    """QuantumLeap's answer to sum/avg/min/max on text or boolean values."""
+
+    status = 404
+    error = "AggrMethod cannot be applied"
+
+    def __init__(self) -> None:
+        super().__init__("AggrMethod cannot be applied on type TEXT and BOOLEAN.")
+
+
+def not_found() -> NotFound:
+    return NotFound("No records were found for such query.", error="Not Found")
+
+
+@dataclass(slots=True)
+class EntityResult:
+    """One entity's (or, for aggrScope=global, one group's) history."""
+
+    entity_type: str
+    entity_id: str
+    index: list = field(default_factory=list)
+    columns: dict[str, list] = field(default_factory=dict)  # attrName -> values
+    ids: list[str] | None = None  # global scope: the entities aggregated
+    types: list[str] | None = None
+    # global scope: per column, the (ids, types) that contributed to it
+    column_members: dict[str, tuple[list[str], list[str]]] | None = None
+
+
+@dataclass(slots=True)
+class HistoryResult:
+    query: HistoryQuery
+    entities: list[EntityResult]  # ordered for the response
+
+
+# --- decoding stored values ------------------------------------------------------
+
+_NUMBER, _INTEGER, _BOOLEAN = int(Kind.NUMBER), int(Kind.INTEGER), int(Kind.BOOLEAN)
+_TEXTUAL = frozenset({int(Kind.TEXT), int(Kind.DATETIME), int(Kind.RELATIONSHIP)})
+_JSON = frozenset({int(Kind.STRUCTURED), int(Kind.GEO)})
+
+
+def decode(kind: int, num, txt, js):
+    """A stored sample back to its JSON value."""
+    if kind == _NUMBER:
+        return num
+    if kind == _INTEGER:
+        return int(num) if num is not None else None
+    if kind in _TEXTUAL:
+        return txt
+    if kind in _JSON:
+        return orjson.loads(js) if js is not None else None
+    if kind == _BOOLEAN:
+        if num is not None:
+            return bool(num)
+        return orjson.loads(js) if js is not None else None
+    return None
+
+
+# --- series resolution -------------------------------------------------------------
+
+
+def _attr_names(attrs: Sequence[ValuePath] | None) -> set[str] | None:
+    return None if attrs is None else {vp.attr for vp in attrs}
+
+
+def resolve_entity_series(
+    querier: Querier, scope: Scope, entities: EntityFilter, attrs: set[str] | None
+) -> list[SeriesRef]:
+    """Series of one entity id; without a type, the id must name one type."""
+    if entities.types is not None and len(entities.types) == 1:
+        return querier.series(scope, entities, attrs)
+    # Which types does this id have (any attribute)? A series lookup only.
+    everything = querier.series(scope, entities, None)
+    refs = everything if attrs is None else [r for r in everything if r.attr in attrs]
+    types = {r.entity_type for r in everything}
+    if len(types) > 1:
+        # Deleted data leaves series rows behind: count only types with samples.
+        alive = querier.sids_with_samples([r.sid for r in everything])
+        types = {r.entity_type for r in everything if r.sid in alive}
+        if len(types) > 1:
+            eid = entities.ids[0] if entities.ids else ""
+            raise Conflict(
+                f"entity id {eid!r} exists in several types ({', '.join(sorted(types))}): "
+                "give 'type' to choose one",
+                error="AmbiguousNGSIIdError",
+            )
+        refs = [r for r in refs if r.entity_type in types]
+    return refs
+
+
+# --- history -------------------------------------------------------------------------
+
+
+def run_history(querier: Querier, q: HistoryQuery) -> HistoryResult:
+    names = _attr_names(q.attrs)
+    if q.shape in _SINGLE_ENTITY:
+        refs = resolve_entity_series(querier, q.scope, q.entities, names)
+    else:
+        refs = querier.series(q.scope, q.entities, names)
+    if not refs:
+        return HistoryResult(q, [])
+    if q.aggregation is None:
+        entities = _raw(querier, q, refs)
+    else:
+        entities = _aggregated(querier, q, refs)
+    return HistoryResult(q, _order(q, entities))
+
+
+def _columns_by_attr(q: HistoryQuery) -> dict[str, list[tuple[str, tuple]]] | None:
+    """attr -> [(column name, steps)]; None means every attribute as itself."""
+    if q.attrs is None:
+        return None
+    out: dict[str, list[tuple[str, tuple]]] = {}
+    for vp in q.attrs:
+        out.setdefault(vp.attr, []).append((vp.text, vp.steps))
+    return out
+
+
+def _raw(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> list[EntityResult]:
+    by_sid = {r.sid: r for r in refs}
+    attr_count = len({r.attr for r in refs})
+    n = min(q.last_n, q.limit) if q.last_n else q.limit
+    rows = querier.raw_rows(
+        list(by_sid), q.time, newest_first=q.last_n is not None, limit=n, offset=q.offset,
+        one_per_row=attr_count == 1, attrs_per_row=attr_count,
+    )
+    if not rows:
+        return []
+    wanted = _columns_by_attr(q)
+    if len(by_sid) == 1 and (wanted is None or len(wanted[refs[0].attr]) == 1):
+        return [_one_series(refs[0], rows, wanted)]
+    plain = [(None, ())]
+    results: dict[tuple[str, str], EntityResult] = {}
+    last_rid: dict[tuple[str, str], int] = {}
+    for sid, rid, iso, kind, num, txt, js in rows:
+        ref = by_sid[sid]
+        key = (ref.entity_type, ref.entity_id)
+        ent = results.get(key)
+        if ent is None:
+            ent = results[key] = EntityResult(ref.entity_type, ref.entity_id)
+            last_rid[key] = -1
+        if last_rid[key] != rid:
+            last_rid[key] = rid
+            ent.index.append(iso)
+        row = len(ent.index) - 1
+        value = decode(kind, num, txt, js)
+        targets = plain if wanted is None else wanted.get(ref.attr, ())
+        for name, steps in targets:
+            column = ent.columns.get(name or ref.attr)
+            if column is None:
+                column = ent.columns[name or ref.attr] = []
+            if len(column) < row:
+                column.extend([None] * (row - len(column)))
+            column.append(extract(value, steps) if steps else value)
+    for ent in results.values():
+        size = len(ent.index)
+        for column in ent.columns.values():
+            if len(column) < size:
+                column.extend([None] * (size - len(column)))
+    return list(results.values())
+
+
+def _one_series(ref: SeriesRef, rows: list[tuple], wanted) -> EntityResult:
+    """The common case, one series: every sample is a row of its own."""
+    name, steps = (ref.attr, ()) if wanted is None else wanted[ref.attr][0]
+    if all(row[3] == _NUMBER for row in rows):
+        values = [row[4] for row in rows]
+    else:
+        values = [decode(kind, num, txt, js) for _s, _r, _t, kind, num, txt, js in rows]
+    if steps:
+        values = [extract(v, steps) for v in values]
+    ent = EntityResult(ref.entity_type, ref.entity_id, [row[2] for row in rows])
+    ent.columns[name] = values
+    return ent
+
+
+_GLOBAL = ("", "")
+
+
+def _aggregated(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> list[EntityResult]:
+    agg = q.aggregation
+    method = agg.method
+    by_sid = {r.sid: r for r in refs}
+    # Columns: plain attributes share one branch; each value path has its own.
+    plain_attrs: dict[str, str] = {}  # attr -> column name
+    path_columns: list[ValuePath] = []
+    explicit = q.attrs is not None
+    if explicit:
+        for vp in q.attrs:
+            if vp.steps:
+                path_columns.append(vp)
+            else:
+                plain_attrs[vp.attr] = vp.text
+    else:
+        for r in refs:
+            plain_attrs[r.attr] = r.attr
+    branches = [AggBranch(tuple(r.sid for r in refs if r.attr in plain_attrs))]
+    for vp in path_columns:
+        branches.append(AggBranch(tuple(r.sid for r in refs if r.attr == vp.attr), vp.steps))
+    rows = querier.aggregate(branches, q.time, agg)
+
+    global_scope = agg.scope is AggrScope.GLOBAL
+    # (group, column, bucket) -> [n_present, n_numeric, value, all_integer]
+    cells: dict[tuple, list] = {}
+    members: dict[tuple, set] = {}
+    totals: dict[str, list[int]] = {}  # column -> [present, numeric]
+    for branch, sid, bucket, n_present, n_numeric, value, all_int in rows:
+        ref = by_sid[sid]
+        column = plain_attrs[ref.attr] if branch == 0 else path_columns[branch - 1].text
+        group = _GLOBAL if global_scope else (ref.entity_type, ref.entity_id)
+        if global_scope:
+            members.setdefault(group, set()).add((ref.entity_type, ref.entity_id))
+            members.setdefault((group, column), set()).add((ref.entity_type, ref.entity_id))
+        total = totals.setdefault(column, [0, 0])
+        total[0] += n_present
+        total[1] += n_numeric
+        cell = cells.get((group, column, bucket))
+        if cell is None:
+            cells[(group, column, bucket)] = [n_present, n_numeric, value, all_int]
+        else:
+            cell[0] += n_present
+            cell[1] += n_numeric
+            cell[2] = _combine(method, cell[2], value)
+            cell[3] = _and(cell[3], all_int)
+
+    if method is not AggrMethod.COUNT:
+        for column, (present, numeric) in totals.items():
+            if present and not numeric:
+                if explicit:
+                    raise AggrNotApplicable()
+        if not explicit:  # every attribute: the non-numeric ones are left out
+            cells = {k: v for k, v in cells.items() if totals[k[1]][1] > 0}
+
+    results: dict[tuple, EntityResult] = {}
+    buckets: dict[tuple, set] = {}
+    for (group, column, bucket), cell in cells.items():
+        if group not in results:
+            results[group] = EntityResult(group[0], group[1])
+            buckets[group] = set()
+        buckets[group].add(bucket)
+    # QuantumLeap's windowing of aggregated rows: ordered by entity, then
+    # period (newest first for lastN); offset and limit apply to those rows.
+    ordered = sorted(results, key=lambda g: (g[0], g[1]))
+    row_keys = []
+    for group in ordered:
+        for bucket in sorted(buckets[group], key=lambda b: b or "", reverse=q.last_n is not None):
+            row_keys.append((group, bucket))
+    n = min(q.last_n, q.limit) if q.last_n else q.limit
+    row_keys = row_keys[q.offset : q.offset + n]
+    kept: dict[tuple, list] = {}
+    for group, bucket in row_keys:
+        kept.setdefault(group, []).append(bucket)
+    columns_by_group: dict[tuple, set[str]] = {}
+    for group, column, _bucket in cells:
+        columns_by_group.setdefault(group, set()).add(column)
+    out = []
+    for group in ordered:
+        if group not in kept:
+            continue
+        ent = results[group]
+        kept_buckets = sorted(kept[group], key=lambda b: b or "")
+        if agg.period is not None:
+            ent.index = kept_buckets
+        for column in sorted(columns_by_group[group]):
+            ent.columns[column] = [_final(method, cells.get((group, column, b))) for b in kept_buckets]
+        if global_scope:
+            ent.ids = sorted({eid for _t, eid in members.get(group, ())})
+            ent.types = sorted({t for t, _eid in members.get(group, ())})
+            ent.column_members = {
+                column: (
+                    sorted({eid for _t, eid in members.get((group, column), ())}),
+                    sorted({t for t, _eid in members.get((group, column), ())}),
+                )
+                for column in ent.columns
+            }
+        out.append(ent)
+    return out
+
+
+def _combine(method: AggrMethod, a, b):
+    if a is None:
+        return b
+    if b is None:
+        return a
+    if method is AggrMethod.MIN:
+        return min(a, b)
+    if method is AggrMethod.MAX:
+        return max(a, b)
+    return a + b  # sum, and avg's running sum
+
+
+def _and(a, b):
+    if a is None:
+        return b
+    if b is None:
+        return a
+    return a and b
+
+
+def _final(method: AggrMethod, cell):
+    if cell is None:
+        return None
+    present, numeric, value, all_int = cell
+    if method is AggrMethod.COUNT:
+        return present
+    if not numeric or value is None:
+        return None
+    if method is AggrMethod.AVG:
+        return value / numeric
+    if all_int and float(value).is_integer():
+        return int(value)
+    return float(value)
+
+
+def _order(q: HistoryQuery, entities: list[EntityResult]) -> list[EntityResult]:
+    """Types by name, entities by id; on /v2/types/{type}/attrs/{attr} the ids
+    given in ``id`` come first, in the order given (as in QuantumLeap)."""
+    entities.sort(key=lambda e: (e.entity_type, e.entity_id))
+    if (
+        q.shape is Shape.TYPE_ATTR
+        and q.entities.ids
+        and (q.aggregation is None or q.aggregation.scope is AggrScope.ENTITY)
+    ):
+        rank = {eid: i for i, eid in enumerate(q.entities.ids)}
+        entities.sort(key=lambda e: (rank.get(e.entity_id, len(rank)), e.entity_id))
+    return entities
+
+
+# --- entity list -------------------------------------------------------------------------
+
+
+def run_entity_list(querier: Querier, q: EntityListQuery) -> list[dict]:
+    refs = querier.series(q.scope, q.entities, None)
+    if not refs:
+        return []
+    by_sid = {r.sid: r for r in refs}
+    latest: dict[tuple[str, str], str] = {}
+    for sid, iso in querier.latest_index(list(by_sid), q.time):
+        ref = by_sid[sid]
+        key = (ref.entity_type, ref.entity_id)
+        if iso > latest.get(key, ""):
+            latest[key] = iso
+    # Newest first, then type and id, as QuantumLeap orders them.
+    items = sorted(latest.items(), key=lambda kv: (kv[0][0], kv[0][1]))
+    items.sort(key=lambda kv: kv[1], reverse=True)
+    items = items[q.offset : q.offset + q.limit]
+    return [{"id": eid, "type": etype, "index": iso} for (etype, eid), iso in items]
+
+
+# --- last values (op/query) -----------------------------------------------------------------
+
+
+def json_type_name(value) -> str:
+    if isinstance(value, bool):
+        return "Boolean"
+    if isinstance(value, (int, float)):
+        return "Number"
+    if isinstance(value, str):
+        return "Text"
+    if value is None:
+        return "None"
+    return "StructuredValue"
+
+
+def run_last_values(querier: Querier, q: LastValueQuery) -> list[dict]:
+    names = _attr_names(q.attrs)
+    refs: dict[int, SeriesRef] = {}
+    for selector in q.selectors:
+        for ref in querier.series(q.scope, selector, names):
+            refs[ref.sid] = ref
+    if not refs:
+        return []
+    wanted = None
+    if q.attrs is not None:
+        wanted = {}
+        for vp in q.attrs:
+            wanted.setdefault(vp.attr, []).append(vp)
+    entities: dict[tuple[str, str], dict] = {}
+    modified: dict[tuple[str, str], str] = {}
+    for sid, iso, kind, atype, num, txt, js in querier.last_values(list(refs)):
+        ref = refs[sid]
+        key = (ref.entity_type, ref.entity_id)
+        ent = entities.setdefault(key, {"id": ref.entity_id, "type": ref.entity_type})
+        if iso > modified.get(key, ""):
+            modified[key] = iso
+        value = decode(kind, num, txt, js)
+        paths = [ValuePath(ref.attr)] if wanted is None else wanted.get(ref.attr, [])
+        for vp in paths:
+            if vp.steps:
+                inner = extract(value, vp.steps)
+                ent[vp.text] = {"type": json_type_name(inner), "value": inner}
+            else:
+                ent[vp.text] = {"type": atype, "value": value}
+    out = []
+    for key in sorted(entities, key=lambda k: (k[1], k[0])):
+        ent = entities[key]
+        head = {"id": ent.pop("id"), "type": ent.pop("type")}
+        ordered = {name: ent[name] for name in sorted(ent)}
+        out.append({**head, **ordered, "dateModified": {"type": "DateTime", "value": modified[key]}})
+    return out
+
+
+# --- deletes ------------------------------------------------------------------------------------
+
+
+def delete_target(querier: Querier, q: DeleteQuery) -> tuple[list[int], TimeRange]:
+    """The series ids a delete applies to; raises QuantumLeap's 404 or 409."""
+    if q.entities.ids is not None:
+        refs = resolve_entity_series(querier, q.scope, q.entities, None)
+    else:
+        refs = querier.series(q.scope, q.entities, None)
+    sids = [r.sid for r in refs]
+    if not sids or querier.count(sids, q.time) == 0:
+        raise not_found()
+    return sids, q.time

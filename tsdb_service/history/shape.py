@@ -1,0 +1,154 @@
+"""History results → QuantumLeap 1.0 JSON.
+
+One function per endpoint family, named after QuantumLeap's handlers. Keys
+are ``id``/``type`` (not the pre-1.0 ``entityId``/``entityType``); ``index``
+and ``values`` are parallel arrays; ``attributes`` are sorted by name; time
+strings are UTC with milliseconds, ``2024-05-01T10:00:00.123+00:00``, the
+format QuantumLeap 1.0 answers with. An empty result is ``[]``.
+
+For ``aggrScope=global`` one group stands for every matched entity: it
+carries ``ids`` (and, on ``/v2/attrs``, ``types``) instead of ``id``/``type``.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from .query import AggrScope, HistoryQuery, Shape
+from .service import EntityResult, HistoryResult
+
+
+def iso_ms(moment: datetime | None) -> str:
+    if moment is None:
+        return ""
+    return moment.strftime("%Y-%m-%dT%H:%M:%S.") + f"{moment.microsecond // 1000:03d}+00:00"
+
+
+def render(result: HistoryResult):
+    if not result.entities:
+        return []
+    q = result.query
+    return _RENDERERS[q.shape](q, result.entities)
+
+
+def _index(q: HistoryQuery, ent: EntityResult, single: bool) -> list:
+    agg = q.aggregation
+    if agg is not None and agg.period is None:
+        # One value per entity: QuantumLeap gives [] for one entity and the
+        # requested [fromDate, toDate] when several can be answered.
+        return [] if single else [iso_ms(q.time.start), iso_ms(q.time.end)]
+    return ent.index
+
+
+def _global(q: HistoryQuery) -> bool:
+    return q.aggregation is not None and q.aggregation.scope is AggrScope.GLOBAL
+
+
+def _attributes(ent: EntityResult) -> list[dict]:
+    return [{"attrName": name, "values": ent.columns[name]} for name in sorted(ent.columns)]
+
+
+def _attr_name(q: HistoryQuery) -> str:
+    return q.attrs[0].text
+
+
+def _entity_attr(q: HistoryQuery, entities: list[EntityResult]):
+    ent = entities[0]
+    name = _attr_name(q)
+    values = ent.columns.get(name, [])
+    if q.values_only:
+        return {"index": _index(q, ent, True), "values": values}
+    return {"id": ent.entity_id, "type": ent.entity_type, "attrName": name, "index": _index(q, ent, True),
+            "values": values}
+
+
+def _entity(q: HistoryQuery, entities: list[EntityResult]):
+    ent = entities[0]
+    if q.values_only:
+        return {"index": _index(q, ent, True), "values": _attributes(ent)}
+    return {"id": ent.entity_id, "type": ent.entity_type, "index": _index(q, ent, True),
+            "attributes": _attributes(ent)}
+
+
+def _head(q: HistoryQuery, ent: EntityResult) -> dict:
+    if _global(q):
+        return {"ids": ent.ids}
+    return {"id": ent.entity_id}
+
+
+def _type_attr(q: HistoryQuery, entities: list[EntityResult]):
+    name = _attr_name(q)
+    items = []
+    for ent in entities:
+        item = _head(q, ent)
+        item["index"] = _index(q, ent, False)
+        item["values"] = ent.columns.get(name, [])
+        items.append(item)
+    if q.values_only:
+        return {"values": items}
+    return {"type": q.entities.types[0], "attrName": name, "entities": items}
+
+
+def _type(q: HistoryQuery, entities: list[EntityResult]):
+    items = []
+    for ent in entities:
+        item = _head(q, ent)
+        item["index"] = _index(q, ent, False)
+        item["attributes"] = _attributes(ent)
+        items.append(item)
+    if q.values_only:
+        return {"values": items}
+    return {"type": q.entities.types[0], "entities": items}
+
+
+def _types_of(q: HistoryQuery, entities: list[EntityResult], column: str) -> list[dict]:
+    """Entities that have ``column``, grouped by type (types by name)."""
+    groups: dict[str, list] = {}
+    heads: dict[str, dict] = {}
+    for ent in entities:
+        values = ent.columns.get(column)
+        if values is None:
+            continue
+        if _global(q):
+            key = ""
+            ids, types = (ent.column_members or {}).get(column, (ent.ids, ent.types))
+            heads[key] = {"types": types}
+            item = {"ids": ids}
+        else:
+            key = ent.entity_type
+            heads[key] = {"type": key}
+            item = _head(q, ent)
+        item["index"] = _index(q, ent, False)
+        item["values"] = values
+        groups.setdefault(key, []).append(item)
+    return [{**heads[key], "entities": groups[key]} for key in sorted(groups)]
+
+
+def _attr(q: HistoryQuery, entities: list[EntityResult]):
+    name = _attr_name(q)
+    types = _types_of(q, entities, name)
+    if not types:
+        return []
+    if q.values_only:
+        return {"values": types}
+    return {"attrName": name, "types": types}
+
+
+def _attrs(q: HistoryQuery, entities: list[EntityResult]):
+    names = sorted({name for ent in entities for name in ent.columns})
+    items = [{"attrName": name, "types": _types_of(q, entities, name)} for name in names]
+    if not items:
+        return []
+    if q.values_only:
+        return {"values": items}
+    return {"attrs": items}
+
+
+_RENDERERS = {
+    Shape.ENTITY_ATTR: _entity_attr,
+    Shape.ENTITY: _entity,
+    Shape.TYPE_ATTR: _type_attr,
+    Shape.TYPE: _type,
+    Shape.ATTR: _attr,
+    Shape.ATTRS: _attrs,
+}

@@ -1,0 +1,477 @@
+"""Subscription notifications from Orion and Orion-LD → ``EntitySample``s.
+
+One entry point, ``parse_notification``, for every format a broker sends:
+NGSIv2 ``normalized``, ``keyValues``, ``simplifiedNormalized``,
+``simplifiedKeyValues`` and ``values`` (told apart by the
+``Ngsiv2-AttrsFormat`` header), NGSIv1 ``legacy``, and NGSI-LD
+notifications (normalized, concise or keyValues). Without a usable header
+the body's shape decides, per attribute where formats can be mixed.
+
+The parser is pure (no I/O) and on the ingest hot path: it walks the decoded
+JSON once, builds samples directly, and raises only ``ParseError`` for input
+it cannot use, so the route can answer 400 and keep the body for recovery.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
+import orjson
+
+from tsdb_service.errors import ParseError
+from tsdb_service.geo.encodings import GEOMETRY_TYPES
+from tsdb_service.model import AttrSample, EntitySample
+from tsdb_service.ngsi.timeindex import TimeClues, to_utc, watched_attributes
+from tsdb_service.ngsi.values import attr_sample, to_json
+
+DEFAULT_ENTITY_TYPE = "Thing"  # what Orion assigns when none is given
+
+# Tenant names as Orion accepts them; checked before lower-casing so that
+# non-ASCII letters which lower-case to ASCII (the Kelvin sign) are refused.
+_TENANT = re.compile(r"[A-Za-z0-9_]{1,50}\Z")
+
+# How the body is laid out.
+_V2 = "v2"  # {"subscriptionId", "data": [entities]}
+_V2_KEY_VALUES = "v2-keyValues"
+_SIMPLIFIED = "simplified"  # the body is the entity
+_SIMPLIFIED_KEY_VALUES = "simplified-keyValues"
+_SIMPLIFIED_AUTO = "simplified-auto"  # header-less single entity
+_VALUES = "values"  # {"subscriptionId", "data": [[v1, v2, ...]]}
+_LD = "ld"  # {"type": "Notification", "data": [entities]}
+_V1 = "v1"  # {"contextResponses": [{"contextElement": ...}]}
+_AUTO = "auto"  # no usable header: decide from the body
+
+_FORMAT_HEADER = {
+    "normalized": _V2,
+    "keyvalues": _V2_KEY_VALUES,
+    "simplifiednormalized": _SIMPLIFIED,
+    "simplifiedkeyvalues": _SIMPLIFIED_KEY_VALUES,
+    "values": _VALUES,
+}
+
+# How error messages locate an entity in the body.
+_ENTITY_LABELS = {_SIMPLIFIED: "entity", _SIMPLIFIED_KEY_VALUES: "entity", _SIMPLIFIED_AUTO: "entity", _V1: "contextResponses"}
+
+_V2_ENTITY_KEYS = frozenset({"id", "type"})
+_LD_ENTITY_KEYS = frozenset({"id", "type", "@context", "createdAt", "modifiedAt", "deletedAt", "scope"})
+
+# NGSI-LD attribute type → the member holding its value.
+_LD_VALUE_KEY = {
+    "Property": "value",
+    "GeoProperty": "value",
+    "Relationship": "object",
+    "LanguageProperty": "languageMap",
+    "ListProperty": "valueList",
+    "VocabProperty": "vocab",
+    "JsonProperty": "json",
+    "ListRelationship": "objectList",
+}
+# Concise form: no "type", the value member says what the attribute is.
+_LD_CONCISE_TYPE = {key: ld_type for ld_type, key in _LD_VALUE_KEY.items() if ld_type != "GeoProperty"}
+
+_VALUES_LAYOUT_HINT = (
+    "values format needs the subscription's attribute list: register it with PUT /v2/notify/subscriptions/{id}"
+)
+
+
+@dataclass(frozen=True, slots=True)
+class ValuesLayout:
+    """What we know about a subscription, for Orion's ``values`` format."""
+
+    attrs: tuple[str, ...]  # notification.attrs in order; may hold pseudo-names "id", "type"
+    entity_id: str | None = None  # for layouts without an "id" column
+    entity_type: str | None = None
+
+
+@dataclass(slots=True)
+class _Context:
+    """Per-notification facts every entity needs."""
+
+    watched: frozenset[str]
+    header_attr: str | None
+    received_at: datetime
+
+
+def parse_notification(
+    body: bytes,
+    headers: Mapping[str, str],
+    *,
+    received_at: datetime,
+    values_layout: Callable[[str, str], ValuesLayout | None] | None = None,
+) -> list[EntitySample]:
+    """Every entity in one notification, ready to store."""
+    hdrs = _lower_headers(headers)
+    doc = _load(body)
+    format_header = hdrs.get("ngsiv2-attrsformat")
+    layout = _layout(doc, format_header)
+    tenant = _tenant(hdrs, ld=layout == _LD or format_header is None)
+    header_attr = hdrs.get("fiware-timeindex-attribute", "").strip() or None
+    ctx = _Context(watched_attributes(header_attr), header_attr, to_utc(received_at))
+    layout, entities = _entities(doc, layout, tenant, values_layout)
+    paths = _service_paths(hdrs.get("fiware-servicepath"), len(entities))
+    parse = _ENTITY_PARSERS[layout]
+    label = _ENTITY_LABELS.get(layout, "data")
+    return [_entity_sample(parse, raw, _where(label, i), tenant, paths[i], ctx) for i, raw in enumerate(entities)]
+
+
+# --- envelope ------------------------------------------------------------------
+
+
+def _lower_headers(headers: Mapping[str, str]) -> dict[str, str]:
+    try:
+        return {str(k).lower(): v if type(v) is str else _header_text(v) for k, v in headers.items()}
+    except AttributeError:
+        raise ParseError("headers must be a mapping") from None
+
+
+def _header_text(value: Any) -> str:
+    if isinstance(value, (bytes, bytearray)):
+        return bytes(value).decode("latin-1")
+    return str(value)
+
+
+def _load(body: bytes) -> dict:
+    try:
+        doc = orjson.loads(body)
+    except (orjson.JSONDecodeError, TypeError) as exc:
+        raise ParseError(f"notification is not valid JSON: {exc}") from None
+    if type(doc) is not dict:
+        raise ParseError(f"notification must be a JSON object, got {_json_kind(doc)}")
+    return doc
+
+
+def _layout(doc: dict, header: str | None) -> str:
+    """Header first, but an NGSI-LD envelope is unmistakable and wins."""
+    declared = _FORMAT_HEADER.get(header.strip().lower()) if header else None
+    if declared in (_SIMPLIFIED, _SIMPLIFIED_KEY_VALUES, _VALUES):
+        return declared
+    if doc.get("type") == "Notification" and "data" in doc:
+        return _LD
+    if declared is not None:
+        return declared
+    if "data" in doc:
+        return _AUTO
+    if "contextResponses" in doc:
+        return _V1
+    if "id" in doc:
+        return _SIMPLIFIED_AUTO
+    raise ParseError("unrecognised notification: expected a 'data' array, 'contextResponses', or an entity with 'id'")
+
+
+def _entities(doc: dict, layout: str, tenant: str, values_layout) -> tuple[str, list]:
+    """The raw entities, with values rows already turned into entities."""
+    if layout in (_SIMPLIFIED, _SIMPLIFIED_KEY_VALUES, _SIMPLIFIED_AUTO):
+        return layout, [doc]
+    if layout == _V1:
+        return layout, _v1_entities(doc)
+    entities = _data(doc)
+    if layout == _VALUES or (layout == _AUTO and entities and type(entities[0]) is list):
+        return _VALUES, _values_entities(doc, entities, tenant, values_layout)
+    return layout, entities
+
+
+def _data(doc: dict) -> list:
+    data = doc.get("data")
+    if type(data) is not list:
+        raise ParseError(f"notification 'data' must be an array, got {_json_kind(data)}")
+    return data
+
+
+def _tenant(hdrs: dict[str, str], *, ld: bool) -> str:
+    """Orion stores tenants lower-cased; NGSI-LD names its own header."""
+    raw = (hdrs.get("ngsild-tenant", "").strip() if ld else "") or hdrs.get("fiware-service", "").strip()
+    if not raw:
+        return ""
+    if not _TENANT.match(raw):
+        raise ParseError(f"invalid tenant {raw[:60]!r}: at most 50 characters of letters, digits and '_'")
+    return raw.lower()
+
+
+def _service_paths(header: str | None, count: int) -> list[str]:
+    """Orion sends one path per entity, comma-separated, or one for all."""
+    if header is None or not header.strip():
+        return ["/"] * count
+    paths = [_service_path(part.strip()) for part in header.split(",")]
+    if len(paths) == 1:
+        return paths * count
+    if len(paths) == count:
+        return paths
+    raise ParseError(f"Fiware-ServicePath lists {len(paths)} paths for {count} entities")
+
+
+def _service_path(path: str) -> str:
+    if not path.startswith("/"):
+        raise ParseError(f"service path {path[:60]!r} must start with '/'")
+    if "//" in path:
+        raise ParseError(f"service path {path[:60]!r} has an empty component")
+    if "#" in path:
+        raise ParseError(f"service path {path[:60]!r}: '#' is only valid in queries")
+    return path[:-1] if len(path) > 1 and path.endswith("/") else path
+
+
+def _where(label: str, index: int) -> str:
+    """Where an entity sits in the body, for error messages."""
+    return label if label == "entity" else f"{label}[{index}]"
+
+
+def _entity_sample(parse, raw: Any, where: str, tenant: str, path: str, ctx: _Context) -> EntitySample:
+    if type(raw) is not dict:
+        raise ParseError(f"{where} must be an entity object, got {_json_kind(raw)}")
+    clues = TimeClues(ctx.header_attr, ctx.watched)
+    entity_id, entity_type, attrs = parse(raw, where, clues)
+    return EntitySample(tenant, path, entity_id, entity_type, clues.resolve(ctx.received_at), attrs)
+
+
+# --- entity heads --------------------------------------------------------------
+
+
+def _entity_id(entity: dict, where: str) -> str:
+    entity_id = entity.get("id")
+    if type(entity_id) is not str or not entity_id:
+        raise ParseError(f"{where}: entity id must be a non-empty string, got {_json_kind(entity_id)}")
+    return entity_id
+
+
+def _entity_type(entity: dict, where: str) -> str:
+    """NGSI-LD may send a list of types: the first one names the entity."""
+    entity_type = entity.get("type")
+    if type(entity_type) is list and entity_type:
+        entity_type = entity_type[0]
+    if entity_type is None or entity_type == "" or entity_type == []:
+        return DEFAULT_ENTITY_TYPE
+    if type(entity_type) is not str:
+        raise ParseError(f"{where}: entity type must be a string, got {_json_kind(entity_type)}")
+    return entity_type
+
+
+# --- NGSIv2 --------------------------------------------------------------------
+
+
+def _v2_entity(entity: dict, where: str, clues: TimeClues) -> tuple[str, str, list[AttrSample]]:
+    """Normalized, leniently: attributes that are not ``{type, value}``
+    objects are read as keyValues values."""
+    entity_id, entity_type = _entity_id(entity, where), _entity_type(entity, where)
+    attrs = [_v2_attr(name, raw, clues) for name, raw in entity.items() if name not in _V2_ENTITY_KEYS]
+    return entity_id, entity_type, attrs
+
+
+def _v2_key_values_entity(entity: dict, where: str, clues: TimeClues) -> tuple[str, str, list[AttrSample]]:
+    entity_id, entity_type = _entity_id(entity, where), _entity_type(entity, where)
+    attrs = []
+    for name, value in entity.items():
+        if name not in _V2_ENTITY_KEYS:
+            clues.note_value(name, value)
+            attrs.append(attr_sample(name, None, value, None))
+    return entity_id, entity_type, attrs
+
+
+def _v2_attr(name: str, raw: Any, clues: TimeClues) -> AttrSample:
+    if type(raw) is not dict or not _is_v2_attribute(raw):
+        clues.note_value(name, raw)
+        return attr_sample(name, None, raw, None)
+    ngsi_type = raw.get("type")
+    value = raw.get("value")
+    metadata = raw.get("metadata")
+    md = None
+    if type(metadata) is dict and metadata:
+        clues.note_metadata(metadata)
+        md = to_json(metadata)
+    clues.note_value(name, value)
+    return attr_sample(name, ngsi_type if type(ngsi_type) is str else None, value, md)
+
+
+def _is_v2_attribute(raw: dict) -> bool:
+    """``{"type", "value", "metadata"}`` rather than a structured keyValues
+    value (which may itself have a "type", like GeoJSON)."""
+    return "value" in raw or ("type" in raw and ("metadata" in raw or len(raw) == 1))
+
+
+# --- NGSI-LD -------------------------------------------------------------------
+
+
+def _ld_entity(entity: dict, where: str, clues: TimeClues) -> tuple[str, str, list[AttrSample]]:
+    entity_id, entity_type = _entity_id(entity, where), _entity_type(entity, where)
+    clues.modified_at = entity.get("modifiedAt")
+    attrs = [_ld_attr(name, raw, clues) for name, raw in entity.items() if name not in _LD_ENTITY_KEYS]
+    return entity_id, entity_type, attrs
+
+
+def _ld_attr(name: str, raw: Any, clues: TimeClues) -> AttrSample:
+    """One LD attribute in normalized, concise or keyValues form."""
+    if type(raw) is list and raw and _is_instance_list(raw):
+        raw = _default_instance(raw, clues)
+    elif type(raw) is dict:
+        _note_observed(raw, clues)
+    if type(raw) is not dict:
+        clues.note_value(name, raw)
+        return attr_sample(name, "Property", raw, None)
+    ld_type = raw.get("type")
+    key = _LD_VALUE_KEY.get(ld_type) if type(ld_type) is str else None
+    if key is None:
+        if type(ld_type) is str and ld_type in GEOMETRY_TYPES:
+            return attr_sample(name, "GeoProperty", raw, None)  # concise GeoProperty
+        key = next((k for k in _LD_CONCISE_TYPE if k in raw), None)
+        if key is None:
+            clues.note_value(name, raw)
+            return attr_sample(name, "Property", raw, None)  # keyValues object
+        if type(ld_type) is not str or not ld_type:
+            ld_type = _LD_CONCISE_TYPE[key]
+    elif key not in raw and "value" in raw:
+        key = "value"  # NGSIv2 habit, e.g. a Relationship with "value"
+    value = raw.get(key)
+    clues.note_value(name, value)
+    return attr_sample(name, ld_type, value, _ld_metadata(raw, key))
+
+
+def _ld_metadata(raw: dict, key: str) -> str | None:
+    """Sub-properties (observedAt, unitCode, datasetId, nested properties)."""
+    if len(raw) == ("type" in raw) + (key in raw):
+        return None
+    extra = {k: v for k, v in raw.items() if k != "type" and k != key}
+    return to_json(extra) if extra else None
+
+
+def _is_instance_list(items: list) -> bool:
+    """A multi-attribute (several datasetIds) rather than an array value."""
+    for item in items:
+        if type(item) is not dict:
+            return False
+        ld_type = item.get("type")
+        if not (type(ld_type) is str and ld_type in _LD_VALUE_KEY) and _LD_CONCISE_TYPE.keys().isdisjoint(item):
+            return False
+    return True
+
+
+def _default_instance(instances: list[dict], clues: TimeClues) -> dict:
+    """Store the default instance (no datasetId), else the first one; every
+    instance's observedAt still counts for the time index."""
+    for instance in instances:
+        _note_observed(instance, clues)
+    for instance in instances:
+        if "datasetId" not in instance:
+            return instance
+    return instances[0]
+
+
+def _note_observed(raw: dict, clues: TimeClues) -> None:
+    observed = raw.get("observedAt")
+    if observed is not None:
+        clues.observed_at.append(observed)
+
+
+def _looks_ld(entity: dict) -> bool:
+    """For header-less bodies: any NGSI-LD attribute marks the entity as LD.
+
+    An LD attribute has an LD type *and* that type's value member and no
+    NGSIv2 "metadata": NGSIv2 entities commonly use the type "Relationship"
+    with a "value", which must stay NGSIv2.
+    """
+    if "@context" in entity:
+        return True
+    for name, raw in entity.items():
+        if type(raw) is list and raw and type(raw[0]) is dict:
+            raw = raw[0]
+        if type(raw) is dict and name not in _V2_ENTITY_KEYS and "metadata" not in raw:
+            ld_type = raw.get("type")
+            if type(ld_type) is str and _LD_VALUE_KEY.get(ld_type, "-") in raw:
+                return True
+    return False
+
+
+def _auto_entity(entity: dict, where: str, clues: TimeClues) -> tuple[str, str, list[AttrSample]]:
+    parse = _ld_entity if _looks_ld(entity) else _v2_entity
+    return parse(entity, where, clues)
+
+
+# --- values and legacy -----------------------------------------------------------
+
+
+def _values_entities(doc: dict, rows: list, tenant: str, lookup) -> list[dict]:
+    """Rows of bare values → keyValues entities, using the registered layout."""
+    subscription = doc.get("subscriptionId")
+    if type(subscription) is not str or not subscription:
+        raise ParseError("values format needs a 'subscriptionId' string to find the attribute list")
+    layout = lookup(tenant, subscription) if lookup is not None else None
+    if layout is None:
+        raise ParseError(f"{_VALUES_LAYOUT_HINT} (subscription {subscription!r} is unknown)")
+    names = tuple(layout.attrs)
+    if "id" not in names and not layout.entity_id:
+        raise ParseError(f"values layout of subscription {subscription!r} has neither an 'id' column nor an entity id")
+    return [_values_row(row, i, names, layout) for i, row in enumerate(rows)]
+
+
+def _values_row(row: Any, index: int, names: tuple[str, ...], layout: ValuesLayout) -> dict:
+    if type(row) is not list:
+        raise ParseError(f"data[{index}] must be an array of values, got {_json_kind(row)}")
+    if len(row) != len(names):
+        raise ParseError(f"data[{index}] has {len(row)} values but the subscription lists {len(names)} attributes")
+    entity = {"id": layout.entity_id, "type": layout.entity_type}
+    entity.update(zip(names, row))
+    return entity
+
+
+def _values_entity(entity: dict, where: str, clues: TimeClues) -> tuple[str, str, list[AttrSample]]:
+    return _v2_key_values_entity(entity, where, clues)
+
+
+def _v1_entities(doc: dict) -> list:
+    """NGSIv1 ``legacy`` → NGSIv2 normalized entities (metadatas → metadata)."""
+    responses = doc.get("contextResponses")
+    if type(responses) is not list:
+        raise ParseError(f"'contextResponses' must be an array, got {_json_kind(responses)}")
+    return [_v1_entity(response, i) for i, response in enumerate(responses)]
+
+
+def _v1_entity(response: Any, index: int) -> dict:
+    element = response.get("contextElement") if type(response) is dict else None
+    if type(element) is not dict:
+        raise ParseError(f"contextResponses[{index}] needs a 'contextElement' object")
+    attributes = element.get("attributes", [])
+    if type(attributes) is not list:
+        raise ParseError(f"contextResponses[{index}]: 'attributes' must be an array")
+    entity = {"id": element.get("id"), "type": element.get("type")}
+    for attribute in attributes:
+        name = attribute.get("name") if type(attribute) is dict else None
+        if type(name) is not str or name in _V2_ENTITY_KEYS:
+            raise ParseError(f"contextResponses[{index}]: each attribute needs a 'name' string other than id/type")
+        entity[name] = {"type": attribute.get("type"), "value": attribute.get("value"), "metadata": _v1_metadata(attribute)}
+    return entity
+
+
+def _v1_metadata(attribute: dict) -> dict:
+    items = attribute.get("metadatas")
+    if type(items) is not list:
+        return {}
+    return {m["name"]: {"type": m.get("type"), "value": m.get("value")} for m in items if type(m) is dict and type(m.get("name")) is str}
+
+
+_ENTITY_PARSERS = {
+    _V2: _v2_entity,
+    _V2_KEY_VALUES: _v2_key_values_entity,
+    _SIMPLIFIED: _v2_entity,
+    _SIMPLIFIED_AUTO: _auto_entity,
+    _SIMPLIFIED_KEY_VALUES: _v2_key_values_entity,
+    _VALUES: _values_entity,
+    _LD: _ld_entity,
+    _V1: _v2_entity,
+    _AUTO: _auto_entity,
+}
+
+
+def _json_kind(value: Any) -> str:
+    """JSON's name for a value's type, for error messages."""
+    if value is None:
+        return "null"
+    if type(value) is bool:
+        return "a boolean"
+    if type(value) in (int, float):
+        return "a number"
+    if type(value) is str:
+        return "a string" if value else "an empty string"
+    if type(value) is list:
+        return "an array"
+    return "an object"

@@ -1,0 +1,22 @@
+"""Storage backends behind one seam (see ``base``)."""
+
+from __future__ import annotations
+
+from ..config import Settings
+from .base import Store
+
+
+def open_store(settings: Settings) -> Store:
+    """Open the backend named by ``settings.db``; migrations run on open."""
+    if settings.backend == "postgresql":
+        from .postgres_store import PostgresStore
+
+        return PostgresStore(settings.db, writer_threads=settings.writer_threads)
+    from .duckdb_store import DuckDBStore
+
+    return DuckDBStore(
+        settings.db,
+        compact_rows=settings.compact_rows,
+        major_compact_runs=settings.major_compact_runs,
+        writer_threads=settings.writer_threads,
+    )

@@ -1,0 +1,143 @@
+"""An in-memory index of the ``series`` table, for resolving series ids.
+
+Every read starts by turning (tenant, service paths, entities, attributes)
+into the series ids to scan. That is a few dictionary look-ups here instead
+of a table scan per request. The index is per tenant, so no tenant's lookup
+ever touches another's entries.
+
+Series rows are only ever added (deleting samples keeps the series). The
+backend's loader returns rows after a position that grows in *commit* order
+(series ids do not: several writers allocate them concurrently), so the
+index catches up by loading "after the last position seen". Whether it must
+is decided by a cheap ``generation()`` counter that grows whenever the
+writer publishes new series; it is read *before* loading, so a concurrent
+commit can only make the next request reload, never leave the index behind.
+
+Readers never lock: a refresh builds new containers and swaps them in.
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+from ..history.query import EntityFilter, Scope
+
+
+@dataclass(frozen=True, slots=True)
+class SeriesRef:
+    sid: int
+    service_path: str
+    entity_id: str
+    entity_type: str
+    attr: str
+
+
+class _TenantIndex:
+    __slots__ = ("all", "by_entity", "by_type", "by_attr")
+
+    def __init__(self) -> None:
+        self.all: tuple[SeriesRef, ...] = ()
+        self.by_entity: dict[str, tuple[SeriesRef, ...]] = {}
+        self.by_type: dict[str, tuple[SeriesRef, ...]] = {}
+        self.by_attr: dict[str, tuple[SeriesRef, ...]] = {}
+
+    def extended(self, refs: Sequence[SeriesRef]) -> _TenantIndex:
+        new = _TenantIndex()
+        new.all = self.all + tuple(refs)
+        new.by_entity = _extend(self.by_entity, refs, lambda r: r.entity_id)
+        new.by_type = _extend(self.by_type, refs, lambda r: r.entity_type)
+        new.by_attr = _extend(self.by_attr, refs, lambda r: r.attr)
+        return new
+
+
+def _extend(index: dict, refs: Sequence[SeriesRef], key) -> dict:
+    grouped: dict[str, list[SeriesRef]] = {}
+    for ref in refs:
+        grouped.setdefault(key(ref), []).append(ref)
+    out = dict(index)
+    for k, more in grouped.items():
+        out[k] = out.get(k, ()) + tuple(more)
+    return out
+
+
+# position (commit-ordered), sid, tenant, service path, entity id, entity type, attr
+SeriesRow = tuple[int, int, str, str, str, str, str]
+
+
+class SeriesCatalog:
+    def __init__(self, load_since: Callable[[int], Iterable[SeriesRow]], generation: Callable[[], int]):
+        self._load_since = load_since
+        self._generation = generation
+        self._lock = threading.Lock()
+        self._tenants: dict[str, _TenantIndex] = {}
+        self._loaded_gen = -1
+        self._position = -1
+        self._known: set[int] = set()
+
+    def refresh(self) -> None:
+        if self._generation() == self._loaded_gen:
+            return
+        with self._lock:
+            gen = self._generation()
+            if gen == self._loaded_gen:
+                return
+            rows = list(self._load_since(self._position))
+            by_tenant: dict[str, list[SeriesRef]] = {}
+            position = self._position
+            for pos, sid, tenant, path, eid, etype, attr in rows:
+                position = max(position, pos)
+                if sid in self._known:
+                    continue
+                self._known.add(sid)
+                by_tenant.setdefault(tenant, []).append(SeriesRef(sid, path, eid, etype, attr))
+            tenants = dict(self._tenants)
+            for tenant, refs in by_tenant.items():
+                tenants[tenant] = tenants.get(tenant, _EMPTY).extended(refs)
+            self._tenants = tenants
+            self._position = position
+            self._loaded_gen = gen
+
+    def select(
+        self,
+        scope: Scope,
+        entities: EntityFilter,
+        attrs: Iterable[str] | None = None,
+    ) -> list[SeriesRef]:
+        """The series of ``scope`` matching ``entities`` and attribute names."""
+        self.refresh()
+        index = self._tenants.get(scope.tenant)
+        if index is None:
+            return []
+        attr_set = None if attrs is None else set(attrs)
+        if entities.ids is not None:
+            candidates: Iterable[SeriesRef] = [r for eid in entities.ids for r in index.by_entity.get(eid, ())]
+        elif attr_set is not None and len(attr_set) <= 4:
+            candidates = [r for a in attr_set for r in index.by_attr.get(a, ())]
+            if entities.types is not None:
+                types = set(entities.types)
+                candidates = [r for r in candidates if r.entity_type in types]
+        elif entities.types is not None:
+            candidates = [r for t in entities.types for r in index.by_type.get(t, ())]
+        else:
+            candidates = index.all
+        types = set(entities.types) if entities.types is not None else None
+        pattern = re.compile(entities.id_pattern) if entities.id_pattern else None
+        whole = scope.whole_tenant
+        out = []
+        for ref in candidates:
+            if types is not None and ref.entity_type not in types:
+                continue
+            if attr_set is not None and ref.attr not in attr_set:
+                continue
+            if not whole and not scope.matches(ref.service_path):
+                continue
+            if pattern is not None and pattern.search(ref.entity_id) is None:
+                continue
+            out.append(ref)
+        return out
+
+
+_EMPTY = _TenantIndex()

@@ -1,0 +1,552 @@
+"""The embedded DuckDB backend: one file, one writer, many readers.
+
+Writes are appended to ``samples_hot`` in arrival order by the group
+committer. A compactor thread moves the hot rows into ``samples`` sorted by
+(series, time), so a one-series query touches only the row groups whose
+min/max statistics contain that series; every few moves it rewrites
+``samples`` as one sorted run. Readers use per-thread cursors over
+``samples_all`` (both tables) and so always see every committed sample.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+from collections.abc import Sequence
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import duckdb
+import orjson
+import pyarrow as pa
+
+from ..errors import Unavailable
+from ..model import EntitySample, RejectedNotification
+from ..ngsi import ValuesLayout
+from .base import Appender, AppendSamples, DeleteSamples, PutLayout, RecordRejected, Store, WriteOp
+from .migrate import applied_versions, load_migrations, split_statements
+from .writer import GroupCommitter
+
+log = logging.getLogger(__name__)
+
+EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+ONE_US = timedelta(microseconds=1)
+
+SAMPLE_SCHEMA = pa.schema(
+    [
+        ("rid", pa.int64()),
+        ("sid", pa.int32()),
+        ("t", pa.timestamp("us")),
+        ("kind", pa.uint8()),
+        ("atype", pa.string()),
+        ("num", pa.float64()),
+        ("txt", pa.string()),
+        ("js", pa.string()),
+        ("geo", pa.string()),
+        ("lon", pa.float64()),
+        ("lat", pa.float64()),
+        ("min_lon", pa.float64()),
+        ("min_lat", pa.float64()),
+        ("max_lon", pa.float64()),
+        ("max_lat", pa.float64()),
+        ("md", pa.string()),
+    ]
+)
+SERIES_SCHEMA = pa.schema(
+    [
+        ("sid", pa.int32()),
+        ("tenant", pa.string()),
+        ("service_path", pa.string()),
+        ("entity_id", pa.string()),
+        ("entity_type", pa.string()),
+        ("attr", pa.string()),
+    ]
+)
+
+SeriesKey = tuple[str, str, str, str, str]  # tenant, service path, id, type, attr
+
+_SQL_TYPES = {
+    "rid": "BIGINT", "sid": "INTEGER", "kind": "UTINYINT", "num": "DOUBLE", "lon": "DOUBLE",
+    "lat": "DOUBLE", "min_lon": "DOUBLE", "min_lat": "DOUBLE", "max_lon": "DOUBLE", "max_lat": "DOUBLE",
+}
+# One statement, columns as list parameters zipped by unnest(): the whole
+# batch crosses into DuckDB in one call. Time travels as epoch microseconds.
+INSERT_SAMPLES = "INSERT INTO samples_hot BY NAME SELECT " + ", ".join(
+    f"make_timestamp(unnest(${i + 1}::BIGINT[])) AS t" if name == "t"
+    else f"unnest(${i + 1}::{_SQL_TYPES.get(name, 'VARCHAR')}[]) AS {name}"
+    for i, name in enumerate(SAMPLE_SCHEMA.names)
+)
+INSERT_SERIES_IF_ABSENT = (
+    "INSERT OR IGNORE INTO series BY NAME SELECT unnest($1::INTEGER[]) AS sid, unnest($2::VARCHAR[]) AS tenant, "
+    "unnest($3::VARCHAR[]) AS service_path, unnest($4::VARCHAR[]) AS entity_id, "
+    "unnest($5::VARCHAR[]) AS entity_type, unnest($6::VARCHAR[]) AS attr"
+)
+# Above this many rows a batch goes through Arrow (bulk loads, copies).
+ARROW_MIN_ROWS = 2048
+
+
+def to_micros(moment: datetime) -> int:
+    """Exact microseconds since the epoch (float timestamps lose precision)."""
+    return (moment - EPOCH) // ONE_US
+
+
+def migrate_duckdb(con: duckdb.DuckDBPyConnection) -> list[int]:
+    """Apply pending migrations; return the versions applied now."""
+    done = applied_versions(con)
+    applied = []
+    for migration in load_migrations("duckdb"):
+        if migration.version in done:
+            continue
+        con.execute("BEGIN")
+        try:
+            for statement in split_statements(migration.sql):
+                con.execute(statement)
+            con.execute(
+                "INSERT INTO schema_migrations (version, name) VALUES (?, ?)",
+                [migration.version, migration.name],
+            )
+            con.execute("COMMIT")
+        except Exception:
+            con.execute("ROLLBACK")
+            raise
+        applied.append(migration.version)
+    return applied
+
+
+def connect(path: str, read_only: bool = False) -> duckdb.DuckDBPyConnection:
+    if path != ":memory:":
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+    try:
+        return duckdb.connect(path, read_only=read_only)
+    except duckdb.IOException as exc:
+        if "lock" in str(exc).lower():
+            raise RuntimeError(
+                f"{path} is open in another process. DuckDB allows one process per file: "
+                "stop the other tsdb-service, or use PostgreSQL (--db postgresql://...) "
+                "to run several."
+            ) from exc
+        raise
+
+
+class DuckDBStore(Store):
+    backend = "duckdb"
+
+    def __init__(self, path: str, *, compact_rows: int = 500_000, major_compact_runs: int = 8,
+                 writer_threads: int = 3):
+        self.path = path
+        self._con = connect(path)
+        migrate_duckdb(self._con)
+        self._local = threading.local()
+        self._series: dict[SeriesKey, int] = {
+            tuple(row[1:]): row[0]
+            for row in self._con.execute(
+                "SELECT sid, tenant, service_path, entity_id, entity_type, attr FROM series"
+            ).fetchall()
+        }
+        self._next_sid = max(self._series.values(), default=0) + 1
+        self._pending_series: dict[SeriesKey, int] = {}
+        # Writers allocate series ids, row ids and rejection ids under this.
+        self._alloc_lock = threading.Lock()
+        self._series_lock = threading.Lock()
+        self._next_rid = (self._con.execute("SELECT max(rid) FROM samples_all").fetchone()[0] or 0) + 1
+        self._next_rejected = (
+            self._con.execute("SELECT max(id) FROM rejected_notifications").fetchone()[0] or 0
+        ) + 1
+        self._layouts: dict[tuple[str, str], ValuesLayout] = {}
+        for tenant, sub_id, attrs, eid, etype in self._con.execute(
+            "SELECT tenant, subscription_id, attrs, entity_id, entity_type FROM subscriptions"
+        ).fetchall():
+            self._layouts[(tenant, sub_id)] = ValuesLayout(tuple(orjson.loads(attrs)), eid, etype)
+        self._compactor = Compactor(self._con, compact_rows, major_compact_runs)
+        self._committer = GroupCommitter(lambda: DuckDBAppender(self), threads=writer_threads)
+        self._committer.start()
+        self._compactor.start()
+        self._closed = False
+        self._querier = None
+
+    # -- history reads (tsdb_service.storage.duckdb_querier) -------------------
+
+    def querier(self):
+        if self._querier is None:
+            from .duckdb_querier import DuckDBQuerier
+
+            self._querier = DuckDBQuerier(self)
+        return self._querier
+
+    def series_generation(self) -> int:
+        """Grows whenever the writer publishes new series (after commit)."""
+        return len(self._series)
+
+    # -- reads ---------------------------------------------------------------
+
+    def cursor(self) -> duckdb.DuckDBPyConnection:
+        """A cursor for the calling thread: DuckDB connections are not
+        thread-safe, cursors (child connections) are cheap and reusable."""
+        if self._closed:
+            raise Unavailable("the store is closed")
+        cur = getattr(self._local, "cursor", None)
+        if cur is None:
+            cur = self._local.cursor = self._con.cursor()
+        return cur
+
+    def values_layout(self, tenant: str, subscription_id: str) -> ValuesLayout | None:
+        return self._layouts.get((tenant, subscription_id))
+
+    def layouts(self, tenant: str) -> dict[str, ValuesLayout]:
+        return {sub: layout for (t, sub), layout in list(self._layouts.items()) if t == tenant}
+
+    def rejected(self, tenant: str, limit: int, offset: int) -> list[dict[str, Any]]:
+        rows = self.cursor().execute(
+            "SELECT id, received_at, error, description, headers, body "
+            "FROM rejected_notifications WHERE tenant = ? ORDER BY id DESC LIMIT ? OFFSET ?",
+            [tenant, limit, offset],
+        ).fetchall()
+        return [rejected_row(*row) for row in rows]
+
+    def health(self) -> dict[str, Any]:
+        ok = self._committer.alive
+        return {
+            "status": "pass" if ok else "fail",
+            "backend": self.backend,
+            "commits": self._committer.commits,
+            "writes": self._committer.ops,
+        }
+
+    # -- writes --------------------------------------------------------------
+
+    async def write(self, op: WriteOp) -> None:
+        await self._committer.submit(op)
+
+    def write_sync(self, ops: Sequence[WriteOp]) -> None:
+        self._committer.submit_sync(ops)
+
+    def compact(self, full: bool = True) -> None:
+        """Move hot rows into the sorted table now (and rewrite it if ``full``)."""
+        self._compactor.run_once(full=full)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._compactor.stop()
+        self._committer.close()
+        self._closed = True
+        try:
+            self._con.execute("CHECKPOINT")
+        finally:
+            self._con.close()
+
+
+def rejected_row(rid, received_at, error, description, headers, body) -> dict[str, Any]:
+    try:
+        text, encoding = bytes(body).decode("utf-8"), "utf-8"
+    except UnicodeDecodeError:
+        import base64
+
+        text, encoding = base64.b64encode(bytes(body)).decode(), "base64"
+    return {
+        "id": rid,
+        "receivedAt": received_at.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z",
+        "error": error,
+        "description": description,
+        "headers": orjson.loads(headers),
+        "body": text,
+        "bodyEncoding": encoding,
+    }
+
+
+class DuckDBAppender(Appender):
+    """Turns staged ops into columnar batches; only the writer thread uses it."""
+
+    def __init__(self, store: DuckDBStore):
+        self._store = store
+        self._cur = store._con.cursor()
+        self._reset()
+
+    def _reset(self) -> None:
+        self._cols: dict[str, list] = {name: [] for name in SAMPLE_SCHEMA.names}
+        self._new_series: dict[SeriesKey, int] = {}
+        self._rejected: list[tuple] = []
+        self._layouts: list[PutLayout] = []
+        self._deletes: list[tuple[DeleteSamples, int]] = []
+
+    def stage(self, op: WriteOp) -> None:
+        if isinstance(op, AppendSamples):
+            self._stage_entities(op.entities)
+        elif isinstance(op, RecordRejected):
+            self._stage_rejected(op.rejected)
+        elif isinstance(op, PutLayout):
+            self._layouts.append(op)
+        elif isinstance(op, DeleteSamples):
+            # Rows allocated after this op was staged (by any writer) survive it.
+            self._deletes.append((op, self._store._next_rid - 1))
+        else:  # pragma: no cover - programming error
+            raise TypeError(f"unknown write op {op!r}")
+
+    def _sid(self, key: SeriesKey) -> int:
+        """The series id for ``key``; caller holds the store's allocation lock.
+
+        Several writers share one id space: an id not yet committed is kept
+        in ``_pending_series`` so every writer uses the same id for a key,
+        and each writer that uses it inserts the series row itself (OR
+        IGNORE), so no sample can outlive a failed series insert.
+        """
+        store = self._store
+        sid = store._series.get(key)
+        if sid is not None:
+            return sid
+        sid = self._new_series.get(key)
+        if sid is None:
+            sid = store._pending_series.get(key)
+            if sid is None:
+                sid = store._pending_series[key] = store._next_sid
+                store._next_sid += 1
+            self._new_series[key] = sid
+        return sid
+
+    def _stage_entities(self, entities: Sequence[EntitySample]) -> None:
+        c = self._cols
+        rid_, sid_, t_, kind_, atype_, num_, txt_, js_, md_ = (
+            c["rid"], c["sid"], c["t"], c["kind"], c["atype"], c["num"], c["txt"], c["js"], c["md"],
+        )
+        geo_, lon_, lat_ = c["geo"], c["lon"], c["lat"]
+        mnlon, mnlat, mxlon, mxlat = c["min_lon"], c["min_lat"], c["max_lon"], c["max_lat"]
+        store = self._store
+        with store._alloc_lock:
+            self._stage_locked(entities, rid_, sid_, t_, kind_, atype_, num_, txt_, js_, md_,
+                               geo_, lon_, lat_, mnlon, mnlat, mxlon, mxlat)
+
+    def _stage_locked(self, entities, rid_, sid_, t_, kind_, atype_, num_, txt_, js_, md_,
+                      geo_, lon_, lat_, mnlon, mnlat, mxlon, mxlat) -> None:
+        store = self._store
+        for entity in entities:
+            rid = store._next_rid
+            store._next_rid += 1
+            micros = to_micros(entity.time_index)
+            prefix = (entity.tenant, entity.service_path, entity.entity_id, entity.entity_type)
+            for attr in entity.attrs:
+                rid_.append(rid)
+                sid_.append(self._sid((*prefix, attr.name)))
+                t_.append(micros)
+                kind_.append(int(attr.kind))
+                atype_.append(attr.ngsi_type)
+                num_.append(attr.num)
+                txt_.append(attr.txt)
+                js_.append(attr.js)
+                md_.append(attr.md)
+                g = attr.geo
+                if g is None:
+                    geo_.append(None)
+                    lon_.append(None)
+                    lat_.append(None)
+                    mnlon.append(None)
+                    mnlat.append(None)
+                    mxlon.append(None)
+                    mxlat.append(None)
+                else:
+                    geo_.append(g.geojson)
+                    lon_.append(g.lon)
+                    lat_.append(g.lat)
+                    mnlon.append(g.min_lon)
+                    mnlat.append(g.min_lat)
+                    mxlon.append(g.max_lon)
+                    mxlat.append(g.max_lat)
+
+    def _stage_rejected(self, r: RejectedNotification) -> None:
+        store = self._store
+        with store._alloc_lock:
+            rejected_id = store._next_rejected
+            store._next_rejected += 1
+        self._rejected.append(
+            (rejected_id, r.tenant, r.received_at.replace(tzinfo=None), r.error,
+             r.description, r.headers, r.body)
+        )
+
+    def commit(self) -> None:
+        """Make the staged ops durable with as few database calls as possible.
+
+        Under load the event loop holds the GIL, and every return from
+        DuckDB into Python waits for it. A small batch is therefore sent as
+        one parameterised INSERT in autocommit mode: one call, one
+        transaction. Big batches (bulk loads) go through Arrow instead, where
+        the per-row conversion cost matters more than the GIL. New series
+        rows are committed first; if the samples then fail, an unused series
+        row is harmless.
+        """
+        cur = self._cur
+        if self._new_series:
+            keys = list(self._new_series)
+            store = self._store
+            # Two transactions inserting the same new key conflict even with
+            # OR IGNORE; serialised, the second sees the first's row.
+            with store._series_lock:
+                cur.execute(INSERT_SERIES_IF_ABSENT, [[self._new_series[k] for k in keys],
+                                                      *([k[i] for k in keys] for i in range(5))])
+            with store._alloc_lock:
+                store._series.update(self._new_series)
+                for key in self._new_series:
+                    store._pending_series.pop(key, None)
+            self._new_series = {}
+        if self._cols["rid"]:
+            if len(self._cols["rid"]) <= ARROW_MIN_ROWS:
+                cur.execute(INSERT_SAMPLES, [self._cols[name] for name in SAMPLE_SCHEMA.names])
+            else:
+                self._insert_arrow(cur)
+        if self._rejected or self._layouts or self._deletes:
+            # A delete must not race the compactor moving or rewriting the
+            # same rows (its copy could resurrect them): hold its lock.
+            guard = self._store._compactor._lock if self._deletes else contextlib.nullcontext()
+            with guard:
+                self._commit_other(cur)
+        self._publish()
+
+    def _insert_arrow(self, cur: duckdb.DuckDBPyConnection) -> None:
+        cols = self._cols
+        arrays = [
+            pa.array(cols[f.name], pa.int64()).cast(f.type) if f.name == "t" else pa.array(cols[f.name], f.type)
+            for f in SAMPLE_SCHEMA
+        ]
+        cur.register("_batch", pa.Table.from_arrays(arrays, schema=SAMPLE_SCHEMA))
+        try:
+            cur.execute("INSERT INTO samples_hot BY NAME SELECT * FROM _batch")
+        finally:
+            cur.unregister("_batch")
+
+    def _commit_other(self, cur: duckdb.DuckDBPyConnection) -> None:
+        cur.execute("BEGIN")
+        for row in self._rejected:
+            cur.execute("INSERT INTO rejected_notifications VALUES (?, ?, ?, ?, ?, ?, ?)", list(row))
+        for put in self._layouts:
+            layout = put.layout
+            cur.execute(
+                "INSERT OR REPLACE INTO subscriptions VALUES (?, ?, ?, ?, ?, ?)",
+                [put.tenant, put.subscription_id, orjson.dumps(list(layout.attrs)).decode(),
+                 layout.entity_id, layout.entity_type, datetime.now(UTC).replace(tzinfo=None)],
+            )
+        if self._deletes:
+            from ..history.query import TimeRange
+            from .sql import DuckDBDialect, delete_statements
+
+            for op, upto_rid in self._deletes:
+                for sql, params in delete_statements(
+                    DuckDBDialect(), ("samples", "samples_hot"), op.sids, TimeRange(op.start, op.end), upto_rid
+                ):
+                    cur.execute(sql, params)
+        cur.execute("COMMIT")
+
+    def _publish(self) -> None:
+        """Expose only what is durable."""
+        self._store._series.update(self._new_series)
+        for put in self._layouts:
+            self._store._layouts[(put.tenant, put.subscription_id)] = put.layout
+        self._reset()
+
+    def rollback(self) -> None:
+        # Ids staged for new series stay reserved in _pending_series: the
+        # next writer to see those keys inserts their rows.
+        try:
+            self._cur.execute("ROLLBACK")
+        except duckdb.Error:
+            pass  # no transaction was open
+        self._reset()
+
+    def close(self) -> None:
+        self._cur.close()
+
+
+class Compactor:
+    """Keeps the sorted table sorted, off the acknowledgement path.
+
+    Moving hot rows is one transaction (insert sorted, delete moved), so a
+    reader sees each sample exactly once. Only this thread touches
+    ``samples``; the writer only appends to ``samples_hot``; the two never
+    conflict.
+    """
+
+    def __init__(self, con: duckdb.DuckDBPyConnection, compact_rows: int, major_runs: int,
+                 interval: float = 2.0):
+        self._con = con
+        self._compact_rows = compact_rows
+        self._major_runs = major_runs
+        self._interval = interval
+        self._runs = 0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="tsdb-compactor", daemon=True)
+        self.moves = 0
+        self.rewrites = 0
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join()
+
+    def _loop(self) -> None:
+        cur = self._con.cursor()
+        try:
+            while not self._stop.wait(self._interval):
+                try:
+                    hot = cur.execute("SELECT count(*) FROM samples_hot").fetchone()[0]
+                    if hot >= self._compact_rows:
+                        self._move(cur)
+                        if self._runs >= self._major_runs:
+                            self._rewrite(cur)
+                except Exception:  # keep serving; compaction is an optimisation
+                    log.exception("compaction failed; will retry")
+                    _rollback_quietly(cur)
+        finally:
+            cur.close()
+
+    def run_once(self, full: bool) -> None:
+        cur = self._con.cursor()
+        try:
+            self._move(cur)
+            if full:
+                self._rewrite(cur)
+        finally:
+            cur.close()
+
+    def _move(self, cur: duckdb.DuckDBPyConnection) -> None:
+        with self._lock:
+            cur.execute("BEGIN")
+            try:
+                upto = cur.execute("SELECT max(rid) FROM samples_hot").fetchone()[0]
+                if upto is None:
+                    cur.execute("COMMIT")
+                    return
+                cur.execute(
+                    "INSERT INTO samples SELECT * FROM samples_hot WHERE rid <= ? ORDER BY sid, t, rid",
+                    [upto],
+                )
+                cur.execute("DELETE FROM samples_hot WHERE rid <= ?", [upto])
+                cur.execute("COMMIT")
+            except Exception:
+                _rollback_quietly(cur)
+                raise
+            self._runs += 1
+            self.moves += 1
+
+    def _rewrite(self, cur: duckdb.DuckDBPyConnection) -> None:
+        with self._lock:
+            cur.execute("BEGIN")
+            try:
+                cur.execute("CREATE TABLE samples_sorted AS SELECT * FROM samples ORDER BY sid, t, rid")
+                cur.execute("DROP TABLE samples")
+                cur.execute("ALTER TABLE samples_sorted RENAME TO samples")
+                cur.execute("COMMIT")
+            except Exception:
+                _rollback_quietly(cur)
+                raise
+            self._runs = 0
+            self.rewrites += 1
+
+
+def _rollback_quietly(cur: duckdb.DuckDBPyConnection) -> None:
+    try:
+        cur.execute("ROLLBACK")
+    except duckdb.Error:
+        pass

@@ -1,0 +1,100 @@
+"""A private, throwaway PostgreSQL cluster for tests and benchmarks.
+
+``initdb`` + ``pg_ctl`` on a temporary directory and a free port, so the
+suite needs nothing but the server binaries. PostgreSQL refuses to run as
+root; as root we run it as the ``postgres`` system user.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+BIN_DIRS = ("/usr/lib/postgresql/17/bin", "/usr/lib/postgresql/16/bin", "/usr/lib/postgresql/15/bin")
+
+
+def find_bin(name: str) -> str | None:
+    for directory in BIN_DIRS:
+        candidate = Path(directory) / name
+        if candidate.exists():
+            return str(candidate)
+    return shutil.which(name)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class PgCluster:
+    def __init__(self, base_dir: str | None = None, port: int | None = None):
+        self.initdb = find_bin("initdb")
+        self.pg_ctl = find_bin("pg_ctl")
+        if not (self.initdb and self.pg_ctl):
+            raise RuntimeError("PostgreSQL server binaries (initdb, pg_ctl) not found")
+        self.root = Path(tempfile.mkdtemp(prefix="tsdb-pg-", dir=base_dir))
+        self.data = self.root / "data"
+        self.port = port or free_port()
+        self._as_root = os.geteuid() == 0
+        self.url = f"postgresql://postgres@127.0.0.1:{self.port}/postgres"
+
+    def _run(self, *args: str) -> None:
+        cmd = list(args)
+        if self._as_root:
+            cmd = ["runuser", "-u", "postgres", "--", *cmd]
+        subprocess.run(cmd, check=True, capture_output=True, text=True)
+
+    def start(self) -> PgCluster:
+        if self._as_root:
+            shutil.chown(self.root, "postgres", "postgres")
+        self._run(self.initdb, "-D", str(self.data), "-U", "postgres", "--auth=trust",
+                  "--encoding=UTF8", "--locale=C", "--no-sync")
+        options = (
+            f"-p {self.port} -k {self.root} -c listen_addresses=127.0.0.1 "
+            "-c max_connections=200 -c shared_buffers=256MB -c synchronous_commit=on "
+            "-c log_min_messages=warning"
+        )
+        self._run(self.pg_ctl, "-D", str(self.data), "-o", options, "-l", str(self.root / "log"),
+                  "-w", "-t", "60", "start")
+        return self
+
+    def database(self, name: str) -> str:
+        """Create a fresh database and return its URL."""
+        import psycopg
+
+        with psycopg.connect(self.url, autocommit=True) as conn:
+            conn.execute(f'CREATE DATABASE "{name}"')
+        return f"postgresql://postgres@127.0.0.1:{self.port}/{name}"
+
+    def stop(self) -> None:
+        try:
+            self._run(self.pg_ctl, "-D", str(self.data), "-m", "fast", "-w", "stop")
+        except subprocess.CalledProcessError:
+            pass
+        shutil.rmtree(self.root, ignore_errors=True)
+
+    def __enter__(self) -> PgCluster:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def wait_for(url: str, timeout: float = 30.0) -> None:
+    import psycopg
+
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            psycopg.connect(url).close()
+            return
+        except psycopg.OperationalError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)

@@ -1,0 +1,284 @@
+"""The PostgreSQL backend, for several service processes on one database.
+
+The write path is the DuckDB one: a group committer per process, one
+transaction per group, samples sent with ``COPY``. Series ids are shared
+through the ``series`` table (insert-if-absent, in key order so concurrent
+writers cannot deadlock). Reads use a connection pool.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from typing import Any
+
+import orjson
+import psycopg
+from psycopg_pool import ConnectionPool
+
+from ..errors import Unavailable
+from ..model import EntitySample, RejectedNotification
+from ..ngsi import ValuesLayout
+from .base import Appender, AppendSamples, DeleteSamples, PutLayout, RecordRejected, Store, WriteOp
+from .migrate import applied_versions, load_migrations
+from .writer import GroupCommitter
+
+log = logging.getLogger(__name__)
+
+SAMPLE_COLUMNS = (
+    "rid", "sid", "t", "kind", "atype", "num", "txt", "js", "geo",
+    "lon", "lat", "min_lon", "min_lat", "max_lon", "max_lat", "md",
+)
+SeriesKey = tuple[str, str, str, str, str]
+_MIGRATION_LOCK = 0x7473_6462  # "tsdb": serialises migrations across processes
+
+
+def migrate_url(url: str) -> list[int]:
+    with psycopg.connect(url) as conn:
+        return migrate_postgres(conn)
+
+
+def migrate_postgres(conn: psycopg.Connection) -> list[int]:
+    """Apply pending migrations under an advisory lock, so replicas starting
+    together do not race."""
+    applied = []
+    with conn.transaction():
+        conn.execute("SELECT pg_advisory_xact_lock(%s)", [_MIGRATION_LOCK])
+        done = applied_versions(conn)
+        for migration in load_migrations("postgresql"):
+            if migration.version in done:
+                continue
+            conn.execute(migration.sql)
+            conn.execute(
+                "INSERT INTO schema_migrations (version, name) VALUES (%s, %s)",
+                [migration.version, migration.name],
+            )
+            applied.append(migration.version)
+    return applied
+
+
+def naive_utc(moment: datetime) -> datetime:
+    return moment.astimezone(UTC).replace(tzinfo=None)
+
+
+class PostgresStore(Store):
+    backend = "postgresql"
+
+    def __init__(self, url: str, *, pool_size: int = 8, writer_threads: int = 3):
+        self.url = url
+        migrate_url(url)
+        self.pool = ConnectionPool(url, min_size=1, max_size=pool_size, open=True,
+                                   kwargs={"autocommit": True})
+        self._series: dict[SeriesKey, int] = {}
+        self._layouts: dict[tuple[str, str], ValuesLayout] = {}
+        self._load_layouts()
+        self._committer = GroupCommitter(lambda: PostgresAppender(self), name="tsdb-pg-writer",
+                                         threads=writer_threads)
+        self._committer.start()
+        self._closed = False
+        self._querier = None
+
+    def querier(self):
+        if self._querier is None:
+            from .postgres_querier import PostgresQuerier
+
+            self._querier = PostgresQuerier(self)
+        return self._querier
+
+    def connection(self):
+        """A pooled connection (context manager) for reads."""
+        if self._closed:
+            raise Unavailable("the store is closed")
+        return self.pool.connection()
+
+    def _load_layouts(self) -> None:
+        with self.pool.connection() as conn:
+            rows = conn.execute(
+                "SELECT tenant, subscription_id, attrs, entity_id, entity_type FROM subscriptions"
+            ).fetchall()
+        self._layouts = {
+            (tenant, sub): ValuesLayout(tuple(orjson.loads(attrs)), eid, etype)
+            for tenant, sub, attrs, eid, etype in rows
+        }
+
+    def values_layout(self, tenant: str, subscription_id: str) -> ValuesLayout | None:
+        """From memory; on a miss, look once in the database, because another
+        replica may have registered it (rare: only for the 'values' format)."""
+        layout = self._layouts.get((tenant, subscription_id))
+        if layout is None:
+            self._load_layouts()
+            layout = self._layouts.get((tenant, subscription_id))
+        return layout
+
+    def layouts(self, tenant: str) -> dict[str, ValuesLayout]:
+        self._load_layouts()
+        return {sub: layout for (t, sub), layout in self._layouts.items() if t == tenant}
+
+    def rejected(self, tenant: str, limit: int, offset: int) -> list[dict[str, Any]]:
+        from .duckdb_store import rejected_row
+
+        with self.connection() as conn:
+            rows = conn.execute(
+                "SELECT id, received_at, error, description, headers, body FROM rejected_notifications "
+                "WHERE tenant = %s ORDER BY id DESC LIMIT %s OFFSET %s",
+                [tenant, limit, offset],
+            ).fetchall()
+        return [rejected_row(*row) for row in rows]
+
+    def health(self) -> dict[str, Any]:
+        ok = self._committer.alive
+        try:
+            with self.pool.connection(timeout=2) as conn:
+                conn.execute("SELECT 1")
+        except Exception as exc:  # report, do not raise: this is the health probe
+            log.warning("database unreachable: %s", exc)
+            ok = False
+        return {"status": "pass" if ok else "fail", "backend": self.backend,
+                "commits": self._committer.commits, "writes": self._committer.ops}
+
+    async def write(self, op: WriteOp) -> None:
+        await self._committer.submit(op)
+
+    def write_sync(self, ops: Sequence[WriteOp]) -> None:
+        self._committer.submit_sync(ops)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._committer.close()
+        self._closed = True
+        self.pool.close()
+
+
+class PostgresAppender(Appender):
+    def __init__(self, store: PostgresStore):
+        self._store = store
+        self._conn = psycopg.connect(store.url)
+        self._reset()
+
+    def _reset(self) -> None:
+        self._entities: list[EntitySample] = []
+        self._rejected: list[RejectedNotification] = []
+        self._layouts: list[PutLayout] = []
+        self._deletes: list[DeleteSamples] = []
+
+    def stage(self, op: WriteOp) -> None:
+        if isinstance(op, AppendSamples):
+            self._entities.extend(op.entities)
+        elif isinstance(op, RecordRejected):
+            self._rejected.append(op.rejected)
+        elif isinstance(op, PutLayout):
+            self._layouts.append(op)
+        elif isinstance(op, DeleteSamples):
+            self._deletes.append(op)
+        else:  # pragma: no cover - programming error
+            raise TypeError(f"unknown write op {op!r}")
+
+    def _commit(self) -> None:
+        conn = self._conn
+        with conn.cursor() as cur:
+            if self._entities:
+                self._copy_samples(cur)
+            for r in self._rejected:
+                cur.execute(
+                    "INSERT INTO rejected_notifications (tenant, received_at, error, description, headers, body) "
+                    "VALUES (%s, %s, %s, %s, %s, %s)",
+                    [r.tenant, naive_utc(r.received_at), r.error, r.description, r.headers, r.body],
+                )
+            for put in self._layouts:
+                layout = put.layout
+                cur.execute(
+                    "INSERT INTO subscriptions VALUES (%s, %s, %s, %s, %s, %s) "
+                    "ON CONFLICT (tenant, subscription_id) DO UPDATE SET attrs = EXCLUDED.attrs, "
+                    "entity_id = EXCLUDED.entity_id, entity_type = EXCLUDED.entity_type, "
+                    "registered_at = EXCLUDED.registered_at",
+                    [put.tenant, put.subscription_id, orjson.dumps(list(layout.attrs)).decode(),
+                     layout.entity_id, layout.entity_type, naive_utc(datetime.now(UTC))],
+                )
+            if self._deletes:
+                self._delete(cur)
+        conn.commit()
+        for put in self._layouts:
+            self._store._layouts[(put.tenant, put.subscription_id)] = put.layout
+        self._reset()
+
+    def _delete(self, cur: psycopg.Cursor) -> None:
+        """Deletes see only committed rows, so samples acknowledged after the
+        delete was asked for survive it, as on DuckDB."""
+        from ..history.query import TimeRange
+        from .postgres_querier import PostgresDialect
+        from .sql import delete_statements
+
+        for op in self._deletes:
+            for sql, params in delete_statements(
+                PostgresDialect(), ("samples",), op.sids, TimeRange(op.start, op.end), 2**62
+            ):
+                cur.execute(sql, params)
+
+    def _copy_samples(self, cur: psycopg.Cursor) -> None:
+        sids = self._resolve_series(cur)
+        entities = self._entities
+        cur.execute("SELECT nextval('sample_rid_seq') FROM generate_series(1, %s)", [len(entities)])
+        rids = [row[0] for row in cur.fetchall()]
+        columns = ", ".join(SAMPLE_COLUMNS)
+        with cur.copy(f"COPY samples ({columns}) FROM STDIN") as copy:
+            for rid, entity in zip(rids, entities, strict=True):
+                t = naive_utc(entity.time_index)
+                prefix = (entity.tenant, entity.service_path, entity.entity_id, entity.entity_type)
+                for a in entity.attrs:
+                    g = a.geo
+                    copy.write_row((
+                        rid, sids[(*prefix, a.name)], t, int(a.kind), a.ngsi_type, a.num, a.txt, a.js,
+                        *((g.geojson, g.lon, g.lat, g.min_lon, g.min_lat, g.max_lon, g.max_lat)
+                          if g is not None else (None,) * 7),
+                        a.md,
+                    ))
+
+    def _resolve_series(self, cur: psycopg.Cursor) -> dict[SeriesKey, int]:
+        """Series ids for every key in the batch, creating missing ones.
+        Keys are inserted sorted so two replicas never lock in opposite orders."""
+        cache = self._store._series
+        wanted = {
+            (e.tenant, e.service_path, e.entity_id, e.entity_type, a.name)
+            for e in self._entities
+            for a in e.attrs
+        }
+        local = {k: sid for k in wanted if (sid := cache.get(k)) is not None}
+        missing = sorted(wanted - local.keys())
+        if missing:
+            columns = [list(col) for col in zip(*missing, strict=True)]
+            cur.execute(
+                "INSERT INTO series (tenant, service_path, entity_id, entity_type, attr) "
+                "SELECT * FROM unnest(%s::text[], %s::text[], %s::text[], %s::text[], %s::text[]) "
+                "ON CONFLICT DO NOTHING",
+                columns,
+            )
+            cur.execute(
+                "SELECT s.sid, s.tenant, s.service_path, s.entity_id, s.entity_type, s.attr FROM series s "
+                "JOIN unnest(%s::text[], %s::text[], %s::text[], %s::text[], %s::text[]) "
+                "AS k(tenant, service_path, entity_id, entity_type, attr) USING "
+                "(tenant, service_path, entity_id, entity_type, attr)",
+                columns,
+            )
+            found = {tuple(row[1:]): row[0] for row in cur.fetchall()}
+            local.update(found)
+            self._found = found
+        return local
+
+    def commit(self) -> None:
+        self._found: dict[SeriesKey, int] = {}
+        self._commit()
+        # Cache only after commit: only now do the rows this transaction
+        # created certainly exist (a rolled-back series row would orphan samples).
+        self._store._series.update(self._found)
+
+    def rollback(self) -> None:
+        try:
+            self._conn.rollback()
+        except psycopg.Error:
+            pass
+        self._reset()
+
+    def close(self) -> None:
+        self._conn.close()

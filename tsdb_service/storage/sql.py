@@ -1,0 +1,339 @@
+"""History queries rendered to SQL, for any backend with a ``Dialect``.
+
+The renderer knows the schema (``series`` + ``samples``, see
+``migrations/``) and QuantumLeap's row semantics; a ``Dialect`` knows how one
+database spells placeholders, time truncation, ISO formatting, JSON paths and
+regular expressions. Values are always bound parameters. The only text put
+into SQL is our own: identifiers through ``quote_ident`` and aggregation
+period names from the ``AggrPeriod`` enum.
+
+``SqlQuerier`` implements the read half of the storage seam on top of one
+method, ``_fetch(sql, params)``; a backend subclasses it and adds a
+connection. Every query filters samples by series id first (``sid = ?`` or
+``sid IN (...)``): the sample tables are sorted by (sid, t), so that filter
+is what prunes them.
+"""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+
+from ..history.query import Aggregation, AggrMethod, EntityFilter, Scope, TimeRange
+from ..model import Kind
+from .base import Querier
+from .catalog import SeriesCatalog, SeriesRef
+
+NUMERIC_KINDS = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
+NULL_KIND = int(Kind.NULL)
+INTEGER_KIND = int(Kind.INTEGER)
+_MAX_BIGINT = 2**62  # LIMIT/OFFSET values stay well inside int64
+
+
+def quote_ident(name: str) -> str:
+    """The one way an identifier enters SQL."""
+    return '"' + name.replace('"', '""') + '"'
+
+
+class Dialect:
+    """What differs between DuckDB and PostgreSQL. Subclass per backend."""
+
+    name = "abstract"
+    placeholder = "?"
+    samples_table = "samples_all"  # every committed sample (a view on DuckDB)
+    many_sids = 64  # above this many ids, bind one array instead of a list
+
+    def samples(self, columns: str) -> str:
+        """A FROM item with ``columns`` of every committed sample."""
+        return self.samples_table
+
+    def sid_filter(self, sids: Sequence[int]) -> tuple[str, list]:
+        """``sid`` restricted to ``sids``: the pruning predicate."""
+        p = self.placeholder
+        if len(sids) == 1:
+            return f"sid = {p}", [sids[0]]
+        return f"sid IN ({', '.join([p] * len(sids))})", list(sids)
+
+    def time_value(self, moment: datetime) -> object:
+        """A bound value comparable with the ``t`` column."""
+        return moment.astimezone(UTC).replace(tzinfo=None)
+
+    @abstractmethod
+    def iso_ms(self, expr: str) -> str:
+        """``expr`` (a UTC timestamp) as ``YYYY-MM-DDTHH:MM:SS.mmm+00:00``."""
+
+    @abstractmethod
+    def epoch_us(self, expr: str) -> str:
+        """``expr`` as integer microseconds since the epoch."""
+
+    def date_trunc(self, period: str, expr: str) -> str:
+        # ``period`` comes from the AggrPeriod enum, never from a request.
+        return f"date_trunc('{period}', {expr})"
+
+    @abstractmethod
+    def json_path(self, steps: tuple[str | int, ...]) -> object:
+        """The bound value naming ``steps`` for the JSON functions below."""
+
+    @abstractmethod
+    def json_number(self, col: str, path: object) -> tuple[str, list]:
+        """The number at ``path`` in JSON text ``col``; NULL where the path is
+        missing or leads to something else than a number."""
+
+    @abstractmethod
+    def json_is_integer(self, col: str, path: object) -> tuple[str, list]:
+        """True where the value at ``path`` is an integer number."""
+
+    @abstractmethod
+    def json_present(self, col: str, path: object) -> tuple[str, list]:
+        """True where a non-null value exists at ``path``."""
+
+    @abstractmethod
+    def regex_match(self, col: str) -> str:
+        """SQL: ``col`` matches a regex (one placeholder), unanchored.
+
+        The history queries match entity ids in Python on the series catalog,
+        so both backends use one regex flavour; this is for SQL-side filters."""
+
+
+class DuckDBDialect(Dialect):
+    name = "duckdb"
+
+    def samples(self, columns: str) -> str:
+        # The sorted table and the hot one; naming only the needed columns
+        # binds faster than the 16-column ``samples_all`` view.
+        return (
+            f"(SELECT {columns} FROM samples UNION ALL SELECT {columns} FROM samples_hot) AS samples_all"
+        )
+
+    def sid_filter(self, sids: Sequence[int]) -> tuple[str, list]:
+        if len(sids) > self.many_sids:
+            return "sid IN (SELECT unnest(?::INTEGER[]))", [list(sids)]
+        return super().sid_filter(sids)
+
+    def iso_ms(self, expr: str) -> str:
+        return f"strftime({expr}, '%Y-%m-%dT%H:%M:%S.%g+00:00')"
+
+    def epoch_us(self, expr: str) -> str:
+        return f"epoch_us({expr})"
+
+    def json_path(self, steps: tuple[str | int, ...]) -> object:
+        # A JSON Pointer: no wildcard or quoting rules, any key is literal.
+        return "".join("/" + str(step).replace("~", "~0").replace("/", "~1") for step in steps)
+
+    def json_number(self, col: str, path: object) -> tuple[str, list]:
+        return (
+            f"CASE WHEN json_type({col}, ?) IN ('BIGINT', 'UBIGINT', 'DOUBLE') "
+            f"THEN CAST(json_extract_string({col}, ?) AS DOUBLE) END",
+            [path, path],
+        )
+
+    def json_is_integer(self, col: str, path: object) -> tuple[str, list]:
+        return f"json_type({col}, ?) IN ('BIGINT', 'UBIGINT')", [path]
+
+    def json_present(self, col: str, path: object) -> tuple[str, list]:
+        return f"coalesce(json_type({col}, ?), 'NULL') <> 'NULL'", [path]
+
+    def regex_match(self, col: str) -> str:
+        return f"regexp_matches({col}, ?)"
+
+
+@dataclass(frozen=True, slots=True)
+class AggBranch:
+    """One aggregated column family: plain attributes (``steps`` empty) or a
+    value path into structured values, over the given series."""
+
+    sids: tuple[int, ...]
+    steps: tuple[str | int, ...] = ()
+
+
+# Row layouts returned by SqlQuerier (tuples, for speed):
+#   raw_rows:    (sid, rid, iso_time, kind, num, txt, js)
+#   aggregate:   (branch, sid, iso_bucket | None, n_present, n_numeric, value, all_integer)
+#   latest:      (sid, iso_time)
+#   last_values: (sid, iso_time, kind, atype, num, txt, js)
+
+
+class SqlQuerier(Querier):
+    """The read queries, rendered once for every SQL backend."""
+
+    dialect: Dialect
+    catalog: SeriesCatalog
+
+    @abstractmethod
+    def _fetch(self, sql: str, params: list) -> list[tuple]: ...
+
+    # -- series ------------------------------------------------------------------
+
+    def series(self, scope: Scope, entities: EntityFilter, attrs=None) -> list[SeriesRef]:
+        return self.catalog.select(scope, entities, attrs)
+
+    def sids_with_samples(self, sids: Sequence[int]) -> set[int]:
+        if not sids:
+            return set()
+        where, params = self.dialect.sid_filter(sids)
+        sql = f"SELECT DISTINCT sid FROM {self.dialect.samples('sid')} WHERE {where}"
+        return {row[0] for row in self._fetch(sql, params)}
+
+    # -- samples -----------------------------------------------------------------
+
+    def _where(self, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
+        d = self.dialect
+        where, params = d.sid_filter(sids)
+        if time.start is not None:
+            where += f" AND t >= {d.placeholder}"
+            params.append(d.time_value(time.start))
+        if time.end is not None:
+            where += f" AND t <= {d.placeholder}"
+            params.append(d.time_value(time.end))
+        return where, params
+
+    def raw_rows(
+        self,
+        sids: Sequence[int],
+        time: TimeRange,
+        *,
+        newest_first: bool,
+        limit: int,
+        offset: int,
+        one_per_row: bool,
+        attrs_per_row: int = 1,
+    ) -> list[tuple]:
+        """Samples of the selected rows, oldest first.
+
+        A row is one entity notification (``rid``). Rows are ordered by time
+        (newest first for ``lastN``), then ``offset``/``limit`` pick rows of
+        the whole result, as QuantumLeap does. ``one_per_row`` says each row
+        has exactly one selected sample (one attribute), which needs no
+        row grouping; otherwise a row has at most ``attrs_per_row`` samples.
+
+        Over many series a time threshold is computed first: the M-th newest
+        sample time, M = (limit + offset) x attrs_per_row, can never be newer
+        than the oldest wanted row, so ``t >= threshold`` keeps every wanted
+        row while the expensive ordering only sees a few candidates.
+        """
+        if not sids:
+            return []
+        d = self.dialect
+        p = d.placeholder
+        where, params = self._where(sids, time)
+        direction = "DESC" if newest_first else "ASC"
+        cols = f"sid, rid, {d.iso_ms('t')}, kind, num, txt, js"
+        table = d.samples("sid, rid, t, kind, num, txt, js")
+        if len(sids) > 1:
+            bound = "min" if newest_first else "max"
+            cmp = ">=" if newest_first else "<="
+            where_thr = (
+                f"{where} AND t {cmp} (SELECT {bound}(t) FROM (SELECT t FROM {table} WHERE {where} "
+                f"ORDER BY t {direction} LIMIT {p}) candidates)"
+            )
+            per_row = 1 if one_per_row else max(1, attrs_per_row)
+            params_thr = [*params, *params, min((limit + offset) * per_row, _MAX_BIGINT)]
+        else:
+            where_thr, params_thr = where, params
+        if one_per_row:
+            sql = (
+                f"SELECT {cols} FROM {table} WHERE {where_thr} "
+                f"ORDER BY t {direction}, rid {direction} LIMIT {p} OFFSET {p}"
+            )
+            rows = self._fetch(sql, [*params_thr, limit, min(offset, _MAX_BIGINT)])
+            if newest_first:
+                rows.reverse()
+            return rows
+        pick = "max" if newest_first else "min"
+        sql = (
+            f"SELECT {cols} FROM {table} WHERE {where_thr} AND rid IN ("
+            f"SELECT rid FROM {table} WHERE {where_thr} GROUP BY rid "
+            f"ORDER BY {pick}(t) {direction}, rid {direction} LIMIT {p} OFFSET {p}) "
+            f"ORDER BY t, rid"
+        )
+        return self._fetch(sql, [*params_thr, *params_thr, limit, min(offset, _MAX_BIGINT)])
+
+    def aggregate(self, branches: Sequence[AggBranch], time: TimeRange, agg: Aggregation) -> list[tuple]:
+        """Per-series (and per period) partial aggregates of each branch."""
+        d = self.dialect
+        parts: list[str] = []
+        params: list = []
+        bucket = d.date_trunc(agg.period.value, "t") if agg.period is not None else None
+        fn = {AggrMethod.SUM: "sum", AggrMethod.AVG: "sum", AggrMethod.MIN: "min", AggrMethod.MAX: "max"}.get(agg.method)
+        for number, branch in enumerate(branches):
+            if not branch.sids:
+                continue
+            where, wparams = self._where(branch.sids, time)
+            sel_params: list = []
+            if not branch.steps:
+                value, vparams = f"CASE WHEN kind IN ({NUMERIC_KINDS}) THEN num END", []
+                present, pparams = f"kind <> {NULL_KIND}", []
+                is_int, iparams = f"kind = {INTEGER_KIND}", []
+            else:
+                path = d.json_path(branch.steps)
+                value, vparams = d.json_number("js", path)
+                present, pparams = d.json_present("js", path)
+                is_int, iparams = d.json_is_integer("js", path)
+            bucket_sql = d.iso_ms(bucket) if bucket else "NULL"
+            agg_sql = f"{fn}({value})" if fn else "NULL"
+            # Placeholders in textual order: present, value (count), value
+            # (aggregate), is_int and value (bool_and), then the WHERE clause.
+            sel_params = [*pparams, *vparams, *(vparams if fn else []), *iparams, *vparams]
+            group = "sid" + (f", {bucket}" if bucket else "")
+            parts.append(
+                f"SELECT {number} AS branch, sid, {bucket_sql} AS bucket, "
+                f"count(*) FILTER (WHERE {present}) AS n_present, "
+                f"count({value}) AS n_numeric, {agg_sql} AS value, "
+                f"bool_and({is_int}) FILTER (WHERE {value} IS NOT NULL) AS all_integer "
+                f"FROM {d.samples('sid, t, kind, num, js')} WHERE {where} GROUP BY {group}"
+            )
+            params += sel_params + wparams
+        if not parts:
+            return []
+        return self._fetch(" UNION ALL ".join(parts), params)
+
+    def latest_index(self, sids: Sequence[int], time: TimeRange) -> list[tuple]:
+        if not sids:
+            return []
+        where, params = self._where(sids, time)
+        d = self.dialect
+        sql = f"SELECT sid, {d.iso_ms('max(t)')} FROM {d.samples('sid, t')} WHERE {where} GROUP BY sid"
+        return self._fetch(sql, params)
+
+    def last_values(self, sids: Sequence[int]) -> list[tuple]:
+        if not sids:
+            return []
+        d = self.dialect
+        where, params = d.sid_filter(sids)
+        sql = (
+            f"SELECT sid, {d.iso_ms('t')}, kind, atype, num, txt, js FROM ("
+            f"SELECT sid, t, kind, atype, num, txt, js, "
+            f"row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn "
+            f"FROM {d.samples('sid, rid, t, kind, atype, num, txt, js')} WHERE {where}) latest WHERE rn = 1"
+        )
+        return self._fetch(sql, params)
+
+    def count(self, sids: Sequence[int], time: TimeRange) -> int:
+        if not sids:
+            return 0
+        where, params = self._where(sids, time)
+        rows = self._fetch(f"SELECT count(*) FROM {self.dialect.samples('sid, t')} WHERE {where}", params)
+        return int(rows[0][0]) if rows else 0
+
+
+def delete_statements(
+    dialect: Dialect, tables: Sequence[str], sids: Sequence[int], time: TimeRange, upto_rid: int
+) -> list[tuple[str, list]]:
+    """DELETEs for the samples of ``sids`` in ``time``, written up to ``upto_rid``
+    (rows appended after the delete was asked for survive it)."""
+    p = dialect.placeholder
+    out = []
+    for table in tables:
+        where, params = dialect.sid_filter(sids)
+        if time.start is not None:
+            where += f" AND t >= {p}"
+            params.append(dialect.time_value(time.start))
+        if time.end is not None:
+            where += f" AND t <= {p}"
+            params.append(dialect.time_value(time.end))
+        where += f" AND rid <= {p}"
+        params.append(upto_rid)
+        out.append((f"DELETE FROM {quote_ident(table)} WHERE {where}", params))
+    return out
