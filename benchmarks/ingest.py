@@ -1,14 +1,18 @@
 """Ingest benchmark: Orion notifications per second, ours vs a bare FastAPI.
 
     .venv/bin/python benchmarks/ingest.py [--duration 10] [--connections 32] [--json FILE]
+    .venv/bin/python benchmarks/ingest.py --backend postgresql [--workers 2]
 
-1. Starts tsdb-service (one process) on a fresh temporary DuckDB file and
-   waits for ``GET /health``.
+1. Starts tsdb-service (one process) on a fresh temporary DuckDB file -- or,
+   with ``--backend postgresql``, on a fresh database of a private PostgreSQL
+   cluster started for the run (``initdb`` + ``pg_ctl``, 127.0.0.1, a free
+   port) -- and waits for ``GET /health``.
 2. Drives it with one-entity, normalized Orion notifications (a unique entity
    id and unique values per request) over ``--connections`` keep-alive
    connections: ``--warmup`` seconds, then ``--duration`` measured seconds.
-3. Stops it with SIGTERM, opens the DuckDB file and checks that every
-   acknowledged notification's entity is stored (and with its value).
+3. Stops it with SIGTERM, opens the DuckDB file (or connects to PostgreSQL)
+   and checks that every acknowledged notification's entity is stored (and
+   with its value).
 4. Does the same load against ``benchmarks/bare_app.py`` -- a FastAPI app
    that only parses the JSON -- under the same uvicorn settings: the ceiling.
 5. Prints a table and the targets with PASS/FAIL; ``--json`` writes it all.
@@ -41,6 +45,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from loadgen import LoadStats, build_request, run_load  # noqa: E402
+from pgutil import BenchCluster  # noqa: E402
 
 try:
     import psutil
@@ -250,13 +255,12 @@ def measure(target: Target, factory: NotificationFactory, args) -> tuple[LoadSta
     return stats, extras
 
 
-def verify_store(db_path: Path, factory: NotificationFactory, acked: int, unacked: int) -> dict:
-    """Count the stored benchmark entities and check their values."""
+def count_stored_duckdb(db_path: Path, prefix: str) -> tuple[int, int, int]:
+    """(entities, samples, entities with the right temperature) in the DuckDB file."""
     import duckdb
 
     con = duckdb.connect(str(db_path), read_only=True)
     try:
-        prefix = f"urn:ngsi-ld:Sensor:{factory.run_id}-"
         entities, samples = con.execute(
             """
             SELECT count(DISTINCT s.entity_id), count(*)
@@ -276,6 +280,41 @@ def verify_store(db_path: Path, factory: NotificationFactory, acked: int, unacke
         ).fetchone()[0]
     finally:
         con.close()
+    return entities, samples, good_temp
+
+
+def count_stored_postgres(url: str, prefix: str) -> tuple[int, int, int]:
+    """The same counts, read from PostgreSQL (tables ``series`` and ``samples``)."""
+    import psycopg
+
+    with psycopg.connect(url) as conn:
+        entities, samples = conn.execute(
+            """
+            SELECT count(DISTINCT s.entity_id), count(*)
+            FROM series s JOIN samples a ON a.sid = s.sid
+            WHERE s.tenant = %s AND starts_with(s.entity_id, %s)
+            """,
+            [TENANT, prefix],
+        ).fetchone()
+        good_temp = conn.execute(
+            r"""
+            SELECT count(DISTINCT s.entity_id)
+            FROM series s JOIN samples a ON a.sid = s.sid
+            WHERE s.tenant = %s AND starts_with(s.entity_id, %s) AND s.attr = 'temperature'
+              AND a.num = CAST(substring(s.entity_id FROM '-(\d+)$') AS DOUBLE PRECISION) + 0.25
+            """,
+            [TENANT, prefix],
+        ).fetchone()[0]
+    return entities, samples, good_temp
+
+
+def verify_store(db: Path | str, factory: NotificationFactory, acked: int, unacked: int) -> dict:
+    """Count the stored benchmark entities and check their values."""
+    prefix = f"urn:ngsi-ld:Sensor:{factory.run_id}-"
+    if isinstance(db, str) and db.startswith("postgresql://"):
+        entities, samples, good_temp = count_stored_postgres(db, prefix)
+    else:
+        entities, samples, good_temp = count_stored_duckdb(Path(db), prefix)
     ok = acked <= entities <= acked + unacked and good_temp == entities
     return {
         "stored_entities": entities,
@@ -300,7 +339,7 @@ def fmt(v: float | None, digits: int = 1) -> str:
 
 def print_table(rows: dict[str, dict]) -> None:
     cols = ["target", "requests", "non-2xx", "errors", "notif/s", "p50 ms", "p90 ms", "p99 ms", "max ms", "srv CPU%", "gen CPU%"]
-    widths = [22, 9, 8, 7, 9, 8, 8, 8, 8, 9, 9]
+    widths = [max(22, *(len(name) for name in rows)), 9, 8, 7, 9, 8, 8, 8, 8, 9, 9]
     print("  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(cols, widths))))
     for name, r in rows.items():
         s = r["load"]
@@ -331,7 +370,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--server-env", action="append", default=[], metavar="KEY=VALUE", help="extra env for our server")
     ap.add_argument("--start-timeout", type=float, default=60.0, help="seconds to wait for a server to be ready")
     ap.add_argument("--keep", action="store_true", help="keep the temp dir (DuckDB file, server logs)")
+    ap.add_argument("--backend", choices=("duckdb", "postgresql"), default="duckdb",
+                    help="store behind our server: a temp DuckDB file (default) or a private PostgreSQL cluster")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="uvicorn workers for our server (PostgreSQL only; default 1). The bare ceiling keeps 1.")
     args = ap.parse_args(argv)
+    if args.workers < 1 or (args.workers > 1 and args.backend != "postgresql"):
+        ap.error("--workers > 1 needs --backend postgresql (a DuckDB file belongs to one process)")
 
     targets = [t.strip() for t in args.targets.split(",") if t.strip()]
     if not targets or set(targets) - {"ours", "bare"}:
@@ -344,6 +389,8 @@ def main(argv: list[str] | None = None) -> int:
         "benchmark": "ingest",
         "started_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "config": {
+            "backend": args.backend,
+            "workers": args.workers,
             "duration_s": args.duration,
             "warmup_s": args.warmup,
             "connections": args.connections,
@@ -356,36 +403,54 @@ def main(argv: list[str] | None = None) -> int:
     }
     rows: dict[str, dict] = {}
     failures: list[str] = []
+    ours_name = "tsdb-service" if args.backend == "duckdb" else "tsdb-service on PostgreSQL"
+    if args.workers > 1:
+        ours_name += f" ({args.workers} workers)"
     print(
-        f"ingest benchmark: {args.connections} connections, warmup {args.warmup:g} s, measure {args.duration:g} s, "
-        f"{os.cpu_count()} CPUs; work dir {workdir}",
+        f"ingest benchmark ({args.backend}): {args.connections} connections, warmup {args.warmup:g} s, "
+        f"measure {args.duration:g} s, {os.cpu_count()} CPUs; work dir {workdir}",
         flush=True,
     )
+    cluster: BenchCluster | None = None
     try:
         if "ours" in targets:
             port = free_port()
-            cmd = [sys.executable, "-m", "tsdb_service", "serve", "--db", str(db_path), "--host", HOST, "--port", str(port)]
-            ours = Target("tsdb-service", cmd, port, workdir / "tsdb-service.log", server_env(args.server_env), "/health")
-            print(f"- tsdb-service on :{port} ({db_path.name}) ...", flush=True)
+            db: Path | str = db_path
+            if args.backend == "postgresql":
+                print("- starting a private PostgreSQL cluster ...", flush=True)
+                cluster = BenchCluster("ingest").start()
+                db = cluster.url
+                results["config"]["postgresql_version"] = cluster.version
+            cmd = [sys.executable, "-m", "tsdb_service", "serve", "--db", str(db), "--host", HOST, "--port", str(port)]
+            if args.workers > 1:
+                cmd += ["--workers", str(args.workers)]
+            ours = Target(ours_name, cmd, port, workdir / "tsdb-service.log", server_env(args.server_env), "/health")
+            print(f"- {ours_name} on :{port} ({db_path.name if cluster is None else db}) ...", flush=True)
             try:
                 ours.start(args.start_timeout)
                 factory = NotificationFactory(port, run_id)
+                db_cpu0, t0 = (cluster.cpu_seconds() if cluster else math.nan), time.monotonic()
                 stats, extras = measure(ours, factory, args)
+                db_cpu1, t1 = (cluster.cpu_seconds() if cluster else math.nan), time.monotonic()
                 code, stop_s = ours.terminate()
             finally:
                 ours.kill()
             acked = stats.total_ok + extras["sanity_acked"]
             unacked = stats.total_errors + stats.total_non_2xx
-            verification = verify_store(db_path, factory, acked, unacked)
+            verification = verify_store(db, factory, acked, unacked)
             row = {
                 "load": stats.to_dict(),
                 "server_cpu_pct": extras["server_cpu_pct"],
                 "exit_code": code,
                 "sigterm_exit_s": round(stop_s, 3),
                 "verification": verification,
-                "db_bytes": sum(p.stat().st_size for p in workdir.glob("ingest.duckdb*")),
+                "db_bytes": (cluster.database_bytes() if cluster
+                             else sum(p.stat().st_size for p in workdir.glob("ingest.duckdb*"))),
             }
-            rows["tsdb-service"] = row
+            if cluster is not None:
+                # the PostgreSQL server's own CPU (backends + background processes), same window
+                row["db_cpu_pct"] = 100.0 * (db_cpu1 - db_cpu0) / (t1 - t0) if t1 > t0 else math.nan
+            rows[ours_name] = row
             results["targets"]["ours"] = row
             if code not in (0, -signal.SIGTERM):  # uvicorn re-raises SIGTERM after draining
                 failures.append(f"tsdb-service exited with code {code} after SIGTERM")
@@ -405,16 +470,23 @@ def main(argv: list[str] | None = None) -> int:
             row = {"load": stats.to_dict(), "server_cpu_pct": extras["server_cpu_pct"], "exit_code": code}
             rows["bare FastAPI (ceiling)"] = row
             results["targets"]["bare"] = row
-    except RuntimeError as exc:
-        print(f"\nERROR: {exc}", file=sys.stderr)
+    except (RuntimeError, subprocess.CalledProcessError, OSError) as exc:
+        detail = getattr(exc, "stderr", None) or ""
+        print(f"\nERROR: {exc}\n{detail}", file=sys.stderr)
         results["error"] = str(exc)
         failures.append(str(exc))
+    finally:
+        if cluster is not None:
+            cluster.stop()
 
     print()
     if rows:
         print_table(rows)
     checks = []
     ours_row, bare_row = results["targets"].get("ours"), results["targets"].get("bare")
+    if ours_row and "db_cpu_pct" in ours_row:
+        print(f"\nPostgreSQL server CPU during the measured window: {fmt(ours_row['db_cpu_pct'], 0)}% "
+              "(on top of srv CPU%; all on the same cores)")
     ratio = None
     if ours_row and bare_row and bare_row["load"]["rps"]:
         ratio = ours_row["load"]["rps"] / bare_row["load"]["rps"]

@@ -1,12 +1,18 @@
 """History query benchmark: latency and throughput of the read API.
 
     .venv/bin/python benchmarks/queries.py [--duration 10] [--connections 8] [--json FILE]
+    .venv/bin/python benchmarks/queries.py --backend postgresql [--scale 1] [--workers 1]
 
 1. Loads 10,000,000 samples (1,000 entities x 10 attributes x 1,000
    samples, one notification every 90 s per entity) in-process through the
    store (``write_sync`` with big ``AppendSamples`` batches), compacts it
    (``compact(full=True)``) and closes it. ``--db FILE`` reuses a loaded file.
-2. Starts the real server (``tsdb-service serve``) on that file.
+   ``--backend postgresql`` loads the same data set into a fresh database of
+   a private PostgreSQL cluster started for the run (the store writes with
+   ``COPY``), then runs ``VACUUM (ANALYZE)`` in place of the compaction.
+   ``--scale S`` loads S x 1,000 samples per series instead (S >= 0.1); the
+   scale is printed with every result and recorded in the JSON.
+2. Starts the real server (``tsdb-service serve``) on that file or database.
 3. Drives it with ``benchmarks/loadgen.py`` (closed loop, keep-alive,
    ``--connections`` connections, random entity per request):
    a. ``/v2/entities/{id}/attrs/{attr}?lastN=100``
@@ -15,12 +21,15 @@
 4. Prints p50/p99 latency, requests/s, server RSS and bytes on disk per
    stored sample, with PASS/FAIL against the targets (lastN p50 <= 5 ms and
    >= 2,000 req/s; hourly aggregation p50 <= 20 ms). Exit status 0 = all pass.
+   On PostgreSQL it also prints the database server's CPU per request and its
+   memory (PSS summed over its processes): it shares the two cores.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import random
 import shutil
@@ -39,6 +48,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT))
 
 from loadgen import build_request, run_load  # noqa: E402
+from pgutil import BenchCluster  # noqa: E402
 
 import psutil  # noqa: E402
 
@@ -59,23 +69,42 @@ def attr_name(n: int) -> str:
     return f"attr{n}"
 
 
+def samples_per_series(scale: float) -> int:
+    return int(round(SAMPLES * scale))
+
+
+def is_pg(db: Path | str) -> bool:
+    return str(db).startswith(("postgresql://", "postgres://"))
+
+
+def open_store(db: Path | str):
+    """The store the server would open for ``--db``, opened in-process."""
+    if is_pg(db):
+        from tsdb_service.storage.postgres_store import PostgresStore
+
+        return PostgresStore(str(db))
+    from tsdb_service.storage.duckdb_store import DuckDBStore
+
+    return DuckDBStore(str(db))
+
+
 # --- 1. load ---------------------------------------------------------------------------
 
 
-def load(db: Path, batch_notifications: int = 20_000) -> dict:
+def load(db: Path | str, per_series: int = SAMPLES, batch_notifications: int = 20_000,
+         cluster: BenchCluster | None = None) -> dict:
     from tsdb_service.model import AttrSample, EntitySample, Kind
     from tsdb_service.storage.base import AppendSamples
-    from tsdb_service.storage.duckdb_store import DuckDBStore
 
     t0 = time.perf_counter()
-    store = DuckDBStore(str(db))
+    store = open_store(db)
     names = [attr_name(a) for a in range(ATTRS)]
     ids = [entity_id(e) for e in range(ENTITIES)]
     rng = random.Random(42)
     batch: list[EntitySample] = []
     written = 0
     try:
-        for i in range(SAMPLES):
+        for i in range(per_series):
             moment = START + i * STEP
             for e in range(ENTITIES):
                 base = e + i * 0.01
@@ -93,23 +122,31 @@ def load(db: Path, batch_notifications: int = 20_000) -> dict:
             store.write_sync([AppendSamples(batch)])
             written += len(batch) * ATTRS
         t_load = time.perf_counter() - t0
-        store.compact(full=True)
+        if is_pg(db):
+            store.close()
+            store = None
+            if cluster is not None:
+                cluster.vacuum_analyze()
+        else:
+            store.compact(full=True)
         t_compact = time.perf_counter() - t0 - t_load
     finally:
-        store.close()
-    return {"samples": written, "load_s": round(t_load, 1), "compact_s": round(t_compact, 1)}
+        if store is not None:
+            store.close()
+    key = "vacuum_analyze_s" if is_pg(db) else "compact_s"
+    return {"samples": written, "load_s": round(t_load, 1), key: round(t_compact, 1),
+            "samples_per_s": round(written / t_load)}
 
 
-def engine_ceiling(db: Path, seconds: float = 4.0, threads: int = 2) -> dict:
-    """The lastN=100 query alone, in-process, with no HTTP: what DuckDB can do
-    on this machine, for comparison with the served rate."""
+def engine_ceiling(db: Path | str, seconds: float = 4.0, threads: int = 2) -> dict:
+    """The lastN=100 query alone, in-process, with no HTTP: what the database
+    can do on this machine, for comparison with the served rate."""
     import threading
 
     from tsdb_service.history.params import history_query
     from tsdb_service.history.query import Shape
-    from tsdb_service.storage.duckdb_store import DuckDBStore
 
-    store = DuckDBStore(str(db))
+    store = open_store(db)
     querier = store.querier()
     counts = []
 
@@ -153,9 +190,11 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def start_server(db: Path, port: int, log_path: Path) -> subprocess.Popen:
+def start_server(db: Path | str, port: int, log_path: Path, workers: int = 1) -> subprocess.Popen:
     exe = ROOT / ".venv" / "bin" / "tsdb-service"
     cmd = [str(exe), "serve", "--db", str(db), "--host", HOST, "--port", str(port)]
+    if workers > 1:
+        cmd += ["--workers", str(workers)]
     env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}
     log = open(log_path, "wb")
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
@@ -196,6 +235,35 @@ def get(port: int, path: str) -> tuple[int, bytes]:
 # --- 3. load generation ---------------------------------------------------------------------
 
 
+def tree(proc: psutil.Process) -> list[psutil.Process]:
+    """The server process and its children (uvicorn workers when --workers > 1)."""
+    try:
+        return [proc, *proc.children(recursive=True)]
+    except psutil.Error:
+        return [proc]
+
+
+def tree_cpu(proc: psutil.Process) -> float:
+    total = 0.0
+    for p in tree(proc):
+        try:
+            c = p.cpu_times()
+            total += c.user + c.system
+        except psutil.Error:
+            pass
+    return total
+
+
+def tree_rss(proc: psutil.Process) -> int:
+    total = 0
+    for p in tree(proc):
+        try:
+            total += p.memory_info().rss
+        except psutil.Error:
+            pass
+    return total
+
+
 def scenarios(port: int) -> dict[str, list[bytes]]:
     rng = random.Random(7)
     day_from = START.strftime("%Y-%m-%dT%H:%M:%SZ")
@@ -216,17 +284,23 @@ def scenarios(port: int) -> dict[str, list[bytes]]:
     return out
 
 
-def check_answers(port: int) -> None:
+def hours_covered(per_series: int) -> int:
+    """Hourly buckets the aggregation over the first day finds (24 at full scale)."""
+    return min(24, math.ceil(per_series * STEP.total_seconds() / 3600))
+
+
+def check_answers(port: int, per_series: int = SAMPLES) -> None:
     """The requests we measure must answer what we loaded."""
     e, a = 17, 3
     status, body = get(port, f"/v2/entities/{entity_id(e)}/attrs/{attr_name(a)}?lastN=100")
     doc = json.loads(body)
     assert status == 200 and len(doc["values"]) == 100, (status, body[:300])
-    assert doc["index"][-1] == (START + (SAMPLES - 1) * STEP).strftime("%Y-%m-%dT%H:%M:%S.000+00:00"), doc["index"][-1]
+    last = (START + (per_series - 1) * STEP).strftime("%Y-%m-%dT%H:%M:%S.000+00:00")
+    assert doc["index"][-1] == last, doc["index"][-1]
     status, body = get(port, f"/v2/entities/{entity_id(e)}/attrs/{attr_name(a)}?aggrMethod=avg&aggrPeriod=hour"
                              f"&fromDate=2024-05-01T00:00:00Z&toDate=2024-05-01T23:59:59Z")
     doc = json.loads(body)
-    assert status == 200 and len(doc["values"]) == 24, (status, body[:300])
+    assert status == 200 and len(doc["values"]) == hours_covered(per_series), (status, body[:300])
     status, body = get(port, f"/v2/types/{ENTITY_TYPE}/attrs/{attr_name(a)}?lastN=1000")
     doc = json.loads(body)
     assert status == 200 and sum(len(x["values"]) for x in doc["entities"]) == 1000, (status, body[:300])
@@ -243,7 +317,13 @@ def measure(port: int, requests: list[bytes], connections: int, duration: float,
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--db", help="reuse this loaded DuckDB file (default: load a fresh one in a temp dir)")
+    ap.add_argument("--backend", choices=("duckdb", "postgresql"), default="duckdb",
+                    help="duckdb (default: a temp file) or postgresql (a private cluster started for the run)")
+    ap.add_argument("--db", help="reuse this loaded DuckDB file, or this loaded postgresql:// database "
+                                 "(default: load a fresh one)")
+    ap.add_argument("--scale", type=float, default=1.0,
+                    help="fraction of the 1,000 samples per series to load (default 1 = 10M samples; min 0.1)")
+    ap.add_argument("--workers", type=int, default=1, help="server workers (PostgreSQL only; default 1)")
     ap.add_argument("--keep", action="store_true", help="keep the temporary database")
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--warmup", type=float, default=2.0)
@@ -251,56 +331,96 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--type-connections", type=int, default=2, help="connections for the /v2/types scenario")
     ap.add_argument("--json", help="write the results here")
     args = ap.parse_args(argv)
+    if args.db and is_pg(args.db):
+        args.backend = "postgresql"
+    if not 0.1 <= args.scale <= 1.0:
+        ap.error("--scale must be between 0.1 (100 samples per series: lastN=100 needs them) and 1")
+    if args.workers < 1 or (args.workers > 1 and args.backend != "postgresql"):
+        ap.error("--workers > 1 needs PostgreSQL (a DuckDB file belongs to one process)")
 
-    tmp = None
-    if args.db:
-        db = Path(args.db)
-        loaded = {"samples": ENTITIES * ATTRS * SAMPLES, "reused": str(db)}
-        if not db.exists():
-            print(f"loading {ENTITIES * ATTRS * SAMPLES:,} samples into {db} ...", flush=True)
-            loaded = load(db)
-    else:
-        tmp = Path(tempfile.mkdtemp(prefix="tsdb-queries-"))
-        db = tmp / "bench.duckdb"
-        print(f"loading {ENTITIES * ATTRS * SAMPLES:,} samples into {db} ...", flush=True)
-        loaded = load(db)
-    print(f"  {loaded}", flush=True)
-    disk = db.stat().st_size + (Path(str(db) + ".wal").stat().st_size if Path(str(db) + ".wal").exists() else 0)
-    samples = ENTITIES * ATTRS * SAMPLES
+    per_series = samples_per_series(args.scale)
+    samples = ENTITIES * ATTRS * per_series
+    dataset = (f"{ENTITIES:,} entities x {ATTRS} attrs x {per_series:,} samples = {samples:,} samples "
+               f"(scale {args.scale:g}"
+               + (")" if per_series == SAMPLES else f" -- NOT the 10,000,000-sample data set of the target)"))
+    print(f"history query benchmark on {args.backend}: {dataset}", flush=True)
 
-    print("measuring the engine alone (same lastN query in-process, no HTTP) ...", flush=True)
-    ceiling = engine_ceiling(db)
-    print(f"  {ceiling}", flush=True)
-
-    port = free_port()
-    log_path = (tmp or db.parent) / "server.log"
-    proc = start_server(db, port, log_path)
-    results: dict[str, dict] = {}
+    tmp = Path(tempfile.mkdtemp(prefix="tsdb-queries-"))
+    cluster: BenchCluster | None = None
+    db: Path | str
     try:
-        check_answers(port)
-        server = psutil.Process(proc.pid)
-        reqs = scenarios(port)
-        plan = [
-            ("lastN", "lastN", "lastN=100, one entity attribute", args.connections),
-            ("hourly_avg", "hourly_avg", "avg per hour over one day, one entity attribute", args.connections),
-            ("type_lastN", "type_lastN", "/v2/types/{type}/attrs/{attr}?lastN=1000", args.type_connections),
-            ("lastN_1conn", "lastN", "lastN=100, unloaded (1 connection)", 1),
-            ("hourly_avg_1conn", "hourly_avg", "avg per hour, unloaded (1 connection)", 1),
-        ]
-        rss_peak = server.memory_info().rss
-        for key, scenario, label, conns in plan:
-            duration = args.duration if key != "type_lastN" else max(5.0, args.duration / 2)
-            print(f"measuring {label} ({conns} connections, {duration:g} s) ...", flush=True)
-            cpu0 = server.cpu_times()
-            stats = measure(port, reqs[scenario], conns, duration, args.warmup)
-            cpu1 = server.cpu_times()
-            rss_peak = max(rss_peak, server.memory_info().rss)
-            cpu_ms = (cpu1.user + cpu1.system - cpu0.user - cpu0.system) / max(stats.total_ok, 1) * 1e3
-            results[key] = {"label": label, "connections": conns, "server_cpu_ms_per_req": cpu_ms,
-                            **stats.to_dict()}
-        rss_end = server.memory_info().rss
+        if args.backend == "postgresql":
+            if args.db:
+                db = args.db
+                loaded = {"samples": samples, "reused": "(a postgresql:// database)"}
+            else:
+                print("starting a private PostgreSQL cluster ...", flush=True)
+                cluster = BenchCluster("queries").start()
+                db = cluster.url
+                print(f"loading {samples:,} samples into PostgreSQL {cluster.version} ({db}) ...", flush=True)
+                loaded = load(db, per_series, cluster=cluster)
+        elif args.db:
+            db = Path(args.db)
+            loaded = {"samples": samples, "reused": str(db)}
+            if not db.exists():
+                print(f"loading {samples:,} samples into {db} ...", flush=True)
+                loaded = load(db, per_series)
+        else:
+            db = tmp / "bench.duckdb"
+            print(f"loading {samples:,} samples into {db} ...", flush=True)
+            loaded = load(db, per_series)
+        print(f"  {loaded}", flush=True)
+        if cluster is not None:
+            disk = cluster.database_bytes()
+        elif isinstance(db, Path):
+            wal = Path(str(db) + ".wal")
+            disk = db.stat().st_size + (wal.stat().st_size if wal.exists() else 0)
+        else:
+            disk = None
+
+        print("measuring the engine alone (same lastN query in-process, no HTTP) ...", flush=True)
+        ceiling = engine_ceiling(db)
+        print(f"  {ceiling}", flush=True)
+
+        port = free_port()
+        log_path = (tmp if isinstance(db, str) or tmp in db.parents else db.parent) / "server.log"
+        proc = start_server(db, port, log_path, args.workers)
+        results: dict[str, dict] = {}
+        try:
+            check_answers(port, per_series)
+            server = psutil.Process(proc.pid)
+            reqs = scenarios(port)
+            plan = [
+                ("lastN", "lastN", "lastN=100, one entity attribute", args.connections),
+                ("hourly_avg", "hourly_avg", "avg per hour over one day, one entity attribute", args.connections),
+                ("type_lastN", "type_lastN", "/v2/types/{type}/attrs/{attr}?lastN=1000", args.type_connections),
+                ("lastN_1conn", "lastN", "lastN=100, unloaded (1 connection)", 1),
+                ("hourly_avg_1conn", "hourly_avg", "avg per hour, unloaded (1 connection)", 1),
+            ]
+            rss_peak = tree_rss(server)
+            db_mem_peak = cluster.memory_bytes() if cluster else None
+            for key, scenario, label, conns in plan:
+                duration = args.duration if key != "type_lastN" else max(min(5.0, args.duration), args.duration / 2)
+                print(f"measuring {label} ({conns} connections, {duration:g} s) ...", flush=True)
+                cpu0 = tree_cpu(server)
+                db_cpu0 = cluster.cpu_seconds() if cluster else math.nan
+                stats = measure(port, reqs[scenario], conns, duration, args.warmup)
+                cpu1 = tree_cpu(server)
+                db_cpu1 = cluster.cpu_seconds() if cluster else math.nan
+                rss_peak = max(rss_peak, tree_rss(server))
+                if cluster is not None:
+                    db_mem_peak = max(db_mem_peak or 0, cluster.memory_bytes() or 0)
+                cpu_ms = (cpu1 - cpu0) / max(stats.total_ok, 1) * 1e3
+                db_cpu_ms = (db_cpu1 - db_cpu0) / max(stats.total_ok, 1) * 1e3
+                results[key] = {"label": label, "connections": conns, "server_cpu_ms_per_req": cpu_ms,
+                                **({"db_cpu_ms_per_req": db_cpu_ms} if cluster else {}), **stats.to_dict()}
+            rss_end = tree_rss(server)
+            db_mem_end = cluster.memory_bytes() if cluster else None
+        finally:
+            stop_server(proc)
     finally:
-        stop_server(proc)
+        if cluster is not None:
+            cluster.stop()
 
     a, b, c = results["lastN"], results["hourly_avg"], results["type_lastN"]
     checks = {
@@ -310,28 +430,46 @@ def main(argv: list[str] | None = None) -> int:
         "no errors": all(r["errors"] == 0 and r["non_2xx"] == 0 for r in results.values()),
     }
     print()
-    print(f"{'scenario':<48} {'conns':>5} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu ms/req':>10} {'errors':>6}")
+    print(f"backend: {args.backend}" + (f", {args.workers} workers" if args.workers > 1 else ", 1 server process"))
+    print(f"data set: {dataset}")
+    db_col = cluster is not None
+    print(f"{'scenario':<48} {'conns':>5} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu ms/req':>10}"
+          + (f" {'db ms/req':>9}" if db_col else "") + f" {'errors':>6}")
     for r in results.values():
         print(f"{r['label']:<48} {r['connections']:>5} {r['rps']:>8.0f} {r['p50_ms']:>8.2f} {r['p99_ms']:>8.2f} "
-              f"{r['server_cpu_ms_per_req']:>10.2f} {r['errors'] + r['non_2xx']:>6}")
+              f"{r['server_cpu_ms_per_req']:>10.2f}" + (f" {r['db_cpu_ms_per_req']:>9.2f}" if db_col else "")
+              + f" {r['errors'] + r['non_2xx']:>6}")
     print(f"{'engine alone: lastN=100 in-process, 2 threads':<48} {'-':>5} {ceiling['queries_per_s']:>8.0f} "
           f"{'-':>8} {'-':>8} {ceiling['cpu_ms_per_query']:>10.2f}")
+    if db_col:
+        print("(cpu ms/req: the service process(es); db ms/req: the PostgreSQL server, same cores)")
     print()
     print(f"server RSS: {rss_end / 2**20:.0f} MiB (peak seen {rss_peak / 2**20:.0f} MiB)")
-    print(f"on disk: {disk / 2**20:.0f} MiB for {samples:,} samples = {disk / samples:.1f} bytes/sample")
+    if db_mem_end is not None:
+        print(f"PostgreSQL server memory (PSS, all its processes): {db_mem_end / 2**20:.0f} MiB "
+              f"(peak seen {db_mem_peak / 2**20:.0f} MiB; shared_buffers = 256 MB)")
+    if disk is not None:
+        print(f"on disk: {disk / 2**20:.0f} MiB for {samples:,} samples = {disk / samples:.1f} bytes/sample"
+              + (" (pg_database_size: heap + index + catalog)" if db_col else ""))
     print()
     for name, ok in checks.items():
         print(f"{'PASS' if ok else 'FAIL'}  {name}")
     report = {
+        "benchmark": "queries", "backend": args.backend, "workers": args.workers,
+        "scale": args.scale, "entities": ENTITIES, "attrs": ATTRS, "samples_per_series": per_series,
+        "samples": samples, "dataset": dataset,
         "load": loaded, "results": results, "rss_bytes": rss_end, "rss_peak_bytes": rss_peak,
-        "disk_bytes": disk, "bytes_per_sample": disk / samples, "checks": checks, "engine_alone": ceiling,
+        "db_server_memory_bytes": db_mem_end, "db_server_memory_peak_bytes": db_mem_peak,
+        "disk_bytes": disk, "bytes_per_sample": disk / samples if disk is not None else None,
+        "checks": checks, "engine_alone": ceiling,
         "machine": {"cpus": os.cpu_count()},
     }
     if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(report, indent=2))
-    if tmp is not None and not args.keep:
+    if not args.keep or isinstance(db, str) or tmp not in db.parents:
         shutil.rmtree(tmp, ignore_errors=True)
-    elif tmp is not None:
+    else:
         print(f"kept {db}")
     return 0 if all(checks.values()) else 1
 

@@ -73,61 +73,63 @@ async def _feed(url: str, end_ms: int) -> dict:
     return stats
 
 
-class _Shared:
-    """One loaded server for the whole session. Each test module that imports
-    ``grafana_server`` gets its own (session-scoped) fixture definition, so
-    the server itself is shared here and stopped when the last user is done."""
-
-    service: LoadedService | None = None
-    server: _ThreadedServer | None = None
-    thread: threading.Thread | None = None
-    users = 0
+@dataclass
+class _Running:
+    service: LoadedService
+    server: _ThreadedServer
+    thread: threading.Thread
+    users: int = 0
 
 
-def _start(app_factory, store_url_factory) -> LoadedService:
-    # One writer thread: with several, concurrent first notifications of an entity can
-    # race on new series ids in the DuckDB store (reported to the lead).
-    app = app_factory(store_url_factory("grafana"), writer_threads=1)
+# One loaded server per backend for the whole session. Each test module that
+# imports ``grafana_server`` gets its own (session-scoped) fixture definition,
+# so the servers are shared here, keyed by the backend's store-URL factory,
+# and each is stopped when its last user is done.
+_RUNNING: dict[int, _Running] = {}
+
+
+def _start(app_factory, store_url_factory) -> _Running:
+    app = app_factory(store_url_factory("grafana"))
     port = free_port()
     server = _ThreadedServer(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on"))
     thread = threading.Thread(target=server.run, name="grafana-test-server", daemon=True)
     thread.start()
-    _Shared.server, _Shared.thread = server, thread
-    deadline = time.monotonic() + 30
-    while not server.started:
-        if not thread.is_alive() or time.monotonic() > deadline:
-            raise RuntimeError("the test server did not start")
-        time.sleep(0.02)
-    url = f"http://127.0.0.1:{port}"
-    fed_at = int(time.time() * 1000)
-    stats = asyncio.run(_feed(url, fed_at))
-    for name, row in stats.items():
-        assert row.sent > 100 and row.failed == 0, f"{name}: {row}"
-    return LoadedService(url, stats, fed_at)
+    try:
+        deadline = time.monotonic() + 30
+        while not server.started:
+            if not thread.is_alive() or time.monotonic() > deadline:
+                raise RuntimeError("the test server did not start")
+            time.sleep(0.02)
+        url = f"http://127.0.0.1:{port}"
+        fed_at = int(time.time() * 1000)
+        stats = asyncio.run(_feed(url, fed_at))
+        for name, row in stats.items():
+            assert row.sent > 100 and row.failed == 0, f"{name}: {row}"
+    except BaseException:
+        _stop(server, thread)
+        raise
+    return _Running(LoadedService(url, stats, fed_at), server, thread)
 
 
-def _stop() -> None:
-    if _Shared.server is not None:
-        _Shared.server.should_exit = True
-        _Shared.thread.join(timeout=30)
-    _Shared.service = _Shared.server = _Shared.thread = None
+def _stop(server: _ThreadedServer, thread: threading.Thread) -> None:
+    server.should_exit = True
+    thread.join(timeout=30)
 
 
 @pytest.fixture(scope="session")
 def grafana_server(app_factory, store_url_factory):
-    _Shared.users += 1
+    key = id(store_url_factory)
+    running = _RUNNING.get(key)
+    if running is None:
+        running = _RUNNING[key] = _start(app_factory, store_url_factory)
+    running.users += 1
     try:
-        if _Shared.service is None:
-            try:
-                _Shared.service = _start(app_factory, store_url_factory)
-            except BaseException:
-                _stop()
-                raise
-        yield _Shared.service
+        yield running.service
     finally:
-        _Shared.users -= 1
-        if _Shared.users == 0:
-            _stop()
+        running.users -= 1
+        if running.users == 0:
+            del _RUNNING[key]
+            _stop(running.server, running.thread)
 
 
 @pytest.fixture(scope="session")

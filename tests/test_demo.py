@@ -235,10 +235,9 @@ async def _feed(url: str) -> dict:
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    """A server on a fresh DuckDB file, fed by the three simulators; yields (client, stats)."""
-    folder = tmp_path_factory.mktemp("demo")
-    with ServerProcess(folder / "demo.duckdb") as server:
+def demo(store_url_factory):
+    """A server on a fresh store (each backend), fed by the three simulators; yields (client, stats)."""
+    with ServerProcess(store_url_factory("demo")) as server:
         stats = asyncio.run(_feed(server.url))
         with httpx.Client(base_url=server.url, timeout=30.0) as client:
             yield client, stats

@@ -55,11 +55,17 @@ class ServerProcess:
         startup_timeout: float = 30.0,
         log_dir: str | os.PathLike[str] | None = None,
     ):
-        self.db_path = Path(db_path)
+        # A DuckDB file, or a postgresql:// URL (kept verbatim: Path would fold "//").
+        self.db = str(db_path)
+        self.is_url = "://" in self.db
+        self.db_path = Path(tempfile.gettempdir()) / "tsdb-server" if self.is_url else Path(db_path)
         self.extra_env = dict(extra_env or {})
         self.args = list(args or [])
         self.startup_timeout = startup_timeout
-        self.log_dir = Path(log_dir) if log_dir is not None else self.db_path.parent
+        if log_dir is None:
+            log_dir = self.db_path if self.is_url else self.db_path.parent
+            Path(log_dir).mkdir(parents=True, exist_ok=True)
+        self.log_dir = Path(log_dir)
         self.port: int | None = None
         self.proc: subprocess.Popen | None = None
         self.log_path: Path | None = None
@@ -87,7 +93,7 @@ class ServerProcess:
     def command(self, port: int) -> list[str]:
         return [
             sys.executable, "-m", "tsdb_service", "serve",
-            "--db", str(self.db_path), "--host", HOST, "--port", str(port),
+            "--db", self.db, "--host", HOST, "--port", str(port),
             *self.args,
         ]  # fmt: skip
 

@@ -127,8 +127,8 @@ def _between_failure(found, lo, hi):
 
 def _inside_failure(found, ring):
     def point_inside(value):
-        try:
-            lon, lat = value["coordinates"][:2]
+        try:  # a GeoJSON Point, or a position row {"lat", "lon", ...}
+            lon, lat = value["coordinates"][:2] if "coordinates" in value else (value["lon"], value["lat"])
         except (TypeError, KeyError, ValueError):
             return False
         return sites.inside(tuple(map(tuple, ring)), (lat, lon))
@@ -169,8 +169,12 @@ function select(doc, path) {
 }
 function isNumber(v) { return typeof v === "number"; }
 function pointInside(v, ring) {
-  if (!v || !Array.isArray(v.coordinates)) return false;
-  const [lon, lat] = v.coordinates; let inside = false;
+  if (!v) return false;
+  let lon, lat;
+  if (Array.isArray(v.coordinates)) [lon, lat] = v.coordinates;
+  else if (typeof v.lon === "number" && typeof v.lat === "number") [lon, lat] = [v.lon, v.lat];
+  else return false;
+  let inside = false;
   for (let i = 1; i < ring.length; i++) {
     const [lat1, lon1] = ring[i - 1], [lat2, lon2] = ring[i];
     if ((lat1 > lat) !== (lat2 > lat) && lon < lon1 + (lat - lat1) * (lon2 - lon1) / (lat2 - lat1)) inside = !inside;
@@ -343,11 +347,13 @@ def _use_cases() -> list[Query]:
               _entity(sites.LAWNMOWER_ID, "perimeterLeft(data)"), (("lastN", "100"),), mower,
               (count("values", 1, 100), each_in("values", [True, False]))),
         Query("Drone: positions inside the sensor field", "eProsima drone",
-              "Where the drone flew over the field: its GPS positions covered by the field's polygon.",
-              _entity(sites.DRONE_ID, "location"),
-              (("lastN", "200"), ("georel", "coveredBy"), ("geometry", "polygon"),
-               ("coords", _coords(sites.SENSOR_FIELD))), drone,
-              (count("values", 1, 200), inside("values", sites.SENSOR_FIELD))),
+              "Where the drone flew over the field: each GPS position covered by the field's polygon. "
+              "The history API's geo filter selects *devices* by their latest location; this asks about "
+              "*positions*, so it uses the positions endpoint, which applies the filter to every sample.",
+              "/grafana/infinity/positions",
+              (("id", sites.DRONE_ID), ("georel", "coveredBy"), ("geometry", "polygon"),
+               ("coords", _coords(sites.SENSOR_FIELD)), ("max_points", "5000")), drone,
+              (count("*", 1, 5000), inside("*", sites.SENSOR_FIELD))),
         Query("Drone: mission states", "eProsima drone",
               f"The last 50 mission states: {DRONE_MISSION_STATE}.",
               _entity(sites.DRONE_ID, "missionState(data)"), (("lastN", "50"),), drone,

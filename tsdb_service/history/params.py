@@ -100,6 +100,7 @@ def entity_list_query(
         time=time_range(get("fromDate"), get("toDate")),
         limit=default_limit if limit is None else min(limit, default_limit),
         offset=_non_negative(get("offset"), "offset") or 0,
+        geo=geo_filter(params),
     )
 
 
@@ -202,15 +203,10 @@ def aggregation(method: str | None, period: str | None, scope: str | None) -> Ag
 
 
 def geo_filter(params: Mapping[str, str]) -> object | None:
-    """Hook for geographical queries (``georel``, ``geometry``, ``coords``).
+    """``georel``, ``geometry`` and ``coords`` as a ``GeoFilter`` (or None)."""
+    from ..geo.filter import parse_geo
 
-    Geo is its own feature: until it lands, a geo query is refused with a
-    400 rather than answered without its filter. The geo feature replaces
-    this function to return a filter object for ``HistoryQuery.geo``.
-    """
-    if any(params.get(name) not in (None, "") for name in _GEO_PARAMS):
-        raise BadRequest("geographical queries (georel, geometry, coords) are not supported yet", error="NotSupported")
-    return None
+    return parse_geo(params.get("georel"), params.get("geometry"), params.get("coords"))
 
 
 def _positive(raw: str | None, name: str) -> int | None:

@@ -158,6 +158,7 @@ class EntityListQuery:
     time: TimeRange = field(default_factory=TimeRange)
     limit: int = 10_000
     offset: int = 0
+    geo: Any = None  # a tsdb_service.geo.filter.GeoFilter
 
 
 @dataclass(frozen=True, slots=True)

@@ -99,6 +99,10 @@ class Querier(ABC):
     @abstractmethod
     def count(self, sids, time) -> int: ...
 
+    @abstractmethod
+    def latest_geometries(self, sids, time, prefilter) -> list[tuple]:
+        """(sid, GeoJSON) of each series' latest geo sample, box-prefiltered."""
+
 
 class Store(ABC):
     """A database with one writer and many readers."""

@@ -29,6 +29,7 @@ from .catalog import SeriesCatalog, SeriesRef
 NUMERIC_KINDS = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
 NULL_KIND = int(Kind.NULL)
 INTEGER_KIND = int(Kind.INTEGER)
+GEO_KIND = int(Kind.GEO)
 _MAX_BIGINT = 2**62  # LIMIT/OFFSET values stay well inside int64
 
 
@@ -309,6 +310,33 @@ class SqlQuerier(Querier):
             f"FROM {d.samples('sid, rid, t, kind, atype, num, txt, js')} WHERE {where}) latest WHERE rn = 1"
         )
         return self._fetch(sql, params)
+
+    def latest_geometries(self, sids: Sequence[int], time: TimeRange, prefilter) -> list[tuple]:
+        """(sid, normalised GeoJSON) of each series' latest geo sample in
+        ``time``, keeping only those whose bounding box passes ``prefilter``
+        (``("intersects" | "within", box)`` or None). The latest is chosen
+        first and filtered after, so an older position can never stand in."""
+        if not sids:
+            return []
+        d = self.dialect
+        where, params = self._where(sids, time)
+        outer, outer_params = "", []
+        if prefilter is not None:
+            how, box = prefilter
+            p = d.placeholder
+            if how == "within":
+                outer = f" AND min_lon >= {p} AND max_lon <= {p} AND min_lat >= {p} AND max_lat <= {p}"
+                outer_params = [box.min_lon, box.max_lon, box.min_lat, box.max_lat]
+            else:
+                outer = f" AND max_lon >= {p} AND min_lon <= {p} AND max_lat >= {p} AND min_lat <= {p}"
+                outer_params = [box.min_lon, box.max_lon, box.min_lat, box.max_lat]
+        sql = (
+            "SELECT sid, geo FROM (SELECT sid, geo, min_lon, min_lat, max_lon, max_lat, "
+            "row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn "
+            f"FROM {d.samples('sid, rid, t, kind, geo, min_lon, min_lat, max_lon, max_lat')} "
+            f"WHERE {where} AND kind = {GEO_KIND}) latest WHERE rn = 1{outer}"
+        )
+        return self._fetch(sql, [*params, *outer_params])
 
     def count(self, sids: Sequence[int], time: TimeRange) -> int:
         if not sids:

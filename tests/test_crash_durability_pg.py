@@ -1,0 +1,76 @@
+"""The crash promise on PostgreSQL, with two service processes writing at once.
+
+Two replicas share one database; 16 clients spread over both send
+notifications; both are SIGKILLed mid-load. After a restart, every
+notification either replica acknowledged must be in the database.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import threading
+import time
+
+import psycopg
+import pytest
+
+try:
+    from support.server import ServerProcess
+except ImportError:  # tests/ imported as a package
+    from tests.support.server import ServerProcess
+
+from test_crash_durability import ACK, FAILED, KILL_AT_S, LOAD_S, REJECTED, TENANT, THREADS, client, entity_id, temperature
+
+
+def stored_temperatures(url: str) -> dict[str, set[float]]:
+    with psycopg.connect(url) as conn:
+        rows = conn.execute(
+            "SELECT s.entity_id, x.num FROM samples x JOIN series s USING (sid) "
+            "WHERE s.tenant = %s AND s.attr = 'temperature'",
+            [TENANT],
+        ).fetchall()
+    stored: dict[str, set[float]] = {}
+    for eid, num in rows:
+        stored.setdefault(eid, set()).add(num)
+    return stored
+
+
+@pytest.mark.skipif("postgresql" not in os.environ.get("TSDB_TEST_BACKENDS", "postgresql"),
+                    reason="PostgreSQL is not among TSDB_TEST_BACKENDS")
+def test_two_replicas_lose_nothing_acknowledged_on_sigkill(pg_cluster):
+    url = pg_cluster.database("crash_two_replicas")
+    replicas = [ServerProcess(url).start(), ServerProcess(url).start()]
+    outcomes: dict[int, str] = {}
+    seqs = itertools.count()
+    stop = threading.Event()
+    threads = [
+        threading.Thread(target=client, args=(replicas[i % 2].port, seqs, outcomes, stop), daemon=True)
+        for i in range(THREADS)
+    ]
+    try:
+        t0 = time.monotonic()
+        for t in threads:
+            t.start()
+        time.sleep(max(0.0, t0 + KILL_AT_S - time.monotonic()))
+        codes = [r.kill() for r in replicas]
+        time.sleep(max(0.0, t0 + LOAD_S - time.monotonic()))
+    finally:
+        stop.set()
+        for t in threads:
+            t.join(15)
+        for r in replicas:
+            r.kill()
+    assert codes == [-9, -9]
+
+    restarted = ServerProcess(url).start()  # migrations and health on a crashed database
+    restarted.terminate()
+
+    stored = stored_temperatures(url)
+    acked = [s for s, o in outcomes.items() if o == ACK]
+    unacked = [s for s, o in outcomes.items() if o in (FAILED, REJECTED)]
+    lost = [s for s in acked if temperature(s) not in stored.get(entity_id(s), ())]
+    print(f"crash test (PostgreSQL, 2 replicas): {len(acked)} acknowledged, {len(lost)} lost, "
+          f"{len(unacked)} unacknowledged")
+    assert len(acked) > 100
+    assert not lost, f"acknowledged but lost: {[entity_id(s) for s in lost[:10]]}"
