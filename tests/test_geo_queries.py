@@ -290,6 +290,15 @@ GOLDEN = [
         "values": [{"attrName": "temperature", "types": [
             {"type": "Sensor", "entities": [{"id": "callao", "index": [IDX], "values": [22.0]}]},
             {"type": "Street", "entities": [{"id": "granvia", "index": [IDX], "values": [24.0]}]}]}]}),
+    ("aggregation-global", f"/v2/types/Sensor/attrs/temperature?aggrMethod=avg&aggrScope=global&{NEAR_700}", {
+        "type": "Sensor", "attrName": "temperature", "entities": [
+            {"ids": ["callao", "sol"], "index": ["", ""], "values": [21.5]}]}),
+    ("aggregation-per-entity", f"/v2/attrs/temperature?aggrMethod=max&{BOX_EAST}", {
+        "attrName": "temperature", "types": [
+            {"type": "Sensor", "entities": [{"id": "atocha", "index": ["", ""], "values": [23.0]},
+                                            {"id": "retiro", "index": ["", ""], "values": [19.0]},
+                                            {"id": CIBELES, "index": ["", ""], "values": [20.5]}]},
+            {"type": "Zone", "entities": [{"id": "retiro-park", "index": ["", ""], "values": [18.0]}]}]}),
     ("no-location-never-matches", f"/v2/types/Room?{geo('disjoint', 'point', SOL)}", []),
 ]
 
@@ -298,3 +307,49 @@ GOLDEN = [
 def test_endpoint_golden(geo_client, path, expected):
     response = geo_client.get(path)
     assert (response.status_code, response.json()) == (200, expected), response.text
+
+
+# --- near to large lines and areas: edges run along parallels/meridians ----------------------------
+
+
+LARGE_SHAPES = {
+    "region": ("Area", {"type": "geo:box", "value": ["39, -4", "40, 2"]}),
+    "parallel-road": ("Area", {"type": "geo:line", "value": ["40, -4", "40, 2"]}),
+    "huge": ("Planet", {"type": "geo:box", "value": ["-80, -170", "80, 170"]}),
+}
+
+
+@pytest.fixture(scope="module")
+def large_client(client_factory, store_url_factory, notify):
+    with client_factory(store_url_factory("geo-large")) as client:
+        for eid, (etype, location) in LARGE_SHAPES.items():
+            notify(client, _v2(eid, etype, location, 1.0))
+        yield client
+
+
+@pytest.mark.parametrize(
+    ("query", "expected"),
+    [
+        pytest.param("type=Area&" + geo("intersects", "point", "40.045,-1"), set(), id="5km-north-intersects"),
+        pytest.param("type=Area&" + geo("near;maxDistance:1000", "point", "40.045,-1"), set(), id="5km-north-max1000"),
+        pytest.param("type=Area&" + geo("near;minDistance:4900;maxDistance:5100", "point", "40.045,-1"),
+                     {"region", "parallel-road"}, id="5km-north-ring"),
+        pytest.param("type=Area&" + geo("near;minDistance:1000", "point", "40.045,-1"),
+                     {"region", "parallel-road"}, id="5km-north-min1000"),
+        pytest.param("type=Area&" + geo("near;maxDistance:100", "point", "40.0001,-1"),
+                     {"region", "parallel-road"}, id="11m-north-max100"),
+        pytest.param("type=Area&" + geo("near;minDistance:100", "point", "40.0001,-1"), set(), id="11m-north-min100"),
+        pytest.param("type=Planet&" + geo("intersects", "point", "-17,180"), set(), id="antimeridian-intersects"),
+        pytest.param("type=Planet&" + geo("near;maxDistance:100000", "point", "-17,180"), set(),
+                     id="antimeridian-max100km"),
+    ],
+)
+def test_near_to_large_shapes(large_client, query, expected):
+    """Distances to a line or area are to its edges as every other predicate
+    sees them: straight in lon/lat (GeoJSON), so a geo:box edge is a parallel.
+
+    A 6°-wide region box (39..40°N, 4°W..2°E) and a road along 40°N: a point
+    0.045° north of 40°N (at 1°W) is 4,997 m from both; a point 0.0001° north
+    is 11 m from both. A huge box (80°S..80°N, 170°W..170°E) is 1,064 km from
+    17°S 180° (intersects agrees it is outside)."""
+    assert entity_ids(large_client, query) == expected

@@ -9,6 +9,7 @@ with shapely, with distances measured on the WGS84 ellipsoid.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import orjson
@@ -18,6 +19,9 @@ from shapely.geometry.base import BaseGeometry
 
 from ..errors import BadRequest
 from .geodesic import geodesic_distance_m, radius_bbox
+
+# JSON-style numbers only: float() would also take "1_0", "0x1p3" or "inf".
+_NUMBER = re.compile(r"^\s*[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?\s*$")
 
 GEORELS = ("near", "coveredBy", "intersects", "equals", "disjoint")
 GEOMETRIES = ("point", "line", "polygon", "box")
@@ -125,10 +129,9 @@ def _parse_georel(text: str) -> tuple[str, float | None, float | None]:
 
 
 def _metres(name: str, value: str) -> float:
-    try:
-        metres = float(value)
-    except ValueError:
-        raise BadRequest(f"{name} must be a number of metres, got {value!r}") from None
+    if not _NUMBER.match(value):
+        raise BadRequest(f"{name} must be a number of metres, got {value!r}")
+    metres = float(value)
     if not math.isfinite(metres) or metres < 0:
         raise BadRequest(f"{name} must be a non-negative number of metres, got {value!r}")
     return metres
@@ -141,10 +144,10 @@ def _parse_coords(text: str) -> list[tuple[float, float]]:
         parts = pair.split(",")
         if len(parts) != 2:
             raise BadRequest(f"coords point {i + 1} ({pair!r}) must be 'lat,lon'")
-        try:
-            lat, lon = float(parts[0]), float(parts[1])
-        except ValueError:
-            raise BadRequest(f"coords point {i + 1} ({pair!r}) is not two numbers") from None
+        for label, part in (("latitude", parts[0]), ("longitude", parts[1])):
+            if not _NUMBER.match(part):
+                raise BadRequest(f"coords point {i + 1} ({pair!r}) is not two numbers: {label} {part.strip()!r} is not a number")
+        lat, lon = float(parts[0]), float(parts[1])
         if not (math.isfinite(lat) and -90 <= lat <= 90):
             raise BadRequest(f"coords point {i + 1}: latitude {parts[0].strip()} is outside -90..90")
         if not (math.isfinite(lon) and -180 <= lon <= 180):

@@ -1,0 +1,296 @@
+"""Geo-query benchmark (issue 4): "the latest samples of the devices near here".
+
+    .venv/bin/python benchmarks/geo.py [--duration 10] [--connections 4] [--location every|once] [--json FILE]
+
+1. Loads 10,000 ``Device`` entities spread uniformly over a disc of 25 km
+   radius around Puerta del Sol, Madrid, with 100 samples each (one per
+   minute) in-process through the store (``write_sync`` with big
+   ``AppendSamples`` batches), compacts it and closes it. Every sample has a
+   ``temperature`` (Number). ``location`` (geo:json Point):
+   ``--location every`` (default) puts it in every sample, as moving robots
+   send it: each device wanders up to ~50 m around its spot, so there are
+   1,000,000 stored positions; ``--location once`` stores it only in the
+   first sample (fixed sensors). ``--db FILE`` reuses a loaded file.
+2. Starts the real server (``tsdb-service serve``, one process) on that file
+   and checks that the measured request answers correctly: for a few query
+   points, the entities returned are exactly those within 1,000 m of the
+   latest positions (computed here with pyproj ``Geod``), and lastN=10
+   returns their 10 newest temperatures.
+3. Drives it with ``benchmarks/loadgen.py`` (closed loop, keep-alive), a
+   random query point in the disc per request (4,096 pre-built requests):
+   ``GET /v2/types/Device/attrs/temperature?georel=near;maxDistance:1000
+   &geometry=point&coords=<lat,lon>&lastN=10`` at 1 connection (latency of
+   one query) and at ``--connections`` (throughput).
+4. Prints p50/p99 latency and requests/s, with PASS/FAIL against the target
+   (p50 <= 30 ms, both runs; no errors). Exit status 0 = all pass.
+
+DuckDB only, like benchmarks/queries.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import random
+import shutil
+import sys
+import tempfile
+import time
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(ROOT))
+
+from loadgen import build_request, run_load  # noqa: E402
+from queries import HOST, free_port, get, start_server, stop_server  # noqa: E402
+
+import psutil  # noqa: E402
+from pyproj import Geod  # noqa: E402
+
+ENTITIES = 10_000
+SAMPLES = 100
+STEP = timedelta(minutes=1)
+START = datetime(2024, 5, 1, tzinfo=UTC)
+ENTITY_TYPE = "Device"
+CENTRE = (-3.7038, 40.4168)  # lon, lat: Puerta del Sol, Madrid
+RADIUS_M = 25_000
+QUERY_RADIUS_M = 20_000  # query points: inside the populated disc
+MAX_DISTANCE = 1_000
+LAST_N = 10
+WANDER_M = 50
+TARGET_P50_MS = 30.0
+WGS84 = Geod(ellps="WGS84")
+
+
+def entity_id(n: int) -> str:
+    return f"urn:ngsi-ld:Device:{n:05d}"
+
+
+def random_point(rng: random.Random, radius_m: float) -> tuple[float, float]:
+    """(lon, lat) uniform over a disc of ``radius_m`` around CENTRE."""
+    lon, lat, _ = WGS84.fwd(CENTRE[0], CENTRE[1], rng.uniform(0, 360), radius_m * math.sqrt(rng.random()))
+    return round(lon, 6), round(lat, 6)
+
+
+def positions(every: bool) -> list[list[tuple[float, float]]]:
+    """Per entity, the position of each sample (a single one with ``every=False``).
+    Deterministic: the same seed gives the same data, so checks can recompute it."""
+    rng = random.Random(42)
+    out = []
+    for _ in range(ENTITIES):
+        home = random_point(rng, RADIUS_M)
+        if not every:
+            out.append([home])
+            continue
+        path = []
+        for _ in range(SAMPLES):
+            lon, lat, _ = WGS84.fwd(home[0], home[1], rng.uniform(0, 360), WANDER_M * rng.random())
+            path.append((round(lon, 6), round(lat, 6)))
+        out.append(path)
+    return out
+
+
+def temperature(e: int, i: int) -> float:
+    return round(15 + (e % 100) / 10 + i / 100, 3)
+
+
+# --- 1. load ---------------------------------------------------------------------------
+
+
+def load(db: Path, every: bool, batch_notifications: int = 50_000) -> dict:
+    import orjson
+
+    from tsdb_service.geo.encodings import from_geojson
+    from tsdb_service.model import AttrSample, EntitySample, Kind
+    from tsdb_service.storage.base import AppendSamples
+    from tsdb_service.storage.duckdb_store import DuckDBStore
+
+    t0 = time.perf_counter()
+    paths = positions(every)
+    store = DuckDBStore(str(db))
+    ids = [entity_id(e) for e in range(ENTITIES)]
+    batch: list[EntitySample] = []
+    written = 0
+    try:
+        for i in range(SAMPLES):
+            moment = START + i * STEP
+            for e in range(ENTITIES):
+                attrs = [AttrSample("temperature", "Number", Kind.NUMBER, num=temperature(e, i))]
+                if every or i == 0:
+                    lon, lat = paths[e][i if every else 0]
+                    value = {"type": "Point", "coordinates": [lon, lat]}
+                    attrs.append(AttrSample("location", "geo:json", Kind.GEO, js=orjson.dumps(value).decode(),
+                                            geo=from_geojson(value)))
+                batch.append(EntitySample("", "/", ids[e], ENTITY_TYPE, moment, attrs))
+                written += len(attrs)
+                if len(batch) >= batch_notifications:
+                    store.write_sync([AppendSamples(batch)])
+                    batch = []
+            if i % 20 == 19:
+                print(f"  loaded {written:,} samples ({time.perf_counter() - t0:.0f} s)", flush=True)
+        if batch:
+            store.write_sync([AppendSamples(batch)])
+        t_load = time.perf_counter() - t0
+        store.compact(full=True)
+        t_compact = time.perf_counter() - t0 - t_load
+    finally:
+        store.close()
+    return {"samples": written, "load_s": round(t_load, 1), "compact_s": round(t_compact, 1)}
+
+
+# --- 2. correctness of what we measure ------------------------------------------------------
+
+
+def query_path(lon: float, lat: float) -> str:
+    return (f"/v2/types/{ENTITY_TYPE}/attrs/temperature?georel=near;maxDistance:{MAX_DISTANCE}"
+            f"&geometry=point&coords={lat},{lon}&lastN={LAST_N}")
+
+
+def check_answers(port: int, every: bool, points: int = 20) -> dict:
+    latest = [path[-1] for path in positions(every)]
+    lons = [p[0] for p in latest]
+    lats = [p[1] for p in latest]
+    rng = random.Random(99)
+    matched_counts = []
+    for _ in range(points):
+        lon, lat = random_point(rng, QUERY_RADIUS_M)
+        _, _, dist = WGS84.inv([lon] * ENTITIES, [lat] * ENTITIES, lons, lats)
+        expected = {entity_id(e) for e, d in enumerate(dist) if d <= MAX_DISTANCE}
+        matched_counts.append(len(expected))
+        status, body = get(port, f"/v2/entities?type={ENTITY_TYPE}&georel=near;maxDistance:{MAX_DISTANCE}"
+                                 f"&geometry=point&coords={lat},{lon}&limit=10000")
+        got = {e["id"] for e in json.loads(body)} if status == 200 else None
+        assert got == expected, (lat, lon, status, sorted(expected ^ (got or set()))[:10])
+        status, body = get(port, query_path(lon, lat))
+        assert status == 200, (status, body[:300])
+        doc = json.loads(body)
+        if not expected:
+            assert doc == [] or doc.get("entities") == [], body[:300]
+            continue
+        rows = [(eid["id"], t, v) for eid in doc["entities"] for t, v in zip(eid["index"], eid["values"], strict=True)]
+        assert {r[0] for r in rows} <= expected, rows
+        assert len(rows) == min(LAST_N, len(expected) * SAMPLES), len(rows)
+        newest = (START + (SAMPLES - 1) * STEP).strftime("%Y-%m-%dT%H:%M:%S.000+00:00")
+        assert all(r[1] == newest for r in rows) if len(expected) >= LAST_N else True, rows
+        for eid, _t, value in rows:
+            e = int(eid.rsplit(":", 1)[1])
+            assert value in {temperature(e, i) for i in range(SAMPLES)}, (eid, value)
+    return {"points_checked": points, "matched_min": min(matched_counts), "matched_max": max(matched_counts),
+            "matched_mean": round(sum(matched_counts) / points, 1)}
+
+
+# --- 3. load generation ---------------------------------------------------------------------
+
+
+def requests(port: int, n: int = 4096) -> list[bytes]:
+    rng = random.Random(7)
+    out = []
+    for _ in range(n):
+        lon, lat = random_point(rng, QUERY_RADIUS_M)
+        out.append(build_request("GET", query_path(lon, lat), HOST, port))
+    return out
+
+
+def measure(port: int, reqs: list[bytes], connections: int, duration: float, warmup: float):
+    n = len(reqs)
+    return run_load(HOST, port, lambda seq: reqs[seq % n], connections=connections, duration=duration,
+                    warmup=warmup)
+
+
+# --- 4. report -------------------------------------------------------------------------------
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--db", help="reuse this loaded DuckDB file (loaded there if missing; default: a temp dir)")
+    ap.add_argument("--location", choices=("every", "once"), default="every",
+                    help="location in every sample (moving devices, default) or only the first")
+    ap.add_argument("--keep", action="store_true", help="keep the temporary database")
+    ap.add_argument("--duration", type=float, default=10.0)
+    ap.add_argument("--warmup", type=float, default=2.0)
+    ap.add_argument("--connections", type=int, default=4)
+    ap.add_argument("--json", help="write the results here")
+    args = ap.parse_args(argv)
+    every = args.location == "every"
+
+    tmp = None
+    if args.db:
+        db = Path(args.db)
+        loaded = {"reused": str(db)}
+        if not db.exists():
+            print(f"loading {ENTITIES:,} entities x {SAMPLES} samples into {db} ...", flush=True)
+            loaded = load(db, every)
+    else:
+        tmp = Path(tempfile.mkdtemp(prefix="tsdb-geo-"))
+        db = tmp / "geo.duckdb"
+        print(f"loading {ENTITIES:,} entities x {SAMPLES} samples (location: {args.location}) into {db} ...",
+              flush=True)
+        loaded = load(db, every)
+    print(f"  {loaded}", flush=True)
+
+    port = free_port()
+    log_path = (tmp or db.parent) / "server-geo.log"
+    proc = start_server(db, port, log_path)
+    results: dict[str, dict] = {}
+    try:
+        print("checking answers against pyproj ...", flush=True)
+        checked = check_answers(port, every)
+        print(f"  {checked}", flush=True)
+        server = psutil.Process(proc.pid)
+        reqs = requests(port)
+        plan = [("1conn", 1), ("loaded", args.connections)]
+        for key, conns in plan:
+            print(f"measuring near;maxDistance:{MAX_DISTANCE} + lastN={LAST_N} ({conns} connections, "
+                  f"{args.duration:g} s) ...", flush=True)
+            cpu0 = server.cpu_times()
+            stats = measure(port, reqs, conns, args.duration, args.warmup)
+            cpu1 = server.cpu_times()
+            cpu_ms = (cpu1.user + cpu1.system - cpu0.user - cpu0.system) / max(stats.total_ok, 1) * 1e3
+            results[key] = {"connections": conns, "server_cpu_ms_per_req": cpu_ms, **stats.to_dict()}
+        rss = server.memory_info().rss
+    finally:
+        stop_server(proc)
+
+    checks = {
+        f"p50 <= {TARGET_P50_MS:g} ms (1 connection)": _le(results["1conn"]["p50_ms"], TARGET_P50_MS),
+        f"p50 <= {TARGET_P50_MS:g} ms ({args.connections} connections)": _le(results["loaded"]["p50_ms"],
+                                                                             TARGET_P50_MS),
+        "no errors": all(r["errors"] == 0 and r["non_2xx"] == 0 for r in results.values()),
+    }
+    print()
+    print(f"GET /v2/types/{ENTITY_TYPE}/attrs/temperature?georel=near;maxDistance:{MAX_DISTANCE}"
+          f"&geometry=point&coords=<random>&lastN={LAST_N}")
+    print(f"{ENTITIES:,} entities x {SAMPLES} samples, location in {args.location} sample(s), "
+          f"{checked['matched_mean']} entities within {MAX_DISTANCE} m on average")
+    print(f"{'connections':>11} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu ms/req':>10} {'errors':>6}")
+    for r in results.values():
+        print(f"{r['connections']:>11} {r['rps']:>8.0f} {_fmt(r['p50_ms'])} {_fmt(r['p99_ms'])} "
+              f"{r['server_cpu_ms_per_req']:>10.2f} {r['errors'] + r['non_2xx']:>6}")
+    print(f"server RSS: {rss / 2**20:.0f} MiB")
+    print()
+    for name, ok in checks.items():
+        print(f"{'PASS' if ok else 'FAIL'}  {name}")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"load": loaded, "location": args.location, "check": checked,
+                                               "results": results, "checks": checks, "rss_bytes": rss}, indent=2))
+    if tmp is not None and not args.keep:
+        shutil.rmtree(tmp, ignore_errors=True)
+    elif tmp is not None:
+        print(f"kept {db}")
+    return 0 if all(checks.values()) else 1
+
+
+def _le(value, limit: float) -> bool:
+    return value is not None and value <= limit
+
+
+def _fmt(value) -> str:
+    return f"{value:>8.2f}" if value is not None else f"{'-':>8}"
+
+
+if __name__ == "__main__":
+    sys.exit(main())
