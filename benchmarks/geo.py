@@ -21,8 +21,12 @@
    ``GET /v2/types/Device/attrs/temperature?georel=near;maxDistance:1000
    &geometry=point&coords=<lat,lon>&lastN=10`` at 1 connection (latency of
    one query) and at ``--connections`` (throughput).
+   For comparison it also measures the same history asked by ``id`` (the
+   entities within 1,000 m, computed here) without geo, at 1 connection: the
+   gap between the two is the cost of the geo filter.
 4. Prints p50/p99 latency and requests/s, with PASS/FAIL against the target
-   (p50 <= 30 ms, both runs; no errors). Exit status 0 = all pass.
+   (geo p50 <= 30 ms at 1 and at ``--connections`` connections; no errors).
+   Exit status 0 = all pass.
 
 DuckDB only, like benchmarks/queries.py.
 """
@@ -186,13 +190,24 @@ def check_answers(port: int, every: bool, points: int = 20) -> dict:
 # --- 3. load generation ---------------------------------------------------------------------
 
 
-def requests(port: int, n: int = 4096) -> list[bytes]:
+def requests(port: int, every: bool, n: int = 1024) -> tuple[list[bytes], list[bytes]]:
+    """The geo request for ``n`` random points, and the same history asked by
+    ``id`` (the entities within 1,000 m, computed here) without geo: the
+    difference between the two is what the geo filter costs."""
+    latest = [path[-1] for path in positions(every)]
+    lons = [p[0] for p in latest]
+    lats = [p[1] for p in latest]
     rng = random.Random(7)
-    out = []
+    geo_reqs, by_id = [], []
     for _ in range(n):
         lon, lat = random_point(rng, QUERY_RADIUS_M)
-        out.append(build_request("GET", query_path(lon, lat), HOST, port))
-    return out
+        geo_reqs.append(build_request("GET", query_path(lon, lat), HOST, port))
+        _, _, dist = WGS84.inv([lon] * ENTITIES, [lat] * ENTITIES, lons, lats)
+        ids = [entity_id(e) for e, d in enumerate(dist) if d <= MAX_DISTANCE]
+        if ids:
+            by_id.append(build_request(
+                "GET", f"/v2/types/{ENTITY_TYPE}/attrs/temperature?id={','.join(ids)}&lastN={LAST_N}", HOST, port))
+    return geo_reqs, by_id
 
 
 def measure(port: int, reqs: list[bytes], connections: int, duration: float, warmup: float):
@@ -212,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep", action="store_true", help="keep the temporary database")
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--warmup", type=float, default=2.0)
-    ap.add_argument("--connections", type=int, default=4)
+    ap.add_argument("--connections", type=int, default=4, help="connections for the loaded run")
     ap.add_argument("--json", help="write the results here")
     args = ap.parse_args(argv)
     every = args.location == "every"
@@ -241,16 +256,19 @@ def main(argv: list[str] | None = None) -> int:
         checked = check_answers(port, every)
         print(f"  {checked}", flush=True)
         server = psutil.Process(proc.pid)
-        reqs = requests(port)
-        plan = [("1conn", 1), ("loaded", args.connections)]
-        for key, conns in plan:
-            print(f"measuring near;maxDistance:{MAX_DISTANCE} + lastN={LAST_N} ({conns} connections, "
-                  f"{args.duration:g} s) ...", flush=True)
+        geo_reqs, by_id = requests(port, every)
+        plan = [
+            ("1conn", f"near;maxDistance:{MAX_DISTANCE} + lastN={LAST_N}", geo_reqs, 1),
+            ("loaded", f"near;maxDistance:{MAX_DISTANCE} + lastN={LAST_N}", geo_reqs, args.connections),
+            ("baseline", f"same entities by id=, no geo, lastN={LAST_N}", by_id, 1),
+        ]
+        for key, label, reqs, conns in plan:
+            print(f"measuring {label} ({conns} connections, {args.duration:g} s) ...", flush=True)
             cpu0 = server.cpu_times()
             stats = measure(port, reqs, conns, args.duration, args.warmup)
             cpu1 = server.cpu_times()
             cpu_ms = (cpu1.user + cpu1.system - cpu0.user - cpu0.system) / max(stats.total_ok, 1) * 1e3
-            results[key] = {"connections": conns, "server_cpu_ms_per_req": cpu_ms, **stats.to_dict()}
+            results[key] = {"label": label, "connections": conns, "server_cpu_ms_per_req": cpu_ms, **stats.to_dict()}
         rss = server.memory_info().rss
     finally:
         stop_server(proc)
@@ -264,11 +282,11 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(f"GET /v2/types/{ENTITY_TYPE}/attrs/temperature?georel=near;maxDistance:{MAX_DISTANCE}"
           f"&geometry=point&coords=<random>&lastN={LAST_N}")
-    print(f"{ENTITIES:,} entities x {SAMPLES} samples, location in {args.location} sample(s), "
+    print(f"{ENTITIES:,} entities x {SAMPLES} samples, location in {'every sample' if every else 'the first sample only'}, "
           f"{checked['matched_mean']} entities within {MAX_DISTANCE} m on average")
-    print(f"{'connections':>11} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu ms/req':>10} {'errors':>6}")
+    print(f"{'scenario':<40} {'conns':>5} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu ms/req':>10} {'errors':>6}")
     for r in results.values():
-        print(f"{r['connections']:>11} {r['rps']:>8.0f} {_fmt(r['p50_ms'])} {_fmt(r['p99_ms'])} "
+        print(f"{r['label']:<40} {r['connections']:>5} {r['rps']:>8.1f} {_fmt(r['p50_ms'])} {_fmt(r['p99_ms'])} "
               f"{r['server_cpu_ms_per_req']:>10.2f} {r['errors'] + r['non_2xx']:>6}")
     print(f"server RSS: {rss / 2**20:.0f} MiB")
     print()

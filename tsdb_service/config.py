@@ -35,6 +35,10 @@ class Settings(BaseSettings):
     writer_threads: int = Field(
         3, ge=1, le=16, description="Group-commit writer threads (commits overlap while one waits)."
     )
+    tail_cache_series: int = Field(
+        4096, ge=0, description="DuckDB: series whose newest samples are kept in memory (0: off)."
+    )
+    tail_cache_rows: int = Field(128, ge=0, description="DuckDB: newest samples kept per cached series.")
     log_level: str = "info"
     access_log: bool = False
 

@@ -19,4 +19,6 @@ def open_store(settings: Settings) -> Store:
         compact_rows=settings.compact_rows,
         major_compact_runs=settings.major_compact_runs,
         writer_threads=settings.writer_threads,
+        tail_series=settings.tail_cache_series,
+        tail_rows=settings.tail_cache_rows,
     )

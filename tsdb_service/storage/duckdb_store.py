@@ -26,6 +26,7 @@ from ..errors import Unavailable
 from ..model import EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
 from .base import Appender, AppendSamples, DeleteSamples, PutLayout, RecordRejected, Store, WriteOp
+from .tail_cache import TailCache
 from .migrate import applied_versions, load_migrations, split_statements
 from .writer import GroupCommitter
 
@@ -134,7 +135,7 @@ class DuckDBStore(Store):
     backend = "duckdb"
 
     def __init__(self, path: str, *, compact_rows: int = 500_000, major_compact_runs: int = 8,
-                 writer_threads: int = 3):
+                 writer_threads: int = 3, tail_series: int = 4096, tail_rows: int = 128):
         self.path = path
         self._con = connect(path)
         migrate_duckdb(self._con)
@@ -150,6 +151,7 @@ class DuckDBStore(Store):
         # Writers allocate series ids, row ids and rejection ids under this.
         self._alloc_lock = threading.Lock()
         self._series_lock = threading.Lock()
+        self.tail = TailCache(tail_series, tail_rows)
         self._next_rid = (self._con.execute("SELECT max(rid) FROM samples_all").fetchone()[0] or 0) + 1
         self._next_rejected = (
             self._con.execute("SELECT max(id) FROM rejected_notifications").fetchone()[0] or 0
@@ -393,6 +395,7 @@ class DuckDBAppender(Appender):
                 cur.execute(INSERT_SAMPLES, [self._cols[name] for name in SAMPLE_SCHEMA.names])
             else:
                 self._insert_arrow(cur)
+            self._store.tail.publish(self._cols)
         if self._rejected or self._layouts or self._deletes:
             # A delete must not race the compactor moving or rewriting the
             # same rows (its copy could resurrect them): hold its lock.
@@ -434,6 +437,8 @@ class DuckDBAppender(Appender):
                 ):
                     cur.execute(sql, params)
         cur.execute("COMMIT")
+        for op, _ in self._deletes:
+            self._store.tail.drop(op.sids)
 
     def _publish(self) -> None:
         """Expose only what is durable."""

@@ -1,0 +1,165 @@
+"""The newest samples of recently read series, in memory (DuckDB only).
+
+"The latest N values of this attribute" is the most common history request
+and the one dashboards repeat. From the database it costs a query of about a
+millisecond however small the answer; from here, a slice of a list. Like
+Prometheus' head block, the tail holds the newest samples of a series:
+
+* loaded on the first read of a series (its newest ``rows`` samples);
+* kept current by the writers, which publish every committed sample of a
+  cached series, in time order (late samples are inserted where they belong);
+* dropped for series touched by a delete.
+
+A load races the writers: a commit between the load's query and its
+install could be missing from it. Every publish bumps a sequence number; a
+load installs only if the number did not move while it ran, otherwise it
+answers from its own query and leaves the cache alone. Publishing skips a
+row the entry already holds, so a commit seen by a load and published later
+is not counted twice.
+
+An entry answers a request only when that is provably the same as asking
+the database: when it holds every sample of the series, or when at least
+``offset + limit`` of its samples lie in the requested time window (any
+sample not cached is older than all cached ones).
+
+On PostgreSQL several replicas write, so no process sees every commit; the
+(sid, t) index serves these requests there instead.
+"""
+
+from __future__ import annotations
+
+import bisect
+import threading
+from collections import OrderedDict
+from collections.abc import Callable
+from datetime import datetime, timedelta
+
+_EPOCH = datetime(1970, 1, 1)
+
+# (t in epoch µs, rid, ISO time, kind, num, txt, js); sorted by (t, rid)
+TailRow = tuple[int, int, str, int, float | None, str | None, str | None]
+
+
+class _Entry:
+    __slots__ = ("rows", "keys", "whole")
+
+    def __init__(self, rows: list[TailRow], whole: bool):
+        self.rows = rows
+        self.keys = [(r[0], r[1]) for r in rows]
+        self.whole = whole  # holds every sample of the series
+
+
+def iso_ms(micros: int) -> str:
+    """The API's time format, as the SQL renderer writes it."""
+    moment = _EPOCH + timedelta(microseconds=micros)
+    return (
+        f"{moment.year:04d}-{moment.month:02d}-{moment.day:02d}T{moment.hour:02d}:"
+        f"{moment.minute:02d}:{moment.second:02d}.{moment.microsecond // 1000:03d}+00:00"
+    )
+
+
+class TailCache:
+    def __init__(self, max_series: int = 4096, rows: int = 128):
+        self.max_series = max_series
+        self.capacity = rows
+        self._entries: OrderedDict[int, _Entry] = OrderedDict()
+        self._lock = threading.Lock()
+        self._seq = 0
+        self.hits = 0
+        self.misses = 0
+
+    @property
+    def enabled(self) -> bool:
+        return self.max_series > 0 and self.capacity > 0
+
+    # -- writers -----------------------------------------------------------------
+
+    def publish(self, cols: dict[str, list]) -> None:
+        """Committed samples (the appender's columns) reach cached series."""
+        if not self.enabled:
+            return
+        with self._lock:
+            self._seq += 1
+            entries = self._entries
+            if not entries:
+                return
+            sids = cols["sid"]
+            for i in range(len(sids)):
+                entry = entries.get(sids[i])
+                if entry is not None:
+                    self._insert(entry, cols, i)
+
+    def _insert(self, entry: _Entry, cols: dict[str, list], i: int) -> None:
+        key = (cols["t"][i], cols["rid"][i])
+        if not entry.whole and entry.keys and key < entry.keys[0]:
+            return  # older than the tail: not part of it
+        at = bisect.bisect_left(entry.keys, key)
+        if at < len(entry.keys) and entry.keys[at] == key:
+            return  # already loaded with the tail
+        row = (key[0], key[1], iso_ms(key[0]), cols["kind"][i], cols["num"][i], cols["txt"][i], cols["js"][i])
+        entry.keys.insert(at, key)
+        entry.rows.insert(at, row)
+        if len(entry.rows) > self.capacity:
+            del entry.keys[0], entry.rows[0]
+            entry.whole = False
+
+    def drop(self, sids) -> None:
+        """Forget series whose samples were deleted."""
+        with self._lock:
+            self._seq += 1
+            for sid in sids:
+                self._entries.pop(sid, None)
+
+    # -- readers -----------------------------------------------------------------
+
+    def rows(
+        self,
+        sid: int,
+        load: Callable[[int, int], list[TailRow]],
+        start_us: int | None,
+        end_us: int | None,
+        newest_first: bool,
+        limit: int,
+        offset: int,
+    ) -> list[TailRow] | None:
+        """The rows SQL would return, oldest first, or None when the tail
+        cannot know them (the caller then asks the database)."""
+        if not self.enabled or offset + limit > self.capacity:
+            return None
+        with self._lock:
+            entry = self._entries.get(sid)
+            if entry is not None:
+                self._entries.move_to_end(sid)
+            seq = self._seq
+        if entry is None:
+            self.misses += 1
+            entry = self._load(sid, load, seq)
+        else:
+            self.hits += 1
+        with self._lock:
+            return _answer(entry, start_us, end_us, newest_first, limit, offset)
+
+    def _load(self, sid: int, load, seq: int) -> _Entry:
+        newest = load(sid, self.capacity + 1)  # newest first
+        whole = len(newest) <= self.capacity
+        entry = _Entry(newest[: self.capacity][::-1], whole)
+        with self._lock:
+            if self._seq == seq and sid not in self._entries:
+                self._entries[sid] = entry
+                while len(self._entries) > self.max_series:
+                    self._entries.popitem(last=False)
+        return entry
+
+
+def _answer(entry: _Entry, start_us, end_us, newest_first: bool, limit: int, offset: int):
+    rows = entry.rows
+    lo = 0 if start_us is None else bisect.bisect_left(entry.keys, (start_us, -1))
+    hi = len(rows) if end_us is None else bisect.bisect_right(entry.keys, (end_us, 2**63))
+    in_window = hi - lo
+    if not entry.whole and (not newest_first or in_window < offset + limit):
+        return None
+    if newest_first:
+        stop = hi - offset
+        return rows[max(lo, stop - limit): max(lo, stop)]
+    first = lo + offset
+    return rows[first: min(hi, first + limit)]
