@@ -1,23 +1,26 @@
 """Geo-query benchmark (issue 4): "the latest samples of the devices near here".
 
     .venv/bin/python benchmarks/geo.py [--duration 10] [--connections 4] [--location every|once] [--json FILE]
+    .venv/bin/python benchmarks/geo.py --backend postgresql      # or --db postgresql://... (already loaded)
 
 1. Loads 10,000 ``Device`` entities spread uniformly over a disc of 25 km
    radius around Puerta del Sol, Madrid, with 100 samples each (one per
    minute) in-process through the store (``write_sync`` with big
-   ``AppendSamples`` batches), compacts it and closes it. Every sample has a
-   ``temperature`` (Number). ``location`` (geo:json Point):
-   ``--location every`` (default) puts it in every sample, as moving robots
-   send it: each device wanders up to ~50 m around its spot, so there are
-   1,000,000 stored positions; ``--location once`` stores it only in the
-   first sample (fixed sensors). ``--db FILE`` reuses a loaded file.
-2. Starts the real server (``tsdb-service serve``, one process) on that file
-   and checks that the measured request answers correctly: for a few query
-   points, the entities returned are exactly those within 1,000 m of the
-   latest positions (computed here with pyproj ``Geod``), and lastN=10
-   returns their 10 newest temperatures.
+   ``AppendSamples`` batches), then compacts it (DuckDB) or runs ``VACUUM
+   (ANALYZE)`` (PostgreSQL: a private cluster started for the run, as in
+   benchmarks/queries.py). Every sample has a ``temperature`` (Number).
+   ``location`` (geo:json Point): ``--location every`` (default) puts it in
+   every sample, as moving robots send it: each device wanders up to ~50 m
+   around its spot, so there are 1,000,000 stored positions; ``--location
+   once`` stores it only in the first sample (fixed sensors). ``--db``
+   reuses a loaded DuckDB file (loading it there if missing) or database.
+2. Starts the real server (``tsdb-service serve``, one process) on it and
+   checks that the measured request answers correctly: for 20 query points,
+   the entities returned are exactly those within 1,000 m of the latest
+   positions (computed here with pyproj ``Geod``), and lastN=10 returns 10
+   of their temperatures, the newest.
 3. Drives it with ``benchmarks/loadgen.py`` (closed loop, keep-alive), a
-   random query point in the disc per request (4,096 pre-built requests):
+   random query point in the inner 20 km per request (1,024 pre-built):
    ``GET /v2/types/Device/attrs/temperature?georel=near;maxDistance:1000
    &geometry=point&coords=<lat,lon>&lastN=10`` at 1 connection (latency of
    one query) and at ``--connections`` (throughput).
@@ -27,8 +30,6 @@
 4. Prints p50/p99 latency and requests/s, with PASS/FAIL against the target
    (geo p50 <= 30 ms at 1 and at ``--connections`` connections; no errors).
    Exit status 0 = all pass.
-
-DuckDB only, like benchmarks/queries.py.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import random
 import shutil
 import sys
@@ -50,7 +52,8 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT))
 
 from loadgen import build_request, run_load  # noqa: E402
-from queries import HOST, free_port, get, start_server, stop_server  # noqa: E402
+from pgutil import BenchCluster  # noqa: E402
+from queries import HOST, free_port, get, is_pg, open_store, start_server, stop_server, tree_cpu, tree_rss  # noqa: E402
 
 import psutil  # noqa: E402
 from pyproj import Geod  # noqa: E402
@@ -105,17 +108,16 @@ def temperature(e: int, i: int) -> float:
 # --- 1. load ---------------------------------------------------------------------------
 
 
-def load(db: Path, every: bool, batch_notifications: int = 50_000) -> dict:
+def load(db: Path | str, every: bool, batch_notifications: int = 50_000, cluster: BenchCluster | None = None) -> dict:
     import orjson
 
     from tsdb_service.geo.encodings import from_geojson
     from tsdb_service.model import AttrSample, EntitySample, Kind
     from tsdb_service.storage.base import AppendSamples
-    from tsdb_service.storage.duckdb_store import DuckDBStore
 
     t0 = time.perf_counter()
     paths = positions(every)
-    store = DuckDBStore(str(db))
+    store = open_store(db)
     ids = [entity_id(e) for e in range(ENTITIES)]
     batch: list[EntitySample] = []
     written = 0
@@ -139,11 +141,19 @@ def load(db: Path, every: bool, batch_notifications: int = 50_000) -> dict:
         if batch:
             store.write_sync([AppendSamples(batch)])
         t_load = time.perf_counter() - t0
-        store.compact(full=True)
+        if is_pg(db):
+            store.close()
+            store = None
+            if cluster is not None:
+                cluster.vacuum_analyze()
+        else:
+            store.compact(full=True)
         t_compact = time.perf_counter() - t0 - t_load
     finally:
-        store.close()
-    return {"samples": written, "load_s": round(t_load, 1), "compact_s": round(t_compact, 1)}
+        if store is not None:
+            store.close()
+    key = "vacuum_analyze_s" if is_pg(db) else "compact_s"
+    return {"samples": written, "load_s": round(t_load, 1), key: round(t_compact, 1)}
 
 
 # --- 2. correctness of what we measure ------------------------------------------------------
@@ -221,7 +231,10 @@ def measure(port: int, reqs: list[bytes], connections: int, duration: float, war
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--db", help="reuse this loaded DuckDB file (loaded there if missing; default: a temp dir)")
+    ap.add_argument("--backend", choices=("duckdb", "postgresql"), default="duckdb",
+                    help="duckdb (default: a temp file) or postgresql (a private cluster started for the run)")
+    ap.add_argument("--db", help="reuse this DuckDB file (loaded there if missing) or this loaded postgresql:// "
+                                 "database (default: load a fresh one)")
     ap.add_argument("--location", choices=("every", "once"), default="every",
                     help="location in every sample (moving devices, default) or only the first")
     ap.add_argument("--keep", action="store_true", help="keep the temporary database")
@@ -230,48 +243,67 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--connections", type=int, default=4, help="connections for the loaded run")
     ap.add_argument("--json", help="write the results here")
     args = ap.parse_args(argv)
+    if args.db and is_pg(args.db):
+        args.backend = "postgresql"
     every = args.location == "every"
+    where = "every sample" if every else "the first sample only"
+    print(f"geo benchmark on {args.backend}: {ENTITIES:,} entities x {SAMPLES} samples, location in {where}",
+          flush=True)
 
-    tmp = None
-    if args.db:
-        db = Path(args.db)
-        loaded = {"reused": str(db)}
-        if not db.exists():
-            print(f"loading {ENTITIES:,} entities x {SAMPLES} samples into {db} ...", flush=True)
-            loaded = load(db, every)
-    else:
-        tmp = Path(tempfile.mkdtemp(prefix="tsdb-geo-"))
-        db = tmp / "geo.duckdb"
-        print(f"loading {ENTITIES:,} entities x {SAMPLES} samples (location: {args.location}) into {db} ...",
-              flush=True)
-        loaded = load(db, every)
-    print(f"  {loaded}", flush=True)
-
-    port = free_port()
-    log_path = (tmp or db.parent) / "server-geo.log"
-    proc = start_server(db, port, log_path)
+    tmp = Path(tempfile.mkdtemp(prefix="tsdb-geo-"))
+    cluster: BenchCluster | None = None
+    db: Path | str
     results: dict[str, dict] = {}
     try:
-        print("checking answers against pyproj ...", flush=True)
-        checked = check_answers(port, every)
-        print(f"  {checked}", flush=True)
-        server = psutil.Process(proc.pid)
-        geo_reqs, by_id = requests(port, every)
-        plan = [
-            ("1conn", f"near;maxDistance:{MAX_DISTANCE} + lastN={LAST_N}", geo_reqs, 1),
-            ("loaded", f"near;maxDistance:{MAX_DISTANCE} + lastN={LAST_N}", geo_reqs, args.connections),
-            ("baseline", f"same entities by id=, no geo, lastN={LAST_N}", by_id, 1),
-        ]
-        for key, label, reqs, conns in plan:
-            print(f"measuring {label} ({conns} connections, {args.duration:g} s) ...", flush=True)
-            cpu0 = server.cpu_times()
-            stats = measure(port, reqs, conns, args.duration, args.warmup)
-            cpu1 = server.cpu_times()
-            cpu_ms = (cpu1.user + cpu1.system - cpu0.user - cpu0.system) / max(stats.total_ok, 1) * 1e3
-            results[key] = {"label": label, "connections": conns, "server_cpu_ms_per_req": cpu_ms, **stats.to_dict()}
-        rss = server.memory_info().rss
+        if args.backend == "postgresql":
+            if args.db:
+                db, loaded = args.db, {"reused": "(a postgresql:// database)"}
+            else:
+                print("starting a private PostgreSQL cluster ...", flush=True)
+                cluster = BenchCluster("geo").start()
+                db = cluster.url
+                print(f"loading into PostgreSQL {cluster.version} ({db}) ...", flush=True)
+                loaded = load(db, every, cluster=cluster)
+        elif args.db:
+            db, loaded = Path(args.db), {"reused": args.db}
+            if not db.exists():
+                print(f"loading into {db} ...", flush=True)
+                loaded = load(db, every)
+        else:
+            db = tmp / "geo.duckdb"
+            print(f"loading into {db} ...", flush=True)
+            loaded = load(db, every)
+        print(f"  {loaded}", flush=True)
+
+        port = free_port()
+        proc = start_server(db, port, tmp / "server.log")
+        try:
+            print("checking answers against pyproj ...", flush=True)
+            checked = check_answers(port, every)
+            print(f"  {checked}", flush=True)
+            server = psutil.Process(proc.pid)
+            geo_reqs, by_id = requests(port, every)
+            label = f"near;maxDistance:{MAX_DISTANCE} + lastN={LAST_N}"
+            plan = [
+                ("1conn", label, geo_reqs, 1),
+                ("loaded", label, geo_reqs, args.connections),
+                ("baseline", f"same entities by id=, no geo, lastN={LAST_N}", by_id, 1),
+            ]
+            for key, text, reqs, conns in plan:
+                print(f"measuring {text} ({conns} connections, {args.duration:g} s) ...", flush=True)
+                cpu0 = tree_cpu(server)
+                db_cpu0 = cluster.cpu_seconds() if cluster else math.nan
+                stats = measure(port, reqs, conns, args.duration, args.warmup)
+                cpu_ms = (tree_cpu(server) - cpu0) / max(stats.total_ok, 1) * 1e3
+                db_cpu_ms = ((cluster.cpu_seconds() - db_cpu0) / max(stats.total_ok, 1) * 1e3) if cluster else None
+                results[key] = {"label": text, "connections": conns, "server_cpu_ms_per_req": cpu_ms,
+                                "db_cpu_ms_per_req": db_cpu_ms, **stats.to_dict()}
+            rss = tree_rss(server)
+        finally:
+            stop_server(proc)
     finally:
-        stop_server(proc)
+        if cluster is not None:
+            cluster.stop()
 
     checks = {
         f"p50 <= {TARGET_P50_MS:g} ms (1 connection)": _le(results["1conn"]["p50_ms"], TARGET_P50_MS),
@@ -279,26 +311,33 @@ def main(argv: list[str] | None = None) -> int:
                                                                              TARGET_P50_MS),
         "no errors": all(r["errors"] == 0 and r["non_2xx"] == 0 for r in results.values()),
     }
+    db_col = cluster is not None
     print()
+    print(f"backend: {args.backend}, 1 server process")
     print(f"GET /v2/types/{ENTITY_TYPE}/attrs/temperature?georel=near;maxDistance:{MAX_DISTANCE}"
           f"&geometry=point&coords=<random>&lastN={LAST_N}")
-    print(f"{ENTITIES:,} entities x {SAMPLES} samples, location in {'every sample' if every else 'the first sample only'}, "
+    print(f"{ENTITIES:,} entities x {SAMPLES} samples, location in {where}, "
           f"{checked['matched_mean']} entities within {MAX_DISTANCE} m on average")
-    print(f"{'scenario':<40} {'conns':>5} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu ms/req':>10} {'errors':>6}")
+    print(f"{'scenario':<40} {'conns':>5} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu ms/req':>10}"
+          + (f" {'db ms/req':>9}" if db_col else "") + f" {'errors':>6}")
     for r in results.values():
         print(f"{r['label']:<40} {r['connections']:>5} {r['rps']:>8.1f} {_fmt(r['p50_ms'])} {_fmt(r['p99_ms'])} "
-              f"{r['server_cpu_ms_per_req']:>10.2f} {r['errors'] + r['non_2xx']:>6}")
+              f"{r['server_cpu_ms_per_req']:>10.2f}" + (f" {r['db_cpu_ms_per_req']:>9.2f}" if db_col else "")
+              + f" {r['errors'] + r['non_2xx']:>6}")
     print(f"server RSS: {rss / 2**20:.0f} MiB")
     print()
     for name, ok in checks.items():
         print(f"{'PASS' if ok else 'FAIL'}  {name}")
     if args.json:
-        Path(args.json).write_text(json.dumps({"load": loaded, "location": args.location, "check": checked,
-                                               "results": results, "checks": checks, "rss_bytes": rss}, indent=2))
-    if tmp is not None and not args.keep:
-        shutil.rmtree(tmp, ignore_errors=True)
-    elif tmp is not None:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps({
+            "benchmark": "geo", "backend": args.backend, "entities": ENTITIES, "samples_per_entity": SAMPLES,
+            "load": loaded, "location": args.location, "check": checked, "results": results, "checks": checks,
+            "rss_bytes": rss, "machine": {"cpus": os.cpu_count()}}, indent=2))
+    if args.keep and isinstance(db, Path) and tmp in db.parents:
         print(f"kept {db}")
+    else:
+        shutil.rmtree(tmp, ignore_errors=True)
     return 0 if all(checks.values()) else 1
 
 

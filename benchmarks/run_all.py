@@ -293,21 +293,31 @@ def build_rows(steps: dict[tuple[str, str], Step], backends: list[str]) -> tuple
         lambda b: (dig(qry(b), "db_server_memory_bytes") / 2**20) if dig(qry(b), "db_server_memory_bytes") else None)
     add(Row("queries", "bytes on disk per sample", digits=1), lambda b: dig(qry(b), "bytes_per_sample"))
 
-    # geo ------------------------------------------------------------------------------
-    def geo_p50(b):
-        g = geo(b)
-        if g is None:
-            return None
-        for path in (("p50_ms",), ("near_lastN", "p50_ms"), ("results", "near_lastN", "p50_ms"),
-                     ("results", "near", "p50_ms"), ("near", "p50_ms")):
-            v = dig(g, *path)
-            if isinstance(v, (int, float)):
-                return v
-        # any single scenario with a p50
-        found = [v["p50_ms"] for v in (g.get("results") or {}).values() if isinstance(v, dict) and "p50_ms" in v]
-        return found[0] if len(found) == 1 else None
+    # geo (benchmarks/geo.py: scenarios "1conn", "loaded", "baseline") -------------------------
+    def geo_get(scenario: str, field: str):
+        return lambda b: dig(geo(b), "results", scenario, field)
 
-    add(Row("geo", "near;maxDistance:1000 + lastN=10 p50 ms", "<= 30", lambda v: v <= 30, digits=2), geo_p50)
+    def geo_conns(b):
+        return dig(geo(b), "results", "loaded", "connections")
+
+    add(Row("geo", "near;maxDistance:1000 + lastN=10 p50 ms, 1 conn", "<= 30", lambda v: v <= 30, digits=1),
+        geo_get("1conn", "p50_ms"))
+    add(Row("geo", "same, p50 ms under load (4 conns)", "<= 30", lambda v: v <= 30, digits=1),
+        geo_get("loaded", "p50_ms"))
+    add(Row("geo", "same, req/s under load (4 conns)", digits=1), geo_get("loaded", "rps"))
+    add(Row("geo", "same entities by id, no geo: p50 ms, 1 conn", digits=1), geo_get("baseline", "p50_ms"))
+
+    def geo_errors(b):
+        res = dig(geo(b), "results")
+        return None if res is None else sum(r["errors"] + r["non_2xx"] for r in res.values())
+
+    add(Row("geo", "non-2xx + errors", "= 0", lambda v: v == 0), geo_errors)
+    if any(geo(b) for b in backends):
+        g = next(geo(b) for b in backends if geo(b))
+        samples = dig(g, "load", "samples")
+        notes.append(f"geo: 10,000 entities x 100 samples{f' ({samples:,} samples incl. positions)' if samples else ''}"
+                     f", location in {g.get('location', '?')} sample; "
+                     f"{dig(g, 'check', 'matched_mean')} entities within 1,000 m on average.")
 
     if any(("queries", b) in steps for b in backends):
         notes.append("* QuantumLeap's 73 req/s is for aggrPeriod=minute; ours is aggrPeriod=hour over one day: "
@@ -371,6 +381,9 @@ def report(path: Path) -> int:
     print()
     for note in notes:
         print(note)
+    geo_caps = combined.get("geo") or {}
+    if not geo_caps.get("usable", True):
+        print(f"geo: skipped -- {geo_caps.get('why')}")
     print(f"load average (1/5/15 min): {' '.join(map(str, combined['machine']['loadavg_start']))} at start, "
           f"{' '.join(map(str, combined['machine']['loadavg_end']))} at end")
     for name, data in combined["steps"].items():
@@ -384,7 +397,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true",
                     help="smoke run: short windows, queries at scale 0.1 (1M samples); under 3 minutes")
     ap.add_argument("--backends", default="duckdb,postgresql", help="comma list of duckdb, postgresql (default both)")
-    ap.add_argument("--only", default="ingest,queries,geo", help="comma list of ingest, queries, geo (default all)")
+    ap.add_argument("--only", help="comma list of ingest, queries, geo (default: all; with --quick: ingest, "
+                                   "queries -- geo.py has no reduced scale, its load alone takes ~1.5 min)")
     ap.add_argument("--no-pg-workers", action="store_true", help="skip the 2-worker ingest run on PostgreSQL")
     ap.add_argument("--scale", type=float, help="queries data-set scale (default 1, or 0.1 with --quick)")
     ap.add_argument("--out", type=Path, default=RESULTS / "latest.json", help="combined JSON (default %(default)s)")
@@ -398,7 +412,8 @@ def main(argv: list[str] | None = None) -> int:
     backends = [b.strip() for b in args.backends.split(",") if b.strip()]
     if not backends or set(backends) - set(BACKENDS):
         ap.error("--backends takes duckdb and/or postgresql")
-    only = {x.strip() for x in args.only.split(",") if x.strip()}
+    only_default = args.only is None
+    only = {x.strip() for x in (args.only or "ingest,queries,geo").split(",") if x.strip()}
     if only - {"ingest", "queries", "geo"}:
         ap.error("--only takes ingest, queries, geo")
     python = sys.executable
@@ -416,12 +431,19 @@ def main(argv: list[str] | None = None) -> int:
         query_opts = ["--scale", f"{scale:g}"]
         timeout = 2400.0
 
-    geo_caps = geo_capabilities(python) if "geo" in only else {"usable": False, "why": "not selected (--only)"}
+    if args.quick and only_default:
+        only.discard("geo")
+        geo_caps = {"usable": False, "why": "not part of --quick (geo.py has no reduced scale: loading its 2M rows "
+                                            "alone takes ~1.5 min); run it with --quick --only geo, or without --quick"}
+    elif "geo" in only:
+        geo_caps = geo_capabilities(python)
+    else:
+        geo_caps = {"usable": False, "why": "not selected (--only)"}
     started = datetime.now(UTC)
     load_start = loadavg()
     print(f"benchmarks: {', '.join(LABEL[b] for b in backends)}; {'QUICK smoke run' if args.quick else 'full run'}; "
           f"{os.cpu_count()} CPUs; load average {' '.join(map(str, load_start))} (1/5/15 min)", flush=True)
-    if "geo" in only and not geo_caps["usable"]:
+    if not geo_caps["usable"]:
         print(f"note: geo benchmark skipped: {geo_caps['why']}", flush=True)
 
     steps: dict[tuple[str, str], Step] = {}
@@ -469,8 +491,10 @@ def main(argv: list[str] | None = None) -> int:
     print()
     for note in notes:
         print(note)
-    if "geo" in only and not geo_caps["usable"]:
+    if not geo_caps["usable"]:
         print(f"geo: skipped -- {geo_caps['why']}")
+    elif any(b != "duckdb" for b in backends) and not geo_caps.get("--backend"):
+        print("geo: DuckDB only -- benchmarks/geo.py has no --backend option yet")
     print(f"load average (1/5/15 min): {' '.join(map(str, load_start))} at start, "
           f"{' '.join(map(str, load_end))} at end; per step in {args.out.relative_to(ROOT) if args.out.is_relative_to(ROOT) else args.out}")
 

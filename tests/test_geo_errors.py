@@ -57,7 +57,8 @@ BAD = [
      ["polygon", "closed"]),
     ("polygon-too-few-points", {"georel": "intersects", "geometry": "polygon", "coords": "40,-4;40,-3;40,-4"},
      ["polygon", "four points"]),
-    ("polygon-self-intersecting", {"georel": "intersects", "geometry": "polygon", "coords": "40,-4;40,-3;41,-4;41,-3;40,-4"},
+    ("polygon-self-intersecting",
+     {"georel": "intersects", "geometry": "polygon", "coords": "40,-4;40,-3;41,-4;41,-3;40,-4"},
      ["polygon", "not a valid polygon", "Self-intersection"]),
     ("point-two-positions", {"georel": "equals", "geometry": "point", "coords": "40,-4;41,-3"},
      ["geometry=point", "exactly one"]),
@@ -176,7 +177,8 @@ def test_all_three_empty_is_no_filter(geo_client):
 @pytest.mark.parametrize(
     ("params", "expected"),
     [
-        pytest.param({"georel": "near;maxDistance:1000", "geometry": "point", "coords": "90,0"}, {"pole"}, id="north-pole"),
+        pytest.param({"georel": "near;maxDistance:1000", "geometry": "point", "coords": "90,0"}, {"pole"},
+                     id="north-pole"),
         pytest.param({"georel": "near;maxDistance:1000", "geometry": "point", "coords": "-90,-180"}, {"south-pole"},
                      id="south-pole-other-lon"),
         # (the huge box's distance here is pinned in test_geo_queries.py::test_near_to_large_shapes)
@@ -186,7 +188,8 @@ def test_all_three_empty_is_no_filter(geo_client):
                      {"sol", "huge"}, id="max-distance-0"),
         pytest.param({"georel": "near;minDistance:0;maxDistance:40000000", "geometry": "point", "coords": "0,0"},
                      {"sol", "tower", "pole", "south-pole", "dateline", "fc", "multi", "gc", "huge"}, id="whole-earth"),
-        pytest.param({"georel": "near;maxDistance:1", "geometry": "point", "coords": "40.4775,-3.6883"}, {"tower", "huge"},
+        pytest.param({"georel": "near;maxDistance:1", "geometry": "point", "coords": "40.4775,-3.6883"},
+                     {"tower", "huge"},
                      id="3d-point"),
         pytest.param({"georel": "coveredBy", "geometry": "box", "coords": "40.40,-3.72;40.43,-3.69"}, {"sol", "fc"},
                      id="feature-collection"),
@@ -194,7 +197,8 @@ def test_all_three_empty_is_no_filter(geo_client):
                      id="multipolygon"),
         pytest.param({"georel": "intersects", "geometry": "line", "coords": "10.5,10;10.5,11"}, {"gc", "huge"},
                      id="geometry-collection"),
-        pytest.param({"georel": "equals", "geometry": "box", "coords": "-80,-170;80,170"}, {"huge"}, id="equals-huge-box"),
+        pytest.param({"georel": "equals", "geometry": "box", "coords": "-80,-170;80,170"}, {"huge"},
+                     id="equals-huge-box"),
     ],
 )
 def test_unusual_but_valid(geo_client, params, expected):
@@ -208,7 +212,8 @@ def test_unusual_but_valid(geo_client, params, expected):
 GEORELS = ["near;maxDistance:1000", "near;minDistance:5", "near;maxDistance:0;minDistance:0",
            "near;minDistance:1e3;maxDistance:2e7", "near;maxDistance:1e308", "near", "near;", "near;maxDistance",
            "near;maxDistance:1000;", "coveredBy", "intersects", "equals", "disjoint", "disjoint;", "COVEREDBY",
-           "", " near;maxDistance:5 ", "near;maxDistance:5;minDistance:6", "near;minDistance:-0", "near;maxDistance:0x10",
+           "", " near;maxDistance:5 ", "near;maxDistance:5;minDistance:6", "near;minDistance:-0",
+           "near;maxDistance:0x10",
            "within", "near;maxDistance:NaN", "near;;maxDistance:3", "near;maxDistance:1;minDistance:1",
            "%", "near;maxDistance:5:6", "\u00e9", "near;maxDistance:\u0661"]
 GEOMETRIES = ["point", "line", "polygon", "box", "", "Point", "circle", "multipoint", " point", "box;", "\x00"]

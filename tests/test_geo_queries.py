@@ -142,7 +142,8 @@ CASES = [
     # disjoint: every located entity that does not intersect (never the Room without location)
     ("disjoint-point", "disjoint", "point", SOL, LOCATED - {"sol", "centro"}),
     ("disjoint-line", "disjoint", "line", NS_LINE, LOCATED - {"granvia", "centro"}),
-    ("disjoint-polygon", "disjoint", "polygon", PENTAGON, LOCATED - {"sol", "callao", "granvia", "centro", "plaza-mayor"}),
+    ("disjoint-polygon", "disjoint", "polygon", PENTAGON,
+     LOCATED - {"sol", "callao", "granvia", "centro", "plaza-mayor"}),
     ("disjoint-box-helsinki", "disjoint", "box", "60.16,24.92;60.19,24.97", LOCATED - HELSINKI),
 ]
 

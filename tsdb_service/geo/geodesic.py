@@ -5,19 +5,23 @@ QuantumLeap's PostgreSQL path turns metres into degrees with a flat
 (by 2x at 60°N). We measure with pyproj's ``Geod`` (Karney's algorithm).
 For a point we use the exact inverse geodesic; for a line or area we
 project it onto an azimuthal equidistant plane centred on the query point,
-where distance from the centre equals the geodesic distance.
+where distance from the centre equals the geodesic distance, after
+densifying its edges (GeoJSON edges are straight in lon/lat, not geodesics).
 """
 
 from __future__ import annotations
 
 from functools import lru_cache
 
+import shapely
 from pyproj import CRS, Geod, Transformer
-from shapely.geometry import Point
+from shapely.geometry import GeometryCollection, Point
 from shapely.geometry.base import BaseGeometry
 from shapely.ops import transform
 
 WGS84 = Geod(ellps="WGS84")
+# Longest lon/lat edge piece projected as a straight line (~1 km or less).
+EDGE_STEP_DEG = 0.01
 
 
 def geodesic_distance_m(origin: Point, other: BaseGeometry) -> float:
@@ -28,8 +32,20 @@ def geodesic_distance_m(origin: Point, other: BaseGeometry) -> float:
     if other.covers(origin):
         return 0.0
     to_plane = _aeqd(round(origin.x, 9), round(origin.y, 9))
-    projected = transform(to_plane, other)
+    # GeoJSON edges are straight in lon/lat; the plane bends them. Densify
+    # them first so every piece is short enough to stay straight there too.
+    # Not covered, so the nearest point is on the outline; measuring to the
+    # outline also avoids areas that wrap the plane's edge (the antipode).
+    projected = transform(to_plane, shapely.segmentize(_outline(other), EDGE_STEP_DEG))
     return float(projected.distance(Point(0.0, 0.0)))
+
+
+def _outline(geom: BaseGeometry) -> BaseGeometry:
+    if geom.geom_type in ("Polygon", "MultiPolygon"):
+        return geom.boundary
+    if geom.geom_type == "GeometryCollection":
+        return GeometryCollection([_outline(part) for part in geom.geoms])
+    return geom
 
 
 @lru_cache(maxsize=256)

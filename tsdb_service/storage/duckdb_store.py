@@ -26,6 +26,7 @@ from ..errors import Unavailable
 from ..model import EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
 from .base import Appender, AppendSamples, DeleteSamples, PutLayout, RecordRejected, Store, WriteOp
+from .latest_geo import LatestGeo
 from .tail_cache import TailCache
 from .migrate import applied_versions, load_migrations, split_statements
 from .writer import GroupCommitter
@@ -83,6 +84,13 @@ INSERT_SERIES_IF_ABSENT = (
     "INSERT OR IGNORE INTO series BY NAME SELECT unnest($1::INTEGER[]) AS sid, unnest($2::VARCHAR[]) AS tenant, "
     "unnest($3::VARCHAR[]) AS service_path, unnest($4::VARCHAR[]) AS entity_id, "
     "unnest($5::VARCHAR[]) AS entity_type, unnest($6::VARCHAR[]) AS attr"
+)
+# Each series' newest geo sample, for the in-memory latest-location index.
+LATEST_GEO_SQL = (
+    "SELECT sid, epoch_us(t), rid, geo, min_lon, min_lat, max_lon, max_lat FROM ("
+    "SELECT sid, t, rid, geo, min_lon, min_lat, max_lon, max_lat, "
+    "row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn "
+    "FROM samples_all WHERE kind = 7 AND geo IS NOT NULL {where}) latest WHERE rn = 1"
 )
 # Above this many rows a batch goes through Arrow (bulk loads, copies).
 ARROW_MIN_ROWS = 2048
@@ -152,6 +160,7 @@ class DuckDBStore(Store):
         self._alloc_lock = threading.Lock()
         self._series_lock = threading.Lock()
         self.tail = TailCache(tail_series, tail_rows)
+        self.latest_geo = LatestGeo(self._con.execute(LATEST_GEO_SQL.format(where="")).fetchall())
         self._next_rid = (self._con.execute("SELECT max(rid) FROM samples_all").fetchone()[0] or 0) + 1
         self._next_rejected = (
             self._con.execute("SELECT max(id) FROM rejected_notifications").fetchone()[0] or 0
@@ -396,6 +405,7 @@ class DuckDBAppender(Appender):
             else:
                 self._insert_arrow(cur)
             self._store.tail.publish(self._cols)
+            self._store.latest_geo.publish(self._cols)
         if self._rejected or self._layouts or self._deletes:
             # A delete must not race the compactor moving or rewriting the
             # same rows (its copy could resurrect them): hold its lock.
@@ -437,8 +447,14 @@ class DuckDBAppender(Appender):
                 ):
                     cur.execute(sql, params)
         cur.execute("COMMIT")
-        for op, _ in self._deletes:
+        for op, upto_rid in self._deletes:
             self._store.tail.drop(op.sids)
+            self._store.latest_geo.recompute(op.sids, upto_rid, self._latest_geo_of)
+
+    def _latest_geo_of(self, sids: list[int]) -> list[tuple]:
+        return self._cur.execute(
+            LATEST_GEO_SQL.format(where="AND sid IN (SELECT unnest(?::INTEGER[]))"), [sids]
+        ).fetchall()
 
     def _publish(self) -> None:
         """Expose only what is durable."""

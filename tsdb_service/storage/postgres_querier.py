@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import psycopg
 
 from ..errors import Unavailable
+from ..model import Kind
 from .catalog import SeriesCatalog
 from .sql import Dialect, SqlQuerier
 
@@ -67,6 +68,31 @@ class PostgresDialect(Dialect):
 
 
 class PostgresQuerier(SqlQuerier):
+    def latest_geometries(self, sids, time, prefilter) -> list[tuple]:
+        """One index probe per series (``(sid, t)`` index, newest first)
+        instead of ranking every location sample."""
+        if not sids:
+            return []
+        where, params = "", []
+        if time.end is not None:
+            where, params = " AND x.t <= %s", [self.dialect.time_value(time.end)]
+        outer, outer_params = "", []
+        if prefilter is not None:
+            how, box = prefilter
+            if how == "within":
+                outer = " WHERE min_lon >= %s AND max_lon <= %s AND min_lat >= %s AND max_lat <= %s"
+            else:
+                outer = " WHERE max_lon >= %s AND min_lon <= %s AND max_lat >= %s AND min_lat <= %s"
+            outer_params = [box.min_lon, box.max_lon, box.min_lat, box.max_lat]
+        sql = (
+            "SELECT sid, geo FROM (SELECT s.sid, l.geo, l.min_lon, l.min_lat, l.max_lon, l.max_lat "
+            "FROM unnest(%s::integer[]) AS s(sid) CROSS JOIN LATERAL ("
+            "SELECT x.geo, x.min_lon, x.min_lat, x.max_lon, x.max_lat FROM samples x "
+            f"WHERE x.sid = s.sid AND x.kind = {int(Kind.GEO)}{where} ORDER BY x.t DESC, x.rid DESC LIMIT 1) l) latest"
+            + outer
+        )
+        return self._fetch(sql, [list(sids), *params, *outer_params])
+
     def __init__(self, store: PostgresStore):
         self._store = store
         self.dialect = PostgresDialect()

@@ -180,15 +180,7 @@ class SqlQuerier(Querier):
     # -- samples -----------------------------------------------------------------
 
     def _where(self, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
-        d = self.dialect
-        where, params = d.sid_filter(sids)
-        if time.start is not None:
-            where += f" AND t >= {d.placeholder}"
-            params.append(d.time_value(time.start))
-        if time.end is not None:
-            where += f" AND t <= {d.placeholder}"
-            params.append(d.time_value(time.end))
-        return where, params
+        return series_time_filter(self.dialect, sids, time)
 
     def raw_rows(
         self,
@@ -346,6 +338,18 @@ class SqlQuerier(Querier):
         return int(rows[0][0]) if rows else 0
 
 
+def series_time_filter(dialect: Dialect, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
+    """WHERE text and parameters: the series ids, then the inclusive time bounds."""
+    where, params = dialect.sid_filter(sids)
+    if time.start is not None:
+        where += f" AND t >= {dialect.placeholder}"
+        params.append(dialect.time_value(time.start))
+    if time.end is not None:
+        where += f" AND t <= {dialect.placeholder}"
+        params.append(dialect.time_value(time.end))
+    return where, params
+
+
 def delete_statements(
     dialect: Dialect, tables: Sequence[str], sids: Sequence[int], time: TimeRange, upto_rid: int
 ) -> list[tuple[str, list]]:
@@ -354,13 +358,7 @@ def delete_statements(
     p = dialect.placeholder
     out = []
     for table in tables:
-        where, params = dialect.sid_filter(sids)
-        if time.start is not None:
-            where += f" AND t >= {p}"
-            params.append(dialect.time_value(time.start))
-        if time.end is not None:
-            where += f" AND t <= {p}"
-            params.append(dialect.time_value(time.end))
+        where, params = series_time_filter(dialect, sids, time)
         where += f" AND rid <= {p}"
         params.append(upto_rid)
         out.append((f"DELETE FROM {quote_ident(table)} WHERE {where}", params))
