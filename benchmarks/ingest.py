@@ -78,8 +78,9 @@ class NotificationFactory:
 
     BASE_TIME = datetime(2024, 5, 1, tzinfo=timezone.utc)
 
-    def __init__(self, port: int, run_id: str, tenant: str = TENANT):
+    def __init__(self, port: int, run_id: str, tenant: str = TENANT, pool: int = 0):
         self.run_id = run_id
+        self.pool = pool  # 0: a new entity per notification; N: N entities in turn
         self.head = (
             f"POST /v2/notify HTTP/1.1\r\n"
             f"Host: {HOST}:{port}\r\n"
@@ -97,13 +98,16 @@ class NotificationFactory:
             '"TimeInstant":{"type":"DateTime","value":"%s","metadata":{}}}]}'
         )
 
+    def entity_number(self, seq: int) -> int:
+        return seq % self.pool if self.pool else seq
+
     def entity_id(self, seq: int) -> str:
-        return f"urn:ngsi-ld:Sensor:{self.run_id}-{seq}"
+        return f"urn:ngsi-ld:Sensor:{self.run_id}-{self.entity_number(seq)}"
 
     def body(self, seq: int) -> bytes:
         t = self.BASE_TIME + timedelta(milliseconds=seq)
         stamp = t.strftime("%Y-%m-%dT%H:%M:%S.") + f"{t.microsecond // 1000:03d}Z"
-        return (self.body_fmt % (self.run_id, seq, seq, seq % 100, stamp)).encode()
+        return (self.body_fmt % (self.run_id, self.entity_number(seq), seq, seq % 100, stamp)).encode()
 
     def __call__(self, seq: int) -> bytes:
         body = self.body(seq)
@@ -255,15 +259,15 @@ def measure(target: Target, factory: NotificationFactory, args) -> tuple[LoadSta
     return stats, extras
 
 
-def count_stored_duckdb(db_path: Path, prefix: str) -> tuple[int, int, int]:
-    """(entities, samples, entities with the right temperature) in the DuckDB file."""
+def count_stored_duckdb(db_path: Path, prefix: str, modulus: int) -> tuple[int, int, int]:
+    """(notifications, samples, notifications with the right temperature) in the DuckDB file."""
     import duckdb
 
     con = duckdb.connect(str(db_path), read_only=True)
     try:
         entities, samples = con.execute(
             """
-            SELECT count(DISTINCT s.entity_id), count(*)
+            SELECT count(*) FILTER (WHERE s.attr = 'temperature'), count(*)
             FROM series s JOIN samples_all a ON a.sid = s.sid
             WHERE s.tenant = ? AND starts_with(s.entity_id, ?)
             """,
@@ -271,26 +275,26 @@ def count_stored_duckdb(db_path: Path, prefix: str) -> tuple[int, int, int]:
         ).fetchone()
         good_temp = con.execute(
             r"""
-            SELECT count(DISTINCT s.entity_id)
+            SELECT count(DISTINCT a.num)
             FROM series s JOIN samples_all a ON a.sid = s.sid
             WHERE s.tenant = ? AND starts_with(s.entity_id, ?) AND s.attr = 'temperature'
-              AND a.num = CAST(regexp_extract(s.entity_id, '-(\d+)$', 1) AS DOUBLE) + 0.25
+              AND CAST(a.num - 0.25 AS BIGINT) % ? = CAST(regexp_extract(s.entity_id, '-(\d+)$', 1) AS BIGINT)
             """,
-            [TENANT, prefix],
+            [TENANT, prefix, modulus],
         ).fetchone()[0]
     finally:
         con.close()
     return entities, samples, good_temp
 
 
-def count_stored_postgres(url: str, prefix: str) -> tuple[int, int, int]:
+def count_stored_postgres(url: str, prefix: str, modulus: int) -> tuple[int, int, int]:
     """The same counts, read from PostgreSQL (tables ``series`` and ``samples``)."""
     import psycopg
 
     with psycopg.connect(url) as conn:
         entities, samples = conn.execute(
             """
-            SELECT count(DISTINCT s.entity_id), count(*)
+            SELECT count(*) FILTER (WHERE s.attr = 'temperature'), count(*)
             FROM series s JOIN samples a ON a.sid = s.sid
             WHERE s.tenant = %s AND starts_with(s.entity_id, %s)
             """,
@@ -298,23 +302,25 @@ def count_stored_postgres(url: str, prefix: str) -> tuple[int, int, int]:
         ).fetchone()
         good_temp = conn.execute(
             r"""
-            SELECT count(DISTINCT s.entity_id)
+            SELECT count(DISTINCT a.num)
             FROM series s JOIN samples a ON a.sid = s.sid
             WHERE s.tenant = %s AND starts_with(s.entity_id, %s) AND s.attr = 'temperature'
-              AND a.num = CAST(substring(s.entity_id FROM '-(\d+)$') AS DOUBLE PRECISION) + 0.25
+              AND CAST(a.num - 0.25 AS BIGINT) %% %s = CAST(substring(s.entity_id FROM '-(\d+)$') AS BIGINT)
             """,
-            [TENANT, prefix],
+            [TENANT, prefix, modulus],
         ).fetchone()[0]
     return entities, samples, good_temp
 
 
 def verify_store(db: Path | str, factory: NotificationFactory, acked: int, unacked: int) -> dict:
-    """Count the stored benchmark entities and check their values."""
+    """Count the stored notifications (one temperature sample each, a unique
+    value seq + 0.25 on entity number seq mod pool) and check their values."""
     prefix = f"urn:ngsi-ld:Sensor:{factory.run_id}-"
+    modulus = factory.pool or 2**62
     if isinstance(db, str) and db.startswith("postgresql://"):
-        entities, samples, good_temp = count_stored_postgres(db, prefix)
+        entities, samples, good_temp = count_stored_postgres(db, prefix, modulus)
     else:
-        entities, samples, good_temp = count_stored_duckdb(Path(db), prefix)
+        entities, samples, good_temp = count_stored_duckdb(Path(db), prefix, modulus)
     ok = acked <= entities <= acked + unacked and good_temp == entities
     return {
         "stored_entities": entities,
@@ -369,6 +375,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--targets", default="ours,bare", help="comma list of: ours, bare (default both)")
     ap.add_argument("--server-env", action="append", default=[], metavar="KEY=VALUE", help="extra env for our server")
     ap.add_argument("--start-timeout", type=float, default=60.0, help="seconds to wait for a server to be ready")
+    ap.add_argument("--entities", type=int, default=1000,
+                    help="entities notified in turn (default 1000, as a deployment has); 0 = a new entity per notification")
     ap.add_argument("--keep", action="store_true", help="keep the temp dir (DuckDB file, server logs)")
     ap.add_argument("--backend", choices=("duckdb", "postgresql"), default="duckdb",
                     help="store behind our server: a temp DuckDB file (default) or a private PostgreSQL cluster")
@@ -428,7 +436,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"- {ours_name} on :{port} ({db_path.name if cluster is None else db}) ...", flush=True)
             try:
                 ours.start(args.start_timeout)
-                factory = NotificationFactory(port, run_id)
+                factory = NotificationFactory(port, run_id, pool=args.entities)
                 db_cpu0, t0 = (cluster.cpu_seconds() if cluster else math.nan), time.monotonic()
                 stats, extras = measure(ours, factory, args)
                 db_cpu1, t1 = (cluster.cpu_seconds() if cluster else math.nan), time.monotonic()
@@ -463,7 +471,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"- bare FastAPI on :{port} ...", flush=True)
             try:
                 bare.start(args.start_timeout)
-                stats, extras = measure(bare, NotificationFactory(port, run_id), args)
+                stats, extras = measure(bare, NotificationFactory(port, run_id, pool=args.entities), args)
                 code, stop_s = bare.terminate()
             finally:
                 bare.kill()
@@ -510,7 +518,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         print(
             f"\nstore check (after SIGTERM, exit code {ours_row['exit_code']}, {ours_row['sigterm_exit_s']} s): "
-            f"{v['stored_entities']:,} entities stored, {v['acknowledged']:,} notifications acknowledged "
+            f"{v['stored_entities']:,} notifications stored, {v['acknowledged']:,} notifications acknowledged "
             f"(incl. 1 sanity), {v['lost']:,} lost, {v['unacknowledged']:,} unacknowledged; "
             f"{v['entities_with_correct_temperature']:,} with the right temperature; {v['stored_samples']:,} samples"
         )

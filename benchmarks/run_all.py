@@ -13,6 +13,7 @@ machine has two cores), each as a subprocess writing ``--json``:
   ``--scale 0.1``, i.e. 1M samples -- the table says so);
 * ``benchmarks/geo.py`` when it exists and takes ``--json`` (and
   ``--backend`` for PostgreSQL); otherwise a note says why it was skipped.
+  Not in ``--quick`` (its load alone takes ~1.5 min) unless ``--only geo``.
 
 Then it prints one table -- benchmark | metric | DuckDB | PostgreSQL | target
 | pass/fail | QuantumLeap | vs QL -- with the QuantumLeap figures measured on
@@ -81,9 +82,10 @@ def geo_capabilities(python: str) -> dict:
 
 
 class Step:
-    def __init__(self, key: str, backend: str, cmd: list[str], json_path: Path, timeout: float):
+    def __init__(self, key: str, backend: str, cmd: list[str], json_path: Path, timeout: float,
+                 log_dir: Path = LOGS):
         self.key, self.backend, self.cmd, self.json_path, self.timeout = key, backend, cmd, json_path, timeout
-        self.log_path = LOGS / f"{key}-{backend}.log"
+        self.log_path = log_dir / f"{key}-{backend}.log"
         self.result: dict | None = None
         self.rc: int | None = None
         self.error: str | None = None
@@ -323,7 +325,7 @@ def build_rows(steps: dict[tuple[str, str], Step], backends: list[str]) -> tuple
         notes.append("* QuantumLeap's 73 req/s is for aggrPeriod=minute; ours is aggrPeriod=hour over one day: "
                      "same kind of query, not the same one.")
     notes.append("vs QL: ours / QuantumLeap for rates, QuantumLeap / ours for latencies (higher = better for us); "
-                 "DuckDB / PostgreSQL.")
+                 + " / ".join(LABEL[b] for b in backends) + ".")
     return rows, notes
 
 
@@ -418,7 +420,9 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--only takes ingest, queries, geo")
     python = sys.executable
     RESULTS.mkdir(parents=True, exist_ok=True)
-    LOGS.mkdir(parents=True, exist_ok=True)
+    # one log directory per combined output: a --quick run does not overwrite the logs of latest.json
+    log_dir = LOGS if args.out.resolve() == (RESULTS / "latest.json").resolve() else LOGS / args.out.stem
+    log_dir.mkdir(parents=True, exist_ok=True)
 
     if args.quick:
         ingest_opts = ["--duration", "3", "--warmup", "1"]
@@ -451,17 +455,17 @@ def main(argv: list[str] | None = None) -> int:
         if "ingest" in only:
             steps[("ingest", b)] = Step("ingest", b, [python, str(HERE / "ingest.py"), "--backend", b, *ingest_opts,
                                                       "--json", str(RESULTS / f"ingest-{b}.json")],
-                                        RESULTS / f"ingest-{b}.json", timeout)
+                                        RESULTS / f"ingest-{b}.json", timeout, log_dir)
             if b == "postgresql" and not args.no_pg_workers:
                 steps[("ingest-2workers", b)] = Step(
                     "ingest-2workers", b,
                     [python, str(HERE / "ingest.py"), "--backend", b, "--workers", "2", "--targets", "ours",
                      *ingest_opts, "--json", str(RESULTS / f"ingest-2workers-{b}.json")],
-                    RESULTS / f"ingest-2workers-{b}.json", timeout)
+                    RESULTS / f"ingest-2workers-{b}.json", timeout, log_dir)
         if "queries" in only:
             steps[("queries", b)] = Step("queries", b, [python, str(HERE / "queries.py"), "--backend", b, *query_opts,
                                                         "--json", str(RESULTS / f"queries-{b}.json")],
-                                         RESULTS / f"queries-{b}.json", timeout)
+                                         RESULTS / f"queries-{b}.json", timeout, log_dir)
         if geo_caps["usable"]:
             if b != "duckdb" and not geo_caps.get("--backend"):
                 print(f"note: geo benchmark not run on {LABEL[b]}: geo.py has no --backend option", flush=True)
@@ -477,7 +481,7 @@ def main(argv: list[str] | None = None) -> int:
                             cmd += ["--duration", "2"]
                         if geo_caps.get("--warmup"):
                             cmd += ["--warmup", "0.5"]
-                steps[("geo", b)] = Step("geo", b, cmd, RESULTS / f"geo-{b}.json", timeout)
+                steps[("geo", b)] = Step("geo", b, cmd, RESULTS / f"geo-{b}.json", timeout, log_dir)
 
     for step in steps.values():
         step.run()

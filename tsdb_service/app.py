@@ -23,10 +23,18 @@ WRITER_SWITCH_INTERVAL_S = 0.0002
 
 
 class TsdbApp(FastAPI):
-    """FastAPI with the notification fast path outermost (see api.notify)."""
+    """FastAPI with the notification fast path in front of everything,
+    framework included (see api.notify)."""
 
-    def build_middleware_stack(self):
-        return notify.NotifyFastPath(super().build_middleware_stack(), self.state)
+    _fast_path: notify.NotifyFastPath | None = None
+
+    async def __call__(self, scope, receive, send) -> None:
+        if notify.is_notification(scope):
+            if self._fast_path is None:
+                self._fast_path = notify.NotifyFastPath(None, self.state)
+            await self._fast_path(scope, receive, send)
+            return
+        await super().__call__(scope, receive, send)
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:

@@ -49,9 +49,12 @@ class Geometry:
     max_lat: float
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class AttrSample:
-    """One attribute's value in one notification."""
+    """One attribute's value in one notification.
+
+    Not frozen: one is built per attribute on the ingest hot path, and a frozen
+    dataclass's ``__init__`` costs several times more. Treat it as a value."""
 
     name: str
     ngsi_type: str  # as declared, or inferred for keyValues

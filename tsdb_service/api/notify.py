@@ -48,6 +48,10 @@ async def notify_ld(request: Request) -> Response:
     return Response(payload, status_code=status, media_type="application/json")
 
 
+def is_notification(scope) -> bool:
+    return scope["type"] == "http" and scope["method"] == "POST" and scope["path"] in NOTIFY_PATHS
+
+
 class NotifyFastPath:
     """Serves the two notify URLs in front of the framework's middleware and
     routing stack, which costs more per request than parsing a notification.
@@ -58,7 +62,7 @@ class NotifyFastPath:
         self.state = state
 
     async def __call__(self, scope, receive, send) -> None:
-        if scope["type"] != "http" or scope["method"] != "POST" or scope["path"] not in NOTIFY_PATHS:
+        if not is_notification(scope):
             await self.app(scope, receive, send)
             return
         scope["app"] = self.state.app

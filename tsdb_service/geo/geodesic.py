@@ -17,7 +17,6 @@ import shapely
 from pyproj import CRS, Geod, Transformer
 from shapely.geometry import GeometryCollection, Point
 from shapely.geometry.base import BaseGeometry
-from shapely.ops import transform
 
 WGS84 = Geod(ellps="WGS84")
 # Longest lon/lat edge piece projected as a straight line (~1 km or less).
@@ -36,7 +35,7 @@ def geodesic_distance_m(origin: Point, other: BaseGeometry) -> float:
     # them first so every piece is short enough to stay straight there too.
     # Not covered, so the nearest point is on the outline; measuring to the
     # outline also avoids areas that wrap the plane's edge (the antipode).
-    projected = transform(to_plane, shapely.segmentize(_outline(other), EDGE_STEP_DEG))
+    projected = shapely.transform(shapely.segmentize(_outline(other), EDGE_STEP_DEG), to_plane, interleaved=False)
     return float(projected.distance(Point(0.0, 0.0)))
 
 

@@ -11,6 +11,7 @@ min/max statistics contain that series; every few moves it rewrites
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import threading
 from collections.abc import Sequence
@@ -73,15 +74,21 @@ _SQL_TYPES = {
     "rid": "BIGINT", "sid": "INTEGER", "kind": "UTINYINT", "num": "DOUBLE", "lon": "DOUBLE",
     "lat": "DOUBLE", "min_lon": "DOUBLE", "min_lat": "DOUBLE", "max_lon": "DOUBLE", "max_lat": "DOUBLE",
 }
-# One statement, columns as list parameters zipped by unnest(): the whole
-# batch crosses into DuckDB in one call. Time travels as epoch microseconds.
-INSERT_SAMPLES = "INSERT INTO samples_hot BY NAME SELECT " + ", ".join(
-    f"make_timestamp(unnest(${i + 1}::BIGINT[])) AS t" if name == "t"
-    else f"unnest(${i + 1}::{_SQL_TYPES.get(name, 'VARCHAR')}[]) AS {name}"
-    for i, name in enumerate(SAMPLE_SCHEMA.names)
-)
-INSERT_SERIES_IF_ABSENT = (
-    "INSERT OR IGNORE INTO series BY NAME SELECT unnest($1::INTEGER[]) AS sid, unnest($2::VARCHAR[]) AS tenant, "
+REQUIRED = frozenset({"rid", "sid", "t", "kind"})
+
+
+@functools.lru_cache(maxsize=64)
+def insert_samples_sql(names: tuple[str, ...]) -> str:
+    """One statement, columns as list parameters zipped by unnest(): the whole
+    batch crosses into DuckDB in one call. Time travels as epoch microseconds;
+    columns not named are NULL."""
+    return "INSERT INTO samples_hot BY NAME SELECT " + ", ".join(
+        f"make_timestamp(unnest(${i + 1}::BIGINT[])) AS t" if name == "t"
+        else f"unnest(${i + 1}::{_SQL_TYPES.get(name, 'VARCHAR')}[]) AS {name}"
+        for i, name in enumerate(names)
+    )
+INSERT_SERIES = (
+    "INSERT INTO series BY NAME SELECT unnest($1::INTEGER[]) AS sid, unnest($2::VARCHAR[]) AS tenant, "
     "unnest($3::VARCHAR[]) AS service_path, unnest($4::VARCHAR[]) AS entity_id, "
     "unnest($5::VARCHAR[]) AS entity_type, unnest($6::VARCHAR[]) AS attr"
 )
@@ -387,21 +394,26 @@ class DuckDBAppender(Appender):
         """
         cur = self._cur
         if self._new_series:
-            keys = list(self._new_series)
             store = self._store
-            # Two transactions inserting the same new key conflict even with
-            # OR IGNORE; serialised, the second sees the first's row.
+            # Series rows are written one writer at a time, each skipping the
+            # keys another writer has committed meanwhile: a plain INSERT that
+            # cannot conflict (OR IGNORE is several times slower in DuckDB).
             with store._series_lock:
-                cur.execute(INSERT_SERIES_IF_ABSENT, [[self._new_series[k] for k in keys],
-                                                      *([k[i] for k in keys] for i in range(5))])
-            with store._alloc_lock:
-                store._series.update(self._new_series)
-                for key in self._new_series:
-                    store._pending_series.pop(key, None)
+                keys = [k for k in self._new_series if k not in store._series]
+                if keys:
+                    cur.execute(INSERT_SERIES, [[self._new_series[k] for k in keys],
+                                                *([k[i] for k in keys] for i in range(5))])
+                with store._alloc_lock:
+                    store._series.update(self._new_series)
+                    for key in self._new_series:
+                        store._pending_series.pop(key, None)
             self._new_series = {}
         if self._cols["rid"]:
             if len(self._cols["rid"]) <= ARROW_MIN_ROWS:
-                cur.execute(INSERT_SAMPLES, [self._cols[name] for name in SAMPLE_SCHEMA.names])
+                # Only columns that carry a value: converting the all-NULL
+                # ones (geometry, metadata...) would hold the GIL for nothing.
+                names = tuple(n for n in SAMPLE_SCHEMA.names if n in REQUIRED or any(v is not None for v in self._cols[n]))
+                cur.execute(insert_samples_sql(names), [self._cols[n] for n in names])
             else:
                 self._insert_arrow(cur)
             self._store.tail.publish(self._cols)
