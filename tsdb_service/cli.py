@@ -92,7 +92,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         return 2
     # Workers are separate processes: hand them the settings through the environment.
     for name, value in settings.model_dump().items():
-        os.environ[f"TSDB_{name.upper()}"] = str(value)
+        if value is not None:  # unset: the backend's default applies
+            os.environ[f"TSDB_{name.upper()}"] = str(value)
     uvicorn.run(
         "tsdb_service.app:create_app_from_env",
         factory=True,

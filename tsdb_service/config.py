@@ -32,8 +32,10 @@ class Settings(BaseSettings):
     major_compact_runs: int = Field(
         8, ge=1, description="Rewrite the sorted table after this many compactions into it."
     )
-    writer_threads: int = Field(
-        3, ge=1, le=16, description="Group-commit writer threads (commits overlap while one waits)."
+    writer_threads: int | None = Field(
+        None, ge=1, le=16,
+        description="Group-commit writer threads; default 1 on DuckDB (more only contend for the GIL), "
+        "3 on PostgreSQL (commits wait on the network, so they overlap).",
     )
     tail_cache_series: int = Field(
         4096, ge=0, description="DuckDB: series whose newest samples are kept in memory (0: off)."

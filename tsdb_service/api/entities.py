@@ -10,7 +10,7 @@ from ..history.params import delete_query, entity_list_query
 from ..history.query import Shape
 from ..history.service import delete_target, run_entity_list
 from ..storage.base import DeleteSamples
-from .history import answer_history
+from .history import answer_history_async
 from .responses import JSON
 from .tenancy import tenant_of
 
@@ -26,26 +26,26 @@ def list_entities(request: Request) -> JSON:
 
 
 @router.get("/v2/entities/{entity_id}", summary="History of N attributes of one entity")
-def entity(entity_id: str, request: Request) -> JSON:
-    return answer_history(request, Shape.ENTITY, entity_id=entity_id)
+async def entity(entity_id: str, request: Request) -> JSON:
+    return await answer_history_async(request, Shape.ENTITY, entity_id=entity_id)
 
 
 @router.get("/v2/entities/{entity_id}/value", summary="History of N attributes of one entity (values only)")
-def entity_value(entity_id: str, request: Request) -> JSON:
-    return answer_history(request, Shape.ENTITY, entity_id=entity_id, values_only=True)
+async def entity_value(entity_id: str, request: Request) -> JSON:
+    return await answer_history_async(request, Shape.ENTITY, entity_id=entity_id, values_only=True)
 
 
 @router.get("/v2/entities/{entity_id}/attrs/{attr_name}", summary="History of one attribute of one entity")
-def entity_attr(entity_id: str, attr_name: str, request: Request) -> JSON:
-    return answer_history(request, Shape.ENTITY_ATTR, entity_id=entity_id, attr=attr_name)
+async def entity_attr(entity_id: str, attr_name: str, request: Request) -> JSON:
+    return await answer_history_async(request, Shape.ENTITY_ATTR, entity_id=entity_id, attr=attr_name)
 
 
 @router.get(
     "/v2/entities/{entity_id}/attrs/{attr_name}/value",
     summary="History of one attribute of one entity (values only)",
 )
-def entity_attr_value(entity_id: str, attr_name: str, request: Request) -> JSON:
-    return answer_history(request, Shape.ENTITY_ATTR, entity_id=entity_id, attr=attr_name, values_only=True)
+async def entity_attr_value(entity_id: str, attr_name: str, request: Request) -> JSON:
+    return await answer_history_async(request, Shape.ENTITY_ATTR, entity_id=entity_id, attr=attr_name, values_only=True)
 
 
 @router.delete("/v2/entities/{entity_id}", status_code=204, summary="Delete the history of one entity")

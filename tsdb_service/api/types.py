@@ -10,7 +10,7 @@ from ..history.params import delete_query
 from ..history.query import Shape
 from ..history.service import delete_target
 from ..storage.base import DeleteSamples
-from .history import answer_history
+from .history import answer_history_async
 from .responses import JSON
 from .tenancy import tenant_of
 
@@ -18,26 +18,26 @@ router = APIRouter(tags=["types"])
 
 
 @router.get("/v2/types/{entity_type}", summary="History of N attributes of the entities of a type")
-def entity_type(entity_type: str, request: Request) -> JSON:
-    return answer_history(request, Shape.TYPE, entity_type=entity_type)
+async def entity_type(entity_type: str, request: Request) -> JSON:
+    return await answer_history_async(request, Shape.TYPE, entity_type=entity_type)
 
 
 @router.get("/v2/types/{entity_type}/value", summary="History of N attributes of a type's entities (values only)")
-def entity_type_value(entity_type: str, request: Request) -> JSON:
-    return answer_history(request, Shape.TYPE, entity_type=entity_type, values_only=True)
+async def entity_type_value(entity_type: str, request: Request) -> JSON:
+    return await answer_history_async(request, Shape.TYPE, entity_type=entity_type, values_only=True)
 
 
 @router.get("/v2/types/{entity_type}/attrs/{attr_name}", summary="History of one attribute of a type's entities")
-def type_attr(entity_type: str, attr_name: str, request: Request) -> JSON:
-    return answer_history(request, Shape.TYPE_ATTR, entity_type=entity_type, attr=attr_name)
+async def type_attr(entity_type: str, attr_name: str, request: Request) -> JSON:
+    return await answer_history_async(request, Shape.TYPE_ATTR, entity_type=entity_type, attr=attr_name)
 
 
 @router.get(
     "/v2/types/{entity_type}/attrs/{attr_name}/value",
     summary="History of one attribute of a type's entities (values only)",
 )
-def type_attr_value(entity_type: str, attr_name: str, request: Request) -> JSON:
-    return answer_history(request, Shape.TYPE_ATTR, entity_type=entity_type, attr=attr_name, values_only=True)
+async def type_attr_value(entity_type: str, attr_name: str, request: Request) -> JSON:
+    return await answer_history_async(request, Shape.TYPE_ATTR, entity_type=entity_type, attr=attr_name, values_only=True)
 
 
 @router.delete("/v2/types/{entity_type}", status_code=204, summary="Delete the history of every entity of a type")

@@ -25,15 +25,15 @@ EntityKey = tuple[str, str]  # entity type, entity id
 LOCATION = "location"
 
 
-def matching_entities(querier, scope: Scope, entities: EntityFilter, geo: GeoFilter, time: TimeRange) -> set[EntityKey]:
-    """The (type, id) of every entity in scope whose location matches ``geo``."""
-    by_entity: dict[EntityKey, list[SeriesRef]] = {}
-    for ref in querier.series(scope, entities, None):
-        by_entity.setdefault((ref.entity_type, ref.entity_id), []).append(ref)
-    named, fallback = [], []
-    for refs in by_entity.values():
-        location = [r for r in refs if r.attr == LOCATION]
-        (named if location else fallback).extend(location or refs)
+def matching_entities(
+    querier, scope: Scope, entities: EntityFilter, geo: GeoFilter, time: TimeRange, candidates: set[EntityKey]
+) -> set[EntityKey]:
+    """Which of ``candidates`` (the entities a query is about) have a location
+    matching ``geo``."""
+    named = [r for r in querier.series(scope, entities, [LOCATION]) if _key(r) in candidates]
+    without = candidates - {_key(r) for r in named}
+    # Entities without a ``location`` attribute: their first geo-typed one.
+    fallback = [r for r in querier.series(scope, entities, None) if _key(r) in without] if without else []
     end = TimeRange(None, time.end)
     matched: set[EntityKey] = set()
     if named:

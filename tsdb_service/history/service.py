@@ -136,7 +136,8 @@ def _geo_refs(querier, scope, entities, refs, geo, time):
     if entities.ids is not None and len({r.entity_type for r in refs}) == 1:
         # A single-entity request resolved its type already: match within it.
         entities = EntityFilter(ids=entities.ids, id_pattern=entities.id_pattern, types=(refs[0].entity_type,))
-    return keep_matching(refs, matching_entities(querier, scope, entities, geo, time))
+    candidates = {(r.entity_type, r.entity_id) for r in refs}
+    return keep_matching(refs, matching_entities(querier, scope, entities, geo, time, candidates))
 
 
 def run_history(querier: Querier, q: HistoryQuery) -> HistoryResult:

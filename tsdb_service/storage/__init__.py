@@ -11,14 +11,14 @@ def open_store(settings: Settings) -> Store:
     if settings.backend == "postgresql":
         from .postgres_store import PostgresStore
 
-        return PostgresStore(settings.db, writer_threads=settings.writer_threads)
+        return PostgresStore(settings.db, writer_threads=settings.writer_threads or 3)
     from .duckdb_store import DuckDBStore
 
     return DuckDBStore(
         settings.db,
         compact_rows=settings.compact_rows,
         major_compact_runs=settings.major_compact_runs,
-        writer_threads=settings.writer_threads,
+        writer_threads=settings.writer_threads or 1,
         tail_series=settings.tail_cache_series,
         tail_rows=settings.tail_cache_rows,
     )

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import duckdb
 
 from ..errors import Unavailable
+from .memory_only import check_database_allowed
 from .catalog import SeriesCatalog
 from .sql import DuckDBDialect, SqlQuerier
 from .duckdb_store import to_micros
@@ -87,6 +88,7 @@ class DuckDBQuerier(SqlQuerier):
         )
 
     def _fetch(self, sql: str, params: list) -> list[tuple]:
+        check_database_allowed()
         try:
             return self._store.cursor().execute(sql, params).fetchall()
         except duckdb.ConnectionException as exc:

@@ -150,7 +150,7 @@ class DuckDBStore(Store):
     backend = "duckdb"
 
     def __init__(self, path: str, *, compact_rows: int = 500_000, major_compact_runs: int = 8,
-                 writer_threads: int = 3, tail_series: int = 4096, tail_rows: int = 128):
+                 writer_threads: int = 1, tail_series: int = 4096, tail_rows: int = 128):
         self.path = path
         self._con = connect(path)
         migrate_duckdb(self._con)

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import psycopg
 
 from ..errors import Unavailable
+from .memory_only import check_database_allowed
 from ..model import Kind
 from .catalog import SeriesCatalog
 from .sql import Dialect, SqlQuerier
@@ -109,6 +110,7 @@ class PostgresQuerier(SqlQuerier):
         )
 
     def _fetch(self, sql: str, params: list) -> list[tuple]:
+        check_database_allowed()
         try:
             with self._store.connection() as conn:
                 return conn.execute(sql, params, prepare=True).fetchall()
