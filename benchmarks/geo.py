@@ -53,7 +53,9 @@ sys.path.insert(0, str(ROOT))
 
 from loadgen import build_request, run_load  # noqa: E402
 from pgutil import BenchCluster  # noqa: E402
-from queries import HOST, free_port, get, is_pg, open_store, start_server, stop_server, tree_cpu, tree_rss  # noqa: E402
+from queries import (  # noqa: E402
+    HOST, finish_load, free_port, get, is_pg, measure, open_store, start_server, stop_server, tree_cpu, tree_rss,
+)
 
 import psutil  # noqa: E402
 from pyproj import Geod  # noqa: E402
@@ -141,19 +143,12 @@ def load(db: Path | str, every: bool, batch_notifications: int = 50_000, cluster
         if batch:
             store.write_sync([AppendSamples(batch)])
         t_load = time.perf_counter() - t0
-        if is_pg(db):
-            store.close()
-            store = None
-            if cluster is not None:
-                cluster.vacuum_analyze()
-        else:
-            store.compact(full=True)
-        t_compact = time.perf_counter() - t0 - t_load
+        loaded, store = store, None
     finally:
         if store is not None:
             store.close()
-    key = "vacuum_analyze_s" if is_pg(db) else "compact_s"
-    return {"samples": written, "load_s": round(t_load, 1), key: round(t_compact, 1)}
+    finished = finish_load(loaded, db, cluster)
+    return {"samples": written, "load_s": round(t_load, 1), **finished}
 
 
 # --- 2. correctness of what we measure ------------------------------------------------------
@@ -218,12 +213,6 @@ def requests(port: int, every: bool, n: int = 1024) -> tuple[list[bytes], list[b
             by_id.append(build_request(
                 "GET", f"/v2/types/{ENTITY_TYPE}/attrs/temperature?id={','.join(ids)}&lastN={LAST_N}", HOST, port))
     return geo_reqs, by_id
-
-
-def measure(port: int, reqs: list[bytes], connections: int, duration: float, warmup: float):
-    n = len(reqs)
-    return run_load(HOST, port, lambda seq: reqs[seq % n], connections=connections, duration=duration,
-                    warmup=warmup)
 
 
 # --- 4. report -------------------------------------------------------------------------------
