@@ -38,9 +38,12 @@ class Settings(BaseSettings):
         "3 on PostgreSQL (commits wait on the network, so they overlap).",
     )
     tail_cache_series: int = Field(
-        4096, ge=0, description="DuckDB: series whose newest samples are kept in memory (0: off)."
+        8192, ge=0, description="DuckDB: sizes the in-memory tails (0: off); see tail_cache_samples."
     )
     tail_cache_rows: int = Field(128, ge=0, description="DuckDB: newest samples kept per cached series.")
+    tail_cache_samples: int = Field(
+        1_000_000, ge=0, description="DuckDB: samples kept in all tails (~200 bytes each), oldest-read out first."
+    )
     log_level: str = "info"
     access_log: bool = False
 

@@ -21,4 +21,5 @@ def open_store(settings: Settings) -> Store:
         writer_threads=settings.writer_threads or 1,
         tail_series=settings.tail_cache_series,
         tail_rows=settings.tail_cache_rows,
+        tail_samples=settings.tail_cache_samples,
     )

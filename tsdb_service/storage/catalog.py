@@ -36,13 +36,14 @@ class SeriesRef:
 
 
 class _TenantIndex:
-    __slots__ = ("all", "by_entity", "by_type", "by_attr")
+    __slots__ = ("all", "by_entity", "by_type", "by_attr", "by_type_attr")
 
     def __init__(self) -> None:
         self.all: tuple[SeriesRef, ...] = ()
         self.by_entity: dict[str, tuple[SeriesRef, ...]] = {}
         self.by_type: dict[str, tuple[SeriesRef, ...]] = {}
         self.by_attr: dict[str, tuple[SeriesRef, ...]] = {}
+        self.by_type_attr: dict[tuple[str, str], tuple[SeriesRef, ...]] = {}
 
     def extended(self, refs: Sequence[SeriesRef]) -> _TenantIndex:
         new = _TenantIndex()
@@ -50,6 +51,7 @@ class _TenantIndex:
         new.by_entity = _extend(self.by_entity, refs, lambda r: r.entity_id)
         new.by_type = _extend(self.by_type, refs, lambda r: r.entity_type)
         new.by_attr = _extend(self.by_attr, refs, lambda r: r.attr)
+        new.by_type_attr = _extend(self.by_type_attr, refs, lambda r: (r.entity_type, r.attr))
         return new
 
 
@@ -112,6 +114,13 @@ class SeriesCatalog:
         if index is None:
             return []
         attr_set = None if attrs is None else set(attrs)
+        if (
+            entities.ids is None and entities.id_pattern is None and entities.types is not None
+            and attr_set is not None and scope.whole_tenant
+        ):
+            # "attribute A of every entity of type T": the common dashboard and
+            # geo question, answered by one index look-up per (T, A).
+            return [r for t in entities.types for a in attr_set for r in index.by_type_attr.get((t, a), ())]
         if entities.ids is not None:
             candidates: Iterable[SeriesRef] = [r for eid in entities.ids for r in index.by_entity.get(eid, ())]
         elif attr_set is not None and len(attr_set) <= 4:

@@ -150,7 +150,8 @@ class DuckDBStore(Store):
     backend = "duckdb"
 
     def __init__(self, path: str, *, compact_rows: int = 500_000, major_compact_runs: int = 8,
-                 writer_threads: int = 1, tail_series: int = 4096, tail_rows: int = 128):
+                 writer_threads: int = 1, tail_series: int = 8192, tail_rows: int = 128,
+                 tail_samples: int | None = None):
         self.path = path
         self._con = connect(path)
         migrate_duckdb(self._con)
@@ -166,7 +167,7 @@ class DuckDBStore(Store):
         # Writers allocate series ids, row ids and rejection ids under this.
         self._alloc_lock = threading.Lock()
         self._series_lock = threading.Lock()
-        self.tail = TailCache(tail_series, tail_rows)
+        self.tail = TailCache(tail_series, tail_rows, tail_samples)
         self.latest_geo = LatestGeo(self._con.execute(LATEST_GEO_SQL.format(where="")).fetchall())
         self._next_rid = (self._con.execute("SELECT max(rid) FROM samples_all").fetchone()[0] or 0) + 1
         self._next_rejected = (

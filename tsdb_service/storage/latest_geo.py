@@ -15,6 +15,7 @@ go to the database.
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Callable, Iterable
 
@@ -26,10 +27,54 @@ GEO = int(Kind.GEO)
 Entry = tuple[int, int, str, float, float, float, float]
 
 
+CELL_DEG = 0.05  # grid cell edge (~5 km): a near-1 km query reads a few cells
+MAX_CELLS = 64  # geometries covering more cells are checked on every query
+
+
+def _cells(mnlon: float, mnlat: float, mxlon: float, mxlat: float) -> list[tuple[int, int]] | None:
+    """Grid cells a box overlaps, or None when it is too large to index."""
+    x0, x1 = math.floor(mnlon / CELL_DEG), math.floor(mxlon / CELL_DEG)
+    y0, y1 = math.floor(mnlat / CELL_DEG), math.floor(mxlat / CELL_DEG)
+    if (x1 - x0 + 1) * (y1 - y0 + 1) > MAX_CELLS:
+        return None
+    return [(x, y) for x in range(x0, x1 + 1) for y in range(y0, y1 + 1)]
+
+
 class LatestGeo:
+    """Latest location per series, with a uniform grid over their boxes so a
+    bounded query looks at the series in the cells it overlaps, not all."""
+
     def __init__(self, rows: Iterable[tuple]):
         self._lock = threading.Lock()
-        self._latest: dict[int, Entry] = {row[0]: tuple(row[1:]) for row in rows}
+        self._latest: dict[int, Entry] = {}
+        self._grid: dict[tuple[int, int], set[int]] = {}
+        self._large: set[int] = set()
+        for row in rows:
+            self._put(row[0], tuple(row[1:]))
+
+    def _put(self, sid: int, entry: Entry | None) -> None:
+        """Set (or with None remove) ``sid``'s entry and its grid cells."""
+        old = self._latest.pop(sid, None)
+        if old is not None:
+            cells = _cells(*old[3:7])
+            if cells is None:
+                self._large.discard(sid)
+            else:
+                for cell in cells:
+                    members = self._grid.get(cell)
+                    if members is not None:
+                        members.discard(sid)
+                        if not members:
+                            del self._grid[cell]
+        if entry is None:
+            return
+        self._latest[sid] = entry
+        cells = _cells(*entry[3:7])
+        if cells is None:
+            self._large.add(sid)
+        else:
+            for cell in cells:
+                self._grid.setdefault(cell, set()).add(sid)
 
     def publish(self, cols: dict[str, list]) -> None:
         kinds = cols["kind"]
@@ -43,8 +88,8 @@ class LatestGeo:
                     continue
                 current = latest.get(sids[i])
                 if current is None or (ts[i], rids[i]) > current[:2]:
-                    latest[sids[i]] = (ts[i], rids[i], geos[i], cols["min_lon"][i], cols["min_lat"][i],
-                                       cols["max_lon"][i], cols["max_lat"][i])
+                    self._put(sids[i], (ts[i], rids[i], geos[i], cols["min_lon"][i], cols["min_lat"][i],
+                                        cols["max_lon"][i], cols["max_lat"][i]))
 
     def recompute(self, sids, upto_rid: int, load: Callable[[list[int]], list[tuple]]) -> None:
         """After a delete of rows up to ``upto_rid`` in ``sids``."""
@@ -54,10 +99,7 @@ class LatestGeo:
                 current = self._latest.get(sid)
                 if current is not None and current[1] > upto_rid:
                     continue  # published after the delete: still the latest
-                if sid in fresh:
-                    self._latest[sid] = fresh[sid]
-                else:
-                    self._latest.pop(sid, None)
+                self._put(sid, fresh.get(sid))
 
     def matching(self, sids: Iterable[int], prefilter) -> list[tuple[int, str]]:
         """(sid, geojson) of the latest locations whose box passes ``prefilter``."""
@@ -71,6 +113,14 @@ class LatestGeo:
             return out
         how, box = prefilter
         within = how == "within"
+        cells = _cells(box.min_lon, box.min_lat, box.max_lon, box.max_lat)
+        if cells is not None:
+            wanted = set(sids)
+            with self._lock:
+                near = set(self._large)
+                for cell in cells:
+                    near |= self._grid.get(cell, set())
+            sids = [sid for sid in near if sid in wanted]
         for sid in sids:
             entry = latest.get(sid)
             if entry is None:

@@ -59,9 +59,14 @@ def iso_ms(micros: int) -> str:
 
 
 class TailCache:
-    def __init__(self, max_series: int = 4096, rows: int = 128):
+    def __init__(self, max_series: int = 4096, rows: int = 128, max_rows: int | None = None):
+        """At most ``rows`` samples per series; at most ``max_rows`` samples in
+        all (default ``max_series * rows``), least recently read series first
+        out. Memory is about 200 bytes per cached sample."""
         self.max_series = max_series
         self.capacity = rows
+        self.max_rows = max_rows if max_rows is not None else max_series * rows
+        self._total = 0
         self._entries: OrderedDict[int, _Entry] = OrderedDict()
         self._lock = threading.Lock()
         self._seq = 0
@@ -99,16 +104,20 @@ class TailCache:
         row = (key[0], key[1], iso_ms(key[0]), cols["kind"][i], cols["num"][i], cols["txt"][i], cols["js"][i])
         entry.keys.insert(at, key)
         entry.rows.insert(at, row)
+        self._total += 1
         if len(entry.rows) > self.capacity:
             del entry.keys[0], entry.rows[0]
             entry.whole = False
+            self._total -= 1
 
     def drop(self, sids) -> None:
         """Forget series whose samples were deleted."""
         with self._lock:
             self._seq += 1
             for sid in sids:
-                self._entries.pop(sid, None)
+                entry = self._entries.pop(sid, None)
+                if entry is not None:
+                    self._total -= len(entry.rows)
 
     # -- readers -----------------------------------------------------------------
 
@@ -146,8 +155,10 @@ class TailCache:
         with self._lock:
             if self._seq == seq and sid not in self._entries:
                 self._entries[sid] = entry
-                while len(self._entries) > self.max_series:
-                    self._entries.popitem(last=False)
+                self._total += len(entry.rows)
+                while self._total > self.max_rows and len(self._entries) > 1:
+                    _, evicted = self._entries.popitem(last=False)
+                    self._total -= len(evicted.rows)
         return entry
 
 
