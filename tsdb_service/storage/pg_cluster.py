@@ -67,9 +67,10 @@ class PgCluster:
     def database(self, name: str) -> str:
         """Create a fresh database and return its URL."""
         import psycopg
+        from psycopg import sql
 
         with psycopg.connect(self.url, autocommit=True) as conn:
-            conn.execute(f'CREATE DATABASE "{name}"')
+            conn.execute(sql.SQL("CREATE DATABASE {}").format(sql.Identifier(name)))
         return f"postgresql://postgres@127.0.0.1:{self.port}/{name}"
 
     def stop(self) -> None:
