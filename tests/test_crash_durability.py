@@ -89,6 +89,35 @@ def client(port: int, seqs: itertools.count, outcomes: dict[int, str], stop: thr
         conn.close()
 
 
+def drive_then_kill(servers: list[ServerProcess], outcomes: dict[int, str]) -> tuple[list, int]:
+    """Clients spread over ``servers`` for LOAD_S seconds; every server is
+    SIGKILLed at KILL_AT_S. Returns the kill exit codes and how many
+    notifications were acknowledged before the kill."""
+    seqs = itertools.count()
+    stop = threading.Event()
+    threads = [
+        threading.Thread(target=client, args=(servers[i % len(servers)].port, seqs, outcomes, stop),
+                         name=f"client-{i}", daemon=True)
+        for i in range(THREADS)
+    ]
+    try:
+        t0 = time.monotonic()
+        for t in threads:
+            t.start()
+        time.sleep(max(0.0, t0 + KILL_AT_S - time.monotonic()))
+        acked_before_kill = sum(1 for o in list(outcomes.values()) if o == ACK)
+        codes = [server.kill() for server in servers]
+        time.sleep(max(0.0, t0 + LOAD_S - time.monotonic()))
+    finally:
+        stop.set()
+        for t in threads:
+            t.join(15)
+        for server in servers:
+            server.kill()
+    assert not any(t.is_alive() for t in threads), "client threads did not stop"
+    return codes, acked_before_kill
+
+
 def stored_temperatures(db_path) -> dict[str, set[float]]:
     con = duckdb.connect(str(db_path), read_only=True)
     try:
@@ -111,30 +140,11 @@ def stored_temperatures(db_path) -> dict[str, set[float]]:
 def test_acknowledged_notifications_survive_sigkill(tmp_path):
     db_path = tmp_path / "crash.duckdb"
     outcomes: dict[int, str] = {}
-    seqs = itertools.count()
-    stop = threading.Event()
 
     server = ServerProcess(db_path)
     server.start()
-    threads = [
-        threading.Thread(target=client, args=(server.port, seqs, outcomes, stop), name=f"client-{i}", daemon=True)
-        for i in range(THREADS)
-    ]
-    try:
-        t0 = time.monotonic()
-        for t in threads:
-            t.start()
-        time.sleep(max(0.0, t0 + KILL_AT_S - time.monotonic()))
-        acked_before_kill = sum(1 for o in list(outcomes.values()) if o == ACK)
-        kill_code = server.kill()
-        time.sleep(max(0.0, t0 + LOAD_S - time.monotonic()))
-    finally:
-        stop.set()
-        for t in threads:
-            t.join(15)
-        server.kill()
-    assert not any(t.is_alive() for t in threads), "client threads did not stop"
-    assert kill_code == -9, f"server was not killed by SIGKILL (exit code {kill_code})"
+    kill_codes, acked_before_kill = drive_then_kill([server], outcomes)
+    assert kill_codes == [-9], f"server was not killed by SIGKILL (exit codes {kill_codes})"
 
     # Restart on the same file: the WAL must replay. Then stop cleanly so the
     # file can be opened here (one process per DuckDB file).

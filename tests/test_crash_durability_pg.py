@@ -7,10 +7,7 @@ notification either replica acknowledged must be in the database.
 
 from __future__ import annotations
 
-import itertools
 import os
-import threading
-import time
 
 import psycopg
 import pytest
@@ -20,7 +17,7 @@ try:
 except ImportError:  # tests/ imported as a package
     from tests.support.server import ServerProcess
 
-from test_crash_durability import ACK, FAILED, KILL_AT_S, LOAD_S, REJECTED, TENANT, THREADS, client, entity_id, temperature
+from test_crash_durability import ACK, FAILED, REJECTED, TENANT, drive_then_kill, entity_id, temperature
 
 
 def stored_temperatures(url: str) -> dict[str, set[float]]:
@@ -42,25 +39,7 @@ def test_two_replicas_lose_nothing_acknowledged_on_sigkill(pg_cluster):
     url = pg_cluster.database("crash_two_replicas")
     replicas = [ServerProcess(url).start(), ServerProcess(url).start()]
     outcomes: dict[int, str] = {}
-    seqs = itertools.count()
-    stop = threading.Event()
-    threads = [
-        threading.Thread(target=client, args=(replicas[i % 2].port, seqs, outcomes, stop), daemon=True)
-        for i in range(THREADS)
-    ]
-    try:
-        t0 = time.monotonic()
-        for t in threads:
-            t.start()
-        time.sleep(max(0.0, t0 + KILL_AT_S - time.monotonic()))
-        codes = [r.kill() for r in replicas]
-        time.sleep(max(0.0, t0 + LOAD_S - time.monotonic()))
-    finally:
-        stop.set()
-        for t in threads:
-            t.join(15)
-        for r in replicas:
-            r.kill()
+    codes, _ = drive_then_kill(replicas, outcomes)
     assert codes == [-9, -9]
 
     restarted = ServerProcess(url).start()  # migrations and health on a crashed database

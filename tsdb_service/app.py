@@ -26,13 +26,9 @@ class TsdbApp(FastAPI):
     """FastAPI with the notification fast path in front of everything,
     framework included (see api.notify)."""
 
-    _fast_path: notify.NotifyFastPath | None = None
-
     async def __call__(self, scope, receive, send) -> None:
         if notify.is_notification(scope):
-            if self._fast_path is None:
-                self._fast_path = notify.NotifyFastPath(None, self.state)
-            await self._fast_path(scope, receive, send)
+            await notify.serve_notification(self, scope, receive, send)
             return
         await super().__call__(scope, receive, send)
 
@@ -65,7 +61,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         default_response_class=JSON,
     )
     app.state.settings = settings
-    app.state.app = app
     install_error_handlers(app)
     app.include_router(meta.router)
     app.include_router(notify.router)

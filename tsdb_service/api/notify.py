@@ -52,24 +52,15 @@ def is_notification(scope) -> bool:
     return scope["type"] == "http" and scope["method"] == "POST" and scope["path"] in NOTIFY_PATHS
 
 
-class NotifyFastPath:
-    """Serves the two notify URLs in front of the framework's middleware and
-    routing stack, which costs more per request than parsing a notification.
-    Behaviour is the routes' above (same function); only the overhead goes."""
-
-    def __init__(self, app, state):
-        self.app = app
-        self.state = state
-
-    async def __call__(self, scope, receive, send) -> None:
-        if not is_notification(scope):
-            await self.app(scope, receive, send)
-            return
-        scope["app"] = self.state.app
-        status, payload = await receive_notification(Request(scope, receive))
-        await send({"type": "http.response.start", "status": status,
-                    "headers": [*_JSON_HEADERS, (b"content-length", str(len(payload)).encode())]})
-        await send({"type": "http.response.body", "body": payload})
+async def serve_notification(app, scope, receive, send) -> None:
+    """Serve a notify URL in front of the framework's middleware and routing
+    stack, which costs more per request than parsing a notification. The
+    behaviour is the routes' above (same function); only the overhead goes."""
+    scope["app"] = app
+    status, payload = await receive_notification(Request(scope, receive))
+    await send({"type": "http.response.start", "status": status,
+                "headers": [*_JSON_HEADERS, (b"content-length", str(len(payload)).encode())]})
+    await send({"type": "http.response.body", "body": payload})
 
 
 async def receive_notification(request: Request) -> tuple[int, bytes]:

@@ -57,16 +57,6 @@ SAMPLE_SCHEMA = pa.schema(
         ("md", pa.string()),
     ]
 )
-SERIES_SCHEMA = pa.schema(
-    [
-        ("sid", pa.int32()),
-        ("tenant", pa.string()),
-        ("service_path", pa.string()),
-        ("entity_id", pa.string()),
-        ("entity_type", pa.string()),
-        ("attr", pa.string()),
-    ]
-)
 
 SeriesKey = tuple[str, str, str, str, str]  # tenant, service path, id, type, attr
 
