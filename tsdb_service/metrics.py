@@ -35,7 +35,15 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 from fastapi import APIRouter, Request
-from prometheus_client import CollectorRegistry, Counter, Histogram, disable_created_metrics, generate_latest
+from prometheus_client import (
+    CollectorRegistry,
+    Counter,
+    Histogram,
+    PlatformCollector,
+    ProcessCollector,
+    disable_created_metrics,
+    generate_latest,
+)
 from prometheus_client.core import GaugeMetricFamily
 from prometheus_client.registry import Collector
 from starlette.responses import Response
@@ -274,12 +282,16 @@ def _committer(store: Store):
 class Metrics:
     """One app's metrics: its registry, the writer observer and the request timer."""
 
-    def __init__(self, max_tenants: int = MAX_TENANTS):
+    def __init__(self, max_tenants: int = MAX_TENANTS, stats_ttl: float = STATS_TTL_S):
+        self._stats_ttl = stats_ttl
         self.registry = CollectorRegistry()
         self.tenants = TenantLabels(max_tenants)
         self.writer = WriterMetrics(self.registry, self.tenants)
         self.requests = RequestMetrics(self.registry)
         self.registry.register(TIME_INDEX_FALLBACKS)
+        # The standard process_* (CPU, memory, open files) and python_info series.
+        ProcessCollector(registry=self.registry)
+        PlatformCollector(registry=self.registry)
         self._store_collector: StoreCollector | None = None
 
     def attach(self, store: Store) -> None:
@@ -287,7 +299,7 @@ class Metrics:
         committer = _committer(store)
         if committer is not None:
             committer.observer = self.writer
-        self._store_collector = StoreCollector(store)
+        self._store_collector = StoreCollector(store, self._stats_ttl)
         self.registry.register(self._store_collector)
 
     def detach(self) -> None:
