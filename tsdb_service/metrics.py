@@ -135,6 +135,16 @@ class WriterMetrics:
             "tsdb_commit_group_size", "Ops committed together in one transaction, by op kind.",
             ["kind"], buckets=GROUP_BUCKETS, registry=registry)  # fmt: skip
         self._per_kind: dict[str, tuple[Any, Any]] = {}
+        self._children: dict[tuple, Any] = {}
+
+    def _child(self, counter: Counter, *labels: str):
+        """``counter.labels(...)``, memoised: ``labels`` takes a lock and
+        validates on every call, this is one dict lookup."""
+        key = (counter, labels)
+        child = self._children.get(key)
+        if child is None:
+            child = self._children[key] = counter.labels(*labels)
+        return child
 
     def _count(self, counter: Counter, ops: Iterable[WriteOp]) -> None:
         per_tenant: dict[str, int] = {}
@@ -143,7 +153,7 @@ class WriterMetrics:
             if tenant is not None:
                 per_tenant[tenant] = per_tenant.get(tenant, 0) + 1
         for tenant, n in per_tenant.items():
-            counter.labels(self._tenants(tenant)).inc(n)
+            self._child(counter, self._tenants(tenant)).inc(n)
 
     def taken(self, ops: Sequence[WriteOp]) -> None:
         self._count(self.received, ops)
@@ -160,7 +170,7 @@ class WriterMetrics:
             self._count(self.accepted, ops)
         elif kind == "rejected":
             for op in ops:
-                self.rejected.labels(self._tenants(op.rejected.tenant), op.rejected.error).inc()
+                self._child(self.rejected, self._tenants(op.rejected.tenant), op.rejected.error).inc()
 
     def failed_ops(self, ops: Sequence[WriteOp]) -> None:
         self._count(self.failed, ops)
