@@ -1,8 +1,8 @@
 """tsdb-service itself: ingest, commits, queries and storage, from its Prometheus
 ``/metrics`` (see ``tsdb_service.metrics``), for the operator rather than the use cases.
 
-Every query sums over workers and instances, so the dashboard reads the same
-with one process or several replicas scraped separately.
+Counters, histograms and the queue sum over replicas scraped separately; the
+store sizes describe the one shared database, so they take the ``max``.
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def build():
         ("Time index fallbacks/s", rate("tsdb_time_index_fallbacks_total"), "reqps",
          kit.thresholds("green", (0.001, "orange")),
          "Entities stored at the reception time: the notification carried no usable time"),
-        ("Store size", "sum(tsdb_store_size_bytes)", "bytes", None, "DuckDB file + WAL, or pg_database_size"),
+        ("Store size", "max(tsdb_store_size_bytes)", "bytes", None, "DuckDB file + WAL, or pg_database_size"),
     ):  # fmt: skip
         dash = dash.with_panel(stat(ids, title, expr, unit, description, steps))
     dash = dash.with_panel(series(ids, "Notifications per tenant", [
@@ -136,11 +136,11 @@ def build():
 
     dash = dash.with_row(kit.row(ids, "Storage and process"))
     dash = dash.with_panel(series(ids, "Store size", [
-        ("sum(tsdb_store_size_bytes)", "store"),
-        ("sum(tsdb_rejected_store_bytes)", "rejected store"),
+        ("max(tsdb_store_size_bytes)", "store"),
+        ("max(tsdb_rejected_store_bytes)", "rejected store"),
     ], "bytes", "Measured at scrape time, cached 5 s", w=8))  # fmt: skip
     dash = dash.with_panel(series(ids, "Rejected notifications kept", [
-        ("sum(tsdb_rejected_notifications)", "rows"),
+        ("max(tsdb_rejected_notifications)", "rows"),
     ], "short", "Rows in the rejected store", w=8))  # fmt: skip
     dash = dash.with_panel(series(ids, "Process", [
         ("sum(process_resident_memory_bytes)", "resident memory"),
