@@ -27,10 +27,11 @@ from grafana_foundation_sdk.models.dashboard import Dashboard
 from tests.grafana_fixtures import ROOT
 from tests.grafana_fixtures import panels_of as _panels
 from tsdb_service.grafana import dashboards
-from tsdb_service.grafana.dashboards import kit
+from tsdb_service.grafana.dashboards import kit, service
 
 SCHEMAS = ROOT.parent / "shared" / "grafana-jsonschema"
 USE_CASES = list(dashboards.BUILDERS)
+ALL = list(dashboards.DASHBOARDS)  # the use cases and the service's own
 
 needs_schemas = pytest.mark.skipif(
     not (SCHEMAS / "dashboard.jsonschema.json").exists(),
@@ -39,7 +40,7 @@ needs_schemas = pytest.mark.skipif(
 )
 
 
-@pytest.fixture(scope="module", params=USE_CASES)
+@pytest.fixture(scope="module", params=ALL)
 def board(request) -> tuple[str, dict]:
     return request.param, dashboards.build(request.param)
 
@@ -190,6 +191,8 @@ def test_datasource_uids_match_the_provisioning(board):
     for where, ref in refs:
         assert ref["uid"] in provisioned, f"{name} {where}: datasource uid {ref['uid']!r} is not provisioned"
         assert ref["type"] == provisioned[ref["uid"]]["type"], f"{name} {where}: type differs from provisioning"
+    if name not in kit.DATASOURCES:
+        return  # the service dashboard reads Prometheus, not a tenant
     # each use case reads its own tenant
     ds = provisioned[kit.DATASOURCES[name].uid]
     assert ds["secureJsonData"]["httpHeaderValue1"] == kit.DATASOURCES[name].tenancy.service
@@ -216,7 +219,7 @@ def test_provisioning_points_grafana_at_the_dashboards():
     doc = yaml.safe_load((ROOT / "dashboards" / "provisioning" / "dashboards.yaml").read_text())
     provider = doc["providers"][0]
     assert provider["type"] == "file" and provider["options"]["path"] == dashboards.GRAFANA_PATH
-    assert set(_provisioned()) == {ds.uid for ds in kit.DATASOURCES.values()}
+    assert set(_provisioned()) == {ds.uid for ds in kit.DATASOURCES.values()} | {service.DS.uid}
 
 
 def test_dashboards_command_writes_and_checks(tmp_path, capsys):
@@ -224,7 +227,7 @@ def test_dashboards_command_writes_and_checks(tmp_path, capsys):
 
     assert main(["dashboards", "build", "--out", str(tmp_path)]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["drone.json", "lawnmower.json", "provisioning",
-                                                          "warehouse.json"]  # fmt: skip
+                                                          "service.json", "warehouse.json"]  # fmt: skip
     assert main(["dashboards", "build", "--out", str(tmp_path), "--check"]) == 0
     (tmp_path / "drone.json").write_text("{}")
     assert main(["dashboards", "build", "--out", str(tmp_path), "--check"]) == 1

@@ -12,6 +12,7 @@ from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
 
 from . import __version__, grafana
+from . import metrics as metrics_
 from .api import attrs, entities, meta, notify, op_query, types
 from .api.handlers import install_error_handlers
 from .api.responses import JSON
@@ -24,17 +25,25 @@ WRITER_SWITCH_INTERVAL_S = 0.0002
 
 class TsdbApp(FastAPI):
     """FastAPI with the notification fast path in front of everything,
-    framework included (see api.notify)."""
+    framework included (see api.notify), and every HTTP request timed."""
+
+    request_metrics: metrics_.RequestMetrics
 
     async def __call__(self, scope, receive, send) -> None:
-        if notify.is_notification(scope):
-            await notify.serve_notification(self, scope, receive, send)
-            return
-        await super().__call__(scope, receive, send)
+        if scope["type"] != "http":
+            await super().__call__(scope, receive, send)
+        elif notify.is_notification(scope):
+            await self.request_metrics.timed(self._notification, scope, receive, send, scope["path"])
+        else:
+            await self.request_metrics.timed(super().__call__, scope, receive, send)
+
+    def _notification(self, scope, receive, send):
+        return notify.serve_notification(self, scope, receive, send)
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
+def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | None = None) -> FastAPI:
     settings = settings or get_settings()
+    metrics = metrics or metrics_.Metrics()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -43,6 +52,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         # commit wait that long, which caps ingest far below what DuckDB does.
         sys.setswitchinterval(WRITER_SWITCH_INTERVAL_S)
         app.state.store = await run_in_threadpool(open_store, settings)
+        metrics.attach(app.state.store)
         log.info("tsdb-service %s on %s (%s)", __version__, settings.db, app.state.store.backend)
         # Ingest allocates many short-lived objects; move everything built at
         # startup out of the collector's way and collect young objects less often.
@@ -51,6 +61,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
+            metrics.detach()
             await run_in_threadpool(app.state.store.close)
 
     app = TsdbApp(
@@ -61,8 +72,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         default_response_class=JSON,
     )
     app.state.settings = settings
+    app.state.metrics = metrics
+    app.request_metrics = metrics.requests
     install_error_handlers(app)
     app.include_router(meta.router)
+    app.include_router(metrics_.router)
     app.include_router(notify.router)
     app.include_router(entities.router)
     app.include_router(types.router)

@@ -20,6 +20,7 @@ never pays for parsing metadata times.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from datetime import datetime, timedelta, timezone
 from typing import Any
 
@@ -31,6 +32,16 @@ EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _MILLIS_THRESHOLD = 1e11
 
 WATCHED_ATTRIBUTES = frozenset({"TimeInstant", "timestamp", "dateModified"})
+
+
+def _no_op() -> None:
+    pass
+
+
+# Called once per entity whose time index falls back to the reception time;
+# ``tsdb_service.metrics`` installs its counter here (a hook, so this parser
+# stays free of metrics code).
+on_fallback: Callable[[], None] = _no_op
 
 
 def parse_time(value: Any) -> datetime | None:
@@ -139,6 +150,7 @@ class TimeClues:
         for moment in self._candidates():
             if moment is not None:
                 return moment
+        on_fallback()
         return received_at
 
     def _candidates(self):

@@ -12,6 +12,10 @@ Several writer threads may share the queue. A commit is mostly waiting (for
 the log's fsync, for the GIL held by the event loop), so while one writer
 waits another can build and send the next group: throughput scales with
 writers until the disk or a core is busy.
+
+An optional ``observer`` (``metrics.WriterMetrics``) hears about each group
+as it is taken and settled, from the writer thread: once per group, so
+counting costs the request path nothing.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future as SyncFuture
+from typing import Protocol
 
 from ..errors import Unavailable
 from .base import Appender, AppendSamples, WriteOp
@@ -35,6 +40,17 @@ _STOP = object()
 MAX_GROUP = 4096
 # A failed single op is tried this many times before its request gets 503.
 SINGLE_OP_ATTEMPTS = 3
+
+
+class CommitObserver(Protocol):
+    """Told, from a writer thread, what each group did (all ops of one call share a kind,
+    except in ``taken``)."""
+
+    def taken(self, ops: Sequence[WriteOp]) -> None: ...
+
+    def committed(self, ops: Sequence[WriteOp], seconds: float) -> None: ...
+
+    def failed_ops(self, ops: Sequence[WriteOp]) -> None: ...
 
 
 class _Waiter:
@@ -54,6 +70,7 @@ class GroupCommitter:
         self._failure: BaseException | None = None
         self.commits = 0
         self.ops = 0
+        self.observer: CommitObserver | None = None
         self._threads = [
             threading.Thread(target=self._run, name=f"{name}-{i}", daemon=True) for i in range(threads)
         ]
@@ -68,6 +85,11 @@ class GroupCommitter:
         if self._failure is not None:
             self.close()
             raise self._failure
+
+    @property
+    def queue_depth(self) -> int:
+        """Ops queued and not yet taken by a writer (approximate, as any queue size)."""
+        return self._queue.qsize()
 
     @property
     def alive(self) -> bool:
@@ -127,6 +149,7 @@ class GroupCommitter:
                         break
                     group.append(item)
                 if group:
+                    self._tell("taken", group)
                     self._commit_mixed(appender, group)
                 if stop:
                     # Everything queued before close() precedes the stop
@@ -148,6 +171,7 @@ class GroupCommitter:
                 self._commit_group(appender, [waiter])
 
     def _commit_group(self, appender: Appender, group: list[_Waiter], attempt: int = 1) -> None:
+        start = time.perf_counter()
         try:
             for waiter in group:
                 appender.stage(waiter.op)
@@ -165,12 +189,24 @@ class GroupCommitter:
                 self._commit_group(appender, group, attempt + 1)
                 return
             log.exception("write failed")
+            self._tell("failed_ops", group)
             _resolve(group, Unavailable("the write could not be committed; nothing was stored"))
             return
         with self._count_lock:
             self.commits += 1
             self.ops += len(group)
+        self._tell("committed", group, time.perf_counter() - start)
         _resolve(group, None)
+
+    def _tell(self, event: str, group: list[_Waiter], *args) -> None:
+        """Report to the observer; its failure must never stop a writer."""
+        observer = self.observer
+        if observer is None:
+            return
+        try:
+            getattr(observer, event)([w.op for w in group], *args)
+        except Exception:
+            log.exception("commit observer failed on %s", event)
 
 
 def _resolve(group: list[_Waiter], error: BaseException | None) -> None:

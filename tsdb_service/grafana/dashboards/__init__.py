@@ -1,7 +1,9 @@
-"""The use-case dashboards, built in code, and their Grafana provisioning files.
+"""The use-case dashboards and the service's own, built in code, and their
+Grafana provisioning files.
 
 ``build(name)`` gives a dashboard as JSON data; ``write(folder)`` regenerates
-``<name>.json`` for every use case plus ``provisioning/dashboards.yaml`` and
+``<name>.json`` for every use case and ``service.json`` (tsdb-service itself,
+from Prometheus), plus ``provisioning/dashboards.yaml`` and
 ``provisioning/datasources.yaml`` (``tsdb-service dashboards build``).
 """
 
@@ -11,13 +13,15 @@ from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 
-from . import drone, kit, lawnmower, warehouse
+from . import drone, kit, lawnmower, service, warehouse
 
 BUILDERS: dict[str, Callable] = {
     "lawnmower": lawnmower.build,
     "warehouse": warehouse.build,
     "drone": drone.build,
 }
+# Every dashboard written to dashboards/: the use cases and the service's own.
+DASHBOARDS: dict[str, Callable] = {**BUILDERS, "service": service.build}
 TITLES = {"lawnmower": "Bosch lawnmower", "warehouse": "PIAP smart warehouse", "drone": "eProsima drone"}
 FOLDER = "tsdb-service"
 # Where `dashboards/` is mounted inside the Grafana container (see dashboards/README.md).
@@ -28,11 +32,11 @@ GRAFANA_PATH = "/var/lib/grafana/dashboards/tsdb-service"
 def _cached(name: str) -> bytes:
     import orjson
 
-    return orjson.dumps(kit.to_json(BUILDERS[name]()))
+    return orjson.dumps(kit.to_json(DASHBOARDS[name]()))
 
 
 def build(name: str) -> dict:
-    """One dashboard's JSON (a fresh copy); ``KeyError`` for an unknown use case."""
+    """One dashboard's JSON (a fresh copy); ``KeyError`` for an unknown name."""
     import orjson
 
     return orjson.loads(_cached(name))
@@ -71,6 +75,15 @@ def datasources_yaml(service_url: str = kit.SERVICE_URL) -> str:
             f"      httpHeaderValue1: {ds.tenancy.service}",
             f"      httpHeaderValue2: {ds.tenancy.service_path}",
         ]
+    lines += [
+        "  # Prometheus scraping tsdb-service's /metrics, for the service dashboard (service.json).",
+        f"  - name: {service.DS.name}",
+        f"    uid: {service.DS.uid}",
+        f"    type: {service.PROMETHEUS}",
+        "    access: proxy",
+        f"    url: {service.PROMETHEUS_URL}",
+        "    editable: true",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -95,7 +108,7 @@ def dashboards_yaml() -> str:
 
 def files() -> dict[str, str]:
     """Relative path → content of everything ``write`` produces."""
-    out = {f"{name}.json": dumps(build(name)) for name in BUILDERS}
+    out = {f"{name}.json": dumps(build(name)) for name in DASHBOARDS}
     out["provisioning/dashboards.yaml"] = dashboards_yaml()
     out["provisioning/datasources.yaml"] = datasources_yaml()
     return out
