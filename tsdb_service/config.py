@@ -24,7 +24,16 @@ class Settings(BaseSettings):
     host: str = Field("0.0.0.0", description="Address to bind, as QuantumLeap does.")
     port: int = Field(8668, description="QuantumLeap's port.")
     workers: int = Field(1, ge=1, description="uvicorn workers; PostgreSQL only.")
-    max_body_bytes: int = Field(1 * MIB, ge=1024, description="Larger notifications get 413.")
+    max_body_bytes: int = Field(
+        9 * MIB, ge=1024,
+        description="Larger notifications get 413 (and are kept in the rejected store). Orion sends "
+        "notifications of up to 8 MB by default (its -outReqMsgMaxSize): the default leaves headroom above it.",
+    )
+    rejected_body_max_bytes: int = Field(
+        16 * MIB, ge=0,
+        description="The rejected store keeps a rejected notification's body up to this many bytes "
+        "(its full size is recorded, and that it was truncated).",
+    )
     default_limit: int = Field(10_000, ge=1, description="Rows returned when no limit is given.")
     compact_rows: int = Field(
         500_000, ge=1000, description="Move the hot table into the sorted one at this many rows."

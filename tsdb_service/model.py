@@ -91,4 +91,6 @@ class RejectedNotification:
     error: str
     description: str
     headers: str  # JSON object text
-    body: bytes
+    body: bytes  # as received, or its first bytes when body_truncated
+    body_size: int | None = None  # bytes as received; None: len(body)
+    body_truncated: bool = False

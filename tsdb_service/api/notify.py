@@ -19,18 +19,20 @@ from starlette.responses import Response
 from ..errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaType
 from ..model import RejectedNotification
 from ..ngsi import ValuesLayout, parse_notification
+from ..ngsi.names import RULE, name_problem
 from ..storage.base import AppendSamples, PutLayout, RecordRejected
 from .responses import JSON
-from .tenancy import tenant_of
+from .tenancy import tenant_header, tenant_of
 
 router = APIRouter(tags=["notify"])
 log = logging.getLogger(__name__)
 
 _OK_BODY = b'"Notification successfully processed"'
-_JSON_TYPES = ("application/json", "application/ld+json")
 # Parsing a big body on the event loop would stall every other request.
 _PARSE_INLINE_MAX = 64 * 1024
-
+# A body over the limit without a Content-Length is counted (not kept) up to
+# this many times the limit, then the request is answered anyway.
+_DRAIN_FACTOR = 64
 
 NOTIFY_PATHS = frozenset({"/v2/notify", "/ngsi-ld/v1/notify"})
 _JSON_HEADERS = [(b"content-type", b"application/json")]
@@ -78,11 +80,13 @@ async def receive_notification(request: Request) -> tuple[int, bytes]:
 async def _receive(request: Request) -> None:
     state = request.app.state
     store = state.store
+    settings = state.settings
     received_at = datetime.now(UTC)
-    body = b""
+    body = await _read_body(request, settings.max_body_bytes, settings.rejected_body_max_bytes)
     try:
-        _check_content_type(request)
-        body = await _read_body(request, state.settings.max_body_bytes)
+        if type(body) is _Overflow:
+            raise PayloadTooLarge(body.description(settings.max_body_bytes))
+        _check_content_type(request.headers.get("content-type"))
         layouts = store.values_layout
         if len(body) <= _PARSE_INLINE_MAX:
             entities = parse_notification(body, request.headers, received_at=received_at, values_layout=layouts)
@@ -92,46 +96,123 @@ async def _receive(request: Request) -> None:
             )
     except TsdbError as exc:
         if exc.status < 500:
-            await _keep_rejected(request, store, received_at, exc, body)
+            await _keep_rejected(request, store, received_at, exc, body, settings.rejected_body_max_bytes)
         raise
     await store.write(AppendSamples(entities))
 
 
-def _check_content_type(request: Request) -> None:
-    media = request.headers.get("content-type", "").split(";", 1)[0].strip().lower()
-    if media not in _JSON_TYPES:
-        raise UnsupportedMediaType(
-            f"notifications must be application/json or application/ld+json, not {media or 'missing'!r}"
-        )
+# --- Content-Type ------------------------------------------------------------------
+#
+# Only JSON media types are notifications. This is a security boundary, not
+# pedantry: a web page may make a visitor's browser POST cross-site without a
+# CORS preflight only with text/plain, application/x-www-form-urlencoded,
+# multipart/form-data or no Content-Type at all (a "simple" request). This
+# endpoint has no authentication, so accepting any of those would let any web
+# page write history into a deployment its visitors can reach. A JSON type
+# forces the preflight, which we never grant.
+
+_JSON_MEDIA = ("application/json", "application/ld+json", "application/geo+json")
+_MEDIA_OK: dict[str, bool] = {}  # header value as received → accepted (a broker repeats the same one)
 
 
-async def _read_body(request: Request, limit: int) -> bytes:
+def _check_content_type(raw: str | None) -> None:
+    ok = _MEDIA_OK.get(raw) if raw is not None else False
+    if ok is None:
+        media = raw.split(";", 1)[0].strip().lower()
+        ok = media in _JSON_MEDIA or (media.startswith("application/") and media.endswith("+json"))
+        if len(_MEDIA_OK) < 64:
+            _MEDIA_OK[raw] = ok
+    if not ok:
+        raise UnsupportedMediaType(_media_advice(raw))
+
+
+def _media_advice(raw: str | None) -> str:
+    """What is wrong and how to fix the subscription that sent it."""
+    got = "no Content-Type" if raw is None else f"Content-Type {raw[:80]!r}"
+    return (
+        f"notifications must be JSON (application/json, application/ld+json or application/geo+json), got {got}. "
+        "An Orion custom notification (httpCustom) sends text/plain with 'payload' or with a Content-Type "
+        "header override: use httpCustom 'json' instead of 'payload', or set httpCustom headers "
+        "{\"Content-Type\": \"application/json\"}. The notification is kept: GET /v2/notify/rejected"
+    )
+
+
+# --- body ---------------------------------------------------------------------------
+
+
+class _Overflow(bytes):
+    """The first bytes of a body over the limit, and how big it really was."""
+
+    size: int
+    exact: bool
+
+    def description(self, limit: int) -> str:
+        size = f"{self.size} bytes" if self.exact else f"more than {self.size} bytes"
+        return (f"notification of {size} exceeds the {limit}-byte limit (TSDB_MAX_BODY_BYTES); "
+                "it is kept in GET /v2/notify/rejected")
+
+
+async def _read_body(request: Request, limit: int, keep: int) -> bytes:
+    """The body, or past ``limit`` an ``_Overflow`` with its first ``keep``
+    bytes and its size, so an operator can still recover it."""
     declared = request.headers.get("content-length")
-    if declared is not None and declared.isdigit() and int(declared) > limit:
-        raise PayloadTooLarge(f"notification of {declared} bytes exceeds the {limit}-byte limit")
     chunks, size = [], 0
-    async for chunk in request.stream():
+    stream = request.stream()
+    async for chunk in stream:
         size += len(chunk)
-        if size > limit:
-            raise PayloadTooLarge(f"notification exceeds the {limit}-byte limit")
         chunks.append(chunk)
+        if size > limit:
+            return await _overflow(stream, chunks, size, limit, keep, declared)
     return b"".join(chunks)
 
 
-async def _keep_rejected(request, store, received_at: datetime, exc: TsdbError, body: bytes) -> None:
-    try:
-        tenant = tenant_of(request)
-    except TsdbError:
-        tenant = (request.headers.get("fiware-service") or "")[:200].lower()
+async def _overflow(stream, chunks: list[bytes], size: int, limit: int, keep: int, declared: str | None) -> _Overflow:
+    known = int(declared) if declared is not None and declared.isdigit() else None
+    head = bytearray(b"".join(chunks)[:keep])
+    exact = True
+    async for chunk in stream:
+        size += len(chunk)
+        if len(head) < keep:
+            head += chunk[: keep - len(head)]
+        elif known is not None:
+            break  # the Content-Length says how big it is: no need to read the rest
+        elif size > limit * _DRAIN_FACTOR:
+            exact = False
+            break
+    body = _Overflow(head)
+    body.size = known if known is not None else size
+    body.exact = exact
+    return body
+
+
+# --- rejected store -----------------------------------------------------------------
+
+
+async def _keep_rejected(request, store, received_at: datetime, exc: TsdbError, body: bytes, keep: int) -> None:
+    """Keep what the broker sent (headers, body, its size) before answering:
+    Orion never sends a notification twice."""
+    size = body.size if type(body) is _Overflow else len(body)
+    kept = bytes(body[:keep])
     rejected = RejectedNotification(
-        tenant=tenant,
+        tenant=_rejected_tenant(request),
         received_at=received_at,
         error=exc.error,
         description=exc.description,
         headers=orjson.dumps(dict(request.headers)).decode(),
-        body=body,
+        body=kept,
+        body_size=size,
+        body_truncated=len(kept) < size,
     )
     await store.write(RecordRejected(rejected))
+
+
+def _rejected_tenant(request) -> str:
+    """The tenant as the API names it; a header the API refuses is kept as
+    received, for the operator's listing across tenants."""
+    try:
+        return tenant_of(request)
+    except TsdbError:
+        return tenant_header(request)
 
 
 @router.get("/v2/notify/rejected", summary="Notifications we answered with 4xx, newest first")
@@ -139,8 +220,14 @@ def list_rejected(
     request: Request,
     limit: int = Query(100, ge=1, le=10_000),
     offset: int = Query(0, ge=0),
+    all_tenants: bool = Query(
+        False, alias="allTenants",
+        description="Operator listing: every tenant's rejections, each with its tenant as stored (a tenant "
+        "header the API refuses is stored as received). Ignores Fiware-Service.",
+    ),
 ) -> JSON:
-    return JSON(request.app.state.store.rejected(tenant_of(request), limit, offset))
+    tenant = None if all_tenants else tenant_of(request)
+    return JSON(request.app.state.store.rejected(tenant, limit, offset))
 
 
 @router.put(
@@ -179,6 +266,9 @@ def layout_from_document(doc: object) -> ValuesLayout:
             entity_type = entities[0].get("type")
     if not isinstance(attrs, list) or not attrs or not all(isinstance(a, str) and a for a in attrs):
         raise ParseError("'attrs' must be a non-empty list of attribute names, in notification order")
+    for name in attrs:
+        if (problem := name_problem(name)) is not None:
+            raise ParseError(f"attribute name {name[:80]!r} in 'attrs' {problem}: {RULE}")
     for name, value in (("entityId", entity_id), ("entityType", entity_type)):
         if value is not None and not isinstance(value, str):
             raise ParseError(f"'{name}' must be a string")

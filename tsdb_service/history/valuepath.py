@@ -7,6 +7,8 @@ so a value path can never be mistaken for an attribute: ``odom`` is the
 whole attribute, ``odom(twist.twist.linear.x)`` one number inside it.
 
 Keys may use any character except ``. , [ ] ( ) < > " ' = ;`` and white space.
+Attribute names follow the one rule of ``tsdb_service.ngsi.names``, the
+same the ingest applies, so every stored name can be asked for.
 """
 
 from __future__ import annotations
@@ -14,10 +16,9 @@ from __future__ import annotations
 import re
 
 from ..errors import BadRequest
+from ..ngsi.names import name_problem
 from .query import ValuePath
 
-# NGSIv2 attribute names: no forbidden characters, no white space, <= 256.
-_ATTR = re.compile(r"""[^\s<>"'=;()]{1,256}\Z""")
 _KEY = r"""[^\s.,\[\]()<>"'=;]+"""
 _STEP = re.compile(rf"\.?({_KEY})|\[(\d{{1,9}})\]")
 _MAX_STEPS = 32
@@ -27,11 +28,11 @@ def parse_value_path(text: str) -> ValuePath:
     """``"odom(twist.linear.x)"`` → ``ValuePath("odom", ("twist", "linear", "x"))``."""
     open_at = text.find("(")
     if open_at < 0:
-        if not _ATTR.match(text):
+        if name_problem(text) is not None:
             raise BadRequest(f"invalid attribute name {text[:80]!r}")
         return ValuePath(text)
     attr, inner = text[:open_at], text[open_at + 1 :]
-    if not attr or not _ATTR.match(attr):
+    if name_problem(attr) is not None:
         raise BadRequest(f"invalid attribute name {attr[:80]!r} in value path {text[:80]!r}")
     if not inner.endswith(")") or not inner[:-1]:
         raise BadRequest(f"invalid value path {text[:80]!r}: expected attr(key.key[0]...)")

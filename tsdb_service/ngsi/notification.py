@@ -4,8 +4,13 @@ One entry point, ``parse_notification``, for every format a broker sends:
 NGSIv2 ``normalized``, ``keyValues``, ``simplifiedNormalized``,
 ``simplifiedKeyValues`` and ``values`` (told apart by the
 ``Ngsiv2-AttrsFormat`` header), NGSIv1 ``legacy``, and NGSI-LD
-notifications (normalized, concise or keyValues). Without a usable header
-the body's shape decides, per attribute where formats can be mixed.
+notifications, entities or GeoJSON features, in normalized, concise or
+simplified (keyValues) form (the ``Ngsild-Attribute-Format`` header, or
+``Ngsiv2-AttrsFormat``). Without a usable header the body's shape decides,
+per attribute where formats can be mixed.
+
+Every attribute name must pass ``names.name_problem``, the rule the query
+parsers apply too: a name we could not be asked for is refused here.
 
 The parser is pure (no I/O) and on the ingest hot path: it walks the decoded
 JSON once, builds samples directly, and raises only ``ParseError`` for input
@@ -25,6 +30,7 @@ import orjson
 from tsdb_service.errors import ParseError
 from tsdb_service.geo.encodings import GEOMETRY_TYPES
 from tsdb_service.model import AttrSample, EntitySample
+from tsdb_service.ngsi.names import RULE, name_problem
 from tsdb_service.ngsi.timeindex import TimeClues, to_utc, watched_attributes
 from tsdb_service.ngsi.values import attr_sample, to_json
 
@@ -41,7 +47,10 @@ _SIMPLIFIED = "simplified"  # the body is the entity
 _SIMPLIFIED_KEY_VALUES = "simplified-keyValues"
 _SIMPLIFIED_AUTO = "simplified-auto"  # header-less single entity
 _VALUES = "values"  # {"subscriptionId", "data": [[v1, v2, ...]]}
-_LD = "ld"  # {"type": "Notification", "data": [entities]}
+_LD = "ld"  # {"type": "Notification", "data": [entities]}, normalized or concise
+_LD_SIMPLIFIED = "ld-simplified"  # the same, every attribute its bare value
+_GEOJSON = "geojson"  # {"type": "Notification", "data": FeatureCollection}
+_GEOJSON_SIMPLIFIED = "geojson-simplified"
 _V1 = "v1"  # {"contextResponses": [{"contextElement": ...}]}
 _AUTO = "auto"  # no usable header: decide from the body
 
@@ -53,8 +62,19 @@ _FORMAT_HEADER = {
     "values": _VALUES,
 }
 
+# Ngsild-Attribute-Format (Orion-LD writes Normalized, Concise, Simplified):
+# does every attribute come as its bare value?
+_LD_FORMAT_HEADER = {"normalized": False, "concise": False, "simplified": True, "keyvalues": True}
+_LD_LAYOUTS = frozenset({_LD, _LD_SIMPLIFIED, _GEOJSON, _GEOJSON_SIMPLIFIED})
+
 # How error messages locate an entity in the body.
-_ENTITY_LABELS = {_SIMPLIFIED: "entity", _SIMPLIFIED_KEY_VALUES: "entity", _SIMPLIFIED_AUTO: "entity", _V1: "contextResponses"}
+_ENTITY_LABELS = {_SIMPLIFIED: "entity", _SIMPLIFIED_KEY_VALUES: "entity", _SIMPLIFIED_AUTO: "entity",
+                  _V1: "contextResponses", _GEOJSON: "data.features", _GEOJSON_SIMPLIFIED: "data.features"}
+
+# NGSIv1 tells same-named attributes apart by an "ID" metadata; each is its
+# own attribute, stored as name + this + ID (a character NGSI names and URL
+# path segments both allow unencoded).
+V1_ID_SEPARATOR = "~"
 
 _V2_ENTITY_KEYS = frozenset({"id", "type"})
 _LD_ENTITY_KEYS = frozenset({"id", "type", "@context", "createdAt", "modifiedAt", "deletedAt", "scope"})
@@ -107,8 +127,8 @@ def parse_notification(
     hdrs = _lower_headers(headers)
     doc = _load(body)
     format_header = hdrs.get("ngsiv2-attrsformat")
-    layout = _layout(doc, format_header)
-    tenant = _tenant(hdrs, ld=layout == _LD or format_header is None)
+    layout = _layout(doc, format_header, hdrs.get("ngsild-attribute-format"))
+    tenant = _tenant(hdrs, ld=layout in _LD_LAYOUTS or format_header is None)
     header_attr = hdrs.get("fiware-timeindex-attribute", "").strip() or None
     ctx = _Context(watched_attributes(header_attr), header_attr, to_utc(received_at))
     layout, entities = _entities(doc, layout, tenant, values_layout)
@@ -144,13 +164,18 @@ def _load(body: bytes) -> dict:
     return doc
 
 
-def _layout(doc: dict, header: str | None) -> str:
+def _layout(doc: dict, header: str | None, ld_header: str | None) -> str:
     """Header first, but an NGSI-LD envelope is unmistakable and wins."""
     declared = _FORMAT_HEADER.get(header.strip().lower()) if header else None
     if declared in (_SIMPLIFIED, _SIMPLIFIED_KEY_VALUES, _VALUES):
         return declared
+    ld_simplified = _ld_simplified(ld_header, declared)
     if doc.get("type") == "Notification" and "data" in doc:
-        return _LD
+        if _is_geojson(doc["data"]):
+            return _GEOJSON_SIMPLIFIED if ld_simplified else _GEOJSON
+        return _LD_SIMPLIFIED if ld_simplified else _LD
+    if ld_header is not None and declared is None and ("data" in doc or "id" in doc):
+        return _LD_SIMPLIFIED if ld_simplified else _LD
     if declared is not None:
         return declared
     if "data" in doc:
@@ -162,12 +187,36 @@ def _layout(doc: dict, header: str | None) -> str:
     raise ParseError("unrecognised notification: expected a 'data' array, 'contextResponses', or an entity with 'id'")
 
 
+def _ld_simplified(ld_header: str | None, declared: str | None) -> bool:
+    """NGSI-LD attributes as bare values? ``Ngsild-Attribute-Format`` says,
+    else an ``Ngsiv2-AttrsFormat: keyValues`` does. An unknown value is
+    refused: guessing could store a value's own members as sub-properties."""
+    if ld_header is None:
+        return declared == _V2_KEY_VALUES
+    simplified = _LD_FORMAT_HEADER.get(ld_header.strip().lower())
+    if simplified is None:
+        raise ParseError(
+            f"unknown Ngsild-Attribute-Format {ld_header[:40]!r}: expected Normalized, Concise or Simplified"
+        )
+    return simplified
+
+
+def _is_geojson(data: Any) -> bool:
+    """Orion-LD's ``application/geo+json`` notifications carry a GeoJSON
+    FeatureCollection (one Feature per entity) instead of an entity array."""
+    return type(data) is dict and data.get("type") in ("FeatureCollection", "Feature")
+
+
 def _entities(doc: dict, layout: str, tenant: str, values_layout) -> tuple[str, list]:
     """The raw entities, with values rows already turned into entities."""
     if layout in (_SIMPLIFIED, _SIMPLIFIED_KEY_VALUES, _SIMPLIFIED_AUTO):
         return layout, [doc]
     if layout == _V1:
         return layout, _v1_entities(doc)
+    if layout in (_GEOJSON, _GEOJSON_SIMPLIFIED):
+        return layout, _geojson_entities(doc["data"], simplified=layout == _GEOJSON_SIMPLIFIED)
+    if layout in (_LD, _LD_SIMPLIFIED) and "data" not in doc:
+        return layout, [doc]  # a bare entity with an Ngsild-Attribute-Format header
     entities = _data(doc)
     if layout == _VALUES or (layout == _AUTO and entities and type(entities[0]) is list):
         return _VALUES, _values_entities(doc, entities, tenant, values_layout)
@@ -223,6 +272,11 @@ def _entity_sample(parse, raw: Any, where: str, tenant: str, path: str, ctx: _Co
         raise ParseError(f"{where} must be an entity object, got {_json_kind(raw)}")
     clues = TimeClues(ctx.header_attr, ctx.watched)
     entity_id, entity_type, attrs = parse(raw, where, clues)
+    for attr in attrs:
+        problem = name_problem(attr.name)
+        if problem is not None:
+            raise ParseError(f"{where}: attribute name {attr.name[:80]!r} {problem}; we store only names "
+                             f"every endpoint can be asked for: {RULE}")
     return EntitySample(tenant, path, entity_id, entity_type, clues.resolve(ctx.received_at), attrs)
 
 
@@ -335,6 +389,60 @@ def _ld_metadata(raw: dict, key: str) -> str | None:
     return to_json(extra) if extra else None
 
 
+def _ld_simplified_entity(entity: dict, where: str, clues: TimeClues) -> tuple[str, str, list[AttrSample]]:
+    """Simplified (keyValues): each attribute is its value, whatever its
+    shape. An object stays the object (``{"value": 5, "unit": "m"}`` is not
+    a Property of 5); a GeoJSON geometry is a GeoProperty, for geo-queries."""
+    entity_id, entity_type = _entity_id(entity, where), _entity_type(entity, where)
+    clues.modified_at = entity.get("modifiedAt")
+    attrs = []
+    for name, value in entity.items():
+        if name not in _LD_ENTITY_KEYS:
+            clues.note_value(name, value)
+            geometry = type(value) is dict and value.get("type") in GEOMETRY_TYPES and "coordinates" in value
+            attrs.append(attr_sample(name, "GeoProperty" if geometry else "Property", value, None))
+    return entity_id, entity_type, attrs
+
+
+def _geojson_entities(data: dict, *, simplified: bool) -> list:
+    """GeoJSON features → NGSI-LD entities: the feature's ``id`` is the
+    entity id, ``properties.type`` its type, the other properties its
+    attributes. Orion-LD derives ``geometry`` from one of those attributes
+    (``location`` unless the subscription names another); a geometry no
+    attribute carries is kept as ``location``."""
+    if data.get("type") == "Feature":
+        features: Any = [data]
+    else:
+        features = data.get("features")
+        if type(features) is not list:
+            raise ParseError(f"GeoJSON notification 'data.features' must be an array, got {_json_kind(features)}")
+    return [_feature_entity(feature, i, simplified) for i, feature in enumerate(features)]
+
+
+def _feature_entity(feature: Any, index: int, simplified: bool) -> Any:
+    if type(feature) is not dict:
+        return feature  # reported by _entity_sample with its position
+    properties = feature.get("properties")
+    if properties is None:
+        properties = {}
+    elif type(properties) is not dict:
+        raise ParseError(f"data.features[{index}]: 'properties' must be an object, got {_json_kind(properties)}")
+    entity = {"id": feature.get("id"), "type": properties.get("type")}
+    entity.update((name, value) for name, value in properties.items() if name != "type")
+    geometry = feature.get("geometry")
+    if type(geometry) is dict and "location" not in entity and not _carried(geometry, properties):
+        entity["location"] = geometry if simplified else {"type": "GeoProperty", "value": geometry}
+    return entity
+
+
+def _carried(geometry: dict, properties: dict) -> bool:
+    """Does an attribute (in any of the three forms) hold this geometry?"""
+    for value in properties.values():
+        if value == geometry or (type(value) is dict and value.get("value") == geometry):
+            return True
+    return False
+
+
 def _is_instance_list(items: list) -> bool:
     """A multi-attribute (several datasetIds) rather than an array value."""
     for item in items:
@@ -438,8 +546,24 @@ def _v1_entity(response: Any, index: int) -> dict:
         name = attribute.get("name") if type(attribute) is dict else None
         if type(name) is not str or name in _V2_ENTITY_KEYS:
             raise ParseError(f"contextResponses[{index}]: each attribute needs a 'name' string other than id/type")
-        entity[name] = {"type": attribute.get("type"), "value": attribute.get("value"), "metadata": _v1_metadata(attribute)}
+        metadata = _v1_metadata(attribute)
+        key = _v1_attr_name(name, metadata)
+        if key in entity:
+            raise ParseError(f"contextResponses[{index}]: attribute {key[:80]!r} appears twice; NGSIv1 tells "
+                             "same-named attributes apart by an 'ID' metadata, and these have the same one or none")
+        entity[key] = {"type": attribute.get("type"), "value": attribute.get("value"), "metadata": metadata}
     return entity
+
+
+def _v1_attr_name(name: str, metadata: dict) -> str:
+    """``temperature`` with ``ID`` metadata ``ground`` → ``temperature~ground``:
+    in NGSIv1 the ID is part of the attribute's identity (two attributes
+    may share a name), so it is part of the stored name; the ID metadata
+    is kept too."""
+    instance = metadata.get("ID", {}).get("value")
+    if type(instance) is bool or type(instance) not in (str, int, float) or instance == "":
+        return name
+    return f"{name}{V1_ID_SEPARATOR}{instance}"
 
 
 def _v1_metadata(attribute: dict) -> dict:
@@ -457,6 +581,9 @@ _ENTITY_PARSERS = {
     _SIMPLIFIED_KEY_VALUES: _v2_key_values_entity,
     _VALUES: _values_entity,
     _LD: _ld_entity,
+    _LD_SIMPLIFIED: _ld_simplified_entity,
+    _GEOJSON: _ld_entity,
+    _GEOJSON_SIMPLIFIED: _ld_simplified_entity,
     _V1: _v2_entity,
     _AUTO: _auto_entity,
 }

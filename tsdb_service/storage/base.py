@@ -125,7 +125,9 @@ class Store(ABC):
     def layouts(self, tenant: str) -> dict[str, ValuesLayout]: ...
 
     @abstractmethod
-    def rejected(self, tenant: str, limit: int, offset: int) -> list[dict[str, Any]]: ...
+    def rejected(self, tenant: str | None, limit: int, offset: int) -> list[dict[str, Any]]:
+        """Rejected notifications of one tenant, newest first; ``None``: every
+        tenant (the operator's listing)."""
 
     @abstractmethod
     def health(self) -> dict[str, Any]: ...

@@ -130,11 +130,13 @@ def _copy_side_tables(source: Store, target: Store) -> None:
     reader = source.querier()
     tenants = [row[0] for row in reader._fetch("SELECT DISTINCT tenant FROM subscriptions", [])]
     ops: list = [PutLayout(t, sub, layout) for t in tenants for sub, layout in source.layouts(t).items()]
-    for tenant, received_at, error, description, headers, body in reader._fetch(
-        "SELECT tenant, received_at, error, description, headers, body FROM rejected_notifications ORDER BY id", []
+    for tenant, received_at, error, description, headers, body, size, truncated in reader._fetch(
+        "SELECT tenant, received_at, error, description, headers, body, body_size, body_truncated "
+        "FROM rejected_notifications ORDER BY id", []
     ):
         ops.append(RecordRejected(RejectedNotification(
-            tenant, received_at.replace(tzinfo=UTC), error, description, headers, bytes(body))))
+            tenant, received_at.replace(tzinfo=UTC), error, description, headers, bytes(body), size,
+            bool(truncated))))
     if ops:
         target.write_sync(ops)
 

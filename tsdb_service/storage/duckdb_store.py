@@ -206,11 +206,11 @@ class DuckDBStore(Store):
     def layouts(self, tenant: str) -> dict[str, ValuesLayout]:
         return {sub: layout for (t, sub), layout in list(self._layouts.items()) if t == tenant}
 
-    def rejected(self, tenant: str, limit: int, offset: int) -> list[dict[str, Any]]:
+    def rejected(self, tenant: str | None, limit: int, offset: int) -> list[dict[str, Any]]:
+        where, params = ("", []) if tenant is None else ("WHERE tenant = ? ", [tenant])
         rows = self.cursor().execute(
-            "SELECT id, received_at, error, description, headers, body "
-            "FROM rejected_notifications WHERE tenant = ? ORDER BY id DESC LIMIT ? OFFSET ?",
-            [tenant, limit, offset],
+            f"SELECT {REJECTED_COLUMNS} FROM rejected_notifications {where}ORDER BY id DESC LIMIT ? OFFSET ?",
+            [*params, limit, offset],
         ).fetchall()
         return [rejected_row(*row) for row in rows]
 
@@ -247,21 +247,33 @@ class DuckDBStore(Store):
             self._con.close()
 
 
-def rejected_row(rid, received_at, error, description, headers, body) -> dict[str, Any]:
+# What the rejected listing shows, in rejected_row's argument order.
+REJECTED_COLUMNS = "id, tenant, received_at, error, description, headers, body, body_size, body_truncated"
+
+
+def rejected_row(rid, tenant, received_at, error, description, headers, body,
+                 body_size, body_truncated) -> dict[str, Any]:
+    """One rejected notification as the listing shows it: the body as text
+    when it is UTF-8, else base64; its size as received and whether only its
+    first bytes were kept (rows from before migration 0002 have no size)."""
+    body = bytes(body)
     try:
-        text, encoding = bytes(body).decode("utf-8"), "utf-8"
+        text, encoding = body.decode("utf-8"), "utf-8"
     except UnicodeDecodeError:
         import base64
 
-        text, encoding = base64.b64encode(bytes(body)).decode(), "base64"
+        text, encoding = base64.b64encode(body).decode(), "base64"
     return {
         "id": rid,
+        "tenant": tenant,
         "receivedAt": received_at.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z",
         "error": error,
         "description": description,
         "headers": orjson.loads(headers),
         "body": text,
         "bodyEncoding": encoding,
+        "bodySize": len(body) if body_size is None else int(body_size),
+        "bodyTruncated": bool(body_truncated),
     }
 
 
@@ -368,8 +380,8 @@ class DuckDBAppender(Appender):
             rejected_id = store._next_rejected
             store._next_rejected += 1
         self._rejected.append(
-            (rejected_id, r.tenant, r.received_at.replace(tzinfo=None), r.error,
-             r.description, r.headers, r.body)
+            (rejected_id, r.tenant, r.received_at.replace(tzinfo=None), r.error, r.description, r.headers,
+             r.body, len(r.body) if r.body_size is None else r.body_size, r.body_truncated)
         )
 
     def commit(self) -> None:
@@ -432,7 +444,9 @@ class DuckDBAppender(Appender):
     def _commit_other(self, cur: duckdb.DuckDBPyConnection) -> None:
         cur.execute("BEGIN")
         for row in self._rejected:
-            cur.execute("INSERT INTO rejected_notifications VALUES (?, ?, ?, ?, ?, ?, ?)", list(row))
+            cur.execute(
+                "INSERT INTO rejected_notifications (id, tenant, received_at, error, description, headers, "
+                "body, body_size, body_truncated) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)", list(row))
         for put in self._layouts:
             layout = put.layout
             cur.execute(

@@ -115,14 +115,14 @@ class PostgresStore(Store):
         self._load_layouts()
         return {sub: layout for (t, sub), layout in self._layouts.items() if t == tenant}
 
-    def rejected(self, tenant: str, limit: int, offset: int) -> list[dict[str, Any]]:
-        from .duckdb_store import rejected_row
+    def rejected(self, tenant: str | None, limit: int, offset: int) -> list[dict[str, Any]]:
+        from .duckdb_store import REJECTED_COLUMNS, rejected_row
 
+        where, params = ("", []) if tenant is None else ("WHERE tenant = %s ", [tenant])
         with self.connection() as conn:
             rows = conn.execute(
-                "SELECT id, received_at, error, description, headers, body FROM rejected_notifications "
-                "WHERE tenant = %s ORDER BY id DESC LIMIT %s OFFSET %s",
-                [tenant, limit, offset],
+                f"SELECT {REJECTED_COLUMNS} FROM rejected_notifications {where}ORDER BY id DESC LIMIT %s OFFSET %s",
+                [*params, limit, offset],
             ).fetchall()
         return [rejected_row(*row) for row in rows]
 
@@ -182,9 +182,10 @@ class PostgresAppender(Appender):
                 self._copy_samples(cur)
             for r in self._rejected:
                 cur.execute(
-                    "INSERT INTO rejected_notifications (tenant, received_at, error, description, headers, body) "
-                    "VALUES (%s, %s, %s, %s, %s, %s)",
-                    [r.tenant, naive_utc(r.received_at), r.error, r.description, r.headers, r.body],
+                    "INSERT INTO rejected_notifications (tenant, received_at, error, description, headers, body, "
+                    "body_size, body_truncated) VALUES (%s, %s, %s, %s, %s, %s, %s, %s)",
+                    [r.tenant, naive_utc(r.received_at), r.error, r.description, r.headers, r.body,
+                     len(r.body) if r.body_size is None else r.body_size, r.body_truncated],
                 )
             for put in self._layouts:
                 layout = put.layout
