@@ -12,7 +12,7 @@ from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
 
 from . import __version__, grafana
-from .api import attrs, entities, meta, notify, op_query, types
+from .api import attrs, entities, meta, notify, op_query, subscribe, types
 from .api.handlers import install_error_handlers
 from .api.responses import JSON
 from .config import Settings, get_settings
@@ -68,6 +68,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(types.router)
     app.include_router(attrs.router)
     app.include_router(op_query.router)
+    app.include_router(subscribe.router)
     app.include_router(grafana.router)
     return app
 
