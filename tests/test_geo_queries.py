@@ -235,10 +235,10 @@ BOX_EAST = geo("coveredBy", "box", "40.405,-3.695;40.425,-3.670")  # retiro, ato
 
 GOLDEN = [
     ("entities", f"/v2/entities?{NEAR_700}", [
-        {"id": "callao", "type": "Sensor", "index": IDX},  # newest first, then type, then id
-        {"id": "sol", "type": "Sensor", "index": IDX},
-        {"id": "granvia", "type": "Street", "index": IDX},
+        {"id": "callao", "type": "Sensor", "index": IDX},  # the page listed by id
         {"id": "centro", "type": "Zone", "index": IDX},
+        {"id": "granvia", "type": "Street", "index": IDX},
+        {"id": "sol", "type": "Sensor", "index": IDX},
     ]),
     ("entities-type", f"/v2/entities?type=Sensor&{NEAR_700}", [
         {"id": "callao", "type": "Sensor", "index": IDX},
@@ -268,7 +268,7 @@ GOLDEN = [
         "attributes": [{"attrName": "location", "values": [PLAZA_MAYOR]}]}),
     ("entity-no-match", f"/v2/entities/plaza-mayor?{NEAR_700}", []),
     ("entity-value", f"/v2/entities/sol/value?{NEAR_700}&attrs=temperature", {
-        "index": [IDX], "values": [{"attrName": "temperature", "values": [21.0]}]}),
+        "index": [IDX], "attributes": [{"attrName": "temperature", "values": [21.0]}]}),
     ("entity-attr-match", f"/v2/entities/hel-east/attrs/location?{geo('near;maxDistance:1000', 'point', HEL)}", {
         "id": "hel-east", "type": "Sensor", "attrName": "location", "index": [IDX],
         "values": [{"type": "Point", "coordinates": [24.9504, 60.1699]}]}),
@@ -293,13 +293,13 @@ GOLDEN = [
             {"type": "Street", "entities": [{"id": "granvia", "index": [IDX], "values": [24.0]}]}]}]}),
     ("aggregation-global", f"/v2/types/Sensor/attrs/temperature?aggrMethod=avg&aggrScope=global&{NEAR_700}", {
         "type": "Sensor", "attrName": "temperature", "entities": [
-            {"ids": ["callao", "sol"], "index": ["", ""], "values": [21.5]}]}),
+            {"ids": ["callao", "sol"], "index": [], "values": [21.5]}]}),
     ("aggregation-per-entity", f"/v2/attrs/temperature?aggrMethod=max&{BOX_EAST}", {
         "attrName": "temperature", "types": [
-            {"type": "Sensor", "entities": [{"id": "atocha", "index": ["", ""], "values": [23.0]},
-                                            {"id": "retiro", "index": ["", ""], "values": [19.0]},
-                                            {"id": CIBELES, "index": ["", ""], "values": [20.5]}]},
-            {"type": "Zone", "entities": [{"id": "retiro-park", "index": ["", ""], "values": [18.0]}]}]}),
+            {"type": "Sensor", "entities": [{"id": "atocha", "index": [], "values": [23.0]},
+                                            {"id": "retiro", "index": [], "values": [19.0]},
+                                            {"id": CIBELES, "index": [], "values": [20.5]}]},
+            {"type": "Zone", "entities": [{"id": "retiro-park", "index": [], "values": [18.0]}]}]}),
     ("no-location-never-matches", f"/v2/types/Room?{geo('disjoint', 'point', SOL)}", []),
 ]
 

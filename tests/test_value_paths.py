@@ -149,7 +149,7 @@ def test_odd_keys_are_literal(client, notify):
         for extra, expected in (({}, [i]), ({"aggrMethod": "sum"}, [i]), ({"aggrMethod": "count"}, [1])):
             r = client.get("/v2/entities/E/value", params={"attrs": f"o({key})", **extra})
             assert r.status_code == 200, (key, extra, r.text)
-            assert r.json()["values"] == [{"attrName": f"o({key})", "values": expected}], (key, extra, r.text)
+            assert r.json()["attributes"] == [{"attrName": f"o({key})", "values": expected}], (key, extra, r.text)
             if "/" not in key:
                 r = client.get(f"/v2/entities/E/attrs/{quote(f'o({key})', safe='()')}/value", params=extra)
                 assert r.status_code == 200, (key, extra, r.text)

@@ -13,7 +13,7 @@ from starlette.concurrency import run_in_threadpool
 
 from . import __version__, grafana
 from . import metrics as metrics_
-from .api import attrs, entities, meta, notify, op_query, types
+from .api import attrs, entities, meta, notify, op_query, subscribe, types
 from .api.handlers import install_error_handlers
 from .api.responses import JSON
 from .config import Settings, get_settings
@@ -82,6 +82,7 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
     app.include_router(types.router)
     app.include_router(attrs.router)
     app.include_router(op_query.router)
+    app.include_router(subscribe.router)
     app.include_router(grafana.router)
     return app
 

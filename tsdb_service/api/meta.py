@@ -22,15 +22,18 @@ def health(request: Request) -> JSON:
     return JSON(report, status_code=status, headers={"Content-Type": "application/health+json"})
 
 
+# QuantumLeap's index also names /v2/subscriptions and /v2/types, which
+# neither it nor we serve; only URLs that answer are listed here.
+API_INDEX = {
+    "notify_url": "/v2/notify",
+    "subscribe_url": "/v2/subscribe",
+    "entities_url": "/v2/entities",
+    "attributes_url": "/v2/attrs",
+    "op_query_url": "/v2/op/query",
+}
+
+
 @router.get("/v2/")
 @router.get("/v2")
 def api_index() -> JSON:
-    return JSON(
-        {
-            "notify_url": "/v2/notify",
-            "subscriptions_url": "/v2/subscriptions",
-            "entities_url": "/v2/entities",
-            "types_url": "/v2/types",
-            "attributes_url": "/v2/attrs",
-        }
-    )
+    return JSON(API_INDEX)

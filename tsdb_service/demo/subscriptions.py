@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 import random
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -65,19 +66,50 @@ def broker_headers(sim: Simulator) -> dict[str, str]:
     }
 
 
+@dataclass(frozen=True, slots=True)
+class BrokerAnswer:
+    """What a broker answered to ``POST /v2/subscriptions``; ``status`` is
+    None when it could not be reached (``problem`` says why)."""
+
+    status: int | None
+    reason: str = ""
+    location: str = ""
+    text: str = ""
+    problem: str = ""
+
+    @property
+    def created(self) -> bool:
+        return self.status == 201
+
+    @property
+    def subscription_id(self) -> str:
+        return self.location.rstrip("/").rsplit("/", 1)[-1] if self.location else ""
+
+
+def send_subscription(url: str, document: dict, headers: dict[str, str], timeout: float = 10.0) -> BrokerAnswer:
+    """POST a subscription to a broker's ``.../v2/subscriptions`` URL.
+
+    Shared by ``tsdb-service subscribe`` and ``POST /v2/subscribe``. Redirects
+    are not followed: a subscription goes to the URL the operator named."""
+    try:
+        response = httpx.post(url, content=orjson.dumps(document), headers=headers, timeout=timeout)
+    except httpx.HTTPError as exc:
+        return BrokerAnswer(None, problem=f"{type(exc).__name__}: {exc}")
+    return BrokerAnswer(
+        response.status_code, response.reason_phrase, response.headers.get("location", ""), response.text
+    )
+
+
 def post_subscription(broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0) -> tuple[bool, str]:
     """Create the subscription on a broker; (created?, what the broker answered)."""
     url = broker.rstrip("/") + "/v2/subscriptions"
-    body = orjson.dumps(subscription(sim, notify_url))
-    try:
-        response = httpx.post(url, content=body, headers=broker_headers(sim), timeout=timeout)
-    except httpx.HTTPError as exc:
-        return False, f"could not reach {url}: {type(exc).__name__}: {exc}"
-    location = response.headers.get("location", "")
-    if response.status_code == 201:
-        sub_id = location.rsplit("/", 1)[-1] or "?"
-        return True, f"201 Created: subscription {sub_id} ({location}) on tenant {sim.tenancy.service!r}"
-    return False, f"{response.status_code} {response.reason_phrase}: {response.text.strip()[:500]}"
+    answer = send_subscription(url, subscription(sim, notify_url), broker_headers(sim), timeout)
+    if answer.status is None:
+        return False, f"could not reach {url}: {answer.problem}"
+    if answer.created:
+        sub_id = answer.subscription_id or "?"
+        return True, f"201 Created: subscription {sub_id} ({answer.location}) on tenant {sim.tenancy.service!r}"
+    return False, f"{answer.status} {answer.reason}: {answer.text.strip()[:500]}"
 
 
 def example_notification(sim: Simulator) -> tuple[dict[str, str], dict]:

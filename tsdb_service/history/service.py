@@ -150,11 +150,30 @@ def run_history(querier: Querier, q: HistoryQuery) -> HistoryResult:
         refs = _geo_refs(querier, q.scope, q.entities, refs, q.geo, q.time)
     if not refs:
         return HistoryResult(q, [])
-    if q.aggregation is None:
-        entities = _raw(querier, q, refs)
-    else:
-        entities = _aggregated(querier, q, refs)
+    answer = _raw if q.aggregation is None else _aggregated
+    entities = [ent for group in _type_windows(q, refs) for ent in answer(querier, q, group)]
     return HistoryResult(q, _order(q, entities))
+
+
+def type_key(entity_type: str) -> tuple[str, str]:
+    """Types in QuantumLeap's order: it answers type after type, by table
+    name, and a table is named after the lower-cased type."""
+    return entity_type.lower(), entity_type
+
+
+def _type_windows(q: HistoryQuery, refs: list[SeriesRef]) -> list[list[SeriesRef]]:
+    """The series answered together. QuantumLeap reads each type from its own
+    table, so ``lastN``, ``limit`` and ``offset`` apply per type: the last
+    sample of every listed entity of another type is not pushed out by this
+    type's newer ones. A global aggregate is one group across types."""
+    if q.aggregation is not None and q.aggregation.scope is AggrScope.GLOBAL:
+        return [refs]
+    by_type: dict[str, list[SeriesRef]] = {}
+    for ref in refs:
+        by_type.setdefault(ref.entity_type, []).append(ref)
+    if len(by_type) == 1:
+        return [refs]
+    return [by_type[t] for t in sorted(by_type, key=type_key)]
 
 
 def _columns_by_attr(q: HistoryQuery) -> dict[str, list[tuple[str, tuple]]] | None:
@@ -290,7 +309,8 @@ def _aggregated(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> lis
             buckets[group] = set()
         buckets[group].add(bucket)
     # QuantumLeap's windowing of aggregated rows: ordered by entity, then
-    # period (newest first for lastN); offset and limit apply to those rows.
+    # period (newest first for lastN); offset and limit apply to those rows
+    # (of one type: run_history calls this type after type).
     ordered = sorted(results, key=lambda g: (g[0], g[1]))
     row_keys = []
     for group in ordered:
@@ -364,9 +384,10 @@ def _final(method: AggrMethod, cell):
 
 
 def _order(q: HistoryQuery, entities: list[EntityResult]) -> list[EntityResult]:
-    """Types by name, entities by id; on /v2/types/{type}/attrs/{attr} the ids
-    given in ``id`` come first, in the order given (as in QuantumLeap)."""
-    entities.sort(key=lambda e: (e.entity_type, e.entity_id))
+    """Type after type (``type_key``), ascending ids within a type; on
+    /v2/types/{type}/attrs/{attr} the ids given in ``id`` come first, in the
+    order given. All as in QuantumLeap."""
+    entities.sort(key=lambda e: (type_key(e.entity_type), e.entity_id))
     if (
         q.shape is Shape.TYPE_ATTR
         and q.entities.ids
@@ -393,11 +414,11 @@ def run_entity_list(querier: Querier, q: EntityListQuery) -> list[dict]:
         key = (ref.entity_type, ref.entity_id)
         if iso > latest.get(key, ""):
             latest[key] = iso
-    # Newest first, then type and id, as QuantumLeap orders them.
+    # QuantumLeap pages newest first (then type, id) and lists each page by id.
     items = sorted(latest.items(), key=lambda kv: (kv[0][0], kv[0][1]))
     items.sort(key=lambda kv: kv[1], reverse=True)
-    items = items[q.offset : q.offset + q.limit]
-    return [{"id": eid, "type": etype, "index": iso} for (etype, eid), iso in items]
+    page = sorted(items[q.offset : q.offset + q.limit], key=lambda kv: (kv[0][1], kv[0][0]))
+    return [{"id": eid, "type": etype, "index": iso} for (etype, eid), iso in page]
 
 
 # --- last values (op/query) -----------------------------------------------------------------

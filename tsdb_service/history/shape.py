@@ -18,9 +18,7 @@ from .query import AggrScope, HistoryQuery, Shape
 from .service import EntityResult, HistoryResult
 
 
-def iso_ms(moment: datetime | None) -> str:
-    if moment is None:
-        return ""
+def iso_ms(moment: datetime) -> str:
     return moment.strftime("%Y-%m-%dT%H:%M:%S.") + f"{moment.microsecond // 1000:03d}+00:00"
 
 
@@ -31,13 +29,26 @@ def render(result: HistoryResult):
     return _RENDERERS[q.shape](q, result.entities)
 
 
-def _index(q: HistoryQuery, ent: EntityResult, single: bool) -> list:
+def _index(q: HistoryQuery, ent: EntityResult, span: bool) -> list:
+    """An entity's ``index``. Aggregated without ``aggrPeriod`` there is one
+    value per entity and no time to give: QuantumLeap answers ``[]`` where
+    ``span`` is false, else ``[fromDate, toDate]`` with ``""`` for a bound not
+    given. We give the span only when both bounds were given, else ``[]``:
+    an index never holds an empty string."""
     agg = q.aggregation
     if agg is not None and agg.period is None:
-        # One value per entity: QuantumLeap gives [] for one entity and the
-        # requested [fromDate, toDate] when several can be answered.
-        return [] if single else [iso_ms(q.time.start), iso_ms(q.time.end)]
+        if span and q.time.start is not None and q.time.end is not None:
+            return [iso_ms(q.time.start), iso_ms(q.time.end)]
+        return []
     return ent.index
+
+
+def _listed(q: HistoryQuery, ent: EntityResult) -> bool:
+    """On /v2/types/{type}/attrs/{attr} QuantumLeap gives the time span only
+    to the entities named in ``id`` (a global group stands for all of them)."""
+    if q.entities.ids is None:
+        return False
+    return _global(q) or ent.entity_id in q.entities.ids
 
 
 def _global(q: HistoryQuery) -> bool:
@@ -57,16 +68,16 @@ def _entity_attr(q: HistoryQuery, entities: list[EntityResult]):
     name = _attr_name(q)
     values = ent.columns.get(name, [])
     if q.values_only:
-        return {"index": _index(q, ent, True), "values": values}
-    return {"id": ent.entity_id, "type": ent.entity_type, "attrName": name, "index": _index(q, ent, True),
+        return {"index": _index(q, ent, False), "values": values}
+    return {"id": ent.entity_id, "type": ent.entity_type, "attrName": name, "index": _index(q, ent, False),
             "values": values}
 
 
 def _entity(q: HistoryQuery, entities: list[EntityResult]):
     ent = entities[0]
     if q.values_only:
-        return {"index": _index(q, ent, True), "values": _attributes(ent)}
-    return {"id": ent.entity_id, "type": ent.entity_type, "index": _index(q, ent, True),
+        return {"index": _index(q, ent, False), "attributes": _attributes(ent)}
+    return {"id": ent.entity_id, "type": ent.entity_type, "index": _index(q, ent, False),
             "attributes": _attributes(ent)}
 
 
@@ -81,7 +92,7 @@ def _type_attr(q: HistoryQuery, entities: list[EntityResult]):
     items = []
     for ent in entities:
         item = _head(q, ent)
-        item["index"] = _index(q, ent, False)
+        item["index"] = _index(q, ent, _listed(q, ent))
         item["values"] = ent.columns.get(name, [])
         items.append(item)
     if q.values_only:
@@ -93,7 +104,7 @@ def _type(q: HistoryQuery, entities: list[EntityResult]):
     items = []
     for ent in entities:
         item = _head(q, ent)
-        item["index"] = _index(q, ent, False)
+        item["index"] = _index(q, ent, True)
         item["attributes"] = _attributes(ent)
         items.append(item)
     if q.values_only:
@@ -118,10 +129,11 @@ def _types_of(q: HistoryQuery, entities: list[EntityResult], column: str) -> lis
             key = ent.entity_type
             heads[key] = {"type": key}
             item = _head(q, ent)
-        item["index"] = _index(q, ent, False)
+        item["index"] = _index(q, ent, True)
         item["values"] = values
         groups.setdefault(key, []).append(item)
-    return [{**heads[key], "entities": groups[key]} for key in sorted(groups)]
+    # ``entities`` come type after type (history.service orders them).
+    return [{**heads[key], "entities": groups[key]} for key in groups]
 
 
 def _attr(q: HistoryQuery, entities: list[EntityResult]):
@@ -135,7 +147,8 @@ def _attr(q: HistoryQuery, entities: list[EntityResult]):
 
 
 def _attrs(q: HistoryQuery, entities: list[EntityResult]):
-    names = sorted({name for ent in entities for name in ent.columns})
+    # QuantumLeap's order: each entity's attributes by name, entity after entity.
+    names = list(dict.fromkeys(name for ent in entities for name in sorted(ent.columns)))
     items = [{"attrName": name, "types": _types_of(q, entities, name)} for name in names]
     if not items:
         return []

@@ -1,0 +1,277 @@
+"""``POST /v2/subscribe``: QuantumLeap's subscription helper, against a broker over HTTP.
+
+Orion is not available here, so a small stand-in broker runs with uvicorn on
+127.0.0.1: it keeps the subscriptions it is given per tenant (as Orion does,
+201 + ``Location``), refuses a bad ``idPattern`` with Orion's error shape and,
+when asked, notifies every subscription the way Orion would (``http`` or
+``httpCustom`` with its headers, the subscription's tenant). The end-to-end
+test runs tsdb-service itself with uvicorn too, so the notification crosses
+real HTTP into a real store.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+from contextlib import contextmanager
+
+import httpx
+import pytest
+import uvicorn
+from starlette.applications import Starlette
+from starlette.requests import Request
+from starlette.responses import JSONResponse, PlainTextResponse, Response
+from starlette.routing import Route
+
+from tests.support.server import free_port
+
+QL = "http://tsdb-service:8668/v2"
+METADATA = ["dateCreated", "dateModified", "TimeInstant", "timestamp"]
+
+
+class StandInBroker:
+    """What the helper needs of Orion: POST/GET /v2/subscriptions and notifying."""
+
+    def __init__(self) -> None:
+        self.subscriptions: dict[tuple[str, str], list[dict]] = {}
+        self._ids = itertools.count(0x65F0C3D7E3B8A4C1E9A57200)
+        self.app = Starlette(routes=[
+            Route("/v2", self.index),
+            Route("/v2/subscriptions", self.create, methods=["POST"]),
+            Route("/v2/subscriptions", self.list, methods=["GET"]),
+            Route("/broken/v2/subscriptions", self.broken, methods=["POST"]),
+        ])  # fmt: skip
+
+    @staticmethod
+    def tenant(request: Request) -> tuple[str, str]:
+        return (request.headers.get("fiware-service", "").lower(), request.headers.get("fiware-servicepath", "/"))
+
+    async def index(self, request: Request) -> Response:
+        return JSONResponse({"entities_url": "/v2/entities", "subscriptions_url": "/v2/subscriptions"})
+
+    async def create(self, request: Request) -> Response:
+        body = await request.json()
+        entities = body.get("subject", {}).get("entities")
+        if not entities:
+            return JSONResponse({"error": "BadRequest", "description": "no subject entities specified"}, 400)
+        if any(e.get("idPattern") == "(" for e in entities):
+            return JSONResponse({"error": "BadRequest", "description": "Invalid regex for entity idPattern"}, 400)
+        sub_id = f"{next(self._ids):024x}"
+        self.subscriptions.setdefault(self.tenant(request), []).append({"id": sub_id, **body})
+        return Response(status_code=201, headers={"Location": f"/v2/subscriptions/{sub_id}"})
+
+    async def list(self, request: Request) -> Response:
+        return JSONResponse(self.subscriptions.get(self.tenant(request), []))
+
+    async def broken(self, request: Request) -> Response:
+        return PlainTextResponse("database down", status_code=500)
+
+    def notify(self, entity: dict) -> list[int]:
+        """Notify ``entity`` (NGSIv2 normalized) to every subscription, as Orion would."""
+        statuses = []
+        for (service, path), subs in self.subscriptions.items():
+            for sub in subs:
+                target = sub["notification"].get("http") or sub["notification"]["httpCustom"]
+                headers = {"Content-Type": "application/json; charset=utf-8", "Fiware-ServicePath": path,
+                           "Ngsiv2-AttrsFormat": "normalized", **target.get("headers", {})}
+                if service:
+                    headers["Fiware-Service"] = service
+                wanted = sub["notification"].get("attrs")
+                data = {k: v for k, v in entity.items() if k in ("id", "type") or not wanted or k in wanted}
+                body = {"subscriptionId": sub["id"], "data": [data]}
+                statuses.append(httpx.post(target["url"], json=body, headers=headers, timeout=10).status_code)
+        return statuses
+
+
+class _Server(uvicorn.Server):
+    def install_signal_handlers(self) -> None:  # a test thread must not take pytest's signals
+        pass
+
+
+@contextmanager
+def serving(app):
+    """``app`` on a free 127.0.0.1 port with uvicorn, in a thread; yields its URL."""
+    port = free_port()
+    server = _Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started:
+        if not thread.is_alive() or time.monotonic() > deadline:
+            raise RuntimeError("the test server did not start")
+        time.sleep(0.02)
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        thread.join(timeout=30)
+
+
+@pytest.fixture(scope="module")
+def broker():
+    stand_in = StandInBroker()
+    with serving(stand_in.app) as url:
+        stand_in.url = url
+        yield stand_in
+
+
+@pytest.fixture(autouse=True)
+def _fresh_broker(broker):
+    broker.subscriptions.clear()
+
+
+def subscribe(client, broker, headers=None, **params):
+    params = {"orionUrl": broker.url + "/v2", "quantumleapUrl": QL, **params}
+    return client.post("/v2/subscribe", params=params, headers=headers or {})
+
+
+def only_subscription(broker, tenant=("", "/")) -> dict:
+    subs = broker.subscriptions.get(tenant, [])
+    assert len(subs) == 1, broker.subscriptions
+    sub = dict(subs[0])
+    sub.pop("id")
+    return sub
+
+
+# --- what gets created -------------------------------------------------------------------------
+
+
+def test_defaults_follow_everything(client, broker):
+    r = subscribe(client, broker)
+    assert r.status_code == 201, r.text
+    sub_id = r.json()["subscriptionId"]
+    assert r.headers["location"] == f"{broker.url}/v2/subscriptions/{sub_id}"
+    expected = {
+        "description": f"Created by tsdb-service {QL}.",
+        "subject": {"entities": [{"idPattern": ".*"}]},
+        "notification": {"http": {"url": f"{QL}/notify"}, "metadata": METADATA},
+        "throttling": 1,
+    }
+    assert only_subscription(broker) == expected
+    assert r.json() == {"subscriptionId": sub_id, "location": r.headers["location"], "subscription": expected}
+
+
+def test_custom_parameters_under_the_request_tenant(client, broker):
+    headers = {"Fiware-Service": "custom", "Fiware-ServicePath": "/custom"}
+    r = subscribe(client, broker, headers, entityType="Room", idPattern="Room1",
+                  observedAttributes="temperature,pressure", notifiedAttributes="pressure", throttling="30")
+    assert r.status_code == 201, r.text
+    assert broker.subscriptions.get(("", "/")) is None
+    assert only_subscription(broker, ("custom", "/custom")) == {
+        "description": f"Created by tsdb-service {QL}.",
+        "subject": {"entities": [{"type": "Room", "idPattern": "Room1"}],
+                    "condition": {"attrs": ["temperature", "pressure"]}},
+        "notification": {"http": {"url": f"{QL}/notify"}, "attrs": ["pressure"], "metadata": METADATA},
+        "throttling": 30,
+    }
+
+
+@pytest.mark.parametrize(("observed", "notified"), [(None, "b"), ("a", None), ("a", "b")])
+def test_attributes_overrides_observed_and_notified(client, broker, observed, notified):
+    extra = {k: v for k, v in (("observedAttributes", observed), ("notifiedAttributes", notified)) if v}
+    assert subscribe(client, broker, attributes="x, y", **extra).status_code == 201
+    sub = only_subscription(broker)
+    assert sub["subject"]["condition"] == {"attrs": ["x", "y"]}
+    assert sub["notification"]["attrs"] == ["x", "y"]
+
+
+def test_entity_id_wins_over_id_pattern(client, broker):
+    assert subscribe(client, broker, entityId="e123", idPattern="e1.*").status_code == 201
+    assert only_subscription(broker)["subject"]["entities"] == [{"id": "e123"}]
+
+
+def test_time_index_attribute_is_sent_as_a_header(client, broker):
+    assert subscribe(client, broker, timeIndexAttribute="measuredAt").status_code == 201
+    assert only_subscription(broker)["notification"] == {
+        "httpCustom": {"url": f"{QL}/notify", "headers": {"Fiware-TimeIndex-Attribute": "measuredAt"}},
+        "metadata": [*METADATA, "measuredAt"],
+    }
+
+
+def test_zero_throttling_is_kept(client, broker):
+    assert subscribe(client, broker, throttling="0").status_code == 201
+    assert only_subscription(broker)["throttling"] == 0
+
+
+def test_base_urls_without_version_get_v2(client, broker):
+    r = client.post("/v2/subscribe", params={"orionUrl": broker.url, "quantumleapUrl": "http://tsdb:8668/"})
+    assert r.status_code == 201, r.text
+    assert only_subscription(broker)["notification"]["http"] == {"url": "http://tsdb:8668/v2/notify"}
+
+
+# --- refusals ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("params", [
+    {"quantumleapUrl": QL},
+    {"orionUrl": "http://orion:1026/v2"},
+    {"orionUrl": "blabla", "quantumleapUrl": QL},
+    {"orionUrl": "ftp://orion/v2", "quantumleapUrl": QL},
+    {"orionUrl": "http://orion:1026/v2", "quantumleapUrl": "http://:8668/v2"},
+    {"orionUrl": "http://orion:99999/v2", "quantumleapUrl": QL},
+    {"orionUrl": "http://orion:1026/v2?x=1", "quantumleapUrl": QL},
+    {"orionUrl": "http://orion:1026/v2", "quantumleapUrl": QL, "throttling": "-1"},
+    {"orionUrl": "http://orion:1026/v2", "quantumleapUrl": QL, "throttling": "soon"},
+    {"orionUrl": "http://orion:1026/v2", "quantumleapUrl": QL, "entityType": "T" * 300},
+])  # fmt: skip
+def test_bad_parameters_are_400_before_any_broker_call(client, broker, params):
+    r = client.post("/v2/subscribe", params=params)
+    assert r.status_code == 400, r.text
+    assert set(r.json()) == {"error", "description"}
+    assert broker.subscriptions == {}
+
+
+def test_bad_tenant_is_400(client, broker):
+    r = subscribe(client, broker, {"Fiware-Service": "no spaces!"})
+    assert r.status_code == 400 and r.json()["error"] == "BadRequest"
+    r = subscribe(client, broker, {"Fiware-ServicePath": "relative"})
+    assert r.status_code == 400
+    assert broker.subscriptions == {}
+
+
+def test_unreachable_broker_is_quantumleaps_400(client):
+    orion = f"http://127.0.0.1:{free_port()}/v2"
+    r = client.post("/v2/subscribe", params={"orionUrl": orion, "quantumleapUrl": QL})
+    assert r.status_code == 400
+    assert r.json()["error"] == "Bad Request"
+    assert r.json()["description"].startswith(f"Orion is not reachable at {orion}: ")
+
+
+def test_broker_refusal_is_passed_on(client, broker):
+    r = subscribe(client, broker, idPattern="(")
+    assert (r.status_code, r.json()) == (400, {"error": "BadRequest", "description": "Invalid regex for entity idPattern"})
+
+
+def test_not_a_broker_gets_a_hint(client, broker):
+    r = client.post("/v2/subscribe", params={"orionUrl": broker.url + "/elsewhere/v2", "quantumleapUrl": QL})
+    assert r.status_code == 404
+    assert r.json()["error"] == "BadRequest"
+    assert "answered 404" in r.json()["description"] and "orionUrl" in r.json()["description"]
+
+
+def test_broker_failure_is_502(client, broker):
+    r = client.post("/v2/subscribe", params={"orionUrl": broker.url + "/broken/v2", "quantumleapUrl": QL})
+    assert r.status_code == 502
+    assert r.json()["error"] == "BadGateway" and "500" in r.json()["description"]
+    assert "database down" not in r.text
+
+
+# --- end to end: the broker notifies what it was subscribed to ------------------------------------
+
+
+def test_subscription_feeds_the_service(app_factory, store_url, broker):
+    tenant = {"Fiware-Service": "Building", "Fiware-ServicePath": "/floor1"}
+    with serving(app_factory(store_url)) as service:
+        r = httpx.post(f"{service}/v2/subscribe", headers=tenant, timeout=10, params={
+            "orionUrl": broker.url + "/v2", "quantumleapUrl": service + "/v2", "entityType": "Room",
+            "notifiedAttributes": "temperature,measuredAt", "timeIndexAttribute": "measuredAt"})
+        assert r.status_code == 201, r.text
+        entity = {"id": "Room1", "type": "Room",
+                  "temperature": {"type": "Number", "value": 21.5, "metadata": {}},
+                  "pressure": {"type": "Number", "value": 1000, "metadata": {}},
+                  "measuredAt": {"type": "DateTime", "value": "2024-03-01T08:00:00.000Z", "metadata": {}}}
+        assert broker.notify(entity) == [200]
+        got = httpx.get(f"{service}/v2/entities/Room1", headers=tenant, timeout=10).json()
+    assert got["index"] == ["2024-03-01T08:00:00.000+00:00"]
+    assert [a["attrName"] for a in got["attributes"]] == ["measuredAt", "temperature"]
