@@ -11,7 +11,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
 
-from . import __version__, grafana
+from . import __version__, grafana, ui
 from .api import attrs, entities, meta, notify, op_query, types
 from .api.handlers import install_error_handlers
 from .api.responses import JSON
@@ -59,6 +59,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         description="History of an NGSI context broker, QuantumLeap-compatible.",
         lifespan=lifespan,
         default_response_class=JSON,
+        docs_url=None,  # ui serves /docs from vendored assets, not a CDN
+        redoc_url=None,
     )
     app.state.settings = settings
     install_error_handlers(app)
@@ -69,6 +71,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(attrs.router)
     app.include_router(op_query.router)
     app.include_router(grafana.router)
+    app.include_router(ui.router)
     return app
 
 
