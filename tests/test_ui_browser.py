@@ -123,7 +123,9 @@ def _open(browser, url: str, view: str) -> float:
         lambda d: d.execute_script("return document.body.dataset.ready") == view,
         message=f"{url} did not draw {view}",
     )
-    error = browser.execute_script("const e = document.getElementById('error'); return e && !e.hidden ? e.textContent : null")
+    error = browser.execute_script(
+        "const e = document.getElementById('error'); return e && !e.hidden ? e.textContent : null"
+    )
     assert error is None, f"the page reports: {error}"
     return browser.execute_script("return window.explorerReady.ms")
 

@@ -64,7 +64,8 @@ def test_ui_redirects_to_the_page_and_the_page_loads_its_files(client):
         asset = client.get(f"/ui/{ref}")
         assert asset.status_code == 200, ref
         assert asset.content == (STATIC / ref.removeprefix("static/")).read_bytes()
-    assert client.get("/ui/static/explorer.js").headers["content-type"].startswith(("text/javascript", "application/javascript"))
+    script_type = client.get("/ui/static/explorer.js").headers["content-type"]
+    assert script_type.startswith(("text/javascript", "application/javascript"))
     assert client.get("/ui/static/explorer.css").headers["content-type"].startswith("text/css")
 
 
