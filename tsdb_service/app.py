@@ -11,7 +11,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
 
-from . import __version__, grafana
+from . import __version__, grafana, ui
 from . import metrics as metrics_
 from .api import attrs, entities, meta, notify, op_query, subscribe, types
 from .api.handlers import install_error_handlers
@@ -70,6 +70,8 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
         description="History of an NGSI context broker, QuantumLeap-compatible.",
         lifespan=lifespan,
         default_response_class=JSON,
+        docs_url=None,  # ui serves /docs from vendored assets, not a CDN
+        redoc_url=None,
     )
     app.state.settings = settings
     app.state.metrics = metrics
@@ -84,6 +86,7 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
     app.include_router(op_query.router)
     app.include_router(subscribe.router)
     app.include_router(grafana.router)
+    app.include_router(ui.router)
     return app
 
 

@@ -147,6 +147,7 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service) -> Non
     where = f"(DuckDB file {args.db}; log {service.log_path})" if service else "(already running)"
     until = f"for {args.duration:g} s" if args.duration else "until Ctrl-C"
     print(f"tsdb-service demo: feeding {url} {where}")
+    print(f"  explorer     {url}/ui  (charts, maps and the three use cases in a browser)")
     print(f"  API docs     {url}/docs")
     print(f"  dashboards   {url}/dashboards")
     print(f"  history API  {url}/v2/entities  (headers Fiware-Service / Fiware-ServicePath)")

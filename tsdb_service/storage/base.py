@@ -80,6 +80,10 @@ class Querier(ABC):
         """``SeriesRef``s of ``scope`` matching an ``EntityFilter`` and attribute names."""
 
     @abstractmethod
+    def tenants(self) -> list[str]:
+        """Every tenant with at least one series, sorted."""
+
+    @abstractmethod
     def sids_with_samples(self, sids) -> set[int]: ...
 
     @abstractmethod

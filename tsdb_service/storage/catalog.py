@@ -102,6 +102,11 @@ class SeriesCatalog:
             self._position = position
             self._loaded_gen = gen
 
+    def tenants(self) -> list[str]:
+        """Every tenant that has at least one series, sorted."""
+        self.refresh()
+        return sorted(self._tenants)
+
     def select(
         self,
         scope: Scope,

@@ -170,6 +170,9 @@ class SqlQuerier(Querier):
     def series(self, scope: Scope, entities: EntityFilter, attrs=None) -> list[SeriesRef]:
         return self.catalog.select(scope, entities, attrs)
 
+    def tenants(self) -> list[str]:
+        return self.catalog.tenants()
+
     def sids_with_samples(self, sids: Sequence[int]) -> set[int]:
         if not sids:
             return set()

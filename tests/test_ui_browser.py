@@ -1,0 +1,252 @@
+"""The explorer page (``/ui``) and the API docs (``/docs``) in a real headless browser.
+
+Debian's ``chromium`` and ``chromium-driver``, driven by Selenium, against a
+real server subprocess on a DuckDB file fed with a seeded burst of the three
+demo use cases (real Orion notifications over HTTP). The browser is
+installed by this module when it is missing and we may (root, apt-get); it
+is started with no network services of its own, and every request the pages
+make is checked to stay on 127.0.0.1.
+
+The page's requests are the Infinity endpoints, whose answers are the same on
+both backends (``test_grafana_*``); this module is DuckDB only.
+
+Screenshots go to the session's temporary directory (never the repository);
+their paths and the page load times are printed (``pytest -s`` shows them).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.grafana_fixtures import _feed
+from tests.support.server import ServerProcess
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMEDRIVER = Path("/usr/bin/chromedriver")
+CHROME_FLAGS = (
+    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--disable-dev-shm-usage", "--window-size=1400,1100",
+)  # fmt: skip
+READY_TIMEOUT_S = 30
+LOAD_BUDGET_MS = 10_000  # generous: 2 shared cores; the figure itself is printed
+
+
+def _install_chromium() -> str | None:
+    """apt-get the browser and its driver; the reason it could not, or None."""
+    if not hasattr(os, "geteuid") or os.geteuid() != 0:
+        return "chromium / chromium-driver are not installed and we are not root to apt-get them"
+    if shutil.which("apt-get") is None:
+        return "chromium / chromium-driver are not installed and there is no apt-get"
+    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+    for command in (["apt-get", "update", "-qq"], ["apt-get", "install", "-y", "-qq", "chromium", "chromium-driver"]):
+        try:
+            done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=900)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            return f"{' '.join(command)} failed: {exc}"
+        if done.returncode != 0:
+            return f"{' '.join(command)} failed ({done.returncode}): {(done.stderr or done.stdout)[-500:]}"
+    return None
+
+
+@pytest.fixture(scope="session")
+def chromium_binaries():
+    """/usr/bin/chromium and /usr/bin/chromedriver, installed here if missing."""
+    if not (CHROMIUM.exists() and CHROMEDRIVER.exists()):
+        reason = _install_chromium()
+        if reason is not None:
+            pytest.skip(reason)
+    if not (CHROMIUM.exists() and CHROMEDRIVER.exists()):
+        pytest.skip("apt-get installed chromium but /usr/bin/chromium or /usr/bin/chromedriver is missing")
+    return CHROMIUM, CHROMEDRIVER
+
+
+@pytest.fixture(scope="module")
+def demo_server(tmp_path_factory):
+    """A real server on a DuckDB file with all three use cases' data."""
+    server = ServerProcess(tmp_path_factory.mktemp("ui") / "demo.duckdb").start()
+    try:
+        stats = asyncio.run(_feed(server.url, int(time.time() * 1000)))
+        for name, row in stats.items():
+            assert row.sent > 100 and row.failed == 0, f"{name}: {row}"
+        yield server
+    finally:
+        server.terminate()
+
+
+@pytest.fixture(scope="module")
+def browser(chromium_binaries, tmp_path_factory):
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    binary, driver_path = chromium_binaries
+    options = webdriver.ChromeOptions()
+    options.binary_location = str(binary)
+    for flag in CHROME_FLAGS:
+        options.add_argument(flag)
+    options.add_argument(f"--user-data-dir={tmp_path_factory.mktemp('chromium-profile')}")
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
+    # An explicit driver path: Selenium Manager never runs, nothing is downloaded.
+    driver = webdriver.Chrome(service=Service(executable_path=str(driver_path)), options=options)
+    driver.set_page_load_timeout(READY_TIMEOUT_S)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("ui-screenshots")
+
+
+# -- helpers ----------------------------------------------------------------------------
+
+
+def _open(browser, url: str, view: str) -> float:
+    """Load ``url`` afresh; wait until the page says ``view`` is drawn. Returns ms
+    from navigation start to data drawn, as the page measured it."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    browser.get("about:blank")
+    _drain_logs(browser)
+    browser.get(url)
+    WebDriverWait(browser, READY_TIMEOUT_S).until(
+        lambda d: d.execute_script("return document.body.dataset.ready") == view,
+        message=f"{url} did not draw {view}",
+    )
+    error = browser.execute_script(
+        "const e = document.getElementById('error'); return e && !e.hidden ? e.textContent : null"
+    )
+    assert error is None, f"the page reports: {error}"
+    return browser.execute_script("return window.explorerReady.ms")
+
+
+def _drain_logs(browser) -> None:
+    browser.get_log("browser")
+    browser.get_log("performance")
+
+
+def _console_errors(browser) -> list[str]:
+    return [entry["message"] for entry in browser.get_log("browser") if entry["level"] == "SEVERE"]
+
+
+def _requested_urls(browser) -> list[str]:
+    urls = []
+    for entry in browser.get_log("performance"):
+        message = json.loads(entry["message"])["message"]
+        if message.get("method") == "Network.requestWillBeSent":
+            urls.append(message["params"]["request"]["url"])
+    return urls
+
+
+def _check_stayed_local(browser, server) -> list[str]:
+    urls = _requested_urls(browser)
+    assert urls, "no request was recorded"
+    away = [u for u in urls if not u.startswith(server.url + "/") and not u.startswith(("data:", "blob:", "about:"))]
+    assert away == [], f"requests left {server.url}: {away}"
+    return urls
+
+
+def _attr(browser, css: str, name: str) -> int:
+    return int(browser.find_element("css selector", css).get_attribute(f"data-{name}") or 0)
+
+
+def _shot(browser, shots: Path, name: str) -> None:
+    path = shots / f"{name}.png"
+    browser.save_screenshot(str(path))
+    print(f"\nscreenshot {path}")
+
+
+# -- the tests -------------------------------------------------------------------------------
+
+
+def test_explore_lists_the_tenants_and_draws_an_entity(browser, demo_server, shots):
+    ms = _open(browser, demo_server.url + "/ui", "explore")
+    tenants = [o.get_attribute("value") for o in browser.find_elements("css selector", "#tenant option")]
+    assert {"lawnmower", "warehouse", "drone"} <= set(tenants)
+    assert _console_errors(browser) == []
+    _check_stayed_local(browser, demo_server)
+    ms = _open(browser, demo_server.url + "/ui/#/explore?tenant=lawnmower", "explore")
+    print(f"\nexplorer load, lawnmower entity: {ms:.0f} ms")
+    assert browser.find_element("css selector", "#entity option").get_attribute("selected")
+    assert _attr(browser, '.map-box[data-attr="location"]', "path-points") > 100
+    odom = browser.find_element("css selector", '.chart[data-attr="odom"]')
+    assert int(odom.get_attribute("data-series")) >= 3 and int(odom.get_attribute("data-points")) > 100
+    assert odom.find_elements("css selector", "canvas")
+    assert _attr(browser, '.chart[data-attr="obstacleDistance"]', "points") > 100
+    assert _console_errors(browser) == []
+    _shot(browser, shots, "explore-lawnmower")
+
+
+def test_lawnmower_path_and_navigation_states(browser, demo_server, shots):
+    ms = _open(browser, demo_server.url + "/ui/#/lawnmower", "lawnmower")
+    print(f"\nexplorer load, lawnmower view: {ms:.0f} ms")
+    assert ms < LOAD_BUDGET_MS
+    assert _attr(browser, "#lawnmower-map", "path-points") > 100
+    assert browser.find_elements("css selector", "#lawnmower-map polygon")  # the border wire
+    assert _attr(browser, "#lawnmower-states", "segments") > 10
+    legend = browser.find_element("css selector", "#lawnmower-states").text
+    assert "mowing" in legend and "driving straight" in legend
+    assert _attr(browser, "#lawnmower-obstacle", "points") > 100
+    assert _attr(browser, "#lawnmower-speed", "series") == 2
+    assert _console_errors(browser) == []
+    _check_stayed_local(browser, demo_server)
+    _shot(browser, shots, "lawnmower")
+
+
+def test_warehouse_door_laser_and_light_timeline(browser, demo_server, shots):
+    ms = _open(browser, demo_server.url + "/ui/#/warehouse", "warehouse")
+    print(f"\nexplorer load, warehouse view: {ms:.0f} ms")
+    assert _attr(browser, "#warehouse-laser", "points") > 100
+    assert _attr(browser, "#warehouse-laser", "series") == 2  # the reading and the 0.6 m threshold
+    assert _attr(browser, "#warehouse-states", "segments") > 8
+    named = {span.text for span in browser.find_elements("css selector", "#warehouse-states .legend span")}
+    assert {"open", "closed", "in motion", "on", "off"} <= named
+    assert _attr(browser, "#warehouse-robot", "points") > 50
+    assert "door opened" in browser.find_element("css selector", "#view-warehouse").text
+    assert _console_errors(browser) == []
+    _check_stayed_local(browser, demo_server)
+    _shot(browser, shots, "warehouse")
+
+
+def test_drone_route_sensors_and_priorities(browser, demo_server, shots):
+    ms = _open(browser, demo_server.url + "/ui/#/drone", "drone")
+    print(f"\nexplorer load, drone view: {ms:.0f} ms")
+    assert len(browser.find_elements("css selector", "#drone-map circle.sensor")) == 8
+    assert _attr(browser, "#drone-map", "path-points") > 100
+    rows = browser.find_elements("css selector", "#drone-sensors tr.sensor-row")
+    assert len(rows) == 8
+    cells = [row.find_elements("css selector", "td") for row in rows]
+    assert [float(c[1].text) for c in cells] == [0.075, 0.075, 0.075, 0.175, 0.1, 0.2, 0.125, 0.175]
+    assert sum(int(c[2].text) for c in cells) >= 10  # visits
+    assert all(c[4].text for c in cells)  # a temperature per sensor
+    assert _attr(browser, "#drone-temperature", "series") == 8
+    assert _attr(browser, "#drone-states", "segments") > 20
+    assert _console_errors(browser) == []
+    _check_stayed_local(browser, demo_server)
+    _shot(browser, shots, "drone")
+
+
+def test_docs_render_from_the_package(browser, demo_server, shots):
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    browser.get("about:blank")
+    _drain_logs(browser)
+    browser.get(demo_server.url + "/docs")
+    WebDriverWait(browser, READY_TIMEOUT_S).until(
+        lambda d: d.find_elements("css selector", ".swagger-ui .opblock"), message="Swagger UI drew no operation"
+    )
+    assert "tsdb-service" in browser.find_element("css selector", ".swagger-ui .info .title").text
+    assert _console_errors(browser) == []
+    urls = _check_stayed_local(browser, demo_server)
+    assert demo_server.url + "/openapi.json" in urls
+    _shot(browser, shots, "docs")
