@@ -16,6 +16,7 @@ from .api import attrs, entities, meta, notify, op_query, types
 from .api.handlers import install_error_handlers
 from .api.responses import JSON
 from .config import Settings, get_settings
+from .security import protect
 from .storage import open_store
 
 log = logging.getLogger("tsdb_service")
@@ -24,9 +25,15 @@ WRITER_SWITCH_INTERVAL_S = 0.0002
 
 class TsdbApp(FastAPI):
     """FastAPI with the notification fast path in front of everything,
-    framework included (see api.notify)."""
+    framework included (see api.notify), and the security layers (CORS,
+    authentication: ``security.protect``) in front of both."""
+
+    front = None  # the ASGI entry point; create_app sets it
 
     async def __call__(self, scope, receive, send) -> None:
+        await self.front(scope, receive, send)
+
+    async def dispatch(self, scope, receive, send) -> None:
         if notify.is_notification(scope):
             await notify.serve_notification(self, scope, receive, send)
             return
@@ -61,6 +68,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         default_response_class=JSON,
     )
     app.state.settings = settings
+    app.front = protect(app.dispatch, settings)
     install_error_handlers(app)
     app.include_router(meta.router)
     app.include_router(notify.router)

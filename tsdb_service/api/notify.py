@@ -19,7 +19,9 @@ from starlette.responses import Response
 from ..errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaType
 from ..model import RejectedNotification
 from ..ngsi import ValuesLayout, parse_notification
+from ..security import redact_headers
 from ..storage.base import AppendSamples, PutLayout, RecordRejected
+from .handlers import internal_error
 from .responses import JSON
 from .tenancy import tenant_of
 
@@ -70,8 +72,7 @@ async def receive_notification(request: Request) -> tuple[int, bytes]:
     except TsdbError as exc:
         return exc.status, orjson.dumps(exc.body())
     except Exception:  # a bug: still answer in the NGSI shape
-        log.exception("notification failed")
-        return 500, orjson.dumps({"error": "InternalError", "description": "unexpected error; this is a bug"})
+        return 500, orjson.dumps(internal_error("notification failed")[1])
     return 200, _OK_BODY
 
 
@@ -128,7 +129,7 @@ async def _keep_rejected(request, store, received_at: datetime, exc: TsdbError, 
         received_at=received_at,
         error=exc.error,
         description=exc.description,
-        headers=orjson.dumps(dict(request.headers)).decode(),
+        headers=orjson.dumps(redact_headers(request.headers, request.app.state.settings.api_key_header)).decode(),
         body=body,
     )
     await store.write(RecordRejected(rejected))
