@@ -14,9 +14,16 @@ PREFLIGHT = {
 }
 
 
+@pytest.fixture
+def embedded_db(tmp_path) -> str:
+    """The guard and CORS answer before any storage is touched, so these
+    tests need one backend only: an embedded DuckDB file."""
+    return str(tmp_path / "tsdb.duckdb")
+
+
 @pytest.mark.parametrize("path", ["/v2/notify", "/v2/entities", "/grafana/simplejson/query", "/ngsi-ld/v1/notify"])
-def test_preflight_is_answered_for_an_allowed_origin(client_factory, store_url, path):
-    with client_factory(store_url, cors_origins=f"{ORIGIN}, https://other.example") as client:
+def test_preflight_is_answered_for_an_allowed_origin(client_factory, embedded_db, path):
+    with client_factory(embedded_db, cors_origins=f"{ORIGIN}, https://other.example") as client:
         response = client.options(path, headers=PREFLIGHT)
     assert response.status_code == 200, response.text
     assert response.headers["access-control-allow-origin"] == ORIGIN
@@ -25,9 +32,9 @@ def test_preflight_is_answered_for_an_allowed_origin(client_factory, store_url, 
     assert "fiware-service" in allowed and "authorization" in allowed
 
 
-def test_actual_requests_carry_the_origin_on_both_paths(client_factory, store_url, notify):
+def test_actual_requests_carry_the_origin_on_both_paths(client_factory, embedded_db):
     body = {"data": [{"id": "r1", "type": "Robot", "v": {"type": "Number", "value": 1}}]}
-    with client_factory(store_url, cors_origins=ORIGIN) as client:
+    with client_factory(embedded_db, cors_origins=ORIGIN) as client:
         stored = client.post("/v2/notify", json=body, headers={"Origin": ORIGIN})
         read = client.get("/v2/entities", headers={"Origin": ORIGIN})
     assert stored.status_code == 200 and read.status_code == 200
@@ -35,8 +42,8 @@ def test_actual_requests_carry_the_origin_on_both_paths(client_factory, store_ur
     assert read.headers["access-control-allow-origin"] == ORIGIN
 
 
-def test_other_origins_get_no_grant(client_factory, store_url):
-    with client_factory(store_url, cors_origins=ORIGIN) as client:
+def test_other_origins_get_no_grant(client_factory, embedded_db):
+    with client_factory(embedded_db, cors_origins=ORIGIN) as client:
         preflight = client.options("/v2/entities", headers={**PREFLIGHT, "Origin": "https://evil.example"})
         read = client.get("/v2/entities", headers={"Origin": "https://evil.example"})
     assert preflight.status_code == 400
@@ -44,7 +51,12 @@ def test_other_origins_get_no_grant(client_factory, store_url):
     assert read.status_code == 200 and "access-control-allow-origin" not in read.headers
 
 
-def test_off_by_default_no_origin_is_granted(client):
+def test_off_by_default_no_origin_is_granted(client_factory, embedded_db):
+    with client_factory(embedded_db) as client:
+        _assert_no_grant(client)
+
+
+def _assert_no_grant(client) -> None:
     response = client.get("/v2/entities", headers={"Origin": ORIGIN})
     assert "access-control-allow-origin" not in response.headers
     preflight = client.options("/v2/entities", headers=PREFLIGHT)
@@ -63,15 +75,16 @@ def test_off_by_default_no_origin_is_granted(client):
         ("GET", "/v2/notify/subscriptions/s1", {"PUT"}),
     ],
 )
-def test_405_names_every_allowed_method(client, method, path, allowed):
-    response = client.request(method, path)
+def test_405_names_every_allowed_method(client_factory, embedded_db, method, path, allowed):
+    with client_factory(embedded_db) as client:
+        response = client.request(method, path)
     assert response.status_code == 405, response.text
     assert {m.strip() for m in response.headers["allow"].split(",")} == allowed
     assert response.json()["error"] == "MethodNotAllowed"
 
 
-def test_wildcard_origin(client_factory, store_url):
-    with client_factory(store_url, cors_origins="*") as client:
+def test_wildcard_origin(client_factory, embedded_db):
+    with client_factory(embedded_db, cors_origins="*") as client:
         response = client.options("/v2/entities", headers={**PREFLIGHT, "Origin": "https://any.example"})
     assert response.status_code == 200
     assert response.headers["access-control-allow-origin"] == "*"

@@ -29,6 +29,12 @@ def _boom():
     _explode()
 
 
+@pytest.fixture
+def embedded_db(tmp_path) -> str:
+    """Error rendering happens above storage: one backend suffices there."""
+    return str(tmp_path / "tsdb.duckdb")
+
+
 def _request_id(body: dict) -> str:
     match = re.search(r"request id ([0-9a-f]{16,32})", body["description"])
     assert match, body
@@ -43,8 +49,8 @@ def _assert_neutral(response) -> str:
     return _request_id(body)
 
 
-def test_framework_500_is_neutral_and_traceable(app_factory, store_url, caplog):
-    app = app_factory(store_url)
+def test_framework_500_is_neutral_and_traceable(app_factory, embedded_db, caplog):
+    app = app_factory(embedded_db)
     app.add_api_route("/boom", _boom, methods=["GET"])
     with TestClient(app, raise_server_exceptions=False) as client, caplog.at_level(logging.ERROR):
         response = client.get("/boom")
@@ -62,16 +68,17 @@ def test_notification_500_is_the_same_neutral_body(client, monkeypatch, caplog):
     assert any(rid in r.getMessage() and r.exc_info for r in caplog.records)
 
 
-def test_request_ids_differ(app_factory, store_url):
-    app = app_factory(store_url)
+def test_request_ids_differ(app_factory, embedded_db):
+    app = app_factory(embedded_db)
     app.add_api_route("/boom", _boom, methods=["GET"])
     with TestClient(app, raise_server_exceptions=False) as client:
         ids = {_assert_neutral(client.get("/boom")) for _ in range(3)}
     assert len(ids) == 3
 
 
-def test_version_says_the_version_only(client):
-    body = client.get("/version").json()
+def test_version_says_the_version_only(client_factory, embedded_db):
+    with client_factory(embedded_db) as client:
+        body = client.get("/version").json()
     assert set(body) == {"version"}
 
 
