@@ -89,7 +89,8 @@ def test_invalid_tokens_are_401(keycloak, issuer, claims, why):
 
 def test_a_token_without_expiry_is_refused(keycloak, issuer):
     key = issuer.keys[issuer.kid]
-    token = jwt.encode({"iss": ISSUER, "aud": AUD, "scope": "read"}, key, algorithm="RS256", headers={"kid": issuer.kid})
+    claims = {"iss": ISSUER, "aud": AUD, "scope": "read"}
+    token = jwt.encode(claims, key, algorithm="RS256", headers={"kid": issuer.kid})
     assert keycloak.get("/v2/entities", headers=bearer(token)).status_code == 401
 
 
@@ -118,7 +119,8 @@ def test_public_key_as_hmac_secret_is_refused(keycloak, issuer):
 
 def test_rotated_key_is_fetched_unknown_keys_are_not_hammered(client_factory, embedded_db, issuer):
     with client_factory(embedded_db, jwt_jwks_url=issuer.jwks_url, jwt_jwks_cache_seconds=1, **KEYCLOAK) as client:
-        assert client.get("/v2/entities", headers=bearer(realm_token(issuer, ["read"], tenants=["-"]))).status_code == 200
+        first = realm_token(issuer, ["read"], tenants=["-"])
+        assert client.get("/v2/entities", headers=bearer(first)).status_code == 200
         issuer.rotate(publish=False)
         rogue = realm_token(issuer, ["read"], tenants=["-"])
         for _ in range(5):

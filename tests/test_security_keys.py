@@ -10,6 +10,9 @@ import pytest
 
 from tsdb_service.app import create_app
 from tsdb_service.config import Settings
+from tsdb_service.security import ADMIN as ADMIN_SCOPE
+from tsdb_service.security import READ, WRITE, required_scope
+from tsdb_service.security.guard import route_path
 
 READER, WRITER, ADMIN = "reader-0123456789abcdef", "writer-0123456789abcdef", "admin-0123456789abcdef"
 ACME_WRITER, DEFAULT_READER = "acme-writer-0123456789", "default-reader-0123456789"
@@ -62,7 +65,9 @@ def test_missing_credential_is_401_with_a_challenge_everywhere(secured):
         assert response.json()["error"] == "Unauthorized" and set(response.json()) == {"error", "description"}
 
 
-@pytest.mark.parametrize("auth", ["Bearer not-a-configured-key-at-all", "Basic cmVhZGVyOnB3", "Bearer ", "Bearer a.b.c"])
+@pytest.mark.parametrize(
+    "auth", ["Bearer not-a-configured-key-at-all", "Basic cmVhZGVyOnB3", "Bearer ", "Bearer a.b.c", "Bearer"]
+)
 def test_invalid_credential_is_401_invalid_token(secured, auth):
     response = secured.get("/v2/entities", headers={"Authorization": auth})
     assert response.status_code == 401
@@ -138,7 +143,8 @@ def test_refused_tenant_leaves_nothing_behind(secured_store):
     secured = secured_store
     evil = bearer(ACME_WRITER, **{"Fiware-Service": "evil"})
     assert secured.post("/v2/notify", json=note(), headers=evil).status_code == 403
-    assert secured.post("/v2/notify", content=b"{broken", headers={"Content-Type": "application/json"}).status_code == 401
+    broken = secured.post("/v2/notify", content=b"{broken", headers={"Content-Type": "application/json"})
+    assert broken.status_code == 401
     admin = bearer(ADMIN, **{"Fiware-Service": "evil"})
     assert secured.get("/v2/entities", headers=admin).json() == []
     assert secured.get("/v2/notify/rejected", headers=admin).json() == []
@@ -153,7 +159,8 @@ def test_default_tenant_token(secured):
 def test_keys_file_holds_only_digests(client_factory, embedded_db, tmp_path):
     digest = hashlib.sha256(WRITER.encode()).hexdigest()
     keys_file = tmp_path / "keys"
-    keys_file.write_text(f"# orion\n{digest} write acme   # the broker\n\n{hashlib.sha256(READER.encode()).hexdigest()} read\n")
+    reader = hashlib.sha256(READER.encode()).hexdigest()
+    keys_file.write_text(f"# orion\n{digest} write acme   # the broker\n\n{reader} read\n")
     with client_factory(embedded_db, api_keys_file=str(keys_file)) as client:
         acme = bearer(WRITER, **{"Fiware-Service": "acme"})
         assert client.post("/v2/notify", json=note(), headers=acme).status_code == 200
@@ -182,3 +189,35 @@ def test_bad_keys_file_line(tmp_path):
     keys_file.write_text("not-a-digest read\n")
     with pytest.raises(ValueError, match="keys line 1"):
         create_app(Settings(db=str(tmp_path / "db.duckdb"), api_keys_file=str(keys_file)))
+
+
+@pytest.mark.parametrize(
+    ("method", "path", "scope"),
+    [
+        ("POST", "/v2/notify", WRITE),
+        ("POST", "/ngsi-ld/v1/notify", WRITE),
+        ("PUT", "/v2/notify/subscriptions/s1", WRITE),
+        ("GET", "/v2/notify/subscriptions", READ),
+        ("GET", "/v2/notify/rejected", ADMIN_SCOPE),
+        ("GET", "/v2/notify/rejected/", ADMIN_SCOPE),
+        ("POST", "/v2/op/query", READ),
+        ("POST", "/grafana/simplejson/query", READ),
+        ("GET", "/grafana/infinity/series", READ),
+        ("DELETE", "/v2/entities/r1", ADMIN_SCOPE),
+        ("DELETE", "/v2/types/Robot", ADMIN_SCOPE),
+        ("PATCH", "/anything", WRITE),
+    ],
+)
+def test_required_scope(method, path, scope):
+    assert required_scope(method, path) == scope
+
+
+def test_a_mount_prefix_cannot_dodge_the_rules():
+    scope = {"path": "/tsdb/v2/notify/rejected", "root_path": "/tsdb"}
+    assert required_scope("GET", route_path(scope)) == ADMIN_SCOPE
+
+
+def test_a_key_that_looks_like_a_jwt_is_still_a_key(client_factory, embedded_db):
+    dotted = "abc.defghijklmnop.qrstuvw"
+    with client_factory(embedded_db, api_keys=f"{dotted}:read", jwt_key="s" * 32) as client:
+        assert client.get("/v2/entities", headers=bearer(dotted)).status_code == 200

@@ -74,7 +74,9 @@ class Settings(BaseSettings):
     jwt_scope_prefix: str = Field("", description="Only claim values with this prefix count (e.g. 'tsdb:').")
     jwt_tenants_claim: str = Field("", description="Claim listing the tenants a token may touch; empty: all.")
     jwt_jwks_cache_seconds: int = Field(300, ge=1, le=86_400, description="How long fetched JWKS keys are kept.")
-    cors_origins: str = Field("", description="Origins browsers may call us from, comma list ('*': any); none by default.")
+    cors_origins: str = Field(
+        "", description="Origins browsers may call us from, comma list ('*': any); none by default."
+    )
 
     @property
     def backend(self) -> str:

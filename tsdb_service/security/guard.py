@@ -13,6 +13,7 @@ from urllib.parse import parse_qsl
 
 import orjson
 
+from ..api.handlers import internal_error
 from ..errors import TsdbError
 from .keys import KeyRing
 from .principals import Forbidden, MissingCredential, Principal, Unauthorized, normalise_tenant, required_scope
@@ -34,7 +35,7 @@ class Guard:
         self.key_header = key_header.strip().lower().encode("latin-1")
 
     async def __call__(self, scope, receive, send) -> None:
-        if scope["type"] != "http" or scope["path"] in OPEN_PATHS:
+        if scope["type"] != "http" or route_path(scope) in OPEN_PATHS:
             await self.app(scope, receive, send)
             return
         try:
@@ -43,16 +44,20 @@ class Guard:
         except TsdbError as exc:
             await _refuse(send, exc)
             return
+        except Exception:  # a bug in here must not leak more than any other 500
+            await _refuse(send, TsdbError(internal_error("authentication failed")[1]["description"]))
+            return
         await self.app(scope, receive, send)
 
     async def _authenticate(self, scope) -> Principal:
+        """A configured key first (a cheap, constant-time lookup), then a JWT."""
         credential = self._credential(scope["headers"])
+        principal = self.keys.lookup(credential) if self.keys is not None else None
+        if principal is not None:
+            return principal
         if self.tokens is not None and looks_like_jwt(credential):
             return await self.tokens.verify(credential)
-        principal = self.keys.lookup(credential) if self.keys is not None else None
-        if principal is None:
-            raise Unauthorized("the API key or token is not valid")
-        return principal
+        raise Unauthorized("the API key or token is not valid")
 
     def _credential(self, headers) -> str:
         """The one credential: ``Authorization: Bearer X`` or the key header."""
@@ -73,8 +78,15 @@ class Guard:
         return found[0]
 
 
+def route_path(scope) -> str:
+    """The path the router matches: without the ``root_path`` a proxy mounts
+    us under, so a prefix cannot dodge the rules."""
+    path, root = scope["path"], scope.get("root_path", "")
+    return path[len(root):] if root and path.startswith(root) else path
+
+
 def _authorise(principal: Principal, scope) -> None:
-    needed = required_scope(scope["method"], scope["path"])
+    needed = required_scope(scope["method"], route_path(scope))
     if not principal.may(needed):
         log.info("%s lacks %s scope for %s %s", principal.name, needed, scope["method"], scope["path"])
         raise Forbidden(f"this credential does not grant the '{needed}' scope this request needs")
