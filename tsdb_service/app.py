@@ -17,6 +17,7 @@ from .api import attrs, entities, meta, notify, op_query, subscribe, types
 from .api.handlers import install_error_handlers
 from .api.responses import JSON
 from .config import Settings, get_settings
+from .security import protect
 from .storage import open_store
 
 log = logging.getLogger("tsdb_service")
@@ -25,20 +26,26 @@ WRITER_SWITCH_INTERVAL_S = 0.0002
 
 class TsdbApp(FastAPI):
     """FastAPI with the notification fast path in front of everything,
-    framework included (see api.notify), and every HTTP request timed."""
+    framework included (see api.notify), the security layers (CORS,
+    authentication: ``security.protect``) in front of both, and every HTTP
+    request timed (refusals included)."""
 
     request_metrics: metrics_.RequestMetrics
+    front = None  # the guarded ASGI entry point; create_app sets it
 
     async def __call__(self, scope, receive, send) -> None:
         if scope["type"] != "http":
-            await super().__call__(scope, receive, send)
+            await self.front(scope, receive, send)
         elif notify.is_notification(scope):
-            await self.request_metrics.timed(self._notification, scope, receive, send, scope["path"])
+            await self.request_metrics.timed(self.front, scope, receive, send, scope["path"])
         else:
-            await self.request_metrics.timed(super().__call__, scope, receive, send)
+            await self.request_metrics.timed(self.front, scope, receive, send)
 
-    def _notification(self, scope, receive, send):
-        return notify.serve_notification(self, scope, receive, send)
+    async def dispatch(self, scope, receive, send) -> None:
+        if notify.is_notification(scope):
+            await notify.serve_notification(self, scope, receive, send)
+            return
+        await super().__call__(scope, receive, send)
 
 
 def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | None = None) -> FastAPI:
@@ -76,6 +83,7 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
     app.state.settings = settings
     app.state.metrics = metrics
     app.request_metrics = metrics.requests
+    app.front = protect(app.dispatch, settings)
     install_error_handlers(app)
     app.include_router(meta.router)
     app.include_router(metrics_.router)

@@ -56,6 +56,37 @@ class Settings(BaseSettings):
     log_level: str = "info"
     access_log: bool = False
 
+    # -- security: everything off unless configured (see README "Security") --
+    # Plain strings, not lists: `serve` hands settings to workers as TSDB_*
+    # variables via str(), and a comma list survives that round trip.
+    api_keys: str = Field(
+        "", repr=False,
+        description="API keys as 'KEY:SCOPES[:TENANTS]' entries separated by ';' or spaces; "
+        "SCOPES from read,write,admin; TENANTS a comma list ('-' is the default tenant), all if absent.",
+    )
+    api_keys_file: str = Field(
+        "", description="File of hashed API keys, one 'SHA256HEX SCOPES [TENANTS]' per line ('#' comments)."
+    )
+    api_key_header: str = Field("X-Api-Key", description="Header that carries an API key (besides Bearer).")
+    jwt_jwks_url: str = Field("", description="JWKS URL of the OAuth2 server (Keycloak, ...): verify JWTs with it.")
+    jwt_key: str = Field(
+        "", repr=False, description="PEM public key, or the shared secret (Keyrock: the application's JWT secret)."
+    )
+    jwt_algorithms: str = Field("", description="Allowed JWT algorithms; default: RS/PS/ES/EdDSA, or HS for a secret.")
+    jwt_audience: str = Field("", description="Required 'aud' of tokens (recommended).")
+    jwt_issuer: str = Field("", description="Required 'iss' of tokens (recommended).")
+    jwt_scopes_claims: str = Field(
+        "scope,roles,realm_access.roles",
+        description="Claims (dotted paths) whose values grant scopes: OAuth2 'scope', Keyrock 'roles', "
+        "Keycloak 'realm_access.roles'.",
+    )
+    jwt_scope_prefix: str = Field("", description="Only claim values with this prefix count (e.g. 'tsdb:').")
+    jwt_tenants_claim: str = Field("", description="Claim listing the tenants a token may touch; empty: all.")
+    jwt_jwks_cache_seconds: int = Field(300, ge=1, le=86_400, description="How long fetched JWKS keys are kept.")
+    cors_origins: str = Field(
+        "", description="Origins browsers may call us from, comma list ('*': any); none by default."
+    )
+
     @property
     def backend(self) -> str:
         return "postgresql" if self.db.startswith(("postgresql://", "postgres://")) else "duckdb"

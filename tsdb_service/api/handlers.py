@@ -4,10 +4,12 @@
 from __future__ import annotations
 
 import logging
+import uuid
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 
 from ..errors import TsdbError
 from .responses import JSON
@@ -15,6 +17,33 @@ from .responses import JSON
 log = logging.getLogger("tsdb_service")
 
 _HTTP_NAMES = {404: "NotFound", 405: "MethodNotAllowed", 413: "PayloadTooLarge", 415: "UnsupportedMediaType"}
+
+
+def internal_error(context: str, exc: BaseException | None = None) -> tuple[str, dict[str, str]]:
+    """Log ``exc`` (default: the one being handled) under a fresh request id
+    and return ``(id, body)``: the client learns the id, never the internals
+    (class names, paths, SQL), which stay in the operator's log."""
+    request_id = uuid.uuid4().hex
+    log.error("%s [request id %s]", context, request_id, exc_info=exc or True)
+    return request_id, {
+        "error": "InternalError",
+        "description": f"internal error; the operator can find it in the log under request id {request_id}",
+    }
+
+
+_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE")
+
+
+def allowed_methods(request: Request) -> str:
+    """Every method some route accepts on this path. A path may have one
+    route per method, and the router's 405 names only the first route's, so
+    ask the router about each method in turn (only ever on a 405)."""
+    allowed = []
+    for method in _METHODS:
+        probe = {**request.scope, "method": method}
+        if any(route.matches(probe)[0] is Match.FULL for route in request.app.router.routes):
+            allowed.append(method)
+    return ", ".join(allowed)
 
 
 def install_error_handlers(app: FastAPI) -> None:
@@ -31,14 +60,14 @@ def install_error_handlers(app: FastAPI) -> None:
         return JSON({"error": "BadRequest", "description": problems or "invalid request"}, status_code=400)
 
     @app.exception_handler(StarletteHTTPException)
-    async def http_error(_: Request, exc: StarletteHTTPException) -> JSON:
+    async def http_error(request: Request, exc: StarletteHTTPException) -> JSON:
         name = _HTTP_NAMES.get(exc.status_code, "BadRequest" if exc.status_code < 500 else "InternalError")
-        return JSON({"error": name, "description": str(exc.detail)}, status_code=exc.status_code)
+        headers = dict(exc.headers or {})
+        if exc.status_code == 405:
+            headers["Allow"] = allowed_methods(request) or headers.get("Allow", "")
+        return JSON({"error": name, "description": str(exc.detail)}, status_code=exc.status_code, headers=headers)
 
     @app.exception_handler(Exception)
-    async def unexpected(_: Request, exc: Exception) -> JSON:
-        log.exception("unhandled error", exc_info=exc)
-        return JSON(
-            {"error": "InternalError", "description": f"unexpected {type(exc).__name__}; this is a bug"},
-            status_code=500,
-        )
+    async def unexpected(request: Request, exc: Exception) -> JSON:
+        request_id, body = internal_error(f"unhandled error in {request.method} {request.url.path}", exc)
+        return JSON(body, status_code=500, headers={"X-Request-Id": request_id})

@@ -11,15 +11,24 @@ router = APIRouter(tags=["meta"])
 
 
 @router.get("/version")
-def version(request: Request) -> JSON:
-    return JSON({"version": __version__, "backend": request.app.state.store.backend})
+def version() -> JSON:
+    """The release only, as QuantumLeap answers: which backend and how it is
+    configured are the operator's business, not every client's."""
+    return JSON({"version": __version__})
+
+
+# What a health probe may say: the status (the HTTP code carries it too, for
+# an orchestrator) and a short human reason when it is not "pass". Counters
+# of commits and writes would tell anyone how busy the service is.
+_HEALTH_KEYS = ("status", "output")
 
 
 @router.get("/health")
 def health(request: Request) -> JSON:
     report = request.app.state.store.health()
     status = 200 if report["status"] == "pass" else 503
-    return JSON(report, status_code=status, headers={"Content-Type": "application/health+json"})
+    public = {key: report[key] for key in _HEALTH_KEYS if key in report}
+    return JSON(public, status_code=status, headers={"Content-Type": "application/health+json"})
 
 
 # QuantumLeap's index also names /v2/subscriptions and /v2/types, which

@@ -20,7 +20,9 @@ from ..errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaTyp
 from ..model import RejectedNotification
 from ..ngsi import ValuesLayout, parse_notification
 from ..ngsi.names import RULE, name_problem
+from ..security import redact_headers
 from ..storage.base import AppendSamples, PutLayout, RecordRejected
+from .handlers import internal_error
 from .responses import JSON
 from .tenancy import tenant_header, tenant_of
 
@@ -72,8 +74,7 @@ async def receive_notification(request: Request) -> tuple[int, bytes]:
     except TsdbError as exc:
         return exc.status, orjson.dumps(exc.body())
     except Exception:  # a bug: still answer in the NGSI shape
-        log.exception("notification failed")
-        return 500, orjson.dumps({"error": "InternalError", "description": "unexpected error; this is a bug"})
+        return 500, orjson.dumps(internal_error("notification failed")[1])
     return 200, _OK_BODY
 
 
@@ -198,7 +199,7 @@ async def _keep_rejected(request, store, received_at: datetime, exc: TsdbError, 
         received_at=received_at,
         error=exc.error,
         description=exc.description,
-        headers=orjson.dumps(dict(request.headers)).decode(),
+        headers=orjson.dumps(redact_headers(request.headers, request.app.state.settings.api_key_header)).decode(),
         body=kept,
         body_size=size,
         body_truncated=len(kept) < size,

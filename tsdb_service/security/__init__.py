@@ -1,0 +1,51 @@
+"""Who may do what: API keys and OAuth2 bearer tokens with scopes and
+tenants, CORS for browser clients, and keeping credentials out of storage.
+
+Everything is off unless configured (see ``Settings``' security block and
+the README's "Security" section): ``protect`` then returns the app as is.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from starlette.middleware.cors import CORSMiddleware
+
+from .guard import Guard
+from .keys import KeyRing
+from .principals import ADMIN, READ, WRITE, Forbidden, Principal, Unauthorized, required_scope
+from .tokens import TokenVerifier
+
+__all__ = [
+    "ADMIN", "READ", "WRITE", "Forbidden", "Principal", "Unauthorized",
+    "protect", "redact_headers", "required_scope",
+]  # fmt: skip
+
+CREDENTIAL_HEADERS = frozenset({"authorization", "proxy-authorization", "x-auth-token", "cookie", "x-api-key"})
+REDACTED = "[redacted]"
+CORS_MAX_AGE_S = 600
+
+
+def protect(app, settings):
+    """Wrap the ASGI ``app`` in what the settings ask for: the guard when any
+    credential is configured, CORS (outermost, so preflights need no
+    credential and refusals still reach the browser) when origins are."""
+    keys = KeyRing.from_settings(settings.api_keys, settings.api_keys_file)
+    tokens = TokenVerifier.from_settings(settings)
+    if keys is not None or tokens is not None:
+        app = Guard(app, keys, tokens, settings.api_key_header)
+    origins = [o.strip().rstrip("/") for o in settings.cors_origins.split(",") if o.strip()]
+    if origins:
+        app = CORSMiddleware(
+            app, allow_origins=origins, allow_methods=["GET", "HEAD", "POST", "PUT", "DELETE"],
+            allow_headers=["*"], expose_headers=["X-Request-Id", "WWW-Authenticate"], max_age=CORS_MAX_AGE_S,
+        )
+    return app
+
+
+def redact_headers(headers: Mapping[str, str], key_header: str = "X-Api-Key") -> dict[str, str]:
+    """A copy of ``headers`` whose credentials (``Authorization``, Keyrock's
+    ``X-Auth-Token``, cookies, API keys, the configured key header) read
+    ``[redacted]``: kept notifications say a credential was sent, never which."""
+    secret = CREDENTIAL_HEADERS | {key_header.strip().lower()}
+    return {name: REDACTED if name.lower() in secret else value for name, value in headers.items()}
