@@ -13,6 +13,7 @@ from starlette.concurrency import run_in_threadpool
 
 from . import __version__, grafana
 from .api import attrs, entities, meta, notify, op_query, types
+from .api import export as export_api
 from .api.handlers import install_error_handlers
 from .api.responses import JSON
 from .config import Settings, get_settings
@@ -69,6 +70,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(attrs.router)
     app.include_router(op_query.router)
     app.include_router(grafana.router)
+    app.include_router(export_api.router)
     return app
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 
 from fastapi import Request
 
@@ -14,7 +15,13 @@ _TENANT = re.compile(r"^[A-Za-z0-9_]{1,50}$")
 def tenant_of(request: Request) -> str:
     """``Fiware-Service`` (or ``NGSILD-Tenant``) lower-cased, as Orion stores it;
     "" is the default tenant."""
-    raw = request.headers.get("fiware-service") or request.headers.get("ngsild-tenant") or ""
+    return tenant_from_headers(request.headers)
+
+
+def tenant_from_headers(headers: Mapping[str, str]) -> str:
+    """``tenant_of`` for header mappings that do not come with a request
+    (the ``export`` command builds its headers from flags)."""
+    raw = headers.get("fiware-service") or headers.get("ngsild-tenant") or ""
     raw = raw.strip()
     if not raw:
         return ""
