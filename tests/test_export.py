@@ -7,8 +7,10 @@ same parameters: same entities, attributes, times and values.
 
 from __future__ import annotations
 
+import io
 from datetime import UTC, datetime
 
+import pyarrow.parquet as pq
 import pytest
 
 from tsdb_service.export import stream as export_stream
@@ -92,14 +94,11 @@ def test_empty_selection_is_an_empty_file_with_the_columns(loaded, fmt):
 
 
 def test_large_exports_stream_in_batches(loaded, monkeypatch):
-    """Many batches (row groups) give the same rows as one."""
+    """Many batches (row groups) and sort windows give the same rows as one."""
     whole = read_parquet(_export(loaded, "parquet", {}, READ).content)
     monkeypatch.setattr(export_stream, "BATCH_ROWS", 7)
+    monkeypatch.setattr(export_stream, "WINDOW_ROWS", 5)  # DuckDB: windows of ~1 notification
     data = _export(loaded, "parquet", {}, READ).content
-    import io
-
-    import pyarrow.parquet as pq
-
-    assert pq.ParquetFile(io.BytesIO(data)).num_row_groups == -(-whole.num_rows // 7)
+    assert pq.ParquetFile(io.BytesIO(data)).num_row_groups >= -(-whole.num_rows // 7)
     assert read_parquet(data).equals(whole)
     assert read_csv(_export(loaded, "csv", {}, READ).content).equals(whole)

@@ -6,9 +6,11 @@ a file write) and forget it. A Parquet file is one row group per batch with
 its footer at the end; a CSV file is one header line and then the rows.
 Memory is one batch and its encoding, whatever the export's size.
 
-CSV: RFC 4180 quoting; times as ``2024-05-01 10:00:00.123456Z`` (UTC,
-microseconds); booleans ``true``/``false``; a null is an empty field and an
-empty string is ``""``.
+CSV: RFC 4180 quoting; times as ``2024-05-01T10:00:00.123456Z`` (ISO 8601,
+UTC, microseconds); booleans ``true``/``false``; a null is an empty field
+and an empty string is ``""``. The times are formatted here (a cast and two
+string kernels) because pyarrow's CSV writer formats zoned timestamps about
+five times slower than everything else in the row together.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
@@ -56,18 +59,30 @@ class _Pieces:
         return out
 
 
+CSV_SCHEMA = SCHEMA.set(0, pa.field("time", pa.string(), nullable=False))
+
+
+def iso_times(times: pa.Array) -> pa.Array:
+    """UTC timestamps (µs) → ``2024-05-01T10:00:00.123456Z``."""
+    text = times.cast(pa.timestamp("us")).cast(pa.string())  # 2024-05-01 10:00:00.123456
+    return pc.binary_join_element_wise(pc.replace_substring(text, " ", "T", max_replacements=1), "Z", "")
+
+
 class Encoder:
     """``encode(batch)`` → the bytes it adds; ``finish()`` → the rest."""
 
-    def __init__(self, fmt: ExportFormat, schema: pa.Schema = SCHEMA) -> None:
+    def __init__(self, fmt: ExportFormat) -> None:
         self._sink = _Pieces()
-        if fmt is ExportFormat.PARQUET:
-            self._writer = pq.ParquetWriter(self._sink, schema, compression="zstd")
+        self._csv = fmt is ExportFormat.CSV
+        if self._csv:
+            self._writer = pa_csv.CSVWriter(self._sink, CSV_SCHEMA)
         else:
-            self._writer = pa_csv.CSVWriter(self._sink, schema)
+            self._writer = pq.ParquetWriter(self._sink, SCHEMA, compression="zstd")
 
     def encode(self, batch: pa.RecordBatch) -> bytes:
         if batch.num_rows:
+            if self._csv:
+                batch = batch.set_column(0, CSV_SCHEMA.field(0), iso_times(batch.column(0)))
             self._writer.write_batch(batch)
         return self._sink.take()
 

@@ -8,7 +8,8 @@ notification, then the series), ``BATCH_ROWS`` at a time, so memory stays
 bounded whatever the export's size:
 
 * DuckDB hands its result over as Arrow batches (``to_arrow_reader``) on a
-  private cursor;
+  private cursor, one time window of about ``WINDOW_ROWS`` samples at a
+  time (DuckDB sorts in memory);
 * PostgreSQL reads through a server-side cursor, and each ``fetchmany`` is
   turned into one record batch (times as epoch microseconds, so no Python
   ``datetime`` per row).
@@ -19,11 +20,13 @@ Every call here blocks: callers run it in a thread, never on the event loop.
 from __future__ import annotations
 
 from contextlib import ExitStack
+from datetime import UTC, datetime, timedelta
 from typing import TYPE_CHECKING
 
 import pyarrow as pa
 
 from ..errors import Unavailable
+from ..history.query import TimeRange
 from ..model import Kind
 from ..storage.sql import series_time_filter
 from .query import ExportQuery
@@ -32,6 +35,8 @@ if TYPE_CHECKING:
     from ..storage.base import Store
 
 BATCH_ROWS = 131_072
+WINDOW_ROWS = 1_000_000  # DuckDB: samples sorted at once (see _start_duckdb)
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 UTC_MICROS = pa.timestamp("us", tz="UTC")
 
 # The export layout (README, "Export"). Exactly one value column is set per
@@ -137,24 +142,58 @@ def open_export(store: Store, query: ExportQuery) -> SampleStream:
 
 
 def _start_duckdb(stream: SampleStream, store, dialect, sids, query: ExportQuery) -> None:
+    """DuckDB sorts a result in memory up to its (machine-wide) memory
+    limit, so the selection is read as consecutive time windows of about
+    ``WINDOW_ROWS`` samples each (split evenly over its time span), each
+    sorted on its own: memory follows the window, not the export."""
     import duckdb
 
-    sql, params = export_sql(dialect, sids, query.time, "x.t")
     try:
         cursor = store.cursor().cursor()  # private: the thread's cursor may be in use
     except duckdb.ConnectionException as exc:
         raise Unavailable(f"the database is not available: {exc}") from None
     stream._resources.callback(cursor.close)
-    reader = cursor.execute(sql, params).to_arrow_reader(BATCH_ROWS)
+    windows = iter(_time_windows(cursor, dialect, sids, query.time))
+    reader = None
 
     def read() -> pa.RecordBatch | None:
-        try:
-            batch = reader.read_next_batch()
-        except StopIteration:
-            return None
-        return _conform(batch.columns)
+        nonlocal reader
+        while True:
+            if reader is None:
+                window = next(windows, None)
+                if window is None:
+                    return None
+                sql, params = export_sql(dialect, sids, window, "x.t")
+                reader = cursor.execute(sql, params).to_arrow_reader(BATCH_ROWS)
+            try:
+                return _conform(reader.read_next_batch().columns)
+            except StopIteration:
+                reader = None
 
     stream._next = read
+
+
+def _time_windows(cursor, dialect, sids, time: TimeRange) -> list[TimeRange]:
+    """Inclusive windows covering the selection's samples, one per
+    ``WINDOW_ROWS`` of them (times are whole microseconds, so a window ending
+    1 µs before the next one starts leaves no gap)."""
+    where, params = series_time_filter(dialect, sids, time)
+    first, last, count = cursor.execute(
+        f"SELECT {dialect.epoch_us('min(t)')}, {dialect.epoch_us('max(t)')}, count(*) "
+        f"FROM {dialect.samples('sid, t')} WHERE {where}", params,
+    ).fetchone()  # fmt: skip
+    if not count:
+        return []
+    pieces = max(1, -(-count // WINDOW_ROWS))
+    step = -(-(last - first + 1) // pieces)
+    return [
+        TimeRange(_utc(start), _utc(min(start + step - 1, last)))
+        for start in range(first, last + 1, step)
+    ]
+
+
+def _utc(micros: int) -> datetime:
+    return _EPOCH + timedelta(microseconds=micros)
 
 
 def _start_postgres(stream: SampleStream, store, dialect, sids, query: ExportQuery) -> None:
