@@ -13,13 +13,13 @@ Usage::
 
     with Client("http://localhost:8668", service="lawnmower", service_path="/bosch") as tsdb:
         tsdb.entities(entity_type="ROS2System")              # entity_id, entity_type, time
-        mower = "urn:ngsiv2:ROS2System:Lawnmower:1"
+        mower = "urn:ngsiv2:ROS2System:Lawnmower01"
         speed = tsdb.entity_attr(mower, "odom(twist.twist.linear.x)", last_n=500)
         speed.plot()                                         # index: time (UTC)
-        tsdb.entity(mower, ["navigationState(data)", "obstacleDistance"],
+        tsdb.entity(mower, ["navigationState(data)", "obstacleDistance(range)"],
                     from_date="2025-06-02T09:00:00Z", to_date="2025-06-02T10:00:00Z")
         tsdb.entity_attr(mower, "odom(twist.twist.linear.x)", aggr_method="avg", aggr_period="minute")
-        tsdb.type_history("ROS2System", ["obstacleDistance"], last_n=100)  # time, entity_id, ...
+        tsdb.type_history("ROS2System", ["obstacleDistance(range)"], last_n=100)  # entity_id, time, ...
         samples = tsdb.export(entity_type="ROS2System")      # one row per sample, typed columns
 
 Time bounds are ISO 8601 strings or ``datetime`` / ``pandas.Timestamp``
