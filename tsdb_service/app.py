@@ -14,6 +14,7 @@ from starlette.concurrency import run_in_threadpool
 from . import __version__, grafana, ui
 from . import metrics as metrics_
 from .api import attrs, entities, meta, notify, op_query, subscribe, types
+from .api import export as export_api
 from .api.handlers import install_error_handlers
 from .api.responses import JSON
 from .config import Settings, get_settings
@@ -94,6 +95,7 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
     app.include_router(op_query.router)
     app.include_router(subscribe.router)
     app.include_router(grafana.router)
+    app.include_router(export_api.router)
     app.include_router(ui.router)
     return app
 

@@ -62,6 +62,7 @@ FEATURE_COMMANDS = (
     "tsdb_service.demo.commands",
     "tsdb_service.grafana.commands",
     "tsdb_service.storage.copy",
+    "tsdb_service.export.commands",
 )
 
 

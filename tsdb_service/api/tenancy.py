@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 
 from fastapi import Request
 
@@ -13,13 +14,19 @@ _TENANT = re.compile(r"^[A-Za-z0-9_]{1,50}$")
 
 def tenant_header(request: Request) -> str:
     """The tenant header exactly as received ("" without one)."""
-    return request.headers.get("fiware-service") or request.headers.get("ngsild-tenant") or ""
+    return _raw_tenant(request.headers)
 
 
 def tenant_of(request: Request) -> str:
     """``Fiware-Service`` (or ``NGSILD-Tenant``) lower-cased, as Orion stores it;
     "" is the default tenant."""
-    raw = tenant_header(request).strip()
+    return tenant_from_headers(request.headers)
+
+
+def tenant_from_headers(headers: Mapping[str, str]) -> str:
+    """``tenant_of`` for header mappings that do not come with a request
+    (the ``export`` command builds its headers from flags)."""
+    raw = _raw_tenant(headers).strip()
     if not raw:
         return ""
     if not _TENANT.match(raw):
@@ -28,3 +35,7 @@ def tenant_of(request: Request) -> str:
             error="BadRequest",
         )
     return raw.lower()
+
+
+def _raw_tenant(headers: Mapping[str, str]) -> str:
+    return headers.get("fiware-service") or headers.get("ngsild-tenant") or ""

@@ -1,0 +1,88 @@
+"""``tsdb-service export``: a real file that reads back as the API's answer."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from tests.export_fixtures import READ, TENANT, api_view, export_view, load, read_csv, read_parquet
+from tsdb_service.cli import main
+from tsdb_service.export import ExportFormat, SampleStream, write_file
+
+
+@pytest.fixture
+def stored(client_factory, store_url):
+    """A store with the export data set, closed again (a DuckDB file has one owner)."""
+    with client_factory(store_url) as client:
+        load(client)
+        expected = api_view(client, {"type": "Robot", "attrs": "battery,mode,odom"}, READ)
+        everything = api_view(client, {}, READ)
+    return store_url, expected, everything
+
+
+def test_parquet_file_equals_the_api(stored, tmp_path, capsys):
+    url, expected, _ = stored
+    out = tmp_path / "robots.parquet"
+    args = ["export", "--db", url, "--out", str(out), "--service", TENANT, "--type", "Robot",
+            "--attrs", "battery,mode,odom"]  # fmt: skip
+    assert main(args) == 0
+    assert export_view(read_parquet(out.read_bytes())) == expected
+    said = capsys.readouterr().out
+    assert f"exported {sum(map(len, expected.values()))} samples to {out}" in said
+    assert "samples/s" in said
+    assert not list(tmp_path.glob("*.partial"))
+
+
+def test_csv_by_suffix_whole_tenant(stored, tmp_path):
+    url, _, everything = stored
+    out = tmp_path / "all.csv"
+    assert main(["export", "--db", url, "--out", str(out), "--service", TENANT.upper()]) == 0
+    assert out.read_bytes().startswith(b'"time","entity_id"')
+    assert export_view(read_csv(out.read_bytes())) == everything
+
+
+def test_time_range_and_service_path(stored, tmp_path):
+    url, _, _ = stored
+    out = tmp_path / "b.dat"
+    args = ["export", "--db", url, "--out", str(out), "--format", "parquet", "--service", TENANT,
+            "--service-path", "/site/b", "--id", "Robot:2", "--attrs", "count",
+            "--from-date", "2024-05-01T10:00:02Z", "--to-date", "2024-05-01T10:00:04Z"]  # fmt: skip
+    assert main(args) == 0
+    rows = read_parquet(out.read_bytes()).to_pylist()
+    assert [r["value_number"] for r in rows] == [2000.0, 3000.0]
+    assert {r["service_path"] for r in rows} == {"/site/b"}
+
+
+def test_a_missing_database_is_an_error(tmp_path, capsys):
+    missing = tmp_path / "nope.duckdb"
+    assert main(["export", "--db", str(missing), "--out", str(tmp_path / "x.csv")]) == 2
+    assert "no database at" in capsys.readouterr().err
+    assert not missing.exists() and not (tmp_path / "x.csv").exists()
+
+
+def test_bad_parameters_are_one_line(stored, tmp_path, capsys):
+    url, _, _ = stored
+    assert main(["export", "--db", url, "--out", str(tmp_path / "x.csv"), "--from-date", "soon"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: fromDate must be an ISO 8601") and err.count("\n") == 1
+
+
+def test_an_interrupted_export_leaves_no_file(tmp_path):
+    """A cut-short export (here: the disk fills after one batch) removes its partial file."""
+    one_row = read_csv(b'"time","entity_id","entity_type","service_path","attribute","ngsi_type",'
+                       b'"value_number","value_text","value_bool","value_json"\n'
+                       b'2024-05-01 10:00:00.000001Z,"E","T","/","a","Number",1,,,\n').to_batches()
+    handed = iter(one_row)
+
+    def next_or_fail():
+        batch = next(handed, None)
+        if batch is None:
+            raise OSError("disk full")
+        return batch
+
+    stream = SampleStream()
+    stream._next = next_or_fail
+    with pytest.raises(OSError, match="disk full"):
+        write_file(stream, ExportFormat.CSV, tmp_path / "cut.csv")
+    assert list(Path(tmp_path).iterdir()) == []
