@@ -12,7 +12,7 @@ checkpoint after a commit cannot write the file, the commit is durable (it is
 in the WAL) but every later call fails until the file is reopened. The store
 acknowledges such a commit, answers 503 meanwhile (reads included), reports
 the state on ``/health`` and reopens the file in the background, with
-backoff, as soon as it can; see ``StoreLifecycle`` below.
+backoff, as soon as it can (``DuckDBStore``'s lifecycle section, ``Gate``).
 """
 
 from __future__ import annotations
@@ -21,8 +21,7 @@ import contextlib
 import functools
 import logging
 import threading
-from collections.abc import Iterator
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -175,7 +174,11 @@ def migrate_duckdb(con: duckdb.DuckDBPyConnection) -> list[int]:
 def connect(path: str, read_only: bool = False, checkpoint_bytes: int | None = None) -> duckdb.DuckDBPyConnection:
     if path != ":memory:":
         Path(path).parent.mkdir(parents=True, exist_ok=True)
-    config = {} if checkpoint_bytes is None else {"wal_autocheckpoint": f"{int(checkpoint_bytes)}B"}
+    # Only a non-default threshold is configured: DuckDB refuses a second
+    # in-process connection to the file whose configuration differs.
+    config = {}
+    if checkpoint_bytes is not None and checkpoint_bytes != CHECKPOINT_BYTES:
+        config["wal_autocheckpoint"] = f"{int(checkpoint_bytes)}B"
     try:
         return duckdb.connect(path, read_only=read_only, config=config)
     except duckdb.IOException as exc:
