@@ -53,6 +53,10 @@ class Settings(BaseSettings):
     tail_cache_samples: int = Field(
         1_000_000, ge=0, description="DuckDB: samples kept in all tails (~200 bytes each), oldest-read out first."
     )
+    wal_checkpoint_bytes: int = Field(
+        16 * MIB, ge=64 * 1024,
+        description="DuckDB: fold the write-ahead log into the database file once it is this big.",
+    )
     log_level: str = "info"
     access_log: bool = False
 

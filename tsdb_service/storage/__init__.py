@@ -22,4 +22,5 @@ def open_store(settings: Settings) -> Store:
         tail_series=settings.tail_cache_series,
         tail_rows=settings.tail_cache_rows,
         tail_samples=settings.tail_cache_samples,
+        checkpoint_bytes=settings.wal_checkpoint_bytes,
     )

@@ -88,8 +88,16 @@ class DuckDBQuerier(SqlQuerier):
         )
 
     def _fetch(self, sql: str, params: list) -> list[tuple]:
+        """Run a read; an invalidated database (disk full during a checkpoint)
+        is a 503 while the store reopens it, not a 500."""
         check_database_allowed()
+        store = self._store
         try:
-            return self._store.cursor().execute(sql, params).fetchall()
-        except duckdb.ConnectionException as exc:
-            raise Unavailable(f"the database is not available: {exc}") from None
+            with store.reading():
+                return store.cursor().execute(sql, params).fetchall()
+        except duckdb.ConnectionException:
+            raise Unavailable("the database is not available; retry later") from None
+        except duckdb.Error as exc:
+            if store.notice(exc) is not None:
+                raise Unavailable("the database is being reopened after a storage failure; retry later") from None
+            raise

@@ -4,10 +4,18 @@ The write path is the DuckDB one: a group committer per process, one
 transaction per group, samples sent with ``COPY``. Series ids are shared
 through the ``series`` table (insert-if-absent, in key order so concurrent
 writers cannot deadlock). Reads use a connection pool.
+
+A failed write is answered "nothing was stored" only when the transaction
+certainly did not commit: an error before COMMIT, or one the server raised
+for the COMMIT itself on a live connection (the server rolled back). When the
+connection breaks during COMMIT nobody can say, and the answer says so.
+``/health`` fails while the database refuses writes for lack of space or an
+I/O error, until a write succeeds again.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Sequence
 from datetime import UTC, datetime
@@ -32,6 +40,18 @@ SAMPLE_COLUMNS = (
 )
 SeriesKey = tuple[str, str, str, str, str]
 _MIGRATION_LOCK = 0x7473_6462  # "tsdb": serialises migrations across processes
+WRITER_APPLICATION_NAME = "tsdb-service writer"
+# SQLSTATE classes that mean the server cannot write: insufficient resources
+# (53100 disk_full...) and system errors (58030 io_error...).
+_STORAGE_CLASSES = ("53", "58")
+MAYBE_STORED = (
+    "the connection to the database broke during the commit; this write may or may not have been stored"
+)
+
+
+def is_storage_error(exc: BaseException) -> bool:
+    state = getattr(exc, "sqlstate", None) or ""
+    return state[:2] in _STORAGE_CLASSES
 
 
 def migrate_url(url: str) -> list[int]:
@@ -72,6 +92,9 @@ class PostgresStore(Store):
                                    kwargs={"autocommit": True})
         self._series: dict[SeriesKey, int] = {}
         self._layouts: dict[tuple[str, str], ValuesLayout] = {}
+        # Why the last write failed when the server could not write (disk
+        # full, I/O error); cleared by the next write that commits.
+        self._write_failure: str | None = None
         self._load_layouts()
         self._committer = GroupCommitter(lambda: PostgresAppender(self), name="tsdb-pg-writer",
                                          threads=writer_threads)
@@ -134,8 +157,19 @@ class PostgresStore(Store):
         except Exception as exc:  # report, do not raise: this is the health probe
             log.warning("database unreachable: %s", exc)
             ok = False
-        return {"status": "pass" if ok else "fail", "backend": self.backend,
-                "commits": self._committer.commits, "writes": self._committer.ops}
+        report = {"status": "pass" if ok else "fail", "backend": self.backend,
+                  "commits": self._committer.commits, "writes": self._committer.ops}
+        if self._write_failure is not None:
+            report["status"] = "fail"
+            report["output"] = "the database refuses writes: " + self._write_failure
+        return report
+
+    def _note_write(self, exc: BaseException | None) -> None:
+        """Remember whether the server takes writes, for /health."""
+        if exc is None:
+            self._write_failure = None
+        elif is_storage_error(exc):
+            self._write_failure = str(exc).strip().splitlines()[0][:300]
 
     async def write(self, op: WriteOp) -> None:
         await self._committer.submit(op)
@@ -154,8 +188,21 @@ class PostgresStore(Store):
 class PostgresAppender(Appender):
     def __init__(self, store: PostgresStore):
         self._store = store
-        self._conn = psycopg.connect(store.url)
+        self._conn = self._connect()
         self._reset()
+
+    def _connect(self) -> psycopg.Connection:
+        # Named, so an operator sees the writers in pg_stat_activity.
+        return psycopg.connect(self._store.url, application_name=WRITER_APPLICATION_NAME)
+
+    def _connection(self) -> psycopg.Connection:
+        """The writer's connection, replaced when it broke (a server restart,
+        a network cut): otherwise one bad moment would fail every write after."""
+        if self._conn.closed or self._conn.broken:
+            with contextlib.suppress(psycopg.Error):
+                self._conn.close()
+            self._conn = self._connect()
+        return self._conn
 
     def _reset(self) -> None:
         self._entities: list[EntitySample] = []
@@ -176,7 +223,7 @@ class PostgresAppender(Appender):
             raise TypeError(f"unknown write op {op!r}")
 
     def _commit(self) -> None:
-        conn = self._conn
+        conn = self._connection()
         with conn.cursor() as cur:
             if self._entities:
                 self._copy_samples(cur)
@@ -199,7 +246,7 @@ class PostgresAppender(Appender):
                 )
             if self._deletes:
                 self._delete(cur)
-        conn.commit()
+        self._send_commit(conn)
         for put in self._layouts:
             self._store._layouts[(put.tenant, put.subscription_id)] = put.layout
         self._reset()
@@ -267,9 +314,28 @@ class PostgresAppender(Appender):
             self._found = found
         return local
 
+    @staticmethod
+    def _send_commit(conn: psycopg.Connection) -> None:
+        """COMMIT, telling "rolled back" from "nobody knows": an error the
+        server answered on a live connection means it rolled back (the caller
+        may retry); a connection that broke meanwhile may have committed, and
+        a retry could store the write twice, so that is ``Unavailable``."""
+        try:
+            conn.commit()
+        except psycopg.Error as exc:
+            if conn.broken or conn.closed:
+                log.warning("connection lost during COMMIT; outcome unknown: %s", exc)
+                raise Unavailable(MAYBE_STORED) from exc
+            raise
+
     def commit(self) -> None:
         self._found: dict[SeriesKey, int] = {}
-        self._commit()
+        try:
+            self._commit()
+        except psycopg.Error as exc:
+            self._store._note_write(exc)
+            raise
+        self._store._note_write(None)
         # Cache only after commit: only now do the rows this transaction
         # created certainly exist (a rolled-back series row would orphan samples).
         self._store._series.update(self._found)
