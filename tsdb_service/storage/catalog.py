@@ -18,12 +18,12 @@ Readers never lock: a refresh builds new containers and swaps them in.
 
 from __future__ import annotations
 
-import re
 import threading
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 from ..history.query import EntityFilter, Scope
+from ..idpattern import compiled
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,7 +133,7 @@ class SeriesCatalog:
         else:
             candidates = index.all
         types = set(entities.types) if entities.types is not None else None
-        pattern = re.compile(entities.id_pattern) if entities.id_pattern else None
+        pattern = compiled(entities.id_pattern) if entities.id_pattern else None
         whole = scope.whole_tenant
         out = []
         for ref in candidates:
