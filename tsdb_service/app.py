@@ -16,6 +16,7 @@ from . import metrics as metrics_
 from .api import attrs, entities, meta, notify, op_query, subscribe, types
 from .api.handlers import install_error_handlers
 from .api.responses import JSON
+from .budget import ReadBudgetMiddleware, ReadLimits
 from .config import Settings, get_settings
 from .storage import open_store
 
@@ -75,6 +76,7 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
     app.state.metrics = metrics
     app.request_metrics = metrics.requests
     install_error_handlers(app)
+    app.add_middleware(ReadBudgetMiddleware, limits=ReadLimits.from_settings(settings))
     app.include_router(meta.router)
     app.include_router(metrics_.router)
     app.include_router(notify.router)

@@ -25,6 +25,7 @@ from typing import Any
 
 from fastapi import APIRouter, Body, Request
 
+from .. import budget
 from ..api.responses import JSON
 from ..errors import BadRequest
 from ..history.query import EntityFilter, LastValueQuery, TimeRange, ValuePath
@@ -325,6 +326,7 @@ def query(request: Request, body: Any = Body(None)) -> JSON:
     querier = request.app.state.store.querier()
     out: list[dict] = []
     for raw in targets:
+        budget.checkpoint()  # each target is a step of the request's wall-time budget
         target = Target(raw)
         if target.format == "annotations":
             out.extend(_annotation_frames(querier, scope, target, time, filters))
