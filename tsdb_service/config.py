@@ -53,6 +53,34 @@ class Settings(BaseSettings):
     tail_cache_samples: int = Field(
         1_000_000, ge=0, description="DuckDB: samples kept in all tails (~200 bytes each), oldest-read out first."
     )
+    # --- limits (issue 12): read budgets, rejected-store bounds, slow clients ---
+    read_max_series: int = Field(
+        50_000, ge=1, description="Series one request may select (per resolution step); more: 422 QueryTooLarge.",
+    )
+    read_max_rows: int = Field(
+        500_000, ge=1, description="Samples and aggregate rows one request may read in all; more: 422 QueryTooLarge.",
+    )
+    read_max_response_bytes: int = Field(
+        64 * MIB, ge=1024, description="Largest answer a read may render; larger: 422 QueryTooLarge.",
+    )
+    read_max_seconds: float = Field(
+        20.0, gt=0, description="Wall time of one read, checked between its steps; past it: 422 QueryTooLarge.",
+    )
+    rejected_max_per_tenant: int = Field(
+        1000, ge=1, description="Rejected notifications kept per tenant; the oldest are dropped first.",
+    )
+    rejected_max_bytes_per_tenant: int = Field(
+        64 * MIB, ge=1024, description="Bytes of rejected bodies and headers kept per tenant; oldest dropped first "
+        "(a tenant's newest rejection is always kept).",
+    )
+    rejected_max_age_days: float = Field(
+        30.0, gt=0, description="Rejected notifications older than this are dropped (when the next is recorded).",
+    )
+    rejected_page_max_bytes: int = Field(
+        8 * MIB, ge=1024, description="A rejected listing stops before this many bytes (at least one row) and "
+        "points to the next page.",
+    )
+    # --- end of limits ---
     log_level: str = "info"
     access_log: bool = False
 

@@ -226,8 +226,18 @@ def list_rejected(
         "header the API refuses is stored as received). Ignores Fiware-Service.",
     ),
 ) -> JSON:
+    """Pages by count (``limit``) and by size (``TSDB_REJECTED_PAGE_MAX_BYTES``,
+    at least one row): when more rows follow, ``Link: <...>; rel="next"``
+    and ``X-Next-Offset`` say where the next page starts."""
     tenant = None if all_tenants else tenant_of(request)
-    return JSON(request.app.state.store.rejected(tenant, limit, offset))
+    max_bytes = request.app.state.settings.rejected_page_max_bytes
+    rows, next_offset = request.app.state.store.rejected_page(tenant, limit, offset, max_bytes)
+    response = JSON(rows)
+    if next_offset is not None:
+        url = request.url.include_query_params(offset=next_offset)
+        response.headers["Link"] = f'<{url.path}?{url.query}>; rel="next"'
+        response.headers["X-Next-Offset"] = str(next_offset)
+    return response
 
 
 @router.put(
