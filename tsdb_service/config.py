@@ -80,6 +80,17 @@ class Settings(BaseSettings):
         8 * MIB, ge=1024, description="A rejected listing stops before this many bytes (at least one row) and "
         "points to the next page.",
     )
+    header_timeout_s: float = Field(
+        10.0, gt=0, description="Close a connection whose request headers are not complete this long after it "
+        "opened (or after the request's first byte).",
+    )
+    body_timeout_s: float = Field(
+        60.0, gt=0, description="Cut off a request whose body is not complete this long after its headers.",
+    )
+    max_connections: int = Field(
+        4096, ge=1, description="Open connections per process; past it a new connection gets 503 and is closed.",
+    )
+    keep_alive_s: int = Field(5, ge=1, description="Close a kept-alive connection idle this long between requests.")
     # --- end of limits ---
     log_level: str = "info"
     access_log: bool = False

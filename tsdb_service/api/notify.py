@@ -14,6 +14,7 @@ from datetime import UTC, datetime
 import orjson
 from fastapi import APIRouter, Query, Request
 from starlette.concurrency import run_in_threadpool
+from starlette.requests import ClientDisconnect
 from starlette.responses import Response
 
 from ..errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaType
@@ -28,6 +29,7 @@ router = APIRouter(tags=["notify"])
 log = logging.getLogger(__name__)
 
 _OK_BODY = b'"Notification successfully processed"'
+_DISCONNECTED = b'{"error":"ClientDisconnected","description":"the client disconnected before sending the whole body"}'
 # Parsing a big body on the event loop would stall every other request.
 _PARSE_INLINE_MAX = 64 * 1024
 # A body over the limit without a Content-Length is counted (not kept) up to
@@ -71,6 +73,10 @@ async def receive_notification(request: Request) -> tuple[int, bytes]:
         await _receive(request)
     except TsdbError as exc:
         return exc.status, orjson.dumps(exc.body())
+    except ClientDisconnect:  # nothing was stored and nobody is left to answer: one line, no traceback
+        log.warning("notification from %s abandoned: the client disconnected before sending the whole body "
+                    "(Content-Length %s); nothing was stored", _peer(request), request.headers.get("content-length"))
+        return 400, _DISCONNECTED
     except Exception:  # a bug: still answer in the NGSI shape
         log.exception("notification failed")
         return 500, orjson.dumps({"error": "InternalError", "description": "unexpected error; this is a bug"})
@@ -204,6 +210,11 @@ async def _keep_rejected(request, store, received_at: datetime, exc: TsdbError, 
         body_truncated=len(kept) < size,
     )
     await store.write(RecordRejected(rejected))
+
+
+def _peer(request: Request) -> str:
+    client = request.client
+    return f"{client.host}:{client.port}" if client else "a client"
 
 
 def _rejected_tenant(request) -> str:
