@@ -95,6 +95,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
     for name, value in settings.model_dump().items():
         if value is not None:  # unset: the backend's default applies
             os.environ[f"TSDB_{name.upper()}"] = str(value)
+    # --- limits (issue 12): slow clients, connection cap, descriptors (tsdb_service.httpserver) ---
+    from .httpserver import GuardedHttpToolsProtocol, raise_fd_limit
+
+    raise_fd_limit()
     uvicorn.run(
         "tsdb_service.app:create_app_from_env",
         factory=True,
@@ -104,9 +108,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
         log_level=settings.log_level,
         access_log=settings.access_log,
         loop="uvloop",
-        http="httptools",
+        http=GuardedHttpToolsProtocol,  # httptools with header/body deadlines and a connection cap
+        timeout_keep_alive=settings.keep_alive_s,
         timeout_graceful_shutdown=30,
     )
+    # --- end of limits ---
     return 0
 
 

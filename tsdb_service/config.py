@@ -57,6 +57,45 @@ class Settings(BaseSettings):
         16 * MIB, ge=64 * 1024,
         description="DuckDB: fold the write-ahead log into the database file once it is this big.",
     )
+    # --- limits (issue 12): read budgets, rejected-store bounds, slow clients ---
+    read_max_series: int = Field(
+        50_000, ge=1, description="Series one request may select (per resolution step); more: 422 QueryTooLarge.",
+    )
+    read_max_rows: int = Field(
+        500_000, ge=1, description="Samples and aggregate rows one request may read in all; more: 422 QueryTooLarge.",
+    )
+    read_max_response_bytes: int = Field(
+        64 * MIB, ge=1024, description="Largest answer a read may render; larger: 422 QueryTooLarge.",
+    )
+    read_max_seconds: float = Field(
+        20.0, gt=0, description="Wall time of one read, checked between its steps; past it: 422 QueryTooLarge.",
+    )
+    rejected_max_per_tenant: int = Field(
+        1000, ge=1, description="Rejected notifications kept per tenant; the oldest are dropped first.",
+    )
+    rejected_max_bytes_per_tenant: int = Field(
+        64 * MIB, ge=1024, description="Bytes of rejected bodies and headers kept per tenant; oldest dropped first "
+        "(a tenant's newest rejection is always kept).",
+    )
+    rejected_max_age_days: float = Field(
+        30.0, gt=0, description="Rejected notifications older than this are dropped (when the next is recorded).",
+    )
+    rejected_page_max_bytes: int = Field(
+        8 * MIB, ge=1024, description="A rejected listing stops before this many bytes (at least one row) and "
+        "points to the next page.",
+    )
+    header_timeout_s: float = Field(
+        10.0, gt=0, description="Close a connection whose request headers are not complete this long after it "
+        "opened (or after the request's first byte).",
+    )
+    body_timeout_s: float = Field(
+        60.0, gt=0, description="Cut off a request whose body is not complete this long after its headers.",
+    )
+    max_connections: int = Field(
+        4096, ge=1, description="Open connections per process; past it a new connection gets 503 and is closed.",
+    )
+    keep_alive_s: int = Field(5, ge=1, description="Close a kept-alive connection idle this long between requests.")
+    # --- end of limits ---
     log_level: str = "info"
     access_log: bool = False
 

@@ -44,7 +44,7 @@ from prometheus_client import (
     disable_created_metrics,
     generate_latest,
 )
-from prometheus_client.core import GaugeMetricFamily
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 from starlette.responses import Response
 
@@ -236,6 +236,14 @@ class StoreCollector(Collector):
         if depth is not None:
             yield GaugeMetricFamily("tsdb_write_queue_depth", "Write ops queued, not yet taken by a writer.",
                                     value=depth)  # fmt: skip
+        dropped = getattr(self._store, "rejected_dropped", None)
+        if dropped is not None:
+            family = CounterMetricFamily(
+                "tsdb_rejected_dropped", "Rejected notifications dropped to keep the rejected store within its "
+                "bounds (TSDB_REJECTED_MAX_*), by reason: count, bytes, age.", labels=["reason"])  # fmt: skip
+            for reason, n in sorted(dropped.items()):
+                family.add_metric([reason], n)
+            yield family
         sizes = self.sizes()
         if sizes is None:
             return

@@ -14,6 +14,7 @@ from datetime import UTC, datetime
 import orjson
 from fastapi import APIRouter, Query, Request
 from starlette.concurrency import run_in_threadpool
+from starlette.requests import ClientDisconnect
 from starlette.responses import Response
 
 from ..errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaType
@@ -30,6 +31,7 @@ router = APIRouter(tags=["notify"])
 log = logging.getLogger(__name__)
 
 _OK_BODY = b'"Notification successfully processed"'
+_DISCONNECTED = b'{"error":"ClientDisconnected","description":"the client disconnected before sending the whole body"}'
 # Parsing a big body on the event loop would stall every other request.
 _PARSE_INLINE_MAX = 64 * 1024
 # A body over the limit without a Content-Length is counted (not kept) up to
@@ -73,6 +75,10 @@ async def receive_notification(request: Request) -> tuple[int, bytes]:
         await _receive(request)
     except TsdbError as exc:
         return exc.status, orjson.dumps(exc.body())
+    except ClientDisconnect:  # nothing was stored and nobody is left to answer: one line, no traceback
+        log.warning("notification from %s abandoned: the client disconnected before sending the whole body "
+                    "(Content-Length %s); nothing was stored", _peer(request), request.headers.get("content-length"))
+        return 400, _DISCONNECTED
     except Exception:  # a bug: still answer in the NGSI shape
         return 500, orjson.dumps(internal_error("notification failed")[1])
     return 200, _OK_BODY
@@ -207,6 +213,11 @@ async def _keep_rejected(request, store, received_at: datetime, exc: TsdbError, 
     await store.write(RecordRejected(rejected))
 
 
+def _peer(request: Request) -> str:
+    client = request.client
+    return f"{client.host}:{client.port}" if client else "a client"
+
+
 def _rejected_tenant(request) -> str:
     """The tenant as the API names it; a header the API refuses is kept as
     received, for the operator's listing across tenants."""
@@ -227,8 +238,18 @@ def list_rejected(
         "header the API refuses is stored as received). Ignores Fiware-Service.",
     ),
 ) -> JSON:
+    """Pages by count (``limit``) and by size (``TSDB_REJECTED_PAGE_MAX_BYTES``,
+    at least one row): when more rows follow, ``Link: <...>; rel="next"``
+    and ``X-Next-Offset`` say where the next page starts."""
     tenant = None if all_tenants else tenant_of(request)
-    return JSON(request.app.state.store.rejected(tenant, limit, offset))
+    max_bytes = request.app.state.settings.rejected_page_max_bytes
+    rows, next_offset = request.app.state.store.rejected_page(tenant, limit, offset, max_bytes)
+    response = JSON(rows)
+    if next_offset is not None:
+        url = request.url.include_query_params(offset=next_offset)
+        response.headers["Link"] = f'<{url.path}?{url.query}>; rel="next"'
+        response.headers["X-Next-Offset"] = str(next_offset)
+    return response
 
 
 @router.put(

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import orjson
 
+from .. import budget
 from ..errors import Conflict, NotFound, TsdbError
 from ..model import Kind
 from ..storage.base import Querier
@@ -191,9 +192,10 @@ def _raw(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> list[Entit
     attr_count = len({r.attr for r in refs})
     n = min(q.last_n, q.limit) if q.last_n else q.limit
     rows = querier.raw_rows(
-        list(by_sid), q.time, newest_first=q.last_n is not None, limit=n, offset=q.offset,
+        list(by_sid), q.time, newest_first=q.last_n is not None, limit=budget.row_cap(n), offset=q.offset,
         one_per_row=attr_count == 1, attrs_per_row=attr_count,
     )
+    budget.charge_rows(len(rows))  # past the request's budget: 422 (tsdb_service.budget)
     if not rows:
         return []
     wanted = _columns_by_attr(q)
@@ -268,6 +270,7 @@ def _aggregated(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> lis
     for vp in path_columns:
         branches.append(AggBranch(tuple(r.sid for r in refs if r.attr == vp.attr), vp.steps))
     rows = querier.aggregate(branches, q.time, agg)
+    budget.charge_rows(len(rows))
 
     global_scope = agg.scope is AggrScope.GLOBAL
     # (group, column, bucket) -> [n_present, n_numeric, value, all_integer]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from ..config import Settings
 from .base import Store
+from .rejected import RejectedLimits
 
 
 def open_store(settings: Settings) -> Store:
@@ -11,7 +12,8 @@ def open_store(settings: Settings) -> Store:
     if settings.backend == "postgresql":
         from .postgres_store import PostgresStore
 
-        return PostgresStore(settings.db, writer_threads=settings.writer_threads or 3)
+        return PostgresStore(settings.db, writer_threads=settings.writer_threads or 3,
+                             rejected_limits=RejectedLimits.from_settings(settings))
     from .duckdb_store import DuckDBStore
 
     return DuckDBStore(
@@ -23,4 +25,5 @@ def open_store(settings: Settings) -> Store:
         tail_rows=settings.tail_cache_rows,
         tail_samples=settings.tail_cache_samples,
         checkpoint_bytes=settings.wal_checkpoint_bytes,
+        rejected_limits=RejectedLimits.from_settings(settings),
     )

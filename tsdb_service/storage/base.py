@@ -133,6 +133,11 @@ class Store(ABC):
         """Rejected notifications of one tenant, newest first; ``None``: every
         tenant (the operator's listing)."""
 
+    def rejected_page(self, tenant: str | None, limit: int, offset: int, max_bytes: int):
+        """``rejected`` paged by rendered size too: ``(rows, next offset or
+        None)``; at least one row, however big (``storage.rejected.page``)."""
+        raise NotImplementedError
+
     @abstractmethod
     def health(self) -> dict[str, Any]: ...
 

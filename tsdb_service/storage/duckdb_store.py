@@ -33,10 +33,12 @@ import pyarrow as pa
 from ..errors import Unavailable
 from ..model import EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
+from . import rejected as rejected_store
 from .base import Appender, AppendSamples, DeleteSamples, PutLayout, RecordRejected, Store, WriteOp
 from .latest_geo import LatestGeo
 from .tail_cache import TailCache
 from .migrate import applied_versions, load_migrations, split_statements
+from .rejected import RejectedLimits
 from .writer import GroupCommitter
 
 log = logging.getLogger(__name__)
@@ -237,8 +239,12 @@ class DuckDBStore(Store):
     def __init__(self, path: str, *, compact_rows: int = 500_000, major_compact_runs: int = 8,
                  writer_threads: int = 1, tail_series: int = 8192, tail_rows: int = 128,
                  tail_samples: int | None = None, checkpoint_bytes: int = CHECKPOINT_BYTES,
-                 reopen_delay: float | None = None, reopen_max_delay: float | None = None):
+                 reopen_delay: float | None = None, reopen_max_delay: float | None = None,
+                 rejected_limits: RejectedLimits | None = None):
         self.path = path
+        # Rejected-store bounds (storage.rejected) and what they dropped, by reason.
+        self.rejected_limits = rejected_limits or RejectedLimits()
+        self.rejected_dropped = dict.fromkeys(rejected_store.REASONS, 0)
         self._checkpoint_bytes = checkpoint_bytes
         self._compact_args = (compact_rows, major_compact_runs)
         self._tail_args = (tail_series, tail_rows, tail_samples)
@@ -358,6 +364,12 @@ class DuckDBStore(Store):
             [*params, limit, offset],
         ).fetchall()
         return [rejected_row(*row) for row in rows]
+
+    def rejected_page(self, tenant: str | None, limit: int, offset: int, max_bytes: int):
+        """``rejected`` paged by size too: (rows, next offset or None)."""
+        cur = self.cursor()
+        return rejected_store.page(lambda sql, params: cur.execute(sql, params).fetchall(), rejected_store.DUCKDB,
+                                   tenant, limit, offset, max_bytes, rejected_row)  # fmt: skip
 
     def health(self) -> dict[str, Any]:
         problem = self._broken or self._write_failure
@@ -737,6 +749,11 @@ class DuckDBAppender(Appender):
             cur.execute(
                 "INSERT INTO rejected_notifications (id, tenant, received_at, error, description, headers, "
                 "body, body_size, body_truncated) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)", list(row))
+        dropped = None
+        if self._rejected:
+            dropped = rejected_store.prune(lambda sql, params: cur.execute(sql, params).fetchall(),
+                                           rejected_store.DUCKDB, [row[1] for row in self._rejected],
+                                           self._store.rejected_limits)  # fmt: skip
         for put in self._layouts:
             layout = put.layout
             cur.execute(
@@ -754,6 +771,8 @@ class DuckDBAppender(Appender):
                 ):
                     cur.execute(sql, params)
         self._durable(cur, "COMMIT")
+        if dropped:
+            rejected_store.count_dropped(self._store.rejected_dropped, dropped)
         for op, upto_rid in self._deletes:
             self._store.tail.drop(op.sids)
             if self._store._broken is None:  # else the reopen rebuilds every location

@@ -28,8 +28,10 @@ from psycopg_pool import ConnectionPool
 from ..errors import Unavailable
 from ..model import EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
+from . import rejected as rejected_store
 from .base import Appender, AppendSamples, DeleteSamples, PutLayout, RecordRejected, Store, WriteOp
 from .migrate import applied_versions, load_migrations
+from .rejected import RejectedLimits
 from .writer import GroupCommitter
 
 log = logging.getLogger(__name__)
@@ -85,8 +87,12 @@ def naive_utc(moment: datetime) -> datetime:
 class PostgresStore(Store):
     backend = "postgresql"
 
-    def __init__(self, url: str, *, pool_size: int = 8, writer_threads: int = 3):
+    def __init__(self, url: str, *, pool_size: int = 8, writer_threads: int = 3,
+                 rejected_limits: RejectedLimits | None = None):
         self.url = url
+        # Rejected-store bounds (storage.rejected) and what they dropped, by reason.
+        self.rejected_limits = rejected_limits or RejectedLimits()
+        self.rejected_dropped = dict.fromkeys(rejected_store.REASONS, 0)
         migrate_url(url)
         self.pool = ConnectionPool(url, min_size=1, max_size=pool_size, open=True,
                                    kwargs={"autocommit": True})
@@ -149,6 +155,14 @@ class PostgresStore(Store):
             ).fetchall()
         return [rejected_row(*row) for row in rows]
 
+    def rejected_page(self, tenant: str | None, limit: int, offset: int, max_bytes: int):
+        """``rejected`` paged by size too: (rows, next offset or None)."""
+        from .duckdb_store import rejected_row
+
+        with self.connection() as conn:
+            return rejected_store.page(lambda sql, params: conn.execute(sql, params).fetchall(),
+                                       rejected_store.POSTGRES, tenant, limit, offset, max_bytes, rejected_row)
+
     def health(self) -> dict[str, Any]:
         ok = self._committer.alive
         try:
@@ -183,6 +197,14 @@ class PostgresStore(Store):
         self._committer.close()
         self._closed = True
         self.pool.close()
+
+
+def _fetch_all(cur: psycopg.Cursor):
+    def execute(sql: str, params: list) -> list[tuple]:
+        cur.execute(sql, params)
+        return cur.fetchall()
+
+    return execute
 
 
 class PostgresAppender(Appender):
@@ -234,6 +256,10 @@ class PostgresAppender(Appender):
                     [r.tenant, naive_utc(r.received_at), r.error, r.description, r.headers, r.body,
                      len(r.body) if r.body_size is None else r.body_size, r.body_truncated],
                 )
+            dropped = None
+            if self._rejected:
+                dropped = rejected_store.prune(_fetch_all(cur), rejected_store.POSTGRES,
+                                               [r.tenant for r in self._rejected], self._store.rejected_limits)
             for put in self._layouts:
                 layout = put.layout
                 cur.execute(
@@ -247,6 +273,8 @@ class PostgresAppender(Appender):
             if self._deletes:
                 self._delete(cur)
         self._send_commit(conn)
+        if dropped:
+            rejected_store.count_dropped(self._store.rejected_dropped, dropped)
         for put in self._layouts:
             self._store._layouts[(put.tenant, put.subscription_id)] = put.layout
         self._reset()

@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 
+from .. import budget
 from ..history.query import Aggregation, AggrMethod, EntityFilter, Scope, TimeRange
 from ..model import Kind
 from .base import Querier
@@ -283,7 +284,11 @@ class SqlQuerier(Querier):
             params += sel_params + wparams
         if not parts:
             return []
-        return self._fetch(" UNION ALL ".join(parts), params)
+        sql = " UNION ALL ".join(parts)
+        if budget.current() is not None:  # one row past the request's budget detects an overflow
+            sql = f"SELECT * FROM ({sql}) AS parts LIMIT {d.placeholder}"
+            params.append(budget.row_cap(_MAX_BIGINT))
+        return self._fetch(sql, params)
 
     def latest_index(self, sids: Sequence[int], time: TimeRange) -> list[tuple]:
         if not sids:
