@@ -59,7 +59,7 @@ def _add_demo(sub) -> None:
     p.add_argument("--seed", type=int, help="make the run reproducible (default: a random seed, printed)")
     p.add_argument(
         "--use-case", action="append", metavar="NAME",
-        help=f"only these simulators ({', '.join(USE_CASE_NAMES)}; repeat or comma-separate)",
+        help=f"only these simulators ({', '.join(USE_CASE_NAMES)}; repeat or comma-separate; default: all three)",
     )  # fmt: skip
     p.add_argument("--concurrency", type=_positive_int, default=16,
                    help="notifications in flight at most (default 16)")  # fmt: skip
@@ -68,7 +68,7 @@ def _add_demo(sub) -> None:
 def _add_subscribe(sub) -> None:
     p = sub.add_parser("subscribe", help="create a use case's subscription on a real Orion broker")
     p.add_argument("--broker", required=True, help="the broker's base URL, e.g. http://orion:1026")
-    p.add_argument("--use-case", required=True, choices=[*USE_CASE_NAMES, "all"])
+    p.add_argument("--use-case", required=True, choices=[*USE_CASE_NAMES, "all"], help="whose subscription to create")
     p.add_argument(
         "--notify-url", default=None,
         help="where the broker sends notifications (default http://tsdb-service:8668/v2/notify)",

@@ -57,6 +57,8 @@ def register(subparsers, command) -> None:
                    help="DuckDB file or postgresql:// URL to write (created if it is a new DuckDB file)")
     p.add_argument("--append", action="store_true",
                    help="add to a target that already holds history (default: refuse a non-empty target)")
+    p.add_argument("--batch-rows", type=_positive_int, default=BATCH_ROWS, metavar="ROWS",
+                   help=f"samples committed per batch; an interruption loses at most one (default {BATCH_ROWS})")
     p.add_argument("--quiet", action="store_true", help="no progress line (default: progress on stderr)")
     command("copy")(cmd_copy)  # fmt: skip
 
@@ -73,7 +75,7 @@ def cmd_copy(args) -> int:
         target = open_store(Settings(db=target_db))
         try:
             report = copy_history(source, target, source_id=store_identity(source_db),
-                                  append=args.append, progress=not args.quiet)  # fmt: skip
+                                  append=args.append, progress=not args.quiet, batch_rows=args.batch_rows)
         except CopyNotVerified as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 1
@@ -92,6 +94,15 @@ def cmd_copy(args) -> int:
     print(f"copy verified: the target holds {report.target_total} samples, "
           f"{report.target_rejected} rejected notifications")  # fmt: skip
     return 0
+
+
+def _positive_int(text: str) -> int:
+    import argparse
+
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError("must be at least 1")
+    return value
 
 
 def _checked(db: str, flag: str) -> str:
@@ -129,13 +140,13 @@ class _Run:
 
 
 def copy_history(source: Store, target: Store, *, source_id: str, append: bool = False,
-                 progress: bool = False) -> CopyReport:  # fmt: skip
+                 progress: bool = False, batch_rows: int = BATCH_ROWS) -> CopyReport:  # fmt: skip
     """Copy everything not yet copied, verify totals, record the run as finished."""
     src_counts = _counts(source)
     src_total = sum(src_counts.values())
     run = _resume_or_start(target, source_id, src_total, append)
     already = sum(_counts(target).values()) - sum(run.base_counts.values())
-    _copy_samples(source, target, skip=already, total=src_total, progress=progress)
+    _copy_samples(source, target, skip=already, total=src_total, progress=progress, batch_rows=batch_rows)
     _copy_side_tables(source, target, resumed=already > 0 or _rejected_count(target) > run.base_rejected)
     after, rejected = _counts(target), _rejected_count(target)
     _verify(src_counts, run, after, rejected, _rejected_count(source))
@@ -170,7 +181,7 @@ def _resume_or_start(target: Store, source_id: str, src_total: int, append: bool
     return _Run(counts, rejected, src_total)
 
 
-def _copy_samples(source: Store, target: Store, *, skip: int, total: int, progress: bool) -> None:
+def _copy_samples(source: Store, target: Store, *, skip: int, total: int, progress: bool, batch_rows: int) -> None:
     """Stream the source in row-id order, skipping the prefix already copied; one
     committed batch at a time, so the target always holds a prefix of the source."""
     reader = source.querier()
@@ -182,7 +193,7 @@ def _copy_samples(source: Store, target: Store, *, skip: int, total: int, progre
     for entity, n in _entities(source, series, skip):
         batch.append(entity)
         rows_in_batch += n
-        if rows_in_batch >= BATCH_ROWS:
+        if rows_in_batch >= batch_rows:
             target.write_sync([AppendSamples(batch)])
             copied += rows_in_batch
             batch, rows_in_batch = [], 0
