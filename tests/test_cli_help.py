@@ -69,3 +69,12 @@ def test_queries_run_against_an_unreachable_service_says_so_once():
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [f"error: cannot reach {url}: [Errno 111] Connection refused"]
     assert "FAIL" not in done.stdout
+
+
+def test_demo_feeding_an_unreachable_service_says_so_once():
+    from tsdb_service.storage.pg_cluster import free_port
+
+    url = f"http://127.0.0.1:{free_port()}"
+    done = run_cli("demo", "--no-serve", "--url", url, "--duration", "1")
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [f"error: cannot reach {url}: [Errno 111] Connection refused"]

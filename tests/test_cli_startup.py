@@ -60,7 +60,7 @@ def test_a_lifespan_failure_inside_uvicorn_is_one_line(locked_duckdb):
     """The race the pre-flight check cannot close: the store fails to open in
     the application's start-up, inside uvicorn. One line, and uvicorn's exit 3."""
     _, path = locked_duckdb
-    code = "import uvicorn; uvicorn.run('tsdb_service.cli:serve_app', factory=True, port=int(__import__('sys').argv[1]))"
+    code = "import sys, uvicorn; uvicorn.run('tsdb_service.cli:serve_app', factory=True, port=int(sys.argv[1]))"
     env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")} | {"TSDB_DB": str(path)}
     done = subprocess.run([sys.executable, "-c", code, str(free_port())], capture_output=True, text=True,
                           env=env, timeout=60)  # fmt: skip
@@ -126,8 +126,8 @@ def test_serve_still_starts_on_a_good_database(tmp_path):
     port = free_port()
     db = tmp_path / "new" / "dir" / "tsdb.duckdb"
     env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}
-    proc = subprocess.Popen([sys.executable, "-m", "tsdb_service", "serve", "--db", str(db), "--host", "127.0.0.1",
-                             "--port", str(port)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)  # fmt: skip
+    command = [sys.executable, "-m", "tsdb_service", "serve", "--db", str(db), "--host", "127.0.0.1", "--port", str(port)]
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
     try:
         import httpx
 

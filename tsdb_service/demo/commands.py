@@ -121,6 +121,8 @@ def _port(text: str) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    import httpx
+
     from ..config import check_db
     from . import usecases
     from .serve import LocalService
@@ -144,6 +146,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
             start, speedup = _window(simulators, url, args)
         except ValueError as exc:
             print(f"error: {exc}", file=sys.stderr)
+            return 2
+        except httpx.TransportError as exc:
+            print(f"error: cannot reach {url}: {exc}", file=sys.stderr)
             return 2
         _print_banner(args, url, seed, service, start, speedup)
         stats = asyncio.run(_run_demo(simulators, url, args, seed, start, speedup))

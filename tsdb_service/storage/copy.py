@@ -152,7 +152,8 @@ def copy_history(source: Store, target: Store, *, source_id: str, append: bool =
     _verify(src_counts, run, after, rejected, _rejected_count(source))
     _execute(target, "UPDATE copy_runs SET finished_at = ? WHERE source = ? AND finished_at IS NULL",
              [_utcnow(), source_id])  # fmt: skip
-    tenants = {t: (src_counts.get(t, 0), after.get(t, 0) - run.base_counts.get(t, 0)) for t in set(src_counts) | set(after)}
+    tenants = {t: (src_counts.get(t, 0), after.get(t, 0) - run.base_counts.get(t, 0))
+               for t in set(src_counts) | set(after)}  # fmt: skip
     return CopyReport(tenants, sum(after.values()), rejected, already)
 
 
@@ -297,7 +298,8 @@ def _verify(src: dict[str, int], run: _Run, after: dict[str, int], rejected: int
              for t in set(src) | set(after) | set(run.base_counts)
              if after.get(t, 0) != run.base_counts.get(t, 0) + src.get(t, 0)}  # fmt: skip
     if wrong:
-        detail = ", ".join(f"{t or '(default)'}: {want} expected, {got} found" for t, (want, got) in sorted(wrong.items()))
+        detail = ", ".join(f"{t or '(default)'}: {want} expected, {got} found"
+                           for t, (want, got) in sorted(wrong.items()))  # fmt: skip
         raise CopyNotVerified(f"copy NOT verified, the target's samples per tenant are wrong ({detail}); "
                           "copy into a new, empty target")  # fmt: skip
     if rejected != run.base_rejected + src_rejected:
