@@ -47,6 +47,8 @@ def _add_settings(p: argparse.ArgumentParser) -> None:
     as a flag or a ``TSDB_*`` variable, and validation names both."""
     for name, field in Settings.model_fields.items():
         flag = "--" + name.replace("_", "-")
+        if field.annotation not in _SCALARS:
+            continue  # structured settings (if any) are variables only
         if name == "db":
             _add_db(p)
         elif field.annotation is bool:
@@ -55,6 +57,9 @@ def _add_settings(p: argparse.ArgumentParser) -> None:
             p.add_argument(flag, dest=name, metavar="{" + ",".join(LOG_LEVELS) + "}", help=setting_help(name))
         else:
             p.add_argument(flag, dest=name, metavar=name.split("_")[-1].upper(), help=setting_help(name))
+
+
+_SCALARS = (str, int, float, bool, int | None, float | None, str | None)
 
 
 class _Formatter(argparse.RawDescriptionHelpFormatter):

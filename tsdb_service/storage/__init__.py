@@ -136,7 +136,9 @@ def explain(exc: BaseException, db: str) -> str | None:
 
 def _explain_os(exc: OSError, db: str) -> str:
     reason = (exc.strerror or str(exc)).lower()
-    return f"cannot create the directory of {db}: {reason} ({exc.filename or Path(db).parent})"
+    if exc.filename and str(Path(db).parent).startswith(str(exc.filename)):
+        return f"cannot create the directory of {db}: {reason} ({exc.filename})"
+    return f"cannot use {db}: {reason}" + (f" ({exc.filename})" if exc.filename else "")
 
 
 def _explain_duckdb(exc: BaseException, db: str) -> str | None:
