@@ -32,7 +32,7 @@ from tsdb_service.geo.encodings import GEOMETRY_TYPES
 from tsdb_service.model import AttrSample, EntitySample
 from tsdb_service.ngsi.names import RULE, name_problem
 from tsdb_service.ngsi.timeindex import TimeClues, to_utc, watched_attributes
-from tsdb_service.ngsi.values import attr_sample, to_json
+from tsdb_service.ngsi.values import TooDeep, attr_sample, to_json
 
 DEFAULT_ENTITY_TYPE = "Thing"  # what Orion assigns when none is given
 
@@ -271,7 +271,10 @@ def _entity_sample(parse, raw: Any, where: str, tenant: str, path: str, ctx: _Co
     if type(raw) is not dict:
         raise ParseError(f"{where} must be an entity object, got {_json_kind(raw)}")
     clues = TimeClues(ctx.header_attr, ctx.watched)
-    entity_id, entity_type, attrs = parse(raw, where, clues)
+    try:
+        entity_id, entity_type, attrs = parse(raw, where, clues)
+    except TooDeep as exc:
+        raise ParseError(f"{where}: {exc.description}") from None
     for attr in attrs:
         problem = name_problem(attr.name)
         if problem is not None:
