@@ -17,6 +17,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.responses import Response
 
 from ..errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaType
+from ..history.params import MAX_INT_PARAM
 from ..model import RejectedNotification
 from ..ngsi import ValuesLayout, parse_notification
 from ..ngsi.names import RULE, name_problem
@@ -219,7 +220,7 @@ def _rejected_tenant(request) -> str:
 def list_rejected(
     request: Request,
     limit: int = Query(100, ge=1, le=10_000),
-    offset: int = Query(0, ge=0),
+    offset: int = Query(0, ge=0, le=MAX_INT_PARAM),
     all_tenants: bool = Query(
         False, alias="allTenants",
         description="Operator listing: every tenant's rejections, each with its tenant as stored (a tenant "

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 
 from ..errors import BadRequest
-from ..history.params import parse_time, service_paths
+from ..history.params import MAX_INT_PARAM, parse_time, service_paths
 from ..history.query import EntityFilter, Scope, TimeRange, ValuePath
 from ..history.valuepath import parse_value_path
 
@@ -138,16 +138,17 @@ def time_range(params: Mapping[str, str]) -> TimeRange:
 
 
 def positive_int(raw: str | None, name: str, default: int | None, most: int) -> int | None:
-    """A positive integer; Grafana sometimes sends ``1500.0``."""
+    """A positive integer up to ``MAX_INT_PARAM`` (the rule of every
+    endpoint), then capped at ``most``; Grafana sometimes sends ``1500.0``."""
     if raw is None or not str(raw).strip():
         return default
     text = str(raw).strip()
     try:
         value = float(text)
     except ValueError:
-        raise BadRequest(f"{name} must be a positive number, not {text[:40]!r}") from None
-    if not math.isfinite(value) or value < 1:
-        raise BadRequest(f"{name} must be a positive number, not {text[:40]!r}")
+        value = math.nan
+    if not math.isfinite(value) or not 1 <= value <= MAX_INT_PARAM:
+        raise BadRequest(f"{name} must be a number from 1 to {MAX_INT_PARAM}, not {text[:40]!r}")
     return min(int(value), most)
 
 

@@ -28,7 +28,10 @@ from .query import (
 )
 from .valuepath import parse_attr_list, parse_value_path
 
-_INT = re.compile(r"\+?\d{1,18}\Z")
+_INT = re.compile(r"\+?[0-9]{1,20}\Z")
+# The largest integer any parameter may take (limits, offsets, lastN,
+# Grafana point counts): 2^53 - 1, exact in every JSON client.
+MAX_INT_PARAM = 2**53 - 1
 _MAX_PATTERN = 512
 _MAX_IDS = 10_000
 _MAX_SERVICE_PATHS = 50
@@ -209,23 +212,26 @@ def geo_filter(params: Mapping[str, str]) -> object | None:
     return parse_geo(params.get("georel"), params.get("geometry"), params.get("coords"))
 
 
-def _positive(raw: str | None, name: str) -> int | None:
+def int_param(raw: str | None, name: str, low: int) -> int | None:
+    """A decimal integer from ``low`` to ``MAX_INT_PARAM``, or None when absent.
+
+    The one integer rule of every endpoint: the bound keeps any value far
+    inside what both databases (64-bit) and JSON clients (53-bit) can hold,
+    so no integer a client sends can fail anywhere past this check."""
     if raw is None or raw == "":
         return None
-    if not _INT.match(raw.strip()):
-        raise BadRequest(f"{name} must be a positive integer, not {raw[:40]!r}")
-    value = int(raw)
-    if value < 1:
-        raise BadRequest(f"{name} must be a positive integer, not {raw[:40]!r}")
-    return value
+    text = raw.strip()
+    if not _INT.match(text) or not low <= int(text) <= MAX_INT_PARAM:
+        raise BadRequest(f"{name} must be an integer from {low} to {MAX_INT_PARAM}, not {raw[:40]!r}")
+    return int(text)
+
+
+def _positive(raw: str | None, name: str) -> int | None:
+    return int_param(raw, name, 1)
 
 
 def _non_negative(raw: str | None, name: str) -> int | None:
-    if raw is None or raw == "":
-        return None
-    if not _INT.match(raw.strip()):
-        raise BadRequest(f"{name} must be a non-negative integer, not {raw[:40]!r}")
-    return int(raw)
+    return int_param(raw, name, 0)
 
 
 def _ids(raw: str | None) -> tuple[str, ...] | None:
