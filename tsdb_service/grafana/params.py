@@ -14,12 +14,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 
+from ..api.tenancy import tenant_from
 from ..errors import BadRequest
 from ..history.params import MAX_INT_PARAM, parse_time, service_paths
 from ..history.query import EntityFilter, Scope, TimeRange, ValuePath
 from ..history.valuepath import parse_value_path
 
-_TENANT = re.compile(r"^[A-Za-z0-9_]{0,50}$")
 _ALIAS = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,63}$")
 _NUMBER = re.compile(r"^-?\d{1,16}(\.\d{1,9})?$")
 _MAX_COLUMNS = 64
@@ -38,19 +38,16 @@ class Column:
 
 
 def scope_of(params: Mapping[str, str], headers: Mapping[str, str]) -> Scope:
-    """Tenant and service paths: ``service`` / ``servicepath`` query
-    parameters win over the ``Fiware-Service`` / ``Fiware-ServicePath``
-    headers (which an Infinity datasource sends as custom headers)."""
-    raw = params.get("service")
-    if raw is None:
-        raw = headers.get("fiware-service") or headers.get("ngsild-tenant") or ""
-    raw = raw.strip()
-    if not _TENANT.match(raw):
-        raise BadRequest(f"bad tenant {raw[:60]!r}: use up to 50 letters, digits or underscores")
+    """Tenant and service paths. The tenant follows the one rule of every
+    endpoint (``ngsi.tenancy``), with the ``service`` query parameter as one
+    more selector: header and parameter must agree (Infinity datasources
+    may send either). ``servicepath`` wins over ``Fiware-ServicePath``."""
+    services = params.getlist("service") if hasattr(params, "getlist") else [params.get("service") or ""]
+    tenant = tenant_from(headers.items(), [("service", value) for value in services])
     path = params.get("servicepath")
     if path is None:
         path = headers.get("fiware-servicepath")
-    return Scope(raw.lower(), service_paths(path))
+    return Scope(tenant, service_paths(path))
 
 
 def entity_filter(params: Mapping[str, str]) -> EntityFilter:

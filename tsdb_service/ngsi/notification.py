@@ -19,7 +19,6 @@ it cannot use, so the route can answer 400 and keep the body for recovery.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from datetime import datetime
@@ -31,14 +30,11 @@ from tsdb_service.errors import ParseError
 from tsdb_service.geo.encodings import GEOMETRY_TYPES
 from tsdb_service.model import AttrSample, EntitySample
 from tsdb_service.ngsi.names import RULE, name_problem
+from tsdb_service.ngsi.tenancy import TenantProblem, select_tenant, selectors
 from tsdb_service.ngsi.timeindex import TimeClues, to_utc, watched_attributes
 from tsdb_service.ngsi.values import TooDeep, attr_sample, to_json
 
 DEFAULT_ENTITY_TYPE = "Thing"  # what Orion assigns when none is given
-
-# Tenant names as Orion accepts them; checked before lower-casing so that
-# non-ASCII letters which lower-case to ASCII (the Kelvin sign) are refused.
-_TENANT = re.compile(r"[A-Za-z0-9_]{1,50}\Z")
 
 # How the body is laid out.
 _V2 = "v2"  # {"subscriptionId", "data": [entities]}
@@ -65,7 +61,6 @@ _FORMAT_HEADER = {
 # Ngsild-Attribute-Format (Orion-LD writes Normalized, Concise, Simplified):
 # does every attribute come as its bare value?
 _LD_FORMAT_HEADER = {"normalized": False, "concise": False, "simplified": True, "keyvalues": True}
-_LD_LAYOUTS = frozenset({_LD, _LD_SIMPLIFIED, _GEOJSON, _GEOJSON_SIMPLIFIED})
 
 # How error messages locate an entity in the body.
 _ENTITY_LABELS = {_SIMPLIFIED: "entity", _SIMPLIFIED_KEY_VALUES: "entity", _SIMPLIFIED_AUTO: "entity",
@@ -128,7 +123,7 @@ def parse_notification(
     doc = _load(body)
     format_header = hdrs.get("ngsiv2-attrsformat")
     layout = _layout(doc, format_header, hdrs.get("ngsild-attribute-format"))
-    tenant = _tenant(hdrs, ld=layout in _LD_LAYOUTS or format_header is None)
+    tenant = _tenant(headers)
     header_attr = hdrs.get("fiware-timeindex-attribute", "").strip() or None
     ctx = _Context(watched_attributes(header_attr), header_attr, to_utc(received_at))
     layout, entities = _entities(doc, layout, tenant, values_layout)
@@ -230,14 +225,12 @@ def _data(doc: dict) -> list:
     return data
 
 
-def _tenant(hdrs: dict[str, str], *, ld: bool) -> str:
-    """Orion stores tenants lower-cased; NGSI-LD names its own header."""
-    raw = (hdrs.get("ngsild-tenant", "").strip() if ld else "") or hdrs.get("fiware-service", "").strip()
-    if not raw:
-        return ""
-    if not _TENANT.match(raw):
-        raise ParseError(f"invalid tenant {raw[:60]!r}: at most 50 characters of letters, digits and '_'")
-    return raw.lower()
+def _tenant(headers: Mapping[str, str]) -> str:
+    """The one tenant rule of ``ngsi.tenancy`` (the queries apply it too)."""
+    try:
+        return select_tenant(selectors((str(k), _header_text(v)) for k, v in headers.items()))
+    except TenantProblem as exc:
+        raise ParseError(str(exc)) from None
 
 
 def _service_paths(header: str | None, count: int) -> list[str]:
