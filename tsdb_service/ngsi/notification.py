@@ -31,7 +31,7 @@ from tsdb_service.geo.encodings import GEOMETRY_TYPES
 from tsdb_service.model import AttrSample, EntitySample
 from tsdb_service.ngsi.names import RULE, name_problem
 from tsdb_service.ngsi.tenancy import TenantProblem, select_tenant, selectors
-from tsdb_service.ngsi.timeindex import TimeClues, to_utc, watched_attributes
+from tsdb_service.ngsi.timeindex import FALLBACK_METADATA, TimeClues, to_utc, watched_attributes
 from tsdb_service.ngsi.values import TooDeep, attr_sample, to_json
 
 DEFAULT_ENTITY_TYPE = "Thing"  # what Orion assigns when none is given
@@ -273,7 +273,22 @@ def _entity_sample(parse, raw: Any, where: str, tenant: str, path: str, ctx: _Co
         if problem is not None:
             raise ParseError(f"{where}: attribute name {attr.name[:80]!r} {problem}; we store only names "
                              f"every endpoint can be asked for: {RULE}")
-    return EntitySample(tenant, path, entity_id, entity_type, clues.resolve(ctx.received_at), attrs)
+    time_index = clues.resolve(ctx.received_at)
+    if clues.unusable:
+        _mark_fallback(attrs, clues.unusable)
+    return EntitySample(tenant, path, entity_id, entity_type, time_index, attrs)
+
+
+def _mark_fallback(attrs: list[AttrSample], unusable: tuple[str, ...]) -> None:
+    """Record in each sample's metadata that its time is the reception time
+    because these sources were not times (rare: the hot path never gets here).
+    A sender's own metadata item of that name is kept as sent."""
+    item = {"type": "StructuredValue", "value": list(unusable)}
+    for attr in attrs:
+        md = orjson.loads(attr.md) if attr.md else {}
+        if FALLBACK_METADATA not in md:
+            md[FALLBACK_METADATA] = item
+            attr.md = orjson.dumps(md).decode()
 
 
 # --- entity heads --------------------------------------------------------------
