@@ -11,7 +11,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
 
-from . import __version__, grafana
+from . import __version__, grafana, rawpath
 from . import metrics as metrics_
 from .api import attrs, entities, meta, notify, op_query, types
 from .api.handlers import install_error_handlers
@@ -35,6 +35,7 @@ class TsdbApp(FastAPI):
         elif notify.is_notification(scope):
             await self.request_metrics.timed(self._notification, scope, receive, send, scope["path"])
         else:
+            rawpath.keep_encoded_slashes(scope)  # ids, types and names with "/" as %2F
             await self.request_metrics.timed(super().__call__, scope, receive, send)
 
     def _notification(self, scope, receive, send):

@@ -20,7 +20,7 @@ from ..errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaTyp
 from ..history.params import MAX_INT_PARAM
 from ..model import RejectedNotification
 from ..ngsi import ValuesLayout, parse_notification
-from ..ngsi.names import RULE, name_problem
+from ..ngsi.names import ID_RULE, RULE, id_problem, name_problem
 from ..storage.base import AppendSamples, PutLayout, RecordRejected
 from .responses import JSON
 from .tenancy import tenant_header, tenant_of
@@ -273,6 +273,8 @@ def layout_from_document(doc: object) -> ValuesLayout:
     for name, value in (("entityId", entity_id), ("entityType", entity_type)):
         if value is not None and not isinstance(value, str):
             raise ParseError(f"'{name}' must be a string")
+        if value and (problem := id_problem(value)) is not None:
+            raise ParseError(f"'{name}' {value[:80]!r} {problem}: {ID_RULE}")
     if "id" not in attrs and not entity_id:
         raise ParseError("without an 'id' column in 'attrs', 'entityId' is required")
     return ValuesLayout(tuple(attrs), entity_id, entity_type)

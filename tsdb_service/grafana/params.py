@@ -16,7 +16,7 @@ from datetime import UTC, datetime
 
 from ..api.tenancy import tenant_from
 from ..errors import BadRequest
-from ..history.params import MAX_INT_PARAM, parse_time, service_paths
+from ..history.params import MAX_INT_PARAM, check_id, parse_time, service_paths
 from ..history.query import EntityFilter, Scope, TimeRange, ValuePath
 from ..history.valuepath import parse_value_path
 
@@ -73,8 +73,8 @@ def _names(raw: str | None, what: str, most: int) -> tuple[str, ...] | None:
         return None
     if len(items) > most:
         raise BadRequest(f"{what} lists at most {most} names")
-    if any(len(item) > 1024 for item in items):
-        raise BadRequest(f"each {what} must be at most 1024 characters")
+    for item in items:
+        check_id(item, what)  # the ingest's rule for ids and types
     return items
 
 

@@ -9,8 +9,9 @@ simplified (keyValues) form (the ``Ngsild-Attribute-Format`` header, or
 ``Ngsiv2-AttrsFormat``). Without a usable header the body's shape decides,
 per attribute where formats can be mixed.
 
-Every attribute name must pass ``names.name_problem``, the rule the query
-parsers apply too: a name we could not be asked for is refused here.
+Every attribute name, entity id, entity type and service path must pass its
+rule in ``names``, the rules the query parsers apply too: a name we could not
+be asked for is refused here.
 
 The parser is pure (no I/O) and on the ingest hot path: it walks the decoded
 JSON once, builds samples directly, and raises only ``ParseError`` for input
@@ -29,7 +30,15 @@ import orjson
 from tsdb_service.errors import ParseError
 from tsdb_service.geo.encodings import GEOMETRY_TYPES
 from tsdb_service.model import AttrSample, EntitySample
-from tsdb_service.ngsi.names import RULE, name_problem
+from tsdb_service.ngsi.names import (
+    ID_RULE,
+    RULE,
+    SERVICE_PATH_RULE,
+    id_problem,
+    name_problem,
+    normalize_service_path,
+    service_path_problem,
+)
 from tsdb_service.ngsi.tenancy import TenantProblem, select_tenant, selectors
 from tsdb_service.ngsi.timeindex import FALLBACK_METADATA, TimeClues, to_utc, watched_attributes
 from tsdb_service.ngsi.values import TooDeep, attr_sample, to_json
@@ -246,13 +255,12 @@ def _service_paths(header: str | None, count: int) -> list[str]:
 
 
 def _service_path(path: str) -> str:
-    if not path.startswith("/"):
-        raise ParseError(f"service path {path[:60]!r} must start with '/'")
-    if "//" in path:
-        raise ParseError(f"service path {path[:60]!r} has an empty component")
-    if "#" in path:
-        raise ParseError(f"service path {path[:60]!r}: '#' is only valid in queries")
-    return path[:-1] if len(path) > 1 and path.endswith("/") else path
+    path = normalize_service_path(path)
+    problem = service_path_problem(path)
+    if problem is not None:
+        raise ParseError(f"service path {path[:60]!r} {problem}; we store only paths every query can name: "
+                         f"{SERVICE_PATH_RULE}")
+    return path
 
 
 def _where(label: str, index: int) -> str:
@@ -298,6 +306,7 @@ def _entity_id(entity: dict, where: str) -> str:
     entity_id = entity.get("id")
     if type(entity_id) is not str or not entity_id:
         raise ParseError(f"{where}: entity id must be a non-empty string, got {_json_kind(entity_id)}")
+    _check_id(entity_id, "entity id", where)
     return entity_id
 
 
@@ -310,7 +319,15 @@ def _entity_type(entity: dict, where: str) -> str:
         return DEFAULT_ENTITY_TYPE
     if type(entity_type) is not str:
         raise ParseError(f"{where}: entity type must be a string, got {_json_kind(entity_type)}")
+    _check_id(entity_type, "entity type", where)
     return entity_type
+
+
+def _check_id(value: str, what: str, where: str) -> None:
+    problem = id_problem(value)
+    if problem is not None:
+        raise ParseError(f"{where}: {what} {value[:80]!r} {problem}; we store only ids and types every "
+                         f"endpoint can be asked for: {ID_RULE}")
 
 
 # --- NGSIv2 --------------------------------------------------------------------
