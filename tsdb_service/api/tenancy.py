@@ -8,7 +8,7 @@ headers reads.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 from fastapi import Request
 
@@ -29,7 +29,13 @@ def tenant_of(request: Request, extra: Iterable[tuple[str, str]] = ()) -> str:
     return tenant_from(request.headers.items(), extra)
 
 
+def tenant_from_headers(headers: Mapping[str, str]) -> str:
+    """``tenant_of`` for header mappings that do not come with a request."""
+    return tenant_from(headers.items())
+
+
 def tenant_from(headers: Iterable[tuple[str, str]], extra: Iterable[tuple[str, str]] = ()) -> str:
+    """The tenant of ``(name, value)`` header pairs plus ``extra`` selectors."""
     chosen = selectors(headers) + [(name, value) for name, value in extra if value.strip()]
     try:
         return select_tenant(chosen)
