@@ -11,7 +11,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
 
-from . import __version__, grafana, ui
+from . import __version__, grafana, rawpath, ui
 from . import metrics as metrics_
 from .api import attrs, entities, meta, notify, op_query, subscribe, types
 from .api import export as export_api
@@ -41,6 +41,7 @@ class TsdbApp(FastAPI):
         elif notify.is_notification(scope):
             await self.request_metrics.timed(self.front, scope, receive, send, scope["path"])
         else:
+            rawpath.keep_encoded_slashes(scope)  # ids, types and names with "/" as %2F
             await self.request_metrics.timed(self.front, scope, receive, send)
 
     async def dispatch(self, scope, receive, send) -> None:

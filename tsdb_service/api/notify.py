@@ -18,9 +18,10 @@ from starlette.requests import ClientDisconnect
 from starlette.responses import Response
 
 from ..errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaType
+from ..history.params import MAX_INT_PARAM
 from ..model import RejectedNotification
 from ..ngsi import ValuesLayout, parse_notification
-from ..ngsi.names import RULE, name_problem
+from ..ngsi.names import ID_RULE, RULE, id_problem, name_problem
 from ..security import redact_headers
 from ..storage.base import AppendSamples, PutLayout, RecordRejected
 from .handlers import internal_error
@@ -231,7 +232,7 @@ def _rejected_tenant(request) -> str:
 def list_rejected(
     request: Request,
     limit: int = Query(100, ge=1, le=10_000),
-    offset: int = Query(0, ge=0),
+    offset: int = Query(0, ge=0, le=MAX_INT_PARAM),
     all_tenants: bool = Query(
         False, alias="allTenants",
         description="Operator listing: every tenant's rejections, each with its tenant as stored (a tenant "
@@ -294,6 +295,8 @@ def layout_from_document(doc: object) -> ValuesLayout:
     for name, value in (("entityId", entity_id), ("entityType", entity_type)):
         if value is not None and not isinstance(value, str):
             raise ParseError(f"'{name}' must be a string")
+        if value and (problem := id_problem(value)) is not None:
+            raise ParseError(f"'{name}' {value[:80]!r} {problem}: {ID_RULE}")
     if "id" not in attrs and not entity_id:
         raise ParseError("without an 'id' column in 'attrs', 'entityId' is required")
     return ValuesLayout(tuple(attrs), entity_id, entity_type)

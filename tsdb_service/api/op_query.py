@@ -13,7 +13,7 @@ from fastapi import APIRouter, Request
 from starlette.concurrency import run_in_threadpool
 
 from ..errors import BadRequest, ParseError
-from ..history.params import service_paths
+from ..history.params import check_id, service_paths
 from ..history.query import EntityFilter, LastValueQuery, Scope
 from ..history.service import run_last_values
 from ..history.valuepath import parse_value_path
@@ -59,6 +59,8 @@ def last_value_query(body: bytes, tenant: str, service_path: str | None) -> Last
         for name, value in (("id", eid), ("idPattern", pattern), ("type", etype)):
             if value is not None and (not isinstance(value, str) or not value or len(value) > 1024):
                 raise BadRequest(f"entities[{i}].{name} must be a non-empty string")
+            if value is not None and name != "idPattern":
+                check_id(value, f"entities[{i}].{name}")  # the ingest's rule for ids and types
         if pattern is not None:
             compile_pattern(pattern, f"entities[{i}].idPattern")  # RE2: see tsdb_service.idpattern
         selectors.append(
