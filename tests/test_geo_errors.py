@@ -104,6 +104,9 @@ BAD = [
      ["maxDistance", "twice"]),
     ("modifier-on-coveredBy", {"georel": "coveredBy;maxDistance:10", "geometry": "point", "coords": "40,-4"},
      ["coveredBy", "no modifiers"]),
+    ("geoScope-unknown", {"georel": "coveredBy", "geometry": "point", "coords": "40,-4", "geoScope": "row"},
+     ["unknown geoScope", "'row'", "sample, entity"]),
+    ("geoScope-alone", {"geoScope": "entity"}, ["geoScope", "georel, geometry and coords"]),
 ]
 
 

@@ -12,19 +12,24 @@ import math
 import re
 from dataclasses import dataclass
 
+import numpy as np
 import orjson
 import shapely
 from shapely.geometry import LineString, Point, Polygon, box, shape
 from shapely.geometry.base import BaseGeometry
 
 from ..errors import BadRequest
-from .geodesic import geodesic_distance_m, radius_bbox
+from .geodesic import WGS84, geodesic_distance_m, geodesic_distances_m, radius_bbox
 
 # JSON-style numbers only: float() would also take "1_0", "0x1p3" or "inf".
 _NUMBER = re.compile(r"^\s*[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?\s*$")
 
 GEORELS = ("near", "coveredBy", "intersects", "equals", "disjoint")
 GEOMETRIES = ("point", "line", "polygon", "box")
+# What a geo-query filters (``geoScope``): each stored sample by the location
+# its entity had then (QuantumLeap's rows), or whole entities by their latest.
+SAMPLE, ENTITY = "sample", "entity"
+GEO_SCOPES = (SAMPLE, ENTITY)
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,6 +47,7 @@ class GeoFilter:
     shape: BaseGeometry  # lon/lat order
     max_distance: float | None = None  # metres, for near
     min_distance: float | None = None
+    scope: str = SAMPLE
 
     @property
     def prefilter(self) -> tuple[str, BBox] | None:
@@ -85,10 +91,56 @@ class GeoFilter:
         return self.shape.equals(candidate)  # equals
 
 
-def parse_geo(georel: str | None, geometry: str | None, coords: str | None) -> GeoFilter | None:
-    """The three parameters travel together: all absent means no filter."""
+    def matches_array(self, lon: np.ndarray, lat: np.ndarray, geojson: np.ndarray, point: np.ndarray) -> np.ndarray:
+        """The exact predicate for many stored geometries at once (shapely 2
+        and pyproj array calls, no loop per geometry): where ``point`` is
+        true the geometry is the point (lon, lat), elsewhere the GeoJSON text
+        (None or unreadable: no match)."""
+        out = np.zeros(len(point), dtype=bool)
+        if not len(point):
+            return out
+        shapes = np.flatnonzero(~point)
+        geoms = shapely.from_geojson(geojson[shapes].astype(object), on_invalid="ignore") if len(shapes) else None
+        if self.georel == "near":
+            distance = np.full(len(point), np.inf)
+            at = np.flatnonzero(point)
+            if len(at):
+                _, _, metres = WGS84.inv(np.full(len(at), self.shape.x), np.full(len(at), self.shape.y),
+                                         lon[at], lat[at])
+                distance[at] = metres
+            if geoms is not None:
+                usable = ~shapely.is_missing(geoms) & ~shapely.is_empty(geoms)
+                distance[shapes[usable]] = geodesic_distances_m(self.shape, geoms[usable])
+            out = np.isfinite(distance)
+            if self.max_distance is not None:
+                out &= distance <= self.max_distance
+            if self.min_distance is not None:
+                out &= distance >= self.min_distance
+            return out
+        every = np.empty(len(point), dtype=object)
+        every[point] = shapely.points(lon[point], lat[point])
+        if geoms is not None:
+            every[shapes] = geoms
+        usable = ~shapely.is_missing(every) & ~shapely.is_empty(every)
+        shapely.prepare(self.shape)
+        relation = {"coveredBy": shapely.covers, "intersects": shapely.intersects,
+                    "disjoint": shapely.disjoint, "equals": shapely.equals}[self.georel]
+        out[usable] = relation(self.shape, every[usable])
+        return out
+
+
+def parse_geo(
+    georel: str | None, geometry: str | None, coords: str | None, scope: str | None = None
+) -> GeoFilter | None:
+    """The three parameters travel together: all absent means no filter.
+    ``scope`` (``geoScope``) says what is filtered: samples (default) or
+    whole entities by their latest location."""
     given = {"georel": georel, "geometry": geometry, "coords": coords}
+    if scope not in (None, "") and scope not in GEO_SCOPES:
+        raise BadRequest(f"unknown geoScope {scope!r}: use one of {', '.join(GEO_SCOPES)}")
     if all(v in (None, "") for v in given.values()):
+        if scope not in (None, ""):
+            raise BadRequest("geoScope needs a geo-query: georel, geometry and coords")
         return None
     missing = [name for name, value in given.items() if value in (None, "")]
     if missing:
@@ -100,7 +152,7 @@ def parse_geo(georel: str | None, geometry: str | None, coords: str | None) -> G
     geom = _build_geometry(geometry, points)
     if relation == "near" and geometry != "point":
         raise BadRequest("georel=near needs geometry=point")
-    return GeoFilter(relation, geometry, geom, max_d, min_d)
+    return GeoFilter(relation, geometry, geom, max_d, min_d, scope or SAMPLE)
 
 
 def _parse_georel(text: str) -> tuple[str, float | None, float | None]:
