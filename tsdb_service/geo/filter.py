@@ -129,6 +129,75 @@ class GeoFilter:
         return out
 
 
+    def classify_extents(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For lon/lat boxes ``boxes`` (n x 4: min_lon, min_lat, max_lon,
+        max_lat), whether every geometry inside each box surely matches, and
+        whether none can. Neither: its geometries must be tested one by one."""
+        n = len(boxes)
+        if not n:
+            return np.zeros(0, dtype=bool), np.zeros(0, dtype=bool)
+        if self.georel == "near":
+            return self._classify_near(boxes)
+        extents = _boxes(boxes)
+        shape = self.shape
+        shapely.prepare(shape)
+        covered = shapely.covers(shape, extents)
+        apart = shapely.disjoint(shape, extents)
+        if self.georel in ("coveredBy", "intersects"):
+            return covered, apart
+        if self.georel == "disjoint":
+            return apart, covered
+        return np.zeros(n, dtype=bool), ~shapely.covers(extents, shape)  # equals: a match contains the query
+
+    def _classify_near(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds from the corners' distances, no projection: no point of a
+        box is nearer than its nearest corner minus its diagonal (triangle
+        inequality), and in a small box none is farther than its farthest
+        corner (a parallel bends by well under the margin over a small box's
+        edge). Close calls are left to the exact test."""
+        n = len(boxes)
+        lons = boxes[:, [0, 2, 0, 2]].ravel()
+        lats = boxes[:, [1, 1, 3, 3]].ravel()
+        _, _, corner = WGS84.inv(np.full(4 * n, self.shape.x), np.full(4 * n, self.shape.y), lons, lats)
+        corner = np.asarray(corner).reshape(n, 4)
+        _, _, diagonal = WGS84.inv(boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3])
+        _, _, other = WGS84.inv(boxes[:, 0], boxes[:, 3], boxes[:, 2], boxes[:, 1])
+        nearest = corner.min(axis=1) - np.maximum(diagonal, other)
+        inside = (boxes[:, 0] <= self.shape.x) & (self.shape.x <= boxes[:, 2]) & (boxes[:, 1] <= self.shape.y) & (
+            self.shape.y <= boxes[:, 3])
+        nearest[inside] = 0.0
+        farthest = corner.max(axis=1)
+        small = ((boxes[:, 2] - boxes[:, 0]) <= SMALL_BOX_DEG) & ((boxes[:, 3] - boxes[:, 1]) <= SMALL_BOX_DEG)
+        sure = small.copy()
+        none = np.zeros(n, dtype=bool)
+        if self.max_distance is not None:
+            sure &= farthest <= self.max_distance - MARGIN_M
+            none |= nearest > self.max_distance + MARGIN_M
+        if self.min_distance is not None:
+            sure &= nearest >= self.min_distance + MARGIN_M
+            none |= small & (farthest < self.min_distance - MARGIN_M)
+        return sure, none
+
+
+SMALL_BOX_DEG = 0.01  # ~1 km: boxes whose farthest point from the query point is a corner
+MARGIN_M = 1.0
+
+
+def _boxes(boxes: np.ndarray) -> np.ndarray:
+    """Lon/lat boxes as geometries: a point or a segment where flat."""
+    lo, hi = boxes[:, :2], boxes[:, 2:]
+    flat = (lo == hi).any(axis=1)
+    out = np.empty(len(boxes), dtype=object)
+    out[~flat] = shapely.box(*boxes[~flat].T)
+    if flat.any():
+        # The diagonal of a flat box is the box: a segment, or a point.
+        diagonal = shapely.linestrings(np.stack([lo[flat], hi[flat]], axis=1))
+        point = (lo[flat] == hi[flat]).all(axis=1)
+        diagonal[point] = shapely.points(lo[flat][point])
+        out[flat] = diagonal
+    return out
+
+
 def parse_geo(
     georel: str | None, geometry: str | None, coords: str | None, scope: str | None = None
 ) -> GeoFilter | None:

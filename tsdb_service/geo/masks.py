@@ -11,9 +11,12 @@ Resolving costs little because most entities are never near the query:
 
 1. candidates: the entities whose location series has a sample whose
    bounding box passes the query's box (in-memory extents on DuckDB, SQL on
-   PostgreSQL);
-2. their location samples in the window, plus the last one before it (SQL,
-   which also tests each sample's box, so only those that pass are parsed);
+   PostgreSQL). On DuckDB the extent also settles most of them: one that
+   lies wholly inside the query's region matched from its first position
+   on, one wholly outside never did;
+2. the others' location samples in the window, plus the last one before it
+   (SQL, which also tests each sample's box, so only those that pass are
+   parsed);
 3. the exact predicate for all of them at once (shapely 2 / pyproj arrays);
 4. runs of consecutive matching samples become intervals.
 """
@@ -23,28 +26,45 @@ from __future__ import annotations
 import numpy as np
 
 from ..history.query import TimeRange
-from ..storage.catalog import SeriesRef
 from ..storage.sql import RowMask
 from .filter import GeoFilter
 
 Span = tuple[int, int, int | None, int | None]  # t0 µs, rid0, t1 µs | None (open), rid1
 
 
-def sample_mask(querier, locations: dict, geo: GeoFilter, time: TimeRange, refs: list[SeriesRef]) -> RowMask:
-    """The mask keeping the samples of ``refs`` taken while their entity's
-    location (``locations``: entity key -> location series) matched."""
-    from .matching import entity_key
+def sample_spans(querier, locations: dict[int, tuple], geo: GeoFilter, time: TimeRange) -> dict[tuple, list[Span]]:
+    """Entity -> the intervals in which its location matched, for the
+    entities of ``locations`` (location series id -> entity) that matched."""
+    sids = list(locations)
+    extents = querier.location_extents(sids, geo.prefilter)
+    spans: dict[int, list[Span]] = {}
+    if extents is None:  # no extents kept: read every candidate
+        read = querier.location_candidates(sids, time, geo.prefilter)
+    else:
+        read = _from_extents(extents, geo, spans)
+    if read:
+        spans.update(location_spans(querier.location_samples(read, time, geo.prefilter), geo))
+    return {locations[sid]: found for sid, found in spans.items()}
 
-    by_sid = {ref.sid: key for key, ref in locations.items()}
-    near = querier.location_candidates(list(by_sid), time, geo.prefilter)
-    spans = location_spans(querier.location_samples(near, time, geo.prefilter), geo) if near else {}
-    by_entity = {by_sid[sid]: found for sid, found in spans.items()}
-    intervals = {}
-    for ref in refs:
-        found = by_entity.get(entity_key(ref))
-        if found:
-            intervals[ref.sid] = found
-    return RowMask(intervals)
+
+def _from_extents(extents: list[tuple], geo: GeoFilter, spans: dict[int, list[Span]]) -> list[int]:
+    """Decide what the extents decide: a series whose every position matches
+    matched from its first one on (into ``spans``); one whose positions
+    cannot match is dropped. Returns the series to read."""
+    if not extents:
+        return []
+    boxes = np.array([row[1:5] for row in extents], dtype=float)
+    every, none = geo.classify_extents(boxes)
+    read = []
+    for (sid, *_box, first_t, first_rid), all_match, no_match in zip(extents, every.tolist(), none.tolist(),
+                                                                     strict=True):
+        if no_match:
+            continue
+        if all_match and first_t is not None:
+            spans[sid] = [(first_t, first_rid, None, None)]
+        else:
+            read.append(sid)
+    return read
 
 
 def location_spans(rows: list[tuple], geo: GeoFilter) -> dict[int, list[Span]]:

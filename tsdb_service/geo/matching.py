@@ -25,61 +25,115 @@ lon/lat order; SQL prefilters by bounding box and shapely decides exactly.
 
 from __future__ import annotations
 
+import threading
+import weakref
+from collections import OrderedDict
+from dataclasses import dataclass
+from operator import attrgetter
+
 from ..history.query import EntityFilter, Scope, TimeRange
 from ..storage.catalog import SeriesRef
 from .filter import ENTITY, GeoFilter
 
 EntityKey = tuple[str, str, str]  # service path, entity type, entity id
 LOCATION = "location"
-
-
-def entity_key(ref: SeriesRef) -> EntityKey:
-    return (ref.service_path, ref.entity_type, ref.entity_id)
+# C-level getters: requests may name 10,000s of series; a Python function
+# call per series would be most of a geo-query's cost.
+entity_key = attrgetter("service_path", "entity_type", "entity_id")
+_SID = attrgetter("sid")
+_ATTR = attrgetter("attr")
 
 
 def apply_geo(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesRef], geo: GeoFilter, time: TimeRange):
     """``(refs, querier)`` for the rest of the request: the series of the
     matching entities, and a querier whose sample reads keep only the
     matching samples (the same querier under entity semantics)."""
-    candidates = {entity_key(r) for r in refs}
-    locations = location_series(querier, scope, entities, time, candidates)
+    sel = _selection(querier, scope, entities, refs)
+    locations = sel.locations
+    if sel.without:
+        locations = {**locations, **_fallback_locations(querier, scope, entities, time, sel.without)}
     if geo.scope == ENTITY:
         matched = matching_entities(querier, locations, geo, time)
-        return [r for r in refs if entity_key(r) in matched], querier
-    from .masks import MaskedQuerier, sample_mask
+        return [r for key in matched for r in sel.refs_by_key.get(key, ())], querier
+    from ..storage.sql import RowMask
+    from .masks import MaskedQuerier, sample_spans
 
-    mask = sample_mask(querier, locations, geo, time, refs)
-    kept = [r for r in refs if r.sid in mask.intervals]
-    return kept, MaskedQuerier(querier, mask)
+    intervals, kept = {}, []
+    for key, found in sample_spans(querier, locations, geo, time).items():
+        for ref in sel.refs_by_key.get(key, ()):
+            intervals[ref.sid] = found
+            kept.append(ref)
+    return kept, MaskedQuerier(querier, RowMask(intervals))
 
 
-def location_series(
-    querier, scope: Scope, entities: EntityFilter, time: TimeRange, candidates: set[EntityKey]
-) -> dict[EntityKey, SeriesRef]:
-    """Each candidate entity's location series, for those that have one."""
-    out: dict[EntityKey, SeriesRef] = {}
-    for ref in querier.series(scope, entities, [LOCATION]):
-        key = entity_key(ref)
-        if key in candidates:
-            out[key] = ref
-    if len(out) == len(candidates):  # set operations in C: cheap on 10k entities
-        return out
-    without = candidates - out.keys()
-    # Entities without a ``location`` attribute: their first geo-typed one.
+@dataclass(frozen=True, slots=True)
+class _Selection:
+    """What a geo-query needs to know about the series a request selected:
+    the location series of their entities (sid -> entity), their series by
+    entity, and the entities without a ``location`` attribute."""
+
+    locations: dict[int, EntityKey]
+    refs_by_key: dict[EntityKey, list[SeriesRef]]
+    without: frozenset[EntityKey]
+
+
+_MEMO_SIZE = 32
+_memo: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_memo_lock = threading.Lock()
+
+
+def _selection(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesRef]) -> _Selection:
+    """Built once per selection and reused while the catalog gives the same
+    series (series are never removed: the same request selecting as many
+    series with the same ids selects the same ones), so a repeated query over
+    10,000 entities does not re-key 20,000 series each time."""
+    named = querier.series(scope, entities, [LOCATION])
+    key = (scope, entities, frozenset(map(_ATTR, refs)), len(refs), sum(map(_SID, refs)), len(named),
+           sum(map(_SID, named)))
+    with _memo_lock:
+        cache = _memo.setdefault(querier, OrderedDict())
+        found = cache.get(key)
+        if found is not None:
+            cache.move_to_end(key)
+            return found
+    keys = list(map(entity_key, refs))
+    named_keys = list(map(entity_key, named))
+    refs_by_key: dict[EntityKey, list[SeriesRef]] = {}
+    for ref, k in zip(refs, keys, strict=True):
+        refs_by_key.setdefault(k, []).append(ref)
+    selection = _Selection(
+        dict(zip(map(_SID, named), named_keys, strict=True)), refs_by_key,
+        frozenset(refs_by_key.keys() - set(named_keys)),
+    )  # fmt: skip
+    with _memo_lock:
+        cache[key] = selection
+        while len(cache) > _MEMO_SIZE:
+            cache.popitem(last=False)
+    return selection
+
+
+def _fallback_locations(
+    querier, scope: Scope, entities: EntityFilter, time: TimeRange, without: frozenset[EntityKey]
+) -> dict[int, EntityKey]:
+    """Entities without a ``location`` attribute: their first geo-typed one
+    (with a geometry stored at or before ``toDate``), sid -> entity."""
     others = [r for r in querier.series(scope, entities, None) if entity_key(r) in without]
     if not others:
-        return out
-    located = {sid for sid, _geojson in querier.latest_geometries([r.sid for r in others], TimeRange(None, time.end), None)}
-    for ref in sorted((r for r in others if r.sid in located), key=lambda r: r.attr, reverse=True):
-        out[entity_key(ref)] = ref  # the first by name is written last
-    return out
+        return {}
+    located = {sid for sid, _ in querier.latest_geometries([r.sid for r in others], TimeRange(None, time.end), None)}
+    first: dict[EntityKey, SeriesRef] = {}
+    for ref in others:
+        if ref.sid in located:
+            k = entity_key(ref)
+            if k not in first or ref.attr < first[k].attr:
+                first[k] = ref
+    return {ref.sid: k for k, ref in first.items()}
 
 
-def matching_entities(querier, locations: dict[EntityKey, SeriesRef], geo: GeoFilter, time: TimeRange) -> set[EntityKey]:
+def matching_entities(querier, locations: dict[int, EntityKey], geo: GeoFilter, time: TimeRange) -> set[EntityKey]:
     """Entity semantics: the entities whose latest location (at or before
     ``toDate``) matches ``geo``."""
     if not locations:
         return set()
-    by_sid = {ref.sid: key for key, ref in locations.items()}
-    rows = querier.latest_geometries(list(by_sid), TimeRange(None, time.end), geo.prefilter)
-    return {by_sid[sid] for sid, geojson in rows if geo.matches(geojson)}
+    rows = querier.latest_geometries(list(locations), TimeRange(None, time.end), geo.prefilter)
+    return {locations[sid] for sid, geojson in rows if geo.matches(geojson)}

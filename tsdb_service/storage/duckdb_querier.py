@@ -94,9 +94,24 @@ class DuckDBQuerier(SqlQuerier):
             merged.extend((row[0], row[1], sid, row) for row in kept)
         return _window(merged, newest_first, limit, offset)
 
+    def location_extents(self, sids, prefilter) -> list[tuple]:
+        """From memory: where each series has ever been."""
+        return self._store.latest_geo.extents(sids, prefilter)
+
     def location_candidates(self, sids, time, prefilter) -> list[int]:
-        """From the in-memory extents: where each series has ever been."""
         return self._store.latest_geo.ever_near(sids, prefilter)
+
+    def _location_rows(self, sids, time) -> tuple[str, list]:
+        """One ``sid = ?`` branch per series: each prunes the sorted table to
+        the series' row groups, where an IN list of scattered ids scans all."""
+        if len(sids) > TAIL_MAX_SERIES:
+            return super()._location_rows(sids, time)
+        parts, params = [], []
+        for sid in sids:
+            sql, more = super()._location_rows([sid], time)
+            parts.append(sql)
+            params += more
+        return " UNION ALL ".join(parts), params
 
     def latest_geometries(self, sids, time, prefilter) -> list[tuple]:
         """The latest locations come from memory unless bounded by ``toDate``."""

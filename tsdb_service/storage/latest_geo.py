@@ -6,17 +6,21 @@ dict look-ups instead of ranking thousands of series' location samples:
 * "where is it now?" (``geoScope=entity``): the latest geo sample of each
   series (newest by (time, row id) wins);
 * "could any of its positions match?" (sample semantics): the bounding box
-  of every geo sample the series ever had (its *extent*). Only entities
-  whose extent overlaps the query's box can have a matching sample, so only
-  their location samples are read from the database.
+  of every geo sample the series ever had (its *extent*), and its first geo
+  sample's (time, row id). Only entities whose extent overlaps the query's
+  box can have a matching sample; of those, an entity whose whole extent
+  matches (a robot working well inside the queried area) matched from its
+  first position on, and only the others' location samples are read from
+  the database.
 
 Built with one query when the store opens, before the writers start, then
 kept current by the writers after every commit. A delete recomputes the
 latest entry of its series from the database; an entry published after the
 delete (a row id above the delete's bound) is never replaced by that older
 answer. Extents only grow: after a delete an extent may be larger than the
-remaining samples, which only costs a few extra rows read (it is a
-prefilter, the exact answer comes from the samples).
+remaining samples, which only costs a few extra rows read (the exact answer
+comes from the samples); the first position of a series touched by a delete
+is forgotten, so its samples are always read.
 
 Queries bounded by ``toDate`` need the latest location *before* a time and
 go to the database.
@@ -108,14 +112,17 @@ class LatestGeo:
     """Latest location and extent per series, each with a grid."""
 
     def __init__(self, rows: Iterable[tuple]):
-        """``rows``: (sid, t µs, rid, geojson, its box (4), the series' extent (4))."""
+        """``rows``: (sid, t µs, rid, geojson, its box (4), the series' extent
+        (4), its first geo sample's t µs and rid)."""
         self._lock = threading.Lock()
         self._latest: dict[int, Entry] = {}
         self._grid = _Grid()
         self._extents = _Grid()
+        self._first: dict[int, tuple[int, int] | None] = {}  # None: unknown (deleted)
         for row in rows:
             self._put(row[0], tuple(row[1:8]))
             self._extents.put(row[0], tuple(row[8:12]))
+            self._first[row[0]] = (row[12], row[13])
 
     def _put(self, sid: int, entry: Entry | None) -> None:
         """Set (or with None remove) ``sid``'s latest entry and its grid cells."""
@@ -142,16 +149,22 @@ class LatestGeo:
                     self._put(sid, (ts[i], rids[i], geos[i], *box))
                 extent = extents.boxes.get(sid)
                 if extent is None:
+                    self._first[sid] = (ts[i], rids[i])
                     extents.put(sid, box)
                 elif box[0] < extent[0] or box[1] < extent[1] or box[2] > extent[2] or box[3] > extent[3]:
                     extents.put(sid, (min(box[0], extent[0]), min(box[1], extent[1]),
                                       max(box[2], extent[2]), max(box[3], extent[3])))
+                first = self._first.get(sid)
+                if first is not None and (ts[i], rids[i]) < first:
+                    self._first[sid] = (ts[i], rids[i])
 
     def recompute(self, sids, upto_rid: int, load: Callable[[list[int]], list[tuple]]) -> None:
         """After a delete of rows up to ``upto_rid`` in ``sids`` (extents stay)."""
         fresh = {row[0]: tuple(row[1:8]) for row in load(list(sids))}
         with self._lock:
             for sid in sids:
+                if sid in self._first:
+                    self._first[sid] = None
                 current = self._latest.get(sid)
                 if current is not None and current[1] > upto_rid:
                     continue  # published after the delete: still the latest
@@ -192,4 +205,17 @@ class LatestGeo:
             extent = extents.get(sid)
             if extent is not None and _overlaps(extent, box):
                 out.append(sid)
+        return out
+
+    def extents(self, sids: Iterable[int], prefilter) -> list[tuple]:
+        """(sid, min_lon, min_lat, max_lon, max_lat, first t µs | None, first
+        rid | None) of those of ``sids`` that ``ever_near`` keeps."""
+        near = self.ever_near(sids, prefilter)
+        boxes, first = self._extents.boxes, self._first
+        out = []
+        for sid in near:
+            box = boxes.get(sid)
+            if box is not None:
+                start = first.get(sid) or (None, None)
+                out.append((sid, *box, *start))
         return out

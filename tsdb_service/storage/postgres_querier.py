@@ -24,6 +24,9 @@ if TYPE_CHECKING:
     from .postgres_store import PostgresStore
 
 
+MANY_SIDS = 256
+
+
 class PostgresDialect(Dialect):
     name = "postgresql"
     placeholder = "%s"
@@ -86,6 +89,23 @@ class PostgresQuerier(SqlQuerier):
             f" WHERE {test}"
         )
         return self._fetch(sql, [list(sids), *params, *test_params])
+
+    def location_candidates(self, sids, time, prefilter) -> list[int]:
+        """Over many series, one scan of the located samples in the box,
+        intersected here: ``sid = ANY`` of thousands of ids would be tested
+        on every row of that scan."""
+        if len(sids) <= MANY_SIDS or prefilter is None:
+            return super().location_candidates(sids, time, prefilter)
+        test, test_params = box_test(self.dialect, prefilter)
+        where, params = "", []
+        if time.end is not None:
+            where, params = " AND t <= %s", [self.dialect.time_value(time.end)]
+        wanted = set(sids)
+        rows = self._fetch(
+            f"SELECT DISTINCT sid FROM samples WHERE kind = {int(Kind.GEO)} AND geo IS NOT NULL AND {test}{where}",
+            [*test_params, *params],
+        )
+        return [row[0] for row in rows if row[0] in wanted]
 
     def _location_seeds(self, sids, before) -> tuple[str, list]:
         """The latest geo sample before ``before``: one index probe per series."""

@@ -32,6 +32,7 @@ INTEGER_KIND = int(Kind.INTEGER)
 GEO_KIND = int(Kind.GEO)
 _MAX_BIGINT = 2**62  # LIMIT/OFFSET values stay well inside int64
 _EPOCH = datetime(1970, 1, 1)
+_LOCATION_COLUMNS = "sid, rid, t, kind, geo, min_lon, min_lat, max_lon, max_lat"
 
 
 def quote_ident(name: str) -> str:
@@ -421,6 +422,12 @@ class SqlQuerier(Querier):
 
     # -- locations over time (geo-queries on samples) ------------------------------
 
+    def location_extents(self, sids: Sequence[int], prefilter) -> list[tuple] | None:
+        """(sid, min_lon, min_lat, max_lon, max_lat, first t µs, first rid) per
+        located series whose extent may pass ``prefilter``, where the backend
+        keeps extents in memory; None here (SQL would cost a full scan)."""
+        return None
+
     def location_candidates(self, sids: Sequence[int], time: TimeRange, prefilter) -> list[int]:
         """Those of ``sids`` with a geo sample at or before ``time.end``
         whose box passes ``prefilter``: only they can have a matching
@@ -445,14 +452,7 @@ class SqlQuerier(Querier):
         if not sids:
             return []
         d = self.dialect
-        columns = "sid, rid, t, kind, geo, min_lon, min_lat, max_lon, max_lat"
-        where, params = self._where(sids, time)
-        located = f"kind = {GEO_KIND} AND geo IS NOT NULL"
-        parts = f"SELECT {columns} FROM {d.samples(columns)} WHERE {where} AND {located}"
-        if time.start is not None:
-            seeds, seed_params = self._location_seeds(sids, time.start)
-            parts = f"{parts} UNION ALL {seeds}"
-            params += seed_params
+        parts, params = self._location_rows(sids, time)
         test, test_params = box_test(d, prefilter)
         sql = (
             "SELECT sid, t_us, rid, ok, pt, min_lon, min_lat, CASE WHEN ok AND NOT pt THEN geo END FROM ("
@@ -461,11 +461,25 @@ class SqlQuerier(Querier):
         )
         return self._fetch(sql, [*test_params, *params])
 
+    def _location_rows(self, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
+        """SQL and parameters: the rows ``location_samples`` reads."""
+        d = self.dialect
+        where, params = self._where(sids, time)
+        parts = (
+            f"SELECT {_LOCATION_COLUMNS} FROM {d.samples(_LOCATION_COLUMNS)} "
+            f"WHERE {where} AND kind = {GEO_KIND} AND geo IS NOT NULL"
+        )
+        if time.start is not None:
+            seeds, seed_params = self._location_seeds(sids, time.start)
+            parts = f"{parts} UNION ALL {seeds}"
+            params += seed_params
+        return parts, params
+
     def _location_seeds(self, sids: Sequence[int], before: datetime) -> tuple[str, list]:
         """SQL (columns as in ``location_samples``): each series' latest geo
         sample strictly before ``before``."""
         d = self.dialect
-        columns = "sid, rid, t, kind, geo, min_lon, min_lat, max_lon, max_lat"
+        columns = _LOCATION_COLUMNS
         where, params = d.sid_filter(sids)
         params.append(d.time_value(before))
         return (
