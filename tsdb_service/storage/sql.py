@@ -16,6 +16,7 @@ is what prunes them.
 
 from __future__ import annotations
 
+import bisect
 from abc import abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -194,8 +195,6 @@ class RowMask:
 
     def keep(self, sid: int, rows: list[tuple]) -> list[tuple]:
         """Those of ``rows`` (sorted by (t µs, rid, ...)) the mask keeps."""
-        import bisect
-
         out: list[tuple] = []
         for a, ra, b, rb in self.intervals.get(sid, ()):
             lo = bisect.bisect_left(rows, (a, ra))
