@@ -150,11 +150,13 @@ class GeoFilter:
         return np.zeros(n, dtype=bool), ~shapely.covers(extents, shape)  # equals: a match contains the query
 
     def _classify_near(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Bounds from the corners' distances, no projection: no point of a
-        box is nearer than its nearest corner minus its diagonal (triangle
-        inequality), and in a small box none is farther than its farthest
-        corner (a parallel bends by well under the margin over a small box's
-        edge). Close calls are left to the exact test."""
+        """Bounds from the corners' distances, no projection, for small boxes
+        only (larger ones are tested sample by sample): no point of a box is
+        nearer than its nearest corner minus its diagonal (triangle
+        inequality; in a small box no point is farther from a corner than the
+        opposite one), and none is farther than its farthest corner (a
+        parallel bends by well under the margin over a small box's edge).
+        Close calls are left to the exact test."""
         n = len(boxes)
         lons = boxes[:, [0, 2, 0, 2]].ravel()
         lats = boxes[:, [1, 1, 3, 3]].ravel()
@@ -172,7 +174,7 @@ class GeoFilter:
         none = np.zeros(n, dtype=bool)
         if self.max_distance is not None:
             sure &= farthest <= self.max_distance - MARGIN_M
-            none |= nearest > self.max_distance + MARGIN_M
+            none |= small & (nearest > self.max_distance + MARGIN_M)
         if self.min_distance is not None:
             sure &= nearest >= self.min_distance + MARGIN_M
             none |= small & (farthest < self.min_distance - MARGIN_M)

@@ -36,7 +36,10 @@ def geodesic_distance_m(origin: Point, other: BaseGeometry) -> float:
     # them first so every piece is short enough to stay straight there too.
     # Not covered, so the nearest point is on the outline; measuring to the
     # outline also avoids areas that wrap the plane's edge (the antipode).
-    projected = shapely.transform(shapely.segmentize(_outline(other), EDGE_STEP_DEG), to_plane, interleaved=False)
+    outline = _outline(other)
+    if outline.length == 0:  # a line whose points coincide: GEOS cannot segmentize it
+        outline = outline.envelope
+    projected = shapely.transform(shapely.segmentize(outline, EDGE_STEP_DEG), to_plane, interleaved=False)
     return float(projected.distance(Point(0.0, 0.0)))
 
 
@@ -55,6 +58,9 @@ def geodesic_distances_m(origin: Point, geoms: np.ndarray) -> np.ndarray:
     if len(others):
         to_plane = _aeqd(round(origin.x, 9), round(origin.y, 9))
         outlines = _outlines(geoms[others])
+        # A line whose points all coincide is a point (GEOS cannot segmentize it).
+        flat = shapely.length(outlines) == 0
+        outlines[flat] = shapely.envelope(outlines[flat])
         projected = shapely.transform(shapely.segmentize(outlines, EDGE_STEP_DEG), to_plane, interleaved=False)
         out[others] = shapely.distance(projected, Point(0.0, 0.0))
     return out

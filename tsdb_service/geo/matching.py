@@ -54,7 +54,7 @@ def apply_geo(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesRe
         locations = {**locations, **_fallback_locations(querier, scope, entities, time, sel.without)}
     if geo.scope == ENTITY:
         matched = matching_entities(querier, locations, geo, time)
-        return [r for key in matched for r in sel.refs_by_key.get(key, ())], querier
+        return [r for r, key in zip(refs, map(entity_key, refs)) if key in matched], querier
     from ..storage.sql import RowMask
     from .masks import MaskedQuerier, sample_spans
 
