@@ -19,6 +19,7 @@ from tsdb_service.geo.filter import parse_geo
 
 QUERIES = [
     ("near;maxDistance:1000", "point", "{lat},{lon}"),
+    ("near;maxDistance:2500", "point", "{lat},{lon}"),
     ("near;minDistance:800", "point", "{lat},{lon}"),
     ("near;minDistance:500;maxDistance:1200", "point", "{lat},{lon}"),
     ("coveredBy", "box", "{lat0},{lon0};{lat1},{lon1}"),

@@ -150,13 +150,13 @@ class GeoFilter:
         return np.zeros(n, dtype=bool), ~shapely.covers(extents, shape)  # equals: a match contains the query
 
     def _classify_near(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Bounds from the corners' distances, no projection, for small boxes
-        only (larger ones are tested sample by sample): no point of a box is
-        nearer than its nearest corner minus its diagonal (triangle
-        inequality; in a small box no point is farther from a corner than the
-        opposite one), and none is farther than its farthest corner (a
-        parallel bends by well under the margin over a small box's edge).
-        Close calls are left to the exact test."""
+        """Distance bounds without a projection, for small boxes only (larger
+        ones are tested sample by sample): no point of a box is nearer than
+        its nearest corner minus its diagonal (triangle inequality; in a small
+        box no point is farther from a corner than the opposite one) nor than
+        the clamped point allows (below), and none is farther than its
+        farthest corner (a parallel bends by well under the margin over a
+        small box's edge). Close calls are left to the exact test."""
         n = len(boxes)
         lons = boxes[:, [0, 2, 0, 2]].ravel()
         lats = boxes[:, [1, 1, 3, 3]].ravel()
@@ -164,10 +164,16 @@ class GeoFilter:
         corner = np.asarray(corner).reshape(n, 4)
         _, _, diagonal = WGS84.inv(boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3])
         _, _, other = WGS84.inv(boxes[:, 0], boxes[:, 3], boxes[:, 2], boxes[:, 1])
-        nearest = corner.min(axis=1) - np.maximum(diagonal, other)
-        inside = (boxes[:, 0] <= self.shape.x) & (self.shape.x <= boxes[:, 2]) & (boxes[:, 1] <= self.shape.y) & (
-            self.shape.y <= boxes[:, 3])
-        nearest[inside] = 0.0
+        diag = np.maximum(diagonal, other)
+        # The box point nearest in lon/lat (the query point clamped into the
+        # box) is the nearest up to a slide of at most the diagonal along an
+        # edge, which shortens a distance x by at most diag² / 2x.
+        clamped_lon = np.clip(self.shape.x, boxes[:, 0], boxes[:, 2])
+        clamped_lat = np.clip(self.shape.y, boxes[:, 1], boxes[:, 3])
+        _, _, to_clamped = WGS84.inv(np.full(n, self.shape.x), np.full(n, self.shape.y), clamped_lon, clamped_lat)
+        to_clamped = np.asarray(to_clamped)
+        slide = diag**2 / (2 * np.maximum(to_clamped - diag, 1.0))
+        nearest = np.maximum(corner.min(axis=1) - diag, to_clamped - slide)
         farthest = corner.max(axis=1)
         small = ((boxes[:, 2] - boxes[:, 0]) <= SMALL_BOX_DEG) & ((boxes[:, 3] - boxes[:, 1]) <= SMALL_BOX_DEG)
         sure = small.copy()

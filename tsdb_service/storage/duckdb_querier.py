@@ -91,6 +91,8 @@ class DuckDBQuerier(SqlQuerier):
             kept = mask.keep(sid, got)
             if not complete and (not newest_first or len(kept) < offset + limit):
                 return None
+            if newest_first:
+                kept = kept[max(0, len(kept) - offset - limit):]  # only these can be picked
             merged.extend((row[0], row[1], sid, row) for row in kept)
         return _window(merged, newest_first, limit, offset)
 
