@@ -45,12 +45,14 @@ def _inside(rnd: random.Random, box) -> list[str]:
 def test_verdicts_hold_for_every_position_inside(lat, georel, geometry, coords):
     rnd = random.Random(f"{lat}{georel}")
     lon = 10.0
-    query = coords.format(lat=lat, lon=lon, lat0=lat - 0.005, lon0=lon - 0.007, lat1=lat + 0.006, lon1=lon + 0.008)
+    stretch = 1 / math.cos(math.radians(lat))  # the same metres east-west at every latitude
+    query = coords.format(lat=lat, lon=lon, lat0=lat - 0.005, lon0=lon - 0.007 * stretch, lat1=lat + 0.006,
+                          lon1=lon + 0.008 * stretch)
     geo = parse_geo(georel, geometry, query)
     boxes = []
     for _ in range(300):  # boxes of 0..0.02°: small and not, straddling the thresholds
         w, h = rnd.choice([0.0, 0.0005, 0.002, 0.012]) * rnd.random(), rnd.choice([0.0, 0.001, 0.02]) * rnd.random()
-        cx, cy = lon + rnd.uniform(-0.03, 0.03) / math.cos(math.radians(lat)), lat + rnd.uniform(-0.03, 0.03)
+        cx, cy = lon + rnd.uniform(-0.03, 0.03) * stretch, lat + rnd.uniform(-0.03, 0.03)
         boxes.append((cx, cy, cx + w, cy + h))
     every, none = geo.classify_extents(np.array(boxes))
     assert none.any() and (every.any() or georel == "equals"), "the cases must exercise the verdicts"
