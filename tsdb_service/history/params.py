@@ -206,10 +206,11 @@ def aggregation(method: str | None, period: str | None, scope: str | None) -> Ag
 
 
 def geo_filter(params: Mapping[str, str]) -> object | None:
-    """``georel``, ``geometry`` and ``coords`` as a ``GeoFilter`` (or None)."""
+    """``georel``, ``geometry`` and ``coords`` as a ``GeoFilter`` (or None);
+    ``geoScope`` chooses sample (default) or entity semantics."""
     from ..geo.filter import parse_geo
 
-    return parse_geo(params.get("georel"), params.get("geometry"), params.get("coords"))
+    return parse_geo(params.get("georel"), params.get("geometry"), params.get("coords"), params.get("geoScope"))
 
 
 def int_param(raw: str | None, name: str, low: int) -> int | None:

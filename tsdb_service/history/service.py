@@ -131,14 +131,14 @@ def resolve_entity_series(
 
 
 def _geo_refs(querier, scope, entities, refs, geo, time):
-    """Keep the series of entities whose location matches (see geo.matching)."""
-    from ..geo.matching import keep_matching, matching_entities
+    """``(refs, querier)``: the series of entities with matching locations,
+    and a querier that reads only matching samples (see geo.matching)."""
+    from ..geo.matching import apply_geo
 
     if entities.ids is not None and len({r.entity_type for r in refs}) == 1:
         # A single-entity request resolved its type already: match within it.
         entities = EntityFilter(ids=entities.ids, id_pattern=entities.id_pattern, types=(refs[0].entity_type,))
-    candidates = {(r.entity_type, r.entity_id) for r in refs}
-    return keep_matching(refs, matching_entities(querier, scope, entities, geo, time, candidates))
+    return apply_geo(querier, scope, entities, refs, geo, time)
 
 
 def run_history(querier: Querier, q: HistoryQuery) -> HistoryResult:
@@ -148,7 +148,7 @@ def run_history(querier: Querier, q: HistoryQuery) -> HistoryResult:
     else:
         refs = querier.series(q.scope, q.entities, names)
     if refs and q.geo is not None:
-        refs = _geo_refs(querier, q.scope, q.entities, refs, q.geo, q.time)
+        refs, querier = _geo_refs(querier, q.scope, q.entities, refs, q.geo, q.time)
     if not refs:
         return HistoryResult(q, [])
     answer = _raw if q.aggregation is None else _aggregated
@@ -407,7 +407,7 @@ def _order(q: HistoryQuery, entities: list[EntityResult]) -> list[EntityResult]:
 def run_entity_list(querier: Querier, q: EntityListQuery) -> list[dict]:
     refs = querier.series(q.scope, q.entities, None)
     if refs and q.geo is not None:
-        refs = _geo_refs(querier, q.scope, q.entities, refs, q.geo, q.time)
+        refs, querier = _geo_refs(querier, q.scope, q.entities, refs, q.geo, q.time)
     if not refs:
         return []
     by_sid = {r.sid: r for r in refs}

@@ -93,9 +93,13 @@ INSERT_SERIES = (
 )
 # Each series' newest geo sample, for the in-memory latest-location index.
 LATEST_GEO_SQL = (
-    "SELECT sid, epoch_us(t), rid, geo, min_lon, min_lat, max_lon, max_lat FROM ("
-    "SELECT sid, t, rid, geo, min_lon, min_lat, max_lon, max_lat, "
-    "row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn "
+    "SELECT sid, epoch_us(t), rid, geo, min_lon, min_lat, max_lon, max_lat, e_min_lon, e_min_lat, e_max_lon, "
+    "e_max_lat, epoch_us(f_t), f_rid FROM (SELECT sid, t, rid, geo, min_lon, min_lat, max_lon, max_lat, "
+    "row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn, "
+    "min(min_lon) OVER (PARTITION BY sid) AS e_min_lon, min(min_lat) OVER (PARTITION BY sid) AS e_min_lat, "
+    "max(max_lon) OVER (PARTITION BY sid) AS e_max_lon, max(max_lat) OVER (PARTITION BY sid) AS e_max_lat, "
+    "first_value(t) OVER (PARTITION BY sid ORDER BY t, rid) AS f_t, "
+    "first_value(rid) OVER (PARTITION BY sid ORDER BY t, rid) AS f_rid "
     "FROM samples_all WHERE kind = 7 AND geo IS NOT NULL {where}) latest WHERE rn = 1"
 )
 # Above this many rows a batch goes through Arrow (bulk loads, copies).
