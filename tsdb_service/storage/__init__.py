@@ -6,8 +6,24 @@ from ..config import Settings
 from .base import Store
 
 
-def open_store(settings: Settings) -> Store:
-    """Open the backend named by ``settings.db``; migrations run on open."""
+def open_store(settings: Settings, *, background: bool = False) -> Store:
+    """Open the backend named by ``settings.db``; migrations run on open.
+
+    ``background`` (the server): also start the retention worker when a
+    policy is set (``storage.retention``). Offline commands (copy, compact)
+    never delete by retention behind the operator's back."""
+    from .retention import attach_retention
+
+    store = _open_backend(settings)
+    try:
+        attach_retention(store, settings, start=background)
+    except BaseException:
+        store.close()
+        raise
+    return store
+
+
+def _open_backend(settings: Settings) -> Store:
     if settings.backend == "postgresql":
         from .postgres_store import PostgresStore
 

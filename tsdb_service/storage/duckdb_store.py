@@ -238,6 +238,7 @@ class DuckDBStore(Store):
     def close(self) -> None:
         if self._closed:
             return
+        self.stop_retention()
         self._compactor.stop()
         self._committer.close()
         self._closed = True

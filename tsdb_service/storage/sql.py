@@ -25,6 +25,8 @@ from ..history.query import Aggregation, AggrMethod, EntityFilter, Scope, TimeRa
 from ..model import Kind
 from .base import Querier
 from .catalog import SeriesCatalog, SeriesRef
+from .rollups import delete_sql as rollup_delete_sql
+from .rollups import rollup_parts
 
 NUMERIC_KINDS = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
 NULL_KIND = int(Kind.NULL)
@@ -281,6 +283,12 @@ class SqlQuerier(Querier):
                 f"FROM {d.samples('sid, t, kind, num, js')} WHERE {where} GROUP BY {group}"
             )
             params += sel_params + wparams
+        # Retention/rollups (storage/rollups.py): hours whose raw samples
+        # retention folded away, in this same statement (one snapshot).
+        rollup_sql, rollup_params = rollup_parts(self, branches, time, agg)
+        if rollup_sql:
+            parts.append(rollup_sql)
+            params += rollup_params
         if not parts:
             return []
         return self._fetch(" UNION ALL ".join(parts), params)
@@ -357,7 +365,8 @@ def delete_statements(
     dialect: Dialect, tables: Sequence[str], sids: Sequence[int], time: TimeRange, upto_rid: int
 ) -> list[tuple[str, list]]:
     """DELETEs for the samples of ``sids`` in ``time``, written up to ``upto_rid``
-    (rows appended after the delete was asked for survive it)."""
+    (rows appended after the delete was asked for survive it), and for their
+    rolled-up hours that overlap ``time`` (``storage.rollups``)."""
     p = dialect.placeholder
     out = []
     for table in tables:
@@ -365,4 +374,5 @@ def delete_statements(
         where += f" AND rid <= {p}"
         params.append(upto_rid)
         out.append((f"DELETE FROM {quote_ident(table)} WHERE {where}", params))
+    out.append(rollup_delete_sql(dialect, sids, time.start, time.end))  # retention/rollups
     return out
