@@ -304,9 +304,12 @@ def _measure(store: Store) -> tuple[int, int, int]:
                 "SELECT count(*), coalesce(sum(octet_length(body) + octet_length(headers)), 0) "
                 "FROM rejected_notifications").fetchone()  # fmt: skip
         return int(size), int(rows), int(nbytes)
-    rows, nbytes = store.cursor().execute(
+    # fetchall, not fetchone: an unread result keeps this thread's cursor in
+    # an open transaction, and a later UPDATE or DELETE committed elsewhere
+    # (retention, in the background) then makes the CHECKPOINT at close fail.
+    [(rows, nbytes)] = store.cursor().execute(
         "SELECT count(*), coalesce(sum(octet_length(body) + strlen(headers)), 0) FROM rejected_notifications"
-    ).fetchone()
+    ).fetchall()
     return _file_bytes(store.path) + _file_bytes(store.path + ".wal"), int(rows), int(nbytes)
 
 

@@ -31,7 +31,9 @@ from ..model import Kind
 
 TABLE = "rollups_hourly"
 HOUR = timedelta(hours=1)
-ONE_US = timedelta(microseconds=1)
+# Query times have millisecond precision: an hour whose last millisecond is
+# in the range counts as inside it (toDate=...T12:59:59.999 covers 12:00).
+ONE_MS = timedelta(milliseconds=1)
 # Periods made of whole hours: their buckets are unions of rollup rows.
 ROLLUP_PERIODS = frozenset({AggrPeriod.HOUR, AggrPeriod.DAY, AggrPeriod.MONTH, AggrPeriod.YEAR})
 PRESENCE_TTL_S = 10.0
@@ -61,11 +63,8 @@ def fold_sql(source: str) -> str:
     )
 
 
-def delete_sql(dialect, sids: Sequence[int], start, end) -> tuple[str, list]:
-    """DELETE the rollup rows of ``sids`` whose hour overlaps [start, end]
-    (``None``: open). A user's delete must remove rolled-up history too; an
-    hour the range only partly covers goes whole (a rollup row cannot be
-    split), which only matters for hours retention already folded."""
+def _overlapping(dialect, sids: Sequence[int], start, end) -> tuple[str, list]:
+    """WHERE text: rollup rows of ``sids`` whose hour overlaps [start, end]."""
     p = dialect.placeholder
     where, params = dialect.sid_filter(sids)
     if start is not None:
@@ -74,7 +73,27 @@ def delete_sql(dialect, sids: Sequence[int], start, end) -> tuple[str, list]:
     if end is not None:
         where += f" AND bucket <= {p}"
         params.append(dialect.time_value(end))
+    return where, params
+
+
+def delete_sql(dialect, sids: Sequence[int], start, end) -> tuple[str, list]:
+    """DELETE the rollup rows of ``sids`` whose hour overlaps [start, end]
+    (``None``: open). A user's delete must remove rolled-up history too; an
+    hour the range only partly covers goes whole (a rollup row cannot be
+    split), which only matters for hours retention already folded."""
+    where, params = _overlapping(dialect, sids, start, end)
     return f"DELETE FROM {TABLE} WHERE {where}", params
+
+
+def rolled_up_count(querier, sids: Sequence[int], time) -> int:
+    """How many rolled-up hours a delete of ``sids`` in ``time`` removes, so
+    that deleting history only rollups hold still finds something to delete."""
+    store = getattr(querier, "_store", None)
+    if store is None or not presence_of(store)(querier._fetch):
+        return 0
+    where, params = _overlapping(querier.dialect, sids, time.start, time.end)
+    rows = querier._fetch(f"SELECT count(*) FROM {TABLE} WHERE {where}", params)
+    return int(rows[0][0]) if rows else 0
 
 
 class RollupPresence:
@@ -132,13 +151,14 @@ def rollup_parts(querier, branches, time, agg) -> tuple[str, list]:
     parts, params = [], []
     for number, branch in plain:
         where, wparams = d.sid_filter(branch.sids)
-        # Whole hours only: [bucket, bucket + 1h) inside the inclusive range.
+        # Whole hours only: [bucket, bucket + 1h) inside the inclusive range
+        # (to the millisecond).
         if time.start is not None:
             where += f" AND bucket >= {p}"
             wparams.append(d.time_value(time.start))
         if time.end is not None:
             where += f" AND bucket <= {p}"
-            wparams.append(d.time_value(time.end - HOUR + ONE_US))
+            wparams.append(d.time_value(time.end - HOUR + ONE_MS))
         parts.append(
             f"SELECT {number} AS branch, sid, {bucket_sql} AS bucket, "
             f"CAST(sum(n_present) AS BIGINT) AS n_present, CAST(sum(n_numeric) AS BIGINT) AS n_numeric, "

@@ -26,7 +26,7 @@ from ..model import Kind
 from .base import Querier
 from .catalog import SeriesCatalog, SeriesRef
 from .rollups import delete_sql as rollup_delete_sql
-from .rollups import rollup_parts
+from .rollups import rolled_up_count, rollup_parts
 
 NUMERIC_KINDS = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
 NULL_KIND = int(Kind.NULL)
@@ -342,11 +342,15 @@ class SqlQuerier(Querier):
         return self._fetch(sql, [*params, *outer_params])
 
     def count(self, sids: Sequence[int], time: TimeRange) -> int:
+        """Samples of ``sids`` in ``time``; when there are none, the rolled-up
+        hours a delete would remove (``storage.rollups``): non-zero whenever
+        a delete has something to remove."""
         if not sids:
             return 0
         where, params = self._where(sids, time)
         rows = self._fetch(f"SELECT count(*) FROM {self.dialect.samples('sid, t')} WHERE {where}", params)
-        return int(rows[0][0]) if rows else 0
+        raw = int(rows[0][0]) if rows else 0
+        return raw or rolled_up_count(self, sids, time)  # retention/rollups
 
 
 def series_time_filter(dialect: Dialect, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
