@@ -61,7 +61,7 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
         # the default 5 ms switch interval a busy event loop makes every group
         # commit wait that long, which caps ingest far below what DuckDB does.
         sys.setswitchinterval(WRITER_SWITCH_INTERVAL_S)
-        app.state.store = await run_in_threadpool(open_store, settings)
+        app.state.store = await run_in_threadpool(open_store, settings, background=True)
         metrics.attach(app.state.store)
         log.info("tsdb-service %s on %s (%s)", __version__, settings.db, app.state.store.backend)
         # Ingest allocates many short-lived objects; move everything built at

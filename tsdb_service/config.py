@@ -158,6 +158,33 @@ class Settings(BaseSettings):
         "", description="Origins browsers may call us from, comma list ('*': any); none by default."
     )
 
+    # --- Retention and rollups (storage/retention.py, storage/rollups.py; README "Retention and rollups") ---
+    retention: str = Field(
+        "", description="How long raw samples are kept, per tenant and entity type: "
+        "'*=365d,acme=30d,acme/Robot=7d' (or the same as a JSON object); empty: forever.",
+    )
+    rollups: bool = Field(
+        False, description="Fold the samples retention deletes into hourly count/sum/min/max per series, "
+        "which aggregation queries (aggrPeriod hour or longer, or none) keep answering from.",
+    )
+    rollup_retention: str = Field(
+        "", description="How long hourly rollups are kept, same syntax as retention; empty: forever.",
+    )
+    retention_interval: float = Field(300.0, gt=0, description="Seconds between retention passes.")
+    retention_batch_rows: int = Field(
+        50_000, ge=1, description="Rows deleted per batch and table, each batch its own short transaction.",
+    )
+    retention_pause: float = Field(0.05, ge=0, description="Seconds to pause between retention batches.")
+
+    @field_validator("retention", "rollup_retention")
+    @classmethod
+    def _retention_spec(cls, value: str, info) -> str:
+        from .storage.retention import RetentionPolicy
+
+        RetentionPolicy.parse(value, setting="TSDB_" + info.field_name.upper())  # raises ValueError
+        return value
+    # --- end of retention and rollups ---
+
     @property
     def backend(self) -> str:
         return "postgresql" if self.db.startswith(("postgresql://", "postgres://")) else "duckdb"

@@ -24,8 +24,25 @@ class StoreUnavailable(RuntimeError):
     """The store cannot be opened; the message is one line for an operator."""
 
 
-def open_store(settings: Settings) -> Store:
-    """Open the backend named by ``settings.db``; migrations run on open."""
+def open_store(settings: Settings, *, background: bool = False) -> Store:
+    """Open the backend named by ``settings.db``; migrations run on open.
+
+    ``background`` (the server): also start the retention worker when a
+    policy is set (``storage.retention``). Offline commands (copy, compact)
+    never delete by retention behind the operator's back."""
+    from .retention import attach_retention
+
+    store = _open_explained(settings)
+    try:
+        attach_retention(store, settings, start=background)
+    except BaseException:
+        store.close()
+        raise
+    return store
+
+
+def _open_explained(settings: Settings) -> Store:
+    """``_open``, with an operator's mistakes as one-line ``StoreUnavailable``s."""
     try:
         return _open(settings)
     except StoreUnavailable:

@@ -112,6 +112,16 @@ class Store(ABC):
     """A database with one writer and many readers."""
 
     backend: str
+    # Retention and rollups (storage/retention.py): the background worker,
+    # when a policy is set, and whether rollup rows may exist.
+    retention = None
+    rollup_presence = None
+
+    def stop_retention(self) -> None:
+        """Stop the retention worker (its batch in progress finishes first);
+        ``close`` calls this before anything else."""
+        if self.retention is not None:
+            self.retention.stop()
 
     @abstractmethod
     async def write(self, op: WriteOp) -> None:

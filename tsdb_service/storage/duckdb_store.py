@@ -485,6 +485,7 @@ class DuckDBStore(Store):
     def close(self) -> None:
         if self._closed:
             return
+        self.stop_retention()
         self._stop_reopen.set()
         reopener = self._reopener
         if reopener is not None and reopener.is_alive():

@@ -194,6 +194,7 @@ class PostgresStore(Store):
     def close(self) -> None:
         if self._closed:
             return
+        self.stop_retention()
         self._committer.close()
         self._closed = True
         self.pool.close()

@@ -27,6 +27,8 @@ from ..history.query import Aggregation, AggrMethod, EntityFilter, Scope, TimeRa
 from ..model import Kind
 from .base import Querier
 from .catalog import SeriesCatalog, SeriesRef
+from .rollups import delete_sql as rollup_delete_sql
+from .rollups import rolled_up_count, rollup_parts
 
 NUMERIC_KINDS = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
 NULL_KIND = int(Kind.NULL)
@@ -380,6 +382,13 @@ class SqlQuerier(Querier):
                 f"FROM {self._samples('sid, t, kind, num, js', mask)} WHERE {where} GROUP BY {group}"
             )
             params += sel_params + wparams
+        # Retention/rollups (storage/rollups.py): hours whose raw samples
+        # retention folded away, in this same statement (one snapshot).
+        # Never under a geo mask: rolled-up hours carry no locations to check.
+        rollup_sql, rollup_params = rollup_parts(self, branches, time, agg) if mask is None else ("", [])
+        if rollup_sql:
+            parts.append(rollup_sql)
+            params += rollup_params
         if not parts:
             return []
         sql = " UNION ALL ".join(parts)
@@ -498,11 +507,17 @@ class SqlQuerier(Querier):
         )
 
     def count(self, sids: Sequence[int], time: TimeRange, mask: RowMask | None = None) -> int:
+        """Samples of ``sids`` in ``time``; when there are none (and no geo
+        mask), the rolled-up hours a delete would remove (``storage.rollups``):
+        non-zero whenever a delete has something to remove."""
         if not sids:
             return 0
         where, params = self._where(sids, time, mask)
         rows = self._fetch(f"SELECT count(*) FROM {self._samples('sid, t', mask)} WHERE {where}", params)
-        return int(rows[0][0]) if rows else 0
+        raw = int(rows[0][0]) if rows else 0
+        if raw or mask is not None:
+            return raw
+        return rolled_up_count(self, sids, time)  # retention/rollups
 
 
 def series_time_filter(dialect: Dialect, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
@@ -521,7 +536,8 @@ def delete_statements(
     dialect: Dialect, tables: Sequence[str], sids: Sequence[int], time: TimeRange, upto_rid: int
 ) -> list[tuple[str, list]]:
     """DELETEs for the samples of ``sids`` in ``time``, written up to ``upto_rid``
-    (rows appended after the delete was asked for survive it)."""
+    (rows appended after the delete was asked for survive it), and for their
+    rolled-up hours that overlap ``time`` (``storage.rollups``)."""
     p = dialect.placeholder
     out = []
     for table in tables:
@@ -529,4 +545,5 @@ def delete_statements(
         where += f" AND rid <= {p}"
         params.append(upto_rid)
         out.append((f"DELETE FROM {quote_ident(table)} WHERE {where}", params))
+    out.append(rollup_delete_sql(dialect, sids, time.start, time.end))  # retention/rollups
     return out
