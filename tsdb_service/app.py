@@ -17,6 +17,7 @@ from .api import attrs, entities, meta, notify, op_query, subscribe, types
 from .api.handlers import install_error_handlers
 from .api.responses import JSON
 from .config import Settings, get_settings
+from .ngsild import write as ngsild_write
 from .security import protect
 from .storage import open_store
 
@@ -95,6 +96,7 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
     app.include_router(subscribe.router)
     app.include_router(grafana.router)
     app.include_router(ui.router)
+    app.include_router(ngsild_write.router)
     return app
 
 
