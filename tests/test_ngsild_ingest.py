@@ -215,3 +215,29 @@ def test_observed_at_window_falls_back_to_row_time(client, notify):
 def test_unknown_time_property_is_refused():
     with pytest.raises(ValueError):
         InstanceWindow("foo")
+
+
+def test_copy_keeps_instances(client_factory, store_url, store_url_factory):
+    """``tsdb-service copy`` carries observedAt, datasets and deletions, and
+    keeps instances that repeat (the copy is not a re-notification)."""
+    from tsdb_service.config import Settings
+    from tsdb_service.storage import open_store
+    from tsdb_service.storage.copy import copy_history
+
+    with client_factory(store_url) as client:
+        notify_ld(client, vehicle(speed=[
+            {"type": "Property", "value": 1, "observedAt": "2024-05-01T10:00:00Z"},
+            {"type": "Property", "value": 2, "datasetId": "urn:d", "observedAt": "2024-05-01T10:00:00Z"}]))
+        notify_ld(client, vehicle(speed={"type": "Property", "value": "urn:ngsi-ld:null",
+                                         "deletedAt": "2024-05-01T11:00:00Z"}))
+        source_rows = sorted((n, r.dataset_id or "", repr(r.num), r.observed_at, r.deleted_at) for n, r in instances(client))
+    target_url = store_url_factory("copy_target")
+    source, target = open_store(Settings(db=store_url)), open_store(Settings(db=target_url))
+    try:
+        copy_history(source, target)
+    finally:
+        source.close()
+        target.close()
+    with client_factory(target_url) as client:
+        rows = sorted((n, r.dataset_id or "", repr(r.num), r.observed_at, r.deleted_at) for n, r in instances(client))
+    assert rows == source_rows and len(rows) == 3
