@@ -91,7 +91,8 @@ def test_every_dataset_id_is_kept(client):
 
 def test_the_same_dataset_id_twice_is_refused(client):
     body = {"type": "Notification", "data": [vehicle(speed=[
-        {"type": "Property", "value": 1, "datasetId": "urn:d"}, {"type": "Property", "value": 2, "datasetId": "urn:d"}])]}
+        {"type": "Property", "value": 1, "datasetId": "urn:d"},
+        {"type": "Property", "value": 2, "datasetId": "urn:d"}])]}
     response = client.post("/ngsi-ld/v1/notify", json=body, headers=LD_HEADERS)
     assert response.status_code == 400
     assert "twice" in response.json()["description"]
@@ -230,7 +231,8 @@ def test_copy_keeps_instances(client_factory, store_url, store_url_factory):
             {"type": "Property", "value": 2, "datasetId": "urn:d", "observedAt": "2024-05-01T10:00:00Z"}]))
         notify_ld(client, vehicle(speed={"type": "Property", "value": "urn:ngsi-ld:null",
                                          "deletedAt": "2024-05-01T11:00:00Z"}))
-        source_rows = sorted((n, r.dataset_id or "", repr(r.num), r.observed_at, r.deleted_at) for n, r in instances(client))
+        source_rows = sorted((n, r.dataset_id or "", repr(r.num), r.observed_at, r.deleted_at)
+                             for n, r in instances(client))
     target_url = store_url_factory("copy_target")
     source, target = open_store(Settings(db=store_url)), open_store(Settings(db=target_url))
     try:
