@@ -243,3 +243,25 @@ def test_copy_keeps_instances(client_factory, store_url, store_url_factory):
     with client_factory(target_url) as client:
         rows = sorted((n, r.dataset_id or "", repr(r.num), r.observed_at, r.deleted_at) for n, r in instances(client))
     assert rows == source_rows and len(rows) == 3
+
+
+def test_repeats_within_one_batch_of_a_new_series_are_stored_once(client):
+    """Orion-LD's first notifications of an entity can land in one group
+    commit, before the series exists: the repeat is still recognised."""
+    from tsdb_service.model import AttrSample, EntitySample
+    from tsdb_service.storage.base import AppendSamples
+
+    observed = datetime(2024, 5, 1, 9, tzinfo=UTC)
+
+    def sample(value: str, t: int) -> EntitySample:
+        attr = AttrSample("brandName", "Property", Kind.TEXT, txt=value, observed_at=observed)
+        return EntitySample("", "/", "urn:ngsi-ld:Vehicle:A4567", "Vehicle", datetime(2024, 5, 1, 10, t, tzinfo=UTC),
+                            [attr])
+
+    store = client.app.state.store
+    store.write_sync([AppendSamples([sample("M", 0), sample("M", 1), sample("D", 2), sample("D", 3)])])
+    assert [r.txt for _, r in instances(client)] == ["M", "D"]
+    # dedup=False (copies, API writes) stores every one, and the latest is still known.
+    store.write_sync([AppendSamples([sample("D", 4)], dedup=False)])
+    store.write_sync([AppendSamples([sample("D", 5)])])
+    assert [r.txt for _, r in instances(client)] == ["M", "D", "D"]
