@@ -31,7 +31,10 @@ from ..config import Settings, check_db
 from ..model import AttrSample, EntitySample, Geometry, Kind, RejectedNotification
 from .base import AppendSamples, PutLayout, RecordRejected, Store
 
-SAMPLE_COLUMNS = "rid, sid, t, kind, atype, num, txt, js, geo, lon, lat, min_lon, min_lat, max_lon, max_lat, md"
+SAMPLE_COLUMNS = (
+    "rid, sid, t, kind, atype, num, txt, js, geo, lon, lat, min_lon, min_lat, max_lon, max_lat, md, "
+    "observed_at, created_at, modified_at, deleted_at"
+)  # instance ids are the target's own: an instanceId names an instance in one store
 BATCH_ROWS = 50_000
 REJECTED_BATCH = 500
 
@@ -187,7 +190,7 @@ def _copy_samples(source: Store, target: Store, *, skip: int, total: int, progre
     committed batch at a time, so the target always holds a prefix of the source."""
     reader = source.querier()
     series = {row[0]: row[1:] for row in reader._fetch(
-        "SELECT sid, tenant, service_path, entity_id, entity_type, attr FROM series", [])}
+        "SELECT sid, tenant, service_path, entity_id, entity_type, attr, dataset_id FROM series", [])}
     copied, started = skip, time.monotonic()
     batch: list[EntitySample] = []
     rows_in_batch = 0
@@ -195,13 +198,13 @@ def _copy_samples(source: Store, target: Store, *, skip: int, total: int, progre
         batch.append(entity)
         rows_in_batch += n
         if rows_in_batch >= batch_rows:
-            target.write_sync([AppendSamples(batch)])
+            target.write_sync([AppendSamples(batch, dedup=False)])
             copied += rows_in_batch
             batch, rows_in_batch = [], 0
             if progress:
                 _show(copied, skip, total, started)
     if batch:
-        target.write_sync([AppendSamples(batch)])
+        target.write_sync([AppendSamples(batch, dedup=False)])
         copied += rows_in_batch
     if progress:
         _show(copied, skip, total, started)
@@ -212,7 +215,7 @@ def _entities(source: Store, series: dict, skip: int = 0) -> Iterator[tuple[Enti
     """Rows regrouped by ``rid`` into the entity notifications they came from,
     after the first ``skip`` rows (which must end on a notification)."""
     current_rid, entity, n, seen, last_skipped = None, None, 0, 0, None
-    for row in _stream(source, f"SELECT {SAMPLE_COLUMNS} FROM samples_all ORDER BY rid"):
+    for row in _stream(source, f"SELECT {SAMPLE_COLUMNS} FROM samples_all ORDER BY rid, iid"):
         if seen < skip:
             seen += 1
             last_skipped = row[0]
@@ -224,19 +227,25 @@ def _entities(source: Store, series: dict, skip: int = 0) -> Iterator[tuple[Enti
             elif skip and rid == last_skipped:
                 raise CopyNotVerified("the target's samples do not end on a notification of the source: "
                                       "copy into a new, empty target instead")  # fmt: skip
-            tenant, path, eid, etype, _ = series[sid]
+            tenant, path, eid, etype, _, _ = series[sid]
             entity = EntitySample(tenant, path, eid, etype, row[2].replace(tzinfo=UTC), [])
             current_rid, n = rid, 0
-        entity.attrs.append(_attr(series[sid][4], row))
+        entity.attrs.append(_attr(series[sid][4], series[sid][5], row))
         n += 1
     if entity is not None:
         yield entity, n
 
 
-def _attr(name: str, row: tuple) -> AttrSample:
-    (_, _, _, kind, atype, num, txt, js, geo, lon, lat, mnlon, mnlat, mxlon, mxlat, md) = row
+def _attr(name: str, dataset_id: str | None, row: tuple) -> AttrSample:
+    (_, _, _, kind, atype, num, txt, js, geo, lon, lat, mnlon, mnlat, mxlon, mxlat, md,
+     observed, created, modified, deleted) = row
     geometry = Geometry(geo, lon, lat, mnlon, mnlat, mxlon, mxlat) if geo is not None else None
-    return AttrSample(name, atype, Kind(kind), num, txt, js, geometry, md)
+    return AttrSample(name, atype, Kind(kind), num, txt, js, geometry, md, _utc(observed), _utc(created),
+                      _utc(modified), _utc(deleted), dataset_id)
+
+
+def _utc(moment):
+    return None if moment is None else moment.replace(tzinfo=UTC)
 
 
 def _stream(store: Store, sql: str) -> Iterator[tuple]:
