@@ -209,8 +209,10 @@ def free_port() -> int:
 class Spawned:
     """A server we start as a subprocess; its log in the work dir."""
 
-    def __init__(self, name: str, cmd: list[str], port: int, workdir: Path, health: str):
+    def __init__(self, name: str, cmd: list[str], port: int, workdir: Path, health: str,
+                 env: dict[str, str] | None = None):
         self.name, self.cmd, self.port, self.health = name, cmd, port, health
+        self.extra_env = env or {}
         self.url = f"http://{HOST}:{port}"
         self.log_path = workdir / f"{name}.log"
         self.proc: subprocess.Popen | None = None
@@ -219,6 +221,7 @@ class Spawned:
     def start(self, timeout: float = 120.0) -> None:
         env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}
         env["PYTHONUNBUFFERED"] = "1"
+        env.update(self.extra_env)
         t0 = time.monotonic()
         with open(self.log_path, "wb") as log:
             self.proc = subprocess.Popen(self.cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
@@ -388,7 +391,7 @@ def _print_runs(runs: list[dict]) -> None:
               f"non-2xx {r['non_2xx']}  errors {r['errors']}  (load {os.getloadavg()[0]:.1f})", flush=True)
 
 
-def run_ours(key: str, runner: Runner, only: set[str], workdir: Path) -> Result:
+def run_ours(key: str, runner: Runner, only: set[str], workdir: Path, env: dict[str, str]) -> Result:
     backend, workers = OURS[key]
     name = {"duckdb": "ours, DuckDB", "postgresql": "ours, PostgreSQL", "postgresql2": "ours, PostgreSQL (2 workers)"}[key]
     result = Result(name, "ours", backend, workers)
@@ -403,7 +406,7 @@ def run_ours(key: str, runner: Runner, only: set[str], workdir: Path) -> Result:
         else:
             db = str(workdir / f"{key}.duckdb")
         port = free_port()
-        server = Spawned(key, ours_cmd(db, port, workers), port, workdir, "/health")
+        server = Spawned(key, ours_cmd(db, port, workers), port, workdir, "/health", env)
         server.start()
         result.info["startup_s"] = round(server.startup_s, 2)
         print(f"- {name} on :{port}, started in {server.startup_s:.1f} s (load {_load()})", flush=True)
@@ -599,10 +602,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--loadgen", action="store_true", help="use loadgen.py instead of wrk")
     ap.add_argument("--sizes", default="1M,10M,100M", help="growth curve sizes (with --only growth)")
     ap.add_argument("--growth-backends", default="duckdb", help="growth curve backends: duckdb,postgresql")
+    ap.add_argument("--server-env", action="append", default=[], metavar="KEY=VALUE",
+                    help="settings for our servers (e.g. TSDB_WRITER_THREADS=2); TSDB_* of this shell are not passed")
     ap.add_argument("--json", type=Path, help="write every raw figure here")
     ap.add_argument("--keep", action="store_true", help="keep the work dir (databases, logs)")
     ap.add_argument("--strict", action="store_true", help="exit 1 when a target fails")
     args = ap.parse_args(argv)
+    server_env = dict(item.split("=", 1) for item in args.server_env)
     only = {x.strip() for x in args.only.split(",") if x.strip()}
     if args.quick:
         args.reps, args.duration, args.warmup = 1, 3.0, 1.0
@@ -628,7 +634,7 @@ def main(argv: list[str] | None = None) -> int:
     if only - {"growth"}:
         steps += [(f"url:{u}", lambda u=u: run_external(*u.split("=", 1), runner, only, not args.no_load))
                   for u in args.url]
-        steps += [(f"ours:{k}", lambda k=k: run_ours(k, runner, only, workdir)) for k in ours]
+        steps += [(f"ours:{k}", lambda k=k: run_ours(k, runner, only, workdir, server_env)) for k in ours]
         if not args.no_bare and only & {"ingest", "queries"}:
             steps.append(("bare", lambda: run_bare(runner, only, workdir)))
     for name, step in steps:
