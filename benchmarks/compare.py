@@ -632,8 +632,10 @@ def main(argv: list[str] | None = None) -> int:
                  "loadavg": {"start": os.getloadavg()}}
     steps = []
     if only - {"growth"}:
-        steps += [(f"url:{u}", lambda u=u: run_external(*u.split("=", 1), runner, only, not args.no_load))
-                  for u in args.url]
+        named = [u.split("=", 1) if "=" in u.split("://", 1)[0] else (f"service {i + 1}", u)
+                 for i, u in enumerate(args.url)]
+        steps += [(f"url:{u}", lambda n=n, u=u: run_external(n, u, runner, only, not args.no_load))
+                  for n, u in named]
         steps += [(f"ours:{k}", lambda k=k: run_ours(k, runner, only, workdir, server_env)) for k in ours]
         if not args.no_bare and only & {"ingest", "queries"}:
             steps.append(("bare", lambda: run_bare(runner, only, workdir)))
