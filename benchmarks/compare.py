@@ -1,0 +1,680 @@
+"""Issue 15's comparison in one command: ours (DuckDB, PostgreSQL with 1 and 2
+workers), a bare FastAPI ceiling and any running service (QuantumLeap ...),
+side by side, with the issue's targets as PASS/FAIL.
+
+    .venv/bin/python benchmarks/compare.py                          # everything, ~25 min
+    .venv/bin/python benchmarks/compare.py --quick                  # 1 rep, short windows, no geo (~5 min)
+    .venv/bin/python benchmarks/compare.py --url ql=http://host:8668 # + a running QuantumLeap, loaded over HTTP
+    .venv/bin/python benchmarks/compare.py --ours none --url x=http://host:8668   # only that service
+    .venv/bin/python benchmarks/compare.py --only ingest --ours duckdb --reps 3
+    .venv/bin/python benchmarks/compare.py --only growth --sizes 1M,10M,100M    # the growth curve (growth.py)
+
+Per target, one after the other (never two loads at once):
+
+1. ingest: Orion-normalized notifications of a 5-attribute Lawnmower entity
+   (``lawnmower.py``; 1,000 entities in turn, every body unique), tenant
+   ``benchingest``, at 16 and at 64 connections; a short warm-up run, then
+   ``--reps`` measured runs of ``--duration`` s each;
+2. the query data set (20 entities x 1 day at one sample per minute, tenant
+   ``benchquery``) POSTed over HTTP to the target's /v2/notify -- so an
+   external service is loaded exactly like ours -- and checked (skipped with
+   ``--no-load`` for a service loaded before);
+3. lastN=100 on one entity attribute at 8 and 1 connections; the type-level
+   hourly average over the day (20 entities) at 8 and 1 connections;
+   ``/v2/types/Lawnmower/attrs/{attr}?lastN=1000`` at 1 connection;
+4. ours only: stops it and checks the store holds every acknowledged
+   notification (and nothing twice); then ``geo.py`` (near + lastN=10 over
+   10k moving entities at 4 connections, run once per backend: it loads 1M
+   positions first).
+
+The bare ceiling (``bare_app.py``) gets the same ingest load and a GET of a
+ready lastN=100 answer at 8 and 1 connections (the "bare GET ceiling").
+
+Load comes from wrk (``wrkrun.py``: Lua-generated unique POST bodies),
+installed with apt-get when missing and root; ``--loadgen`` (or no wrk)
+uses ``loadgen.py`` instead. Every figure is printed as median [min-max]
+over the reps. QuantumLeap's figures are issue 15's table (QuantumLeap 1.0.1,
+2 gunicorn workers, PostgreSQL 15 + PostGIS, same 2-core machine) unless a
+target named ``ql`` or ``quantumleap`` is given with ``--url``: then they are
+measured in this run. The load average before and after each target is in
+the output: the machine is shared, and only ratios measured in one run count.
+
+``--json FILE`` writes every raw figure. Exit status: 0 when everything ran
+(targets may FAIL: they are in the table), 1 when a step failed, and with
+``--strict`` also when a target fails.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import shutil
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.error
+import urllib.request
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(ROOT))
+
+import lawnmower  # noqa: E402
+import wrkrun  # noqa: E402
+
+try:
+    import psutil
+except ImportError:  # pragma: no cover - RSS / CPU columns only
+    psutil = None
+
+HOST = "127.0.0.1"
+UVICORN_FLAGS = ["--loop", "uvloop", "--http", "httptools", "--no-access-log", "--workers", "1"]
+POOL = 1000  # ingest entities notified in turn
+
+# Issue 15's table: QuantumLeap 1.0.1, 2 gunicorn workers, PostgreSQL 15 + PostGIS, this 2-core machine.
+QL_REFERENCE = {
+    "ingest16": {"rps": 300.0, "p99_ms": 135.0},
+    "ingest64": {"rps": 300.0, "p99_ms": 690.0},
+    "lastN8": {"rps": 190.0},
+    "lastN1": {"rps": 118.0, "p50_ms": 8.7},
+    "hourly8": {"rps": 14.0, "p50_ms": 600.0},
+    "hourly1": {"rps": 10.4, "p50_ms": 99.0},
+}
+
+INGEST = [("ingest16", 16), ("ingest64", 64)]
+QUERIES = [("lastN8", "lastN", 8), ("lastN1", "lastN", 1), ("hourly8", "hourly_avg", 8),
+           ("hourly1", "hourly_avg", 1), ("types1", "type_lastN", 1)]
+BARE_GETS = [("lastN8", 8), ("lastN1", 1)]
+LABELS = {
+    "ingest16": "ingest, 16 connections",
+    "ingest64": "ingest, 64 connections",
+    "lastN8": "lastN=100, 8 connections",
+    "lastN1": "lastN=100, 1 connection",
+    "hourly8": "hourly avg, type level (20 entities), 8 connections",
+    "hourly1": "hourly avg, type level, 1 connection",
+    "types1": "/v2/types/{type}/attrs/{attr}?lastN=1000, 1 connection",
+    "geo4": "geo near;maxDistance + lastN=10, 10k entities, 4 connections",
+}
+OURS = {"duckdb": ("duckdb", 1), "postgresql": ("postgresql", 1), "postgresql2": ("postgresql", 2)}
+
+
+# --- measuring ---------------------------------------------------------------------------
+
+
+@dataclass
+class Runner:
+    """How loads are generated: wrk if available (and not ``--loadgen``), else loadgen.py."""
+
+    reps: int
+    duration: float
+    warmup: float
+    use_wrk: bool
+
+    def repeat(self, url: str, make, connections: int) -> list[dict]:
+        """A warm-up run, then ``reps`` measured runs; ``make(tag)`` builds the
+        load for one run (tag: "w", "1", "2", ...) as (wrk script, loadgen factory).
+        The warm-up run is returned too, marked ``warmup`` (summaries skip it)."""
+        runs = []
+        if self.warmup > 0:
+            runs.append({**self._one(url, *make("w"), connections, self.warmup), "warmup": True})
+        return runs + [self._one(url, *make(str(i + 1)), connections, self.duration) for i in range(self.reps)]
+
+    def _one(self, url: str, script: str, factory, connections: int, duration: float) -> dict:
+        t0 = time.monotonic()
+        if self.use_wrk:
+            stats = wrkrun.run(url, script, connections, duration).to_dict()
+        else:
+            from loadgen import run_load
+
+            host, port = _host_port(url)
+            s = run_load(host, port, factory, connections=connections, duration=duration, warmup=0)
+            stats = {"requests": s.total_requests, "ok": s.total_ok, "non_2xx": s.total_non_2xx,
+                     "errors": s.total_errors, "seconds": duration, "rps": s.rps, "p50_ms": s.p50_ms,
+                     "p90_ms": s.p90_ms, "p99_ms": s.p99_ms, "max_ms": s.max_ms, "mean_ms": math.nan}
+        stats["connections"] = connections
+        stats["wall_s"] = round(time.monotonic() - t0, 2)
+        return stats
+
+
+def _host_port(url: str) -> tuple[str, int]:
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(url)
+    return parts.hostname, parts.port or 80
+
+
+def ingest_load(url: str, run_id: str, ledger: list):
+    """``make(tag)`` for the ingest runs; records each run's id in ``ledger``
+    so the store check can find its notifications."""
+    host, port = _host_port(url)
+    hdrs = lawnmower.headers(lawnmower.INGEST_TENANT)
+
+    def make(tag: str):
+        rid = f"{run_id}{tag}"
+        ledger.append(rid)
+        prelude, expr = lawnmower.ingest_lua(rid, POOL)
+        script = wrkrun.post_script("/v2/notify", hdrs, prelude, expr, threads=2)
+        head = (f"POST /v2/notify HTTP/1.1\r\nHost: {host}:{port}\r\n"
+                + "".join(f"{k}: {v}\r\n" for k, v in hdrs.items()) + "Content-Length: ").encode()
+
+        def factory(seq: int) -> bytes:
+            body = lawnmower.ingest_body(rid, seq, POOL)
+            return head + str(len(body)).encode() + b"\r\n\r\n" + body
+
+        return script, factory
+
+    return make
+
+
+def get_load(url: str, paths: list[str], headers: dict[str, str]):
+    from loadgen import build_request
+
+    host, port = _host_port(url)
+    script = wrkrun.get_script(paths, headers)
+    reqs = [build_request("GET", p, host, port, headers) for p in paths]
+
+    def make(tag: str):
+        return script, (lambda seq: reqs[seq % len(reqs)])
+
+    return make
+
+
+def summary(runs: list[dict], key: str) -> dict | None:
+    values = [r[key] for r in runs if not r.get("warmup") and r.get(key) is not None and not math.isnan(r[key])]
+    if not values:
+        return None
+    return {"median": statistics.median(values), "min": min(values), "max": max(values), "n": len(values)}
+
+
+# --- targets (servers) -----------------------------------------------------------------
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind((HOST, 0))
+        return s.getsockname()[1]
+
+
+class Spawned:
+    """A server we start as a subprocess; its log in the work dir."""
+
+    def __init__(self, name: str, cmd: list[str], port: int, workdir: Path, health: str,
+                 env: dict[str, str] | None = None):
+        self.name, self.cmd, self.port, self.health = name, cmd, port, health
+        self.extra_env = env or {}
+        self.url = f"http://{HOST}:{port}"
+        self.log_path = workdir / f"{name}.log"
+        self.proc: subprocess.Popen | None = None
+        self.startup_s: float | None = None
+
+    def start(self, timeout: float = 120.0) -> None:
+        env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}
+        env["PYTHONUNBUFFERED"] = "1"
+        env.update(self.extra_env)
+        t0 = time.monotonic()
+        with open(self.log_path, "wb") as log:
+            self.proc = subprocess.Popen(self.cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                         env=env, start_new_session=True)
+        deadline = t0 + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"{self.name} exited ({self.proc.returncode}) during start-up; see {self.log_path}")
+            try:
+                with urllib.request.urlopen(self.url + self.health, timeout=2) as r:
+                    if r.status < 500:
+                        self.startup_s = time.monotonic() - t0
+                        return
+            except urllib.error.HTTPError as exc:
+                if exc.code < 500:
+                    self.startup_s = time.monotonic() - t0
+                    return
+            except OSError:
+                pass
+            time.sleep(0.05)
+        self.stop()
+        raise RuntimeError(f"{self.name} not ready after {timeout:.0f} s; see {self.log_path}")
+
+    def rss_bytes(self) -> int | None:
+        if psutil is None or self.proc is None:
+            return None
+        try:
+            p = psutil.Process(self.proc.pid)
+            return sum(q.memory_info().rss for q in [p, *p.children(recursive=True)])
+        except psutil.Error:
+            return None
+
+    def cpu_seconds(self) -> float:
+        if psutil is None or self.proc is None:
+            return math.nan
+        try:
+            p = psutil.Process(self.proc.pid)
+            return sum(sum(q.cpu_times()[:2]) for q in [p, *p.children(recursive=True)])
+        except psutil.Error:
+            return math.nan
+
+    def stop(self) -> int | None:
+        if self.proc is None:
+            return None
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(120)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        return self.proc.returncode
+
+
+def ours_cmd(db: str, port: int, workers: int) -> list[str]:
+    cmd = [sys.executable, "-m", "tsdb_service", "serve", "--db", db, "--host", HOST, "--port", str(port)]
+    return cmd + (["--workers", str(workers)] if workers > 1 else [])
+
+
+def bare_cmd(port: int) -> list[str]:
+    return [sys.executable, "-m", "uvicorn", "--app-dir", str(HERE), "bare_app:app", "--host", HOST,
+            "--port", str(port), "--log-level", "warning", *UVICORN_FLAGS]
+
+
+# --- the store check ----------------------------------------------------------------------
+
+
+def stored_notifications(db: str, run_ids: list[str]) -> tuple[int, int]:
+    """(stored notifications, distinct ones) of the ingest runs, read from
+    the store after the server stopped: one batteryLevel sample each."""
+    prefixes = [f"urn:ngsi-ld:Lawnmower:{r}-" for r in run_ids]
+    where = ("s.tenant = {p} AND s.attr = 'batteryLevel' AND "
+             "regexp_replace(s.entity_id, '-[0-9]+$', '-') = ANY({p})")
+    sql = ("SELECT count(*), count(DISTINCT (s.entity_id, a.num)) FROM series s JOIN samples_all a "
+           "ON a.sid = s.sid WHERE " + where)
+    if db.startswith("postgresql://"):
+        import psycopg
+
+        with psycopg.connect(db) as conn:
+            return conn.execute(sql.format(p="%s"), [lawnmower.INGEST_TENANT, prefixes]).fetchone()
+    import duckdb
+
+    con = duckdb.connect(db, read_only=True)
+    try:
+        return con.execute(sql.format(p="?"), [lawnmower.INGEST_TENANT, prefixes]).fetchone()
+    finally:
+        con.close()
+
+
+def check_store(db: str, run_ids: list[str], runs: list[dict]) -> dict:
+    """Every acknowledged notification stored, none twice. wrk stops with
+    requests in flight (sent, maybe stored, never counted): up to one per
+    connection per run may be stored beyond the acknowledged ones."""
+    acked = sum(r["ok"] for r in runs) + 1  # + the sanity notification
+    slack = sum(r["non_2xx"] + r["errors"] + r["connections"] for r in runs)
+    stored, distinct = stored_notifications(db, run_ids)
+    return {"acknowledged": acked, "stored": stored, "distinct": distinct, "lost": max(0, acked - stored),
+            "ok": acked <= stored <= acked + slack and distinct == stored}
+
+
+# --- one target -------------------------------------------------------------------------
+
+
+@dataclass
+class Result:
+    name: str
+    kind: str  # ours, bare, external
+    backend: str | None = None
+    workers: int = 1
+    runs: dict[str, list[dict]] = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+
+    def get(self, scenario: str, key: str) -> float | None:
+        s = summary(self.runs.get(scenario, []), key)
+        return None if s is None else s["median"]
+
+
+def post_one(url: str, body: bytes) -> None:
+    req = urllib.request.Request(url + "/v2/notify", data=body, method="POST",
+                                 headers=lawnmower.headers(lawnmower.INGEST_TENANT))
+    with urllib.request.urlopen(req, timeout=30) as resp:
+        if not 200 <= resp.status < 300:
+            raise RuntimeError(f"sanity notification answered {resp.status}")
+
+
+def measure_target(result: Result, url: str, runner: Runner, only: set[str], load: bool,
+                   server: Spawned | None = None) -> list[str]:
+    """Ingest and query scenarios against ``url``; returns the run ids used."""
+    run_id = f"{int(time.time()) % 10**6}{os.getpid() % 100:02d}"
+    ledger: list[str] = []
+    cpu0 = server.cpu_seconds() if server else math.nan
+    if "ingest" in only:
+        post_one(url, lawnmower.ingest_body(f"{run_id}s", 0, POOL))
+        ledger.append(f"{run_id}s")
+        for key, conns in INGEST:
+            print(f"  {LABELS[key]} ...", flush=True)
+            result.runs[key] = runner.repeat(url, ingest_load(url, f"{run_id}{key[6:]}", ledger), conns)
+            _print_runs(result.runs[key])
+    if "queries" in only and result.kind == "bare":
+        path = "/v2/entities/urn:ngsi-ld:Lawnmower:q00/attrs/batteryLevel?lastN=100"
+        for key, conns in BARE_GETS:
+            print(f"  bare GET ceiling, {conns} connection(s) ...", flush=True)
+            result.runs[key] = runner.repeat(url, get_load(url, [path], lawnmower.query_headers()), conns)
+            _print_runs(result.runs[key])
+    elif "queries" in only:
+        if load:
+            print("  loading the query data set over HTTP ...", flush=True)
+            result.info["dataset_load"] = lawnmower.load_dataset(url)
+            print(f"    {result.info['dataset_load']}", flush=True)
+        result.info["dataset_check"] = lawnmower.check_dataset(url)
+        paths = lawnmower.query_paths()
+        for key, scenario, conns in QUERIES:
+            print(f"  {LABELS[key]} ...", flush=True)
+            result.runs[key] = runner.repeat(url, get_load(url, paths[scenario], lawnmower.query_headers()), conns)
+            _print_runs(result.runs[key])
+    if server is not None:
+        result.info["server_cpu_s"] = round(server.cpu_seconds() - cpu0, 1)
+        result.info["rss_mib"] = round((server.rss_bytes() or 0) / 2**20)
+    return ledger
+
+
+def _print_runs(runs: list[dict]) -> None:
+    for r in runs:
+        if r.get("warmup"):
+            continue
+        print(f"    {r['rps']:9,.0f}/s  p50 {r['p50_ms']:7.2f} ms  p99 {r['p99_ms']:8.2f} ms  "
+              f"non-2xx {r['non_2xx']}  errors {r['errors']}  (load {os.getloadavg()[0]:.1f})", flush=True)
+
+
+def run_ours(key: str, runner: Runner, only: set[str], workdir: Path, env: dict[str, str]) -> Result:
+    backend, workers = OURS[key]
+    name = {"duckdb": "ours, DuckDB", "postgresql": "ours, PostgreSQL", "postgresql2": "ours, PostgreSQL (2 workers)"}[key]
+    result = Result(name, "ours", backend, workers)
+    cluster = None
+    try:
+        if backend == "postgresql":
+            from pgutil import BenchCluster
+
+            cluster = BenchCluster(f"cmp{key}").start()
+            db = cluster.url
+            result.info["postgresql"] = cluster.version
+        else:
+            db = str(workdir / f"{key}.duckdb")
+        port = free_port()
+        server = Spawned(key, ours_cmd(db, port, workers), port, workdir, "/health", env)
+        server.start()
+        result.info["startup_s"] = round(server.startup_s, 2)
+        print(f"- {name} on :{port}, started in {server.startup_s:.1f} s (load {_load()})", flush=True)
+        try:
+            ledger = measure_target(result, server.url, runner, only, load=True, server=server)
+        finally:
+            result.info["exit_code"] = server.stop()
+        if "ingest" in only:
+            all_runs = [r for k, _ in INGEST for r in result.runs[k]]  # warm-ups included: they stored too
+            result.info["store_check"] = check_store(db, ledger, all_runs)
+            print(f"  store check: {result.info['store_check']}", flush=True)
+        if "geo" in only and workers == 1:
+            result.runs["geo4"] = run_geo(backend, runner, workdir)
+    finally:
+        if cluster is not None:
+            cluster.stop()
+    return result
+
+
+def run_geo(backend: str, runner: Runner, workdir: Path) -> list[dict]:
+    """benchmarks/geo.py as it is (another module owns its semantics), once."""
+    out = workdir / f"geo-{backend}.json"
+    cmd = [sys.executable, str(HERE / "geo.py"), "--backend", backend, "--connections", "4",
+           "--duration", str(runner.duration), "--warmup", str(max(runner.warmup, 1.0)), "--json", str(out)]
+    print(f"  geo.py --backend {backend} (loads 10k entities x 100 positions first) ...", flush=True)
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    (workdir / f"geo-{backend}.log").write_text(proc.stdout + proc.stderr)
+    if not out.exists():
+        print(f"    geo.py failed ({proc.returncode}); see {workdir / f'geo-{backend}.log'}", flush=True)
+        return []
+    doc = json.loads(out.read_text())
+    loaded = doc["results"]["loaded"]
+    run = {k: loaded.get(k) for k in ("rps", "p50_ms", "p99_ms", "non_2xx", "errors")}
+    run["connections"] = loaded.get("connections")
+    print(f"    {run['rps']:.1f}/s  p50 {run['p50_ms']:.2f} ms", flush=True)
+    return [run]
+
+
+def run_bare(runner: Runner, only: set[str], workdir: Path) -> Result:
+    result = Result("bare FastAPI (ceiling)", "bare")
+    port = free_port()
+    server = Spawned("bare", bare_cmd(port), port, workdir, "/health")
+    server.start()
+    print(f"- bare FastAPI on :{port} (load {_load()})", flush=True)
+    try:
+        measure_target(result, server.url, runner, only - {"geo"}, load=False, server=server)
+    finally:
+        server.stop()
+    return result
+
+
+def run_external(name: str, url: str, runner: Runner, only: set[str], load: bool) -> Result:
+    result = Result(name, "external")
+    print(f"- {name} at {url} (load {_load()})", flush=True)
+    measure_target(result, url.rstrip("/"), runner, only - {"geo"}, load=load)
+    return result
+
+
+def _load() -> str:
+    return " / ".join(f"{x:.1f}" for x in os.getloadavg())
+
+
+# --- the tables ---------------------------------------------------------------------------
+
+
+def cell(runs: list[dict] | None, key: str, digits: int = 0) -> str:
+    s = summary(runs or [], key)
+    if s is None:
+        return "-"
+    if s["n"] == 1:
+        return f"{s['median']:,.{digits}f}"
+    return f"{s['median']:,.{digits}f} [{s['min']:,.{digits}f}-{s['max']:,.{digits}f}]"
+
+
+def ql_figures(results: list[Result]) -> tuple[dict, str]:
+    """QuantumLeap's figures: measured in this run when a target is named ql /
+    quantumleap, else issue 15's table."""
+    for r in results:
+        if r.kind == "external" and r.name.lower() in ("ql", "quantumleap"):
+            return ({k: {"rps": r.get(k, "rps"), "p50_ms": r.get(k, "p50_ms"), "p99_ms": r.get(k, "p99_ms")}
+                     for k in r.runs}, f"measured in this run ({r.name})")
+    return QL_REFERENCE, "issue 15's table (not measured in this run)"
+
+
+def print_comparison(results: list[Result]) -> None:
+    ql, source = ql_figures(results)
+    cols = [r for r in results]
+    print("\n" + "=" * 100)
+    print("median [min-max] over the reps; rates are 2xx answers/s, latencies ms")
+    print(f"QuantumLeap: {source}")
+    header = ["", "QuantumLeap"] + [r.name for r in cols]
+    rows = []
+    for key in [k for k, _ in INGEST] + [k for k, _, _ in QUERIES] + ["geo4"]:
+        if not any(key in r.runs for r in cols):
+            continue
+        q = ql.get(key, {})
+        qtext = " ".join(x for x in (f"{q['rps']:,.0f}/s" if q.get("rps") else "",
+                                     f"p50 {q['p50_ms']:.1f}" if q.get("p50_ms") else "",
+                                     f"p99 {q['p99_ms']:.0f}" if q.get("p99_ms") else "") if x) or "-"
+        rows.append([LABELS[key] + ": req/s", qtext] + [cell(r.runs.get(key), "rps") for r in cols])
+        rows.append(["  p50 ms", ""] + [cell(r.runs.get(key), "p50_ms", 2) for r in cols])
+        rows.append(["  p99 ms", ""] + [cell(r.runs.get(key), "p99_ms", 1) for r in cols])
+        if q.get("rps"):
+            rows.append(["  vs QuantumLeap (rate)", "1"] + [
+                f"{r.get(key, 'rps') / q['rps']:.1f}x" if r.kind == "ours" and r.get(key, "rps") else ""
+                for r in cols])
+    rows.append(["start-up s", ""] + [str(r.info.get("startup_s", "")) for r in cols])
+    rows.append(["server RSS MiB (end)", ""] + [str(r.info.get("rss_mib", "")) for r in cols])
+    rows.append(["store check (lost / acknowledged)", ""] + [
+        (f"{r.info['store_check']['lost']} / {r.info['store_check']['acknowledged']:,}"
+         + ("" if r.info['store_check']['ok'] else " FAIL")) if "store_check" in r.info else "" for r in cols])
+    _print_rows(header, rows)
+
+
+def _print_rows(header: list[str], rows: list[list[str]]) -> None:
+    widths = [max(len(str(x[i])) for x in [header, *rows]) for i in range(len(header))]
+    print("  ".join(h.ljust(w) if i == 0 else h.rjust(w) for i, (h, w) in enumerate(zip(header, widths))))
+    for row in rows:
+        print("  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(row, widths))))
+
+
+def targets(results: list[Result]) -> list[dict]:
+    """Issue 15's targets per backend, on the medians."""
+    ql, _ = ql_figures(results)
+    bare = next((r for r in results if r.kind == "bare"), None)
+    out = []
+
+    def add(target: str, result: Result, value, ok) -> None:
+        out.append({"target": target, "who": result.name, "value": value, "pass": ok})
+
+    for r in (x for x in results if x.kind == "ours"):
+        for key, _ in INGEST:
+            rps, q = r.get(key, "rps"), ql.get(key, {}).get("rps")
+            if rps is not None and q:
+                add(f"{LABELS[key]}: >= 10x QuantumLeap ({10 * q:,.0f}/s)", r, f"{rps / q:.1f}x", rps >= 10 * q)
+        for key, want in (("ingest16", 0.6), ("ingest64", 0.8)):
+            rps, b = r.get(key, "rps"), bare.get(key, "rps") if bare else None
+            if rps is not None and b:
+                add(f"{LABELS[key]}: >= {want} of the bare ceiling", r, f"{rps / b:.2f}", rps >= want * b)
+        p99 = r.get("ingest64", "p99_ms")
+        if p99 is not None:
+            add("ingest, 64 connections: p99 <= 50 ms", r, f"{p99:.1f} ms", p99 <= 50)
+        if "store_check" in r.info:
+            c = r.info["store_check"]
+            errs = sum(x["non_2xx"] + x["errors"] for k, _ in INGEST for x in r.runs.get(k, []) if not x.get("warmup"))
+            add("ingest: 0 lost, 0 refused", r, f"{c['lost']} lost, {errs} refused", c["ok"] and errs == 0)
+        want = 15 if r.backend == "duckdb" else 5
+        rps, q = r.get("lastN8", "rps"), ql.get("lastN8", {}).get("rps")
+        if rps is not None and q:
+            add(f"lastN=100, 8 connections: >= {want}x QuantumLeap", r, f"{rps / q:.1f}x", rps >= want * q)
+        agg, last = r.get("hourly1", "p50_ms"), r.get("lastN1", "p50_ms")
+        if agg is not None and last:
+            add("hourly avg p50 <= 3x lastN=100 p50 (1 connection)", r, f"{agg / last:.1f}x", agg <= 3 * last)
+        want = 30 if r.backend == "duckdb" else 10
+        rps, q = r.get("hourly8", "rps"), ql.get("hourly8", {}).get("rps")
+        if rps is not None and q:
+            add(f"hourly avg, 8 connections: >= {want}x QuantumLeap", r, f"{rps / q:.1f}x", rps >= want * q)
+        p50 = r.get("types1", "p50_ms")
+        if p50 is not None:
+            add("types lastN=1000: p50 <= 30 ms", r, f"{p50:.1f} ms", p50 <= 30)
+        p50 = r.get("geo4", "p50_ms")
+        if p50 is not None:
+            add("geo near + lastN=10, 4 connections: p50 <= 30 ms", r, f"{p50:.1f} ms", p50 <= 30)
+    return out
+
+
+def print_targets(rows: list[dict]) -> None:
+    if not rows:
+        return
+    print("\ntargets (issue 15), on the medians:")
+    _print_rows(["target", "who", "measured", "result"],
+                [[t["target"], t["who"], t["value"], "PASS" if t["pass"] else "FAIL"] for t in rows])
+
+
+# --- main ----------------------------------------------------------------------------------
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--url", action="append", default=[], metavar="NAME=URL",
+                    help="a running service to measure too (repeatable); name ql or quantumleap makes it the "
+                         "reference")
+    ap.add_argument("--no-load", action="store_true", help="do not POST the query data set to --url services")
+    ap.add_argument("--ours", default="duckdb,postgresql,postgresql2",
+                    help="our configurations: duckdb, postgresql, postgresql2 (2 workers), or none")
+    ap.add_argument("--no-bare", action="store_true", help="leave the bare FastAPI ceiling out")
+    ap.add_argument("--only", default="ingest,queries,geo",
+                    help="comma list of ingest, queries, geo, growth (default: all but growth)")
+    ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--duration", type=float, default=10.0, help="seconds per measured run")
+    ap.add_argument("--warmup", type=float, default=2.0, help="seconds of the warm-up run before each scenario")
+    ap.add_argument("--quick", action="store_true", help="1 rep, 3 s runs, 1 s warm-up, no geo")
+    ap.add_argument("--loadgen", action="store_true", help="use loadgen.py instead of wrk")
+    ap.add_argument("--sizes", default="1M,10M,100M", help="growth curve sizes (with --only growth)")
+    ap.add_argument("--growth-backends", default="duckdb", help="growth curve backends: duckdb,postgresql")
+    ap.add_argument("--server-env", action="append", default=[], metavar="KEY=VALUE",
+                    help="settings for our servers (e.g. TSDB_WRITER_THREADS=2); TSDB_* of this shell are not passed")
+    ap.add_argument("--json", type=Path, help="write every raw figure here")
+    ap.add_argument("--keep", action="store_true", help="keep the work dir (databases, logs)")
+    ap.add_argument("--strict", action="store_true", help="exit 1 when a target fails")
+    args = ap.parse_args(argv)
+    server_env = dict(item.split("=", 1) for item in args.server_env)
+    only = {x.strip() for x in args.only.split(",") if x.strip()}
+    if args.quick:
+        args.reps, args.duration, args.warmup = 1, 3.0, 1.0
+        if args.only == ap.get_default("only"):
+            only.discard("geo")
+    use_wrk = not args.loadgen and wrkrun.ensure_wrk() is not None
+    runner = Runner(args.reps, args.duration, args.warmup, use_wrk)
+    ours = [] if args.ours == "none" else [x.strip() for x in args.ours.split(",") if x.strip()]
+    if set(ours) - OURS.keys():
+        ap.error(f"--ours takes {', '.join(OURS)} or none")
+    workdir = Path(tempfile.mkdtemp(prefix="tsdb-compare-"))
+    print(f"compare: {os.cpu_count()} CPUs, load {_load()}, {'wrk' if use_wrk else 'loadgen.py'}, "
+          f"{runner.reps} reps x {runner.duration:g} s (+ {runner.warmup:g} s warm-up); work dir {workdir}",
+          flush=True)
+    results: list[Result] = []
+    failed: list[str] = []
+    doc: dict = {"started_at": datetime.now(UTC).isoformat(timespec="seconds"),
+                 "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
+                             "platform": platform.platform()},
+                 "config": {**vars(args), "json": str(args.json), "generator": "wrk" if use_wrk else "loadgen"},
+                 "loadavg": {"start": os.getloadavg()}}
+    steps = []
+    if only - {"growth"}:
+        named = [u.split("=", 1) if "=" in u.split("://", 1)[0] else (f"service {i + 1}", u)
+                 for i, u in enumerate(args.url)]
+        steps += [(f"url:{u}", lambda n=n, u=u: run_external(n, u, runner, only, not args.no_load))
+                  for n, u in named]
+        steps += [(f"ours:{k}", lambda k=k: run_ours(k, runner, only, workdir, server_env)) for k in ours]
+        if not args.no_bare and only & {"ingest", "queries"}:
+            steps.append(("bare", lambda: run_bare(runner, only, workdir)))
+    for name, step in steps:
+        before = os.getloadavg()
+        try:
+            result = step()
+            result.info["loadavg_before"], result.info["loadavg_after"] = before, os.getloadavg()
+            results.append(result)
+        except Exception as exc:  # report and go on with the next target
+            print(f"  {name} FAILED: {exc}", flush=True)
+            failed.append(f"{name}: {exc}")
+    if results:
+        print_comparison(results)
+        doc["targets"] = target_rows = targets(results)
+        print_targets(target_rows)
+    if "growth" in only:
+        import growth
+
+        doc["growth"] = growth.run(args.sizes, args.growth_backends, runner, workdir)
+    doc["results"] = [r.__dict__ for r in results]
+    doc["failed"] = failed
+    doc["loadavg"]["end"] = os.getloadavg()
+    print(f"\nload average at the end: {_load()}")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(doc, indent=2, default=str) + "\n")
+        print(f"results written to {args.json}")
+    if args.keep:
+        print(f"kept {workdir}")
+    else:
+        shutil.rmtree(workdir, ignore_errors=True)
+    if failed:
+        print("FAILED: " + "; ".join(failed), file=sys.stderr)
+        return 1
+    if args.strict and any(not t["pass"] for t in doc.get("targets", [])):
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
