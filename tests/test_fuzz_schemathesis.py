@@ -129,7 +129,7 @@ def _fuzz(operation, app, client, tally: Tally) -> None:
             continue
 
         @hypothesis.settings(
-            max_examples=EXAMPLES, derandomize=True, database=None, deadline=None,
+            max_examples=EXAMPLES * (2 if operation.path in NOTIFY_PATHS else 1), derandomize=True, database=None, deadline=None,
             phases=[Phase.explicit, Phase.generate], suppress_health_check=list(HealthCheck),
             report_multiple_bugs=False, verbosity=hypothesis.Verbosity.quiet,
         )  # fmt: skip

@@ -236,7 +236,7 @@ def _rejected_tenant(request) -> str:
 def list_rejected(
     request: Request,
     limit: int = Query(100, ge=1, le=10_000),
-    offset: int = Query(0, ge=0),
+    offset: int = Query(0, ge=0, le=oa.MAX_OFFSET),
     all_tenants: bool = Query(
         False, alias="allTenants",
         description="Operator listing: every tenant's rejections, each with its tenant as stored (a tenant "

@@ -202,6 +202,7 @@ SERVICE_PATH_QUERY = header("Fiware-ServicePath", "Service paths to read: comma 
 TENANCY = [FIWARE_SERVICE, NGSILD_TENANT, SERVICE_PATH_QUERY]
 
 _INT_MAX = 10**18 - 1  # history.params: at most 18 digits
+MAX_OFFSET = _INT_MAX  # what SQL's 64-bit OFFSET takes, with room to spare
 _POSITIVE = {"type": "integer", "minimum": 1, "maximum": _INT_MAX}
 _TIME = {"type": "string", "format": "date-time"}
 
@@ -370,9 +371,18 @@ def complete(doc: dict, api_key_header: str) -> dict:
             responses = operation.get("responses", {})
             if _is_validation_error(responses.get("422")):
                 del responses["422"]
+            for response in responses.values():
+                _drop_placeholder(response.get("content"))
             if path in OPEN:
                 operation["security"] = [{}]
     return doc
+
+
+def _drop_placeholder(content: dict | None) -> None:
+    """FastAPI adds ``application/json`` with an empty schema for the default
+    response class; a route that declared its own media type answers only that."""
+    if content and len(content) > 1 and content.get("application/json") == {"schema": {}}:
+        del content["application/json"]
 
 
 def _is_validation_error(response: dict | None) -> bool:
