@@ -13,7 +13,7 @@ and every notification answered 200 must be readable afterwards, value and
 time index, before the delete operations run last.
 
 Bounded and deterministic: a fixed number of examples per operation and mode
-(``TSDB_FUZZ_EXAMPLES``, default 12), derandomized, no example database.
+(``TSDB_FUZZ_EXAMPLES``, default 10; notify twice that), derandomized, no example database.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ from tsdb_service.history.service import decode
 from tsdb_service.history.shape import iso_ms
 from tsdb_service.ngsi import parse_notification
 
-EXAMPLES = int(os.environ.get("TSDB_FUZZ_EXAMPLES", "12"))
+EXAMPLES = int(os.environ.get("TSDB_FUZZ_EXAMPLES", "10"))
 CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance,
           response_headers_conformance]  # fmt: skip
 NOTIFY_PATHS = ("/v2/notify", "/ngsi-ld/v1/notify")

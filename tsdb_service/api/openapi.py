@@ -69,6 +69,9 @@ _FRAME_FIELD = _obj(("name", "type", "values"), {"name": _STR, "type": _STR, "va
 SCHEMAS: dict[str, dict] = {
     "NgsiError": _obj(("error", "description"), {"error": _STR, "description": _STR},
                       description="Every error answer: an NGSI error name and a human description."),
+    "ProblemDetails": _obj(("type", "title"), {"type": _STR, "title": _STR, "status": {"type": "integer"},
+                                               "detail": _STR, "instance": _STR}, extra=True,
+                           description="NGSI-LD errors (RFC 7807), for NGSI-LD API routes other than notify"),
     # history (QuantumLeap 1.0 shapes; see history.shape)
     "EntityAttrHistory": _obj(("id", "type", "attrName", "index", "values"),
                               {"id": _STR, "type": _STR, "attrName": _STR, "index": _INDEX, "values": _VALUES}),
@@ -154,6 +157,14 @@ HISTORY_ERRORS = (400, *AUTH, 404, 409, 422, 503)
 
 def errors(*codes: int) -> dict[int, dict]:
     return {code: {"description": _ERROR_TEXT[code], "content": {"application/json": {"schema": ref("NgsiError")}}}
+            for code in codes}  # fmt: skip
+
+
+def ld_errors(*codes: int) -> dict[int, dict]:
+    """Error answers of NGSI-LD API routes: ProblemDetails (RFC 7807)."""
+    problem = {"schema": ref("ProblemDetails")}
+    return {code: {"description": _ERROR_TEXT[code],
+                   "content": {"application/json": problem, "application/problem+json": problem}}
             for code in codes}  # fmt: skip
 
 
