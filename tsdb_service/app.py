@@ -16,6 +16,7 @@ from . import metrics as metrics_
 from .api import attrs, entities, meta, notify, op_query, subscribe, types
 from .api import export as export_api
 from .api.handlers import install_error_handlers
+from .api.openapi import install as install_openapi
 from .api.responses import JSON
 from .budget import ReadBudgetMiddleware, ReadLimits
 from .config import Settings, get_settings
@@ -89,6 +90,7 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
     app.request_metrics = metrics.requests
     app.front = protect(app.dispatch, settings)
     install_error_handlers(app)
+    install_openapi(app, settings.api_key_header)
     app.add_middleware(ReadBudgetMiddleware, limits=ReadLimits.from_settings(settings))
     app.include_router(meta.router)
     app.include_router(metrics_.router)

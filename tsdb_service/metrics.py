@@ -48,6 +48,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 from starlette.responses import Response
 
+from .api import openapi
 from .ngsi import timeindex
 from .storage.base import AppendSamples, DeleteSamples, PutLayout, RecordRejected, Store, WriteOp
 
@@ -380,7 +381,7 @@ class Metrics:
 router = APIRouter(tags=["meta"])
 
 
-@router.get("/metrics", summary="Prometheus metrics (text exposition format)")
+@router.get("/metrics", summary="Prometheus metrics (text exposition format)", **openapi.METRICS)
 def metrics_endpoint(request: Request) -> Response:
     # A plain ``def``: FastAPI runs it in the threadpool, where the store
     # sizes may query the database.

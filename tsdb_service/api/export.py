@@ -18,6 +18,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.responses import StreamingResponse
 
 from ..export import Encoder, SampleStream, export_query, open_export
+from . import openapi as oa
 from .tenancy import tenant_of
 
 router = APIRouter(tags=["export"])
@@ -33,6 +34,7 @@ router = APIRouter(tags=["export"])
         "value_bool, value_json (exactly one value column set per sample)."
     ),
     response_class=StreamingResponse,
+    **oa.EXPORT_SPEC,
 )
 async def export(request: Request) -> StreamingResponse:
     query = export_query(request.query_params, request.headers, tenant_of(request))

@@ -5,12 +5,13 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 
 from .. import __version__
+from . import openapi as oa
 from .responses import JSON
 
 router = APIRouter(tags=["meta"])
 
 
-@router.get("/version")
+@router.get("/version", **oa.spec(ok_=oa.ok(oa.VERSION), errors_=()))
 def version() -> JSON:
     """The release only, as QuantumLeap answers: which backend and how it is
     configured are the operator's business, not every client's."""
@@ -23,7 +24,7 @@ def version() -> JSON:
 _HEALTH_KEYS = ("status", "output")
 
 
-@router.get("/health")
+@router.get("/health", **oa.HEALTH)
 def health(request: Request) -> JSON:
     report = request.app.state.store.health()
     status = 200 if report["status"] == "pass" else 503
@@ -42,7 +43,7 @@ API_INDEX = {
 }
 
 
-@router.get("/v2/")
-@router.get("/v2")
+@router.get("/v2/", **oa.spec(ok_=oa.ok(oa.API_INDEX), errors_=oa.AUTH))
+@router.get("/v2", **oa.spec(ok_=oa.ok(oa.API_INDEX), errors_=oa.AUTH))
 def api_index() -> JSON:
     return JSON(API_INDEX)

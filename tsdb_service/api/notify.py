@@ -24,6 +24,7 @@ from ..ngsi import ValuesLayout, parse_notification
 from ..ngsi.names import ID_RULE, RULE, id_problem, name_problem
 from ..security import redact_headers
 from ..storage.base import AppendSamples, PutLayout, RecordRejected
+from . import openapi as oa
 from .handlers import internal_error
 from .responses import JSON
 from .tenancy import tenant_header, tenant_of
@@ -43,13 +44,13 @@ NOTIFY_PATHS = frozenset({"/v2/notify", "/ngsi-ld/v1/notify"})
 _JSON_HEADERS = [(b"content-type", b"application/json")]
 
 
-@router.post("/v2/notify", summary="Receive an NGSIv2 or NGSI-LD notification")
+@router.post("/v2/notify", summary="Receive an NGSIv2 or NGSI-LD notification", **oa.NOTIFY)
 async def notify(request: Request) -> Response:
     status, payload = await receive_notification(request)
     return Response(payload, status_code=status, media_type="application/json")
 
 
-@router.post("/ngsi-ld/v1/notify", summary="Receive an NGSI-LD notification")
+@router.post("/ngsi-ld/v1/notify", summary="Receive an NGSI-LD notification", **oa.NOTIFY)
 async def notify_ld(request: Request) -> Response:
     status, payload = await receive_notification(request)
     return Response(payload, status_code=status, media_type="application/json")
@@ -228,7 +229,11 @@ def _rejected_tenant(request) -> str:
         return tenant_header(request)
 
 
-@router.get("/v2/notify/rejected", summary="Notifications we answered with 4xx, newest first")
+@router.get(
+    "/v2/notify/rejected",
+    summary="Notifications we answered with 4xx, newest first",
+    **oa.REJECTED,
+)
 def list_rejected(
     request: Request,
     limit: int = Query(100, ge=1, le=10_000),
@@ -256,6 +261,7 @@ def list_rejected(
 @router.put(
     "/v2/notify/subscriptions/{subscription_id}",
     summary="Register the attribute list of a subscription that notifies in Orion's 'values' format",
+    **oa.PUT_LAYOUT,
 )
 async def put_layout(subscription_id: str, request: Request) -> JSON:
     tenant = tenant_of(request)
@@ -268,7 +274,11 @@ async def put_layout(subscription_id: str, request: Request) -> JSON:
     return JSON(layout_document(layout), status_code=200)
 
 
-@router.get("/v2/notify/subscriptions", summary="Registered 'values' layouts of this tenant")
+@router.get(
+    "/v2/notify/subscriptions",
+    summary="Registered 'values' layouts of this tenant",
+    **oa.spec(oa.FIWARE_SERVICE, oa.NGSILD_TENANT, ok_=oa.ok(oa.LAYOUTS), errors_=(400, *oa.AUTH, 503)),
+)
 def list_layouts(request: Request) -> JSON:
     layouts = request.app.state.store.layouts(tenant_of(request))
     return JSON({sub: layout_document(layout) for sub, layout in sorted(layouts.items())})

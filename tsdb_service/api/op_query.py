@@ -18,6 +18,7 @@ from ..history.query import EntityFilter, LastValueQuery, Scope
 from ..history.service import run_last_values
 from ..history.valuepath import parse_value_path
 from ..idpattern import compile_pattern
+from . import openapi as oa
 from .responses import JSON
 from .tenancy import tenant_of
 
@@ -26,7 +27,11 @@ router = APIRouter(tags=["op"])
 _MAX_BODY = 1024 * 1024
 
 
-@router.post("/v2/op/query", summary="Last value of each matching entity (QuantumLeap as context provider)")
+@router.post(
+    "/v2/op/query",
+    summary="Last value of each matching entity (QuantumLeap as context provider)",
+    **oa.OP_QUERY,
+)
 async def op_query(request: Request) -> JSON:
     body = await request.body()
     if len(body) > _MAX_BODY:

@@ -5,11 +5,13 @@ from __future__ import annotations
 from typing import Any
 
 import orjson
-from starlette.responses import Response
+from starlette.responses import JSONResponse
 
 
-class JSON(Response):
-    """JSON via orjson: several times faster than the stdlib on big histories."""
+class JSON(JSONResponse):
+    """JSON via orjson: several times faster than the stdlib on big histories.
+    A ``JSONResponse`` so that the OpenAPI description types its answers as
+    JSON (each route declares the schema), not as strings."""
 
     media_type = "application/json"
 

@@ -38,6 +38,7 @@ from fastapi import APIRouter, Request
 
 from ..errors import BadRequest, TsdbError
 from ..history.params import service_paths
+from . import openapi as oa
 from .responses import JSON
 from .tenancy import tenant_of
 
@@ -54,7 +55,12 @@ _MAX_NAME = 256
 _MAX_ERROR_TEXT = 500
 
 
-@router.post("/v2/subscribe", status_code=201, summary="Create the Orion subscription that feeds this service")
+@router.post(
+    "/v2/subscribe",
+    status_code=201,
+    summary="Create the Orion subscription that feeds this service",
+    **oa.SUBSCRIBE_SPEC,
+)
 def subscribe(request: Request) -> JSON:
     """Runs in the threadpool (a plain ``def``): the broker call blocks.
     The sender lives with the ``subscribe`` command (imported on first use:

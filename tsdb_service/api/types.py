@@ -10,6 +10,7 @@ from ..history.params import delete_query
 from ..history.query import Shape
 from ..history.service import delete_target
 from ..storage.base import DeleteSamples
+from . import openapi as oa
 from .history import answer_history_async
 from .responses import JSON
 from .tenancy import tenant_of
@@ -17,17 +18,29 @@ from .tenancy import tenant_of
 router = APIRouter(tags=["types"])
 
 
-@router.get("/v2/types/{entity_type}", summary="History of N attributes of the entities of a type")
+@router.get(
+    "/v2/types/{entity_type}",
+    summary="History of N attributes of the entities of a type",
+    **oa.spec(*oa.TYPE_HISTORY, ok_=oa.ok(oa.maybe_empty("TypeHistory")), errors_=oa.HISTORY_ERRORS),
+)
 async def entity_type(entity_type: str, request: Request) -> JSON:
     return await answer_history_async(request, Shape.TYPE, entity_type=entity_type)
 
 
-@router.get("/v2/types/{entity_type}/value", summary="History of N attributes of a type's entities (values only)")
+@router.get(
+    "/v2/types/{entity_type}/value",
+    summary="History of N attributes of a type's entities (values only)",
+    **oa.spec(*oa.TYPE_HISTORY, ok_=oa.ok(oa.maybe_empty("TypeValues")), errors_=oa.HISTORY_ERRORS),
+)
 async def entity_type_value(entity_type: str, request: Request) -> JSON:
     return await answer_history_async(request, Shape.TYPE, entity_type=entity_type, values_only=True)
 
 
-@router.get("/v2/types/{entity_type}/attrs/{attr_name}", summary="History of one attribute of a type's entities")
+@router.get(
+    "/v2/types/{entity_type}/attrs/{attr_name}",
+    summary="History of one attribute of a type's entities",
+    **oa.spec(*oa.TYPE_HISTORY, ok_=oa.ok(oa.maybe_empty("TypeAttrHistory")), errors_=oa.HISTORY_ERRORS),
+)
 async def type_attr(entity_type: str, attr_name: str, request: Request) -> JSON:
     return await answer_history_async(request, Shape.TYPE_ATTR, entity_type=entity_type, attr=attr_name)
 
@@ -35,12 +48,18 @@ async def type_attr(entity_type: str, attr_name: str, request: Request) -> JSON:
 @router.get(
     "/v2/types/{entity_type}/attrs/{attr_name}/value",
     summary="History of one attribute of a type's entities (values only)",
+    **oa.spec(*oa.TYPE_HISTORY, ok_=oa.ok(oa.maybe_empty("TypeAttrValues")), errors_=oa.HISTORY_ERRORS),
 )
 async def type_attr_value(entity_type: str, attr_name: str, request: Request) -> JSON:
     return await answer_history_async(request, Shape.TYPE_ATTR, entity_type=entity_type, attr=attr_name, values_only=True)
 
 
-@router.delete("/v2/types/{entity_type}", status_code=204, summary="Delete the history of every entity of a type")
+@router.delete(
+    "/v2/types/{entity_type}",
+    status_code=204,
+    summary="Delete the history of every entity of a type",
+    **oa.spec(*oa.DELETE, ok_={204: {"description": "Deleted"}}, errors_=(400, *oa.AUTH, 404, 503)),
+)
 async def delete_type(entity_type: str, request: Request) -> Response:
     query = delete_query(request.query_params, request.headers, tenant_of(request), entity_type=entity_type)
     store = request.app.state.store

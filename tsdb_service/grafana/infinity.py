@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request
 
+from ..api import openapi as oa
 from ..api.responses import JSON
 from ..geo.filter import parse_geo
 from ..history.valuepath import parse_value_path
@@ -33,7 +34,7 @@ def _common(request: Request):
     return request.app.state.store.querier(), scope_of(params, headers), entity_filter(params), params
 
 
-@router.get("/series", summary="Time series of columns per entity, downsampled to max_points")
+@router.get("/series", summary="Time series of columns per entity, downsampled to max_points", **oa.INFINITY["series"])
 def series(request: Request) -> JSON:
     """``[{"time", "entity", col...}]``. Over ``max_points`` samples per entity
     (default 1000), samples are bucketed (width at least ``interval_ms``) and
@@ -51,14 +52,14 @@ def series(request: Request) -> JSON:
     return JSON(rows)
 
 
-@router.get("/latest", summary="Latest value of each column per entity (gauges, stats)")
+@router.get("/latest", summary="Latest value of each column per entity (gauges, stats)", **oa.INFINITY["latest"])
 def latest(request: Request) -> JSON:
     """``[{"entity", "type", "name", "time", col...}]``, one row per entity."""
     querier, scope, entities, params = _common(request)
     return JSON(frames.latest_rows(querier, scope, entities, columns(params.get("attrs"))))
 
 
-@router.get("/states", summary="State changes (state timelines)")
+@router.get("/states", summary="State changes (state timelines)", **oa.INFINITY["states"])
 def states(request: Request) -> JSON:
     """``[{"time", "entity", col...}]``: a row where any column changes, and
     each entity's last sample."""
@@ -70,7 +71,7 @@ def states(request: Request) -> JSON:
     return JSON(rows)
 
 
-@router.get("/events", summary="Events as annotations (e.g. perimeter detections)")
+@router.get("/events", summary="Events as annotations (e.g. perimeter detections)", **oa.INFINITY["events"])
 def events(request: Request) -> JSON:
     """``[{"time", "timeEnd", "entity", "title", "text", "tags"}]``: one per
     run of samples where a column is truthy, or ``== equals`` (a JSON value)."""
@@ -84,7 +85,7 @@ def events(request: Request) -> JSON:
     return JSON(rows)
 
 
-@router.get("/positions", summary="Positions (geomap markers and heatmaps)")
+@router.get("/positions", summary="Positions (geomap markers and heatmaps)", **oa.INFINITY["positions"])
 def positions(request: Request) -> JSON:
     """``[{"time", "entity", "type", "name", "lat", "lon", col...}]``. ``location``
     names the attribute or value path holding the position (default
@@ -103,7 +104,7 @@ def positions(request: Request) -> JSON:
     return JSON(rows)
 
 
-@router.get("/aggregate", summary="One aggregate per entity (or per period)")
+@router.get("/aggregate", summary="One aggregate per entity (or per period)", **oa.INFINITY["aggregate"])
 def aggregate(request: Request) -> JSON:
     """``[{"entity", "type", "name", ("time",) col...}]``; ``method`` avg
     (default), min, max, sum, count; optional ``period`` (second ... year)."""
@@ -118,7 +119,7 @@ def aggregate(request: Request) -> JSON:
     return JSON(rows)
 
 
-@router.get("/entities", summary="Entities of the tenant (template variables)")
+@router.get("/entities", summary="Entities of the tenant (template variables)", **oa.INFINITY["entities"])
 def entities(request: Request) -> JSON:
     """``[{"entity", "type", "name", "attrs"}]``: ids, types and attribute names."""
     querier, scope, entities, _ = _common(request)

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request
 
+from ..api import openapi as oa
 from ..api.responses import JSON
 from ..errors import NotFound
 
 router = APIRouter(tags=["grafana"])
 
 
-@router.get("/dashboards", summary="The use-case dashboards")
+@router.get("/dashboards", summary="The use-case dashboards", **oa.DASHBOARDS)
 def list_dashboards(request: Request) -> JSON:
     from . import dashboards
 
@@ -33,7 +34,7 @@ def list_dashboards(request: Request) -> JSON:
     return JSON(out)
 
 
-@router.get("/dashboards/{use_case}", summary="One dashboard's JSON (schemaVersion 42)")
+@router.get("/dashboards/{use_case}", summary="One dashboard's JSON (schemaVersion 42)", **oa.DASHBOARD)
 def get_dashboard(use_case: str) -> JSON:
     from . import dashboards
 

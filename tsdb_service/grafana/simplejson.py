@@ -26,6 +26,7 @@ from typing import Any
 from fastapi import APIRouter, Body, Request
 
 from .. import budget
+from ..api import openapi as oa
 from ..api.responses import JSON
 from ..errors import BadRequest
 from ..history.query import EntityFilter, LastValueQuery, TimeRange, ValuePath
@@ -179,7 +180,7 @@ def _cell(value, kind: str):
 
 
 @router.get("", include_in_schema=False)
-@router.get("/", summary="Test connection (SimpleJSON / simPod)")
+@router.get("/", summary="Test connection (SimpleJSON / simPod)", **oa.SIMPLEJSON["test"])
 def test_connection(request: Request) -> JSON:
     scope = scope_of(request.query_params, request.headers)
     return JSON({"status": "ok", "tenant": scope.tenant, "servicePaths": list(scope.service_paths)})
@@ -214,7 +215,7 @@ def _metric_names(request: Request, contains: str = "") -> list[str]:
     return [n for n in names if contains in n] if contains else names
 
 
-@router.post("/search", summary="Metric names, or variable values (SimpleJSON)")
+@router.post("/search", summary="Metric names, or variable values (SimpleJSON)", **oa.SIMPLEJSON["search"])
 def search(request: Request, body: Any = Body(None)) -> JSON:
     """``{"target": ""}`` → every ``<entity>/<attribute>``; ``entities``,
     ``entities:<type>``, ``types``, ``attrs``, ``attrs:<entity>`` → names;
@@ -224,7 +225,7 @@ def search(request: Request, body: Any = Body(None)) -> JSON:
     return JSON(named if named is not None else _metric_names(request, text))
 
 
-@router.post("/variable", summary="Values of a query variable (simPod)")
+@router.post("/variable", summary="Values of a query variable (simPod)", **oa.SIMPLEJSON["variable"])
 def variable(request: Request, body: Any = Body(None)) -> JSON:
     """``{"payload": {"target": "entities"}}`` (or a string) → ``[{"__text", "__value"}]``."""
     payload = _obj(body).get("payload")
@@ -246,7 +247,7 @@ _PAYLOADS = [
 ]  # fmt: skip
 
 
-@router.post("/metrics", summary="Metrics with their payload options (simPod builder)")
+@router.post("/metrics", summary="Metrics with their payload options (simPod builder)", **oa.SIMPLEJSON["metrics"])
 def metrics(request: Request, body: Any = Body(None)) -> JSON:
     """``[{"label", "value": "<entity>/<attribute>", "payloads": [...]}]``."""
     current = _str(_obj(body).get("metric"), "metric").strip()
@@ -260,7 +261,7 @@ def metrics(request: Request, body: Any = Body(None)) -> JSON:
     return JSON(out)
 
 
-@router.post("/metric-payload-options", summary="Options of one payload field (simPod builder)")
+@router.post("/metric-payload-options", summary="Options of one payload field (simPod builder)", **oa.SIMPLEJSON["metric-payload-options"])
 def metric_payload_options(request: Request, body: Any = Body(None)) -> JSON:
     """``{"metric", "payload", "name"}`` → ``[{"label", "value"}]``. For
     ``path``: the leaf paths found in the metric's latest value."""
@@ -305,7 +306,7 @@ def _leaves(value, prefix: str, out: list[str], depth: int = 0) -> None:
         out.append(prefix)
 
 
-@router.post("/query", summary="Panel data: timeseries, table or data frames")
+@router.post("/query", summary="Panel data: timeseries, table or data frames", **oa.SIMPLEJSON["query"])
 def query(request: Request, body: Any = Body(None)) -> JSON:
     """Grafana's query request (``range``, ``intervalMs``, ``maxDataPoints``,
     ``targets``, ``adhocFilters``) → classic SimpleJSON answers
@@ -440,7 +441,7 @@ def _run_label(values: list) -> str:
     return shown + (" → …" if len(changes) > _MAX_LABEL_VALUES else "")
 
 
-@router.post("/annotations", summary="Annotations (classic SimpleJSON)")
+@router.post("/annotations", summary="Annotations (classic SimpleJSON)", **oa.SIMPLEJSON["annotations"])
 def annotations(request: Request, body: Any = Body(None)) -> JSON:
     """``{"range", "annotation": {"query": "<target>[=<JSON value>]", ...}}`` →
     ``[{"annotation", "time", "timeEnd", "isRegion", "title", "text", "tags"}]``
@@ -458,14 +459,14 @@ def annotations(request: Request, body: Any = Body(None)) -> JSON:
     return JSON([{"annotation": head, **event} for event in events])
 
 
-@router.post("/tag-keys", summary="Ad hoc filter keys")
+@router.post("/tag-keys", summary="Ad hoc filter keys", **oa.SIMPLEJSON["tag-keys"])
 def tag_keys(request: Request, body: Any = Body(None)) -> JSON:
     scope_of(request.query_params, request.headers)  # a bad tenant is still a 400
     return JSON([{"type": "string", "text": "entity"}, {"type": "string", "text": "type"},
                  {"type": "string", "text": "name"}])  # fmt: skip
 
 
-@router.post("/tag-values", summary="Ad hoc filter values of one key")
+@router.post("/tag-values", summary="Ad hoc filter values of one key", **oa.SIMPLEJSON["tag-values"])
 def tag_values(request: Request, body: Any = Body(None)) -> JSON:
     key = _str(_obj(body).get("key"), "key").strip()
     catalog = _catalog(request)

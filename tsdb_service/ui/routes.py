@@ -16,6 +16,7 @@ from fastapi import APIRouter, Request
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
 
+from ..api import openapi as oa
 from ..api.responses import JSON
 from ..errors import NotFound
 from ..history.query import EntityFilter, Scope
@@ -41,7 +42,7 @@ def explorer_root() -> RedirectResponse:
     return RedirectResponse("ui/", status_code=307)
 
 
-@router.get("/ui/", summary="The explorer page", response_class=HTMLResponse)
+@router.get("/ui/", summary="The explorer page", response_class=HTMLResponse, **oa.UI_PAGE)
 def explorer_page() -> FileResponse:
     return FileResponse(STATIC / "index.html", media_type="text/html", headers={"Cache-Control": CACHE_OWN})
 
@@ -58,7 +59,7 @@ def static_file(name: str) -> FileResponse:
     return FileResponse(path, media_type=media_type, headers={"Cache-Control": cache_control})
 
 
-@router.get("/ui/tenants", summary="Tenants that have stored series, with their service paths")
+@router.get("/ui/tenants", summary="Tenants that have stored series, with their service paths", **oa.UI_TENANTS)
 def tenants(request: Request) -> JSON:
     """``[{"tenant", "servicePaths", "types", "entities", "series"}]``. The
     tenant ``""`` is Orion's default one (no ``Fiware-Service``)."""
@@ -76,7 +77,7 @@ def tenants(request: Request) -> JSON:
     return JSON(out)
 
 
-@router.get("/ui/usecases", summary="What the explorer's use-case views show: tenancy, ids, enumerations")
+@router.get("/ui/usecases", summary="What the explorer's use-case views show: tenancy, ids, enumerations", **oa.UI_USECASES)
 def usecases() -> JSON:
     """From the demo's own definitions, so a renamed entity or state cannot
     drift between the simulators and the page."""
