@@ -67,7 +67,8 @@ DATASET = [
          "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:30Z"}}]},
 ]  # fmt: skip
 KNOWN_PATH = {"entity_id": ROOM, "entity_type": "Room", "attr_name": "temperature", "use_case": "lawnmower",
-              "subscription_id": "s1"}  # fmt: skip
+              "subscription_id": "s1", "attr_id": "temperature",
+              "instance_id": "urn:ngsi-ld:attribute:instance:0000000000000001"}  # fmt: skip
 
 
 @dataclass

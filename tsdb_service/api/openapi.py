@@ -352,6 +352,28 @@ def spec(*parameters: dict, ok_: dict[int, dict], errors_: tuple[int, ...], body
     return out
 
 
+LD_WRITE_ERRORS = (400, *AUTH, 404, 409, 413, 415, 503)
+LD_HEADERS = (
+    header("NGSILD-Tenant", "The tenant (as Fiware-Service; both must agree when given)", _TENANT_SCHEMA),
+    header("Link", "The JSON-LD @context of the body's terms, as a Link header (rel=\"http://www.w3.org/ns/json-ld#context\")"),
+)
+
+
+def ld_spec(*parameters: dict, ok_codes: dict[int, str], errors_: tuple[int, ...] = LD_WRITE_ERRORS,
+            body: dict | None = None) -> dict:  # fmt: skip
+    """``spec`` for NGSI-LD routes: answers without a body on success, errors
+    as ProblemDetails, the tenant and context headers declared."""
+    extra: dict[str, Any] = {"parameters": [*LD_HEADERS, *parameters]}
+    if body:
+        extra.update(body)
+    responses = {code: {"description": text} for code, text in ok_codes.items()}
+    return {"response_model": None, "responses": {**responses, **ld_errors(*errors_)}, "openapi_extra": extra}
+
+
+LD_ENTITY_BODY = json_body(ref("EntityLD"), media_types=("application/json", "application/ld+json"))
+LD_FRAGMENT_BODY = json_body({"type": "object"}, media_types=("application/json", "application/ld+json"))
+
+
 # --- the whole document ----------------------------------------------------------------------------
 
 OPEN = ("/health", "/version")  # security.guard.OPEN_PATHS: never need a credential

@@ -33,6 +33,7 @@ from typing import Any
 from urllib.parse import quote
 
 import orjson
+from ..api import openapi as oa
 from fastapi import APIRouter, Request
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
@@ -57,7 +58,8 @@ _JSON_TYPES = ("application/json", "application/ld+json")
 # --- routes ---------------------------------------------------------------------
 
 
-@router.post("/temporal/entities", status_code=201, summary="Create or update a temporal representation")
+@router.post("/temporal/entities", status_code=201, summary="Create or update a temporal representation",
+             **oa.ld_spec(ok_codes={201: "Created", 204: "Updated"}, body=oa.LD_ENTITY_BODY))
 async def upsert_temporal(request: Request) -> Response:
     tenant = ld_tenant(request)
     doc = await _body(request)
@@ -77,7 +79,8 @@ async def upsert_temporal(request: Request) -> Response:
     return Response(status_code=201, headers={**headers, "Location": f"{BASE}/{quote(entity_id, safe=':')}"})
 
 
-@router.post("/temporal/entities/{entity_id}/attrs", status_code=204, summary="Add attribute instances")
+@router.post("/temporal/entities/{entity_id}/attrs", status_code=204, summary="Add attribute instances",
+             **oa.ld_spec(ok_codes={204: "Added"}, body=oa.LD_FRAGMENT_BODY))
 async def append_temporal(entity_id: str, request: Request) -> Response:
     tenant = ld_tenant(request)
     doc = await _body(request)
@@ -95,7 +98,8 @@ async def append_temporal(entity_id: str, request: Request) -> Response:
     return Response(status_code=204, headers=tenant_echo(request))
 
 
-@router.delete("/temporal/entities/{entity_id}", status_code=204, summary="Delete a temporal representation")
+@router.delete("/temporal/entities/{entity_id}", status_code=204, summary="Delete a temporal representation",
+               **oa.ld_spec(ok_codes={204: "Deleted"}))
 async def delete_temporal(entity_id: str, request: Request) -> Response:
     tenant = ld_tenant(request)
     existing = await _existing(request, tenant, entity_id)
@@ -104,7 +108,7 @@ async def delete_temporal(entity_id: str, request: Request) -> Response:
 
 
 @router.delete("/temporal/entities/{entity_id}/attrs/{attr_id}", status_code=204,
-               summary="Delete an attribute's instances")
+               summary="Delete an attribute's instances", **oa.ld_spec(ok_codes={204: "Deleted"}))
 async def delete_attr_temporal(entity_id: str, attr_id: str, request: Request,
                                datasetId: str | None = None, deleteAll: str | None = None) -> Response:  # noqa: N803
     tenant = ld_tenant(request)
@@ -119,7 +123,8 @@ async def delete_attr_temporal(entity_id: str, attr_id: str, request: Request,
 
 
 @router.patch("/temporal/entities/{entity_id}/attrs/{attr_id}/{instance_id}", status_code=204,
-              summary="Modify an attribute instance")
+              summary="Modify an attribute instance",
+              **oa.ld_spec(ok_codes={204: "Modified"}, body=oa.LD_FRAGMENT_BODY))
 async def patch_instance(entity_id: str, attr_id: str, instance_id: str, request: Request) -> Response:
     tenant = ld_tenant(request)
     doc = await _body(request)
@@ -133,7 +138,7 @@ async def patch_instance(entity_id: str, attr_id: str, instance_id: str, request
 
 
 @router.delete("/temporal/entities/{entity_id}/attrs/{attr_id}/{instance_id}", status_code=204,
-               summary="Delete an attribute instance")
+               summary="Delete an attribute instance", **oa.ld_spec(ok_codes={204: "Deleted"}))
 async def delete_instance(entity_id: str, attr_id: str, instance_id: str, request: Request) -> Response:
     tenant = ld_tenant(request)
     ref, iid = await _instance(request, tenant, entity_id, attr_id, instance_id)
