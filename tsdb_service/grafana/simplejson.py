@@ -437,38 +437,16 @@ def _events(querier, scope, target: Target, time: TimeRange, filters, equals) ->
         if kept and not _keep(frames.EntitySeries(series.entity_id, ""), kept):
             continue
         values, short = series.columns[name], frames.short_name(series.entity_id)
-        for first, last in _runs(values, matches):
+        for first, last in frames.runs(values, matches):
             start, end = series.times[first], series.times[last]
             out.append({"time": start, "timeEnd": end, "isRegion": end > start, "title": f"{name} on {short}",
-                        "text": f"{name} = {_run_label(values[first:last + 1])} on {series.entity_id}",
+                        "text": f"{name} = {frames.run_label(values[first:last + 1])} on {series.entity_id}",
                         "tags": [short, name]})  # fmt: skip
     out.sort(key=lambda e: (e["time"], e["tags"][0]))
     return out[-_MAX_EVENTS:]
 
 
 _MAX_EVENTS = 10_000
-_MAX_LABEL_VALUES = 12
-
-
-def _runs(values: list, matches) -> list[tuple[int, int]]:
-    """(first, last) index of each run of consecutive values meeting ``matches``."""
-    runs, first = [], None
-    for i, value in enumerate(values):
-        if value is not None and matches(value):
-            first = i if first is None else first
-        elif first is not None:
-            runs.append((first, i - 1))
-            first = None
-    if first is not None:
-        runs.append((first, len(values) - 1))
-    return runs
-
-
-def _run_label(values: list) -> str:
-    """The values a run went through, each change once: ``1 → 2 → 3``."""
-    changes = [v for i, v in enumerate(values) if i == 0 or v != values[i - 1]]
-    shown = " → ".join(frames._text(v) for v in changes[:_MAX_LABEL_VALUES])
-    return shown + (" → …" if len(changes) > _MAX_LABEL_VALUES else "")
 
 
 @router.post("/annotations", summary="Annotations (classic SimpleJSON)")
