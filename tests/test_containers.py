@@ -4,7 +4,7 @@ No container engine runs here, so the images are never built in the test
 suite; what can drift without one is checked instead: images are pinned,
 mounted files exist where the dashboards' README says to mount them,
 service names and ports match the URLs baked into the provisioning and the
-Orion subscriptions, and the one-shot subscriber's commands parse.
+Orion subscriptions, and the one-shot subscriber's command parses.
 """
 
 from __future__ import annotations
@@ -18,8 +18,7 @@ import yaml
 
 from tsdb_service.cli import build_parser
 from tsdb_service.config import Settings
-from tsdb_service.demo.subscriptions import DEFAULT_NOTIFY_URL, subscription
-from tsdb_service.demo.usecases import SIMULATORS
+from tsdb_service.demo.subscriptions import DEFAULT_NOTIFY_URL
 
 ROOT = Path(__file__).resolve().parent.parent
 COMPOSE = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
@@ -115,12 +114,8 @@ def test_subscriptions_run_once_orion_and_the_service_are_healthy():
     assert job["image"] == SERVICES["tsdb-service"]["image"] and job["build"] == "." and job["restart"] == "no"
     assert {name: dep["condition"] for name, dep in job["depends_on"].items()} == {
         "orion": "service_healthy", "tsdb-service": "service_healthy"}  # fmt: skip
-    script = job["command"][0]
-    compile(script, "subscriptions", "exec")
-    broker = re.search(r'BROKER = "([^"]+)"', script).group(1)
-    assert (urlsplit(broker).hostname, urlsplit(broker).port) == ("orion", 1026)
-    for name, sim in SIMULATORS.items():
-        args = build_parser().parse_args(["subscribe", "--broker", broker, "--use-case", name])
-        assert (args.command, args.use_case) == ("subscribe", name)
-        assert subscription(sim)["description"]  # what the script looks for to skip a tenant
-    assert '"tsdb-service", "subscribe", "--broker", BROKER, "--use-case", name' in script
+    assert "entrypoint" not in job and _instructions("ENTRYPOINT") == ['["tsdb-service"]']
+    args = build_parser().parse_args(job["command"])
+    assert (args.command, args.use_case, args.force) == ("subscribe", "all", False)  # keeps what exists
+    assert (urlsplit(args.broker).hostname, urlsplit(args.broker).port) == ("orion", 1026)
+    assert (args.notify_url or DEFAULT_NOTIFY_URL) == DEFAULT_NOTIFY_URL

@@ -166,9 +166,17 @@ def test_subscription_selects_the_entities_the_simulator_sends(name):
 
 
 class _Broker(http.server.BaseHTTPRequestHandler):
-    """Records one POST and answers like Orion (201 + Location), or 400 for a bad tenant."""
+    """Records one POST and answers like Orion (201 + Location), or 400 for a
+    bad tenant; lists no subscriptions (``subscribe`` looks there first)."""
 
     received: list = []
+
+    def do_GET(self):  # noqa: N802 - http.server's naming
+        self.send_response(200)
+        self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", "2")
+        self.end_headers()
+        self.wfile.write(b"[]")
 
     def do_POST(self):  # noqa: N802 - http.server's naming
         body = self.rfile.read(int(self.headers["Content-Length"]))

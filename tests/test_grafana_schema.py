@@ -236,9 +236,9 @@ def test_dashboards_command_writes_and_checks(tmp_path, capsys):
 def test_dashboards_are_served(client):
     listed = client.get("/dashboards")
     assert listed.status_code == 200
-    assert [d["use_case"] for d in listed.json()] == USE_CASES
+    assert [d["use_case"] for d in listed.json()] == [*USE_CASES, None]  # and the service's own
     for item in listed.json():
         one = client.get(item["url"])
-        assert one.status_code == 200 and one.json() == dashboards.build(item["use_case"])
+        assert one.status_code == 200 and one.json() == dashboards.build(item["name"])
     missing = client.get("/dashboards/nope")
     assert missing.status_code == 404 and missing.json()["error"] == "NotFound"

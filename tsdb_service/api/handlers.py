@@ -10,6 +10,7 @@ import uuid
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
 from starlette.routing import Match
 
 from ..errors import TsdbError
@@ -56,6 +57,20 @@ def _error(request: Request, error: str, description: str, status: int, ld_type:
     return JSON({"error": error, "description": description}, status_code=status, headers=headers)
 
 
+def client_disconnected(request: Request) -> JSON:
+    """A client that closed its connection before its body was complete: not
+    a bug, and nobody is left to read an answer. One warning line (no
+    traceback), and a 400 so the request metric does not count a server error;
+    nothing was done with the partial body."""
+    client = request.client
+    peer = f"{client.host}:{client.port}" if client else "a client"
+    log.warning("%s %s from %s abandoned: the client disconnected before sending the whole body "
+                "(Content-Length %s); nothing was done", request.method, request.url.path, peer,
+                request.headers.get("content-length"))  # fmt: skip
+    return _error(request, "ClientDisconnected", "the client disconnected before sending the whole body", 400,
+                  "BadRequestData")
+
+
 def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(TsdbError)
     async def tsdb_error(request: Request, exc: TsdbError) -> JSON:
@@ -69,8 +84,14 @@ def install_error_handlers(app: FastAPI) -> None:
         )
         return _error(request, "BadRequest", problems or "invalid request", 400, "BadRequestData")
 
+    @app.exception_handler(ClientDisconnect)
+    async def disconnected(request: Request, exc: ClientDisconnect) -> JSON:
+        return client_disconnected(request)
+
     @app.exception_handler(StarletteHTTPException)
     async def http_error(request: Request, exc: StarletteHTTPException) -> JSON:
+        if isinstance(exc.__cause__, ClientDisconnect):  # FastAPI reading a Body() parameter
+            return client_disconnected(request)
         name = _HTTP_NAMES.get(exc.status_code, "BadRequest" if exc.status_code < 500 else "InternalError")
         headers = dict(exc.headers or {})
         if exc.status_code == 405:

@@ -66,12 +66,18 @@ def _add_demo(sub) -> None:
 
 
 def _add_subscribe(sub) -> None:
-    p = sub.add_parser("subscribe", help="create a use case's subscription on a real Orion broker")
+    p = sub.add_parser("subscribe", help="create a use case's subscription on a real Orion broker, once")
     p.add_argument("--broker", required=True, help="the broker's base URL, e.g. http://orion:1026")
     p.add_argument("--use-case", required=True, choices=[*USE_CASE_NAMES, "all"], help="whose subscription to create")
     p.add_argument(
         "--notify-url", default=None,
         help="where the broker sends notifications (default http://tsdb-service:8668/v2/notify)",
+    )  # fmt: skip
+    p.add_argument(
+        "--force", action="store_true",
+        help="create the subscription even if the broker has an equivalent one (same notify URL and entities) "
+        "for the tenant: by default that one is kept and nothing is created, so running twice never stores "
+        "every sample twice",
     )  # fmt: skip
 
 
@@ -240,13 +246,14 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start,
 
 
 def cmd_subscribe(args: argparse.Namespace) -> int:
-    from .subscriptions import DEFAULT_NOTIFY_URL, post_subscription
+    from .subscriptions import DEFAULT_NOTIFY_URL, ensure_subscription
     from .usecases import SIMULATORS
 
     names = USE_CASE_NAMES if args.use_case == "all" else (args.use_case,)
     all_ok = True
     for name in names:
-        ok, answer = post_subscription(args.broker, SIMULATORS[name], args.notify_url or DEFAULT_NOTIFY_URL)
+        notify_url = args.notify_url or DEFAULT_NOTIFY_URL
+        ok, answer = ensure_subscription(args.broker, SIMULATORS[name], notify_url, force=args.force)
         print(f"{name}: {answer}")
         all_ok &= ok
     return 0 if all_ok else 1

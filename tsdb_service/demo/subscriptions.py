@@ -112,6 +112,90 @@ def post_subscription(broker: str, sim: Simulator, notify_url: str, timeout: flo
     return False, f"{answer.status} {answer.reason}: {answer.text.strip()[:500]}"
 
 
+# Orion pages GET /v2/subscriptions (20 by default, at most 1000 a page).
+_PAGE = 1000
+_MAX_PAGES = 100
+
+
+def list_subscriptions(broker: str, headers: dict[str, str], timeout: float = 10.0) -> tuple[list[dict] | None, str]:
+    """Every subscription the broker has for the tenant and service path of
+    ``headers``: ``(subscriptions, "")``, or ``(None, why)`` when it could not
+    tell. Follows Orion's paging (``Fiware-Total-Count``, else short pages)."""
+    url = broker.rstrip("/") + "/v2/subscriptions"
+    tenancy = {k: v for k, v in headers.items() if k.lower().startswith("fiware-")}
+    found: list[dict] = []
+    for _ in range(_MAX_PAGES):
+        params = {"limit": _PAGE, "offset": len(found), "options": "count"}
+        try:
+            response = httpx.get(url, params=params, headers=tenancy, timeout=timeout)
+        except httpx.HTTPError as exc:
+            return None, f"could not reach {url}: {type(exc).__name__}: {exc}"
+        if response.status_code != 200:
+            answer = f"{response.status_code} {response.reason_phrase}: {response.text.strip()[:300]}"
+            return None, f"listing {url} answered {answer}"
+        try:
+            page = orjson.loads(response.content)
+        except orjson.JSONDecodeError:
+            page = None
+        if not isinstance(page, list):
+            return None, f"listing {url} did not answer a JSON array"
+        found.extend(sub for sub in page if isinstance(sub, dict))
+        total = response.headers.get("fiware-total-count", "")
+        more = len(found) < int(total) if total.isdigit() else len(page) >= _PAGE
+        if not page or not more:
+            return found, ""
+    return None, f"listing {url}: more than {_MAX_PAGES * _PAGE} subscriptions"
+
+
+def notify_url_of(document: dict) -> str | None:
+    """Where a subscription sends its notifications (``http`` or ``httpCustom``)."""
+    notification = document.get("notification")
+    if not isinstance(notification, dict):
+        return None
+    for key in ("http", "httpCustom"):
+        target = notification.get(key)
+        if isinstance(target, dict) and isinstance(target.get("url"), str):
+            return target["url"]
+    return None
+
+
+def _selectors(document: dict) -> frozenset[tuple]:
+    subject = document.get("subject")
+    entities = subject.get("entities") if isinstance(subject, dict) else None
+    return frozenset(
+        (e.get("id"), e.get("idPattern"), e.get("type"), e.get("typePattern"))
+        for e in entities if isinstance(e, dict)
+    ) if isinstance(entities, list) else frozenset()  # fmt: skip
+
+
+def equivalent(existing: dict, wanted: dict) -> bool:
+    """Would ``existing`` feed the same notify URL with the same entities as
+    ``wanted``? Then creating ``wanted`` would store every sample twice."""
+    return notify_url_of(existing) == notify_url_of(wanted) and _selectors(existing) == _selectors(wanted)
+
+
+def ensure_subscription(broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0,
+                        force: bool = False) -> tuple[bool, str]:
+    """Create the subscription unless the broker already has an equivalent
+    one for the use case's tenant and service path (``force``: create
+    anyway). ``(ok?, what happened)``; a broker whose subscriptions cannot
+    be listed is not subscribed to (unless ``force``): running twice must
+    never double the history."""
+    if force:
+        return post_subscription(broker, sim, notify_url, timeout)
+    headers = broker_headers(sim)
+    existing, problem = list_subscriptions(broker, headers, timeout)
+    if existing is None:
+        return False, f"{problem}; nothing created (--force creates without checking)"
+    wanted = subscription(sim, notify_url)
+    same = next((sub for sub in existing if equivalent(sub, wanted)), None)
+    if same is None:
+        return post_subscription(broker, sim, notify_url, timeout)
+    tenancy = f"tenant {sim.tenancy.service!r} {sim.tenancy.service_path}"
+    return True, (f"already subscribed: subscription {same.get('id', '?')} (status {same.get('status', 'unknown')}) "
+                  f"on {tenancy} notifies {notify_url}; nothing created (--force creates another)")
+
+
 def example_notification(sim: Simulator) -> tuple[dict[str, str], dict]:
     """A notification from a fixed-seed run, with the headers a broker at
     ``tsdb-service:8668`` would send along (including those libcurl adds)."""

@@ -339,19 +339,14 @@ def event_rows(
     limit: int,
 ) -> list[dict]:
     """Annotations: one per run of consecutive samples meeting the condition,
-    from its first to its last matching sample."""
+    from its first to its last matching sample, labelled with every value the
+    run went through (as the SimpleJSON annotations are)."""
     events = []
     for series in fetch(querier, scope, entities, cols, time):
         for name, values in series.columns.items():
-            start = None
-            for i, value in enumerate(values):
-                hit = value is not None and matches(value)
-                if hit and start is None:
-                    start = i
-                if start is not None and (not hit or i == len(values) - 1):
-                    end = i if hit else i - 1
-                    events.append(_event(series, name, values[start], series.times[start], series.times[end], text))
-                    start = None
+            for first, last in runs(values, matches):
+                label = run_label(values[first : last + 1])
+                events.append(_event(series, name, label, series.times[first], series.times[last], text))
     events.sort(key=lambda e: (e["time"], e["entity"], e["title"]))
     events = events[-limit:]
     for event in events:
@@ -359,16 +354,41 @@ def event_rows(
     return events
 
 
-def _event(series: EntitySeries, name: str, value, start: int, end: int, text: str | None) -> dict:
+def _event(series: EntitySeries, name: str, label: str, start: int, end: int, text: str | None) -> dict:
     short = short_name(series.entity_id)
     return {
         "time": start,
         "timeEnd": end,
         "entity": series.entity_id,
         "title": f"{name} on {short}",
-        "text": text or f"{name} = {_text(value)} on {series.entity_id}",
+        "text": text or f"{name} = {label} on {series.entity_id}",
         "tags": f"{short},{name}",
     }
+
+
+MAX_LABEL_VALUES = 12
+
+
+def runs(values: list, matches: Callable[[object], bool]) -> list[tuple[int, int]]:
+    """(first, last) index of each run of consecutive values meeting ``matches``."""
+    found, first = [], None
+    for i, value in enumerate(values):
+        if value is not None and matches(value):
+            first = i if first is None else first
+        elif first is not None:
+            found.append((first, i - 1))
+            first = None
+    if first is not None:
+        found.append((first, len(values) - 1))
+    return found
+
+
+def run_label(values: list) -> str:
+    """The values a run went through, each change once: ``1 → 2 → 3``. A run
+    of truthy states is several states, not only its first."""
+    changes = [v for i, v in enumerate(values) if i == 0 or v != values[i - 1]]
+    shown = " → ".join(_text(v) for v in changes[:MAX_LABEL_VALUES])
+    return shown + (" → …" if len(changes) > MAX_LABEL_VALUES else "")
 
 
 def _text(value) -> str:

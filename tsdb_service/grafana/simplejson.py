@@ -5,9 +5,14 @@ give the tenant as custom headers ``Fiware-Service`` / ``Fiware-ServicePath``.
 
 A *target* (metric) names one column of some entities:
 ``<entity id>/<attribute or value path>``, e.g.
-``urn:ngsiv2:ROS2System:Lawnmower01/odom(twist.twist.linear.x)``; ``*``
-instead of an id means every entity (narrowed by the payload's ``type`` or
-``idPattern``). simPod's payload (or SimpleJSON's ``data``) may add ``path``
+``urn:ngsiv2:ROS2System:Lawnmower01/odom(twist.twist.linear.x)``, split at
+the first ``/``. Ids (NGSI-LD URIs) and attribute names may contain ``/``
+themselves, so inside either part ``%2F`` stands for ``/`` and ``%25`` for
+``%``, as in history URL paths: ``urn:a%2Fb/v`` is attribute ``v`` of
+``urn:a/b``, ``urn:a/b%2Fv`` attribute ``b/v`` of ``urn:a``. ``/search``,
+``/metrics`` and the ``entities`` / ``attrs`` variables list names in that
+form, so whatever they list is a valid target. ``*`` instead of an id means
+every entity (narrowed by the payload's ``type`` or ``idPattern``). simPod's payload (or SimpleJSON's ``data``) may add ``path``
 (steps inside the value, appended to a plain attribute), ``agg`` (auto, avg,
 last, min, max ...), ``alias`` and ``format`` (``timeseries``, ``table``,
 ``dataframe``, ``annotations``). An annotation query is a target optionally
@@ -33,6 +38,7 @@ from ..history.query import EntityFilter, LastValueQuery, TimeRange, ValuePath
 from ..history.service import run_last_values
 from ..history.valuepath import parse_value_path
 from ..idpattern import compile_pattern, compiled
+from ..rawpath import escape_segment, unescape_segment
 from . import frames
 from .params import MAX_POINTS_LIMIT, Column, moment, positive_int, scope_of
 
@@ -80,6 +86,26 @@ def _when(value: Any) -> str | None:
     raise BadRequest("range bounds must be ISO 8601 strings or epoch milliseconds")
 
 
+def target_part(text: str) -> str:
+    """An entity id or attribute name as written in a target (``/`` and ``%`` escaped)."""
+    return escape_segment(text)
+
+
+def target_name(entity_id: str, attr: str) -> str:
+    """The target that names ``attr`` of ``entity_id``: what ``split_target`` reads back."""
+    return f"{target_part(entity_id)}/{target_part(attr)}"
+
+
+def split_target(text: str) -> tuple[str, str] | None:
+    """``<id>/<attribute or value path>`` → the two parts unescaped, or None
+    when a part is missing. The first ``/`` separates: any ``/`` inside a
+    part is written ``%2F``."""
+    entity, sep, path = text.partition("/")
+    if not sep or not entity or not path:
+        return None
+    return unescape_segment(entity), unescape_segment(path)
+
+
 class Target:
     """A parsed target: which entities, which column, how to answer."""
 
@@ -89,9 +115,11 @@ class Target:
         if not isinstance(payload, dict):
             payload = raw.get("data") if isinstance(raw.get("data"), dict) else {}
         self.ref_id = _str(raw.get("refId"), "refId", "A")
-        entity, sep, path_text = text.partition("/")
-        if not sep or not entity or not path_text:
-            raise BadRequest(f"target {text[:80]!r} must be <entity id or *>/<attribute or value path>")
+        parts = split_target(text)
+        if parts is None:
+            raise BadRequest(f"target {text[:80]!r} must be <entity id or *>/<attribute or value path> "
+                             "('/' inside the id or the attribute written as %2F)")
+        entity, path_text = parts
         path = parse_value_path(path_text)
         extra = _str(payload.get("path"), "payload.path").strip()
         if extra and not path.steps:
@@ -195,23 +223,25 @@ def _catalog(request: Request, entities: EntityFilter | None = None) -> dict[tup
 
 
 def _keyword(request: Request, text: str) -> list[str] | None:
-    """Variable queries: ``entities[:Type]``, ``types``, ``attrs[:entity id]``."""
+    """Variable queries: ``entities[:Type]``, ``types``, ``attrs[:entity id]``.
+    Entity ids and attribute names come in target form (``target_part``), so
+    ``$entity/$attr`` is a valid target; ``attrs:`` takes an id in that form."""
     word, _, arg = text.strip().partition(":")
     word = word.strip().lower()
     arg = arg.strip()
     if word == "entities":
         catalog = _catalog(request, EntityFilter(types=(arg,)) if arg else None)
-        return sorted({eid for eid, _ in catalog})
+        return sorted({target_part(eid) for eid, _ in catalog})
     if word == "types":
         return sorted({etype for _, etype in _catalog(request)})
     if word == "attrs":
-        catalog = _catalog(request, EntityFilter(ids=(arg,)) if arg else None)
-        return sorted({attr for attrs in catalog.values() for attr in attrs})
+        catalog = _catalog(request, EntityFilter(ids=(unescape_segment(arg),)) if arg else None)
+        return sorted({target_part(attr) for attrs in catalog.values() for attr in attrs})
     return None
 
 
 def _metric_names(request: Request, contains: str = "") -> list[str]:
-    names = sorted({f"{eid}/{attr}" for (eid, _), attrs in _catalog(request).items() for attr in attrs})
+    names = sorted({target_name(eid, attr) for (eid, _), attrs in _catalog(request).items() for attr in attrs})
     return [n for n in names if contains in n] if contains else names
 
 
@@ -232,7 +262,7 @@ def variable(request: Request, body: Any = Body(None)) -> JSON:
     text = _str(payload.get("target") if isinstance(payload, dict) else payload, "payload.target").strip()
     named = _keyword(request, text)
     values = named if named is not None else _metric_names(request, text)
-    return JSON([{"__text": frames.short_name(v) if named is not None and "/" not in v else v, "__value": v}
+    return JSON([{"__text": frames.short_name(unescape_segment(v)) if named is not None else v, "__value": v}
                  for v in values])  # fmt: skip
 
 
@@ -256,7 +286,7 @@ def metrics(request: Request, body: Any = Body(None)) -> JSON:
         names = [current] + [n for n in names if n != current]
     out = []
     for name in names:
-        eid, _, attr = name.partition("/")
+        eid, attr = split_target(name)
         out.append({"label": f"{frames.short_name(eid)} {attr}", "value": name, "payloads": _PAYLOADS})
     return JSON(out)
 
@@ -276,9 +306,10 @@ def metric_payload_options(request: Request, body: Any = Body(None)) -> JSON:
     if name != "path":
         return JSON([])
     metric = _str(doc.get("metric"), "metric").strip()
-    eid, sep, attr = metric.partition("/")
-    if not sep or not eid or not attr:
+    parts = split_target(metric)
+    if parts is None:
         return JSON([])
+    eid, attr = parts
     path = parse_value_path(attr)
     scope = scope_of(request.query_params, request.headers)
     ids = None if eid == "*" else (eid,)
@@ -407,38 +438,16 @@ def _events(querier, scope, target: Target, time: TimeRange, filters, equals) ->
         if kept and not _keep(frames.EntitySeries(series.entity_id, ""), kept):
             continue
         values, short = series.columns[name], frames.short_name(series.entity_id)
-        for first, last in _runs(values, matches):
+        for first, last in frames.runs(values, matches):
             start, end = series.times[first], series.times[last]
             out.append({"time": start, "timeEnd": end, "isRegion": end > start, "title": f"{name} on {short}",
-                        "text": f"{name} = {_run_label(values[first:last + 1])} on {series.entity_id}",
+                        "text": f"{name} = {frames.run_label(values[first:last + 1])} on {series.entity_id}",
                         "tags": [short, name]})  # fmt: skip
     out.sort(key=lambda e: (e["time"], e["tags"][0]))
     return out[-_MAX_EVENTS:]
 
 
 _MAX_EVENTS = 10_000
-_MAX_LABEL_VALUES = 12
-
-
-def _runs(values: list, matches) -> list[tuple[int, int]]:
-    """(first, last) index of each run of consecutive values meeting ``matches``."""
-    runs, first = [], None
-    for i, value in enumerate(values):
-        if value is not None and matches(value):
-            first = i if first is None else first
-        elif first is not None:
-            runs.append((first, i - 1))
-            first = None
-    if first is not None:
-        runs.append((first, len(values) - 1))
-    return runs
-
-
-def _run_label(values: list) -> str:
-    """The values a run went through, each change once: ``1 → 2 → 3``."""
-    changes = [v for i, v in enumerate(values) if i == 0 or v != values[i - 1]]
-    shown = " → ".join(frames._text(v) for v in changes[:_MAX_LABEL_VALUES])
-    return shown + (" → …" if len(changes) > _MAX_LABEL_VALUES else "")
 
 
 @router.post("/annotations", summary="Annotations (classic SimpleJSON)", **oa.SIMPLEJSON["annotations"])
@@ -451,8 +460,9 @@ def annotations(request: Request, body: Any = Body(None)) -> JSON:
     text = _str(annotation.get("query"), "annotation.query").strip()
     if not text:
         return JSON([])
-    target_text, sep, equals = text.partition("=")
-    target = Target({"target": target_text.strip(), "refId": "annotations"})
+    entity, slash, rest = text.partition("/")  # an id may contain "=": look for it after the id
+    path_text, sep, equals = rest.partition("=")
+    target = Target({"target": f"{entity}{slash}{path_text}".strip(), "refId": "annotations"})
     scope = scope_of(request.query_params, request.headers)
     events = _events(request.app.state.store.querier(), scope, target, _range(doc), [], equals.strip() if sep else None)
     head = {k: annotation[k] for k in ("name", "enable", "iconColor", "query") if k in annotation}
