@@ -615,8 +615,11 @@ SIMPLEJSON = {
     "tag-values": _simplejson(_array(_obj(("text",), {"text": _STR})), {"properties": {"key": _STR}}),
 }  # fmt: skip
 
-DASHBOARDS = spec(ok_=ok(_array(_obj(("use_case", "uid", "title", "tags", "url", "datasource_uid"), {
-    "use_case": _STR, "uid": _STR, "title": _STR, "tags": _STRS, "url": _STR, "datasource_uid": _STR}))),
+_NULLABLE_STR = {"type": ["string", "null"]}
+DASHBOARDS = spec(ok_=ok(_array(_obj(("name", "use_case", "uid", "title", "tags", "url", "datasource_uid", "datasources"), {
+    "name": _STR, "use_case": _NULLABLE_STR, "uid": _STR, "title": _STR, "tags": _STRS, "url": _STR,
+    "datasource_uid": _NULLABLE_STR,
+    "datasources": _array(_obj(("type", "uid"), {"type": _NULLABLE_STR, "uid": _STR}))}))),
     errors_=AUTH)  # fmt: skip
 DASHBOARD = spec(ok_=ok(ref("Dashboard")), errors_=(*AUTH, 404))
 
