@@ -41,29 +41,31 @@ def sample_spans(querier, locations: dict[int, tuple], geo: GeoFilter, time: Tim
     if extents is None:  # no extents kept: read every candidate
         read = querier.location_candidates(sids, time, geo.prefilter)
     else:
-        read = _from_extents(extents, geo, spans)
+        read = _from_extents(querier, extents, geo, spans)
     if read:
         spans.update(location_spans(querier.location_samples(read, time, geo.prefilter), geo))
     return {locations[sid]: found for sid, found in spans.items()}
 
 
-def _from_extents(extents: list[tuple], geo: GeoFilter, spans: dict[int, list[Span]]) -> list[int]:
+def _from_extents(querier, extents: list[tuple], geo: GeoFilter, spans: dict[int, list[Span]]) -> list[int]:
     """Decide what the extents decide: a series whose every position matches
-    matched from its first one on (into ``spans``); one whose positions
-    cannot match is dropped. Returns the series to read."""
+    matched from its first one on (into ``spans``; a first position the
+    backend does not keep is looked up, one index probe each); one whose
+    positions cannot match is dropped. Returns the series to read."""
     if not extents:
         return []
-    boxes = np.array([row[1:5] for row in extents], dtype=float)
-    every, none = geo.classify_extents(boxes)
-    read = []
-    for (sid, *_box, first_t, first_rid), all_match, no_match in zip(extents, every.tolist(), none.tolist(),
-                                                                     strict=True):
-        if no_match:
-            continue
-        if all_match and first_t is not None:
-            spans[sid] = [(first_t, first_rid, None, None)]
+    sid, *box, first_t, first_rid = zip(*extents, strict=True)
+    every, none = geo.classify_extents(np.array(box, dtype=float).T)
+    read = [s for s, settled in zip(sid, (every | none).tolist(), strict=True) if not settled]
+    unknown = []
+    for s in np.flatnonzero(every).tolist():
+        if first_t[s] is None:
+            unknown.append(sid[s])
         else:
-            read.append(sid)
+            spans[sid[s]] = [(first_t[s], first_rid[s], None, None)]
+    if unknown:
+        for s, t_us, rid in querier.first_locations(unknown):
+            spans[s] = [(int(t_us), int(rid), None, None)]
     return read
 
 

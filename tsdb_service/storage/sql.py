@@ -188,9 +188,9 @@ class RowMask:
         for sid, spans in self.intervals.items():
             for a, ra, b, rb in spans:
                 sids.append(sid)
-                t0.append(_EPOCH + timedelta(microseconds=a))
+                t0.append(_moment(a))
                 r0.append(ra)
-                t1.append(None if b is None else _EPOCH + timedelta(microseconds=b))
+                t1.append(None if b is None else _moment(b))
                 r1.append(rb)
         return [sids, t0, r0, t1, r1]
 
@@ -202,6 +202,10 @@ class RowMask:
             hi = len(rows) if b is None else bisect.bisect_left(rows, (b, rb))
             out.extend(rows[lo:hi])
         return out
+
+
+def _moment(micros: int) -> datetime:
+    return _EPOCH + timedelta(microseconds=micros)
 
 
 def mask_filter(dialect: Dialect, mask: RowMask) -> tuple[str, list]:
@@ -431,9 +435,25 @@ class SqlQuerier(Querier):
 
     def location_extents(self, sids: Sequence[int], prefilter) -> list[tuple] | None:
         """(sid, min_lon, min_lat, max_lon, max_lat, first t µs, first rid) per
-        located series whose extent may pass ``prefilter``, where the backend
-        keeps extents in memory; None here (SQL would cost a full scan)."""
+        located series whose extent (the bounding box of every geo sample it
+        ever had) may pass ``prefilter``, where the backend keeps extents;
+        the first position is None where not known (``first_locations``
+        tells). None here: without kept extents, SQL would cost a full scan."""
         return None
+
+    def first_locations(self, sids: Sequence[int]) -> list[tuple]:
+        """(sid, t µs, rid) of each series' first geo sample, by (t, rid)."""
+        if not sids:
+            return []
+        d = self.dialect
+        where, params = d.sid_filter(sids)
+        sql = (
+            f"SELECT sid, {d.epoch_us('t')}, rid FROM (SELECT sid, t, rid, "
+            "row_number() OVER (PARTITION BY sid ORDER BY t, rid) AS rn "
+            f"FROM {d.samples('sid, rid, t, kind, geo')} WHERE {where} AND kind = {GEO_KIND} "
+            "AND geo IS NOT NULL) f WHERE rn = 1"
+        )
+        return self._fetch(sql, params)
 
     def location_candidates(self, sids: Sequence[int], time: TimeRange, prefilter) -> list[int]:
         """Those of ``sids`` with a geo sample at or before ``time.end``
