@@ -9,11 +9,12 @@ aggregations run in the database on the matching samples only.
 
 Resolving costs little because most entities are never near the query:
 
-1. candidates: the entities whose location series has a sample whose
-   bounding box passes the query's box (in-memory extents on DuckDB, SQL on
-   PostgreSQL). On DuckDB the extent also settles most of them: one that
-   lies wholly inside the query's region matched from its first position
-   on, one wholly outside never did;
+1. candidates: the entities whose location series' *extent* (the bounding
+   box of every position it ever had: in memory on DuckDB, the
+   ``geo_extents`` table on PostgreSQL) passes the query's box. The extent
+   also settles most of them: one that lies wholly inside the query's region
+   matched from its first position on (kept in memory on DuckDB, one index
+   probe otherwise), one wholly outside never did;
 2. the others' location samples in the window, plus the last one before it
    (SQL, which also tests each sample's box, so only those that pass are
    parsed);
@@ -36,12 +37,8 @@ def sample_spans(querier, locations: dict[int, tuple], geo: GeoFilter, time: Tim
     """Entity -> the intervals in which its location matched, for the
     entities of ``locations`` (location series id -> entity) that matched."""
     sids = list(locations)
-    extents = querier.location_extents(sids, geo.prefilter)
     spans: dict[int, list[Span]] = {}
-    if extents is None:  # no extents kept: read every candidate
-        read = querier.location_candidates(sids, time, geo.prefilter)
-    else:
-        read = _from_extents(querier, extents, geo, spans)
+    read = _from_extents(querier, querier.location_extents(sids, geo.prefilter), geo, spans)
     if read:
         spans.update(location_spans(querier.location_samples(read, time, geo.prefilter), geo))
     return {locations[sid]: found for sid, found in spans.items()}

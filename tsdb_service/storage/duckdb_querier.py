@@ -147,9 +147,6 @@ class DuckDBQuerier(SqlQuerier):
         """From memory: where each series has ever been."""
         return self._store.latest_geo.extents(sids, prefilter)
 
-    def location_candidates(self, sids, time, prefilter) -> list[int]:
-        return self._store.latest_geo.ever_near(sids, prefilter)
-
     def _location_rows(self, sids, time) -> tuple[str, list]:
         """One ``sid = ?`` branch per series on the sorted table (each prunes
         it to the series' row groups) and one over the hot table, where an

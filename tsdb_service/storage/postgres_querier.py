@@ -25,6 +25,8 @@ if TYPE_CHECKING:
 
 
 MANY_SIDS = 256
+# A geo_extents row's box, as its GiST index (migration 0006) spells it.
+_BOX = "box(point(min_lon, min_lat), point(max_lon, max_lat))"
 
 
 class PostgresDialect(Dialect):
@@ -90,22 +92,42 @@ class PostgresQuerier(SqlQuerier):
         )
         return self._fetch(sql, [list(sids), *params, *test_params])
 
-    def location_candidates(self, sids, time, prefilter) -> list[int]:
-        """Over many series, one scan of the located samples in the box,
-        intersected here: ``sid = ANY`` of thousands of ids would be tested
-        on every row of that scan."""
-        if len(sids) <= MANY_SIDS or prefilter is None:
-            return super().location_candidates(sids, time, prefilter)
-        test, test_params = box_test(self.dialect, prefilter)
-        where, params = "", []
-        if time.end is not None:
-            where, params = " AND t <= %s", [self.dialect.time_value(time.end)]
-        wanted = set(sids)
-        rows = self._fetch(
-            f"SELECT DISTINCT sid FROM samples WHERE kind = {int(Kind.GEO)} AND geo IS NOT NULL AND {test}{where}",
-            [*test_params, *params],
+    def location_extents(self, sids, prefilter) -> list[tuple]:
+        """From ``geo_extents`` (kept by the writers, see geo.extents): the
+        candidates' boxes without reading a single position. Over many
+        series the table is searched by box (GiST) and intersected here:
+        ``sid = ANY`` of thousands of ids would be tested on every row."""
+        if not sids:
+            return []
+        cols = "sid, min_lon, min_lat, max_lon, max_lat"
+        # A sample's box passes either test only if it overlaps the box, and
+        # an extent holds every sample's box: overlap is the extent's test.
+        overlap = None if prefilter is None else ("intersects", prefilter[1])
+        test, params = box_test(self.dialect, overlap)
+        if len(sids) <= MANY_SIDS:
+            sql = f"SELECT {cols} FROM geo_extents WHERE sid = ANY(%s::integer[]) AND {test}"
+            return [(*row, None, None) for row in self._fetch(sql, [list(sids), *params])]
+        if prefilter is None:
+            rows = self._fetch(f"SELECT {cols} FROM geo_extents", [])
+        else:
+            box = prefilter[1]
+            rows = self._fetch(
+                f"SELECT {cols} FROM geo_extents WHERE {_BOX} && box(point(%s, %s), point(%s, %s)) AND {test}",
+                [box.min_lon, box.min_lat, box.max_lon, box.max_lat, *params],
+            )
+        wanted = sids if isinstance(sids, (set, frozenset)) else set(sids)
+        return [(*row, None, None) for row in rows if row[0] in wanted]
+
+    def first_locations(self, sids) -> list[tuple]:
+        """One index probe per series (``(sid, t)`` index, oldest first)."""
+        if not sids:
+            return []
+        return self._fetch(
+            f"SELECT s.sid, {self.dialect.epoch_us('l.t')}, l.rid FROM unnest(%s::integer[]) AS s(sid) "
+            "CROSS JOIN LATERAL (SELECT t, rid FROM samples x WHERE x.sid = s.sid "
+            f"AND x.kind = {int(Kind.GEO)} AND x.geo IS NOT NULL ORDER BY x.t, x.rid LIMIT 1) l",
+            [list(sids)],
         )
-        return [row[0] for row in rows if row[0] in wanted]
 
     def _location_seeds(self, sids, before) -> tuple[str, list]:
         """The latest geo sample before ``before``: one index probe per series."""

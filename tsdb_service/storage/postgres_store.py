@@ -26,6 +26,7 @@ import psycopg
 from psycopg_pool import ConnectionPool
 
 from ..errors import Unavailable
+from ..geo.extents import ExtentLedger
 from ..model import EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
 from . import rejected as rejected_store
@@ -97,6 +98,7 @@ class PostgresStore(Store):
         self.pool = ConnectionPool(url, min_size=1, max_size=pool_size, open=True,
                                    kwargs={"autocommit": True})
         self._series: dict[SeriesKey, int] = {}
+        self.geo_extents = ExtentLedger()  # geo.extents: where each series has ever been
         self._layouts: dict[tuple[str, str], ValuesLayout] = {}
         # Why the last write failed when the server could not write (disk
         # full, I/O error); cleared by the next write that commits.
@@ -246,9 +248,11 @@ class PostgresAppender(Appender):
 
     def _commit(self) -> None:
         conn = self._connection()
+        extents_stored = None
         with conn.cursor() as cur:
             if self._entities:
                 self._copy_samples(cur)
+                extents_stored = self._store.geo_extents.record(cur, self._entities)
             for r in self._rejected:
                 cur.execute(
                     "INSERT INTO rejected_notifications (tenant, received_at, error, description, headers, body, "
@@ -273,6 +277,8 @@ class PostgresAppender(Appender):
             if self._deletes:
                 self._delete(cur)
         self._send_commit(conn)
+        if extents_stored is not None:
+            extents_stored()
         if dropped:
             rejected_store.count_dropped(self._store.rejected_dropped, dropped)
         for put in self._layouts:

@@ -433,13 +433,14 @@ class SqlQuerier(Querier):
 
     # -- locations over time (geo-queries on samples) ------------------------------
 
-    def location_extents(self, sids: Sequence[int], prefilter) -> list[tuple] | None:
+    @abstractmethod
+    def location_extents(self, sids: Sequence[int], prefilter) -> list[tuple]:
         """(sid, min_lon, min_lat, max_lon, max_lat, first t µs, first rid) per
-        located series whose extent (the bounding box of every geo sample it
-        ever had) may pass ``prefilter``, where the backend keeps extents;
-        the first position is None where not known (``first_locations``
-        tells). None here: without kept extents, SQL would cost a full scan."""
-        return None
+        located series of ``sids`` whose extent (the bounding box of every
+        geo sample it ever had) may pass ``prefilter``; the first position
+        is None where the backend does not keep it (``first_locations``).
+        Kept by each backend (in memory on DuckDB, a table on PostgreSQL):
+        from the samples it would cost a scan of every stored position."""
 
     def first_locations(self, sids: Sequence[int]) -> list[tuple]:
         """(sid, t µs, rid) of each series' first geo sample, by (t, rid)."""
@@ -454,21 +455,6 @@ class SqlQuerier(Querier):
             "AND geo IS NOT NULL) f WHERE rn = 1"
         )
         return self._fetch(sql, params)
-
-    def location_candidates(self, sids: Sequence[int], time: TimeRange, prefilter) -> list[int]:
-        """Those of ``sids`` with a geo sample at or before ``time.end``
-        whose box passes ``prefilter``: only they can have a matching
-        location in ``time`` (an earlier position still counts at its start)."""
-        if not sids or prefilter is None:
-            return list(sids)
-        d = self.dialect
-        where, params = self._where(sids, TimeRange(None, time.end))
-        test, test_params = box_test(d, prefilter)
-        sql = (
-            f"SELECT DISTINCT sid FROM {d.samples('sid, t, kind, geo, min_lon, min_lat, max_lon, max_lat')} "
-            f"WHERE {where} AND kind = {GEO_KIND} AND geo IS NOT NULL AND {test}"
-        )
-        return [row[0] for row in self._fetch(sql, [*params, *test_params])]
 
     def location_samples(self, sids: Sequence[int], time: TimeRange, prefilter) -> list[tuple]:
         """Every geo sample of ``sids`` in ``time``, plus each series' latest
