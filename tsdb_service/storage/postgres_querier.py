@@ -18,7 +18,7 @@ from ..errors import Unavailable
 from .memory_only import check_database_allowed
 from ..model import Kind
 from .catalog import SeriesCatalog
-from .sql import Dialect, SqlQuerier, box_test
+from .sql import _MAX_BIGINT, Dialect, RowMask, SqlQuerier, box_test
 
 if TYPE_CHECKING:
     from .postgres_store import PostgresStore
@@ -74,6 +74,40 @@ class PostgresDialect(Dialect):
 
 
 class PostgresQuerier(SqlQuerier):
+    def raw_rows(self, sids, time, *, newest_first, limit, offset, one_per_row, attrs_per_row=1, mask=None):
+        """Under a geo mask, one attribute per row: an index range scan per
+        mask interval (``(sid, t)`` index, at most ``offset + limit`` rows
+        each) instead of testing every sample of the series against all
+        intervals."""
+        if mask is None or not one_per_row or not sids:
+            return super().raw_rows(
+                sids, time, newest_first=newest_first, limit=limit, offset=offset,
+                one_per_row=one_per_row, attrs_per_row=attrs_per_row, mask=mask,
+            )  # fmt: skip
+        d = self.dialect
+        direction = "DESC" if newest_first else "ASC"
+        window, params = "", []
+        if time.start is not None:
+            window += " AND x.t >= %s"
+            params.append(d.time_value(time.start))
+        if time.end is not None:
+            window += " AND x.t <= %s"
+            params.append(d.time_value(time.end))
+        order = f"ORDER BY t {direction}, rid {direction}"
+        wanted = min(limit + offset, _MAX_BIGINT)
+        subset = RowMask({sid: mask.intervals[sid] for sid in sids if sid in mask.intervals})
+        sql = (
+            f"SELECT sid, rid, {d.iso_ms('t')}, kind, num, txt, js FROM (SELECT l.* FROM {d.mask_relation()} "
+            "CROSS JOIN LATERAL (SELECT x.sid, x.rid, x.t, x.kind, x.num, x.txt, x.js FROM samples x "
+            "WHERE x.sid = m.m_sid AND x.t >= m.m_t0 AND x.t <= coalesce(m.m_t1, 'infinity'::timestamp) "
+            "AND (x.t > m.m_t0 OR x.rid >= m.m_r0) AND (m.m_t1 IS NULL OR x.t < m.m_t1 OR x.rid < m.m_r1)"
+            f"{window} ORDER BY x.t {direction}, x.rid {direction} LIMIT %s) l) kept {order} LIMIT %s OFFSET %s"
+        )
+        rows = self._fetch(sql, [*subset.arrays(), *params, wanted, limit, min(offset, _MAX_BIGINT)])
+        if newest_first:
+            rows.reverse()
+        return rows
+
     def latest_geometries(self, sids, time, prefilter) -> list[tuple]:
         """One index probe per series (``(sid, t)`` index, newest first)
         instead of ranking every location sample."""
