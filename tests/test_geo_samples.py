@@ -177,6 +177,8 @@ def _drive(client, rnd: random.Random, steps: int) -> None:
             assert response.status_code in (204, 404), response.text
             model.delete(robot, start, end)
         else:
+            if step % 3 == 0:  # a plain lastN loads the tails a geo-query may then answer from
+                assert client.get("/v2/types/Robot/attrs/speed?lastN=5", headers=H).status_code == 200
             name = rnd.choice(list(QUERIES))
             geo, inside = QUERIES[name]
             params = _random_params(rnd, now)
