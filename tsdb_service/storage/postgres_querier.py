@@ -149,7 +149,7 @@ class PostgresQuerier(SqlQuerier):
                 f"SELECT {cols} FROM geo_extents WHERE {_BOX} && box(point(%s, %s), point(%s, %s)) AND {test}",
                 [box.min_lon, box.min_lat, box.max_lon, box.max_lat, *params],
             )
-        wanted = sids if isinstance(sids, (set, frozenset)) else set(sids)
+        wanted = sids if isinstance(sids, (set, frozenset, dict)) else set(sids)
         return [(*row, None, None) for row in rows if row[0] in wanted]
 
     def first_locations(self, sids) -> list[tuple]:
