@@ -252,6 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.db and is_pg(args.db):
         args.backend = "postgresql"
     every = args.location == "every"
+    load_start = os.getloadavg()
     where = "every sample" if every else "the first sample only"
     print(f"geo benchmark on {args.backend}: {ENTITIES:,} entities x {SAMPLES} samples, location in {where}",
           flush=True)
@@ -331,6 +332,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['server_cpu_ms_per_req']:>10.2f}" + (f" {r['db_cpu_ms_per_req']:>9.2f}" if db_col else "")
               + f" {r['errors'] + r['non_2xx']:>6}")
     print(f"server RSS: {rss / 2**20:.0f} MiB")
+    print(f"load average (1/5/15 min) at start {_load(load_start)}, at end {_load(os.getloadavg())} "
+          f"on {os.cpu_count()} CPUs: other processes' load inflates every latency")
     print()
     for name, ok in checks.items():
         print(f"{'PASS' if ok else 'FAIL'}  {name}")
@@ -339,12 +342,17 @@ def main(argv: list[str] | None = None) -> int:
         Path(args.json).write_text(json.dumps({
             "benchmark": "geo", "backend": args.backend, "entities": ENTITIES, "samples_per_entity": SAMPLES,
             "load": loaded, "location": args.location, "check": checked, "results": results, "checks": checks,
-            "rss_bytes": rss, "machine": {"cpus": os.cpu_count()}}, indent=2))
+            "rss_bytes": rss, "machine": {"cpus": os.cpu_count(), "load_average_start": load_start,
+                                          "load_average_end": os.getloadavg()}}, indent=2))
     if args.keep and isinstance(db, Path) and tmp in db.parents:
         print(f"kept {db}")
     else:
         shutil.rmtree(tmp, ignore_errors=True)
     return 0 if all(checks.values()) else 1
+
+
+def _load(triple) -> str:
+    return " / ".join(f"{x:.2f}" for x in triple)
 
 
 def _le(value, limit: float) -> bool:

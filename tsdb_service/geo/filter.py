@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import orjson
@@ -49,7 +50,7 @@ class GeoFilter:
     min_distance: float | None = None
     scope: str = SAMPLE
 
-    @property
+    @cached_property
     def prefilter(self) -> tuple[str, BBox] | None:
         """What SQL may check on a sample's stored bounding box:
         ("intersects", box) — the sample's box must overlap ``box``;

@@ -9,11 +9,12 @@ aggregations run in the database on the matching samples only.
 
 Resolving costs little because most entities are never near the query:
 
-1. candidates: the entities whose location series has a sample whose
-   bounding box passes the query's box (in-memory extents on DuckDB, SQL on
-   PostgreSQL). On DuckDB the extent also settles most of them: one that
-   lies wholly inside the query's region matched from its first position
-   on, one wholly outside never did;
+1. candidates: the entities whose location series' *extent* (the bounding
+   box of every position it ever had: in memory on DuckDB, the
+   ``geo_extents`` table on PostgreSQL) passes the query's box. The extent
+   also settles most of them: one that lies wholly inside the query's region
+   matched from its first position on (kept in memory on DuckDB, one index
+   probe otherwise), one wholly outside never did;
 2. the others' location samples in the window, plus the last one before it
    (SQL, which also tests each sample's box, so only those that pass are
    parsed);
@@ -35,35 +36,33 @@ Span = tuple[int, int, int | None, int | None]  # t0 µs, rid0, t1 µs | None (o
 def sample_spans(querier, locations: dict[int, tuple], geo: GeoFilter, time: TimeRange) -> dict[tuple, list[Span]]:
     """Entity -> the intervals in which its location matched, for the
     entities of ``locations`` (location series id -> entity) that matched."""
-    sids = list(locations)
-    extents = querier.location_extents(sids, geo.prefilter)
     spans: dict[int, list[Span]] = {}
-    if extents is None:  # no extents kept: read every candidate
-        read = querier.location_candidates(sids, time, geo.prefilter)
-    else:
-        read = _from_extents(extents, geo, spans)
+    # The dict itself: backends test membership in it (no set of 10,000s built).
+    read = _from_extents(querier, querier.location_extents(locations, geo.prefilter), geo, spans)
     if read:
         spans.update(location_spans(querier.location_samples(read, time, geo.prefilter), geo))
     return {locations[sid]: found for sid, found in spans.items()}
 
 
-def _from_extents(extents: list[tuple], geo: GeoFilter, spans: dict[int, list[Span]]) -> list[int]:
+def _from_extents(querier, extents: list[tuple], geo: GeoFilter, spans: dict[int, list[Span]]) -> list[int]:
     """Decide what the extents decide: a series whose every position matches
-    matched from its first one on (into ``spans``); one whose positions
-    cannot match is dropped. Returns the series to read."""
+    matched from its first one on (into ``spans``; a first position the
+    backend does not keep is looked up, one index probe each); one whose
+    positions cannot match is dropped. Returns the series to read."""
     if not extents:
         return []
-    boxes = np.array([row[1:5] for row in extents], dtype=float)
-    every, none = geo.classify_extents(boxes)
-    read = []
-    for (sid, *_box, first_t, first_rid), all_match, no_match in zip(extents, every.tolist(), none.tolist(),
-                                                                     strict=True):
-        if no_match:
-            continue
-        if all_match and first_t is not None:
-            spans[sid] = [(first_t, first_rid, None, None)]
+    sid, *box, first_t, first_rid = zip(*extents, strict=True)
+    every, none = geo.classify_extents(np.array(box, dtype=float).T)
+    read = [s for s, settled in zip(sid, (every | none).tolist(), strict=True) if not settled]
+    unknown = []
+    for s in np.flatnonzero(every).tolist():
+        if first_t[s] is None:
+            unknown.append(sid[s])
         else:
-            read.append(sid)
+            spans[sid[s]] = [(first_t[s], first_rid[s], None, None)]
+    if unknown:
+        for s, t_us, rid in querier.first_locations(unknown):
+            spans[s] = [(int(t_us), int(rid), None, None)]
     return read
 
 

@@ -41,7 +41,6 @@ LOCATION = "location"
 # call per series would be most of a geo-query's cost.
 entity_key = attrgetter("service_path", "entity_type", "entity_id")
 _SID = attrgetter("sid")
-_ATTR = attrgetter("attr")
 
 
 def apply_geo(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesRef], geo: GeoFilter, time: TimeRange):
@@ -84,12 +83,11 @@ _memo_lock = threading.Lock()
 
 def _selection(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesRef]) -> _Selection:
     """Built once per selection and reused while the catalog gives the same
-    series (series are never removed: the same request selecting as many
-    series with the same ids selects the same ones), so a repeated query over
-    10,000 entities does not re-key 20,000 series each time."""
+    series (the key holds their ids), so a repeated query over 10,000
+    entities does not re-key 20,000 series each time."""
     named = querier.series(scope, entities, [LOCATION])
-    key = (scope, entities, frozenset(map(_ATTR, refs)), len(refs), sum(map(_SID, refs)), len(named),
-           sum(map(_SID, named)))
+    # The series ids themselves: exact, and cheaper than any summary of them.
+    key = (scope, entities, tuple([r.sid for r in refs]), tuple([r.sid for r in named]))
     with _memo_lock:
         cache = _memo.setdefault(querier, OrderedDict())
         found = cache.get(key)

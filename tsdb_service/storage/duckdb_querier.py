@@ -14,7 +14,7 @@ import duckdb
 from ..errors import Unavailable
 from .memory_only import check_database_allowed
 from .catalog import SeriesCatalog
-from .sql import DuckDBDialect, SqlQuerier
+from .sql import _LOCATION_COLUMNS, GEO_KIND, DuckDBDialect, RowMask, SqlQuerier, series_time_filter
 from .duckdb_store import to_micros
 
 if TYPE_CHECKING:
@@ -24,6 +24,8 @@ if TYPE_CHECKING:
 # an insert-only table (series ids do not: several writers allocate them).
 # lastN over more series than this goes to the database in one query.
 TAIL_MAX_SERIES = 64
+# The two halves of ``samples_all``: the sorted table and the recent commits.
+SORTED, HOT = "samples", "samples_hot"
 
 _LOAD_SERIES = (
     "SELECT rowid, sid, tenant, service_path, entity_id, entity_type, attr, dataset_id FROM series "
@@ -41,12 +43,12 @@ class DuckDBQuerier(SqlQuerier):
         return self._fetch(_LOAD_SERIES, [after])
 
     def raw_rows(self, sids, time, *, newest_first, limit, offset, one_per_row, attrs_per_row=1, mask=None):
-        """One attribute per row: try the in-memory tails first."""
-        if one_per_row and (len(sids) == 1 or (newest_first and len(sids) <= TAIL_MAX_SERIES)):
-            if mask is None:
-                rows = self._from_tails(sids, time, newest_first, limit, offset)
-            else:
-                rows = self._from_masked_tails(sids, time, newest_first, limit, offset, mask)
+        """One attribute per row: try the in-memory tails first; under a geo
+        mask, tails where they provably answer and one statement for the rest."""
+        if one_per_row and mask is not None and len(sids) <= TAIL_MAX_SERIES:
+            return self._masked_rows(sids, time, newest_first, limit, offset, mask)
+        if one_per_row and mask is None and (len(sids) == 1 or (newest_first and len(sids) <= TAIL_MAX_SERIES)):
+            rows = self._from_tails(sids, time, newest_first, limit, offset)
             if rows is not None:
                 return rows
         return super().raw_rows(
@@ -72,48 +74,128 @@ class DuckDBQuerier(SqlQuerier):
             merged.extend((row[0], row[1], sid, row) for row in got)
         return _window(merged, True, limit, offset)
 
-    def _from_masked_tails(self, sids, time, newest_first, limit, offset, mask) -> list[tuple] | None:
-        """A geo mask keeps some of a tail's rows. The tail answers when it
-        provably holds every kept row SQL would return: all of the series'
-        rows in the window, or at least ``offset + limit`` kept rows (every
-        uncached row is older than all cached ones), newest first only."""
+    def _masked_rows(self, sids, time, newest_first, limit, offset, mask) -> list[tuple]:
+        """The rows a geo mask keeps, ``offset``/``limit`` over all series.
+        Each series contributes at most its own first ``offset + limit`` kept
+        rows in the wanted order: from its cached tail when that provably
+        holds them (newest first only, never loading one: a geo-query's
+        entities are scattered, one load each would cost more than the
+        statement), the others' from one SQL statement."""
+        wanted = offset + limit
+        merged: list[tuple] = []
+        ask = []
+        for sid in sids:
+            if not mask.intervals.get(sid):
+                continue
+            kept = self._kept_from_tail(sid, time, wanted, mask) if newest_first else None
+            if kept is None:
+                ask.append(sid)
+            else:
+                merged.extend((row[0], row[1], sid, row) for row in kept)
+        if ask:
+            for row in self._masked_firsts(ask, time, newest_first, wanted, mask):
+                merged.append((row[0], row[1], row[7], row[:7]))
+        return _window(merged, newest_first, limit, offset)
+
+    def _kept_from_tail(self, sid, time, wanted, mask) -> list[tuple] | None:
+        """The newest ``wanted`` rows ``mask`` keeps of a cached tail, when the
+        tail provably holds them: all of the series' rows in the window, or
+        at least ``wanted`` kept ones (every uncached row is older than all
+        cached ones). None when not cached or not provable."""
+        tail = self._store.tail
         start = None if time.start is None else to_micros(time.start)
         end = None if time.end is None else to_micros(time.end)
-        tail = self._store.tail
-        capacity = tail.capacity
-        merged = []
+        try:
+            got = tail.rows(sid, _only_cached, start, end, True, tail.capacity, 0)
+        except _NotCached:
+            return None
+        if got is None:
+            return None
+        complete = len(got) < tail.capacity  # fewer: the tail holds the whole window
+        kept = mask.keep(sid, got)
+        if not complete and len(kept) < wanted:
+            return None
+        return kept[max(0, len(kept) - wanted):]
+
+    def _masked_firsts(self, sids, time, newest_first, wanted, mask) -> list[tuple]:
+        """The first ``wanted`` rows (in the request's order) that ``mask``
+        keeps of ``sids``, as (t µs, rid, ISO time, kind, num, txt, js, sid).
+        One ``sid = ?`` scan per series on the sorted table (each prunes it
+        to the series' row groups) and one of the small hot table (an IN
+        list of scattered ids would scan the whole sorted table), joined
+        once with the mask's intervals: the mask as one relation plans in
+        a fraction of the time of a predicate per interval."""
+        d = self.dialect
+        direction = "DESC" if newest_first else "ASC"
+        cols = "t, rid, kind, num, txt, js, sid"
+        parts, params = [], []
         for sid in sids:
-            got = tail.rows(sid, self._load_tail, start, end, True, capacity, 0)
-            if got is None:
-                return None
-            # Fewer than ``capacity`` rows: the tail holds the series' whole window.
-            complete = len(got) < capacity
-            kept = mask.keep(sid, got)
-            if not complete and (not newest_first or len(kept) < offset + limit):
-                return None
-            if newest_first:
-                kept = kept[max(0, len(kept) - offset - limit):]  # only these can be picked
-            merged.extend((row[0], row[1], sid, row) for row in kept)
-        return _window(merged, newest_first, limit, offset)
+            where, more = series_time_filter(d, [sid], time)
+            parts.append(f"SELECT {cols} FROM {SORTED} WHERE {where}")
+            params += more
+        where, more = series_time_filter(d, sids, time)
+        parts.append(f"SELECT {cols} FROM {HOT} WHERE {where}")
+        params += more
+        sql = (
+            f"SELECT {d.epoch_us('t')}, rid, {d.iso_ms('t')}, kind, num, txt, js, sid "
+            f"FROM ({' UNION ALL '.join(parts)}) u JOIN {d.mask_relation()} ON m_sid = sid "
+            f"WHERE {_IN_SPAN} ORDER BY t {direction}, rid {direction} LIMIT ?"
+        )
+        return self._fetch(sql, [*params, *RowMask({sid: mask.intervals[sid] for sid in sids}).arrays(), wanted])
 
     def location_extents(self, sids, prefilter) -> list[tuple]:
         """From memory: where each series has ever been."""
         return self._store.latest_geo.extents(sids, prefilter)
 
-    def location_candidates(self, sids, time, prefilter) -> list[int]:
-        return self._store.latest_geo.ever_near(sids, prefilter)
-
     def _location_rows(self, sids, time) -> tuple[str, list]:
-        """One ``sid = ?`` branch per series: each prunes the sorted table to
-        the series' row groups, where an IN list of scattered ids scans all."""
+        """One ``sid = ?`` branch per series on the sorted table (each prunes
+        it to the series' row groups) and one over the hot table, where an
+        IN list of scattered ids would scan the whole sorted table. With a
+        window start, each part's latest position before it comes along:
+        the later of the two is the series' (the other, older, only adds a
+        true earlier position, whose interval ends before the window)."""
         if len(sids) > TAIL_MAX_SERIES:
             return super()._location_rows(sids, time)
+        d = self.dialect
+        located = f"kind = {GEO_KIND} AND geo IS NOT NULL"
         parts, params = [], []
         for sid in sids:
-            sql, more = super()._location_rows([sid], time)
-            parts.append(sql)
+            where, more = series_time_filter(d, [sid], time)
+            parts.append(f"SELECT {_LOCATION_COLUMNS} FROM {SORTED} WHERE {where} AND {located}")
             params += more
+        where, more = series_time_filter(d, sids, time)
+        parts.append(f"SELECT {_LOCATION_COLUMNS} FROM {HOT} WHERE {where} AND {located}")
+        params += more
+        if time.start is not None:
+            before = d.time_value(time.start)
+            for sid in sids:
+                parts.append(
+                    f"(SELECT {_LOCATION_COLUMNS} FROM {SORTED} WHERE sid = ? AND t < ? AND {located} "
+                    "ORDER BY t DESC, rid DESC LIMIT 1)"
+                )
+                params += [sid, before]
+            where, more = d.sid_filter(sids)
+            parts.append(
+                f"SELECT {_LOCATION_COLUMNS} FROM {HOT} WHERE {where} AND t < ? AND {located} "
+                "QUALIFY row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) = 1"
+            )
+            params += [*more, before]
         return " UNION ALL ".join(parts), params
+
+    def first_locations(self, sids) -> list[tuple]:
+        """Only asked after a delete made a first position unknown: one
+        branch per series (see ``_location_rows``)."""
+        if not sids or len(sids) > TAIL_MAX_SERIES:
+            return super().first_locations(sids)
+        d = self.dialect
+        parts, params = [], []
+        for sid in sids:
+            parts.append(
+                f"(SELECT sid, {d.epoch_us('t')}, rid FROM {d.samples('sid, rid, t, kind, geo')} WHERE sid = ? "
+                f"AND kind = {GEO_KIND} AND geo IS NOT NULL ORDER BY t, rid LIMIT 1)"
+            )
+            params.append(sid)
+        return self._fetch(" UNION ALL ".join(parts), params)
 
     def latest_geometries(self, sids, time, prefilter) -> list[tuple]:
         """The latest locations come from memory unless bounded by ``toDate``."""
@@ -144,6 +226,18 @@ class DuckDBQuerier(SqlQuerier):
             if store.notice(exc) is not None:
                 raise Unavailable("the database is being reopened after a storage failure; retry later") from None
             raise
+
+
+class _NotCached(Exception):
+    """A tail read that would have to load the tail."""
+
+
+def _only_cached(sid: int, n: int) -> list[tuple]:
+    raise _NotCached
+
+
+# A joined mask row's interval holds the sample's (t, rid).
+_IN_SPAN = "(t > m_t0 OR (t = m_t0 AND rid >= m_r0)) AND (m_t1 IS NULL OR t < m_t1 OR (t = m_t1 AND rid < m_r1))"
 
 
 def _window(merged: list[tuple], newest_first: bool, limit: int, offset: int) -> list[tuple]:

@@ -96,7 +96,7 @@ class _Grid:
         near = set(self._large)
         for cell in cells:
             near |= self._cells.get(cell, set())
-        wanted = sids if isinstance(sids, (set, frozenset)) else set(sids)
+        wanted = sids if isinstance(sids, (set, frozenset, dict)) else set(sids)
         return [sid for sid in near if sid in wanted]
 
 

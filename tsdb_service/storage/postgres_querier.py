@@ -18,13 +18,15 @@ from ..errors import Unavailable
 from .memory_only import check_database_allowed
 from ..model import Kind
 from .catalog import SeriesCatalog
-from .sql import Dialect, SqlQuerier, box_test
+from .sql import _MAX_BIGINT, Dialect, RowMask, SqlQuerier, box_test
 
 if TYPE_CHECKING:
     from .postgres_store import PostgresStore
 
 
 MANY_SIDS = 256
+# A geo_extents row's box, as its GiST index (migration 0006) spells it.
+_BOX = "box(point(min_lon, min_lat), point(max_lon, max_lat))"
 
 
 class PostgresDialect(Dialect):
@@ -72,6 +74,40 @@ class PostgresDialect(Dialect):
 
 
 class PostgresQuerier(SqlQuerier):
+    def raw_rows(self, sids, time, *, newest_first, limit, offset, one_per_row, attrs_per_row=1, mask=None):
+        """Under a geo mask, one attribute per row: an index range scan per
+        mask interval (``(sid, t)`` index, at most ``offset + limit`` rows
+        each) instead of testing every sample of the series against all
+        intervals."""
+        if mask is None or not one_per_row or not sids:
+            return super().raw_rows(
+                sids, time, newest_first=newest_first, limit=limit, offset=offset,
+                one_per_row=one_per_row, attrs_per_row=attrs_per_row, mask=mask,
+            )  # fmt: skip
+        d = self.dialect
+        direction = "DESC" if newest_first else "ASC"
+        window, params = "", []
+        if time.start is not None:
+            window += " AND x.t >= %s"
+            params.append(d.time_value(time.start))
+        if time.end is not None:
+            window += " AND x.t <= %s"
+            params.append(d.time_value(time.end))
+        order = f"ORDER BY t {direction}, rid {direction}"
+        wanted = min(limit + offset, _MAX_BIGINT)
+        subset = RowMask({sid: mask.intervals[sid] for sid in sids if sid in mask.intervals})
+        sql = (
+            f"SELECT sid, rid, {d.iso_ms('t')}, kind, num, txt, js FROM (SELECT l.* FROM {d.mask_relation()} "
+            "CROSS JOIN LATERAL (SELECT x.sid, x.rid, x.t, x.kind, x.num, x.txt, x.js FROM samples x "
+            "WHERE x.sid = m.m_sid AND x.t >= m.m_t0 AND x.t <= coalesce(m.m_t1, 'infinity'::timestamp) "
+            "AND (x.t > m.m_t0 OR x.rid >= m.m_r0) AND (m.m_t1 IS NULL OR x.t < m.m_t1 OR x.rid < m.m_r1)"
+            f"{window} ORDER BY x.t {direction}, x.rid {direction} LIMIT %s) l) kept {order} LIMIT %s OFFSET %s"
+        )
+        rows = self._fetch(sql, [*subset.arrays(), *params, wanted, limit, min(offset, _MAX_BIGINT)])
+        if newest_first:
+            rows.reverse()
+        return rows
+
     def latest_geometries(self, sids, time, prefilter) -> list[tuple]:
         """One index probe per series (``(sid, t)`` index, newest first)
         instead of ranking every location sample."""
@@ -90,22 +126,42 @@ class PostgresQuerier(SqlQuerier):
         )
         return self._fetch(sql, [list(sids), *params, *test_params])
 
-    def location_candidates(self, sids, time, prefilter) -> list[int]:
-        """Over many series, one scan of the located samples in the box,
-        intersected here: ``sid = ANY`` of thousands of ids would be tested
-        on every row of that scan."""
-        if len(sids) <= MANY_SIDS or prefilter is None:
-            return super().location_candidates(sids, time, prefilter)
-        test, test_params = box_test(self.dialect, prefilter)
-        where, params = "", []
-        if time.end is not None:
-            where, params = " AND t <= %s", [self.dialect.time_value(time.end)]
-        wanted = set(sids)
-        rows = self._fetch(
-            f"SELECT DISTINCT sid FROM samples WHERE kind = {int(Kind.GEO)} AND geo IS NOT NULL AND {test}{where}",
-            [*test_params, *params],
+    def location_extents(self, sids, prefilter) -> list[tuple]:
+        """From ``geo_extents`` (kept by the writers, see geo.extents): the
+        candidates' boxes without reading a single position. Over many
+        series the table is searched by box (GiST) and intersected here:
+        ``sid = ANY`` of thousands of ids would be tested on every row."""
+        if not sids:
+            return []
+        cols = "sid, min_lon, min_lat, max_lon, max_lat"
+        # A sample's box passes either test only if it overlaps the box, and
+        # an extent holds every sample's box: overlap is the extent's test.
+        overlap = None if prefilter is None else ("intersects", prefilter[1])
+        test, params = box_test(self.dialect, overlap)
+        if len(sids) <= MANY_SIDS:
+            sql = f"SELECT {cols} FROM geo_extents WHERE sid = ANY(%s::integer[]) AND {test}"
+            return [(*row, None, None) for row in self._fetch(sql, [list(sids), *params])]
+        if prefilter is None:
+            rows = self._fetch(f"SELECT {cols} FROM geo_extents", [])
+        else:
+            box = prefilter[1]
+            rows = self._fetch(
+                f"SELECT {cols} FROM geo_extents WHERE {_BOX} && box(point(%s, %s), point(%s, %s)) AND {test}",
+                [box.min_lon, box.min_lat, box.max_lon, box.max_lat, *params],
+            )
+        wanted = sids if isinstance(sids, (set, frozenset, dict)) else set(sids)
+        return [(*row, None, None) for row in rows if row[0] in wanted]
+
+    def first_locations(self, sids) -> list[tuple]:
+        """One index probe per series (``(sid, t)`` index, oldest first)."""
+        if not sids:
+            return []
+        return self._fetch(
+            f"SELECT s.sid, {self.dialect.epoch_us('l.t')}, l.rid FROM unnest(%s::integer[]) AS s(sid) "
+            "CROSS JOIN LATERAL (SELECT t, rid FROM samples x WHERE x.sid = s.sid "
+            f"AND x.kind = {int(Kind.GEO)} AND x.geo IS NOT NULL ORDER BY x.t, x.rid LIMIT 1) l",
+            [list(sids)],
         )
-        return [row[0] for row in rows if row[0] in wanted]
 
     def _location_seeds(self, sids, before) -> tuple[str, list]:
         """The latest geo sample before ``before``: one index probe per series."""

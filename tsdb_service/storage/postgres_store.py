@@ -26,6 +26,7 @@ import psycopg
 from psycopg_pool import ConnectionPool
 
 from ..errors import Unavailable
+from ..geo.extents import ExtentLedger
 from ..model import EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
 from . import rejected as rejected_store
@@ -107,6 +108,7 @@ class PostgresStore(Store):
                                    kwargs={"autocommit": True})
         self._series: dict[SeriesKey, int] = {}
         self.latest_instances = LatestInstances()
+        self.geo_extents = ExtentLedger()  # geo.extents: where each series has ever been
         self._layouts: dict[tuple[str, str], ValuesLayout] = {}
         # Why the last write failed when the server could not write (disk
         # full, I/O error); cleared by the next write that commits.
@@ -264,9 +266,11 @@ class PostgresAppender(Appender):
 
     def _commit(self) -> None:
         conn = self._connection()
+        extents_stored = None
         with conn.cursor() as cur:
             if self._entities:
                 self._copy_samples(cur)
+                extents_stored = self._store.geo_extents.record(cur, self._entities)
             for r in self._rejected:
                 cur.execute(
                     "INSERT INTO rejected_notifications (tenant, received_at, error, description, headers, body, "
@@ -298,6 +302,8 @@ class PostgresAppender(Appender):
                     for sql, params in instance_statements(PostgresDialect(), ("samples",), op):
                         cur.execute(sql, params)
         self._send_commit(conn)
+        if extents_stored is not None:
+            extents_stored()
         if dropped:
             rejected_store.count_dropped(self._store.rejected_dropped, dropped)
         store = self._store

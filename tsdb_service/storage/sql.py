@@ -191,9 +191,9 @@ class RowMask:
         for sid, spans in self.intervals.items():
             for a, ra, b, rb in spans:
                 sids.append(sid)
-                t0.append(_EPOCH + timedelta(microseconds=a))
+                t0.append(_moment(a))
                 r0.append(ra)
-                t1.append(None if b is None else _EPOCH + timedelta(microseconds=b))
+                t1.append(None if b is None else _moment(b))
                 r1.append(rb)
         return [sids, t0, r0, t1, r1]
 
@@ -205,6 +205,10 @@ class RowMask:
             hi = len(rows) if b is None else bisect.bisect_left(rows, (b, rb))
             out.extend(rows[lo:hi])
         return out
+
+
+def _moment(micros: int) -> datetime:
+    return _EPOCH + timedelta(microseconds=micros)
 
 
 def mask_filter(dialect: Dialect, mask: RowMask) -> tuple[str, list]:
@@ -498,26 +502,28 @@ class SqlQuerier(Querier):
 
     # -- locations over time (geo-queries on samples) ------------------------------
 
-    def location_extents(self, sids: Sequence[int], prefilter) -> list[tuple] | None:
+    @abstractmethod
+    def location_extents(self, sids: Sequence[int], prefilter) -> list[tuple]:
         """(sid, min_lon, min_lat, max_lon, max_lat, first t µs, first rid) per
-        located series whose extent may pass ``prefilter``, where the backend
-        keeps extents in memory; None here (SQL would cost a full scan)."""
-        return None
+        located series of ``sids`` whose extent (the bounding box of every
+        geo sample it ever had) may pass ``prefilter``; the first position
+        is None where the backend does not keep it (``first_locations``).
+        Kept by each backend (in memory on DuckDB, a table on PostgreSQL):
+        from the samples it would cost a scan of every stored position."""
 
-    def location_candidates(self, sids: Sequence[int], time: TimeRange, prefilter) -> list[int]:
-        """Those of ``sids`` with a geo sample at or before ``time.end``
-        whose box passes ``prefilter``: only they can have a matching
-        location in ``time`` (an earlier position still counts at its start)."""
-        if not sids or prefilter is None:
-            return list(sids)
+    def first_locations(self, sids: Sequence[int]) -> list[tuple]:
+        """(sid, t µs, rid) of each series' first geo sample, by (t, rid)."""
+        if not sids:
+            return []
         d = self.dialect
-        where, params = self._where(sids, TimeRange(None, time.end))
-        test, test_params = box_test(d, prefilter)
+        where, params = d.sid_filter(sids)
         sql = (
-            f"SELECT DISTINCT sid FROM {d.samples('sid, t, kind, geo, min_lon, min_lat, max_lon, max_lat')} "
-            f"WHERE {where} AND kind = {GEO_KIND} AND geo IS NOT NULL AND {test}"
+            f"SELECT sid, {d.epoch_us('t')}, rid FROM (SELECT sid, t, rid, "
+            "row_number() OVER (PARTITION BY sid ORDER BY t, rid) AS rn "
+            f"FROM {d.samples('sid, rid, t, kind, geo')} WHERE {where} AND kind = {GEO_KIND} "
+            "AND geo IS NOT NULL) f WHERE rn = 1"
         )
-        return [row[0] for row in self._fetch(sql, [*params, *test_params])]
+        return self._fetch(sql, params)
 
     def location_samples(self, sids: Sequence[int], time: TimeRange, prefilter) -> list[tuple]:
         """Every geo sample of ``sids`` in ``time``, plus each series' latest
