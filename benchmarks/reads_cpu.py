@@ -13,7 +13,8 @@ the type-level hourly average over the day, the type-level lastN=1000 --
 sends ``--requests`` GETs one after the other on one keep-alive connection,
 ``--reps`` times, and prints per rep: the server's CPU ms per request
 (user + system of its process), on PostgreSQL also the database's (all its
-processes), and the client's p50 latency. Every cell is the median [min-max]
+processes), and the client's p50 latency. On PostgreSQL the data set is
+VACUUMed before the measurement (``--no-vacuum``: not). Every cell is the median [min-max]
 over the reps. ``--json FILE`` writes the raw figures.
 """
 
@@ -87,7 +88,7 @@ def _cells(runs: list[dict]) -> str:
     return text
 
 
-def run_backend(backend: str, workdir: Path, requests: int, reps: int) -> dict:
+def run_backend(backend: str, workdir: Path, requests: int, reps: int, vacuum: bool = True) -> dict:
     cluster = None
     try:
         if backend == "postgresql":
@@ -104,8 +105,8 @@ def run_backend(backend: str, workdir: Path, requests: int, reps: int) -> dict:
             print(f"- {backend}: loading the data set ...", flush=True)
             lawnmower.load_dataset(server.url)
             lawnmower.check_dataset(server.url)
-            if cluster is not None:
-                cluster.vacuum_analyze()
+            if cluster is not None and vacuum:
+                cluster.vacuum_analyze()  # as autovacuum will, sooner or later
             return run_queries(server, cluster, requests, reps)
         finally:
             server.stop()
@@ -119,12 +120,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--backends", default="duckdb,postgresql")
     ap.add_argument("--requests", type=int, default=300, help="GETs per rep and query")
     ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--no-vacuum", action="store_true",
+                    help="PostgreSQL: measure right after the load, before any VACUUM (as compare.py does)")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     results = {}
     with tempfile.TemporaryDirectory(prefix="reads-cpu-") as tmp:
         for backend in args.backends.split(","):
-            results[backend] = run_backend(backend, Path(tmp), args.requests, args.reps)
+            results[backend] = run_backend(backend, Path(tmp), args.requests, args.reps,
+                                           not args.no_vacuum)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
     return 0

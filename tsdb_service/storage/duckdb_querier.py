@@ -64,17 +64,15 @@ class DuckDBQuerier(SqlQuerier):
         if len(sids) == 1:
             got = tail.rows(sids[0], self._load_tail, start, end, newest_first, limit, offset)
             return None if got is None else [(sids[0], *row[1:]) for row in got]
-        wanted = offset + limit
-        if wanted <= tail.capacity:
-            merged = []
-            for sid in sids:
-                got = tail.rows(sid, self._load_tail, start, end, True, wanted, 0)
-                if got is None:
-                    break
-                merged.extend((row[0], row[1], sid, row) for row in got)
-            else:
-                return _window(merged, True, limit, offset)
-        return self._from_deep_tails(sids, tail, start, end, limit, offset)
+        if offset + limit > tail.capacity:
+            return self._from_deep_tails(sids, tail, start, end, limit, offset)
+        merged = []
+        for sid in sids:
+            got = tail.rows(sid, self._load_tail, start, end, True, offset + limit, 0)
+            if got is None:
+                return None
+            merged.extend((row[0], row[1], sid, row) for row in got)
+        return _window(merged, True, limit, offset)
 
     def _from_deep_tails(self, sids, tail, start, end, limit, offset) -> list[tuple] | None:
         """The newest ``offset + limit`` rows over many series, more than one
