@@ -201,6 +201,8 @@ def _raw(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> list[Entit
     wanted = _columns_by_attr(q)
     if len(by_sid) == 1 and (wanted is None or len(wanted[refs[0].attr]) == 1):
         return [_one_series(refs[0], rows, wanted)]
+    if attr_count == 1 and (wanted is None or _plain_single(wanted)):
+        return _one_attribute(by_sid, rows, wanted)
     plain = [(None, ())]
     results: dict[tuple[str, str], EntityResult] = {}
     last_rid: dict[tuple[str, str], int] = {}
@@ -229,6 +231,33 @@ def _raw(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> list[Entit
         for column in ent.columns.values():
             if len(column) < size:
                 column.extend([None] * (size - len(column)))
+    return list(results.values())
+
+
+def _plain_single(wanted: dict[str, list[tuple[str, tuple]]]) -> bool:
+    """Each attribute asked once, as itself (no value path)."""
+    return all(len(columns) == 1 and not columns[0][1] for columns in wanted.values())
+
+
+def _one_attribute(by_sid: dict[int, SeriesRef], rows: list[tuple], wanted) -> list[EntityResult]:
+    """One attribute over many entities (``/v2/types/T/attrs/A``): every
+    sample is a row of its entity, so no row grouping by ``rid`` is needed;
+    this loop is the whole per-row cost of a type-level lastN."""
+    results: dict[tuple[str, str], EntityResult] = {}
+    targets: dict[int, tuple[list, list]] = {}
+    number = _NUMBER
+    for sid, _rid, iso, kind, num, txt, js in rows:
+        target = targets.get(sid)
+        if target is None:
+            ref = by_sid[sid]
+            key = (ref.entity_type, ref.entity_id)
+            ent = results.get(key)
+            if ent is None:
+                ent = results[key] = EntityResult(ref.entity_type, ref.entity_id)
+            name = ref.attr if wanted is None else wanted[ref.attr][0][0]
+            target = targets[sid] = (ent.index, ent.columns.setdefault(name, []))
+        target[0].append(iso)
+        target[1].append(num if kind == number else decode(kind, num, txt, js))
     return list(results.values())
 
 

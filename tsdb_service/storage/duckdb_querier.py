@@ -66,12 +66,41 @@ class DuckDBQuerier(SqlQuerier):
         if len(sids) == 1:
             got = tail.rows(sids[0], self._load_tail, start, end, newest_first, limit, offset)
             return None if got is None else [(sids[0], *row[1:]) for row in got]
+        if offset + limit > tail.capacity:
+            return self._from_deep_tails(sids, tail, start, end, limit, offset)
         merged = []
         for sid in sids:
             got = tail.rows(sid, self._load_tail, start, end, True, offset + limit, 0)
             if got is None:
                 return None
             merged.extend((row[0], row[1], sid, row) for row in got)
+        return _window(merged, True, limit, offset)
+
+    def _from_deep_tails(self, sids, tail, start, end, limit, offset) -> list[tuple] | None:
+        """The newest ``offset + limit`` rows over many series, more than one
+        tail holds: every series gives its whole cached window. A series
+        whose window the tail holds only in part (``capacity`` rows, all in
+        the window) hides only rows older than its oldest cached one; when
+        that one is older than the ``offset + limit``-th newest cached row of
+        all series, so is everything it hides, and the cached rows answer."""
+        capacity = tail.capacity
+        merged = []
+        cut = []  # per partly cached series: its oldest cached row's key
+        for sid in sids:
+            got = tail.rows(sid, self._load_tail, start, end, True, capacity, 0)
+            if got is None:
+                return None
+            if len(got) >= capacity:
+                cut.append((got[0][0], got[0][1], sid))
+            merged.extend((row[0], row[1], sid, row) for row in got)
+        wanted = offset + limit
+        if cut:
+            if len(merged) < wanted:
+                return None
+            merged.sort()
+            threshold = merged[len(merged) - wanted][:3]
+            if max(cut) >= threshold:
+                return None
         return _window(merged, True, limit, offset)
 
     def _masked_rows(self, sids, time, newest_first, limit, offset, mask) -> list[tuple]:

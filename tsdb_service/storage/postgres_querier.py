@@ -3,12 +3,21 @@
 Series ids are allocated by an identity column shared by every replica, so
 they neither commit in id order nor without gaps (ON CONFLICT consumes ids).
 The catalog therefore re-reads the whole ``series`` table whenever its row
-count changes (new series are rare after warm-up); counting a small table is
-cheap next to any history query.
+count changes (new series are rare after warm-up).
+
+Counting is a round trip, as costly as a lastN query's own, so it is not
+done per request. The catalog's change signal is (a) this process's own
+writer creating series (known at once, after their commit), (b) a count at
+most every ``SERIES_CHECK_S`` seconds, and (c) a count whenever a lookup
+finds no series at all. So a series another replica creates is seen within
+``SERIES_CHECK_S`` seconds, at once by a request that finds nothing else;
+nothing else is ever stale: series are never removed, and every sample read
+goes to the database.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -27,6 +36,8 @@ if TYPE_CHECKING:
 MANY_SIDS = 256
 # A geo_extents row's box, as its GiST index (migration 0006) spells it.
 _BOX = "box(point(min_lon, min_lat), point(max_lon, max_lat))"
+# At most this stale: a series created by another replica (see above).
+SERIES_CHECK_S = 1.0
 
 
 class PostgresDialect(Dialect):
@@ -177,10 +188,27 @@ class PostgresQuerier(SqlQuerier):
     def __init__(self, store: PostgresStore):
         self._store = store
         self.dialect = PostgresDialect()
-        self.catalog = SeriesCatalog(self._load_series, self._series_count)
+        self.catalog = SeriesCatalog(self._load_series, self._series_generation)
+        self._generation: tuple[int, int] = (-1, -1)  # (own writer's series, rows in ``series``)
+        self._checked = float("-inf")
 
-    def _series_count(self) -> int:
-        return int(self._fetch("SELECT count(*) FROM series", [])[0][0])
+    def series(self, scope, entities, attrs=None):
+        refs = self.catalog.select(scope, entities, attrs)
+        if not refs:
+            self._checked = float("-inf")  # maybe created by another replica: count now
+            refs = self.catalog.select(scope, entities, attrs)
+        return refs
+
+    def _series_generation(self) -> tuple[int, int]:
+        """Changes when series were added; counts them only every
+        ``SERIES_CHECK_S`` seconds unless this process created some."""
+        own = len(self._store._series)  # grows after the writer's commits
+        now = time.monotonic()
+        if own == self._generation[0] and now - self._checked < SERIES_CHECK_S:
+            return self._generation
+        count = int(self._fetch("SELECT count(*) FROM series", [])[0][0])
+        self._generation, self._checked = (own, count), now
+        return self._generation
 
     def _load_series(self, position: int) -> list[tuple]:
         # No commit-ordered position exists here: load everything; the

@@ -38,6 +38,15 @@ GEO_KIND = int(Kind.GEO)
 _MAX_BIGINT = 2**62  # LIMIT/OFFSET values stay well inside int64
 _EPOCH = datetime(1970, 1, 1)
 _LOCATION_COLUMNS = "sid, rid, t, kind, geo, min_lon, min_lat, max_lon, max_lat"
+# Periods of a fixed number of microseconds (UTC has no leap seconds here);
+# floor division is truncation because times before 1970 round down too.
+_PERIOD_US = {"second": 10**6, "minute": 60 * 10**6, "hour": 3600 * 10**6, "day": 86400 * 10**6}
+_YEAR_1_US = 62_135_596_800 * 10**6  # 0001-01-01 to 1970-01-01
+
+
+def _shift(width: int) -> int:
+    """The smallest multiple of ``width`` that is at least ``_YEAR_1_US``."""
+    return -(-_YEAR_1_US // width) * width
 
 
 def quote_ident(name: str) -> str:
@@ -79,6 +88,14 @@ class Dialect:
     def date_trunc(self, period: str, expr: str) -> str:
         # ``period`` comes from the AggrPeriod enum, never from a request.
         return f"date_trunc('{period}', {expr})"
+
+    def bucket_key(self, period: str, expr: str) -> str:
+        """A per-row grouping key for ``period``; ``bucket_time`` turns one
+        key (once per group, not per row) back into the truncated time."""
+        return self.date_trunc(period, expr)
+
+    def bucket_time(self, period: str, key: str) -> str:
+        return key
 
     @abstractmethod
     def json_path(self, steps: tuple[str | int, ...]) -> object:
@@ -131,6 +148,22 @@ class DuckDBDialect(Dialect):
 
     def iso_ms(self, expr: str) -> str:
         return f"strftime({expr}, '%Y-%m-%dT%H:%M:%S.%g+00:00')"
+
+    def bucket_key(self, period: str, expr: str) -> str:
+        # Fixed-width UTC periods: an integer division per row is cheaper
+        # than date_trunc, and an integer key hashes faster than a timestamp.
+        # DuckDB's // truncates toward zero: shifted by a multiple of the
+        # width past year 1, every dividend is positive, so it floors.
+        width = _PERIOD_US.get(period)
+        if width is None:
+            return super().bucket_key(period, expr)
+        return f"((epoch_us({expr}) + {_shift(width)}) // {width})"
+
+    def bucket_time(self, period: str, key: str) -> str:
+        width = _PERIOD_US.get(period)
+        if width is None:
+            return key
+        return f"make_timestamp({key} * {width} - {_shift(width)})"
 
     def epoch_us(self, expr: str) -> str:
         return f"epoch_us({expr})"
@@ -412,40 +445,20 @@ class SqlQuerier(Querier):
     def aggregate(
         self, branches: Sequence[AggBranch], time: TimeRange, agg: Aggregation, mask: RowMask | None = None
     ) -> list[tuple]:
-        """Per-series (and per period) partial aggregates of each branch."""
-        d = self.dialect
+        """Per-series (and per period) partial aggregates of each branch.
+
+        One statement: a grouped SELECT per branch (and the rolled-up hours),
+        UNION ALL. Per sample it only tests ``kind`` and reads ``num`` (the
+        columns PostgreSQL's covering index holds): "all integers" is counted
+        (integers = numbers), not ``bool_and``-ed, and the bucket is a cheap
+        key formatted once per group."""
         parts: list[str] = []
         params: list = []
-        bucket = d.date_trunc(agg.period.value, "t") if agg.period is not None else None
-        fn = {AggrMethod.SUM: "sum", AggrMethod.AVG: "sum", AggrMethod.MIN: "min", AggrMethod.MAX: "max"}.get(agg.method)
         for number, branch in enumerate(branches):
-            if not branch.sids:
-                continue
-            where, wparams = self._where(branch.sids, time, mask)
-            sel_params: list = []
-            if not branch.steps:
-                value, vparams = f"CASE WHEN kind IN ({NUMERIC_KINDS}) THEN num END", []
-                present, pparams = f"kind <> {NULL_KIND}", []
-                is_int, iparams = f"kind = {INTEGER_KIND}", []
-            else:
-                path = d.json_path(branch.steps)
-                value, vparams = d.json_number("js", path)
-                present, pparams = d.json_present("js", path)
-                is_int, iparams = d.json_is_integer("js", path)
-            bucket_sql = d.iso_ms(bucket) if bucket else "NULL"
-            agg_sql = f"{fn}({value})" if fn else "NULL"
-            # Placeholders in textual order: present, value (count), value
-            # (aggregate), is_int and value (bool_and), then the WHERE clause.
-            sel_params = [*pparams, *vparams, *(vparams if fn else []), *iparams, *vparams]
-            group = "sid" + (f", {bucket}" if bucket else "")
-            parts.append(
-                f"SELECT {number} AS branch, sid, {bucket_sql} AS bucket, "
-                f"count(*) FILTER (WHERE {present}) AS n_present, "
-                f"count({value}) AS n_numeric, {agg_sql} AS value, "
-                f"bool_and({is_int}) FILTER (WHERE {value} IS NOT NULL) AS all_integer "
-                f"FROM {self._samples('sid, t, kind, num, js', mask)} WHERE {where} GROUP BY {group}"
-            )
-            params += sel_params + wparams
+            if branch.sids:
+                sql, more = self._aggregate_branch(number, branch, time, agg, mask)
+                parts.append(sql)
+                params += more
         # Retention/rollups (storage/rollups.py): hours whose raw samples
         # retention folded away, in this same statement (one snapshot).
         # Never under a geo mask: rolled-up hours carry no locations to check.
@@ -457,9 +470,53 @@ class SqlQuerier(Querier):
             return []
         sql = " UNION ALL ".join(parts)
         if budget.current() is not None:  # one row past the request's budget detects an overflow
-            sql = f"SELECT * FROM ({sql}) AS parts LIMIT {d.placeholder}"
+            sql = f"SELECT * FROM ({sql}) AS parts LIMIT {self.dialect.placeholder}"
             params.append(budget.row_cap(_MAX_BIGINT))
         return self._fetch(sql, params)
+
+    def _aggregate_branch(
+        self, number: int, branch: AggBranch, time: TimeRange, agg: Aggregation, mask: RowMask | None
+    ) -> tuple[str, list]:
+        """One branch's grouped SELECT in the layout (branch, sid, ISO
+        bucket | NULL, n_present, n_numeric, value, all_integer)."""
+        d = self.dialect
+        fn = {AggrMethod.SUM: "sum", AggrMethod.AVG: "sum", AggrMethod.MIN: "min", AggrMethod.MAX: "max"}.get(agg.method)
+        where, wparams = self._where(branch.sids, time, mask)
+        if not branch.steps:
+            columns = "sid, t, kind, num"
+            numeric = f"kind IN ({NUMERIC_KINDS})"
+            present = f"count(*) FILTER (WHERE kind <> {NULL_KIND})"
+            n_numeric = f"count(num) FILTER (WHERE {numeric})"
+            value = f"{fn}(num) FILTER (WHERE {numeric})" if fn else "NULL"
+            n_integer = f"count(num) FILTER (WHERE kind = {INTEGER_KIND})"
+            sel_params: list = []
+        else:
+            columns = "sid, t, kind, num, js"
+            path = d.json_path(branch.steps)
+            number_sql, vparams = d.json_number("js", path)
+            present_sql, pparams = d.json_present("js", path)
+            is_int, iparams = d.json_is_integer("js", path)
+            present = f"count(*) FILTER (WHERE {present_sql})"
+            n_numeric = f"count({number_sql})"
+            value = f"{fn}({number_sql})" if fn else "NULL"
+            n_integer = f"count(*) FILTER (WHERE {is_int})"  # an integer is a number
+            # Placeholders in textual order: present, count, value, integers.
+            sel_params = [*pparams, *vparams, *(vparams if fn else []), *iparams]
+        if agg.period is not None:
+            period = agg.period.value
+            key, group = f", {d.bucket_key(period, 't')} AS b", "sid, b"
+            bucket = d.iso_ms(d.bucket_time(period, "b"))
+        else:
+            key, group, bucket = "", "sid", "NULL"
+        inner = (
+            f"SELECT sid{key}, {present} AS n_present, {n_numeric} AS n_numeric, {value} AS value, "
+            f"{n_integer} AS n_integer FROM {self._samples(columns, mask)} WHERE {where} GROUP BY {group}"
+        )
+        sql = (
+            f"SELECT {number} AS branch, sid, {bucket} AS bucket, n_present, n_numeric, value, "
+            f"CASE WHEN n_numeric > 0 THEN n_integer = n_numeric END AS all_integer FROM ({inner}) AS g"
+        )
+        return sql, [*sel_params, *wparams]
 
     def latest_index(self, sids: Sequence[int], time: TimeRange, mask: RowMask | None = None) -> list[tuple]:
         if not sids:
