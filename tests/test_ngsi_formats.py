@@ -281,7 +281,8 @@ def test_ld_type_list_uses_first():
     assert e.entity_type == "Vehicle"
 
 
-def test_ld_multi_attribute_prefers_default_instance():
+def test_ld_multi_attribute_keeps_every_instance():
+    """Each datasetId is its own attribute (``name~datasetId``); the default keeps the name."""
     [e] = ld(
         {
             "id": "urn:x",
@@ -297,8 +298,11 @@ def test_ld_multi_attribute_prefers_default_instance():
         }
     )
     a = attrs(e)
-    assert (a["temp"].num, a["temp"].md) == (2.0, None)
-    assert (a["hum"].num, json.loads(a["hum"].md)) == (10.0, {"datasetId": "urn:ds:a"})
+    assert (a["temp"].num, a["temp"].md, a["temp"].dataset_id) == (2.0, None, None)
+    assert (a["temp~urn:ds:a"].num, a["temp~urn:ds:a"].dataset_id) == (1.0, "urn:ds:a")
+    assert (a["hum~urn:ds:a"].num, json.loads(a["hum~urn:ds:a"].md)) == (10.0, {"datasetId": "urn:ds:a"})
+    assert (a["hum~urn:ds:b"].num, a["hum~urn:ds:b"].dataset_id) == (20.0, "urn:ds:b")
+    assert "hum" not in a
 
 
 def test_ld_concise_and_key_values():

@@ -64,6 +64,15 @@ class AttrSample:
     js: str | None = None  # JSON text of the raw value (structured, geo, bool)
     geo: Geometry | None = None
     md: str | None = None  # JSON text of metadata / NGSI-LD sub-properties
+    # NGSI-LD, per instance (all None for NGSIv2/v1 samples): the
+    # instance's own observedAt, the broker's createdAt/modifiedAt, the time
+    # of a deletion (value urn:ngsi-ld:null), and a non-default datasetId
+    # (the sample's ``name`` is then ``attr~datasetId``, see ``ld_series_name``).
+    observed_at: datetime | None = None
+    created_at: datetime | None = None
+    modified_at: datetime | None = None
+    deleted_at: datetime | None = None
+    dataset_id: str | None = None
 
 
 @dataclass(slots=True)
@@ -80,6 +89,29 @@ class EntitySample:
     entity_type: str
     time_index: datetime  # timezone-aware UTC
     attrs: list[AttrSample] = field(default_factory=list)
+    # NGSI-LD entity deletion: every stored attribute of the entity (same
+    # tenant, service path, id and type) that ``attrs`` does not name gets a
+    # deletion instance at this time when the sample is stored.
+    deleted_at: datetime | None = None
+
+
+# NGSI-LD keeps several instances of one attribute apart by datasetId; the
+# NGSIv2 API needs one value per attribute per row, so a non-default
+# instance is stored as its own attribute ``name~datasetId``, as NGSIv1
+# attributes with an ``ID`` metadata are (``ngsi.notification.V1_ID_SEPARATOR``).
+DATASET_SEPARATOR = "~"
+
+
+def ld_series_name(attr: str, dataset_id: str | None) -> str:
+    """The stored (NGSIv2-visible) attribute name of an NGSI-LD instance."""
+    return attr if dataset_id is None else f"{attr}{DATASET_SEPARATOR}{dataset_id}"
+
+
+def ld_attr_name(series_attr: str, dataset_id: str | None) -> str:
+    """The NGSI-LD attribute name back from a stored one and its datasetId."""
+    if dataset_id is None:
+        return series_attr
+    return series_attr[: len(series_attr) - len(dataset_id) - len(DATASET_SEPARATOR)]
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,3 +126,22 @@ class RejectedNotification:
     body: bytes  # as received, or its first bytes when body_truncated
     body_size: int | None = None  # bytes as received; None: len(body)
     body_truncated: bool = False
+
+
+INSTANCE_URN_PREFIX = "urn:ngsi-ld:attribute:instance:"
+
+
+def instance_urn(iid: int) -> str:
+    """The NGSI-LD ``instanceId`` of the sample with instance id ``iid``:
+    derived from the stored id, so it survives compaction and restarts."""
+    return f"{INSTANCE_URN_PREFIX}{iid:016x}"
+
+
+def instance_iid(urn: str) -> int | None:
+    """The stored instance id an ``instanceId`` names, or None if it is not one of ours."""
+    if not urn.startswith(INSTANCE_URN_PREFIX):
+        return None
+    digits = urn[len(INSTANCE_URN_PREFIX):]
+    if not 1 <= len(digits) <= 16 or any(c not in "0123456789abcdef" for c in digits):
+        return None
+    return int(digits, 16)

@@ -22,19 +22,20 @@ from __future__ import annotations
 import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Any
 
 import orjson
 
 from tsdb_service.errors import ParseError
 from tsdb_service.geo.encodings import GEOMETRY_TYPES
-from tsdb_service.model import AttrSample, EntitySample
+from tsdb_service.model import AttrSample, EntitySample, ld_series_name
 from tsdb_service.ngsi.names import RULE, name_problem
-from tsdb_service.ngsi.timeindex import TimeClues, to_utc, watched_attributes
+from tsdb_service.ngsi.timeindex import TimeClues, parse_time, to_utc, watched_attributes
 from tsdb_service.ngsi.values import attr_sample, to_json
 
 DEFAULT_ENTITY_TYPE = "Thing"  # what Orion assigns when none is given
+LD_NULL = "urn:ngsi-ld:null"  # NGSI-LD's value of a deleted attribute
 
 # Tenant names as Orion accepts them; checked before lower-casing so that
 # non-ASCII letters which lower-case to ASCII (the Kelvin sign) are refused.
@@ -277,7 +278,8 @@ def _entity_sample(parse, raw: Any, where: str, tenant: str, path: str, ctx: _Co
         if problem is not None:
             raise ParseError(f"{where}: attribute name {attr.name[:80]!r} {problem}; we store only names "
                              f"every endpoint can be asked for: {RULE}")
-    return EntitySample(tenant, path, entity_id, entity_type, clues.resolve(ctx.received_at), attrs)
+    return EntitySample(tenant, path, entity_id, entity_type, clues.resolve(ctx.received_at), attrs,
+                        _ld_entity_deleted_at(raw) if parse in _LD_ENTITY_PARSERS else None)
 
 
 # --- entity heads --------------------------------------------------------------
@@ -349,16 +351,33 @@ def _is_v2_attribute(raw: dict) -> bool:
 
 def _ld_entity(entity: dict, where: str, clues: TimeClues) -> tuple[str, str, list[AttrSample]]:
     entity_id, entity_type = _entity_id(entity, where), _entity_type(entity, where)
-    clues.modified_at = entity.get("modifiedAt")
-    attrs = [_ld_attr(name, raw, clues) for name, raw in entity.items() if name not in _LD_ENTITY_KEYS]
+    clues.modified_at = entity.get("modifiedAt") or entity.get("deletedAt")
+    attrs: list[AttrSample] = []
+    for name, raw in entity.items():
+        if name not in _LD_ENTITY_KEYS:
+            attrs.extend(_ld_attrs(name, raw, clues, where))
     return entity_id, entity_type, attrs
 
 
+def _ld_attrs(name: str, raw: Any, clues: TimeClues, where: str) -> list[AttrSample]:
+    """One LD attribute: one sample per instance (a multi-attribute has one
+    per datasetId; each non-default one is stored as ``name~datasetId``)."""
+    if type(raw) is not list or not raw or not _is_instance_list(raw):
+        return [_ld_attr(name, raw, clues)]
+    samples, seen = [], set()
+    for instance in raw:
+        sample = _ld_attr(name, instance, clues)
+        if sample.dataset_id in seen:
+            which = "default instance" if sample.dataset_id is None else f"datasetId {sample.dataset_id[:80]!r}"
+            raise ParseError(f"{where}: attribute {name[:80]!r} has its {which} twice")
+        seen.add(sample.dataset_id)
+        samples.append(sample)
+    return samples
+
+
 def _ld_attr(name: str, raw: Any, clues: TimeClues) -> AttrSample:
-    """One LD attribute in normalized, concise or keyValues form."""
-    if type(raw) is list and raw and _is_instance_list(raw):
-        raw = _default_instance(raw, clues)
-    elif type(raw) is dict:
+    """One LD attribute instance in normalized, concise or keyValues form."""
+    if type(raw) is dict:
         _note_observed(raw, clues)
     if type(raw) is not dict:
         clues.note_value(name, raw)
@@ -378,7 +397,38 @@ def _ld_attr(name: str, raw: Any, clues: TimeClues) -> AttrSample:
         key = "value"  # NGSIv2 habit, e.g. a Relationship with "value"
     value = raw.get(key)
     clues.note_value(name, value)
-    return attr_sample(name, ld_type, value, _ld_metadata(raw, key))
+    return _ld_instance(name, ld_type, value, raw, key)
+
+
+def _ld_instance(name: str, ld_type: str, value: Any, raw: dict, key: str) -> AttrSample:
+    """The sample of one instance with its own NGSI-LD times and datasetId.
+    A deletion (``deletedAt``, or the value ``urn:ngsi-ld:null``) is stored
+    as a null value with its deletion time."""
+    md = _ld_metadata(raw, key)
+    if md is None and value != LD_NULL:
+        return attr_sample(name, ld_type, value, None)
+    dataset = raw.get("datasetId")
+    if dataset is not None and (type(dataset) is not str or not dataset):
+        raise ParseError(f"attribute {name[:80]!r}: datasetId must be a non-empty string (a URI), "
+                         f"got {_json_kind(dataset)}")
+    deleted = "deletedAt" in raw or value == LD_NULL
+    sample = attr_sample(ld_series_name(name, dataset), ld_type, None if deleted else value, md)
+    sample.dataset_id = dataset
+    sample.observed_at = parse_time(raw.get("observedAt"))
+    sample.created_at = parse_time(raw.get("createdAt"))
+    sample.modified_at = parse_time(raw.get("modifiedAt"))
+    if deleted:
+        sample.deleted_at = (parse_time(raw.get("deletedAt")) or sample.modified_at or sample.observed_at
+                             or datetime.now(UTC))
+    return sample
+
+
+def _ld_entity_deleted_at(entity: dict) -> datetime | None:
+    """An NGSI-LD entity deletion (``deletedAt`` on the entity): when."""
+    deleted = entity.get("deletedAt")
+    if deleted is None:
+        return None
+    return parse_time(deleted) or datetime.now(UTC)
 
 
 def _ld_metadata(raw: dict, key: str) -> str | None:
@@ -394,7 +444,7 @@ def _ld_simplified_entity(entity: dict, where: str, clues: TimeClues) -> tuple[s
     shape. An object stays the object (``{"value": 5, "unit": "m"}`` is not
     a Property of 5); a GeoJSON geometry is a GeoProperty, for geo-queries."""
     entity_id, entity_type = _entity_id(entity, where), _entity_type(entity, where)
-    clues.modified_at = entity.get("modifiedAt")
+    clues.modified_at = entity.get("modifiedAt") or entity.get("deletedAt")
     attrs = []
     for name, value in entity.items():
         if name not in _LD_ENTITY_KEYS:
@@ -452,17 +502,6 @@ def _is_instance_list(items: list) -> bool:
         if not (type(ld_type) is str and ld_type in _LD_VALUE_KEY) and _LD_CONCISE_TYPE.keys().isdisjoint(item):
             return False
     return True
-
-
-def _default_instance(instances: list[dict], clues: TimeClues) -> dict:
-    """Store the default instance (no datasetId), else the first one; every
-    instance's observedAt still counts for the time index."""
-    for instance in instances:
-        _note_observed(instance, clues)
-    for instance in instances:
-        if "datasetId" not in instance:
-            return instance
-    return instances[0]
 
 
 def _note_observed(raw: dict, clues: TimeClues) -> None:
@@ -572,6 +611,8 @@ def _v1_metadata(attribute: dict) -> dict:
         return {}
     return {m["name"]: {"type": m.get("type"), "value": m.get("value")} for m in items if type(m) is dict and type(m.get("name")) is str}
 
+
+_LD_ENTITY_PARSERS = frozenset({_ld_entity, _ld_simplified_entity})
 
 _ENTITY_PARSERS = {
     _V2: _v2_entity,

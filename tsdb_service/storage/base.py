@@ -13,13 +13,18 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from ..model import EntitySample, RejectedNotification
+from ..model import AttrSample, EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
 
 
 @dataclass(frozen=True, slots=True)
 class AppendSamples:
+    """Store samples. ``dedup``: drop NGSI-LD instances that repeat their
+    series' latest stored one (see ``storage.ld_ingest``); off for copies,
+    which must reproduce the source exactly."""
+
     entities: Sequence[EntitySample]
+    dedup: bool = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,7 +50,28 @@ class DeleteSamples:
     end: datetime | None = None
 
 
-WriteOp = AppendSamples | RecordRejected | PutLayout | DeleteSamples
+@dataclass(frozen=True, slots=True)
+class DeleteInstance:
+    """Delete one NGSI-LD attribute instance (sample ``iid`` of series ``sid``)."""
+
+    sid: int
+    iid: int
+
+
+@dataclass(frozen=True, slots=True)
+class ReplaceInstance:
+    """Replace the content of one NGSI-LD attribute instance in place: its
+    instance id, series and row time stay; value, type, sub-properties and
+    observedAt become ``attr``'s (observedAt only when ``attr`` has one),
+    and ``modified_at`` is set."""
+
+    sid: int
+    iid: int
+    attr: AttrSample
+    modified_at: datetime
+
+
+WriteOp = AppendSamples | RecordRejected | PutLayout | DeleteSamples | DeleteInstance | ReplaceInstance
 
 
 class Appender(ABC):
@@ -72,7 +98,52 @@ class Querier(ABC):
     """The read half of the seam: history reads by series id.
 
     ``storage.sql.SqlQuerier`` implements it for SQL backends; row layouts
-    are documented there. Thread-safe: routes call it from the threadpool.
+    are documented there. Thread-safe: routes call it from the threadpool
+    (every method may query the database: never call one on the event loop).
+
+    **NGSI-LD temporal reads** (issue 13) use three calls:
+
+    1. ``series(scope, EntityFilter(...), attrs=None)`` → ``SeriesRef``s. An
+       NGSI-LD attribute instance lives in a series: the default instance
+       (no datasetId) in the series named after the attribute, each other
+       datasetId in its own series named ``attr~datasetId`` (how NGSIv2 sees
+       it), with ``ref.dataset_id`` set and ``ref.ld_attr`` the NGSI-LD name.
+       Select by ``ref.ld_attr`` (and ``ref.dataset_id`` for a ``datasetId``
+       filter) rather than with ``attrs=``, which matches stored names.
+       Names are stored as notified or written (no JSON-LD expansion).
+       NGSI-LD has no service paths: use the whole tenant (``Scope(tenant)``).
+    2. ``temporal_instances(sids, InstanceWindow(timeproperty, start, end),
+       last_n=None, limit=None, newest_first=False)`` → ``InstanceRow``s
+       (``storage.sql``), sorted by (sid, time property, instance id):
+       ``sid, iid, at, t, observed_at, created_at, modified_at, deleted_at,
+       dataset_id, kind, atype, num, txt, js, md``.
+       * window: ``start`` inclusive, ``end`` exclusive (``timerel`` after /
+         before / between); ``timeproperty`` ``observedAt`` (default; reads
+         ``coalesce(observed_at, t)`` so instances without observedAt, and
+         all NGSIv2 data, have one), ``createdAt``, ``modifiedAt``,
+         ``deletedAt`` (those three: only instances that have it).
+       * ``last_n``: the N newest in the window per series (per attribute
+         and datasetId of an entity). ``limit``: at most that many rows in
+         all, the oldest (or with ``newest_first``/``last_n`` the newest)
+         by the time property; ask for one more than the cap to detect a
+         partial answer.
+       * value: ``kind`` (``model.Kind``) says which of ``num``/``txt``/
+         ``js`` holds it, as in the NGSIv2 reads (INTEGER: ``num`` holds an
+         int-valued float; BOOLEAN: ``js`` is ``true``/``false``; GEO: ``js``
+         is the GeoJSON as received; RELATIONSHIP: ``txt`` is the object;
+         STRUCTURED: ``js``; NULL: null). ``atype`` is the NGSI-LD type as
+         notified (``Property``, ``Relationship``, ``GeoProperty``,
+         ``LanguageProperty``...; None for an entity-deletion instance and
+         for simplified-format data). ``md`` is every other member of the
+         instance as received (JSON text: ``observedAt``, ``unitCode``,
+         ``datasetId``, nested properties, ``createdAt``...): render
+         sub-properties from it, times from the columns.
+       * ``deleted_at`` set: a deletion instance; its value is
+         ``urn:ngsi-ld:null`` (stored as kind NULL).
+       * ``model.instance_urn(iid)`` is the ``instanceId``; it never changes
+         (compaction and restarts keep ``iid``); ``model.instance_iid``
+         reads it back.
+    3. ``instance_series(sids, iid)``: which of ``sids`` holds that instance.
     """
 
     @abstractmethod
@@ -106,6 +177,14 @@ class Querier(ABC):
     @abstractmethod
     def latest_geometries(self, sids, time, prefilter) -> list[tuple]:
         """(sid, GeoJSON) of each series' latest geo sample, box-prefiltered."""
+
+    @abstractmethod
+    def temporal_instances(self, sids, window=None, *, last_n=None, limit=None, newest_first=False) -> list:
+        """NGSI-LD attribute instances of ``sids``: see the class docstring."""
+
+    @abstractmethod
+    def instance_series(self, sids, iid: int) -> int | None:
+        """The one of ``sids`` that holds instance ``iid``, or None."""
 
 
 class Store(ABC):

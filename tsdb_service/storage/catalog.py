@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 from ..history.query import EntityFilter, Scope
+from ..model import ld_attr_name
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,7 +33,13 @@ class SeriesRef:
     service_path: str
     entity_id: str
     entity_type: str
-    attr: str
+    attr: str  # the stored name: attr~datasetId for a non-default NGSI-LD datasetId
+    dataset_id: str | None = None  # NGSI-LD datasetId; None: the default instance
+
+    @property
+    def ld_attr(self) -> str:
+        """The NGSI-LD attribute name (without the datasetId suffix)."""
+        return ld_attr_name(self.attr, self.dataset_id)
 
 
 class _TenantIndex:
@@ -65,8 +72,8 @@ def _extend(index: dict, refs: Sequence[SeriesRef], key) -> dict:
     return out
 
 
-# position (commit-ordered), sid, tenant, service path, entity id, entity type, attr
-SeriesRow = tuple[int, int, str, str, str, str, str]
+# position (commit-ordered), sid, tenant, service path, entity id, entity type, attr[, dataset id]
+SeriesRow = tuple
 
 
 class SeriesCatalog:
@@ -78,6 +85,7 @@ class SeriesCatalog:
         self._loaded_gen = -1
         self._position = -1
         self._known: set[int] = set()
+        self._refs: dict[int, SeriesRef] = {}  # every loaded series by id (swapped, never mutated)
 
     def refresh(self) -> None:
         if self._generation() == self._loaded_gen:
@@ -89,18 +97,26 @@ class SeriesCatalog:
             rows = list(self._load_since(self._position))
             by_tenant: dict[str, list[SeriesRef]] = {}
             position = self._position
-            for pos, sid, tenant, path, eid, etype, attr in rows:
+            by_sid = dict(self._refs)
+            for pos, sid, tenant, path, eid, etype, attr, *dataset in rows:
                 position = max(position, pos)
                 if sid in self._known:
                     continue
                 self._known.add(sid)
-                by_tenant.setdefault(tenant, []).append(SeriesRef(sid, path, eid, etype, attr))
+                ref = by_sid[sid] = SeriesRef(sid, path, eid, etype, attr, dataset[0] if dataset else None)
+                by_tenant.setdefault(tenant, []).append(ref)
             tenants = dict(self._tenants)
             for tenant, refs in by_tenant.items():
                 tenants[tenant] = tenants.get(tenant, _EMPTY).extended(refs)
             self._tenants = tenants
+            self._refs = by_sid
             self._position = position
             self._loaded_gen = gen
+
+    def refs(self, sids) -> dict[int, SeriesRef]:
+        """The series with these ids (those loaded; call after ``select``)."""
+        refs = self._refs
+        return {sid: refs[sid] for sid in sids if sid in refs}
 
     def tenants(self) -> list[str]:
         """Every tenant that has at least one series, sorted."""

@@ -19,7 +19,10 @@ from ..config import Settings
 from ..model import AttrSample, EntitySample, Geometry, Kind, RejectedNotification
 from .base import AppendSamples, PutLayout, RecordRejected, Store
 
-SAMPLE_COLUMNS = "rid, sid, t, kind, atype, num, txt, js, geo, lon, lat, min_lon, min_lat, max_lon, max_lat, md"
+SAMPLE_COLUMNS = (
+    "rid, sid, t, kind, atype, num, txt, js, geo, lon, lat, min_lon, min_lat, max_lon, max_lat, md, "
+    "observed_at, created_at, modified_at, deleted_at"
+)  # instance ids are the target's own: an instanceId names an instance in one store
 BATCH_ROWS = 50_000
 
 
@@ -60,7 +63,7 @@ def copy_history(source: Store, target: Store, *, progress: bool = False) -> dic
     reader = source.querier()
     before = _counts(target)
     series = {row[0]: row[1:] for row in reader._fetch(
-        "SELECT sid, tenant, service_path, entity_id, entity_type, attr FROM series", [])}
+        "SELECT sid, tenant, service_path, entity_id, entity_type, attr, dataset_id FROM series", [])}
     total = sum(_counts(source).values())
     copied, started = 0, time.monotonic()
     batch: list[EntitySample] = []
@@ -69,13 +72,13 @@ def copy_history(source: Store, target: Store, *, progress: bool = False) -> dic
         batch.append(entity)
         rows_in_batch += n
         if rows_in_batch >= BATCH_ROWS:
-            target.write_sync([AppendSamples(batch)])
+            target.write_sync([AppendSamples(batch, dedup=False)])
             copied += rows_in_batch
             batch, rows_in_batch = [], 0
             if progress:
                 _show(copied, total, started)
     if batch:
-        target.write_sync([AppendSamples(batch)])
+        target.write_sync([AppendSamples(batch, dedup=False)])
         copied += rows_in_batch
     if progress:
         _show(copied, total, started)
@@ -89,24 +92,30 @@ def copy_history(source: Store, target: Store, *, progress: bool = False) -> dic
 def _entities(source: Store, series: dict) -> Iterator[tuple[EntitySample, int]]:
     """Rows regrouped by ``rid`` into the entity notifications they came from."""
     current_rid, entity, n = None, None, 0
-    for row in _stream(source, f"SELECT {SAMPLE_COLUMNS} FROM samples_all ORDER BY rid"):
+    for row in _stream(source, f"SELECT {SAMPLE_COLUMNS} FROM samples_all ORDER BY rid, iid"):
         rid, sid = row[0], row[1]
         if rid != current_rid:
             if entity is not None:
                 yield entity, n
-            tenant, path, eid, etype, _ = series[sid]
+            tenant, path, eid, etype, _, _ = series[sid]
             entity = EntitySample(tenant, path, eid, etype, row[2].replace(tzinfo=UTC), [])
             current_rid, n = rid, 0
-        entity.attrs.append(_attr(series[sid][4], row))
+        entity.attrs.append(_attr(series[sid][4], series[sid][5], row))
         n += 1
     if entity is not None:
         yield entity, n
 
 
-def _attr(name: str, row: tuple) -> AttrSample:
-    (_, _, _, kind, atype, num, txt, js, geo, lon, lat, mnlon, mnlat, mxlon, mxlat, md) = row
+def _attr(name: str, dataset_id: str | None, row: tuple) -> AttrSample:
+    (_, _, _, kind, atype, num, txt, js, geo, lon, lat, mnlon, mnlat, mxlon, mxlat, md,
+     observed, created, modified, deleted) = row
     geometry = Geometry(geo, lon, lat, mnlon, mnlat, mxlon, mxlat) if geo is not None else None
-    return AttrSample(name, atype, Kind(kind), num, txt, js, geometry, md)
+    return AttrSample(name, atype, Kind(kind), num, txt, js, geometry, md, _utc(observed), _utc(created),
+                      _utc(modified), _utc(deleted), dataset_id)
+
+
+def _utc(moment):
+    return None if moment is None else moment.replace(tzinfo=UTC)
 
 
 def _stream(store: Store, sql: str) -> Iterator[tuple]:

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 TAIL_MAX_SERIES = 64
 
 _LOAD_SERIES = (
-    "SELECT rowid, sid, tenant, service_path, entity_id, entity_type, attr FROM series "
+    "SELECT rowid, sid, tenant, service_path, entity_id, entity_type, attr, dataset_id FROM series "
     "WHERE rowid > ? ORDER BY rowid"
 )
 

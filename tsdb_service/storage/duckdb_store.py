@@ -26,7 +26,11 @@ import pyarrow as pa
 from ..errors import Unavailable
 from ..model import EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
-from .base import Appender, AppendSamples, DeleteSamples, PutLayout, RecordRejected, Store, WriteOp
+from .base import (
+    Appender, AppendSamples, DeleteInstance, DeleteSamples, PutLayout, RecordRejected, ReplaceInstance, Store,
+    WriteOp,
+)
+from .ld_ingest import LATEST_INSTANCE_SQL, LatestInstances, drop_renotified, latest_keys, with_deletions
 from .latest_geo import LatestGeo
 from .tail_cache import TailCache
 from .migrate import applied_versions, load_migrations, split_statements
@@ -55,16 +59,23 @@ SAMPLE_SCHEMA = pa.schema(
         ("max_lon", pa.float64()),
         ("max_lat", pa.float64()),
         ("md", pa.string()),
+        ("iid", pa.int64()),
+        ("observed_at", pa.timestamp("us")),
+        ("created_at", pa.timestamp("us")),
+        ("modified_at", pa.timestamp("us")),
+        ("deleted_at", pa.timestamp("us")),
     ]
 )
+# Time columns travel as epoch microseconds (exact, and cheap to convert).
+TIME_COLUMNS = frozenset({"t", "observed_at", "created_at", "modified_at", "deleted_at"})
 
 SeriesKey = tuple[str, str, str, str, str]  # tenant, service path, id, type, attr
 
 _SQL_TYPES = {
-    "rid": "BIGINT", "sid": "INTEGER", "kind": "UTINYINT", "num": "DOUBLE", "lon": "DOUBLE",
+    "rid": "BIGINT", "iid": "BIGINT", "sid": "INTEGER", "kind": "UTINYINT", "num": "DOUBLE", "lon": "DOUBLE",
     "lat": "DOUBLE", "min_lon": "DOUBLE", "min_lat": "DOUBLE", "max_lon": "DOUBLE", "max_lat": "DOUBLE",
 }
-REQUIRED = frozenset({"rid", "sid", "t", "kind"})
+REQUIRED = frozenset({"rid", "sid", "t", "kind", "iid"})
 
 
 @functools.lru_cache(maxsize=64)
@@ -73,14 +84,14 @@ def insert_samples_sql(names: tuple[str, ...]) -> str:
     batch crosses into DuckDB in one call. Time travels as epoch microseconds;
     columns not named are NULL."""
     return "INSERT INTO samples_hot BY NAME SELECT " + ", ".join(
-        f"make_timestamp(unnest(${i + 1}::BIGINT[])) AS t" if name == "t"
+        f"make_timestamp(unnest(${i + 1}::BIGINT[])) AS {name}" if name in TIME_COLUMNS
         else f"unnest(${i + 1}::{_SQL_TYPES.get(name, 'VARCHAR')}[]) AS {name}"
         for i, name in enumerate(names)
     )
 INSERT_SERIES = (
     "INSERT INTO series BY NAME SELECT unnest($1::INTEGER[]) AS sid, unnest($2::VARCHAR[]) AS tenant, "
     "unnest($3::VARCHAR[]) AS service_path, unnest($4::VARCHAR[]) AS entity_id, "
-    "unnest($5::VARCHAR[]) AS entity_type, unnest($6::VARCHAR[]) AS attr"
+    "unnest($5::VARCHAR[]) AS entity_type, unnest($6::VARCHAR[]) AS attr, unnest($7::VARCHAR[]) AS dataset_id"
 )
 # Each series' newest geo sample, for the in-memory latest-location index.
 LATEST_GEO_SQL = (
@@ -96,6 +107,10 @@ ARROW_MIN_ROWS = 2048
 def to_micros(moment: datetime) -> int:
     """Exact microseconds since the epoch (float timestamps lose precision)."""
     return (moment - EPOCH) // ONE_US
+
+
+def _micros_or_none(moment: datetime | None) -> int | None:
+    return None if moment is None else to_micros(moment)
 
 
 def migrate_duckdb(con: duckdb.DuckDBPyConnection) -> list[int]:
@@ -160,6 +175,8 @@ class DuckDBStore(Store):
         self.tail = TailCache(tail_series, tail_rows, tail_samples)
         self.latest_geo = LatestGeo(self._con.execute(LATEST_GEO_SQL.format(where="")).fetchall())
         self._next_rid = (self._con.execute("SELECT max(rid) FROM samples_all").fetchone()[0] or 0) + 1
+        self._next_iid = (self._con.execute("SELECT max(iid) FROM samples_all").fetchone()[0] or 0) + 1
+        self.latest_instances = LatestInstances()
         self._next_rejected = (
             self._con.execute("SELECT max(id) FROM rejected_notifications").fetchone()[0] or 0
         ) + 1
@@ -288,13 +305,16 @@ class DuckDBAppender(Appender):
     def _reset(self) -> None:
         self._cols: dict[str, list] = {name: [] for name in SAMPLE_SCHEMA.names}
         self._new_series: dict[SeriesKey, int] = {}
+        self._new_datasets: dict[SeriesKey, str] = {}  # new series of non-default datasetIds
+        self._latest: dict[int, tuple | None] = {}  # this transaction's latest instance keys
         self._rejected: list[tuple] = []
         self._layouts: list[PutLayout] = []
         self._deletes: list[tuple[DeleteSamples, int]] = []
+        self._instance_ops: list[DeleteInstance | ReplaceInstance] = []
 
     def stage(self, op: WriteOp) -> None:
         if isinstance(op, AppendSamples):
-            self._stage_entities(op.entities)
+            self._stage_entities(op.entities, op.dedup)
         elif isinstance(op, RecordRejected):
             self._stage_rejected(op.rejected)
         elif isinstance(op, PutLayout):
@@ -302,6 +322,8 @@ class DuckDBAppender(Appender):
         elif isinstance(op, DeleteSamples):
             # Rows allocated after this op was staged (by any writer) survive it.
             self._deletes.append((op, self._store._next_rid - 1))
+        elif isinstance(op, (DeleteInstance, ReplaceInstance)):
+            self._instance_ops.append(op)
         else:  # pragma: no cover - programming error
             raise TypeError(f"unknown write op {op!r}")
 
@@ -326,20 +348,54 @@ class DuckDBAppender(Appender):
             self._new_series[key] = sid
         return sid
 
-    def _stage_entities(self, entities: Sequence[EntitySample]) -> None:
+    def _stage_entities(self, entities: Sequence[EntitySample], dedup: bool) -> None:
+        store = self._store
+        entities = with_deletions(entities, self._entity_attrs)
+        with store._alloc_lock:
+            if dedup:
+                entities = self._without_renotified(entities)
+            self._stage_locked(entities)
+
+    def _entity_attrs(self, entity: EntitySample) -> list[tuple[str, str | None]]:
+        """Stored attributes (name, datasetId) of a deleted entity."""
+        return self._cur.execute(
+            "SELECT attr, dataset_id FROM series WHERE tenant = ? AND service_path = ? AND entity_id = ? "
+            "AND entity_type = ? ORDER BY attr",
+            [entity.tenant, entity.service_path, entity.entity_id, entity.entity_type],
+        ).fetchall()
+
+    def _without_renotified(self, entities: Sequence[EntitySample]) -> list[EntitySample]:
+        """Drop NGSI-LD instances equal to their series' latest stored one."""
+        if not any(a.observed_at is not None for e in entities for a in e.attrs):
+            return list(entities)
+        series = self._store._series
+        items = []
+        for e in entities:
+            prefix = (e.tenant, e.service_path, e.entity_id, e.entity_type)
+            items.extend((series.get((*prefix, a.name)) or self._new_series.get((*prefix, a.name)), a)
+                         for a in e.attrs)
+        keep = iter(drop_renotified(items, self._store.latest_instances, self._latest, self._latest_of))
+        out = []
+        for e in entities:
+            attrs = [a for a in e.attrs if next(keep)]
+            if attrs:
+                out.append(e if len(attrs) == len(e.attrs) else EntitySample(
+                    e.tenant, e.service_path, e.entity_id, e.entity_type, e.time_index, attrs, e.deleted_at))
+        return out
+
+    def _latest_of(self, sids: list[int]) -> dict:
+        return latest_keys(self._cur.execute(
+            LATEST_INSTANCE_SQL.format(table="samples_all", sids="sid IN (SELECT unnest(?::INTEGER[]))"), [sids]
+        ).fetchall())
+
+    def _stage_locked(self, entities: Sequence[EntitySample]) -> None:
         c = self._cols
         rid_, sid_, t_, kind_, atype_, num_, txt_, js_, md_ = (
             c["rid"], c["sid"], c["t"], c["kind"], c["atype"], c["num"], c["txt"], c["js"], c["md"],
         )
         geo_, lon_, lat_ = c["geo"], c["lon"], c["lat"]
         mnlon, mnlat, mxlon, mxlat = c["min_lon"], c["min_lat"], c["max_lon"], c["max_lat"]
-        store = self._store
-        with store._alloc_lock:
-            self._stage_locked(entities, rid_, sid_, t_, kind_, atype_, num_, txt_, js_, md_,
-                               geo_, lon_, lat_, mnlon, mnlat, mxlon, mxlat)
-
-    def _stage_locked(self, entities, rid_, sid_, t_, kind_, atype_, num_, txt_, js_, md_,
-                      geo_, lon_, lat_, mnlon, mnlat, mxlon, mxlat) -> None:
+        iid_, obs_, cre_, mod_, del_ = c["iid"], c["observed_at"], c["created_at"], c["modified_at"], c["deleted_at"]
         store = self._store
         for entity in entities:
             rid = store._next_rid
@@ -347,8 +403,11 @@ class DuckDBAppender(Appender):
             micros = to_micros(entity.time_index)
             prefix = (entity.tenant, entity.service_path, entity.entity_id, entity.entity_type)
             for attr in entity.attrs:
+                key = (*prefix, attr.name)
                 rid_.append(rid)
-                sid_.append(self._sid((*prefix, attr.name)))
+                sid_.append(self._sid(key))
+                iid_.append(store._next_iid)
+                store._next_iid += 1
                 t_.append(micros)
                 kind_.append(int(attr.kind))
                 atype_.append(attr.ngsi_type)
@@ -356,6 +415,19 @@ class DuckDBAppender(Appender):
                 txt_.append(attr.txt)
                 js_.append(attr.js)
                 md_.append(attr.md)
+                if attr.observed_at is None and attr.created_at is None and attr.modified_at is None \
+                        and attr.deleted_at is None and attr.dataset_id is None:
+                    obs_.append(None)
+                    cre_.append(None)
+                    mod_.append(None)
+                    del_.append(None)
+                else:
+                    obs_.append(_micros_or_none(attr.observed_at))
+                    cre_.append(_micros_or_none(attr.created_at))
+                    mod_.append(_micros_or_none(attr.modified_at))
+                    del_.append(_micros_or_none(attr.deleted_at))
+                    if attr.dataset_id is not None and key in self._new_series:
+                        self._new_datasets[key] = attr.dataset_id
                 g = attr.geo
                 if g is None:
                     geo_.append(None)
@@ -405,7 +477,8 @@ class DuckDBAppender(Appender):
                 keys = [k for k in self._new_series if k not in store._series]
                 if keys:
                     cur.execute(INSERT_SERIES, [[self._new_series[k] for k in keys],
-                                                *([k[i] for k in keys] for i in range(5))])
+                                                *([k[i] for k in keys] for i in range(5)),
+                                                [self._new_datasets.get(k) for k in keys]])
                 with store._alloc_lock:
                     store._series.update(self._new_series)
                     for key in self._new_series:
@@ -421,18 +494,21 @@ class DuckDBAppender(Appender):
                 self._insert_arrow(cur)
             self._store.tail.publish(self._cols)
             self._store.latest_geo.publish(self._cols)
-        if self._rejected or self._layouts or self._deletes:
+        if self._rejected or self._layouts or self._deletes or self._instance_ops:
             # A delete must not race the compactor moving or rewriting the
             # same rows (its copy could resurrect them): hold its lock.
-            guard = self._store._compactor._lock if self._deletes else contextlib.nullcontext()
+            changes = self._deletes or self._instance_ops
+            guard = self._store._compactor._lock if changes else contextlib.nullcontext()
             with guard:
                 self._commit_other(cur)
+        self._store.latest_instances.publish(self._latest)
         self._publish()
 
     def _insert_arrow(self, cur: duckdb.DuckDBPyConnection) -> None:
         cols = self._cols
         arrays = [
-            pa.array(cols[f.name], pa.int64()).cast(f.type) if f.name == "t" else pa.array(cols[f.name], f.type)
+            pa.array(cols[f.name], pa.int64()).cast(f.type) if f.name in TIME_COLUMNS
+            else pa.array(cols[f.name], f.type)
             for f in SAMPLE_SCHEMA
         ]
         cur.register("_batch", pa.Table.from_arrays(arrays, schema=SAMPLE_SCHEMA))
@@ -454,19 +530,30 @@ class DuckDBAppender(Appender):
                 [put.tenant, put.subscription_id, orjson.dumps(list(layout.attrs)).decode(),
                  layout.entity_id, layout.entity_type, datetime.now(UTC).replace(tzinfo=None)],
             )
+        from .sql import DuckDBDialect, instance_statements
+
         if self._deletes:
             from ..history.query import TimeRange
-            from .sql import DuckDBDialect, delete_statements
+            from .sql import delete_statements
 
             for op, upto_rid in self._deletes:
                 for sql, params in delete_statements(
                     DuckDBDialect(), ("samples", "samples_hot"), op.sids, TimeRange(op.start, op.end), upto_rid
                 ):
                     cur.execute(sql, params)
+        for op in self._instance_ops:
+            for sql, params in instance_statements(DuckDBDialect(), ("samples", "samples_hot"), op):
+                cur.execute(sql, params)
         cur.execute("COMMIT")
+        store = self._store
         for op, upto_rid in self._deletes:
-            self._store.tail.drop(op.sids)
-            self._store.latest_geo.recompute(op.sids, upto_rid, self._latest_geo_of)
+            store.tail.drop(op.sids)
+            store.latest_instances.drop(op.sids)
+            store.latest_geo.recompute(op.sids, upto_rid, self._latest_geo_of)
+        for op in self._instance_ops:
+            store.tail.drop([op.sid])
+            store.latest_instances.drop([op.sid])
+            store.latest_geo.recompute([op.sid], store._next_rid, self._latest_geo_of)
 
     def _latest_geo_of(self, sids: list[int]) -> list[tuple]:
         return self._cur.execute(

@@ -106,7 +106,8 @@ class PostgresQuerier(SqlQuerier):
         # No commit-ordered position exists here: load everything; the
         # catalog skips the series it already knows.
         return self._fetch(
-            "SELECT sid, sid, tenant, service_path, entity_id, entity_type, attr FROM series ORDER BY sid", []
+            "SELECT sid, sid, tenant, service_path, entity_id, entity_type, attr, dataset_id FROM series ORDER BY sid",
+            [],
         )
 
     def _fetch(self, sql: str, params: list) -> list[tuple]:

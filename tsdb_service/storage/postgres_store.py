@@ -20,7 +20,11 @@ from psycopg_pool import ConnectionPool
 from ..errors import Unavailable
 from ..model import EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
-from .base import Appender, AppendSamples, DeleteSamples, PutLayout, RecordRejected, Store, WriteOp
+from .base import (
+    Appender, AppendSamples, DeleteInstance, DeleteSamples, PutLayout, RecordRejected, ReplaceInstance, Store,
+    WriteOp,
+)
+from .ld_ingest import LatestInstances, drop_renotified, latest_keys, with_deletions
 from .migrate import applied_versions, load_migrations
 from .writer import GroupCommitter
 
@@ -29,7 +33,8 @@ log = logging.getLogger(__name__)
 SAMPLE_COLUMNS = (
     "rid", "sid", "t", "kind", "atype", "num", "txt", "js", "geo",
     "lon", "lat", "min_lon", "min_lat", "max_lon", "max_lat", "md",
-)
+    "observed_at", "created_at", "modified_at", "deleted_at",
+)  # iid: the column default (a sequence) allocates it
 SeriesKey = tuple[str, str, str, str, str]
 _MIGRATION_LOCK = 0x7473_6462  # "tsdb": serialises migrations across processes
 
@@ -62,6 +67,10 @@ def naive_utc(moment: datetime) -> datetime:
     return moment.astimezone(UTC).replace(tzinfo=None)
 
 
+def _naive(moment: datetime | None) -> datetime | None:
+    return None if moment is None else naive_utc(moment)
+
+
 class PostgresStore(Store):
     backend = "postgresql"
 
@@ -71,6 +80,7 @@ class PostgresStore(Store):
         self.pool = ConnectionPool(url, min_size=1, max_size=pool_size, open=True,
                                    kwargs={"autocommit": True})
         self._series: dict[SeriesKey, int] = {}
+        self.latest_instances = LatestInstances()
         self._layouts: dict[tuple[str, str], ValuesLayout] = {}
         self._load_layouts()
         self._committer = GroupCommitter(lambda: PostgresAppender(self), name="tsdb-pg-writer",
@@ -159,19 +169,25 @@ class PostgresAppender(Appender):
 
     def _reset(self) -> None:
         self._entities: list[EntitySample] = []
+        self._dedup: list[bool] = []  # per entity: drop re-notified instances?
+        self._latest: dict[int, tuple | None] = {}  # this transaction's latest instance keys
         self._rejected: list[RejectedNotification] = []
         self._layouts: list[PutLayout] = []
         self._deletes: list[DeleteSamples] = []
+        self._instance_ops: list[DeleteInstance | ReplaceInstance] = []
 
     def stage(self, op: WriteOp) -> None:
         if isinstance(op, AppendSamples):
             self._entities.extend(op.entities)
+            self._dedup.extend([op.dedup] * len(op.entities))
         elif isinstance(op, RecordRejected):
             self._rejected.append(op.rejected)
         elif isinstance(op, PutLayout):
             self._layouts.append(op)
         elif isinstance(op, DeleteSamples):
             self._deletes.append(op)
+        elif isinstance(op, (DeleteInstance, ReplaceInstance)):
+            self._instance_ops.append(op)
         else:  # pragma: no cover - programming error
             raise TypeError(f"unknown write op {op!r}")
 
@@ -199,9 +215,20 @@ class PostgresAppender(Appender):
                 )
             if self._deletes:
                 self._delete(cur)
+            if self._instance_ops:
+                from .postgres_querier import PostgresDialect
+                from .sql import instance_statements
+
+                for op in self._instance_ops:
+                    for sql, params in instance_statements(PostgresDialect(), ("samples",), op):
+                        cur.execute(sql, params)
         conn.commit()
+        store = self._store
         for put in self._layouts:
-            self._store._layouts[(put.tenant, put.subscription_id)] = put.layout
+            store._layouts[(put.tenant, put.subscription_id)] = put.layout
+        store.latest_instances.publish(self._latest)
+        store.latest_instances.drop([sid for op in self._deletes for sid in op.sids])
+        store.latest_instances.drop([op.sid for op in self._instance_ops])
         self._reset()
 
     def _delete(self, cur: psycopg.Cursor) -> None:
@@ -218,8 +245,11 @@ class PostgresAppender(Appender):
                 cur.execute(sql, params)
 
     def _copy_samples(self, cur: psycopg.Cursor) -> None:
+        self._entities = with_deletions(self._entities, lambda e: self._entity_attrs(cur, e))
         sids = self._resolve_series(cur)
-        entities = self._entities
+        entities = self._without_renotified(cur, sids)
+        if not entities:
+            return
         cur.execute("SELECT nextval('sample_rid_seq') FROM generate_series(1, %s)", [len(entities)])
         rids = [row[0] for row in cur.fetchall()]
         columns = ", ".join(SAMPLE_COLUMNS)
@@ -233,8 +263,43 @@ class PostgresAppender(Appender):
                         rid, sids[(*prefix, a.name)], t, int(a.kind), a.ngsi_type, a.num, a.txt, a.js,
                         *((g.geojson, g.lon, g.lat, g.min_lon, g.min_lat, g.max_lon, g.max_lat)
                           if g is not None else (None,) * 7),
-                        a.md,
+                        a.md, _naive(a.observed_at), _naive(a.created_at), _naive(a.modified_at),
+                        _naive(a.deleted_at),
                     ))
+
+    def _entity_attrs(self, cur: psycopg.Cursor, entity: EntitySample) -> list[tuple[str, str | None]]:
+        """Stored attributes (name, datasetId) of a deleted entity."""
+        cur.execute(
+            "SELECT attr, dataset_id FROM series WHERE tenant = %s AND service_path = %s AND entity_id = %s "
+            "AND entity_type = %s ORDER BY attr",
+            [entity.tenant, entity.service_path, entity.entity_id, entity.entity_type],
+        )
+        return cur.fetchall()
+
+    def _without_renotified(self, cur: psycopg.Cursor, sids: dict[SeriesKey, int]) -> list[EntitySample]:
+        """Drop NGSI-LD instances equal to their series' latest stored one."""
+        entities = self._entities
+        if not any(a.observed_at is not None for e in entities for a in e.attrs):
+            return entities
+        items, owners = [], []
+        for e, dedup in zip(entities, self._dedup, strict=True):
+            prefix = (e.tenant, e.service_path, e.entity_id, e.entity_type)
+            for a in e.attrs:
+                items.append((sids[(*prefix, a.name)] if dedup else None, a))
+        def load(wanted: list[int]) -> dict:
+            cur.execute(
+                "SELECT l.* FROM unnest(%s::integer[]) AS s(sid) CROSS JOIN LATERAL ("
+                "SELECT x.sid, x.observed_at, x.kind, x.num, x.txt, x.js, x.md, x.deleted_at FROM samples x "
+                "WHERE x.sid = s.sid ORDER BY x.t DESC, x.iid DESC LIMIT 1) l", [wanted])
+            return latest_keys(cur.fetchall())
+        keep = iter(drop_renotified(items, self._store.latest_instances, self._latest, load))
+        out = []
+        for e in entities:
+            attrs = [a for a in e.attrs if next(keep)]
+            if attrs:
+                out.append(e if len(attrs) == len(e.attrs) else EntitySample(
+                    e.tenant, e.service_path, e.entity_id, e.entity_type, e.time_index, attrs, e.deleted_at))
+        return out
 
     def _resolve_series(self, cur: psycopg.Cursor) -> dict[SeriesKey, int]:
         """Series ids for every key in the batch, creating missing ones.
@@ -249,11 +314,15 @@ class PostgresAppender(Appender):
         missing = sorted(wanted - local.keys())
         if missing:
             columns = [list(col) for col in zip(*missing, strict=True)]
+            datasets = {
+                (e.tenant, e.service_path, e.entity_id, e.entity_type, a.name): a.dataset_id
+                for e in self._entities for a in e.attrs if a.dataset_id is not None
+            }
             cur.execute(
-                "INSERT INTO series (tenant, service_path, entity_id, entity_type, attr) "
-                "SELECT * FROM unnest(%s::text[], %s::text[], %s::text[], %s::text[], %s::text[]) "
+                "INSERT INTO series (tenant, service_path, entity_id, entity_type, attr, dataset_id) "
+                "SELECT * FROM unnest(%s::text[], %s::text[], %s::text[], %s::text[], %s::text[], %s::text[]) "
                 "ON CONFLICT DO NOTHING",
-                columns,
+                [*columns, [datasets.get(k) for k in missing]],
             )
             cur.execute(
                 "SELECT s.sid, s.tenant, s.service_path, s.entity_id, s.entity_type, s.attr FROM series s "

@@ -19,6 +19,7 @@ from __future__ import annotations
 from abc import abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 from datetime import UTC, datetime
 
 from ..history.query import Aggregation, AggrMethod, EntityFilter, Scope, TimeRange
@@ -147,6 +148,63 @@ class AggBranch:
 
     sids: tuple[int, ...]
     steps: tuple[str | int, ...] = ()
+
+
+# NGSI-LD time properties → the SQL that reads them. observedAt falls back
+# to the row time for samples that had none (NGSIv2 data, or NGSI-LD without
+# observedAt), so every sample is an instance in observedAt order.
+_TIME_PROPERTY_SQL = {
+    "observedAt": "coalesce(observed_at, t)",
+    "createdAt": "created_at",
+    "modifiedAt": "modified_at",
+    "deletedAt": "deleted_at",
+}
+TIME_PROPERTIES = tuple(_TIME_PROPERTY_SQL)
+_INSTANCE_COLUMNS = "sid, iid, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
+_INSTANCE_SELECT = (
+    "sid, iid, {at} AS at_time, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
+)
+_INSTANCE_NAMES = "sid, iid, at_time, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
+
+
+@dataclass(frozen=True, slots=True)
+class InstanceWindow:
+    """Which instances a temporal query selects: those whose ``timeproperty``
+    lies in [start, end) (either bound optional; NGSI-LD's ``timerel``:
+    ``after`` = start only, ``before`` = end only, ``between`` = both).
+    Times are timezone-aware."""
+
+    timeproperty: str = "observedAt"  # one of TIME_PROPERTIES
+    start: datetime | None = None
+    end: datetime | None = None
+
+    def __post_init__(self) -> None:
+        if self.timeproperty not in _TIME_PROPERTY_SQL:
+            raise ValueError(f"unknown time property {self.timeproperty!r}")
+
+
+class InstanceRow(NamedTuple):
+    """One NGSI-LD attribute instance. Times are naive UTC datetimes."""
+
+    sid: int
+    iid: int  # model.instance_urn(iid) is its instanceId
+    at: datetime  # the window's time property (observedAt: coalesce(observed_at, t))
+    t: datetime  # the NGSIv2 row time (time index)
+    observed_at: datetime | None  # as sent; None: the instance had no observedAt
+    created_at: datetime | None
+    modified_at: datetime | None
+    deleted_at: datetime | None  # set: a deletion instance (value urn:ngsi-ld:null)
+    dataset_id: str | None  # from the series; None: the default instance
+    kind: int  # model.Kind
+    atype: str | None  # Property, GeoProperty, Relationship, ... as notified
+    num: float | None
+    txt: str | None
+    js: str | None
+    md: str | None  # sub-properties as JSON text, exactly as received
+
+
+def _instance_order(row: InstanceRow) -> tuple:
+    return row.sid, row.at, row.iid
 
 
 # Row layouts returned by SqlQuerier (tuples, for speed):
@@ -341,6 +399,69 @@ class SqlQuerier(Querier):
         return int(rows[0][0]) if rows else 0
 
 
+    # -- NGSI-LD attribute instances ------------------------------------------------
+
+    def temporal_instances(
+        self,
+        sids: Sequence[int],
+        window: InstanceWindow = None,
+        *,
+        last_n: int | None = None,
+        limit: int | None = None,
+        newest_first: bool = False,
+    ) -> list[InstanceRow]:
+        """NGSI-LD attribute instances of ``sids`` (see ``Querier``)."""
+        if not sids:
+            return []
+        window = window or InstanceWindow()
+        d = self.dialect
+        p = d.placeholder
+        at = _TIME_PROPERTY_SQL[window.timeproperty]
+        where, params = d.sid_filter(sids)
+        if window.timeproperty != "observedAt":
+            where += f" AND {at} IS NOT NULL"
+        if window.start is not None:
+            where += f" AND {at} >= {p}"
+            params.append(d.time_value(window.start))
+        if window.end is not None:
+            where += f" AND {at} < {p}"
+            params.append(d.time_value(window.end))
+        table = d.samples(_INSTANCE_COLUMNS)
+        cols = _INSTANCE_SELECT.format(at=at)
+        direction = "DESC" if newest_first or last_n is not None else "ASC"
+        if last_n is not None:
+            inner = (f"SELECT {cols}, row_number() OVER (PARTITION BY sid ORDER BY {at} DESC, iid DESC) AS rn "
+                     f"FROM {table} WHERE {where}")
+            sql = f"SELECT {_INSTANCE_NAMES} FROM ({inner}) ranked WHERE rn <= {p}"
+            params.append(min(last_n, _MAX_BIGINT))
+            order = f"at_time {direction}, iid {direction}"
+        else:
+            sql = f"SELECT {cols} FROM {table} WHERE {where}"
+            order = f"{at} {direction}, iid {direction}"
+        if limit is not None:
+            sql += f" ORDER BY {order} LIMIT {p}"
+            params.append(min(limit, _MAX_BIGINT))
+        refs = self.catalog.refs(sids)
+        rows = [
+            InstanceRow(sid, iid, at_, t, obs, cre, mod, dele, ref.dataset_id if ref is not None else None,
+                        kind, atype, num, txt, js, md)
+            for sid, iid, at_, t, obs, cre, mod, dele, kind, atype, num, txt, js, md in self._fetch(sql, params)
+            for ref in (refs.get(sid),)
+        ]
+        rows.sort(key=_instance_order)
+        return rows
+
+    def instance_series(self, sids: Sequence[int], iid: int) -> int | None:
+        """The one of ``sids`` that holds instance ``iid``, or None."""
+        if not sids:
+            return None
+        d = self.dialect
+        where, params = d.sid_filter(sids)
+        rows = self._fetch(f"SELECT sid FROM {d.samples('sid, iid')} WHERE {where} AND iid = {d.placeholder}",
+                           [*params, iid])
+        return rows[0][0] if rows else None
+
+
 def series_time_filter(dialect: Dialect, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
     """WHERE text and parameters: the series ids, then the inclusive time bounds."""
     where, params = dialect.sid_filter(sids)
@@ -366,3 +487,32 @@ def delete_statements(
         params.append(upto_rid)
         out.append((f"DELETE FROM {quote_ident(table)} WHERE {where}", params))
     return out
+
+
+def instance_statements(dialect: Dialect, tables: Sequence[str], op) -> list[tuple[str, list]]:
+    """The statements of a ``DeleteInstance`` or ``ReplaceInstance`` op
+    (``storage.base``): one per sample table, each touching the one sample
+    (``sid``, ``iid``). A replacement keeps the instance id, series and row
+    time, and the stored observedAt when the new content has none."""
+    p = dialect.placeholder
+    where = f"sid = {p} AND iid = {p}"
+    out = []
+    for table in tables:
+        if not hasattr(op, "attr"):
+            out.append((f"DELETE FROM {quote_ident(table)} WHERE {where}", [op.sid, op.iid]))
+            continue
+        a = op.attr
+        g = a.geo
+        geo = (g.geojson, g.lon, g.lat, g.min_lon, g.min_lat, g.max_lon, g.max_lat) if g else (None,) * 7
+        columns = ("kind", "atype", "num", "txt", "js", "geo", "lon", "lat", "min_lon", "min_lat", "max_lon",
+                   "max_lat", "md", "deleted_at", "modified_at")
+        values = [int(a.kind), a.ngsi_type, a.num, a.txt, a.js, *geo, a.md, _time_or_none(dialect, a.deleted_at),
+                  dialect.time_value(op.modified_at)]
+        sets = ", ".join(f"{c} = {p}" for c in columns) + f", observed_at = coalesce(CAST({p} AS TIMESTAMP), observed_at)"
+        values.append(_time_or_none(dialect, a.observed_at))
+        out.append((f"UPDATE {quote_ident(table)} SET {sets} WHERE {where}", [*values, op.sid, op.iid]))
+    return out
+
+
+def _time_or_none(dialect: Dialect, moment: datetime | None) -> object:
+    return None if moment is None else dialect.time_value(moment)
