@@ -17,7 +17,7 @@ from ..history.params import _pattern as validate_id_pattern
 from ..history.params import parse_time
 from . import qlang
 from .context import TermMap
-from .errors import BadRequestData
+from .errors import BadRequestData, OperationNotSupported, TooManyResults
 from .geoquery import parse_ld_geo
 from .query import (
     AGGR_METHODS,
@@ -93,11 +93,11 @@ def query_from_body(
     if unknown:
         raise BadRequestData(f"unknown Query members: {', '.join(u[:40] for u in unknown[:5])}")
     if body.get("scopeQ") not in (None, ""):
-        raise BadRequestData("scopeQ is not supported: scopes are not stored", error="NotImplemented")
-    temporal = body.get("temporalQ") or {}
+        raise OperationNotSupported("scopeQ is not supported: scopes are not stored")
+    temporal = body.get("temporalQ", {})
     if not isinstance(temporal, dict):
         raise BadRequestData("temporalQ must be an object")
-    geo = body.get("geoQ") or {}
+    geo = body.get("geoQ", {})
     if not isinstance(geo, dict):
         raise BadRequestData("geoQ must be an object")
     query = TemporalQuery(
@@ -363,7 +363,7 @@ def _paging(query: TemporalQuery, params: Mapping[str, str], limits: tuple[int, 
     default_limit, max_limit = limits
     limit = _non_negative(params.get("limit"), "limit")
     if limit is not None and limit > max_limit:
-        raise BadRequestData(f"limit must be at most {max_limit}", error="TooManyResults")
+        raise TooManyResults(f"limit must be at most {max_limit}")
     offset = _non_negative(params.get("offset"), "offset") or 0
     count = _flag(params.get("count"), "count") or query.count
     order = params.get("orderBy")
@@ -376,9 +376,9 @@ def _paging(query: TemporalQuery, params: Mapping[str, str], limits: tuple[int, 
 
 def _refuse_unsupported(params: Mapping[str, str]) -> None:
     if params.get("scopeQ") not in (None, ""):
-        raise BadRequestData("scopeQ is not supported: scopes are not stored", error="NotImplemented")
+        raise OperationNotSupported("scopeQ is not supported: scopes are not stored")
     if params.get("csf") not in (None, ""):
-        raise BadRequestData("csf is not supported: there are no context sources here", error="NotImplemented")
+        raise OperationNotSupported("csf is not supported: there are no context sources here")
 
 
 # --- small parsers ------------------------------------------------------------------
