@@ -42,3 +42,23 @@ def load_vehicles(client) -> None:
                 "name": {"type": "LanguageProperty", "languageMap": {"en": f"car {i}", "es": f"coche {i}"},
                          "observedAt": at},
             }])
+
+
+ENTITIES = "/ngsi-ld/v1/temporal/entities"
+
+
+def get(client, params: dict | None = None, path: str = ENTITIES, headers: dict | None = None, status: int = 200):
+    response = client.get(path, params=params or {}, headers={**H, **(headers or {})})
+    assert response.status_code == status, response.text
+    return response
+
+
+def error_type(response) -> str:
+    """The NGSI-LD error type of an error answer (ProblemDetails ``type``,
+    or the NGSI ``error`` name)."""
+    body = response.json()
+    return str(body.get("type") or body.get("error")).rsplit("/", 1)[-1]
+
+
+def ids(response) -> list[str]:
+    return [e["id"] for e in response.json()]
