@@ -129,7 +129,7 @@ class Aggregator:
         d = self.d
         expr, where_t, params_t = self.f.time_filter(window)
         where_s, params_s = d.sid_filter(sids)
-        is_array = f"(kind = {int(_K.STRUCTURED)} AND js LIKE '[%')"
+        is_array = f"(kind = {int(_K.STRUCTURED)} AND substr(js, 1, 1) = '[')"
         x = (f"CASE WHEN kind IN ({int(_K.NUMBER)}, {int(_K.INTEGER)}, {int(_K.BOOLEAN)}, {int(_K.DATETIME)}) "
              f"THEN num WHEN {is_array} THEN CAST({self._array_length('js')} AS DOUBLE PRECISION) END")
         table = d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, num, txt, js")
