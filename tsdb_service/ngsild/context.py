@@ -80,6 +80,7 @@ class ContextStore:
         self._cache: dict[str, tuple[float, Any]] = {}
         self._lock = threading.Lock()
         self._maps: OrderedDict[tuple, TermMap] = OrderedDict()
+        self.failure = threading.local()  # the last LdContextNotAvailable of a thread's PyLD call
 
     def document(self, url: str) -> Any:
         """The JSON document at ``url`` (a context), or LdContextNotAvailable."""
@@ -125,9 +126,14 @@ class ContextStore:
             raise LdContextNotAvailable(f"the @context {url} is not JSON") from None
 
     def loader(self, url: str, options: Any = None) -> dict:
-        """PyLD's document loader interface."""
-        return {"contentType": "application/ld+json", "contextUrl": None, "documentUrl": url,
-                "document": self.document(url)}
+        """PyLD's document loader interface. PyLD wraps what a loader raises
+        in its own errors, so the real failure is also kept per thread."""
+        try:
+            document = self.document(url)
+        except LdContextNotAvailable as exc:
+            self.failure.error = exc
+            raise
+        return {"contentType": "application/ld+json", "contextUrl": None, "documentUrl": url, "document": document}
 
     def term_map(self, context: str | list | dict | None) -> TermMap:
         """The (cached) term map of a request's context: a URL, an inline
@@ -161,7 +167,7 @@ class TermMap:
     def __init__(self, store: ContextStore, context: str | list | dict | None):
         self._store = store
         user = [] if context is None else (context if isinstance(context, list) else [context])
-        user = [c for c in user if c not in CORE_CONTEXT_URLS]
+        user = [c for c in user if not (isinstance(c, str) and c in CORE_CONTEXT_URLS)]
         self.user_context: list = user
         self.context: list = [*user, CORE_CONTEXT_URL]
         self._expanded: dict[str, str] = {}
@@ -220,18 +226,16 @@ class TermMap:
                 self._compacted[iri] = value
         return [self._compacted[i] for i in iris]
 
-    @staticmethod
-    def _run(call):
+    def _run(self, call):
+        self._store.failure.error = None
         try:
             return call()
         except LdContextNotAvailable:
             raise
         except jsonld.JsonLdError as exc:
-            cause = exc
-            while getattr(cause, "cause", None) is not None:
-                cause = cause.cause
-            if isinstance(cause, LdContextNotAvailable):
-                raise cause from None
+            failed = self._store.failure.error
+            if failed is not None:
+                raise failed from None
             raise BadRequestData(f"the JSON-LD @context cannot be processed: {_describe(exc)}") from None
 
 
