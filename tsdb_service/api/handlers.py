@@ -1,5 +1,6 @@
-"""The one place errors become HTTP responses, always in the NGSI shape
-``{"error": ..., "description": ...}``."""
+"""The one place errors become HTTP responses: in the NGSI shape
+``{"error": ..., "description": ...}``, and under ``/ngsi-ld/`` as NGSI-LD
+ProblemDetails (``tsdb_service.ngsild.errors``)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
 
 from ..errors import TsdbError
+from ..ngsild import errors as ld
 from .responses import JSON
 
 log = logging.getLogger("tsdb_service")
@@ -46,18 +48,26 @@ def allowed_methods(request: Request) -> str:
     return ", ".join(allowed)
 
 
+def _error(request: Request, error: str, description: str, status: int, ld_type: str, headers=None) -> JSON:
+    """One error answer, in the shape of the API the path belongs to."""
+    if ld.is_ngsild_path(request.url.path):
+        return JSON(ld.problem(ld_type, status, description), status_code=status, headers=headers,
+                    media_type=ld.MEDIA_TYPE)
+    return JSON({"error": error, "description": description}, status_code=status, headers=headers)
+
+
 def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(TsdbError)
-    async def tsdb_error(_: Request, exc: TsdbError) -> JSON:
-        return JSON(exc.body(), status_code=exc.status)
+    async def tsdb_error(request: Request, exc: TsdbError) -> JSON:
+        return _error(request, exc.error, exc.description, exc.status, exc.ld_type)
 
     @app.exception_handler(RequestValidationError)
-    async def validation_error(_: Request, exc: RequestValidationError) -> JSON:
+    async def validation_error(request: Request, exc: RequestValidationError) -> JSON:
         problems = "; ".join(
             f"{'.'.join(str(p) for p in err.get('loc', ())[1:]) or 'request'}: {err.get('msg')}"
             for err in exc.errors()
         )
-        return JSON({"error": "BadRequest", "description": problems or "invalid request"}, status_code=400)
+        return _error(request, "BadRequest", problems or "invalid request", 400, "BadRequestData")
 
     @app.exception_handler(StarletteHTTPException)
     async def http_error(request: Request, exc: StarletteHTTPException) -> JSON:
@@ -65,9 +75,10 @@ def install_error_handlers(app: FastAPI) -> None:
         headers = dict(exc.headers or {})
         if exc.status_code == 405:
             headers["Allow"] = allowed_methods(request) or headers.get("Allow", "")
-        return JSON({"error": name, "description": str(exc.detail)}, status_code=exc.status_code, headers=headers)
+        return _error(request, name, str(exc.detail), exc.status_code, ld.http_ld_type(exc.status_code), headers)
 
     @app.exception_handler(Exception)
     async def unexpected(request: Request, exc: Exception) -> JSON:
         request_id, body = internal_error(f"unhandled error in {request.method} {request.url.path}", exc)
-        return JSON(body, status_code=500, headers={"X-Request-Id": request_id})
+        return _error(request, body["error"], body["description"], 500, "InternalError",
+                      {"X-Request-Id": request_id})

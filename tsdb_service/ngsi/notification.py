@@ -423,6 +423,24 @@ def _ld_instance(name: str, ld_type: str, value: Any, raw: dict, key: str) -> At
     return sample
 
 
+def parse_ld_instance(name: str, raw: Any) -> AttrSample:
+    """One attribute instance of an NGSI-LD temporal write (``POST
+    /ngsi-ld/v1/temporal/entities`` ...), read exactly as a notified one.
+    It must be an attribute object (normalized or concise); the stored
+    name is checked against the one naming rule."""
+    if type(raw) is not dict:
+        raise ParseError(f"attribute {name[:80]!r}: each instance must be an attribute object, got {_json_kind(raw)}")
+    if not _is_instance_list([raw]) and raw.get("type") not in GEOMETRY_TYPES:
+        raise ParseError(f"attribute {name[:80]!r}: an instance needs an NGSI-LD type (Property, Relationship, "
+                         "GeoProperty, ...) or a value member (value, object, languageMap, ...)")
+    sample = _ld_attr(name, raw, TimeClues(None, frozenset()))
+    problem = name_problem(sample.name)
+    if problem is not None:
+        raise ParseError(f"attribute name {sample.name[:80]!r} {problem}; we store only names every endpoint "
+                         f"can be asked for: {RULE}")
+    return sample
+
+
 def _ld_entity_deleted_at(entity: dict) -> datetime | None:
     """An NGSI-LD entity deletion (``deletedAt`` on the entity): when."""
     deleted = entity.get("deletedAt")

@@ -19,11 +19,11 @@ from fastapi import APIRouter, Request
 from starlette.concurrency import run_in_threadpool
 from starlette.responses import Response
 
-from ..api.tenancy import tenant_of
 from .context import JSONLD_CONTEXT_REL, ContextStore, TermMap, link_context, parse_local_contexts
 from .errors import BadRequestData, InvalidRequest, NotAcceptable
 from .params import query_from_body, query_from_params
 from .service import TemporalResult, run
+from .tenancy import ld_tenant, tenant_echo
 
 router = APIRouter(prefix="/ngsi-ld/v1", tags=["NGSI-LD temporal"])
 LD_JSON = "application/ld+json"
@@ -83,7 +83,7 @@ async def query_entities(request: Request) -> Response:
 
     def work() -> tuple[TemporalResult, TermMap, object]:
         terms = contexts(request).term_map(link_context(request.headers.get("link")))
-        query = query_from_params(params, tenant_of(request), terms, limits=_limits(request))
+        query = query_from_params(params, ld_tenant(request), terms, limits=_limits(request))
         return run(request.app.state.store.querier(), terms, query, _cap(request)), terms, query
 
     result, terms, query = await run_in_threadpool(work)
@@ -99,7 +99,7 @@ async def retrieve_entity(entity_id: str, request: Request) -> Response:
 
     def work():
         terms = contexts(request).term_map(link_context(request.headers.get("link")))
-        query = query_from_params(params, tenant_of(request), terms, limits=(1, 1), entity_id=entity_id)
+        query = query_from_params(params, ld_tenant(request), terms, limits=(1, 1), entity_id=entity_id)
         return run(request.app.state.store.querier(), terms, query, _cap(request)), terms, query
 
     result, terms, query = await run_in_threadpool(work)
@@ -134,7 +134,7 @@ async def query_post(request: Request) -> Response:
 
     def work():
         terms = contexts(request).term_map(context)
-        query = query_from_body(body, params, tenant_of(request), terms, limits=_limits(request))
+        query = query_from_body(body, params, ld_tenant(request), terms, limits=_limits(request))
         return run(request.app.state.store.querier(), terms, query, _cap(request)), terms, query
 
     result, terms, query = await run_in_threadpool(work)
@@ -142,7 +142,7 @@ async def query_post(request: Request) -> Response:
 
 
 def _respond(request: Request, media: str, terms: TermMap, result: TemporalResult, query, many: bool) -> Response:
-    headers: dict[str, str] = {}
+    headers: dict[str, str] = tenant_echo(request)
     links: list[str] = []
     if media == LD_JSON:
         for item in result.entities:
