@@ -184,6 +184,8 @@ def test_post_entity_operations_query(vehicles):
 def test_errors(vehicles):
     missing = get(vehicles, path=f"{ENTITIES}/urn:ngsi-ld:Vehicle:none", status=404)
     assert error_type(missing) == "ResourceNotFound"
+    assert missing.json()["type"] == "https://uri.etsi.org/ngsi-ld/errors/ResourceNotFound"
+    assert missing.json()["status"] == 404 and missing.json()["detail"]
     assert error_type(get(vehicles, {}, status=400)) == "BadRequestData"
     assert error_type(get(vehicles, {"type": "Vehicle", "timerel": "later", "timeAt": "x"}, status=400)) \
         == "BadRequestData"
@@ -196,3 +198,13 @@ def test_errors(vehicles):
 
 def test_retrieve_merges_nothing_across_tenants(vehicles):
     get(vehicles, path=f"{ENTITIES}/{B9211}", headers={"NGSILD-Tenant": "other"}, status=404)
+
+
+def test_temporal_writes_read_back(client):
+    entity = {"id": "urn:ngsi-ld:Vehicle:W1", "type": "Vehicle",
+              "speed": [{"type": "Property", "value": 7, "observedAt": "2020-01-01T00:00:00Z"},
+                        {"type": "Property", "value": 8, "observedAt": "2020-01-01T00:01:00Z"}]}
+    created = client.post(ENTITIES, json=entity, headers=H)
+    assert created.status_code in (201, 204), created.text
+    got = get(client, path=f"{ENTITIES}/urn:ngsi-ld:Vehicle:W1", params={"format": "temporalValues"}).json()
+    assert got["speed"]["values"] == [[7, "2020-01-01T00:00:00.000Z"], [8, "2020-01-01T00:01:00.000Z"]]
