@@ -68,8 +68,11 @@ def query_from_params(
         geo=geo_query(get("georel"), get("geometry"), get("coordinates"), get("geoproperty"), terms),
         dataset_ids=_list(get("datasetId"), "datasetId"),
         last_n=_positive(get("lastN"), "lastN"),
+        first_n=_positive(get("firstN"), "firstN"),
         local=_flag(get("local"), "local"),
     )
+    if query.last_n is not None and query.first_n is not None:
+        raise BadRequestData("lastN and firstN exclude each other")
     query = _representation(query, get("options"), get("format"), get("aggrMethods"), get("aggrPeriodDuration"))
     query = _paging(query, params, limits)
     _refuse_unsupported(params)

@@ -147,6 +147,7 @@ class TemporalQuery:
     geo: GeoQuery | None = None
     dataset_ids: tuple[str, ...] | None = None
     last_n: int | None = None
+    first_n: int | None = None  # the firstN draft: the oldest N per attribute
     format: Format = Format.NORMALIZED
     aggregation: Aggregation | None = None
     sys_attrs: bool = False

@@ -72,6 +72,8 @@ def _instances(querier, query: TemporalQuery, sids, cap: int):
     window = InstanceWindow(w.timeproperty.value, w.start, w.end)
     newest_first = query.last_n is not None
     rows = querier.temporal_instances(sids, window, last_n=query.last_n, limit=cap + 1, newest_first=newest_first)
+    if query.first_n is not None:
+        rows = _first_n(rows, query.first_n)
     if len(rows) <= cap:
         return rows, None
     ordered = sorted(rows, key=lambda r: (r.at, r.iid), reverse=newest_first)
@@ -86,6 +88,17 @@ def _instances(querier, query: TemporalQuery, sids, cap: int):
         size = "*"
     content_range = f"date-time {_iso(start)}-{_iso(edge)}/{size}"
     return kept, content_range
+
+
+def _first_n(rows, n: int) -> list:
+    """The oldest ``n`` of each series (rows come sorted by series, then time)."""
+    seen: dict[int, int] = {}
+    out = []
+    for row in rows:
+        seen[row.sid] = seen.get(row.sid, 0) + 1
+        if seen[row.sid] <= n:
+            out.append(row)
+    return out
 
 
 def _iso(moment: datetime) -> str:
