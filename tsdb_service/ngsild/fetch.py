@@ -141,8 +141,8 @@ class Fetcher:
         its attribute in the window satisfies it."""
         owner = {r.sid: key for key, refs in by_entity.items() for r in refs}
         sids_of: dict[str, list[int]] = {}
-        for sid, iri in iris.items():
-            sids_of.setdefault(iri, []).append(sid)
+        for sid in owner:
+            sids_of.setdefault(iris[sid], []).append(sid)
         holding: dict[qlang.Term, set[EntityKey]] = {}
         for term in dict.fromkeys(qlang.terms(node)):
             sids = sids_of.get(term.attr, [])
@@ -171,10 +171,10 @@ class Fetcher:
     def geo_matches(self, geo, window: Window, by_entity: dict[EntityKey, list[SeriesRef]],
                     iris: dict[int, str]) -> set[EntityKey]:
         """Entities with a location instance in the window that satisfies the geo-query."""
-        sids = [sid for sid, iri in iris.items() if iri == geo.geoproperty]
+        owner = {r.sid: key for key, refs in by_entity.items() for r in refs}
+        sids = [sid for sid in owner if iris[sid] == geo.geoproperty]
         if not sids:
             return set()
-        owner = {r.sid: key for key, refs in by_entity.items() for r in refs}
         _, where_t, params_t = self.time_filter(window)
         where_s, params_s = self.d.sid_filter(sids)
         box_sql, box_params = _box_filter(geo.filter.prefilter, self.d.placeholder)
