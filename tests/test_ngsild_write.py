@@ -67,6 +67,15 @@ def test_create_then_upsert(client):
     assert [r.num for name, r in stored(client) if name == "speed"] == [120, 80, 90]
 
 
+def test_system_members_sent_by_the_client_are_ignored(client):
+    body = {"id": VEHICLE, "type": "Vehicle", "speed": [{
+        "type": "Property", "value": 1, "observedAt": "2018-08-01T12:00:00Z", "createdAt": "2000-01-01T00:00:00Z",
+        "modifiedAt": "2000-01-01T00:00:00Z", "instanceId": "urn:ngsi-ld:attribute:instance:0000000000000001"}]}
+    assert create(client, body).status_code == 201
+    [(_, row)] = stored(client)
+    assert row.created_at.year > 2000 and row.md == '{"observedAt":"2018-08-01T12:00:00Z"}'
+
+
 def test_written_instances_are_seen_by_the_v2_api(client):
     assert create(client).status_code == 201
     v2 = client.get(f"/v2/entities/{VEHICLE}", params={"type": "Vehicle"})

@@ -210,7 +210,13 @@ def _samples(tenant: str, entity_id: str, entity_type: str, attrs: dict, now: da
     return rows
 
 
+# Members the system sets: a client's values are ignored (clause 4.8).
+_SYSTEM_MEMBERS = ("@context", "instanceId", "createdAt", "modifiedAt")
+
+
 def _instance_sample(name: str, raw: Any) -> AttrSample:
+    if type(raw) is dict and any(k in raw for k in _SYSTEM_MEMBERS):
+        raw = {k: v for k, v in raw.items() if k not in _SYSTEM_MEMBERS}
     try:
         return parse_ld_instance(name, raw)
     except ParseError as exc:
@@ -224,8 +230,6 @@ def _patch_sample(attr_id: str, doc: dict) -> AttrSample:
         if len(raw) != 1:
             raise BadRequestData(f"give exactly one instance of {attr_id[:200]!r}, got {len(raw)}")
         raw = raw[0]
-    if type(raw) is dict:
-        raw = {k: v for k, v in raw.items() if k not in ("@context", "instanceId")}
     return _instance_sample(attr_id, raw)
 
 

@@ -30,7 +30,9 @@ from .base import (
     Appender, AppendSamples, DeleteInstance, DeleteSamples, PutLayout, RecordRejected, ReplaceInstance, Store,
     WriteOp,
 )
-from .ld_ingest import LATEST_INSTANCE_SQL, LatestInstances, drop_renotified, latest_keys, with_deletions
+from .ld_ingest import (
+    LATEST_INSTANCE_SQL, LatestInstances, drop_renotified, latest_keys, publish_staged, with_deletions,
+)
 from .latest_geo import LatestGeo
 from .tail_cache import TailCache
 from .migrate import applied_versions, load_migrations, split_statements
@@ -306,7 +308,7 @@ class DuckDBAppender(Appender):
         self._cols: dict[str, list] = {name: [] for name in SAMPLE_SCHEMA.names}
         self._new_series: dict[SeriesKey, int] = {}
         self._new_datasets: dict[SeriesKey, str] = {}  # new series of non-default datasetIds
-        self._latest: dict[int, tuple | None] = {}  # this transaction's latest instance keys
+        self._latest: dict[SeriesKey, tuple | None] = {}  # this transaction's latest instance keys
         self._rejected: list[tuple] = []
         self._layouts: list[PutLayout] = []
         self._deletes: list[tuple[DeleteSamples, int]] = []
@@ -352,8 +354,7 @@ class DuckDBAppender(Appender):
         store = self._store
         entities = with_deletions(entities, self._entity_attrs)
         with store._alloc_lock:
-            if dedup:
-                entities = self._without_renotified(entities)
+            entities = self._without_renotified(entities, dedup)
             self._stage_locked(entities)
 
     def _entity_attrs(self, entity: EntitySample) -> list[tuple[str, str | None]]:
@@ -364,16 +365,18 @@ class DuckDBAppender(Appender):
             [entity.tenant, entity.service_path, entity.entity_id, entity.entity_type],
         ).fetchall()
 
-    def _without_renotified(self, entities: Sequence[EntitySample]) -> list[EntitySample]:
-        """Drop NGSI-LD instances equal to their series' latest stored one."""
+    def _without_renotified(self, entities: Sequence[EntitySample], dedup: bool) -> list[EntitySample]:
+        """Drop NGSI-LD instances equal to their series' latest stored one
+        (``dedup``; else only note them as the latest)."""
         if not any(a.observed_at is not None for e in entities for a in e.attrs):
             return list(entities)
         series = self._store._series
         items = []
         for e in entities:
             prefix = (e.tenant, e.service_path, e.entity_id, e.entity_type)
-            items.extend((series.get((*prefix, a.name)) or self._new_series.get((*prefix, a.name)), a)
-                         for a in e.attrs)
+            for a in e.attrs:
+                key = (*prefix, a.name)
+                items.append((key, series.get(key) or self._new_series.get(key), a, dedup))
         keep = iter(drop_renotified(items, self._store.latest_instances, self._latest, self._latest_of))
         out = []
         for e in entities:
@@ -501,7 +504,7 @@ class DuckDBAppender(Appender):
             guard = self._store._compactor._lock if changes else contextlib.nullcontext()
             with guard:
                 self._commit_other(cur)
-        self._store.latest_instances.publish(self._latest)
+        publish_staged(self._store.latest_instances, self._latest, self._store._series.get)
         self._publish()
 
     def _insert_arrow(self, cur: duckdb.DuckDBPyConnection) -> None:

@@ -98,30 +98,40 @@ class LatestInstances:
 
 
 def drop_renotified(
-    items: Sequence[tuple[int | None, AttrSample]],
+    items: Sequence[tuple[tuple, int | None, AttrSample, bool]],
     cache: LatestInstances,
-    staged: dict[int, InstanceKey],
+    staged: dict[tuple, InstanceKey],
     load: Callable[[list[int]], dict[int, InstanceKey]],
 ) -> list[bool]:
-    """Which of ``items`` (series id or None for a series not stored yet,
-    sample) to keep, in order. ``staged`` holds this transaction's own latest
-    keys and is updated with every kept item."""
-    missing = sorted({sid for sid, attr in items if sid is not None and attr.observed_at is not None
-                      and sid not in staged and cache.get(sid) is _MISSING})
+    """Which of ``items`` to keep, in order. An item is (series key, series
+    id or None for a series not stored yet, sample, may it be dropped).
+    ``staged`` holds this transaction's own latest keys by series key (so a
+    series created in this transaction counts too) and is updated with
+    every item; publish it with ``publish_staged`` after the commit."""
+    missing = sorted({sid for skey, sid, attr, _ in items if sid is not None and attr.observed_at is not None
+                      and skey not in staged and cache.get(sid) is _MISSING})
     loaded = load(missing) if missing else {}
     keep = []
-    for sid, attr in items:
+    for skey, sid, attr, droppable in items:
         key = sample_key(attr)
-        if sid is not None and key is not None:
-            latest = staged[sid] if sid in staged else loaded.get(sid, cache.get(sid))
+        if droppable and key is not None:
+            if skey in staged:
+                latest = staged[skey]
+            else:
+                latest = _MISSING if sid is None else loaded.get(sid, cache.get(sid))
             if latest is not _MISSING and latest == key:
-                staged[sid] = latest  # remember what the database holds
+                staged[skey] = latest  # what the database holds (or will, at commit)
                 keep.append(False)
                 continue
-        if sid is not None:
-            staged[sid] = key
+        staged[skey] = key
         keep.append(True)
     return keep
+
+
+def publish_staged(cache: LatestInstances, staged: dict[tuple, InstanceKey], sid_of: Callable[[tuple], int | None]):
+    """After a commit: the staged keys become the cache's."""
+    if staged:
+        cache.publish({sid: key for skey, key in staged.items() if (sid := sid_of(skey)) is not None})
 
 
 def with_deletions(

@@ -24,7 +24,7 @@ from .base import (
     Appender, AppendSamples, DeleteInstance, DeleteSamples, PutLayout, RecordRejected, ReplaceInstance, Store,
     WriteOp,
 )
-from .ld_ingest import LatestInstances, drop_renotified, latest_keys, with_deletions
+from .ld_ingest import LatestInstances, drop_renotified, latest_keys, publish_staged, with_deletions
 from .migrate import applied_versions, load_migrations
 from .writer import GroupCommitter
 
@@ -170,7 +170,8 @@ class PostgresAppender(Appender):
     def _reset(self) -> None:
         self._entities: list[EntitySample] = []
         self._dedup: list[bool] = []  # per entity: drop re-notified instances?
-        self._latest: dict[int, tuple | None] = {}  # this transaction's latest instance keys
+        self._latest: dict[SeriesKey, tuple | None] = {}  # this transaction's latest instance keys
+        self._sids: dict[SeriesKey, int] = {}  # the batch's series ids
         self._rejected: list[RejectedNotification] = []
         self._layouts: list[PutLayout] = []
         self._deletes: list[DeleteSamples] = []
@@ -226,7 +227,7 @@ class PostgresAppender(Appender):
         store = self._store
         for put in self._layouts:
             store._layouts[(put.tenant, put.subscription_id)] = put.layout
-        store.latest_instances.publish(self._latest)
+        publish_staged(store.latest_instances, self._latest, self._sids.get)
         store.latest_instances.drop([sid for op in self._deletes for sid in op.sids])
         store.latest_instances.drop([op.sid for op in self._instance_ops])
         self._reset()
@@ -281,11 +282,13 @@ class PostgresAppender(Appender):
         entities = self._entities
         if not any(a.observed_at is not None for e in entities for a in e.attrs):
             return entities
-        items, owners = [], []
+        self._sids = sids
+        items = []
         for e, dedup in zip(entities, self._dedup, strict=True):
             prefix = (e.tenant, e.service_path, e.entity_id, e.entity_type)
             for a in e.attrs:
-                items.append((sids[(*prefix, a.name)] if dedup else None, a))
+                key = (*prefix, a.name)
+                items.append((key, sids[key], a, dedup))
         def load(wanted: list[int]) -> dict:
             cur.execute(
                 "SELECT l.* FROM unnest(%s::integer[]) AS s(sid) CROSS JOIN LATERAL ("

@@ -164,7 +164,9 @@ _INSTANCE_COLUMNS = "sid, iid, t, observed_at, created_at, modified_at, deleted_
 _INSTANCE_SELECT = (
     "sid, iid, {at} AS at_time, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
 )
-_INSTANCE_NAMES = "sid, iid, at_time, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
+_INSTANCE_NAMES = (
+    "sid, iid, at_time, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -508,7 +510,8 @@ def instance_statements(dialect: Dialect, tables: Sequence[str], op) -> list[tup
                    "max_lat", "md", "deleted_at", "modified_at")
         values = [int(a.kind), a.ngsi_type, a.num, a.txt, a.js, *geo, a.md, _time_or_none(dialect, a.deleted_at),
                   dialect.time_value(op.modified_at)]
-        sets = ", ".join(f"{c} = {p}" for c in columns) + f", observed_at = coalesce(CAST({p} AS TIMESTAMP), observed_at)"
+        sets = ", ".join(f"{c} = {p}" for c in columns)
+        sets += f", observed_at = coalesce(CAST({p} AS TIMESTAMP), observed_at)"
         values.append(_time_or_none(dialect, a.observed_at))
         out.append((f"UPDATE {quote_ident(table)} SET {sets} WHERE {where}", [*values, op.sid, op.iid]))
     return out
