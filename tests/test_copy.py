@@ -2,11 +2,28 @@
 
 History copied DuckDB → PostgreSQL → DuckDB answers every query exactly as
 the original does, and the rejected store and 'values' layouts come along.
+Copying cannot hurt: a non-empty target is refused unless ``--append``, the
+check compares totals, an interrupted copy resumes, a missing source is an
+error (before: a second copy doubled all history and still printed "copy
+verified"; a mistyped source was created empty and "copied").
 """
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+from datetime import UTC, datetime, timedelta
+
+import pytest
+
 from tsdb_service.cli import main
+from tsdb_service.config import Settings
+from tsdb_service.model import AttrSample, EntitySample, Kind
+from tsdb_service.storage import open_store
+from tsdb_service.storage.base import AppendSamples
+from tsdb_service.storage.copy import copy_history, store_identity
 
 H = {"Content-Type": "application/json", "Fiware-Service": "copyland", "Fiware-ServicePath": "/site/a"}
 QUERIES = [
@@ -61,3 +78,186 @@ def test_copy_refuses_the_same_store(tmp_path):
     same = str(tmp_path / "x.duckdb")
     assert main(["copy", "--from", same, "--to", same]) == 2
 
+
+
+# -- copying cannot hurt: refusals, totals, resuming -------------------------------------------
+#
+# These run the real command (``python -m tsdb_service copy``) as a subprocess,
+# in both directions. Before: a second copy into the same target doubled all
+# history and still printed "copy verified"; a missing source file was created
+# empty and "copied".
+
+T0 = datetime(2024, 5, 1, 10, tzinfo=UTC)
+DIRECTIONS = ["duckdb-to-postgresql", "postgresql-to-duckdb"]
+
+
+def copy_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}
+    return subprocess.run([sys.executable, "-m", "tsdb_service", "copy", *args, "--quiet"],
+                          capture_output=True, text=True, env=env, timeout=timeout)  # fmt: skip
+
+
+def _fill(url: str, entities: int, tenant: str = "copyland", start: int = 0) -> int:
+    """``entities`` notifications of 3 samples each, written through the store; returns samples written."""
+    store = open_store(Settings(db=url))
+    try:
+        batch = [EntitySample(tenant, "/", f"Robot:{i % 7}", "Robot", T0 + timedelta(seconds=start + i), [
+            AttrSample("battery", "Number", Kind.NUMBER, num=float(i % 100)),
+            AttrSample("mode", "Text", Kind.TEXT, txt="mowing" if i % 2 else "docked"),
+            AttrSample("speed", "Number", Kind.NUMBER, num=i / 10),
+        ]) for i in range(entities)]  # fmt: skip
+        store.write_sync([AppendSamples(batch)])
+    finally:
+        store.close()
+    return 3 * entities
+
+
+def _counts(url: str) -> dict[str, int]:
+    store = open_store(Settings(db=url))
+    try:
+        rows = store.querier()._fetch(
+            "SELECT s.tenant, count(*) FROM samples_all x JOIN series s ON s.sid = x.sid GROUP BY s.tenant", [])
+        return {tenant: int(n) for tenant, n in rows}
+    finally:
+        store.close()
+
+
+@pytest.fixture
+def pair(request, tmp_path, pg_cluster):
+    """(source, target) locations for the direction under test; the source holds 200 samples."""
+    duck = str(tmp_path / "history.duckdb")
+    pg = pg_cluster.database(f"copy_{request.node.name[-40:].replace('-', '_').replace('[', '_').strip(']')}"[:60])
+    source, target = (duck, pg) if request.param == "duckdb-to-postgresql" else (pg, duck)
+    _fill(source, 200 // 3 + 1)
+    return source, target
+
+
+@pytest.mark.parametrize("pair", DIRECTIONS, indirect=True)
+def test_a_second_copy_into_the_same_target_is_refused(pair):
+    source, target = pair
+    first = copy_cli("--from", source, "--to", target)
+    assert first.returncode == 0 and "copy verified" in first.stdout, first.stderr
+    copied = _counts(target)
+    assert copied == _counts(source)
+    again = copy_cli("--from", source, "--to", target)
+    assert again.returncode == 2, again.stdout + again.stderr
+    lines = again.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "--append" in lines[0], again.stderr
+    assert "copy verified" not in again.stdout
+    assert _counts(target) == copied, "a refused copy writes nothing"
+
+
+@pytest.mark.parametrize("pair", DIRECTIONS, indirect=True)
+def test_append_verifies_the_totals(pair):
+    source, target = pair
+    _fill(target, 10, tenant="already")
+    _fill(target, 10, tenant="copyland", start=10_000)
+    before, src = _counts(target), _counts(source)
+    done = copy_cli("--from", source, "--to", target, "--append")
+    assert done.returncode == 0 and "copy verified" in done.stdout, done.stderr
+    assert _counts(target) == {"already": before["already"], "copyland": before["copyland"] + src["copyland"]}
+
+
+class _Interrupt(Exception):
+    pass
+
+
+class _InterruptedTarget:
+    """The real target store, interrupted (like Ctrl-C or a crash) after
+    ``batches`` sample batches were committed."""
+
+    def __init__(self, store, batches: int):
+        self._store, self._left = store, batches
+
+    def __getattr__(self, name):
+        return getattr(self._store, name)
+
+    def write_sync(self, ops):
+        if any(isinstance(op, AppendSamples) for op in ops):
+            if self._left == 0:
+                raise _Interrupt
+            self._left -= 1
+        self._store.write_sync(ops)
+
+
+@pytest.mark.parametrize("pair", DIRECTIONS, indirect=True)
+def test_an_interrupted_copy_resumes_without_duplicates(pair):
+    source, target = pair
+    src, tgt = open_store(Settings(db=source)), open_store(Settings(db=target))
+    try:
+        with pytest.raises(_Interrupt):
+            copy_history(src, _InterruptedTarget(tgt, 2), source_id=store_identity(source), batch_rows=30)
+    finally:
+        src.close()
+        tgt.close()
+    partial = sum(_counts(target).values())
+    assert 0 < partial < sum(_counts(source).values())
+
+    done = copy_cli("--from", source, "--to", target, "--batch-rows", "30")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert f"resumed an interrupted copy: {partial} samples were already there" in done.stdout
+    assert "copy verified" in done.stdout
+    assert _counts(target) == _counts(source)
+
+
+@pytest.mark.parametrize("pair", DIRECTIONS[:1], indirect=True)
+def test_an_interrupted_copy_is_not_mistaken_for_another_source(pair, tmp_path):
+    source, target = pair
+    src, tgt = open_store(Settings(db=source)), open_store(Settings(db=target))
+    try:
+        with pytest.raises(_Interrupt):
+            copy_history(src, _InterruptedTarget(tgt, 1), source_id=store_identity(source), batch_rows=30)
+    finally:
+        src.close()
+        tgt.close()
+    other = str(tmp_path / "other.duckdb")
+    _fill(other, 5)
+    refused = copy_cli("--from", other, "--to", target, "--append")
+    assert refused.returncode == 2 and "interrupted copy from" in refused.stderr and source in refused.stderr
+
+
+def test_a_killed_copy_process_resumes(tmp_path, pg_cluster):
+    """SIGKILL the real command mid-copy, run it again: every sample once."""
+    source, target = str(tmp_path / "big.duckdb"), pg_cluster.database("copy_killed")
+    _fill(source, 3000)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}
+    proc = subprocess.Popen([sys.executable, "-m", "tsdb_service", "copy", "--from", source, "--to", target,
+                             "--batch-rows", "60"], stderr=subprocess.PIPE, env=env)  # fmt: skip
+    try:
+        progress = b""
+        while b"%" not in progress:  # the first batch is committed
+            chunk = proc.stderr.read1(4096)
+            assert chunk, "the copy ended before it showed progress"
+            progress += chunk
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        proc.stderr.close()
+    assert 0 < sum(_counts(target).values()) < 9000
+    done = copy_cli("--from", source, "--to", target, "--batch-rows", "60")
+    assert done.returncode == 0 and "copy verified" in done.stdout, done.stdout + done.stderr
+    assert _counts(target) == _counts(source) == {"copyland": 9000}
+
+
+def test_a_missing_source_is_an_error_and_is_not_created(tmp_path):
+    missing, target = tmp_path / "typo.duckdb", tmp_path / "target.duckdb"
+    done = copy_cli("--from", str(missing), "--to", str(target))
+    assert done.returncode == 2 and done.stderr.strip() == f"error: {missing} does not exist"
+    assert not missing.exists() and not target.exists()
+
+
+def test_a_missing_postgresql_source_is_an_error(tmp_path, pg_cluster):
+    url = pg_cluster.url.rsplit("/", 1)[0] + "/no_such_database"
+    done = copy_cli("--from", url, "--to", str(tmp_path / "t.duckdb"))
+    assert done.returncode == 2 and "no_such_database" in done.stderr and "does not exist" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert not (tmp_path / "t.duckdb").exists()
+
+
+def test_a_source_without_history_is_an_error(tmp_path):
+    import duckdb
+
+    other = tmp_path / "other.duckdb"
+    duckdb.connect(str(other)).close()
+    done = copy_cli("--from", str(other), "--to", str(tmp_path / "t.duckdb"))
+    assert done.returncode == 2 and "without tsdb-service history" in done.stderr, done.stderr

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import http.server
+import io
 import json
 import math
 import random
@@ -24,8 +25,9 @@ import statistics
 import subprocess
 import sys
 import threading
+import time
 from collections import Counter
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from itertools import islice
 from pathlib import Path
 
@@ -38,7 +40,7 @@ except ImportError:  # tests/ imported as a package
     from tests.support.server import ServerProcess, free_port
 
 from tsdb_service.demo import enums, orion, sites
-from tsdb_service.demo.runner import RunConfig, run
+from tsdb_service.demo.runner import Progress, RunConfig, Stats, _Clock, live_window, run
 from tsdb_service.demo.subscriptions import broker_headers, subscription, write_examples
 from tsdb_service.demo.usecases import SIMULATORS
 
@@ -418,3 +420,141 @@ def test_demo_command_serves_feeds_and_prints_where_to_look(tmp_path):
     for name in SIMULATORS:
         assert f"  {name}" in out, out
     assert db.exists()
+
+
+# -- one instant, one state ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", list(SIMULATORS))
+def test_an_entity_has_one_state_per_instant(name):
+    """Orion timestamps have milliseconds: two updates of one entity in the same
+    millisecond are two states of one instant (the drone reported its arrival
+    twice, with different positions and altitudes)."""
+    seen = Counter((e.entity["id"], orion.iso(e.at)) for e in _emissions(name, 20_000))
+    twice = [key for key, n in seen.items() if n > 1]
+    assert not twice, f"{len(twice)} instants with two states, e.g. {twice[:2]}"
+
+
+# -- live runs: the time window ---------------------------------------------------------------
+
+NOW = datetime(2025, 6, 2, 12, 0, tzinfo=UTC)
+
+
+def test_a_bounded_run_at_speed_1_is_live():
+    start, speedup = live_window(1.0, 60, NOW)
+    assert (start, speedup) == (NOW, 1.0), "simulated time is the clock's"
+
+
+def test_a_fast_bounded_run_catches_up_with_the_clock():
+    start, speedup = live_window(10.0, 60, NOW)
+    assert speedup == 10.0
+    assert start == NOW - timedelta(seconds=540), "600 simulated seconds ending when the run ends"
+    assert start + timedelta(seconds=60 * speedup) == NOW + timedelta(seconds=60)
+
+
+def test_a_slow_or_open_ended_run_never_writes_the_future():
+    assert live_window(0.5, 60, NOW) == (NOW, 0.5)
+    assert live_window(20.0, None, NOW) == (NOW, 20.0)
+
+
+def test_a_run_starts_after_an_earlier_run_and_still_ends_on_time():
+    earlier_end = NOW - timedelta(seconds=30)
+    start, speedup = live_window(10.0, 60, NOW, previous_end=earlier_end)
+    assert start > earlier_end
+    end = start + timedelta(seconds=60 * speedup)
+    assert abs(end - (NOW + timedelta(seconds=60))) <= timedelta(milliseconds=2), "still ends on time"
+    assert live_window(10.0, 60, NOW, previous_end=NOW - timedelta(hours=2)) == live_window(10.0, 60, NOW)
+    assert live_window(1.0, 60, NOW, previous_end=NOW + timedelta(seconds=5))[0] > NOW + timedelta(seconds=5)
+    with pytest.raises(ValueError, match="beyond this run's end"):
+        live_window(10.0, 60, NOW, previous_end=NOW + timedelta(hours=1))
+
+
+# -- live runs: falling behind -----------------------------------------------------------------
+
+
+class _SlowService(http.server.BaseHTTPRequestHandler):
+    """Acknowledges every notification, 20 ms late: a service the simulators outrun."""
+
+    def do_POST(self):  # noqa: N802 - http.server's naming
+        self.rfile.read(int(self.headers["Content-Length"]))
+        time.sleep(0.02)
+        self.send_response(200)
+        self.send_header("Content-Length", "0")
+        self.end_headers()
+
+    def log_message(self, *args):
+        pass
+
+
+def test_the_progress_display_says_how_far_behind_and_when_it_ends():
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _SlowService)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    out = io.StringIO()
+    try:
+        config = RunConfig(f"http://127.0.0.1:{server.server_port}", speedup=100.0, duration=0.5, seed=1, concurrency=1)
+        stats = asyncio.run(run([SIMULATORS["warehouse"]], config, progress=Progress(out, interval=0.25)))
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert stats["warehouse"].failed == 0 and stats["warehouse"].sent > 100
+    text = out.getvalue()
+    assert "BEHIND by" in text and "ends in ~" in text and "after --duration 0.5" in text, text
+    assert " s over, the simulators could not keep up with x100" in text, text
+
+
+def test_the_expected_end_follows_the_pace_so_far():
+    start = NOW
+    clock = _Clock(start, 200.0, duration=60.0, wall_start=time.monotonic() - 100.0)
+    row = Stats("drone", sim_time=start + timedelta(seconds=40 * 200.0), lag=60.0)
+    assert clock.expected_end([row]) == pytest.approx(150.0, abs=0.5), "40 planned s in 100 s: 20 more take 50"
+    line = Progress.summary({"drone": row}, clock)
+    assert "BEHIND by 60.0 s" in line and "ends in ~50 s" in line and "90 s after --duration 60" in line
+
+
+# -- live runs: the command -------------------------------------------------------------------------
+
+
+def _demo(db: Path, *args: str) -> tuple[subprocess.CompletedProcess, float, float]:
+    command = [sys.executable, "-m", "tsdb_service", "demo", "--db", str(db), "--port", str(free_port()),
+               "--use-case", "warehouse", "--seed", "3", *args]  # fmt: skip
+    began = time.time()
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=db.parent)
+    assert done.returncode == 0, done.stdout + done.stderr
+    return done, began, time.time()
+
+
+def _stored_span(db: Path) -> tuple[float, float]:
+    from tsdb_service.config import Settings
+    from tsdb_service.storage import open_store
+
+    store = open_store(Settings(db=str(db)))
+    try:
+        first, last = store.querier()._fetch("SELECT min(t), max(t) FROM samples_all", [])[0]
+    finally:
+        store.close()
+    return first.replace(tzinfo=UTC).timestamp(), last.replace(tzinfo=UTC).timestamp()
+
+
+def _planned_window(out: str) -> tuple[float, float]:
+    """The banner's "simulated time START to END: ..." as epoch seconds."""
+    words = next(line for line in out.splitlines() if "simulated time" in line).split()
+    return _ts(words[2]), _ts(words[4].rstrip(":"))
+
+
+def test_demo_runs_are_live_and_do_not_overlap(tmp_path):
+    db = tmp_path / "tsdb.duckdb"
+    done, began, ended = _demo(db, "--duration", "3")
+    start, end = _planned_window(done.stdout)
+    first, last = _stored_span(db)
+    assert began < start and end - start == pytest.approx(3.0, abs=0.01), done.stdout
+    assert end <= ended, "no data from the future"
+    assert last == pytest.approx(end, abs=0.6), "the data ends when the run ends (ticks are 0.5 s)"
+
+    again, _, ended_again = _demo(db, "--duration", "3", "--speedup", "30")
+    start2, end2 = _planned_window(again.stdout)
+    first2, last2 = _stored_span(db)
+    assert first2 == first
+    assert start2 > last, "a second run starts after the first one's data"
+    assert "replays at x" in again.stdout and "to still end on time" in again.stdout, again.stdout
+    assert last2 == pytest.approx(end2, abs=0.6) and end2 <= ended_again

@@ -104,6 +104,9 @@ BAD = [
      ["maxDistance", "twice"]),
     ("modifier-on-coveredBy", {"georel": "coveredBy;maxDistance:10", "geometry": "point", "coords": "40,-4"},
      ["coveredBy", "no modifiers"]),
+    ("geoScope-unknown", {"georel": "coveredBy", "geometry": "point", "coords": "40,-4", "geoScope": "row"},
+     ["unknown geoScope", "'row'", "sample, entity"]),
+    ("geoScope-alone", {"geoScope": "entity"}, ["geoScope", "georel, geometry and coords"]),
 ]
 
 
@@ -130,6 +133,7 @@ def geo_client(client_factory, store_url_factory, notify):
             {"type": "Point", "coordinates": [10, 10]},
             {"type": "LineString", "coordinates": [[10, 10], [11, 11]]}]}},
         "huge": {"type": "geo:box", "value": ["-80, -170", "80, 170"]},
+        "still": {"type": "geo:line", "value": ["41.0, 1.0", "41.0, 1.0"]},  # a line that is a point
         "not-geo": {"type": "geo:point", "value": "somewhere"},  # stored as text, not a location
     }
     with client_factory(store_url_factory("geo-errors")) as client:
@@ -187,7 +191,12 @@ def test_all_three_empty_is_no_filter(geo_client):
         pytest.param({"georel": "near;maxDistance:0", "geometry": "point", "coords": "40.4168,-3.7038"},
                      {"sol", "huge"}, id="max-distance-0"),
         pytest.param({"georel": "near;minDistance:0;maxDistance:40000000", "geometry": "point", "coords": "0,0"},
-                     {"sol", "tower", "pole", "south-pole", "dateline", "fc", "multi", "gc", "huge"}, id="whole-earth"),
+                     {"sol", "tower", "pole", "south-pole", "dateline", "fc", "multi", "gc", "huge", "still"},
+                     id="whole-earth"),
+        pytest.param({"georel": "near;maxDistance:100", "geometry": "point", "coords": "41.0005,1.0"},
+                     {"still", "huge"}, id="line-of-one-point"),
+        pytest.param({"georel": "near;maxDistance:100", "geometry": "point", "coords": "41.0005,1.0",
+                      "geoScope": "entity"}, {"still", "huge"}, id="line-of-one-point-entity-scope"),
         pytest.param({"georel": "near;maxDistance:1", "geometry": "point", "coords": "40.4775,-3.6883"},
                      {"tower", "huge"},
                      id="3d-point"),

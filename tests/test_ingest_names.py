@@ -19,12 +19,11 @@ from tsdb_service.ngsi.names import name_problem
 GOOD = ["temperature", "Ünïcødé_温度_🌡", "https://example.org/ns#speed", "ex:speed", "a.b$c", "x" * 256,
         "temperature~ground", "a&b?c%d", "@id-ish", "urn:ngsi-ld:Property:1", "a/b"]
 BAD = ["", "x" * 257, "a b", " a", "a ", "a\t", "a\nb", "a\x00", "a\x7f", "a\x9f", "a\u3000b", "a\u00a0",
-       *(f"a{c}b" for c in "<>\"'=;(),")]
+       ".", "..", *(f"a{c}b" for c in "<>\"'=;(),")]
 
-# Names that work as one URL path segment too. A "/" splits the path even
-# percent-encoded (the server decodes %2F before routing): such names are
-# reached through attrs= lists and POST /v2/op/query until routing changes.
-ADDRESSABLE_IN_PATH = [n for n in GOOD if "/" not in n]
+# Every name works as one URL path segment too, "/" percent-encoded as %2F
+# (the history routes are matched on the raw path: tsdb_service.rawpath).
+ADDRESSABLE_IN_PATH = GOOD
 
 
 @pytest.mark.parametrize("name", GOOD)

@@ -160,7 +160,7 @@ def test_rejected_rows_survive_copy_with_size(client_factory, store_url_factory)
                            headers={"Content-Type": "application/json", "Fiware-Service": "big"}).status_code == 413
     source, target = open_store(Settings(db=source_url)), open_store(Settings(db=target_url))
     try:
-        copy_history(source, target)
+        copy_history(source, target, source_id=source_url)
         [row] = target.rejected("big", 10, 0)
         assert (row["bodySize"], row["bodyTruncated"], len(row["body"])) == (50_000, True, 3000)
     finally:

@@ -11,12 +11,13 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
 
-from . import __version__, grafana, ui
+from . import __version__, grafana, rawpath, ui
 from . import metrics as metrics_
 from .api import attrs, entities, meta, notify, op_query, subscribe, types
 from .api import export as export_api
 from .api.handlers import install_error_handlers
 from .api.responses import JSON
+from .budget import ReadBudgetMiddleware, ReadLimits
 from .config import Settings, get_settings
 from .ngsild import routes_read as ngsild_read
 from .ngsild import write as ngsild_write
@@ -42,6 +43,7 @@ class TsdbApp(FastAPI):
         elif notify.is_notification(scope):
             await self.request_metrics.timed(self.front, scope, receive, send, scope["path"])
         else:
+            rawpath.keep_encoded_slashes(scope)  # ids, types and names with "/" as %2F
             await self.request_metrics.timed(self.front, scope, receive, send)
 
     async def dispatch(self, scope, receive, send) -> None:
@@ -61,7 +63,7 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
         # the default 5 ms switch interval a busy event loop makes every group
         # commit wait that long, which caps ingest far below what DuckDB does.
         sys.setswitchinterval(WRITER_SWITCH_INTERVAL_S)
-        app.state.store = await run_in_threadpool(open_store, settings)
+        app.state.store = await run_in_threadpool(open_store, settings, background=True)
         metrics.attach(app.state.store)
         log.info("tsdb-service %s on %s (%s)", __version__, settings.db, app.state.store.backend)
         # Ingest allocates many short-lived objects; move everything built at
@@ -88,6 +90,7 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
     app.request_metrics = metrics.requests
     app.front = protect(app.dispatch, settings)
     install_error_handlers(app)
+    app.add_middleware(ReadBudgetMiddleware, limits=ReadLimits.from_settings(settings))
     app.include_router(meta.router)
     app.include_router(metrics_.router)
     app.include_router(notify.router)

@@ -8,7 +8,7 @@ import sys
 from collections.abc import Callable, Sequence
 
 from . import __version__
-from .config import Settings
+from .config import LOG_LEVELS, Settings, SettingsError, load_settings
 
 Command = Callable[[argparse.Namespace], int]
 COMMANDS: dict[str, Command] = {}
@@ -23,30 +23,68 @@ def command(name: str):
 
 
 def _settings(args: argparse.Namespace) -> Settings:
+    """Flags over ``TSDB_*`` variables over defaults; ``SettingsError`` (one line) if any is invalid."""
     overrides = {k: v for k, v in vars(args).items() if k in Settings.model_fields and v is not None}
-    return Settings(**overrides)
+    return load_settings(**overrides)
+
+
+def setting_help(name: str) -> str:
+    """A flag's help from its setting: what it does, its default and its variable."""
+    field = Settings.model_fields[name]
+    what = (field.description or "").rstrip(".")
+    if field.default is None:  # the description says what applies when unset
+        return f"{what} (env TSDB_{name.upper()})"
+    default = str(field.default).lower() if isinstance(field.default, bool) else str(field.default)
+    return f"{what} (default {default}; env TSDB_{name.upper()})"
 
 
 def _add_db(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--db", help="DuckDB file or postgresql:// URL (env TSDB_DB; default ./data/tsdb.duckdb)")
+    p.add_argument("--db", metavar="PATH|URL", help=setting_help("db"))
+
+
+def _add_settings(p: argparse.ArgumentParser) -> None:
+    """One flag per setting, e.g. ``--max-body-bytes``: every setting can be given
+    as a flag or a ``TSDB_*`` variable, and validation names both."""
+    for name, field in Settings.model_fields.items():
+        flag = "--" + name.replace("_", "-")
+        if field.annotation not in _SCALARS:
+            continue  # structured settings (if any) are variables only
+        if name == "db":
+            _add_db(p)
+        elif field.annotation is bool:
+            p.add_argument(flag, dest=name, action="store_true", default=None, help=setting_help(name))
+        elif name == "log_level":
+            p.add_argument(flag, dest=name, metavar="{" + ",".join(LOG_LEVELS) + "}", help=setting_help(name))
+        else:
+            p.add_argument(flag, dest=name, metavar=name.split("_")[-1].upper(), help=setting_help(name))
+
+
+_SCALARS = (str, int, float, bool, int | None, float | None, str | None)
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Wider help columns, so flag help with its default stays readable."""
+
+    def __init__(self, prog: str):
+        super().__init__(prog, max_help_position=32)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tsdb-service", description="The history of a FIWARE deployment.")
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = argparse.ArgumentParser(prog="tsdb-service", description="The history of a FIWARE deployment.",
+                                     formatter_class=_Formatter)  # fmt: skip
+    parser.add_argument("--version", action="version", version=f"tsdb-service {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    serve = sub.add_parser("serve", help="run the HTTP service")
-    _add_db(serve)
-    serve.add_argument("--host", help="address to bind (default 0.0.0.0)")
-    serve.add_argument("--port", type=int, help="port (default 8668, QuantumLeap's)")
-    serve.add_argument("--workers", type=int, help="uvicorn workers (PostgreSQL only)")
-    serve.add_argument("--log-level", dest="log_level")
-    serve.add_argument("--access-log", dest="access_log", action="store_true", default=None)
+    serve = sub.add_parser("serve", help="run the HTTP service", formatter_class=_Formatter,
+                           description="Run the HTTP service. Every flag can also be given as the TSDB_* "
+                           "variable named in its help; flags win.")  # fmt: skip
+    _add_settings(serve)
 
-    migrate = sub.add_parser("migrate", help="apply pending schema migrations")
+    migrate = sub.add_parser("migrate", help="apply pending schema migrations", formatter_class=_Formatter)
     _add_db(migrate)
 
-    compact = sub.add_parser("compact", help="sort all stored samples now (offline)")
+    compact = sub.add_parser("compact", help="sort all stored samples now (offline; the file must exist)",
+                             formatter_class=_Formatter)  # fmt: skip
     _add_db(compact)
 
     sub.add_parser("version", help="print the version")
@@ -83,6 +121,8 @@ def _feature_modules():
 def cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from .storage import check_store
+
     settings = _settings(args)
     if settings.workers > 1 and settings.backend == "duckdb":
         print(
@@ -91,12 +131,17 @@ def cmd_serve(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    check_store(settings)  # a wrong --db is one line here, before uvicorn starts
     # Workers are separate processes: hand them the settings through the environment.
     for name, value in settings.model_dump().items():
         if value is not None:  # unset: the backend's default applies
             os.environ[f"TSDB_{name.upper()}"] = str(value)
+    # --- limits (issue 12): slow clients, connection cap, descriptors (tsdb_service.httpserver) ---
+    from .httpserver import GuardedHttpToolsProtocol, raise_fd_limit
+
+    raise_fd_limit()
     uvicorn.run(
-        "tsdb_service.app:create_app_from_env",
+        "tsdb_service.cli:serve_app",
         factory=True,
         host=settings.host,
         port=settings.port,
@@ -104,39 +149,86 @@ def cmd_serve(args: argparse.Namespace) -> int:
         log_level=settings.log_level,
         access_log=settings.access_log,
         loop="uvloop",
-        http="httptools",
+        http=GuardedHttpToolsProtocol,  # httptools with header/body deadlines and a connection cap
+        timeout_keep_alive=settings.keep_alive_s,
         timeout_graceful_shutdown=30,
     )
+    # --- end of limits ---
     return 0
+
+
+def serve_app():
+    """uvicorn's factory for ``serve``: the app, with a start-up failure that
+    an operator can fix reported as one line instead of a traceback.
+
+    uvicorn logs whatever message the lifespan's failure carries (Starlette
+    puts the whole traceback there) and then exits with status 3. The store
+    has already explained its failure in one line (``StoreUnavailable``), so
+    that line replaces the traceback. Only the lifespan is wrapped: requests
+    do not pass through here.
+    """
+    from .app import create_app_from_env
+    from .storage import StoreUnavailable
+
+    app = create_app_from_env()
+    lifespan = app.router.lifespan
+
+    async def one_line_lifespan(scope, receive, send):
+        async def send_short(message):
+            failure = sys.exc_info()[1]
+            if message["type"] == "lifespan.startup.failed" and isinstance(failure, StoreUnavailable | SettingsError):
+                message = {**message, "message": f"error: {failure}"}
+            await send(message)
+
+        await lifespan(scope, receive, send_short)
+
+    app.router.lifespan = one_line_lifespan
+    return app
 
 
 @command("migrate")
 def cmd_migrate(args: argparse.Namespace) -> int:
+    from .storage import StoreUnavailable, check_store, explain
+
     settings = _settings(args)
-    if settings.backend == "postgresql":
-        from .storage.postgres_store import migrate_url
-
-        applied = migrate_url(settings.db)
-    else:
-        from .storage.duckdb_store import connect, migrate_duckdb
-
-        con = connect(settings.db)
-        try:
-            applied = migrate_duckdb(con)
-        finally:
-            con.close()
+    check_store(settings)
+    try:
+        applied = _migrate(settings)
+    except Exception as exc:
+        message = explain(exc, settings.db)
+        if message is None:
+            raise
+        raise StoreUnavailable(message) from exc
     print(f"applied migrations: {applied}" if applied else "schema is up to date")
     return 0
 
 
+def _migrate(settings: Settings) -> list[int]:
+    if settings.backend == "postgresql":
+        from .storage.postgres_store import migrate_url
+
+        return migrate_url(settings.db)
+    from .storage.duckdb_store import connect, migrate_duckdb
+
+    con = connect(settings.db)
+    try:
+        return migrate_duckdb(con)
+    finally:
+        con.close()
+
+
 @command("compact")
 def cmd_compact(args: argparse.Namespace) -> int:
-    from .storage import open_store
+    from .storage import open_store, require_history
 
-    store = open_store(_settings(args))
+    settings = _settings(args)
+    require_history(settings.db)  # a mistyped path must not become a new, empty database
+    if settings.backend == "postgresql":
+        print("nothing to compact: PostgreSQL keeps samples in place (only DuckDB files are compacted)")
+        return 0
+    store = open_store(settings)
     try:
-        if hasattr(store, "compact"):
-            store.compact(full=True)
+        store.compact(full=True)
     finally:
         store.close()
     print("compacted")
@@ -153,7 +245,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return COMMANDS[args.command](args)
-    except RuntimeError as exc:  # operator errors, e.g. a locked DuckDB file
+    except (RuntimeError, SettingsError) as exc:  # operator errors: a bad setting, a locked DuckDB file
         print(f"error: {exc}", file=sys.stderr)
         return 2
 

@@ -6,12 +6,17 @@ the CLI override it by passing a ``Settings`` to ``create_app``.
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 
-from pydantic import Field
+from pydantic import Field, ValidationError, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 MIB = 1024 * 1024
+LOG_LEVELS = ("critical", "error", "warning", "info", "debug", "trace")
+POSTGRES_PREFIXES = ("postgresql://", "postgres://")
+# "scheme:" at the start of --db; one letter is a Windows drive ("C:\\data"), not a scheme.
+_SCHEME = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]+):")
 
 
 class Settings(BaseSettings):
@@ -22,7 +27,7 @@ class Settings(BaseSettings):
         description="A DuckDB file path (embedded default) or a postgresql:// URL.",
     )
     host: str = Field("0.0.0.0", description="Address to bind, as QuantumLeap does.")
-    port: int = Field(8668, description="QuantumLeap's port.")
+    port: int = Field(8668, ge=1, le=65535, description="QuantumLeap's port.")
     workers: int = Field(1, ge=1, description="uvicorn workers; PostgreSQL only.")
     max_body_bytes: int = Field(
         9 * MIB, ge=1024,
@@ -53,8 +58,74 @@ class Settings(BaseSettings):
     tail_cache_samples: int = Field(
         1_000_000, ge=0, description="DuckDB: samples kept in all tails (~200 bytes each), oldest-read out first."
     )
-    log_level: str = "info"
-    access_log: bool = False
+    wal_checkpoint_bytes: int = Field(
+        16 * MIB, ge=64 * 1024,
+        description="DuckDB: fold the write-ahead log into the database file once it is this big.",
+    )
+    # --- limits (issue 12): read budgets, rejected-store bounds, slow clients ---
+    read_max_series: int = Field(
+        50_000, ge=1, description="Series one request may select (per resolution step); more: 422 QueryTooLarge.",
+    )
+    read_max_rows: int = Field(
+        500_000, ge=1, description="Samples and aggregate rows one request may read in all; more: 422 QueryTooLarge.",
+    )
+    read_max_response_bytes: int = Field(
+        64 * MIB, ge=1024, description="Largest answer a read may render; larger: 422 QueryTooLarge.",
+    )
+    read_max_seconds: float = Field(
+        20.0, gt=0, description="Wall time of one read, checked between its steps; past it: 422 QueryTooLarge.",
+    )
+    rejected_max_per_tenant: int = Field(
+        1000, ge=1, description="Rejected notifications kept per tenant; the oldest are dropped first.",
+    )
+    rejected_max_bytes_per_tenant: int = Field(
+        64 * MIB, ge=1024, description="Bytes of rejected bodies and headers kept per tenant; oldest dropped first "
+        "(a tenant's newest rejection is always kept).",
+    )
+    rejected_max_age_days: float = Field(
+        30.0, gt=0, description="Rejected notifications older than this are dropped (when the next is recorded).",
+    )
+    rejected_page_max_bytes: int = Field(
+        8 * MIB, ge=1024, description="A rejected listing stops before this many bytes (at least one row) and "
+        "points to the next page.",
+    )
+    header_timeout_s: float = Field(
+        10.0, gt=0, description="Close a connection whose request headers are not complete this long after it "
+        "opened (or after the request's first byte).",
+    )
+    body_timeout_s: float = Field(
+        60.0, gt=0, description="Cut off a request whose body is not complete this long after its headers.",
+    )
+    max_connections: int = Field(
+        4096, ge=1, description="Open connections per process; past it a new connection gets 503 and is closed.",
+    )
+    keep_alive_s: int = Field(5, ge=1, description="Close a kept-alive connection idle this long between requests.")
+    # --- end of limits ---
+    log_level: str = Field("info", description=f"One of {', '.join(LOG_LEVELS)}.")
+    access_log: bool = Field(False, description="Log every request (uvicorn's access log).")
+
+    @field_validator("db")
+    @classmethod
+    def _db_is_a_file_or_a_postgres_url(cls, value: str) -> str:
+        """Only two kinds of --db exist. Anything else (``postgress://``,
+        ``mysql://``, ``postgresql:/x``) would otherwise become a DuckDB file
+        of that name, silently taking data meant for another database."""
+        return check_db(value)
+
+    @field_validator("host")
+    @classmethod
+    def _host_not_empty(cls, value: str) -> str:
+        if not value.strip():
+            raise ValueError("is empty: give an address to bind, e.g. 0.0.0.0 or 127.0.0.1")
+        return value.strip()
+
+    @field_validator("log_level")
+    @classmethod
+    def _known_log_level(cls, value: str) -> str:
+        level = value.strip().lower()
+        if level not in LOG_LEVELS:
+            raise ValueError(f"unknown log level {value!r}: choose from {', '.join(LOG_LEVELS)}")
+        return level
 
     # -- security: everything off unless configured (see README "Security") --
     # Plain strings, not lists: `serve` hands settings to workers as TSDB_*
@@ -97,9 +168,84 @@ class Settings(BaseSettings):
         "", description="Origins browsers may call us from, comma list ('*': any); none by default."
     )
 
+    # --- Retention and rollups (storage/retention.py, storage/rollups.py; README "Retention and rollups") ---
+    retention: str = Field(
+        "", description="How long raw samples are kept, per tenant and entity type: "
+        "'*=365d,acme=30d,acme/Robot=7d' (or the same as a JSON object); empty: forever.",
+    )
+    rollups: bool = Field(
+        False, description="Fold the samples retention deletes into hourly count/sum/min/max per series, "
+        "which aggregation queries (aggrPeriod hour or longer, or none) keep answering from.",
+    )
+    rollup_retention: str = Field(
+        "", description="How long hourly rollups are kept, same syntax as retention; empty: forever.",
+    )
+    retention_interval: float = Field(300.0, gt=0, description="Seconds between retention passes.")
+    retention_batch_rows: int = Field(
+        50_000, ge=1, description="Rows deleted per batch and table, each batch its own short transaction.",
+    )
+    retention_pause: float = Field(0.05, ge=0, description="Seconds to pause between retention batches.")
+
+    @field_validator("retention", "rollup_retention")
+    @classmethod
+    def _retention_spec(cls, value: str, info) -> str:
+        from .storage.retention import RetentionPolicy
+
+        RetentionPolicy.parse(value, setting="TSDB_" + info.field_name.upper())  # raises ValueError
+        return value
+    # --- end of retention and rollups ---
+
     @property
     def backend(self) -> str:
         return "postgresql" if self.db.startswith(("postgresql://", "postgres://")) else "duckdb"
+
+
+def check_db(value: str) -> str:
+    """A DuckDB file path or a ``postgresql://`` / ``postgres://`` URL; else ValueError."""
+    db = value.strip()
+    if not db:
+        raise ValueError("is empty: give a DuckDB file path or a postgresql:// URL")
+    if db.startswith(POSTGRES_PREFIXES):
+        return db
+    match = _SCHEME.match(db)
+    if match is None:
+        return db
+    scheme = match[1]
+    if scheme.lower() in ("postgresql", "postgres"):
+        raise ValueError(f"{db!r} is not a PostgreSQL URL: write postgresql://user@host:port/database")
+    if db[match.end():].startswith("//"):
+        raise ValueError(f"{db!r}: unsupported scheme {scheme}:// (only postgresql:// or postgres:// URLs "
+                         "and DuckDB file paths)")  # fmt: skip
+    raise ValueError(f"{db!r} starts like a URL ({scheme}:): give a postgresql:// URL or a DuckDB file path "
+                     f"(./{db} for a file name with a colon)")  # fmt: skip
+
+
+class SettingsError(ValueError):
+    """A setting is invalid; the message is one line naming the flag and its variable."""
+
+
+def load_settings(**overrides) -> Settings:
+    """``Settings`` from ``overrides`` and ``TSDB_*`` variables, or one ``SettingsError``
+    line per problem joined with "; " (pydantic's report spans many lines)."""
+    try:
+        return Settings(**overrides)
+    except ValidationError as exc:
+        raise SettingsError(describe(exc)) from None
+
+
+def describe(exc: ValidationError) -> str:
+    """pydantic's errors as ``--port (TSDB_PORT): must be at most 65535, got 99999``."""
+    problems = []
+    for error in exc.errors():
+        name = str(error["loc"][0]) if error["loc"] else "settings"
+        message = error["msg"]
+        for prefix in ("Value error, ", "Input should be "):
+            if message.startswith(prefix):
+                message = ("must be " if prefix == "Input should be " else "") + message[len(prefix):]
+        flag = f"--{name.replace('_', '-')} (TSDB_{name.upper()})"
+        problems.append(f"{flag}: {message}, got {error['input']!r}" if error["type"] != "value_error"
+                        else f"{flag}: {message}")  # fmt: skip
+    return "; ".join(problems)
 
 
 @lru_cache(maxsize=1)

@@ -44,7 +44,7 @@ from prometheus_client import (
     disable_created_metrics,
     generate_latest,
 )
-from prometheus_client.core import GaugeMetricFamily
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 from starlette.responses import Response
 
@@ -176,6 +176,40 @@ class WriterMetrics:
         self._count(self.failed, ops)
 
 
+class RetentionMetrics:
+    """The retention worker's observer (``storage.retention``), and its lag
+    gauge at scrape time (from memory: no database call)."""
+
+    def __init__(self, registry: CollectorRegistry, tenants: TenantLabels):
+        self._tenants = tenants
+        self.deleted = Counter(
+            "tsdb_retention_deleted_rows", "Rows deleted by retention, by table (samples, samples_hot, "
+            "rollups_hourly) and tenant; with rollups on, every deleted sample was folded into the rollups.",
+            ["table", "tenant"], registry=registry)  # fmt: skip
+        self.batch_seconds = Histogram(
+            "tsdb_retention_batch_duration_seconds", "Time of one retention batch (one transaction), by table.",
+            ["table"], buckets=COMMIT_BUCKETS, registry=registry)  # fmt: skip
+
+    def batch(self, table: str, tenant: str, rows: int, seconds: float) -> None:
+        self.deleted.labels(table, self._tenants(tenant)).inc(rows)
+        self.batch_seconds.labels(table).observe(seconds)
+
+
+class RetentionLagCollector(Collector):
+    def __init__(self, worker):
+        self._worker = worker
+
+    def collect(self):
+        family = GaugeMetricFamily(
+            "tsdb_retention_watermark_lag_seconds",
+            "How far the cutoff of the last completed retention pass trails the rule's cutoff now, per "
+            "table (samples, rollups) and rule; for samples with rollups on, also the rollups' watermark lag.",
+            labels=["table", "rule"])  # fmt: skip
+        for (kind, rule), lag in sorted(self._worker.lags().items()):
+            family.add_metric([kind, rule], lag)
+        yield family
+
+
 class RequestMetrics:
     """Request latency per route template, method and status."""
 
@@ -236,6 +270,14 @@ class StoreCollector(Collector):
         if depth is not None:
             yield GaugeMetricFamily("tsdb_write_queue_depth", "Write ops queued, not yet taken by a writer.",
                                     value=depth)  # fmt: skip
+        dropped = getattr(self._store, "rejected_dropped", None)
+        if dropped is not None:
+            family = CounterMetricFamily(
+                "tsdb_rejected_dropped", "Rejected notifications dropped to keep the rejected store within its "
+                "bounds (TSDB_REJECTED_MAX_*), by reason: count, bytes, age.", labels=["reason"])  # fmt: skip
+            for reason, n in sorted(dropped.items()):
+                family.add_metric([reason], n)
+            yield family
         sizes = self.sizes()
         if sizes is None:
             return
@@ -270,9 +312,12 @@ def _measure(store: Store) -> tuple[int, int, int]:
                 "SELECT count(*), coalesce(sum(octet_length(body) + octet_length(headers)), 0) "
                 "FROM rejected_notifications").fetchone()  # fmt: skip
         return int(size), int(rows), int(nbytes)
-    rows, nbytes = store.cursor().execute(
+    # fetchall, not fetchone: an unread result keeps this thread's cursor in
+    # an open transaction, and a later UPDATE or DELETE committed elsewhere
+    # (retention, in the background) then makes the CHECKPOINT at close fail.
+    [(rows, nbytes)] = store.cursor().execute(
         "SELECT count(*), coalesce(sum(octet_length(body) + strlen(headers)), 0) FROM rejected_notifications"
-    ).fetchone()
+    ).fetchall()
     return _file_bytes(store.path) + _file_bytes(store.path + ".wal"), int(rows), int(nbytes)
 
 
@@ -303,6 +348,8 @@ class Metrics:
         ProcessCollector(registry=self.registry)
         PlatformCollector(registry=self.registry)
         self._store_collector: StoreCollector | None = None
+        self.retention = RetentionMetrics(self.registry, self.tenants)
+        self._retention_collector: RetentionLagCollector | None = None
 
     def attach(self, store: Store) -> None:
         """Observe ``store``'s writers and report its sizes (called once the store is open)."""
@@ -311,11 +358,19 @@ class Metrics:
             committer.observer = self.writer
         self._store_collector = StoreCollector(store, self._stats_ttl)
         self.registry.register(self._store_collector)
+        worker = getattr(store, "retention", None)
+        if worker is not None:
+            worker.observer = self.retention
+            self._retention_collector = RetentionLagCollector(worker)
+            self.registry.register(self._retention_collector)
 
     def detach(self) -> None:
         if self._store_collector is not None:
             self.registry.unregister(self._store_collector)
             self._store_collector = None
+        if self._retention_collector is not None:
+            self.registry.unregister(self._retention_collector)
+            self._retention_collector = None
 
     def render(self) -> bytes:
         """The exposition text. Blocking (store sizes): run it in a thread."""

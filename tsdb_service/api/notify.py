@@ -14,12 +14,14 @@ from datetime import UTC, datetime
 import orjson
 from fastapi import APIRouter, Query, Request
 from starlette.concurrency import run_in_threadpool
+from starlette.requests import ClientDisconnect
 from starlette.responses import Response
 
 from ..errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaType
+from ..history.params import MAX_INT_PARAM
 from ..model import RejectedNotification
 from ..ngsi import ValuesLayout, parse_notification
-from ..ngsi.names import RULE, name_problem
+from ..ngsi.names import ID_RULE, RULE, id_problem, name_problem
 from ..security import redact_headers
 from ..storage.base import AppendSamples, PutLayout, RecordRejected
 from .handlers import internal_error
@@ -30,6 +32,7 @@ router = APIRouter(tags=["notify"])
 log = logging.getLogger(__name__)
 
 _OK_BODY = b'"Notification successfully processed"'
+_DISCONNECTED = b'{"error":"ClientDisconnected","description":"the client disconnected before sending the whole body"}'
 # Parsing a big body on the event loop would stall every other request.
 _PARSE_INLINE_MAX = 64 * 1024
 # A body over the limit without a Content-Length is counted (not kept) up to
@@ -73,6 +76,10 @@ async def receive_notification(request: Request) -> tuple[int, bytes]:
         await _receive(request)
     except TsdbError as exc:
         return exc.status, orjson.dumps(exc.body())
+    except ClientDisconnect:  # nothing was stored and nobody is left to answer: one line, no traceback
+        log.warning("notification from %s abandoned: the client disconnected before sending the whole body "
+                    "(Content-Length %s); nothing was stored", _peer(request), request.headers.get("content-length"))
+        return 400, _DISCONNECTED
     except Exception:  # a bug: still answer in the NGSI shape
         return 500, orjson.dumps(internal_error("notification failed")[1])
     return 200, _OK_BODY
@@ -207,6 +214,11 @@ async def _keep_rejected(request, store, received_at: datetime, exc: TsdbError, 
     await store.write(RecordRejected(rejected))
 
 
+def _peer(request: Request) -> str:
+    client = request.client
+    return f"{client.host}:{client.port}" if client else "a client"
+
+
 def _rejected_tenant(request) -> str:
     """The tenant as the API names it; a header the API refuses is kept as
     received, for the operator's listing across tenants."""
@@ -220,15 +232,25 @@ def _rejected_tenant(request) -> str:
 def list_rejected(
     request: Request,
     limit: int = Query(100, ge=1, le=10_000),
-    offset: int = Query(0, ge=0),
+    offset: int = Query(0, ge=0, le=MAX_INT_PARAM),
     all_tenants: bool = Query(
         False, alias="allTenants",
         description="Operator listing: every tenant's rejections, each with its tenant as stored (a tenant "
         "header the API refuses is stored as received). Ignores Fiware-Service.",
     ),
 ) -> JSON:
+    """Pages by count (``limit``) and by size (``TSDB_REJECTED_PAGE_MAX_BYTES``,
+    at least one row): when more rows follow, ``Link: <...>; rel="next"``
+    and ``X-Next-Offset`` say where the next page starts."""
     tenant = None if all_tenants else tenant_of(request)
-    return JSON(request.app.state.store.rejected(tenant, limit, offset))
+    max_bytes = request.app.state.settings.rejected_page_max_bytes
+    rows, next_offset = request.app.state.store.rejected_page(tenant, limit, offset, max_bytes)
+    response = JSON(rows)
+    if next_offset is not None:
+        url = request.url.include_query_params(offset=next_offset)
+        response.headers["Link"] = f'<{url.path}?{url.query}>; rel="next"'
+        response.headers["X-Next-Offset"] = str(next_offset)
+    return response
 
 
 @router.put(
@@ -273,6 +295,8 @@ def layout_from_document(doc: object) -> ValuesLayout:
     for name, value in (("entityId", entity_id), ("entityType", entity_type)):
         if value is not None and not isinstance(value, str):
             raise ParseError(f"'{name}' must be a string")
+        if value and (problem := id_problem(value)) is not None:
+            raise ParseError(f"'{name}' {value[:80]!r} {problem}: {ID_RULE}")
     if "id" not in attrs and not entity_id:
         raise ParseError("without an 'id' column in 'attrs', 'entityId' is required")
     return ValuesLayout(tuple(attrs), entity_id, entity_type)

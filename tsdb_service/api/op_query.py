@@ -8,17 +8,16 @@ with every attribute at its latest stored value.
 
 from __future__ import annotations
 
-import re
-
 import orjson
 from fastapi import APIRouter, Request
 from starlette.concurrency import run_in_threadpool
 
 from ..errors import BadRequest, ParseError
-from ..history.params import service_paths
+from ..history.params import check_id, service_paths
 from ..history.query import EntityFilter, LastValueQuery, Scope
 from ..history.service import run_last_values
 from ..history.valuepath import parse_value_path
+from ..idpattern import compile_pattern
 from .responses import JSON
 from .tenancy import tenant_of
 
@@ -60,11 +59,10 @@ def last_value_query(body: bytes, tenant: str, service_path: str | None) -> Last
         for name, value in (("id", eid), ("idPattern", pattern), ("type", etype)):
             if value is not None and (not isinstance(value, str) or not value or len(value) > 1024):
                 raise BadRequest(f"entities[{i}].{name} must be a non-empty string")
+            if value is not None and name != "idPattern":
+                check_id(value, f"entities[{i}].{name}")  # the ingest's rule for ids and types
         if pattern is not None:
-            try:
-                re.compile(pattern)
-            except re.error as exc:
-                raise BadRequest(f"entities[{i}].idPattern is not a valid regular expression: {exc}") from None
+            compile_pattern(pattern, f"entities[{i}].idPattern")  # RE2: see tsdb_service.idpattern
         selectors.append(
             EntityFilter(
                 ids=(eid,) if eid is not None else None,

@@ -11,6 +11,7 @@ import asyncio
 import random
 import signal
 import sys
+from datetime import datetime
 from pathlib import Path
 
 USE_CASE_NAMES = ("lawnmower", "warehouse", "drone")
@@ -39,27 +40,35 @@ def _add_demo(sub) -> None:
         "demo",
         help="run the service and the three use-case simulators (the one-command demo)",
         description="Start tsdb-service on the embedded DuckDB file and feed it Orion notifications "
-        "from the lawnmower, warehouse and drone simulators until Ctrl-C or --duration.",
+        "from the lawnmower, warehouse and drone simulators until Ctrl-C or --duration. A bounded run is "
+        "live: its simulated time ends when the run ends (a --speedup above 1 replays the recent past and "
+        "catches up with the clock), and it starts after whatever an earlier run stored.",
     )
     p.add_argument("--db", default="./data/tsdb.duckdb", help="DuckDB file (default ./data/tsdb.duckdb)")
     p.add_argument("--host", default="127.0.0.1", help="address the demo's service binds (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=8668, help="port of the demo's service (default 8668)")
+    p.add_argument("--port", type=_port, default=8668, help="port of the demo's service (default 8668)")
     p.add_argument("--no-serve", action="store_true", help="do not start a service; feed the one at --url")
     p.add_argument("--url", help="service to feed with --no-serve (default http://localhost:8668)")
     p.add_argument("--speedup", type=_positive, default=1.0, help="simulated seconds per wall second (default 1)")
-    p.add_argument("--duration", type=_positive, help="wall seconds to run (default: until Ctrl-C)")
+    p.add_argument(
+        "--duration", type=_positive,
+        help="wall seconds to run (default: until Ctrl-C). A run can overrun: when the simulators cannot "
+        "keep up with --speedup, every notification is still sent and the run ends late (the progress "
+        "display says by how much and when it will end)",
+    )  # fmt: skip
     p.add_argument("--seed", type=int, help="make the run reproducible (default: a random seed, printed)")
     p.add_argument(
         "--use-case", action="append", metavar="NAME",
-        help=f"only these simulators ({', '.join(USE_CASE_NAMES)}; repeat or comma-separate)",
+        help=f"only these simulators ({', '.join(USE_CASE_NAMES)}; repeat or comma-separate; default: all three)",
     )  # fmt: skip
-    p.add_argument("--concurrency", type=int, default=16, help="notifications in flight at most (default 16)")
+    p.add_argument("--concurrency", type=_positive_int, default=16,
+                   help="notifications in flight at most (default 16)")  # fmt: skip
 
 
 def _add_subscribe(sub) -> None:
     p = sub.add_parser("subscribe", help="create a use case's subscription on a real Orion broker")
     p.add_argument("--broker", required=True, help="the broker's base URL, e.g. http://orion:1026")
-    p.add_argument("--use-case", required=True, choices=[*USE_CASE_NAMES, "all"])
+    p.add_argument("--use-case", required=True, choices=[*USE_CASE_NAMES, "all"], help="whose subscription to create")
     p.add_argument(
         "--notify-url", default=None,
         help="where the broker sends notifications (default http://tsdb-service:8668/v2/notify)",
@@ -70,10 +79,12 @@ def _add_queries(sub) -> None:
     p = sub.add_parser("queries", help="the request collection: run it or regenerate queries/")
     actions = p.add_subparsers(dest="queries_action", required=True)
     run = actions.add_parser("run", help="run the collection against a service, a PASS/FAIL line per request")
-    run.add_argument("--url", default="http://localhost:8668", help="service base URL")
-    run.add_argument("--only", help="only requests whose name contains this text")
-    run.add_argument("--from-date", dest="from_date", help="fromDate of the period queries (ISO-8601)")
-    run.add_argument("--to-date", dest="to_date", help="toDate of the period queries (ISO-8601)")
+    run.add_argument("--url", default="http://localhost:8668", help="service base URL (default %(default)s)")
+    run.add_argument("--only", help="only requests whose name contains this text (default: all)")
+    run.add_argument("--from-date", dest="from_date",
+                     help="fromDate of the period queries (ISO-8601; default: the collection's own)")
+    run.add_argument("--to-date", dest="to_date",
+                     help="toDate of the period queries (ISO-8601; default: the collection's own)")  # fmt: skip
     build = actions.add_parser("build", help="write the Postman collection and the .http file")
     build.add_argument("--out", default="queries", help="folder (default ./queries)")
 
@@ -87,8 +98,22 @@ def _add_notifications(sub) -> None:
 
 def _positive(text: str) -> float:
     value = float(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError("must be positive")
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError("must be a positive number")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError("must be at least 1")
+    return value
+
+
+def _port(text: str) -> int:
+    value = int(text)
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{value} is not a port: give 1-65535")
     return value
 
 
@@ -96,11 +121,15 @@ def _positive(text: str) -> float:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    import httpx
+
+    from ..config import check_db
     from . import usecases
     from .serve import LocalService
 
     try:
         simulators = usecases.select(args.use_case)
+        check_db(args.db)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -113,8 +142,16 @@ def cmd_demo(args: argparse.Namespace) -> int:
         service = LocalService(args.db, args.host, args.port, log_path).start()
         url = service.url
     try:
-        _print_banner(args, url, seed, service)
-        stats = asyncio.run(_run_demo(simulators, url, args, seed))
+        try:
+            start, speedup = _window(simulators, url, args)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        except httpx.TransportError as exc:
+            print(f"error: cannot reach {url}: {exc}", file=sys.stderr)
+            return 2
+        _print_banner(args, url, seed, service, start, speedup)
+        stats = asyncio.run(_run_demo(simulators, url, args, seed, start, speedup))
     finally:
         if service is not None:
             service.stop()
@@ -126,14 +163,42 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-async def _run_demo(simulators, url: str, args: argparse.Namespace, seed: int):
+def _window(simulators, url: str, args: argparse.Namespace):
+    """(simulated start, speedup): live, and after what earlier runs stored."""
+    from datetime import UTC, datetime
+
+    from .runner import live_window
+
+    now = datetime.now(UTC)
+    return live_window(args.speedup, args.duration, now, previous_end(url, simulators))
+
+
+def previous_end(url: str, simulators) -> datetime | None:
+    """The newest instant stored for these simulators' tenants (an earlier run's end), or None."""
+    import httpx
+
+    newest = None
+    with httpx.Client(base_url=url, timeout=30.0) as client:
+        for sim in simulators:
+            headers = {"Fiware-Service": sim.tenancy.service, "Fiware-ServicePath": sim.tenancy.service_path}
+            response = client.get("/v2/entities", headers=headers)
+            if response.status_code != 200 or not response.json():
+                continue
+            for entity in response.json():
+                at = datetime.fromisoformat(entity["index"].replace("Z", "+00:00"))
+                newest = at if newest is None or at > newest else newest
+    return newest
+
+
+async def _run_demo(simulators, url: str, args: argparse.Namespace, seed: int, start, speedup: float):
     from .runner import Progress, RunConfig, run
 
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     loop.add_signal_handler(signal.SIGINT, stop.set)  # first Ctrl-C: drain and stop cleanly
     loop.add_signal_handler(signal.SIGTERM, stop.set)
-    config = RunConfig(url=url, speedup=args.speedup, duration=args.duration, seed=seed, concurrency=args.concurrency)
+    config = RunConfig(url=url, speedup=speedup, duration=args.duration, seed=seed,
+                       concurrency=args.concurrency, start=start)  # fmt: skip
     try:
         return await run(simulators, config, progress=Progress(), stop=stop)
     finally:
@@ -141,8 +206,11 @@ async def _run_demo(simulators, url: str, args: argparse.Namespace, seed: int):
         loop.remove_signal_handler(signal.SIGTERM)
 
 
-def _print_banner(args: argparse.Namespace, url: str, seed: int, service) -> None:
+def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start, speedup: float) -> None:
+    from datetime import timedelta
+
     from .collection import DEMO_EXAMPLES, by_name, curl
+    from .orion import iso
 
     where = f"(DuckDB file {args.db}; log {service.log_path})" if service else "(already running)"
     until = f"for {args.duration:g} s" if args.duration else "until Ctrl-C"
@@ -155,8 +223,14 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service) -> Non
     print("Try:")
     for name in DEMO_EXAMPLES:
         print(f"  # {name}\n  {curl(by_name(name), url)}")
-    print(f"Simulating x{args.speedup:g} {until}, seed {seed}:")
-    if args.speedup > 1 and not args.duration:
+    print(f"Simulating x{speedup:.3g} {until}, seed {seed}:")
+    if args.duration:
+        end = start + timedelta(seconds=args.duration * speedup)
+        print(f"  simulated time {iso(start)} to {iso(end)}: live, it ends when the run does")
+        if speedup != args.speedup:
+            print(f"  (it starts after the data of an earlier run, so it replays at x{speedup:.3g} "
+                  f"instead of x{args.speedup:g} to still end on time)")  # fmt: skip
+    elif args.speedup > 1:
         print("  (open-ended at a speedup: simulated time starts now and runs ahead of the clock;"
               " give --duration to end the replay at the present instead)")
     sys.stdout.flush()
@@ -213,8 +287,13 @@ def _queries_run(args: argparse.Namespace) -> int:
     if not queries:
         print(f"no request name contains {args.only!r}", file=sys.stderr)
         return 2
+    url = args.url.rstrip("/")
+    unreachable = _unreachable(url)
+    if unreachable:
+        print(f"error: cannot reach {url}: {unreachable}", file=sys.stderr)
+        return 2
     variables = {k: v for k, v in (("fromDate", args.from_date), ("toDate", args.to_date)) if v}
-    outcomes = run_all(args.url.rstrip("/"), queries, variables)
+    outcomes = run_all(url, queries, variables)
     for outcome in outcomes:
         verdict = "PASS" if outcome.ok else "FAIL"
         detail = "" if outcome.ok else f": {outcome.detail}"
@@ -222,6 +301,18 @@ def _queries_run(args: argparse.Namespace) -> int:
     failed = sum(not o.ok for o in outcomes)
     print(f"{len(outcomes) - failed} of {len(outcomes)} requests passed")
     return 1 if failed else 0
+
+
+def _unreachable(url: str) -> str | None:
+    """Why the service at ``url`` cannot be reached, or None: checked once up
+    front, so a wrong URL is one line rather than the same failure per request."""
+    import httpx
+
+    try:
+        httpx.get(f"{url}/version", timeout=10.0)
+    except httpx.TransportError as exc:
+        return str(exc) or type(exc).__name__
+    return None
 
 
 # -- notifications

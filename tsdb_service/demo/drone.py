@@ -35,6 +35,7 @@ CRUISE_SPEED = 15.0  # m/s
 CRUISE_ALTITUDE = 40.0  # m
 CLIMB_S = 8.0
 READ_S = 20.0
+SETTLE_S = 2.0  # from arrival over a sensor to the start of its reading
 FLIGHT_EVERY_S = 5.0  # position updates while flying
 GNSS_SIGMA_M = 1.5
 CROSS_TRACK_SIGMA_M = 4.0
@@ -120,6 +121,10 @@ class _Flight:
         self.position = goal
 
     def _read(self, target: int) -> Iterator[Emission]:
+        """Hover over the sensor and read it. The arrival was reported by the
+        flight's last step; the hover starts a moment later, so each instant
+        of the drone has exactly one state, position and altitude."""
+        self._advance(SETTLE_S)
         yield self._report("reading sensor", target)
         self._advance(READ_S)
         sensor = self.sensors[target]

@@ -2,10 +2,15 @@
 
 Time: a simulator's instants are mapped to wall-clock time as
 ``(at - sim_start) / speedup``. With ``--duration D`` the simulated span is
-``D * speedup`` and ends now (``sim_start = now - D * speedup``), so a fast
-replay lands on a realistic, recent time axis. Which emissions are sent
-depends only on the seed, the speedup and the duration, never on how fast
-the service answers: a slow service makes the run late, not different.
+``D * speedup`` and ends when the run ends (``sim_start = now + D - D *
+speedup``): the data is live. At speed 1 it follows the clock; a faster
+replay starts in the past and catches up with the clock at its last
+instant, so it never writes the future and dashboards of "the last 15
+minutes" show it. A run never goes back over data an earlier run left:
+``live_window`` starts after it (and slows the replay to still end on
+time). Which emissions are sent depends only on the seed, the speedup and
+the duration, never on how fast the service answers: a slow service makes
+the run late (the progress display says by how much), not different.
 
 HTTP: ``concurrency`` sender tasks, each one keep-alive ``httpx.AsyncClient``
 connection, fed by a small bounded queue: at most that many requests are in
@@ -53,6 +58,7 @@ class Stats:
     last_error: str | None = None
     sim_time: datetime | None = None
     done: bool = False
+    lag: float = 0.0  # wall seconds the latest emission was sent after it was due
 
 
 @dataclass(frozen=True)
@@ -69,6 +75,7 @@ class RunConfig:
 class _Clock:
     sim_start: datetime
     speedup: float
+    duration: float | None = None  # planned wall seconds
     wall_start: float = field(default_factory=time.monotonic)
 
     def due(self, at: datetime) -> float:
@@ -78,12 +85,61 @@ class _Clock:
     def elapsed(self) -> float:
         return time.monotonic() - self.wall_start
 
+    def lag(self, row: Stats) -> float:
+        """Wall seconds ``row`` is behind its schedule (0 when on time or done)."""
+        return 0.0 if row.done else row.lag
+
+    def expected_end(self, rows: Sequence[Stats]) -> float | None:
+        """Wall seconds after the start at which the slowest simulator will be
+        done, at the pace each late one has kept so far; None when unbounded."""
+        if self.duration is None:
+            return None
+        elapsed, ends = self.elapsed(), [self.duration]
+        for row in rows:
+            if self.lag(row) < BEHIND_NOTE_S or row.sim_time is None:
+                continue
+            progress = self.due(row.sim_time)  # planned seconds covered so far
+            pace = progress / elapsed if elapsed > 0 else 1.0  # planned seconds per wall second
+            ends.append(elapsed + (self.duration - progress) / pace if pace > 0 else float("inf"))
+        return max(ends)
+
 
 def default_start(speedup: float, duration: float | None, now: datetime | None = None) -> datetime:
-    """A bounded run ends now; an open-ended one starts now. Rounded to the millisecond."""
-    now = now or datetime.now(UTC)
-    start = now - timedelta(seconds=duration * speedup) if duration else now
-    return start.replace(microsecond=start.microsecond // 1000 * 1000)
+    """A bounded run ends when it ends (live); an open-ended one starts now."""
+    return live_window(speedup, duration, now or datetime.now(UTC))[0]
+
+
+def live_window(speedup: float, duration: float | None, now: datetime,
+                previous_end: datetime | None = None) -> tuple[datetime, float]:  # fmt: skip
+    """(simulated start, speedup) of a run starting at ``now``.
+
+    Bounded runs end at ``now + duration``: the span ``duration * speedup``
+    starts that far before (at speed 1, now; below speed 1, now too, since
+    ending on time would mean starting in the future). ``previous_end`` is
+    the newest instant an earlier run stored: the run starts just after it
+    and, if that shortens the span, replays it more slowly so that it still
+    ends on time. Rounded to the millisecond, as Orion's timestamps are.
+    """
+    start = now
+    if duration is not None and speedup > 1:
+        start = now + timedelta(seconds=duration) - timedelta(seconds=duration * speedup)
+    if previous_end is not None and start <= previous_end:
+        start = previous_end + RUN_GAP
+        end = now + timedelta(seconds=duration or 0)
+        if duration is not None and speedup > 1:
+            if start >= end:
+                raise ValueError(
+                    f"the data of an earlier run reaches {previous_end.isoformat(timespec='seconds')}, "
+                    "beyond this run's end: wait until then, or use another --db")
+            speedup = (end - start).total_seconds() / duration
+    return _ms(start), speedup
+
+
+RUN_GAP = timedelta(milliseconds=1)
+
+
+def _ms(t: datetime) -> datetime:
+    return t.replace(microsecond=t.microsecond // 1000 * 1000)
 
 
 def rng_for(seed: int, name: str, purpose: str = "physics") -> random.Random:
@@ -102,7 +158,7 @@ async def run(
     if config.speedup <= 0 or config.concurrency < 1:
         raise ValueError("speedup and concurrency must be positive")
     stop = stop or asyncio.Event()
-    clock = _Clock(config.start or default_start(config.speedup, config.duration), config.speedup)
+    clock = _Clock(config.start or default_start(config.speedup, config.duration), config.speedup, config.duration)
     stats = {sim.name: Stats(sim.name) for sim in simulators}
     outbox: asyncio.Queue = asyncio.Queue(maxsize=2 * config.concurrency)
     senders = [asyncio.create_task(_sender(config.url, outbox)) for _ in range(config.concurrency)]
@@ -128,7 +184,9 @@ async def _drive(sim, clock, config, stats: Stats, outbox: asyncio.Queue, stop: 
         due = clock.due(emission.at)
         if config.duration is not None and due > config.duration:
             break
-        if await _wait_or_stop(stop, due - clock.elapsed()):
+        wait = due - clock.elapsed()
+        stats.lag = max(0.0, -wait)
+        if await _wait_or_stop(stop, wait):
             break
         headers = orion.notification_headers(sim.tenancy.service, sim.tenancy.service_path, orion.correlator(wire))
         body = orion.notification_body(subscription, emission.entity)
@@ -198,11 +256,16 @@ class Progress:
         for row in stats.values():
             if row.last_error:
                 self.stream.write(f"  {row.name}: last failure: {row.last_error}\n")
+        over = clock.elapsed() - clock.duration if clock.duration is not None else 0.0
+        if over > OVERRUN_NOTE_S and all(row.done for row in stats.values()):
+            self.stream.write(
+                f"  the run took {clock.elapsed():.1f} s for --duration {clock.duration:g}: {over:.1f} s over, "
+                f"the simulators could not keep up with x{clock.speedup:.3g} (a lower --speedup keeps time)\n")
         self.stream.flush()
 
     def _draw(self, stats: dict[str, Stats], clock: _Clock) -> None:
-        lines = [self.line(row) for row in stats.values()]
-        lines.append(f"  elapsed {clock.elapsed():7.1f} s   speedup x{clock.speedup:g}")
+        lines = [self.line(row, clock.lag(row)) for row in stats.values()]
+        lines.append(self.summary(stats, clock))
         if self.tty:
             if self._drawn:
                 self.stream.write(f"\x1b[{self._drawn}F")
@@ -213,10 +276,27 @@ class Progress:
         self.stream.flush()
 
     @staticmethod
-    def line(row: Stats) -> str:
+    def summary(stats: dict[str, Stats], clock: _Clock) -> str:
+        """Elapsed time, and when behind schedule: by how much and when the run will end."""
+        elapsed = clock.elapsed()
+        text = f"  elapsed {elapsed:7.1f} s   speedup x{clock.speedup:.3g}"
+        lag = max((clock.lag(row) for row in stats.values()), default=0.0)
+        end = clock.expected_end(list(stats.values()))
+        if lag < BEHIND_NOTE_S or end is None:
+            return text
+        finish = datetime.now().astimezone() + timedelta(seconds=max(0.0, end - elapsed))
+        return (f"{text}   BEHIND by {lag:.1f} s: ends in ~{max(0.0, end - elapsed):.0f} s "
+                f"(~{finish:%H:%M:%S}), {max(0.0, end - clock.duration):.0f} s after --duration {clock.duration:g}")
+
+    @staticmethod
+    def line(row: Stats, lag: float = 0.0) -> str:
         when = orion.iso(row.sim_time) if row.sim_time else "-"
-        status = "done" if row.done else "running"
+        status = "done" if row.done else f"behind {lag:.1f} s" if lag >= BEHIND_NOTE_S else "running"
         return (
             f"  {row.name:<10} sent {row.sent:>8}  acked {row.acked:>8}  failed {row.failed:>6}"
             f"  simulated {when}  {status}"
         )
+
+
+BEHIND_NOTE_S = 1.0  # lag shown from this many seconds behind schedule
+OVERRUN_NOTE_S = 1.0

@@ -12,19 +12,24 @@ import math
 import re
 from dataclasses import dataclass
 
+import numpy as np
 import orjson
 import shapely
 from shapely.geometry import LineString, Point, Polygon, box, shape
 from shapely.geometry.base import BaseGeometry
 
 from ..errors import BadRequest
-from .geodesic import geodesic_distance_m, radius_bbox
+from .geodesic import WGS84, geodesic_distance_m, geodesic_distances_m, radius_bbox
 
 # JSON-style numbers only: float() would also take "1_0", "0x1p3" or "inf".
 _NUMBER = re.compile(r"^\s*[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?\s*$")
 
 GEORELS = ("near", "coveredBy", "intersects", "equals", "disjoint")
 GEOMETRIES = ("point", "line", "polygon", "box")
+# What a geo-query filters (``geoScope``): each stored sample by the location
+# its entity had then (QuantumLeap's rows), or whole entities by their latest.
+SAMPLE, ENTITY = "sample", "entity"
+GEO_SCOPES = (SAMPLE, ENTITY)
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,6 +47,7 @@ class GeoFilter:
     shape: BaseGeometry  # lon/lat order
     max_distance: float | None = None  # metres, for near
     min_distance: float | None = None
+    scope: str = SAMPLE
 
     @property
     def prefilter(self) -> tuple[str, BBox] | None:
@@ -85,10 +91,133 @@ class GeoFilter:
         return self.shape.equals(candidate)  # equals
 
 
-def parse_geo(georel: str | None, geometry: str | None, coords: str | None) -> GeoFilter | None:
-    """The three parameters travel together: all absent means no filter."""
+    def matches_array(self, lon: np.ndarray, lat: np.ndarray, geojson: np.ndarray, point: np.ndarray) -> np.ndarray:
+        """The exact predicate for many stored geometries at once (shapely 2
+        and pyproj array calls, no loop per geometry): where ``point`` is
+        true the geometry is the point (lon, lat), elsewhere the GeoJSON text
+        (None or unreadable: no match)."""
+        out = np.zeros(len(point), dtype=bool)
+        if not len(point):
+            return out
+        shapes = np.flatnonzero(~point)
+        geoms = shapely.from_geojson(geojson[shapes].astype(object), on_invalid="ignore") if len(shapes) else None
+        if self.georel == "near":
+            distance = np.full(len(point), np.inf)
+            at = np.flatnonzero(point)
+            if len(at):
+                _, _, metres = WGS84.inv(np.full(len(at), self.shape.x), np.full(len(at), self.shape.y),
+                                         lon[at], lat[at])
+                distance[at] = metres
+            if geoms is not None:
+                usable = ~shapely.is_missing(geoms) & ~shapely.is_empty(geoms)
+                distance[shapes[usable]] = geodesic_distances_m(self.shape, geoms[usable])
+            out = np.isfinite(distance)
+            if self.max_distance is not None:
+                out &= distance <= self.max_distance
+            if self.min_distance is not None:
+                out &= distance >= self.min_distance
+            return out
+        every = np.empty(len(point), dtype=object)
+        every[point] = shapely.points(lon[point], lat[point])
+        if geoms is not None:
+            every[shapes] = geoms
+        usable = ~shapely.is_missing(every) & ~shapely.is_empty(every)
+        shapely.prepare(self.shape)
+        relation = {"coveredBy": shapely.covers, "intersects": shapely.intersects,
+                    "disjoint": shapely.disjoint, "equals": shapely.equals}[self.georel]
+        out[usable] = relation(self.shape, every[usable])
+        return out
+
+
+    def classify_extents(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For lon/lat boxes ``boxes`` (n x 4: min_lon, min_lat, max_lon,
+        max_lat), whether every geometry inside each box surely matches, and
+        whether none can. Neither: its geometries must be tested one by one."""
+        n = len(boxes)
+        if not n:
+            return np.zeros(0, dtype=bool), np.zeros(0, dtype=bool)
+        if self.georel == "near":
+            return self._classify_near(boxes)
+        extents = _boxes(boxes)
+        shape = self.shape
+        shapely.prepare(shape)
+        covered = shapely.covers(shape, extents)
+        apart = shapely.disjoint(shape, extents)
+        if self.georel in ("coveredBy", "intersects"):
+            return covered, apart
+        if self.georel == "disjoint":
+            return apart, covered
+        return np.zeros(n, dtype=bool), ~shapely.covers(extents, shape)  # equals: a match contains the query
+
+    def _classify_near(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distance bounds without a projection, for small boxes only (larger
+        ones are tested sample by sample): no point of a box is nearer than
+        its nearest corner minus its diagonal (triangle inequality; in a small
+        box no point is farther from a corner than the opposite one) nor than
+        the clamped point allows (below), and none is farther than its
+        farthest corner (a parallel bends by well under the margin over a
+        small box's edge). Close calls are left to the exact test."""
+        n = len(boxes)
+        lons = boxes[:, [0, 2, 0, 2]].ravel()
+        lats = boxes[:, [1, 1, 3, 3]].ravel()
+        _, _, corner = WGS84.inv(np.full(4 * n, self.shape.x), np.full(4 * n, self.shape.y), lons, lats)
+        corner = np.asarray(corner).reshape(n, 4)
+        _, _, diagonal = WGS84.inv(boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3])
+        _, _, other = WGS84.inv(boxes[:, 0], boxes[:, 3], boxes[:, 2], boxes[:, 1])
+        diag = np.maximum(diagonal, other)
+        # The box point nearest in lon/lat (the query point clamped into the
+        # box) is the nearest up to a slide of at most the diagonal along an
+        # edge, which shortens a distance x by at most diag² / 2x.
+        clamped_lon = np.clip(self.shape.x, boxes[:, 0], boxes[:, 2])
+        clamped_lat = np.clip(self.shape.y, boxes[:, 1], boxes[:, 3])
+        _, _, to_clamped = WGS84.inv(np.full(n, self.shape.x), np.full(n, self.shape.y), clamped_lon, clamped_lat)
+        to_clamped = np.asarray(to_clamped)
+        slide = diag**2 / (2 * np.maximum(to_clamped - diag, 1.0))
+        nearest = np.maximum(corner.min(axis=1) - diag, to_clamped - slide)
+        farthest = corner.max(axis=1)
+        small = ((boxes[:, 2] - boxes[:, 0]) <= SMALL_BOX_DEG) & ((boxes[:, 3] - boxes[:, 1]) <= SMALL_BOX_DEG)
+        sure = small.copy()
+        none = np.zeros(n, dtype=bool)
+        if self.max_distance is not None:
+            sure &= farthest <= self.max_distance - MARGIN_M
+            none |= small & (nearest > self.max_distance + MARGIN_M)
+        if self.min_distance is not None:
+            sure &= nearest >= self.min_distance + MARGIN_M
+            none |= small & (farthest < self.min_distance - MARGIN_M)
+        return sure, none
+
+
+SMALL_BOX_DEG = 0.01  # ~1 km: boxes whose farthest point from the query point is a corner
+MARGIN_M = 1.0
+
+
+def _boxes(boxes: np.ndarray) -> np.ndarray:
+    """Lon/lat boxes as geometries: a point or a segment where flat."""
+    lo, hi = boxes[:, :2], boxes[:, 2:]
+    flat = (lo == hi).any(axis=1)
+    out = np.empty(len(boxes), dtype=object)
+    out[~flat] = shapely.box(*boxes[~flat].T)
+    if flat.any():
+        # The diagonal of a flat box is the box: a segment, or a point.
+        diagonal = shapely.linestrings(np.stack([lo[flat], hi[flat]], axis=1))
+        point = (lo[flat] == hi[flat]).all(axis=1)
+        diagonal[point] = shapely.points(lo[flat][point])
+        out[flat] = diagonal
+    return out
+
+
+def parse_geo(
+    georel: str | None, geometry: str | None, coords: str | None, scope: str | None = None
+) -> GeoFilter | None:
+    """The three parameters travel together: all absent means no filter.
+    ``scope`` (``geoScope``) says what is filtered: samples (default) or
+    whole entities by their latest location."""
     given = {"georel": georel, "geometry": geometry, "coords": coords}
+    if scope not in (None, "") and scope not in GEO_SCOPES:
+        raise BadRequest(f"unknown geoScope {scope!r}: use one of {', '.join(GEO_SCOPES)}")
     if all(v in (None, "") for v in given.values()):
+        if scope not in (None, ""):
+            raise BadRequest("geoScope needs a geo-query: georel, geometry and coords")
         return None
     missing = [name for name, value in given.items() if value in (None, "")]
     if missing:
@@ -100,7 +229,7 @@ def parse_geo(georel: str | None, geometry: str | None, coords: str | None) -> G
     geom = _build_geometry(geometry, points)
     if relation == "near" and geometry != "point":
         raise BadRequest("georel=near needs geometry=point")
-    return GeoFilter(relation, geometry, geom, max_d, min_d)
+    return GeoFilter(relation, geometry, geom, max_d, min_d, scope or SAMPLE)
 
 
 def _parse_georel(text: str) -> tuple[str, float | None, float | None]:

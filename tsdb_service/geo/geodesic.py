@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 
+import numpy as np
 import shapely
 from pyproj import CRS, Geod, Transformer
 from shapely.geometry import GeometryCollection, Point
@@ -35,8 +36,46 @@ def geodesic_distance_m(origin: Point, other: BaseGeometry) -> float:
     # them first so every piece is short enough to stay straight there too.
     # Not covered, so the nearest point is on the outline; measuring to the
     # outline also avoids areas that wrap the plane's edge (the antipode).
-    projected = shapely.transform(shapely.segmentize(_outline(other), EDGE_STEP_DEG), to_plane, interleaved=False)
+    outline = _outline(other)
+    if outline.length == 0:  # a line whose points coincide: GEOS cannot segmentize it
+        outline = outline.envelope
+    projected = shapely.transform(shapely.segmentize(outline, EDGE_STEP_DEG), to_plane, interleaved=False)
     return float(projected.distance(Point(0.0, 0.0)))
+
+
+def geodesic_distances_m(origin: Point, geoms: np.ndarray) -> np.ndarray:
+    """``geodesic_distance_m`` for an array of geometries at once (shapely's
+    array functions: one projection for all of them, no loop per geometry)."""
+    out = np.zeros(len(geoms))
+    if not len(geoms):
+        return out
+    points = shapely.get_type_id(geoms) == 0
+    if points.any():
+        xs, ys = shapely.get_x(geoms[points]), shapely.get_y(geoms[points])
+        _, _, metres = WGS84.inv(np.full(len(xs), origin.x), np.full(len(xs), origin.y), xs, ys)
+        out[points] = metres
+    others = np.flatnonzero(~points & ~shapely.covers(geoms, origin))
+    if len(others):
+        to_plane = _aeqd(round(origin.x, 9), round(origin.y, 9))
+        outlines = _outlines(geoms[others])
+        # A line whose points all coincide is a point (GEOS cannot segmentize it).
+        flat = shapely.length(outlines) == 0
+        outlines[flat] = shapely.envelope(outlines[flat])
+        projected = shapely.transform(shapely.segmentize(outlines, EDGE_STEP_DEG), to_plane, interleaved=False)
+        out[others] = shapely.distance(projected, Point(0.0, 0.0))
+    return out
+
+
+def _outlines(geoms: np.ndarray) -> np.ndarray:
+    """``_outline`` of each: areas by their boundary (one array call),
+    collections part by part (rare)."""
+    kinds = shapely.get_type_id(geoms)
+    out = geoms.copy()
+    areas = (kinds == 3) | (kinds == 6)  # Polygon, MultiPolygon
+    out[areas] = shapely.boundary(geoms[areas])
+    for i in np.flatnonzero(kinds == 7):  # GeometryCollection
+        out[i] = _outline(geoms[i])
+    return out
 
 
 def _outline(geom: BaseGeometry) -> BaseGeometry:

@@ -1,72 +1,139 @@
-"""Which entities a geo-query selects.
+"""What a geo-query keeps: samples (default) or whole entities.
 
-Semantics (pinned by tests/test_geo_moving.py): an entity matches when its
-*latest* location satisfies the relation — the latest at or before
-``toDate`` when one is given, else the latest stored. The matching entities'
-history is then returned as the other parameters ask. So "the latest N
-samples of devices near X" are the samples of the devices that are near X
-now; a robot that drove through an area and left it does not match that area
-unless ``toDate`` is set to a time when it was inside.
+Sample semantics (QuantumLeap's, the default): a stored sample matches when
+the location its entity had at that sample's time satisfies the relation.
+That location is the entity's latest location sample at or before the
+sample, by (time, row id): every attribute of one notification shares its
+time index and row id, so a notification's own location counts for its
+other attributes, and a notification without a location keeps the previous
+one. So "the drone's temperature readings inside this polygon" are the
+readings taken while it was inside, and a robot that drove through an area
+and left still has its in-area samples. ``lastN``, ``limit``, ``offset`` and
+aggregations apply to the matching samples (see ``geo.masks``).
+
+Entity semantics (``geoScope=entity``): an entity matches when its *latest*
+location satisfies the relation (the latest at or before ``toDate`` when
+given), and its history is returned as the other parameters ask, matching
+or not: "the latest N samples of the devices near X now".
 
 The location is the entity's ``location`` attribute (as in QuantumLeap), or
-else its first geo-typed attribute by name. Stored geometries are GeoJSON in
+else its first geo-typed attribute by name (one with a geometry stored at or
+before ``toDate``). Only samples holding a geometry are positions: a null
+location leaves the previous one in place. Stored geometries are GeoJSON in
 lon/lat order; SQL prefilters by bounding box and shapely decides exactly.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import threading
+import weakref
+from collections import OrderedDict
+from dataclasses import dataclass
+from operator import attrgetter
 
 from ..history.query import EntityFilter, Scope, TimeRange
 from ..storage.catalog import SeriesRef
-from .filter import GeoFilter
+from .filter import ENTITY, GeoFilter
 
-EntityKey = tuple[str, str]  # entity type, entity id
+EntityKey = tuple[str, str, str]  # service path, entity type, entity id
 LOCATION = "location"
+# C-level getters: requests may name 10,000s of series; a Python function
+# call per series would be most of a geo-query's cost.
+entity_key = attrgetter("service_path", "entity_type", "entity_id")
+_SID = attrgetter("sid")
+_ATTR = attrgetter("attr")
 
 
-def matching_entities(
-    querier, scope: Scope, entities: EntityFilter, geo: GeoFilter, time: TimeRange, candidates: set[EntityKey]
-) -> set[EntityKey]:
-    """Which of ``candidates`` (the entities a query is about) have a location
-    matching ``geo``."""
+def apply_geo(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesRef], geo: GeoFilter, time: TimeRange):
+    """``(refs, querier)`` for the rest of the request: the series of the
+    matching entities, and a querier whose sample reads keep only the
+    matching samples (the same querier under entity semantics)."""
+    sel = _selection(querier, scope, entities, refs)
+    locations = sel.locations
+    if sel.without:
+        locations = {**locations, **_fallback_locations(querier, scope, entities, time, sel.without)}
+    if geo.scope == ENTITY:
+        matched = matching_entities(querier, locations, geo, time)
+        return [r for r, key in zip(refs, map(entity_key, refs)) if key in matched], querier
+    from ..storage.sql import RowMask
+    from .masks import MaskedQuerier, sample_spans
+
+    intervals, kept = {}, []
+    for key, found in sample_spans(querier, locations, geo, time).items():
+        for ref in sel.refs_by_key.get(key, ()):
+            intervals[ref.sid] = found
+            kept.append(ref)
+    return kept, MaskedQuerier(querier, RowMask(intervals))
+
+
+@dataclass(frozen=True, slots=True)
+class _Selection:
+    """What a geo-query needs to know about the series a request selected:
+    the location series of their entities (sid -> entity), their series by
+    entity, and the entities without a ``location`` attribute."""
+
+    locations: dict[int, EntityKey]
+    refs_by_key: dict[EntityKey, list[SeriesRef]]
+    without: frozenset[EntityKey]
+
+
+_MEMO_SIZE = 32
+_memo: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_memo_lock = threading.Lock()
+
+
+def _selection(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesRef]) -> _Selection:
+    """Built once per selection and reused while the catalog gives the same
+    series (series are never removed: the same request selecting as many
+    series with the same ids selects the same ones), so a repeated query over
+    10,000 entities does not re-key 20,000 series each time."""
     named = querier.series(scope, entities, [LOCATION])
-    named_keys = {(r.entity_type, r.entity_id) for r in named}
-    if not named_keys <= candidates:  # set operations run in C: cheap on 10k entities
-        named = [r for r in named if (r.entity_type, r.entity_id) in candidates]
-    without = candidates - named_keys
-    # Entities without a ``location`` attribute: their first geo-typed one.
-    fallback = (
-        [r for r in querier.series(scope, entities, None) if (r.entity_type, r.entity_id) in without]
-        if without else []
-    )
-    end = TimeRange(None, time.end)
-    matched: set[EntityKey] = set()
-    if named:
-        refs_by_sid = {r.sid: r for r in named}
-        rows = querier.latest_geometries(list(refs_by_sid), end, geo.prefilter)
-        matched |= {_key(refs_by_sid[sid]) for sid, geojson in rows if geo.matches(geojson)}
-    if fallback:
-        matched |= _match_fallback(querier, fallback, end, geo)
-    return matched
+    key = (scope, entities, frozenset(map(_ATTR, refs)), len(refs), sum(map(_SID, refs)), len(named),
+           sum(map(_SID, named)))
+    with _memo_lock:
+        cache = _memo.setdefault(querier, OrderedDict())
+        found = cache.get(key)
+        if found is not None:
+            cache.move_to_end(key)
+            return found
+    keys = list(map(entity_key, refs))
+    named_keys = list(map(entity_key, named))
+    refs_by_key: dict[EntityKey, list[SeriesRef]] = {}
+    for ref, k in zip(refs, keys, strict=True):
+        refs_by_key.setdefault(k, []).append(ref)
+    selection = _Selection(
+        dict(zip(map(_SID, named), named_keys, strict=True)), refs_by_key,
+        frozenset(refs_by_key.keys() - set(named_keys)),
+    )  # fmt: skip
+    with _memo_lock:
+        cache[key] = selection
+        while len(cache) > _MEMO_SIZE:
+            cache.popitem(last=False)
+    return selection
 
 
-def _match_fallback(querier, refs: Iterable[SeriesRef], end: TimeRange, geo: GeoFilter) -> set[EntityKey]:
-    """Entities without a ``location`` attribute: their first geo-typed
-    attribute decides, so no prefilter may hide it (rare, so fetched whole)."""
-    refs_by_sid = {r.sid: r for r in refs}
-    first: dict[EntityKey, tuple[str, str]] = {}
-    for sid, geojson in querier.latest_geometries(list(refs_by_sid), end, None):
-        ref = refs_by_sid[sid]
-        key = _key(ref)
-        if key not in first or ref.attr < first[key][0]:
-            first[key] = (ref.attr, geojson)
-    return {key for key, (_, geojson) in first.items() if geo.matches(geojson)}
+def _fallback_locations(
+    querier, scope: Scope, entities: EntityFilter, time: TimeRange, without: frozenset[EntityKey]
+) -> dict[int, EntityKey]:
+    """Entities without a ``location`` attribute: their first geo-typed one
+    (with a geometry stored at or before ``toDate``), sid -> entity."""
+    others = [r for r in querier.series(scope, entities, None) if entity_key(r) in without]
+    if not others:
+        return {}
+    located = {sid for sid, _ in querier.latest_geometries([r.sid for r in others], TimeRange(None, time.end), None)}
+    first: dict[EntityKey, SeriesRef] = {}
+    for ref in others:
+        if ref.sid in located:
+            k = entity_key(ref)
+            if k not in first or ref.attr < first[k].attr:
+                first[k] = ref
+    return {ref.sid: k for k, ref in first.items()}
 
 
-def _key(ref: SeriesRef) -> EntityKey:
-    return (ref.entity_type, ref.entity_id)
-
-
-def keep_matching(refs: list[SeriesRef], matched: set[EntityKey]) -> list[SeriesRef]:
-    return [r for r in refs if (r.entity_type, r.entity_id) in matched]
+def matching_entities(querier, locations: dict[int, EntityKey], geo: GeoFilter, time: TimeRange) -> set[EntityKey]:
+    """Entity semantics: the entities whose latest location (at or before
+    ``toDate``) matches ``geo``."""
+    if not locations:
+        return set()
+    rows = querier.latest_geometries(list(locations), TimeRange(None, time.end), geo.prefilter)
+    return {locations[sid] for sid, geojson in rows if geo.matches(geojson)}

@@ -25,11 +25,13 @@ from typing import Any
 
 from fastapi import APIRouter, Body, Request
 
+from .. import budget
 from ..api.responses import JSON
 from ..errors import BadRequest
 from ..history.query import EntityFilter, LastValueQuery, TimeRange, ValuePath
 from ..history.service import run_last_values
 from ..history.valuepath import parse_value_path
+from ..idpattern import compile_pattern, compiled
 from . import frames
 from .params import MAX_POINTS_LIMIT, Column, moment, positive_int, scope_of
 
@@ -96,10 +98,7 @@ class Target:
         types = _str(payload.get("type"), "payload.type").strip() or None
         pattern = _str(payload.get("idPattern"), "payload.idPattern").strip() or None
         if pattern is not None:
-            try:
-                re.compile(pattern)
-            except re.error as exc:
-                raise BadRequest(f"payload.idPattern is not a valid regular expression: {exc}") from None
+            compile_pattern(pattern, "payload.idPattern")  # RE2: see tsdb_service.idpattern
         ids = None if entity == "*" else (entity,)
         self.entities = EntityFilter(ids=ids, id_pattern=pattern, types=(types,) if types else None)
         self.alias = _str(payload.get("alias"), "payload.alias").strip() or None
@@ -132,10 +131,7 @@ def _adhoc(body: dict) -> list[tuple[str, str, str]]:
         if key not in ("entity", "type", "name") or not isinstance(value, str) or op not in ("=", "!=", "=~", "!~"):
             continue
         if op in ("=~", "!~"):
-            try:
-                re.compile(value)
-            except re.error as exc:
-                raise BadRequest(f"ad hoc filter {key} {op} {value[:40]!r}: {exc}") from None
+            compile_pattern(value, f"ad hoc filter {key} {op} {value[:40]!r}")
         out.append((key, op, value))
     return out
 
@@ -149,7 +145,7 @@ def _keep(series: frames.EntitySeries, filters: list[tuple[str, str, str]]) -> b
         elif op == "!=":
             ok = subject != value
         else:
-            ok = re.search(value, subject) is not None
+            ok = compiled(value).search(subject) is not None
             ok = ok if op == "=~" else not ok
         if not ok:
             return False
@@ -330,6 +326,7 @@ def query(request: Request, body: Any = Body(None)) -> JSON:
     querier = request.app.state.store.querier()
     out: list[dict] = []
     for raw in targets:
+        budget.checkpoint()  # each target is a step of the request's wall-time budget
         target = Target(raw)
         if target.format == "annotations":
             out.extend(_annotation_frames(querier, scope, target, time, filters))
@@ -398,19 +395,49 @@ def _annotation_frames(querier, scope, target: Target, time: TimeRange, filters)
 
 
 def _events(querier, scope, target: Target, time: TimeRange, filters, equals) -> list[dict]:
+    """One event per run of consecutive samples meeting the condition, labelled
+    with every value the run went through (``missionState(data) = 1 → 2 → 3``):
+    a run of truthy states is several states, not only its first."""
     matches = frames.condition(None if equals is None else equals if isinstance(equals, str) else frames._text(equals))
-    rows = frames.event_rows(querier, scope, target.entities, (target.column,), time,
-                             matches=matches, text=None, limit=10_000)  # fmt: skip
+    name = target.column.name
+    kept = [f for f in filters if f[0] != "type"]
     out = []
-    for row in rows:
-        if filters and not _keep(frames.EntitySeries(row["entity"], ""), [f for f in filters if f[0] != "type"]):
+    for series in frames.fetch(querier, scope, target.entities, (target.column,), time):
+        if kept and not _keep(frames.EntitySeries(series.entity_id, ""), kept):
             continue
-        start, end = frames.epoch_ms(row["time"].replace("Z", "+00:00")), frames.epoch_ms(
-            row["timeEnd"].replace("Z", "+00:00")
-        )
-        out.append({"time": start, "timeEnd": end, "isRegion": end > start, "title": row["title"],
-                    "text": row["text"], "tags": row["tags"].split(",")})  # fmt: skip
-    return out
+        values, short = series.columns[name], frames.short_name(series.entity_id)
+        for first, last in _runs(values, matches):
+            start, end = series.times[first], series.times[last]
+            out.append({"time": start, "timeEnd": end, "isRegion": end > start, "title": f"{name} on {short}",
+                        "text": f"{name} = {_run_label(values[first:last + 1])} on {series.entity_id}",
+                        "tags": [short, name]})  # fmt: skip
+    out.sort(key=lambda e: (e["time"], e["tags"][0]))
+    return out[-_MAX_EVENTS:]
+
+
+_MAX_EVENTS = 10_000
+_MAX_LABEL_VALUES = 12
+
+
+def _runs(values: list, matches) -> list[tuple[int, int]]:
+    """(first, last) index of each run of consecutive values meeting ``matches``."""
+    runs, first = [], None
+    for i, value in enumerate(values):
+        if value is not None and matches(value):
+            first = i if first is None else first
+        elif first is not None:
+            runs.append((first, i - 1))
+            first = None
+    if first is not None:
+        runs.append((first, len(values) - 1))
+    return runs
+
+
+def _run_label(values: list) -> str:
+    """The values a run went through, each change once: ``1 → 2 → 3``."""
+    changes = [v for i, v in enumerate(values) if i == 0 or v != values[i - 1]]
+    shown = " → ".join(frames._text(v) for v in changes[:_MAX_LABEL_VALUES])
+    return shown + (" → …" if len(changes) > _MAX_LABEL_VALUES else "")
 
 
 @router.post("/annotations", summary="Annotations (classic SimpleJSON)")

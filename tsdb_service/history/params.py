@@ -12,6 +12,9 @@ from collections.abc import Mapping
 from datetime import UTC, datetime
 
 from ..errors import BadRequest
+from ..idpattern import compile_pattern
+from ..ngsi.names import ID_RULE, SERVICE_PATH_RULE, id_problem, normalize_service_path, service_path_problem
+from ..rawpath import unescape_segment
 from .query import (
     Aggregation,
     AggrMethod,
@@ -28,11 +31,12 @@ from .query import (
 )
 from .valuepath import parse_attr_list, parse_value_path
 
-_INT = re.compile(r"\+?\d{1,18}\Z")
-_MAX_PATTERN = 512
+_INT = re.compile(r"\+?[0-9]{1,20}\Z")
+# The largest integer any parameter may take (limits, offsets, lastN,
+# Grafana point counts): 2^53 - 1, exact in every JSON client.
+MAX_INT_PARAM = 2**53 - 1
 _MAX_IDS = 10_000
 _MAX_SERVICE_PATHS = 50
-_SP_COMPONENT = re.compile(r"[^/#\s]{1,256}\Z")
 
 _METHODS = {m.value: m for m in AggrMethod}
 _PERIODS = {p.value: p for p in AggrPeriod}
@@ -52,20 +56,21 @@ def history_query(
     attr: str | None = None,
     values_only: bool = False,
 ) -> HistoryQuery:
-    """One of the six history endpoints; path segments come as keywords."""
+    """One of the six history endpoints; path segments come as keywords,
+    as routed (see ``tsdb_service.rawpath``)."""
     get = params.get
     scope = Scope(tenant, service_paths(headers.get("fiware-servicepath")))
     if entity_id is not None:
-        _check_entity_id(entity_id, "entityId")
+        entity_id = _segment(entity_id, "entityId")
         entities = EntityFilter(ids=(entity_id,), types=_types(get("type")))
     elif entity_type is not None:
-        _check_name(entity_type, "entityType")
+        entity_type = _segment(entity_type, "entityType")
         entities = EntityFilter(ids=_ids(get("id")), id_pattern=_pattern(get("idPattern")), types=(entity_type,))
     else:
         entities = EntityFilter(ids=_ids(get("id")), id_pattern=_pattern(get("idPattern")), types=_types(get("type")))
 
     if attr is not None:
-        attrs: tuple[ValuePath, ...] | None = (parse_value_path(attr),)
+        attrs: tuple[ValuePath, ...] | None = (parse_value_path(unescape_segment(attr)),)
     else:
         attrs = parse_attr_list(get("attrs"))
 
@@ -115,10 +120,10 @@ def delete_query(
     get = params.get
     scope = Scope(tenant, service_paths(headers.get("fiware-servicepath")))
     if entity_id is not None:
-        _check_entity_id(entity_id, "entityId")
+        entity_id = _segment(entity_id, "entityId")
         entities = EntityFilter(ids=(entity_id,), types=_types(get("type")))
     else:
-        _check_name(entity_type or "", "entityType")
+        entity_type = _segment(entity_type or "", "entityType")
         entities = EntityFilter(types=(entity_type,))
     drop = get("dropTable")
     if drop is not None and drop.lower() not in ("true", "false"):
@@ -131,7 +136,8 @@ def delete_query(
 
 def service_paths(header: str | None) -> tuple[str, ...]:
     """``Fiware-ServicePath`` for a query: a comma list of paths, each
-    optionally ending in ``/#``. Missing or ``/`` means the whole tenant."""
+    optionally ending in ``/#``. Missing or ``/`` means the whole tenant.
+    Each path follows the ingest's rule (``ngsi.names``)."""
     if header is None or not header.strip():
         return ("/",)
     parts = [part.strip() for part in header.split(",")]
@@ -144,13 +150,10 @@ def service_paths(header: str | None) -> tuple[str, ...]:
             path = path[:-2] or "/"
         elif path == "#":
             path = "/"
-        if not path.startswith("/"):
-            raise BadRequest(f"bad Fiware-ServicePath {part[:80]!r}: each path must start with '/'")
-        if len(path) > 1:
-            path = path.rstrip("/") if path != "/" else path
-            components = path[1:].split("/")
-            if not all(_SP_COMPONENT.match(c) for c in components):
-                raise BadRequest(f"bad Fiware-ServicePath {part[:80]!r}")
+        path = normalize_service_path(path)
+        problem = service_path_problem(path)
+        if problem is not None:
+            raise BadRequest(f"bad Fiware-ServicePath {part[:80]!r}: {problem} ({SERVICE_PATH_RULE})")
         if path not in out:
             out.append(path)
     return ("/",) if "/" in out else tuple(out)
@@ -203,58 +206,63 @@ def aggregation(method: str | None, period: str | None, scope: str | None) -> Ag
 
 
 def geo_filter(params: Mapping[str, str]) -> object | None:
-    """``georel``, ``geometry`` and ``coords`` as a ``GeoFilter`` (or None)."""
+    """``georel``, ``geometry`` and ``coords`` as a ``GeoFilter`` (or None);
+    ``geoScope`` chooses sample (default) or entity semantics."""
     from ..geo.filter import parse_geo
 
-    return parse_geo(params.get("georel"), params.get("geometry"), params.get("coords"))
+    return parse_geo(params.get("georel"), params.get("geometry"), params.get("coords"), params.get("geoScope"))
+
+
+def int_param(raw: str | None, name: str, low: int) -> int | None:
+    """A decimal integer from ``low`` to ``MAX_INT_PARAM``, or None when absent.
+
+    The one integer rule of every endpoint: the bound keeps any value far
+    inside what both databases (64-bit) and JSON clients (53-bit) can hold,
+    so no integer a client sends can fail anywhere past this check."""
+    if raw is None or raw == "":
+        return None
+    text = raw.strip()
+    kind = "a positive" if low == 1 else "a non-negative" if low == 0 else f"an integer from {low}, as"
+    if not _INT.match(text) or int(text) < low:
+        raise BadRequest(f"{name} must be {kind} integer, not {raw[:40]!r}")
+    if int(text) > MAX_INT_PARAM:
+        raise BadRequest(f"{name} must be {kind} integer up to {MAX_INT_PARAM}, not {raw[:40]!r}")
+    return int(text)
 
 
 def _positive(raw: str | None, name: str) -> int | None:
-    if raw is None or raw == "":
-        return None
-    if not _INT.match(raw.strip()):
-        raise BadRequest(f"{name} must be a positive integer, not {raw[:40]!r}")
-    value = int(raw)
-    if value < 1:
-        raise BadRequest(f"{name} must be a positive integer, not {raw[:40]!r}")
-    return value
+    return int_param(raw, name, 1)
 
 
 def _non_negative(raw: str | None, name: str) -> int | None:
-    if raw is None or raw == "":
-        return None
-    if not _INT.match(raw.strip()):
-        raise BadRequest(f"{name} must be a non-negative integer, not {raw[:40]!r}")
-    return int(raw)
+    return int_param(raw, name, 0)
 
 
 def _ids(raw: str | None) -> tuple[str, ...] | None:
-    if raw is None:
-        return None
-    ids = tuple(dict.fromkeys(part.strip() for part in raw.split(",") if part.strip()))
-    if not ids:
-        return None
-    if len(ids) > _MAX_IDS:
+    ids = _id_list(raw, "id")
+    if ids is not None and len(ids) > _MAX_IDS:
         raise BadRequest(f"id lists at most {_MAX_IDS} entity ids")
     return ids
 
 
 def _types(raw: str | None) -> tuple[str, ...] | None:
+    return _id_list(raw, "type")
+
+
+def _id_list(raw: str | None, name: str) -> tuple[str, ...] | None:
+    """A comma list of entity ids or types, each following the ingest's rule."""
     if raw is None:
         return None
-    types = tuple(dict.fromkeys(part.strip() for part in raw.split(",") if part.strip()))
-    return types or None
+    items = tuple(dict.fromkeys(part.strip() for part in raw.split(",") if part.strip()))
+    for item in items:
+        check_id(item, name)
+    return items or None
 
 
 def _pattern(raw: str | None) -> str | None:
     if raw is None or raw == "":
         return None
-    if len(raw) > _MAX_PATTERN:
-        raise BadRequest(f"idPattern is longer than {_MAX_PATTERN} characters")
-    try:
-        re.compile(raw)
-    except re.error as exc:
-        raise BadRequest(f"idPattern is not a valid regular expression: {exc}") from None
+    compile_pattern(raw)  # RE2, linear time: see tsdb_service.idpattern
     return raw
 
 
@@ -263,11 +271,15 @@ def _no_options(raw: str | None) -> None:
         raise BadRequest(f"options={raw[:40]!r} is not supported", error="NotSupported")
 
 
-def _check_entity_id(value: str, name: str) -> None:
-    if not value or len(value) > 1024:
-        raise BadRequest(f"{name} must be 1 to 1024 characters")
+def _segment(raw: str, name: str) -> str:
+    """An entity id or type from a URL path segment."""
+    value = unescape_segment(raw)
+    check_id(value, name)
+    return value
 
 
-def _check_name(value: str, name: str) -> None:
-    if not value or len(value) > 1024:
-        raise BadRequest(f"{name} must be 1 to 1024 characters")
+def check_id(value: str, name: str) -> None:
+    """An entity id or type as the ingest accepts them (``ngsi.names``)."""
+    problem = id_problem(value)
+    if problem is not None:
+        raise BadRequest(f"{name} {value[:80]!r} {problem}: {ID_RULE}")

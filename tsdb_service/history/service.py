@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import orjson
 
+from .. import budget
 from ..errors import Conflict, NotFound, TsdbError
 from ..model import Kind
 from ..storage.base import Querier
@@ -130,14 +131,14 @@ def resolve_entity_series(
 
 
 def _geo_refs(querier, scope, entities, refs, geo, time):
-    """Keep the series of entities whose location matches (see geo.matching)."""
-    from ..geo.matching import keep_matching, matching_entities
+    """``(refs, querier)``: the series of entities with matching locations,
+    and a querier that reads only matching samples (see geo.matching)."""
+    from ..geo.matching import apply_geo
 
     if entities.ids is not None and len({r.entity_type for r in refs}) == 1:
         # A single-entity request resolved its type already: match within it.
         entities = EntityFilter(ids=entities.ids, id_pattern=entities.id_pattern, types=(refs[0].entity_type,))
-    candidates = {(r.entity_type, r.entity_id) for r in refs}
-    return keep_matching(refs, matching_entities(querier, scope, entities, geo, time, candidates))
+    return apply_geo(querier, scope, entities, refs, geo, time)
 
 
 def run_history(querier: Querier, q: HistoryQuery) -> HistoryResult:
@@ -147,7 +148,7 @@ def run_history(querier: Querier, q: HistoryQuery) -> HistoryResult:
     else:
         refs = querier.series(q.scope, q.entities, names)
     if refs and q.geo is not None:
-        refs = _geo_refs(querier, q.scope, q.entities, refs, q.geo, q.time)
+        refs, querier = _geo_refs(querier, q.scope, q.entities, refs, q.geo, q.time)
     if not refs:
         return HistoryResult(q, [])
     answer = _raw if q.aggregation is None else _aggregated
@@ -191,9 +192,10 @@ def _raw(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> list[Entit
     attr_count = len({r.attr for r in refs})
     n = min(q.last_n, q.limit) if q.last_n else q.limit
     rows = querier.raw_rows(
-        list(by_sid), q.time, newest_first=q.last_n is not None, limit=n, offset=q.offset,
+        list(by_sid), q.time, newest_first=q.last_n is not None, limit=budget.row_cap(n), offset=q.offset,
         one_per_row=attr_count == 1, attrs_per_row=attr_count,
     )
+    budget.charge_rows(len(rows))  # past the request's budget: 422 (tsdb_service.budget)
     if not rows:
         return []
     wanted = _columns_by_attr(q)
@@ -268,6 +270,7 @@ def _aggregated(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> lis
     for vp in path_columns:
         branches.append(AggBranch(tuple(r.sid for r in refs if r.attr == vp.attr), vp.steps))
     rows = querier.aggregate(branches, q.time, agg)
+    budget.charge_rows(len(rows))
 
     global_scope = agg.scope is AggrScope.GLOBAL
     # (group, column, bucket) -> [n_present, n_numeric, value, all_integer]
@@ -404,7 +407,7 @@ def _order(q: HistoryQuery, entities: list[EntityResult]) -> list[EntityResult]:
 def run_entity_list(querier: Querier, q: EntityListQuery) -> list[dict]:
     refs = querier.series(q.scope, q.entities, None)
     if refs and q.geo is not None:
-        refs = _geo_refs(querier, q.scope, q.entities, refs, q.geo, q.time)
+        refs, querier = _geo_refs(querier, q.scope, q.entities, refs, q.geo, q.time)
     if not refs:
         return []
     by_sid = {r.sid: r for r in refs}

@@ -9,8 +9,9 @@ simplified (keyValues) form (the ``Ngsild-Attribute-Format`` header, or
 ``Ngsiv2-AttrsFormat``). Without a usable header the body's shape decides,
 per attribute where formats can be mixed.
 
-Every attribute name must pass ``names.name_problem``, the rule the query
-parsers apply too: a name we could not be asked for is refused here.
+Every attribute name, entity id, entity type and service path must pass its
+rule in ``names``, the rules the query parsers apply too: a name we could not
+be asked for is refused here.
 
 The parser is pure (no I/O) and on the ingest hot path: it walks the decoded
 JSON once, builds samples directly, and raises only ``ParseError`` for input
@@ -19,7 +20,6 @@ it cannot use, so the route can answer 400 and keep the body for recovery.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -30,16 +30,21 @@ import orjson
 from tsdb_service.errors import ParseError
 from tsdb_service.geo.encodings import GEOMETRY_TYPES
 from tsdb_service.model import AttrSample, EntitySample, ld_series_name
-from tsdb_service.ngsi.names import RULE, name_problem
-from tsdb_service.ngsi.timeindex import TimeClues, parse_time, to_utc, watched_attributes
-from tsdb_service.ngsi.values import attr_sample, to_json
+from tsdb_service.ngsi.names import (
+    ID_RULE,
+    RULE,
+    SERVICE_PATH_RULE,
+    id_problem,
+    name_problem,
+    normalize_service_path,
+    service_path_problem,
+)
+from tsdb_service.ngsi.tenancy import TenantProblem, select_tenant, selectors
+from tsdb_service.ngsi.timeindex import FALLBACK_METADATA, TimeClues, parse_time, to_utc, watched_attributes
+from tsdb_service.ngsi.values import TooDeep, attr_sample, to_json
 
 DEFAULT_ENTITY_TYPE = "Thing"  # what Orion assigns when none is given
 LD_NULL = "urn:ngsi-ld:null"  # NGSI-LD's value of a deleted attribute
-
-# Tenant names as Orion accepts them; checked before lower-casing so that
-# non-ASCII letters which lower-case to ASCII (the Kelvin sign) are refused.
-_TENANT = re.compile(r"[A-Za-z0-9_]{1,50}\Z")
 
 # How the body is laid out.
 _V2 = "v2"  # {"subscriptionId", "data": [entities]}
@@ -66,7 +71,6 @@ _FORMAT_HEADER = {
 # Ngsild-Attribute-Format (Orion-LD writes Normalized, Concise, Simplified):
 # does every attribute come as its bare value?
 _LD_FORMAT_HEADER = {"normalized": False, "concise": False, "simplified": True, "keyvalues": True}
-_LD_LAYOUTS = frozenset({_LD, _LD_SIMPLIFIED, _GEOJSON, _GEOJSON_SIMPLIFIED})
 
 # How error messages locate an entity in the body.
 _ENTITY_LABELS = {_SIMPLIFIED: "entity", _SIMPLIFIED_KEY_VALUES: "entity", _SIMPLIFIED_AUTO: "entity",
@@ -129,7 +133,7 @@ def parse_notification(
     doc = _load(body)
     format_header = hdrs.get("ngsiv2-attrsformat")
     layout = _layout(doc, format_header, hdrs.get("ngsild-attribute-format"))
-    tenant = _tenant(hdrs, ld=layout in _LD_LAYOUTS or format_header is None)
+    tenant = _tenant(headers)
     header_attr = hdrs.get("fiware-timeindex-attribute", "").strip() or None
     ctx = _Context(watched_attributes(header_attr), header_attr, to_utc(received_at))
     layout, entities = _entities(doc, layout, tenant, values_layout)
@@ -231,14 +235,12 @@ def _data(doc: dict) -> list:
     return data
 
 
-def _tenant(hdrs: dict[str, str], *, ld: bool) -> str:
-    """Orion stores tenants lower-cased; NGSI-LD names its own header."""
-    raw = (hdrs.get("ngsild-tenant", "").strip() if ld else "") or hdrs.get("fiware-service", "").strip()
-    if not raw:
-        return ""
-    if not _TENANT.match(raw):
-        raise ParseError(f"invalid tenant {raw[:60]!r}: at most 50 characters of letters, digits and '_'")
-    return raw.lower()
+def _tenant(headers: Mapping[str, str]) -> str:
+    """The one tenant rule of ``ngsi.tenancy`` (the queries apply it too)."""
+    try:
+        return select_tenant(selectors((str(k), _header_text(v)) for k, v in headers.items()))
+    except TenantProblem as exc:
+        raise ParseError(str(exc)) from None
 
 
 def _service_paths(header: str | None, count: int) -> list[str]:
@@ -254,13 +256,12 @@ def _service_paths(header: str | None, count: int) -> list[str]:
 
 
 def _service_path(path: str) -> str:
-    if not path.startswith("/"):
-        raise ParseError(f"service path {path[:60]!r} must start with '/'")
-    if "//" in path:
-        raise ParseError(f"service path {path[:60]!r} has an empty component")
-    if "#" in path:
-        raise ParseError(f"service path {path[:60]!r}: '#' is only valid in queries")
-    return path[:-1] if len(path) > 1 and path.endswith("/") else path
+    path = normalize_service_path(path)
+    problem = service_path_problem(path)
+    if problem is not None:
+        raise ParseError(f"service path {path[:60]!r} {problem}; we store only paths every query can name: "
+                         f"{SERVICE_PATH_RULE}")
+    return path
 
 
 def _where(label: str, index: int) -> str:
@@ -272,14 +273,32 @@ def _entity_sample(parse, raw: Any, where: str, tenant: str, path: str, ctx: _Co
     if type(raw) is not dict:
         raise ParseError(f"{where} must be an entity object, got {_json_kind(raw)}")
     clues = TimeClues(ctx.header_attr, ctx.watched)
-    entity_id, entity_type, attrs = parse(raw, where, clues)
+    try:
+        entity_id, entity_type, attrs = parse(raw, where, clues)
+    except TooDeep as exc:
+        raise ParseError(f"{where}: {exc.description}") from None
     for attr in attrs:
         problem = name_problem(attr.name)
         if problem is not None:
             raise ParseError(f"{where}: attribute name {attr.name[:80]!r} {problem}; we store only names "
                              f"every endpoint can be asked for: {RULE}")
-    return EntitySample(tenant, path, entity_id, entity_type, clues.resolve(ctx.received_at), attrs,
+    time_index = clues.resolve(ctx.received_at)
+    if clues.unusable:
+        _mark_fallback(attrs, clues.unusable)
+    return EntitySample(tenant, path, entity_id, entity_type, time_index, attrs,
                         _ld_entity_deleted_at(raw) if parse in _LD_ENTITY_PARSERS else None)
+
+
+def _mark_fallback(attrs: list[AttrSample], unusable: tuple[str, ...]) -> None:
+    """Record in each sample's metadata that its time is the reception time
+    because these sources were not times (rare: the hot path never gets here).
+    A sender's own metadata item of that name is kept as sent."""
+    item = {"type": "StructuredValue", "value": list(unusable)}
+    for attr in attrs:
+        md = orjson.loads(attr.md) if attr.md else {}
+        if FALLBACK_METADATA not in md:
+            md[FALLBACK_METADATA] = item
+            attr.md = orjson.dumps(md).decode()
 
 
 # --- entity heads --------------------------------------------------------------
@@ -289,6 +308,7 @@ def _entity_id(entity: dict, where: str) -> str:
     entity_id = entity.get("id")
     if type(entity_id) is not str or not entity_id:
         raise ParseError(f"{where}: entity id must be a non-empty string, got {_json_kind(entity_id)}")
+    _check_id(entity_id, "entity id", where)
     return entity_id
 
 
@@ -301,7 +321,15 @@ def _entity_type(entity: dict, where: str) -> str:
         return DEFAULT_ENTITY_TYPE
     if type(entity_type) is not str:
         raise ParseError(f"{where}: entity type must be a string, got {_json_kind(entity_type)}")
+    _check_id(entity_type, "entity type", where)
     return entity_type
+
+
+def _check_id(value: str, what: str, where: str) -> None:
+    problem = id_problem(value)
+    if problem is not None:
+        raise ParseError(f"{where}: {what} {value[:80]!r} {problem}; we store only ids and types every "
+                         f"endpoint can be asked for: {ID_RULE}")
 
 
 # --- NGSIv2 --------------------------------------------------------------------

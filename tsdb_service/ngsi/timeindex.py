@@ -12,6 +12,19 @@ of these that yields a valid time:
 6. a ``dateModified`` attribute, else the newest ``dateModified`` metadata;
 7. the reception time.
 
+A source that is present but cannot be a time (``0000-01-01``, year 99999,
+epoch ``1e20``, a boolean, ``"n/a"``) is skipped like a missing one. When
+that leaves the reception time, the fallback is recorded: every attribute
+sample of the entity gets the metadata item ``timeIndexFallback`` naming the
+unusable sources, and ``on_fallback`` (a Prometheus counter) counts every
+entity stored at the reception time.
+
+Epoch numbers: a magnitude below 10^12 is seconds, from 10^12 on
+milliseconds. Every instant of the years 1 to 9999 in seconds is below
+2.6 * 10^11, so none is read as milliseconds; seconds beyond the year 9999
+(up to 10^12) are not a time, rather than a 1970s instant in milliseconds.
+Milliseconds are therefore read from 2001-09-09 on (and before 1938-04-24).
+
 Sources are collected raw while the entity is parsed and only read when
 their rule is reached, so a notification with a ``TimeInstant`` attribute
 never pays for parsing metadata times.
@@ -27,9 +40,13 @@ from typing import Any
 UTC = timezone.utc
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 
-# Epoch numbers this large are milliseconds: 1e11 s is the year 5138, while
-# 1e11 ms is 1973, so the two ranges do not overlap for real data.
-_MILLIS_THRESHOLD = 1e11
+# Epoch numbers this large are milliseconds (see the module docstring): the
+# last second of the year 9999 is 253402300799, far below it.
+_MILLIS_THRESHOLD = 1e12
+
+# The metadata item that marks a sample stored at the reception time because
+# its entity's time sources could not be read.
+FALLBACK_METADATA = "timeIndexFallback"
 
 WATCHED_ATTRIBUTES = frozenset({"TimeInstant", "timestamp", "dateModified"})
 
@@ -50,7 +67,7 @@ def parse_time(value: Any) -> datetime | None:
     Strings must be ISO 8601 extended format starting ``YYYY-MM-DD``: that
     shape check is what stops QuantumLeap's bug of reading ``"5"`` as a
     date, and it is cheap enough to run on every inferred string. Numbers are
-    epoch seconds (milliseconds when large); numeric strings are not times.
+    epoch seconds, or milliseconds from 10^12 on; numeric strings are not times.
     NGSI-LD typed literals (``{"@type": "DateTime", "@value": ...}``) are
     read through their ``@value``.
     """
@@ -123,7 +140,8 @@ def _meta_value(item: Any) -> Any:
 class TimeClues:
     """Raw time sources seen while parsing one entity, resolved on demand."""
 
-    __slots__ = ("header_attr", "watched", "values", "time_instant_md", "date_modified_md", "observed_at", "modified_at")
+    __slots__ = ("header_attr", "watched", "values", "time_instant_md", "date_modified_md", "observed_at",
+                 "modified_at", "unusable")
 
     def __init__(self, header_attr: str | None, watched: frozenset[str]):
         self.header_attr = header_attr
@@ -133,6 +151,9 @@ class TimeClues:
         self.date_modified_md: list[Any] = []
         self.observed_at: list[Any] = []
         self.modified_at: Any = None
+        # After ``resolve`` fell back to the reception time: the sources that
+        # were present but not a time (empty when there were none).
+        self.unusable: tuple[str, ...] = ()
 
     def note_value(self, name: str, value: Any) -> None:
         if name in self.watched:
@@ -147,24 +168,28 @@ class TimeClues:
             self.date_modified_md.append(_meta_value(modified))
 
     def resolve(self, received_at: datetime) -> datetime:
-        for moment in self._candidates():
-            if moment is not None:
-                return moment
+        for _, raw, read in self._candidates():
+            if raw is not None and raw != []:
+                moment = read(raw)
+                if moment is not None:
+                    return moment
         on_fallback()
+        self.unusable = tuple(dict.fromkeys(
+            label for label, raw, _ in self._candidates() if raw is not None and raw != []))
         return received_at
 
     def _candidates(self):
-        """The rules of the module docstring, in order, evaluated lazily."""
+        """The rules of the module docstring, in order: ``(source, raw, reader)``."""
         values = self.values
         if self.header_attr is not None:
-            yield parse_time(values.get(self.header_attr))
-        yield parse_time(values.get("TimeInstant"))
-        yield _newest(self.time_instant_md)
-        yield parse_time(values.get("timestamp"))
-        yield _newest(self.observed_at)
-        yield parse_time(self.modified_at)
-        yield parse_time(values.get("dateModified"))
-        yield _newest(self.date_modified_md)
+            yield self.header_attr, values.get(self.header_attr), parse_time
+        yield "TimeInstant", values.get("TimeInstant"), parse_time
+        yield "TimeInstant metadata", self.time_instant_md, _newest
+        yield "timestamp", values.get("timestamp"), parse_time
+        yield "observedAt", self.observed_at, _newest
+        yield "modifiedAt", self.modified_at, parse_time
+        yield "dateModified", values.get("dateModified"), parse_time
+        yield "dateModified metadata", self.date_modified_md, _newest
 
 
 def watched_attributes(header_attr: str | None) -> frozenset[str]:

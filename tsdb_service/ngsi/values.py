@@ -27,7 +27,6 @@ Leniency rules, because a notification is history we must not lose:
 from __future__ import annotations
 
 import ast
-import json
 import math
 import re
 from collections.abc import Callable
@@ -50,6 +49,14 @@ _FIROS_MAX_CHARS = 1 << 20
 _FIROS_MAX_DEPTH = 64
 
 _TRUE_FALSE = {"true": True, "false": False}
+
+# How deep a stored value (or metadata object) may nest objects and arrays.
+# Answers wrap a value in at most ~10 levels of their own (``/v2/attrs``,
+# Grafana frames) and the encoder stops at 254, so everything accepted under
+# this limit can be rendered on every read path. ROS messages, the deepest
+# values seen in practice, nest fewer than 10 levels.
+MAX_DEPTH = 100
+_TOO_DEEP = f"value or metadata nested more than {MAX_DEPTH} levels deep (objects and arrays); not stored"
 
 Handler = Callable[[str, str, Any, "str | None"], AttrSample]
 
@@ -75,20 +82,44 @@ def attr_sample(name: str, ngsi_type: str | None, value: Any, md: str | None) ->
     return handler(name, ngsi_type, value, md)
 
 
-def to_json(value: Any) -> str:
-    """Compact JSON text, keys in received order.
+class TooDeep(ParseError):
+    """A value over the nesting limit (the parser adds where it was)."""
 
-    orjson refuses nesting deeper than 254 levels, which orjson.loads does
-    accept; the stdlib encoder covers that rare case before giving up.
+
+def to_json(value: Any) -> str:
+    """Compact JSON text, keys in received order, at most ``MAX_DEPTH`` deep.
+
+    Every stored value and metadata object passes here, so this is where the
+    nesting limit is enforced: a deeper value would be accepted and then
+    break every read that includes it (the response encoder stops at 254
+    levels, and an answer wraps the value in a few levels of its own).
     """
     try:
-        return orjson.dumps(value).decode()
+        text = orjson.dumps(value).decode()
     except orjson.JSONEncodeError:
-        pass
-    try:
-        return json.dumps(value, separators=(",", ":"), allow_nan=False)
-    except (ValueError, TypeError, RecursionError) as exc:
-        raise ParseError(f"value cannot be stored as JSON ({exc.__class__.__name__}: nested too deeply?)") from None
+        raise TooDeep(_TOO_DEEP) from None
+    # Depth cannot exceed the number of brackets: most values stop here.
+    if text.count("[") + text.count("{") > MAX_DEPTH and _deeper_than(value, MAX_DEPTH):
+        raise TooDeep(_TOO_DEEP)
+    return text
+
+
+def _deeper_than(value: Any, limit: int) -> bool:
+    """Whether ``value`` nests more than ``limit`` objects or arrays, walked
+    level by level (no recursion: the caller may be deep in its own)."""
+    level = [value] if type(value) is dict or type(value) is list else []
+    depth = 0
+    while level:
+        depth += 1
+        if depth > limit:
+            return True
+        inner = []
+        for item in level:
+            for child in item.values() if type(item) is dict else item:
+                if type(child) is dict or type(child) is list:
+                    inner.append(child)
+        level = inner
+    return False
 
 
 def parse_number(value: Any) -> float | None:

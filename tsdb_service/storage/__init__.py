@@ -1,17 +1,65 @@
-"""Storage backends behind one seam (see ``base``)."""
+"""Storage backends behind one seam (see ``base``).
+
+Opening a store is where an operator's mistakes show up: a DuckDB file held
+by another process, a directory we cannot write, a PostgreSQL server that is
+down, a database or role that does not exist. ``open_store`` turns each into
+a ``StoreUnavailable`` whose message is one line saying what is wrong and
+what to do, so every command (and the service's start-up) can print it
+instead of a driver's traceback.
+"""
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 from ..config import Settings
 from .base import Store
+from .rejected import RejectedLimits
+
+PG_CONNECT_TIMEOUT_S = 10
 
 
-def open_store(settings: Settings) -> Store:
-    """Open the backend named by ``settings.db``; migrations run on open."""
+class StoreUnavailable(RuntimeError):
+    """The store cannot be opened; the message is one line for an operator."""
+
+
+def open_store(settings: Settings, *, background: bool = False) -> Store:
+    """Open the backend named by ``settings.db``; migrations run on open.
+
+    ``background`` (the server): also start the retention worker when a
+    policy is set (``storage.retention``). Offline commands (copy, compact)
+    never delete by retention behind the operator's back."""
+    from .retention import attach_retention
+
+    store = _open_explained(settings)
+    try:
+        attach_retention(store, settings, start=background)
+    except BaseException:
+        store.close()
+        raise
+    return store
+
+
+def _open_explained(settings: Settings) -> Store:
+    """``_open``, with an operator's mistakes as one-line ``StoreUnavailable``s."""
+    try:
+        return _open(settings)
+    except StoreUnavailable:
+        raise
+    except Exception as exc:
+        message = explain(exc, settings.db)
+        if message is None:
+            raise
+        raise StoreUnavailable(message) from exc
+
+
+def _open(settings: Settings) -> Store:
     if settings.backend == "postgresql":
         from .postgres_store import PostgresStore
 
-        return PostgresStore(settings.db, writer_threads=settings.writer_threads or 3)
+        return PostgresStore(settings.db, writer_threads=settings.writer_threads or 3,
+                             rejected_limits=RejectedLimits.from_settings(settings))
     from .duckdb_store import DuckDBStore
 
     return DuckDBStore(
@@ -22,4 +70,140 @@ def open_store(settings: Settings) -> Store:
         tail_series=settings.tail_cache_series,
         tail_rows=settings.tail_cache_rows,
         tail_samples=settings.tail_cache_samples,
+        checkpoint_bytes=settings.wal_checkpoint_bytes,
+        rejected_limits=RejectedLimits.from_settings(settings),
     )
+
+
+def check_store(settings: Settings) -> None:
+    """Connect once and disconnect, raising ``StoreUnavailable`` on failure.
+
+    Cheap (no migrations, no caches): ``serve`` calls it before starting the
+    web server, so a wrong ``--db`` is one line and exit status 2 rather than
+    a failed application start-up inside uvicorn.
+    """
+    try:
+        if settings.backend == "postgresql":
+            import psycopg
+
+            psycopg.connect(settings.db, connect_timeout=PG_CONNECT_TIMEOUT_S).close()
+            return
+        import duckdb
+
+        if settings.db != ":memory:":
+            Path(settings.db).parent.mkdir(parents=True, exist_ok=True)
+        duckdb.connect(settings.db).close()
+    except Exception as exc:
+        message = explain(exc, settings.db)
+        if message is None:
+            raise
+        raise StoreUnavailable(message) from exc
+
+
+def require_history(db: str) -> None:
+    """``db`` must already hold tsdb-service history: a source to copy from or
+    a file to compact is never created by accident (a typo would otherwise
+    make an empty database and report success)."""
+    if Settings(db=db).backend == "postgresql":
+        _require_pg_schema(db)
+        return
+    path = Path(db)
+    if not path.exists():
+        raise StoreUnavailable(f"{db} does not exist")
+    if not path.is_file():
+        raise StoreUnavailable(f"{db} is not a file")
+    import duckdb
+
+    try:
+        con = duckdb.connect(db, read_only=True)
+    except Exception as exc:
+        raise StoreUnavailable(explain(exc, db) or str(exc)) from exc
+    try:
+        found = con.execute(
+            "SELECT count(*) FROM information_schema.tables WHERE table_name = 'schema_migrations'"
+        ).fetchone()[0]
+    finally:
+        con.close()
+    if not found:
+        raise StoreUnavailable(f"{db} is a DuckDB file without tsdb-service history")
+
+
+def _require_pg_schema(url: str) -> None:
+    import psycopg
+
+    try:
+        with psycopg.connect(url, connect_timeout=PG_CONNECT_TIMEOUT_S) as conn:
+            found = conn.execute("SELECT to_regclass('schema_migrations') IS NOT NULL").fetchone()[0]
+    except Exception as exc:
+        raise StoreUnavailable(explain(exc, url) or str(exc)) from exc
+    if not found:
+        raise StoreUnavailable(f"{redact(url)} holds no tsdb-service history")
+
+
+def explain(exc: BaseException, db: str) -> str | None:
+    """One line for a failure to open ``db``, or None when it is not an
+    operator's problem (then the traceback is wanted: it is a bug)."""
+    if isinstance(exc, OSError):
+        return _explain_os(exc, db)
+    module = type(exc).__module__
+    if module.startswith(("duckdb", "_duckdb")):
+        return _explain_duckdb(exc, db)
+    if module.startswith("psycopg"):
+        return _explain_pg(exc, db)
+    if isinstance(exc, RuntimeError) and exc.__cause__ is not None:  # e.g. the lock message of connect()
+        return explain(exc.__cause__, db) or str(exc)
+    return None
+
+
+def _explain_os(exc: OSError, db: str) -> str:
+    reason = (exc.strerror or str(exc)).lower()
+    if exc.filename and str(Path(db).parent).startswith(str(exc.filename)):
+        return f"cannot create the directory of {db}: {reason} ({exc.filename})"
+    return f"cannot use {db}: {reason}" + (f" ({exc.filename})" if exc.filename else "")
+
+
+def _explain_duckdb(exc: BaseException, db: str) -> str | None:
+    text = str(exc)
+    if "lock" in text.lower():
+        pid = re.search(r"\(PID (\d+)\)", text)
+        holder = f" (PID {pid[1]})" if pid else ""
+        return (f"{db} is open in another process{holder}: DuckDB allows one process per file; stop it, "
+                "or use PostgreSQL (--db postgresql://...) to run several")  # fmt: skip
+    if "Permission denied" in text:
+        return f"cannot write {db}: permission denied (is {Path(db).parent or '.'} writable by this user?)"
+    if "not a valid DuckDB database file" in text:
+        return f"{db} is not a DuckDB database file"
+    if "Is a directory" in text:
+        return f"{db} is a directory: give a file path, e.g. {Path(db) / 'tsdb.duckdb'}"
+    if "Cannot open file" in text or "No such file" in text:
+        return f"cannot open {db}: {text.rsplit(':', 1)[-1].strip()}"
+    if "IO Error" in text:
+        return f"cannot use {db}: {_one_line(text)}"
+    return None
+
+
+def _explain_pg(exc: BaseException, db: str) -> str | None:
+    text = _one_line(str(exc)).removeprefix("connection failed: ")
+    where = redact(db)
+    database = re.search(r'database "([^"]+)" does not exist', text)
+    if database:
+        return f"PostgreSQL database {database[1]!r} does not exist ({where}): create it (createdb {database[1]})"
+    role = re.search(r'role "([^"]+)" does not exist', text)
+    if role:
+        return f"PostgreSQL role {role[1]!r} does not exist ({where}): create it (CREATE ROLE ... LOGIN)"
+    import psycopg
+
+    if isinstance(exc, psycopg.errors.InsufficientPrivilege):
+        return f"PostgreSQL refused {where}: {text}"
+    if isinstance(exc, psycopg.OperationalError):
+        return f"cannot connect to PostgreSQL at {where}: {text}"
+    return None
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def redact(url: str) -> str:
+    """A URL fit for messages and logs: the password replaced by ``***``."""
+    return re.sub(r"^(postgres(?:ql)?://[^:/@]*):[^@/]*@", r"\1:***@", url)

@@ -191,6 +191,16 @@ class Store(ABC):
     """A database with one writer and many readers."""
 
     backend: str
+    # Retention and rollups (storage/retention.py): the background worker,
+    # when a policy is set, and whether rollup rows may exist.
+    retention = None
+    rollup_presence = None
+
+    def stop_retention(self) -> None:
+        """Stop the retention worker (its batch in progress finishes first);
+        ``close`` calls this before anything else."""
+        if self.retention is not None:
+            self.retention.stop()
 
     @abstractmethod
     async def write(self, op: WriteOp) -> None:
@@ -211,6 +221,11 @@ class Store(ABC):
     def rejected(self, tenant: str | None, limit: int, offset: int) -> list[dict[str, Any]]:
         """Rejected notifications of one tenant, newest first; ``None``: every
         tenant (the operator's listing)."""
+
+    def rejected_page(self, tenant: str | None, limit: int, offset: int, max_bytes: int):
+        """``rejected`` paged by rendered size too: ``(rows, next offset or
+        None)``; at least one row, however big (``storage.rejected.page``)."""
+        raise NotImplementedError
 
     @abstractmethod
     def health(self) -> dict[str, Any]: ...

@@ -18,12 +18,13 @@ Readers never lock: a refresh builds new containers and swaps them in.
 
 from __future__ import annotations
 
-import re
 import threading
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
+from .. import budget
 from ..history.query import EntityFilter, Scope
+from ..idpattern import compiled
 from ..model import ld_attr_name
 
 
@@ -141,7 +142,9 @@ class SeriesCatalog:
         ):
             # "attribute A of every entity of type T": the common dashboard and
             # geo question, answered by one index look-up per (T, A).
-            return [r for t in entities.types for a in attr_set for r in index.by_type_attr.get((t, a), ())]
+            found = [r for t in entities.types for a in attr_set for r in index.by_type_attr.get((t, a), ())]
+            budget.check_series(len(found))
+            return found
         if entities.ids is not None:
             candidates: Iterable[SeriesRef] = [r for eid in entities.ids for r in index.by_entity.get(eid, ())]
         elif attr_set is not None and len(attr_set) <= 4:
@@ -154,7 +157,7 @@ class SeriesCatalog:
         else:
             candidates = index.all
         types = set(entities.types) if entities.types is not None else None
-        pattern = re.compile(entities.id_pattern) if entities.id_pattern else None
+        pattern = compiled(entities.id_pattern) if entities.id_pattern else None
         whole = scope.whole_tenant
         out = []
         for ref in candidates:
@@ -167,6 +170,7 @@ class SeriesCatalog:
             if pattern is not None and pattern.search(ref.entity_id) is None:
                 continue
             out.append(ref)
+        budget.check_series(len(out))  # the request's series budget (tsdb_service.budget)
         return out
 
 

@@ -2,20 +2,32 @@
 
 Samples are streamed from the source in row-id order, regrouped into the
 entity notifications they came from (one ``rid`` = one entity in one
-notification), and written through the target's normal writer in big
-batches, so the target assigns its own ids and keeps its own layout. Values
-layouts and rejected notifications come along. At the end the number of
-samples per tenant is compared on both sides.
+notification), and written through the target's normal writer in batches,
+so the target assigns its own ids and keeps its own layout. Values layouts
+and rejected notifications come along.
+
+Safe to run again, by design:
+
+* the target must be empty, unless ``--append`` says to add to what it holds
+  (a second copy into the same target would otherwise double all history);
+* each batch is committed alone, in source order, and the run is recorded in
+  the target's ``copy_runs`` table; after an interruption the same command
+  resumes where the target's committed samples end;
+* at the end the target's totals per tenant must equal what it held before
+  plus the source's: totals, not what this run believes it added.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from collections.abc import Iterator
-from datetime import UTC
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
 
-from ..config import Settings
+from ..config import Settings, check_db
 from ..model import AttrSample, EntitySample, Geometry, Kind, RejectedNotification
 from .base import AppendSamples, PutLayout, RecordRejected, Store
 
@@ -24,79 +36,197 @@ SAMPLE_COLUMNS = (
     "observed_at, created_at, modified_at, deleted_at"
 )  # instance ids are the target's own: an instanceId names an instance in one store
 BATCH_ROWS = 50_000
+REJECTED_BATCH = 500
+
+
+class CopyRefused(RuntimeError):
+    """The copy cannot (safely) run; the message says why and what to do."""
+
+
+class CopyNotVerified(CopyRefused):
+    """The copy ran but the target's totals are not what they must be."""
 
 
 def register(subparsers, command) -> None:
-    p = subparsers.add_parser("copy", help="copy all history from one backend to another")
-    p.add_argument("--from", dest="source", required=True, help="DuckDB file or postgresql:// URL to read")
-    p.add_argument("--to", dest="target", required=True, help="DuckDB file or postgresql:// URL to write")
-    p.add_argument("--quiet", action="store_true", help="no progress line")
+    p = subparsers.add_parser(
+        "copy", help="copy all history from one backend to another",
+        description="Copy every sample, 'values' layout and rejected notification from --from into --to, "
+        "then check the totals. The target must be empty unless --append is given. An interrupted copy "
+        "resumes when the same command is run again.",
+    )  # fmt: skip
+    p.add_argument("--from", dest="source", required=True, metavar="PATH|URL",
+                   help="DuckDB file or postgresql:// URL to read; must exist and hold tsdb-service history")
+    p.add_argument("--to", dest="target", required=True, metavar="PATH|URL",
+                   help="DuckDB file or postgresql:// URL to write (created if it is a new DuckDB file)")
+    p.add_argument("--append", action="store_true",
+                   help="add to a target that already holds history (default: refuse a non-empty target)")
+    p.add_argument("--batch-rows", type=_positive_int, default=BATCH_ROWS, metavar="ROWS",
+                   help=f"samples committed per batch; an interruption loses at most one (default {BATCH_ROWS})")
+    p.add_argument("--quiet", action="store_true", help="no progress line (default: progress on stderr)")
+    command("copy")(cmd_copy)  # fmt: skip
 
-    @command("copy")
-    def cmd_copy(args) -> int:
-        if args.source == args.target:
-            print("error: --from and --to are the same store", file=sys.stderr)
-            return 2
-        from . import open_store
 
-        source = open_store(Settings(db=args.source))
+def cmd_copy(args) -> int:
+    from . import open_store, require_history
+
+    source_db, target_db = _checked(args.source, "--from"), _checked(args.target, "--to")
+    if store_identity(source_db) == store_identity(target_db):
+        raise CopyRefused("--from and --to are the same store")
+    require_history(source_db)
+    source = open_store(Settings(db=source_db))
+    try:
+        target = open_store(Settings(db=target_db))
         try:
-            target = open_store(Settings(db=args.target))
-            try:
-                report = copy_history(source, target, progress=not args.quiet)
-            finally:
-                target.close()
-        finally:
-            source.close()
-        for tenant, (src, dst) in sorted(report.items()):
-            print(f"tenant {tenant or '(default)'}: {src} samples in source, {dst} in target")
-        bad = {t: c for t, c in report.items() if c[1] < c[0]}
-        if bad:
-            print(f"error: target has fewer samples than source for {sorted(bad)}", file=sys.stderr)
+            report = copy_history(source, target, source_id=store_identity(source_db),
+                                  append=args.append, progress=not args.quiet, batch_rows=args.batch_rows)
+        except CopyNotVerified as exc:
+            print(f"error: {exc}", file=sys.stderr)
             return 1
-        print("copy verified")
-        return 0
+        except KeyboardInterrupt:
+            print(f"\ninterrupted: run the same command again to resume the copy into {target_db}",
+                  file=sys.stderr)  # fmt: skip
+            return 130
+        finally:
+            target.close()
+    finally:
+        source.close()
+    for tenant, (src, dst) in sorted(report.tenants.items()):
+        print(f"tenant {tenant or '(default)'}: {src} samples in source, {dst} copied into target")
+    if report.resumed_from:
+        print(f"resumed an interrupted copy: {report.resumed_from} samples were already there")
+    print(f"copy verified: the target holds {report.target_total} samples, "
+          f"{report.target_rejected} rejected notifications")  # fmt: skip
+    return 0
 
 
-def copy_history(source: Store, target: Store, *, progress: bool = False) -> dict[str, tuple[int, int]]:
-    """Copy everything; return {tenant: (source samples, target samples)}."""
+def _positive_int(text: str) -> int:
+    import argparse
+
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError("must be at least 1")
+    return value
+
+
+def _checked(db: str, flag: str) -> str:
+    try:
+        return check_db(db)
+    except ValueError as exc:
+        raise CopyRefused(f"{flag}: {exc}") from None
+
+
+def store_identity(db: str) -> str:
+    """What a store is called in ``copy_runs`` and compared by: a DuckDB file's
+    absolute path, or the URL without its password."""
+    from . import redact
+
+    if Settings(db=db).backend == "postgresql":
+        return redact(db)
+    return db if db == ":memory:" else str(Path(db).resolve())
+
+
+@dataclass
+class CopyReport:
+    tenants: dict[str, tuple[int, int]]  # tenant → (source samples, samples this copy put in the target)
+    target_total: int
+    target_rejected: int
+    resumed_from: int = 0  # samples already copied by an interrupted run
+
+
+@dataclass(frozen=True)
+class _Run:
+    """A copy into the target, as recorded in its ``copy_runs``."""
+
+    base_counts: dict[str, int]
+    base_rejected: int
+    source_samples: int
+
+
+def copy_history(source: Store, target: Store, *, source_id: str, append: bool = False,
+                 progress: bool = False, batch_rows: int = BATCH_ROWS) -> CopyReport:  # fmt: skip
+    """Copy everything not yet copied, verify totals, record the run as finished."""
+    src_counts = _counts(source)
+    src_total = sum(src_counts.values())
+    run = _resume_or_start(target, source_id, src_total, append)
+    already = sum(_counts(target).values()) - sum(run.base_counts.values())
+    _copy_samples(source, target, skip=already, total=src_total, progress=progress, batch_rows=batch_rows)
+    _copy_side_tables(source, target, resumed=already > 0 or _rejected_count(target) > run.base_rejected)
+    after, rejected = _counts(target), _rejected_count(target)
+    _verify(src_counts, run, after, rejected, _rejected_count(source))
+    _execute(target, "UPDATE copy_runs SET finished_at = ? WHERE source = ? AND finished_at IS NULL",
+             [_utcnow(), source_id])  # fmt: skip
+    tenants = {t: (src_counts.get(t, 0), after.get(t, 0) - run.base_counts.get(t, 0))
+               for t in set(src_counts) | set(after)}  # fmt: skip
+    return CopyReport(tenants, sum(after.values()), rejected, already)
+
+
+def _resume_or_start(target: Store, source_id: str, src_total: int, append: bool) -> _Run:
+    """The unfinished run from this source to resume, or a new one recorded now."""
+    unfinished = target.querier()._fetch(
+        "SELECT source, base_counts, base_rejected, source_samples FROM copy_runs WHERE finished_at IS NULL", [])
+    for source, base_counts, base_rejected, source_samples in unfinished:
+        if source != source_id:
+            raise CopyRefused(
+                f"the target holds an interrupted copy from {source}: resume it with `tsdb-service copy "
+                f"--from {source} --to ...`, or copy into a new, empty target")
+        if source_samples != src_total:
+            raise CopyRefused(
+                f"the source changed since the interrupted copy began ({source_samples} samples then, "
+                f"{src_total} now): copy into a new, empty target instead")
+        return _Run(json.loads(base_counts), int(base_rejected), int(source_samples))
+    counts, rejected = _counts(target), _rejected_count(target)
+    if (counts or rejected) and not append:
+        raise CopyRefused(
+            f"the target already holds {sum(counts.values())} samples and {rejected} rejected notifications: "
+            "copying would add the source's history to them. Give --append to do that on purpose, "
+            "or copy into a new, empty target")
+    _execute(target, "INSERT INTO copy_runs (source, started_at, base_counts, base_rejected, source_samples) "
+             "VALUES (?, ?, ?, ?, ?)", [source_id, _utcnow(), json.dumps(counts), rejected, src_total])  # fmt: skip
+    return _Run(counts, rejected, src_total)
+
+
+def _copy_samples(source: Store, target: Store, *, skip: int, total: int, progress: bool, batch_rows: int) -> None:
+    """Stream the source in row-id order, skipping the prefix already copied; one
+    committed batch at a time, so the target always holds a prefix of the source."""
     reader = source.querier()
-    before = _counts(target)
     series = {row[0]: row[1:] for row in reader._fetch(
         "SELECT sid, tenant, service_path, entity_id, entity_type, attr, dataset_id FROM series", [])}
-    total = sum(_counts(source).values())
-    copied, started = 0, time.monotonic()
+    copied, started = skip, time.monotonic()
     batch: list[EntitySample] = []
     rows_in_batch = 0
-    for entity, n in _entities(source, series):
+    for entity, n in _entities(source, series, skip):
         batch.append(entity)
         rows_in_batch += n
-        if rows_in_batch >= BATCH_ROWS:
+        if rows_in_batch >= batch_rows:
             target.write_sync([AppendSamples(batch, dedup=False)])
             copied += rows_in_batch
             batch, rows_in_batch = [], 0
             if progress:
-                _show(copied, total, started)
+                _show(copied, skip, total, started)
     if batch:
         target.write_sync([AppendSamples(batch, dedup=False)])
         copied += rows_in_batch
     if progress:
-        _show(copied, total, started)
+        _show(copied, skip, total, started)
         print(file=sys.stderr)
-    _copy_side_tables(source, target)
-    after = _counts(target)
-    src = _counts(source)
-    return {t: (src.get(t, 0), after.get(t, 0) - before.get(t, 0)) for t in set(src) | set(after)}
 
 
-def _entities(source: Store, series: dict) -> Iterator[tuple[EntitySample, int]]:
-    """Rows regrouped by ``rid`` into the entity notifications they came from."""
-    current_rid, entity, n = None, None, 0
+def _entities(source: Store, series: dict, skip: int = 0) -> Iterator[tuple[EntitySample, int]]:
+    """Rows regrouped by ``rid`` into the entity notifications they came from,
+    after the first ``skip`` rows (which must end on a notification)."""
+    current_rid, entity, n, seen, last_skipped = None, None, 0, 0, None
     for row in _stream(source, f"SELECT {SAMPLE_COLUMNS} FROM samples_all ORDER BY rid, iid"):
+        if seen < skip:
+            seen += 1
+            last_skipped = row[0]
+            continue
         rid, sid = row[0], row[1]
         if rid != current_rid:
             if entity is not None:
                 yield entity, n
+            elif skip and rid == last_skipped:
+                raise CopyNotVerified("the target's samples do not end on a notification of the source: "
+                                      "copy into a new, empty target instead")  # fmt: skip
             tenant, path, eid, etype, _, _ = series[sid]
             entity = EntitySample(tenant, path, eid, etype, row[2].replace(tzinfo=UTC), [])
             current_rid, n = rid, 0
@@ -135,19 +265,57 @@ def _stream(store: Store, sql: str) -> Iterator[tuple]:
         cur.close()
 
 
-def _copy_side_tables(source: Store, target: Store) -> None:
+def _copy_side_tables(source: Store, target: Store, *, resumed: bool) -> None:
+    """Layouts (a put is idempotent) and rejected notifications; after an
+    interruption, a rejected notification already in the target is not added again."""
     reader = source.querier()
     tenants = [row[0] for row in reader._fetch("SELECT DISTINCT tenant FROM subscriptions", [])]
-    ops: list = [PutLayout(t, sub, layout) for t in tenants for sub, layout in source.layouts(t).items()]
-    for tenant, received_at, error, description, headers, body, size, truncated in reader._fetch(
+    layouts = [PutLayout(t, sub, layout) for t in tenants for sub, layout in source.layouts(t).items()]
+    if layouts:
+        target.write_sync(layouts)
+    present = set(_rejected_keys(target)) if resumed else set()
+    batch = []
+    for rejected in _rejected(source):
+        if _key(rejected) in present:
+            continue
+        batch.append(RecordRejected(rejected))
+        if len(batch) >= REJECTED_BATCH:
+            target.write_sync(batch)
+            batch = []
+    if batch:
+        target.write_sync(batch)
+
+
+def _rejected(store: Store) -> Iterator[RejectedNotification]:
+    for tenant, received_at, error, description, headers, body, size, truncated in store.querier()._fetch(
         "SELECT tenant, received_at, error, description, headers, body, body_size, body_truncated "
         "FROM rejected_notifications ORDER BY id", []
     ):
-        ops.append(RecordRejected(RejectedNotification(
-            tenant, received_at.replace(tzinfo=UTC), error, description, headers, bytes(body), size,
-            bool(truncated))))
-    if ops:
-        target.write_sync(ops)
+        yield RejectedNotification(tenant, received_at.replace(tzinfo=UTC), error, description, headers, bytes(body),
+                                   size, bool(truncated))
+
+
+def _rejected_keys(store: Store) -> Iterator[tuple]:
+    return (_key(r) for r in _rejected(store))
+
+
+def _key(r: RejectedNotification) -> tuple:
+    return (r.tenant, r.received_at, r.error, r.body)
+
+
+def _verify(src: dict[str, int], run: _Run, after: dict[str, int], rejected: int, src_rejected: int) -> None:
+    """Totals: every tenant holds what it held before plus the source's samples."""
+    wrong = {t: (run.base_counts.get(t, 0) + src.get(t, 0), after.get(t, 0))
+             for t in set(src) | set(after) | set(run.base_counts)
+             if after.get(t, 0) != run.base_counts.get(t, 0) + src.get(t, 0)}  # fmt: skip
+    if wrong:
+        detail = ", ".join(f"{t or '(default)'}: {want} expected, {got} found"
+                           for t, (want, got) in sorted(wrong.items()))  # fmt: skip
+        raise CopyNotVerified(f"copy NOT verified, the target's samples per tenant are wrong ({detail}); "
+                          "copy into a new, empty target")  # fmt: skip
+    if rejected != run.base_rejected + src_rejected:
+        raise CopyNotVerified(f"copy NOT verified: {run.base_rejected + src_rejected} rejected notifications "
+                          f"expected in the target, {rejected} found; copy into a new, empty target")  # fmt: skip
 
 
 def _counts(store: Store) -> dict[str, int]:
@@ -156,8 +324,25 @@ def _counts(store: Store) -> dict[str, int]:
     return {tenant: int(n) for tenant, n in rows}
 
 
-def _show(done: int, total: int, started: float) -> None:
-    rate = done / max(time.monotonic() - started, 1e-9)
+def _rejected_count(store: Store) -> int:
+    return int(store.querier()._fetch("SELECT count(*) FROM rejected_notifications", [])[0][0])
+
+
+def _execute(store: Store, sql: str, params: list) -> None:
+    """A statement outside the writer (``copy_runs`` is ours alone); ``?`` placeholders."""
+    if store.backend == "postgresql":
+        with store.connection() as conn:
+            conn.execute(sql.replace("?", "%s"), params)
+        return
+    store.cursor().execute(sql, params)
+
+
+def _utcnow() -> datetime:
+    return datetime.now(UTC).replace(tzinfo=None)
+
+
+def _show(done: int, skipped: int, total: int, started: float) -> None:
+    rate = (done - skipped) / max(time.monotonic() - started, 1e-9)
     pct = 100.0 * done / total if total else 100.0
     bar = "#" * int(pct // 4)
     print(f"\r[{bar:<25}] {pct:5.1f}%  {done:,}/{total:,} samples  {rate:,.0f}/s", end="", file=sys.stderr, flush=True)

@@ -6,6 +6,13 @@ committer. A compactor thread moves the hot rows into ``samples`` sorted by
 min/max statistics contain that series; every few moves it rewrites
 ``samples`` as one sorted run. Readers use per-thread cursors over
 ``samples_all`` (both tables) and so always see every committed sample.
+
+A full disk can make DuckDB invalidate the database: when the automatic
+checkpoint after a commit cannot write the file, the commit is durable (it is
+in the WAL) but every later call fails until the file is reopened. The store
+acknowledges such a commit, answers 503 meanwhile (reads included), reports
+the state on ``/health`` and reopens the file in the background, with
+backoff, as soon as it can (``DuckDBStore``'s lifecycle section, ``Gate``).
 """
 
 from __future__ import annotations
@@ -14,7 +21,7 @@ import contextlib
 import functools
 import logging
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -26,6 +33,7 @@ import pyarrow as pa
 from ..errors import Unavailable
 from ..model import EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
+from . import rejected as rejected_store
 from .base import (
     Appender, AppendSamples, DeleteInstance, DeleteSamples, PutLayout, RecordRejected, ReplaceInstance, Store,
     WriteOp,
@@ -36,6 +44,7 @@ from .ld_ingest import (
 from .latest_geo import LatestGeo
 from .tail_cache import TailCache
 from .migrate import applied_versions, load_migrations, split_statements
+from .rejected import RejectedLimits
 from .writer import GroupCommitter
 
 log = logging.getLogger(__name__)
@@ -97,13 +106,60 @@ INSERT_SERIES = (
 )
 # Each series' newest geo sample, for the in-memory latest-location index.
 LATEST_GEO_SQL = (
-    "SELECT sid, epoch_us(t), rid, geo, min_lon, min_lat, max_lon, max_lat FROM ("
-    "SELECT sid, t, rid, geo, min_lon, min_lat, max_lon, max_lat, "
-    "row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn "
+    "SELECT sid, epoch_us(t), rid, geo, min_lon, min_lat, max_lon, max_lat, e_min_lon, e_min_lat, e_max_lon, "
+    "e_max_lat, epoch_us(f_t), f_rid FROM (SELECT sid, t, rid, geo, min_lon, min_lat, max_lon, max_lat, "
+    "row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn, "
+    "min(min_lon) OVER (PARTITION BY sid) AS e_min_lon, min(min_lat) OVER (PARTITION BY sid) AS e_min_lat, "
+    "max(max_lon) OVER (PARTITION BY sid) AS e_max_lon, max(max_lat) OVER (PARTITION BY sid) AS e_max_lat, "
+    "first_value(t) OVER (PARTITION BY sid ORDER BY t, rid) AS f_t, "
+    "first_value(rid) OVER (PARTITION BY sid ORDER BY t, rid) AS f_rid "
     "FROM samples_all WHERE kind = 7 AND geo IS NOT NULL {where}) latest WHERE rn = 1"
 )
 # Above this many rows a batch goes through Arrow (bulk loads, copies).
 ARROW_MIN_ROWS = 2048
+# DuckDB's default: fold the WAL into the file once it is this big.
+CHECKPOINT_BYTES = 16 * 1024 * 1024
+# After the database is invalidated: first reopen attempt, then doubling to at most.
+REOPEN_DELAY_S = 0.5
+REOPEN_MAX_DELAY_S = 10.0
+
+# How DuckDB says it gave up on the database instance (duckdb.FatalException).
+_INVALIDATED = "database has been invalidated"
+_COMMITTED_ANYWAY = "COMMIT succeeded"
+NOTHING_STORED = (
+    "the database is being reopened after a storage failure (disk full?); nothing was stored, retry later"
+)
+MAYBE_STORED = (
+    "the database failed while committing (disk full?); this write may or may not have been stored"
+)
+
+
+def fatal_kind(exc: BaseException) -> str | None:
+    """What a DuckDB error says about the database instance:
+
+    ``"refused"``: it was already invalidated, the call did nothing;
+    ``"committed"``: the transaction is durable, the checkpoint after it failed
+    and the instance is now invalid;
+    ``"unknown"``: some other fatal error, the instance is invalid and the
+    call's outcome unknown;
+    None: an ordinary error, the instance is fine.
+
+    The "invalidated" message quotes the original error (often the
+    "COMMIT succeeded" one), so it is tested first.
+    """
+    text = str(exc)
+    if _INVALIDATED in text:
+        return "refused"
+    if not isinstance(exc, duckdb.FatalException):
+        return None
+    return "committed" if _COMMITTED_ANYWAY in text else "unknown"
+
+
+def is_storage_error(exc: BaseException) -> bool:
+    """A failure to write the file (full disk, I/O error): the database
+    refuses writes until the cause goes away."""
+    text = str(exc)
+    return isinstance(exc, duckdb.IOException) or "No space left" in text or "Could not write" in text
 
 
 def to_micros(moment: datetime) -> int:
@@ -138,11 +194,16 @@ def migrate_duckdb(con: duckdb.DuckDBPyConnection) -> list[int]:
     return applied
 
 
-def connect(path: str, read_only: bool = False) -> duckdb.DuckDBPyConnection:
+def connect(path: str, read_only: bool = False, checkpoint_bytes: int | None = None) -> duckdb.DuckDBPyConnection:
     if path != ":memory:":
         Path(path).parent.mkdir(parents=True, exist_ok=True)
+    # Only a non-default threshold is configured: DuckDB refuses a second
+    # in-process connection to the file whose configuration differs.
+    config = {}
+    if checkpoint_bytes is not None and checkpoint_bytes != CHECKPOINT_BYTES:
+        config["wal_autocheckpoint"] = f"{int(checkpoint_bytes)}B"
     try:
-        return duckdb.connect(path, read_only=read_only)
+        return duckdb.connect(path, read_only=read_only, config=config)
     except duckdb.IOException as exc:
         if "lock" in str(exc).lower():
             raise RuntimeError(
@@ -153,46 +214,121 @@ def connect(path: str, read_only: bool = False) -> duckdb.DuckDBPyConnection:
         raise
 
 
+class Gate:
+    """Many users of the database connection at once, or one reopen alone.
+
+    Closing a DuckDB connection while another thread runs a query on one of
+    its cursors is not safe, so readers and writers hold the gate while they
+    use a cursor and the reopen waits for them to leave. Nobody waits to
+    enter: while a reopen runs, entering raises ``Unavailable``.
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._users = 0
+        self._shut = False
+
+    @contextlib.contextmanager
+    def use(self, refusal: str) -> Iterator[None]:
+        with self._cond:
+            if self._shut:
+                raise Unavailable(refusal)
+            self._users += 1
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._users -= 1
+                if self._users == 0:
+                    self._cond.notify_all()
+
+    @contextlib.contextmanager
+    def alone(self) -> Iterator[None]:
+        with self._cond:
+            self._shut = True
+            self._cond.wait_for(lambda: self._users == 0)
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._shut = False
+
+
 class DuckDBStore(Store):
     backend = "duckdb"
 
     def __init__(self, path: str, *, compact_rows: int = 500_000, major_compact_runs: int = 8,
                  writer_threads: int = 1, tail_series: int = 8192, tail_rows: int = 128,
-                 tail_samples: int | None = None):
+                 tail_samples: int | None = None, checkpoint_bytes: int = CHECKPOINT_BYTES,
+                 reopen_delay: float | None = None, reopen_max_delay: float | None = None,
+                 rejected_limits: RejectedLimits | None = None):
         self.path = path
-        self._con = connect(path)
-        migrate_duckdb(self._con)
+        # Rejected-store bounds (storage.rejected) and what they dropped, by reason.
+        self.rejected_limits = rejected_limits or RejectedLimits()
+        self.rejected_dropped = dict.fromkeys(rejected_store.REASONS, 0)
+        self._checkpoint_bytes = checkpoint_bytes
+        self._compact_args = (compact_rows, major_compact_runs)
+        self._tail_args = (tail_series, tail_rows, tail_samples)
+        self._reopen_delays = (reopen_delay or REOPEN_DELAY_S, reopen_max_delay or REOPEN_MAX_DELAY_S)
         self._local = threading.local()
-        self._series: dict[SeriesKey, int] = {
-            tuple(row[1:]): row[0]
-            for row in self._con.execute(
-                "SELECT sid, tenant, service_path, entity_id, entity_type, attr FROM series"
-            ).fetchall()
-        }
-        self._next_sid = max(self._series.values(), default=0) + 1
+        self._gate = Gate()
+        # Set while the database instance is invalid (why), cleared by a reopen.
+        self._broken: str | None = None
+        # Set while the last commit failed to write the file (why), cleared by a success.
+        self._write_failure: str | None = None
+        self._lifecycle = threading.Lock()
+        self._reopening = False
+        self._reopener: threading.Thread | None = None
+        self._stop_reopen = threading.Event()
+        self.reopens = 0
+        self._generation = 0  # grows with every reopen: cursors of older ones are closed
         self._pending_series: dict[SeriesKey, int] = {}
+        self._series: dict[SeriesKey, int] = {}
+        self._layouts: dict[tuple[str, str], ValuesLayout] = {}
+        self._next_sid = self._next_rid = self._next_iid = self._next_rejected = 1
+        self.latest_instances = LatestInstances()
         # Writers allocate series ids, row ids and rejection ids under this.
         self._alloc_lock = threading.Lock()
         self._series_lock = threading.Lock()
-        self.tail = TailCache(tail_series, tail_rows, tail_samples)
-        self.latest_geo = LatestGeo(self._con.execute(LATEST_GEO_SQL.format(where="")).fetchall())
-        self._next_rid = (self._con.execute("SELECT max(rid) FROM samples_all").fetchone()[0] or 0) + 1
-        self._next_iid = (self._con.execute("SELECT max(iid) FROM samples_all").fetchone()[0] or 0) + 1
-        self.latest_instances = LatestInstances()
-        self._next_rejected = (
-            self._con.execute("SELECT max(id) FROM rejected_notifications").fetchone()[0] or 0
-        ) + 1
-        self._layouts: dict[tuple[str, str], ValuesLayout] = {}
-        for tenant, sub_id, attrs, eid, etype in self._con.execute(
-            "SELECT tenant, subscription_id, attrs, entity_id, entity_type FROM subscriptions"
-        ).fetchall():
-            self._layouts[(tenant, sub_id)] = ValuesLayout(tuple(orjson.loads(attrs)), eid, etype)
-        self._compactor = Compactor(self._con, compact_rows, major_compact_runs)
+        self.tail = TailCache(*self._tail_args)
+        self._con = connect(path, checkpoint_bytes=checkpoint_bytes)
+        migrate_duckdb(self._con)
+        self._load_state(self._con)
+        self._compactor = Compactor(self._con, *self._compact_args, on_error=self.notice)
         self._committer = GroupCommitter(lambda: DuckDBAppender(self), threads=writer_threads)
         self._committer.start()
         self._compactor.start()
         self._closed = False
         self._querier = None
+
+    def _load_state(self, con: duckdb.DuckDBPyConnection) -> None:
+        """What the store keeps in memory, from the file: the series ids, the
+        next ids to hand out (never lower than ones already handed out), the
+        'values' layouts and each series' latest location."""
+        series = {
+            tuple(row[1:]): row[0]
+            for row in con.execute(
+                "SELECT sid, tenant, service_path, entity_id, entity_type, attr FROM series"
+            ).fetchall()
+        }
+        max_rid = con.execute("SELECT max(rid) FROM samples_all").fetchone()[0] or 0
+        max_iid = con.execute("SELECT max(iid) FROM samples_all").fetchone()[0] or 0
+        max_rejected = con.execute("SELECT max(id) FROM rejected_notifications").fetchone()[0] or 0
+        layouts = {}
+        for tenant, sub_id, attrs, eid, etype in con.execute(
+            "SELECT tenant, subscription_id, attrs, entity_id, entity_type FROM subscriptions"
+        ).fetchall():
+            layouts[(tenant, sub_id)] = ValuesLayout(tuple(orjson.loads(attrs)), eid, etype)
+        latest_geo = LatestGeo(con.execute(LATEST_GEO_SQL.format(where="")).fetchall())
+        with self._alloc_lock:
+            self._series = series
+            self._next_sid = max(self._next_sid, max(series.values(), default=0) + 1)
+            self._next_rid = max(self._next_rid, max_rid + 1)
+            self._next_iid = max(self._next_iid, max_iid + 1)
+            self._next_rejected = max(self._next_rejected, max_rejected + 1)
+        self._layouts = layouts
+        self.latest_geo = latest_geo
+        self.latest_instances = LatestInstances()  # refills on demand from the file
 
     # -- history reads (tsdb_service.storage.duckdb_querier) -------------------
 
@@ -211,13 +347,34 @@ class DuckDBStore(Store):
 
     def cursor(self) -> duckdb.DuckDBPyConnection:
         """A cursor for the calling thread: DuckDB connections are not
-        thread-safe, cursors (child connections) are cheap and reusable."""
+        thread-safe, cursors (child connections) are cheap and reusable.
+        A reopen closes them all, so a thread makes a new one after it."""
         if self._closed:
             raise Unavailable("the store is closed")
-        cur = getattr(self._local, "cursor", None)
-        if cur is None:
-            cur = self._local.cursor = self._con.cursor()
-        return cur
+        if self._broken is not None:
+            raise Unavailable(self._unavailable_reason())
+        local = self._local
+        if getattr(local, "generation", None) != self._generation:
+            local.cursor = self._con.cursor()
+            local.generation = self._generation
+        return local.cursor
+
+    @contextlib.contextmanager
+    def reading(self) -> Iterator[None]:
+        """Hold while using ``cursor()``: a reopen waits for it."""
+        with self._gate.use(self._unavailable_reason()):
+            yield
+
+    def notice(self, exc: BaseException) -> str | None:
+        """Look at a DuckDB error for news of an invalidated database; start
+        reopening it if so. Returns ``fatal_kind(exc)``."""
+        kind = fatal_kind(exc)
+        if kind is not None:
+            self._invalidated(exc)
+        return kind
+
+    def _unavailable_reason(self) -> str:
+        return "the database is being reopened after a storage failure (disk full?); retry later"
 
     def values_layout(self, tenant: str, subscription_id: str) -> ValuesLayout | None:
         return self._layouts.get((tenant, subscription_id))
@@ -233,14 +390,100 @@ class DuckDBStore(Store):
         ).fetchall()
         return [rejected_row(*row) for row in rows]
 
+    def rejected_page(self, tenant: str | None, limit: int, offset: int, max_bytes: int):
+        """``rejected`` paged by size too: (rows, next offset or None)."""
+        cur = self.cursor()
+        return rejected_store.page(lambda sql, params: cur.execute(sql, params).fetchall(), rejected_store.DUCKDB,
+                                   tenant, limit, offset, max_bytes, rejected_row)  # fmt: skip
+
     def health(self) -> dict[str, Any]:
-        ok = self._committer.alive
-        return {
+        problem = self._broken or self._write_failure
+        ok = self._committer.alive and problem is None
+        report = {
             "status": "pass" if ok else "fail",
             "backend": self.backend,
             "commits": self._committer.commits,
             "writes": self._committer.ops,
         }
+        if self._broken is not None:
+            report["output"] = "database invalidated by a storage failure, reopening: " + self._broken
+        elif self._write_failure is not None:
+            report["output"] = "the database refuses writes: " + self._write_failure
+        return report
+
+    # -- lifecycle: invalidation and reopen ------------------------------------
+
+    def _invalidated(self, exc: BaseException) -> None:
+        """Mark the instance unusable and make sure one thread reopens it."""
+        reason = _first_line(exc)
+        with self._lifecycle:
+            if self._broken is None:
+                log.error("DuckDB invalidated %s; reopening it in the background: %s", self.path, exc)
+                self._broken = reason
+            if self._reopening or self._stop_reopen.is_set():
+                return
+            self._reopening = True
+            self._reopener = threading.Thread(target=self._reopen_loop, name="tsdb-reopen", daemon=True)
+            self._reopener.start()
+
+    def _reopen_loop(self) -> None:
+        """Try to reopen, doubling the wait after each failure, until the
+        store is healthy again (or closed)."""
+        delay, max_delay = self._reopen_delays
+        while not self._stop_reopen.wait(delay):
+            try:
+                self._reopen()
+            except Exception as exc:
+                log.warning("reopening %s failed, next try in %.1f s: %s", self.path, min(delay * 2, max_delay), exc)
+                delay = min(delay * 2, max_delay)
+                continue
+            with self._lifecycle:
+                if self._broken is None:  # not invalidated again meanwhile
+                    self._reopening = False
+                    return
+            delay = self._reopen_delays[0]
+        with self._lifecycle:
+            self._reopening = False
+
+    def _reopen(self) -> None:
+        """Close every connection to the invalid instance (DuckDB hands out the
+        same instance while one is open), open the file again (which replays
+        the WAL) and rebuild what memory holds from it.
+
+        The in-memory tails are dropped (they reload on demand); the series
+        catalog, ids, layouts and latest locations are read back from the
+        file, so memory matches exactly what is durable.
+        """
+        with self._gate.alone():
+            if self._closed:
+                return
+            self._compactor.stop()
+            with contextlib.suppress(duckdb.Error):
+                self._con.close()
+            con = connect(self.path, checkpoint_bytes=self._checkpoint_bytes)
+            try:
+                migrate_duckdb(con)
+                self._load_state(con)
+            except BaseException:
+                con.close()
+                raise
+            self._con = con
+            self._generation += 1
+            self.tail = TailCache(*self._tail_args)
+            self._querier = None
+            self._compactor = Compactor(con, *self._compact_args, on_error=self.notice)
+            self._compactor.start()
+            self.reopens += 1
+            with self._lifecycle:
+                self._broken = None
+        log.warning("reopened %s after a storage failure", self.path)
+
+    def _note_write(self, exc: BaseException | None) -> None:
+        """Remember whether the file takes writes, for /health."""
+        if exc is None:
+            self._write_failure = None
+        elif is_storage_error(exc):
+            self._write_failure = _first_line(exc)
 
     # -- writes --------------------------------------------------------------
 
@@ -252,18 +495,37 @@ class DuckDBStore(Store):
 
     def compact(self, full: bool = True) -> None:
         """Move hot rows into the sorted table now (and rewrite it if ``full``)."""
-        self._compactor.run_once(full=full)
+        with self.reading():
+            try:
+                self._compactor.run_once(full=full)
+            except duckdb.Error as exc:
+                if self.notice(exc) is not None:
+                    raise Unavailable(self._unavailable_reason()) from None
+                raise
 
     def close(self) -> None:
         if self._closed:
             return
+        self.stop_retention()
+        self._stop_reopen.set()
+        reopener = self._reopener
+        if reopener is not None and reopener.is_alive():
+            reopener.join()
         self._compactor.stop()
         self._committer.close()
         self._closed = True
         try:
-            self._con.execute("CHECKPOINT")
+            if self._broken is None:
+                self._con.execute("CHECKPOINT")
+        except duckdb.Error as exc:  # the WAL keeps everything; the next open replays it
+            log.warning("checkpoint on close failed: %s", exc)
         finally:
-            self._con.close()
+            with contextlib.suppress(duckdb.Error):
+                self._con.close()
+
+
+def _first_line(exc: BaseException) -> str:
+    return str(exc).strip().splitlines()[0][:300] if str(exc).strip() else type(exc).__name__
 
 
 # What the rejected listing shows, in rejected_row's argument order.
@@ -302,7 +564,17 @@ class DuckDBAppender(Appender):
     def __init__(self, store: DuckDBStore):
         self._store = store
         self._cur = store._con.cursor()
+        self._generation = store._generation
         self._reset()
+
+    def _current_cursor(self) -> duckdb.DuckDBPyConnection:
+        """This writer's cursor on the store's current connection (a reopen
+        closed the one made on the previous connection)."""
+        store = self._store
+        if self._generation != store._generation:
+            self._cur = store._con.cursor()
+            self._generation = store._generation
+        return self._cur
 
     def _reset(self) -> None:
         self._cols: dict[str, list] = {name: [] for name in SAMPLE_SCHEMA.names}
@@ -460,6 +732,43 @@ class DuckDBAppender(Appender):
         )
 
     def commit(self) -> None:
+        """Commit the staged ops, or raise ``Unavailable`` saying whether
+        anything may have been stored when the database instance is (or has
+        just become) invalid: the group committer must not retry then.
+
+        A commit whose automatic checkpoint failed is durable: it is
+        published and acknowledged like any other, and the store reopens.
+        """
+        store = self._store
+        if store._broken is not None:
+            raise Unavailable(NOTHING_STORED)
+        with store._gate.use(NOTHING_STORED):
+            try:
+                self._commit(self._current_cursor())
+            except duckdb.Error as exc:
+                store._note_write(exc)
+                kind = store.notice(exc)
+                if kind == "refused":
+                    raise Unavailable(NOTHING_STORED) from exc
+                if kind is not None:
+                    raise Unavailable(MAYBE_STORED) from exc
+                raise
+        store._note_write(None)
+
+    def _durable(self, cur: duckdb.DuckDBPyConnection, sql: str, params=None) -> None:
+        """Execute a statement that commits (autocommit, or COMMIT itself).
+        "COMMIT succeeded ... but the autocheckpoint failed" means it did:
+        carry on as committed (the store starts reopening; the next
+        statement will be refused)."""
+        try:
+            cur.execute(sql, params)
+        except duckdb.Error as exc:
+            if fatal_kind(exc) != "committed":
+                raise
+            log.warning("commit is durable but its checkpoint failed: %s", _first_line(exc))
+            self._store.notice(exc)
+
+    def _commit(self, cur: duckdb.DuckDBPyConnection) -> None:
         """Make the staged ops durable with as few database calls as possible.
 
         Under load the event loop holds the GIL, and every return from
@@ -470,7 +779,6 @@ class DuckDBAppender(Appender):
         rows are committed first; if the samples then fail, an unused series
         row is harmless.
         """
-        cur = self._cur
         if self._new_series:
             store = self._store
             # Series rows are written one writer at a time, each skipping the
@@ -479,9 +787,9 @@ class DuckDBAppender(Appender):
             with store._series_lock:
                 keys = [k for k in self._new_series if k not in store._series]
                 if keys:
-                    cur.execute(INSERT_SERIES, [[self._new_series[k] for k in keys],
-                                                *([k[i] for k in keys] for i in range(5)),
-                                                [self._new_datasets.get(k) for k in keys]])
+                    self._durable(cur, INSERT_SERIES, [[self._new_series[k] for k in keys],
+                                                       *([k[i] for k in keys] for i in range(5)),
+                                                       [self._new_datasets.get(k) for k in keys]])
                 with store._alloc_lock:
                     store._series.update(self._new_series)
                     for key in self._new_series:
@@ -492,7 +800,7 @@ class DuckDBAppender(Appender):
                 # Only columns that carry a value: converting the all-NULL
                 # ones (geometry, metadata...) would hold the GIL for nothing.
                 names = tuple(n for n in SAMPLE_SCHEMA.names if n in REQUIRED or any(v is not None for v in self._cols[n]))
-                cur.execute(insert_samples_sql(names), [self._cols[n] for n in names])
+                self._durable(cur, insert_samples_sql(names), [self._cols[n] for n in names])
             else:
                 self._insert_arrow(cur)
             self._store.tail.publish(self._cols)
@@ -516,9 +824,10 @@ class DuckDBAppender(Appender):
         ]
         cur.register("_batch", pa.Table.from_arrays(arrays, schema=SAMPLE_SCHEMA))
         try:
-            cur.execute("INSERT INTO samples_hot BY NAME SELECT * FROM _batch")
+            self._durable(cur, "INSERT INTO samples_hot BY NAME SELECT * FROM _batch")
         finally:
-            cur.unregister("_batch")
+            with contextlib.suppress(duckdb.Error):  # fails on an invalid instance
+                cur.unregister("_batch")
 
     def _commit_other(self, cur: duckdb.DuckDBPyConnection) -> None:
         cur.execute("BEGIN")
@@ -526,6 +835,11 @@ class DuckDBAppender(Appender):
             cur.execute(
                 "INSERT INTO rejected_notifications (id, tenant, received_at, error, description, headers, "
                 "body, body_size, body_truncated) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)", list(row))
+        dropped = None
+        if self._rejected:
+            dropped = rejected_store.prune(lambda sql, params: cur.execute(sql, params).fetchall(),
+                                           rejected_store.DUCKDB, [row[1] for row in self._rejected],
+                                           self._store.rejected_limits)  # fmt: skip
         for put in self._layouts:
             layout = put.layout
             cur.execute(
@@ -547,16 +861,20 @@ class DuckDBAppender(Appender):
         for op in self._instance_ops:
             for sql, params in instance_statements(DuckDBDialect(), ("samples", "samples_hot"), op):
                 cur.execute(sql, params)
-        cur.execute("COMMIT")
+        self._durable(cur, "COMMIT")
+        if dropped:
+            rejected_store.count_dropped(self._store.rejected_dropped, dropped)
         store = self._store
         for op, upto_rid in self._deletes:
             store.tail.drop(op.sids)
             store.latest_instances.drop(op.sids)
-            store.latest_geo.recompute(op.sids, upto_rid, self._latest_geo_of)
+            if store._broken is None:  # else the reopen rebuilds every location
+                store.latest_geo.recompute(op.sids, upto_rid, self._latest_geo_of)
         for op in self._instance_ops:
             store.tail.drop([op.sid])
             store.latest_instances.drop([op.sid])
-            store.latest_geo.recompute([op.sid], store._next_rid, self._latest_geo_of)
+            if store._broken is None:
+                store.latest_geo.recompute([op.sid], store._next_rid, self._latest_geo_of)
 
     def _latest_geo_of(self, sids: list[int]) -> list[tuple]:
         return self._cur.execute(
@@ -574,13 +892,16 @@ class DuckDBAppender(Appender):
         # Ids staged for new series stay reserved in _pending_series: the
         # next writer to see those keys inserts their rows.
         try:
-            self._cur.execute("ROLLBACK")
-        except duckdb.Error:
-            pass  # no transaction was open
+            if self._store._broken is None and self._generation == self._store._generation:
+                with self._store._gate.use(NOTHING_STORED):
+                    self._cur.execute("ROLLBACK")
+        except (duckdb.Error, Unavailable):
+            pass  # no transaction was open, or the connection is being replaced
         self._reset()
 
     def close(self) -> None:
-        self._cur.close()
+        with contextlib.suppress(duckdb.Error):
+            self._cur.close()
 
 
 class Compactor:
@@ -593,8 +914,9 @@ class Compactor:
     """
 
     def __init__(self, con: duckdb.DuckDBPyConnection, compact_rows: int, major_runs: int,
-                 interval: float = 2.0):
+                 interval: float = 2.0, on_error=None):
         self._con = con
+        self._on_error = on_error  # told about each failure (the store looks for invalidation)
         self._compact_rows = compact_rows
         self._major_runs = major_runs
         self._interval = interval
@@ -623,9 +945,12 @@ class Compactor:
                         self._move(cur)
                         if self._runs >= self._major_runs:
                             self._rewrite(cur)
-                except Exception:  # keep serving; compaction is an optimisation
-                    log.exception("compaction failed; will retry")
+                except Exception as exc:  # keep serving; compaction is an optimisation
                     _rollback_quietly(cur)
+                    if self._on_error is not None and self._on_error(exc) is not None:
+                        log.warning("compaction stopped, the database is invalid: %s", _first_line(exc))
+                        return  # the store's reopen starts a new compactor
+                    log.exception("compaction failed; will retry")
         finally:
             cur.close()
 

@@ -1,13 +1,26 @@
-"""Each series' latest location, in memory (DuckDB only).
+"""Each series' latest location and where it has ever been, in memory (DuckDB only).
 
-A geo-query asks "which entities are where, now?": the latest geo sample of
-every candidate entity. From the sample tables that means ranking all
-location samples of thousands of series per request; here it is a dict
-look-up per series. Built with one query when the store opens, before the
-writers start, then kept current by the writers after every commit (newest
-by (time, row id) wins). A delete recomputes its series from the database;
-an entry published after the delete (a row id above the delete's bound) is
-never replaced by that older answer.
+Two questions a geo-query asks of every candidate entity, answered from
+dict look-ups instead of ranking thousands of series' location samples:
+
+* "where is it now?" (``geoScope=entity``): the latest geo sample of each
+  series (newest by (time, row id) wins);
+* "could any of its positions match?" (sample semantics): the bounding box
+  of every geo sample the series ever had (its *extent*), and its first geo
+  sample's (time, row id). Only entities whose extent overlaps the query's
+  box can have a matching sample; of those, an entity whose whole extent
+  matches (a robot working well inside the queried area) matched from its
+  first position on, and only the others' location samples are read from
+  the database.
+
+Built with one query when the store opens, before the writers start, then
+kept current by the writers after every commit. A delete recomputes the
+latest entry of its series from the database; an entry published after the
+delete (a row id above the delete's bound) is never replaced by that older
+answer. Extents only grow: after a delete an extent may be larger than the
+remaining samples, which only costs a few extra rows read (the exact answer
+comes from the samples); the first position of a series touched by a delete
+is forgotten, so its samples are always read.
 
 Queries bounded by ``toDate`` need the latest location *before* a time and
 go to the database.
@@ -25,6 +38,7 @@ GEO = int(Kind.GEO)
 
 # sid -> (t µs, rid, geojson, min_lon, min_lat, max_lon, max_lat)
 Entry = tuple[int, int, str, float, float, float, float]
+Box = tuple[float, float, float, float]  # min_lon, min_lat, max_lon, max_lat
 
 
 CELL_DEG = 0.05  # grid cell edge (~5 km): a near-1 km query reads a few cells
@@ -40,62 +54,117 @@ def _cells(mnlon: float, mnlat: float, mxlon: float, mxlat: float) -> list[tuple
     return [(x, y) for x in range(x0, x1 + 1) for y in range(y0, y1 + 1)]
 
 
-class LatestGeo:
-    """Latest location per series, with a uniform grid over their boxes so a
-    bounded query looks at the series in the cells it overlaps, not all."""
+class _Grid:
+    """A uniform grid over one box per series: a bounded query looks at the
+    series in the cells it overlaps, not all. Callers hold the lock."""
 
-    def __init__(self, rows: Iterable[tuple]):
-        self._lock = threading.Lock()
-        self._latest: dict[int, Entry] = {}
-        self._grid: dict[tuple[int, int], set[int]] = {}
+    def __init__(self) -> None:
+        self.boxes: dict[int, Box] = {}
+        self._cells: dict[tuple[int, int], set[int]] = {}
         self._large: set[int] = set()
-        for row in rows:
-            self._put(row[0], tuple(row[1:]))
 
-    def _put(self, sid: int, entry: Entry | None) -> None:
-        """Set (or with None remove) ``sid``'s entry and its grid cells."""
-        old = self._latest.pop(sid, None)
+    def put(self, sid: int, box: Box | None) -> None:
+        """Set (or with None remove) ``sid``'s box."""
+        old = self.boxes.pop(sid, None)
         if old is not None:
-            cells = _cells(*old[3:7])
+            cells = _cells(*old)
             if cells is None:
                 self._large.discard(sid)
             else:
                 for cell in cells:
-                    members = self._grid.get(cell)
+                    members = self._cells.get(cell)
                     if members is not None:
                         members.discard(sid)
                         if not members:
-                            del self._grid[cell]
-        if entry is None:
+                            del self._cells[cell]
+        if box is None:
             return
-        self._latest[sid] = entry
-        cells = _cells(*entry[3:7])
+        self.boxes[sid] = box
+        cells = _cells(*box)
         if cells is None:
             self._large.add(sid)
         else:
             for cell in cells:
-                self._grid.setdefault(cell, set()).add(sid)
+                self._cells.setdefault(cell, set()).add(sid)
+
+    def near(self, sids: Iterable[int], box) -> list[int] | None:
+        """Those of ``sids`` in the cells ``box`` overlaps (a superset of the
+        overlapping ones), or None when the box is too large for the grid."""
+        cells = _cells(box.min_lon, box.min_lat, box.max_lon, box.max_lat)
+        if cells is None:
+            return None
+        near = set(self._large)
+        for cell in cells:
+            near |= self._cells.get(cell, set())
+        wanted = sids if isinstance(sids, (set, frozenset)) else set(sids)
+        return [sid for sid in near if sid in wanted]
+
+
+def _overlaps(b: Box, box) -> bool:
+    return b[2] >= box.min_lon and b[0] <= box.max_lon and b[3] >= box.min_lat and b[1] <= box.max_lat
+
+
+def _within(b: Box, box) -> bool:
+    return b[0] >= box.min_lon and b[2] <= box.max_lon and b[1] >= box.min_lat and b[3] <= box.max_lat
+
+
+class LatestGeo:
+    """Latest location and extent per series, each with a grid."""
+
+    def __init__(self, rows: Iterable[tuple]):
+        """``rows``: (sid, t µs, rid, geojson, its box (4), the series' extent
+        (4), its first geo sample's t µs and rid)."""
+        self._lock = threading.Lock()
+        self._latest: dict[int, Entry] = {}
+        self._grid = _Grid()
+        self._extents = _Grid()
+        self._first: dict[int, tuple[int, int] | None] = {}  # None: unknown (deleted)
+        for row in rows:
+            self._put(row[0], tuple(row[1:8]))
+            self._extents.put(row[0], tuple(row[8:12]))
+            self._first[row[0]] = (row[12], row[13])
+
+    def _put(self, sid: int, entry: Entry | None) -> None:
+        """Set (or with None remove) ``sid``'s latest entry and its grid cells."""
+        self._latest.pop(sid, None)
+        if entry is not None:
+            self._latest[sid] = entry
+        self._grid.put(sid, None if entry is None else entry[3:7])
 
     def publish(self, cols: dict[str, list]) -> None:
         kinds = cols["kind"]
         if GEO not in kinds:
             return
         sids, ts, rids, geos = cols["sid"], cols["t"], cols["rid"], cols["geo"]
+        mnlons, mnlats, mxlons, mxlats = cols["min_lon"], cols["min_lat"], cols["max_lon"], cols["max_lat"]
         with self._lock:
-            latest = self._latest
+            latest, extents = self._latest, self._extents
             for i, kind in enumerate(kinds):
                 if kind != GEO or geos[i] is None:
                     continue
-                current = latest.get(sids[i])
+                sid = sids[i]
+                box = (mnlons[i], mnlats[i], mxlons[i], mxlats[i])
+                current = latest.get(sid)
                 if current is None or (ts[i], rids[i]) > current[:2]:
-                    self._put(sids[i], (ts[i], rids[i], geos[i], cols["min_lon"][i], cols["min_lat"][i],
-                                        cols["max_lon"][i], cols["max_lat"][i]))
+                    self._put(sid, (ts[i], rids[i], geos[i], *box))
+                extent = extents.boxes.get(sid)
+                if extent is None:
+                    self._first[sid] = (ts[i], rids[i])
+                    extents.put(sid, box)
+                elif box[0] < extent[0] or box[1] < extent[1] or box[2] > extent[2] or box[3] > extent[3]:
+                    extents.put(sid, (min(box[0], extent[0]), min(box[1], extent[1]),
+                                      max(box[2], extent[2]), max(box[3], extent[3])))
+                first = self._first.get(sid)
+                if first is not None and (ts[i], rids[i]) < first:
+                    self._first[sid] = (ts[i], rids[i])
 
     def recompute(self, sids, upto_rid: int, load: Callable[[list[int]], list[tuple]]) -> None:
-        """After a delete of rows up to ``upto_rid`` in ``sids``."""
-        fresh = {row[0]: tuple(row[1:]) for row in load(list(sids))}
+        """After a delete of rows up to ``upto_rid`` in ``sids`` (extents stay)."""
+        fresh = {row[0]: tuple(row[1:8]) for row in load(list(sids))}
         with self._lock:
             for sid in sids:
+                if sid in self._first:
+                    self._first[sid] = None
                 current = self._latest.get(sid)
                 if current is not None and current[1] > upto_rid:
                     continue  # published after the delete: still the latest
@@ -112,24 +181,41 @@ class LatestGeo:
                     out.append((sid, entry[2]))
             return out
         how, box = prefilter
-        within = how == "within"
-        cells = _cells(box.min_lon, box.min_lat, box.max_lon, box.max_lat)
-        if cells is not None:
-            wanted = set(sids)
-            with self._lock:
-                near = set(self._large)
-                for cell in cells:
-                    near |= self._grid.get(cell, set())
-            sids = [sid for sid in near if sid in wanted]
-        for sid in sids:
+        passes = _within if how == "within" else _overlaps
+        with self._lock:
+            near = self._grid.near(sids, box)
+        for sid in sids if near is None else near:
             entry = latest.get(sid)
-            if entry is None:
-                continue
-            _, _, geo, mnlon, mnlat, mxlon, mxlat = entry
-            if within:
-                ok = mnlon >= box.min_lon and mxlon <= box.max_lon and mnlat >= box.min_lat and mxlat <= box.max_lat
-            else:
-                ok = mxlon >= box.min_lon and mnlon <= box.max_lon and mxlat >= box.min_lat and mnlat <= box.max_lat
-            if ok:
-                out.append((sid, geo))
+            if entry is not None and passes(entry[3:7], box):
+                out.append((sid, entry[2]))
+        return out
+
+    def ever_near(self, sids: Iterable[int], prefilter) -> list[int]:
+        """Those of ``sids`` with a geo sample whose box may pass ``prefilter``
+        (their extent overlaps its box; a box inside the query box is in
+        particular overlapping it). Without a prefilter: every located one."""
+        extents = self._extents.boxes
+        if prefilter is None:
+            return [sid for sid in sids if sid in extents]
+        _, box = prefilter
+        with self._lock:
+            near = self._extents.near(sids, box)
+        out = []
+        for sid in sids if near is None else near:
+            extent = extents.get(sid)
+            if extent is not None and _overlaps(extent, box):
+                out.append(sid)
+        return out
+
+    def extents(self, sids: Iterable[int], prefilter) -> list[tuple]:
+        """(sid, min_lon, min_lat, max_lon, max_lat, first t µs | None, first
+        rid | None) of those of ``sids`` that ``ever_near`` keeps."""
+        near = self.ever_near(sids, prefilter)
+        boxes, first = self._extents.boxes, self._first
+        out = []
+        for sid in near:
+            box = boxes.get(sid)
+            if box is not None:
+                start = first.get(sid) or (None, None)
+                out.append((sid, *box, *start))
         return out

@@ -16,6 +16,8 @@ from typing import TypeVar
 
 from starlette.concurrency import run_in_threadpool
 
+from .. import budget
+
 T = TypeVar("T")
 
 MEMORY_ONLY: contextvars.ContextVar[bool] = contextvars.ContextVar("tsdb_memory_only", default=False)
@@ -32,10 +34,11 @@ def check_database_allowed() -> None:
 
 async def in_memory_or_threadpool(fn: Callable[..., T], *args, **kwargs) -> T:
     token = MEMORY_ONLY.set(True)
+    charged = budget.mark()
     try:
         return fn(*args, **kwargs)
     except NeedsDatabase:
-        pass
+        budget.rewind(charged)  # the re-run below reads those rows again
     finally:
         MEMORY_ONLY.reset(token)
     return await run_in_threadpool(fn, *args, **kwargs)

@@ -18,10 +18,13 @@ from ..errors import Unavailable
 from .memory_only import check_database_allowed
 from ..model import Kind
 from .catalog import SeriesCatalog
-from .sql import Dialect, SqlQuerier
+from .sql import Dialect, SqlQuerier, box_test
 
 if TYPE_CHECKING:
     from .postgres_store import PostgresStore
+
+
+MANY_SIDS = 256
 
 
 class PostgresDialect(Dialect):
@@ -77,22 +80,43 @@ class PostgresQuerier(SqlQuerier):
         where, params = "", []
         if time.end is not None:
             where, params = " AND x.t <= %s", [self.dialect.time_value(time.end)]
-        outer, outer_params = "", []
-        if prefilter is not None:
-            how, box = prefilter
-            if how == "within":
-                outer = " WHERE min_lon >= %s AND max_lon <= %s AND min_lat >= %s AND max_lat <= %s"
-            else:
-                outer = " WHERE max_lon >= %s AND min_lon <= %s AND max_lat >= %s AND min_lat <= %s"
-            outer_params = [box.min_lon, box.max_lon, box.min_lat, box.max_lat]
+        test, test_params = box_test(self.dialect, prefilter)
         sql = (
             "SELECT sid, geo FROM (SELECT s.sid, l.geo, l.min_lon, l.min_lat, l.max_lon, l.max_lat "
             "FROM unnest(%s::integer[]) AS s(sid) CROSS JOIN LATERAL ("
             "SELECT x.geo, x.min_lon, x.min_lat, x.max_lon, x.max_lat FROM samples x "
             f"WHERE x.sid = s.sid AND x.kind = {int(Kind.GEO)}{where} ORDER BY x.t DESC, x.rid DESC LIMIT 1) l) latest"
-            + outer
+            f" WHERE {test}"
         )
-        return self._fetch(sql, [list(sids), *params, *outer_params])
+        return self._fetch(sql, [list(sids), *params, *test_params])
+
+    def location_candidates(self, sids, time, prefilter) -> list[int]:
+        """Over many series, one scan of the located samples in the box,
+        intersected here: ``sid = ANY`` of thousands of ids would be tested
+        on every row of that scan."""
+        if len(sids) <= MANY_SIDS or prefilter is None:
+            return super().location_candidates(sids, time, prefilter)
+        test, test_params = box_test(self.dialect, prefilter)
+        where, params = "", []
+        if time.end is not None:
+            where, params = " AND t <= %s", [self.dialect.time_value(time.end)]
+        wanted = set(sids)
+        rows = self._fetch(
+            f"SELECT DISTINCT sid FROM samples WHERE kind = {int(Kind.GEO)} AND geo IS NOT NULL AND {test}{where}",
+            [*test_params, *params],
+        )
+        return [row[0] for row in rows if row[0] in wanted]
+
+    def _location_seeds(self, sids, before) -> tuple[str, list]:
+        """The latest geo sample before ``before``: one index probe per series."""
+        return (
+            "SELECT l.sid, l.rid, l.t, l.kind, l.geo, l.min_lon, l.min_lat, l.max_lon, l.max_lat "
+            "FROM unnest(%s::integer[]) AS s(s_sid) CROSS JOIN LATERAL ("
+            "SELECT sid, rid, t, kind, geo, min_lon, min_lat, max_lon, max_lat FROM samples "
+            f"WHERE sid = s.s_sid AND t < %s AND kind = {int(Kind.GEO)} AND geo IS NOT NULL "
+            "ORDER BY t DESC, rid DESC LIMIT 1) l",
+            [list(sids), self.dialect.time_value(before)],
+        )
 
     def __init__(self, store: PostgresStore):
         self._store = store

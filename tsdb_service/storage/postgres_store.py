@@ -4,10 +4,18 @@ The write path is the DuckDB one: a group committer per process, one
 transaction per group, samples sent with ``COPY``. Series ids are shared
 through the ``series`` table (insert-if-absent, in key order so concurrent
 writers cannot deadlock). Reads use a connection pool.
+
+A failed write is answered "nothing was stored" only when the transaction
+certainly did not commit: an error before COMMIT, or one the server raised
+for the COMMIT itself on a live connection (the server rolled back). When the
+connection breaks during COMMIT nobody can say, and the answer says so.
+``/health`` fails while the database refuses writes for lack of space or an
+I/O error, until a write succeeds again.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Sequence
 from datetime import UTC, datetime
@@ -20,12 +28,14 @@ from psycopg_pool import ConnectionPool
 from ..errors import Unavailable
 from ..model import EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
+from . import rejected as rejected_store
 from .base import (
     Appender, AppendSamples, DeleteInstance, DeleteSamples, PutLayout, RecordRejected, ReplaceInstance, Store,
     WriteOp,
 )
 from .ld_ingest import LatestInstances, drop_renotified, latest_keys, publish_staged, with_deletions
 from .migrate import applied_versions, load_migrations
+from .rejected import RejectedLimits
 from .writer import GroupCommitter
 
 log = logging.getLogger(__name__)
@@ -37,6 +47,18 @@ SAMPLE_COLUMNS = (
 )  # iid: the column default (a sequence) allocates it
 SeriesKey = tuple[str, str, str, str, str]
 _MIGRATION_LOCK = 0x7473_6462  # "tsdb": serialises migrations across processes
+WRITER_APPLICATION_NAME = "tsdb-service writer"
+# SQLSTATE classes that mean the server cannot write: insufficient resources
+# (53100 disk_full...) and system errors (58030 io_error...).
+_STORAGE_CLASSES = ("53", "58")
+MAYBE_STORED = (
+    "the connection to the database broke during the commit; this write may or may not have been stored"
+)
+
+
+def is_storage_error(exc: BaseException) -> bool:
+    state = getattr(exc, "sqlstate", None) or ""
+    return state[:2] in _STORAGE_CLASSES
 
 
 def migrate_url(url: str) -> list[int]:
@@ -74,14 +96,21 @@ def _naive(moment: datetime | None) -> datetime | None:
 class PostgresStore(Store):
     backend = "postgresql"
 
-    def __init__(self, url: str, *, pool_size: int = 8, writer_threads: int = 3):
+    def __init__(self, url: str, *, pool_size: int = 8, writer_threads: int = 3,
+                 rejected_limits: RejectedLimits | None = None):
         self.url = url
+        # Rejected-store bounds (storage.rejected) and what they dropped, by reason.
+        self.rejected_limits = rejected_limits or RejectedLimits()
+        self.rejected_dropped = dict.fromkeys(rejected_store.REASONS, 0)
         migrate_url(url)
         self.pool = ConnectionPool(url, min_size=1, max_size=pool_size, open=True,
                                    kwargs={"autocommit": True})
         self._series: dict[SeriesKey, int] = {}
         self.latest_instances = LatestInstances()
         self._layouts: dict[tuple[str, str], ValuesLayout] = {}
+        # Why the last write failed when the server could not write (disk
+        # full, I/O error); cleared by the next write that commits.
+        self._write_failure: str | None = None
         self._load_layouts()
         self._committer = GroupCommitter(lambda: PostgresAppender(self), name="tsdb-pg-writer",
                                          threads=writer_threads)
@@ -136,6 +165,14 @@ class PostgresStore(Store):
             ).fetchall()
         return [rejected_row(*row) for row in rows]
 
+    def rejected_page(self, tenant: str | None, limit: int, offset: int, max_bytes: int):
+        """``rejected`` paged by size too: (rows, next offset or None)."""
+        from .duckdb_store import rejected_row
+
+        with self.connection() as conn:
+            return rejected_store.page(lambda sql, params: conn.execute(sql, params).fetchall(),
+                                       rejected_store.POSTGRES, tenant, limit, offset, max_bytes, rejected_row)
+
     def health(self) -> dict[str, Any]:
         ok = self._committer.alive
         try:
@@ -144,8 +181,19 @@ class PostgresStore(Store):
         except Exception as exc:  # report, do not raise: this is the health probe
             log.warning("database unreachable: %s", exc)
             ok = False
-        return {"status": "pass" if ok else "fail", "backend": self.backend,
-                "commits": self._committer.commits, "writes": self._committer.ops}
+        report = {"status": "pass" if ok else "fail", "backend": self.backend,
+                  "commits": self._committer.commits, "writes": self._committer.ops}
+        if self._write_failure is not None:
+            report["status"] = "fail"
+            report["output"] = "the database refuses writes: " + self._write_failure
+        return report
+
+    def _note_write(self, exc: BaseException | None) -> None:
+        """Remember whether the server takes writes, for /health."""
+        if exc is None:
+            self._write_failure = None
+        elif is_storage_error(exc):
+            self._write_failure = str(exc).strip().splitlines()[0][:300]
 
     async def write(self, op: WriteOp) -> None:
         await self._committer.submit(op)
@@ -156,16 +204,38 @@ class PostgresStore(Store):
     def close(self) -> None:
         if self._closed:
             return
+        self.stop_retention()
         self._committer.close()
         self._closed = True
         self.pool.close()
 
 
+def _fetch_all(cur: psycopg.Cursor):
+    def execute(sql: str, params: list) -> list[tuple]:
+        cur.execute(sql, params)
+        return cur.fetchall()
+
+    return execute
+
+
 class PostgresAppender(Appender):
     def __init__(self, store: PostgresStore):
         self._store = store
-        self._conn = psycopg.connect(store.url)
+        self._conn = self._connect()
         self._reset()
+
+    def _connect(self) -> psycopg.Connection:
+        # Named, so an operator sees the writers in pg_stat_activity.
+        return psycopg.connect(self._store.url, application_name=WRITER_APPLICATION_NAME)
+
+    def _connection(self) -> psycopg.Connection:
+        """The writer's connection, replaced when it broke (a server restart,
+        a network cut): otherwise one bad moment would fail every write after."""
+        if self._conn.closed or self._conn.broken:
+            with contextlib.suppress(psycopg.Error):
+                self._conn.close()
+            self._conn = self._connect()
+        return self._conn
 
     def _reset(self) -> None:
         self._entities: list[EntitySample] = []
@@ -193,7 +263,7 @@ class PostgresAppender(Appender):
             raise TypeError(f"unknown write op {op!r}")
 
     def _commit(self) -> None:
-        conn = self._conn
+        conn = self._connection()
         with conn.cursor() as cur:
             if self._entities:
                 self._copy_samples(cur)
@@ -204,6 +274,10 @@ class PostgresAppender(Appender):
                     [r.tenant, naive_utc(r.received_at), r.error, r.description, r.headers, r.body,
                      len(r.body) if r.body_size is None else r.body_size, r.body_truncated],
                 )
+            dropped = None
+            if self._rejected:
+                dropped = rejected_store.prune(_fetch_all(cur), rejected_store.POSTGRES,
+                                               [r.tenant for r in self._rejected], self._store.rejected_limits)
             for put in self._layouts:
                 layout = put.layout
                 cur.execute(
@@ -223,7 +297,9 @@ class PostgresAppender(Appender):
                 for op in self._instance_ops:
                     for sql, params in instance_statements(PostgresDialect(), ("samples",), op):
                         cur.execute(sql, params)
-        conn.commit()
+        self._send_commit(conn)
+        if dropped:
+            rejected_store.count_dropped(self._store.rejected_dropped, dropped)
         store = self._store
         for put in self._layouts:
             store._layouts[(put.tenant, put.subscription_id)] = put.layout
@@ -339,9 +415,28 @@ class PostgresAppender(Appender):
             self._found = found
         return local
 
+    @staticmethod
+    def _send_commit(conn: psycopg.Connection) -> None:
+        """COMMIT, telling "rolled back" from "nobody knows": an error the
+        server answered on a live connection means it rolled back (the caller
+        may retry); a connection that broke meanwhile may have committed, and
+        a retry could store the write twice, so that is ``Unavailable``."""
+        try:
+            conn.commit()
+        except psycopg.Error as exc:
+            if conn.broken or conn.closed:
+                log.warning("connection lost during COMMIT; outcome unknown: %s", exc)
+                raise Unavailable(MAYBE_STORED) from exc
+            raise
+
     def commit(self) -> None:
         self._found: dict[SeriesKey, int] = {}
-        self._commit()
+        try:
+            self._commit()
+        except psycopg.Error as exc:
+            self._store._note_write(exc)
+            raise
+        self._store._note_write(None)
         # Cache only after commit: only now do the rows this transaction
         # created certainly exist (a rolled-back series row would orphan samples).
         self._store._series.update(self._found)

@@ -16,22 +16,28 @@ is what prunes them.
 
 from __future__ import annotations
 
+import bisect
 from abc import abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
 from typing import NamedTuple
-from datetime import UTC, datetime
 
+from .. import budget
 from ..history.query import Aggregation, AggrMethod, EntityFilter, Scope, TimeRange
 from ..model import Kind
 from .base import Querier
 from .catalog import SeriesCatalog, SeriesRef
+from .rollups import delete_sql as rollup_delete_sql
+from .rollups import rolled_up_count, rollup_parts
 
 NUMERIC_KINDS = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
 NULL_KIND = int(Kind.NULL)
 INTEGER_KIND = int(Kind.INTEGER)
 GEO_KIND = int(Kind.GEO)
 _MAX_BIGINT = 2**62  # LIMIT/OFFSET values stay well inside int64
+_EPOCH = datetime(1970, 1, 1)
+_LOCATION_COLUMNS = "sid, rid, t, kind, geo, min_lon, min_lat, max_lon, max_lat"
 
 
 def quote_ident(name: str) -> str:
@@ -91,6 +97,15 @@ class Dialect:
     def json_present(self, col: str, path: object) -> tuple[str, list]:
         """True where a non-null value exists at ``path``."""
 
+    def mask_relation(self) -> str:
+        """A FROM item of five bound arrays zipped into rows
+        ``(m_sid, m_t0, m_r0, m_t1, m_r1)`` (see ``RowMask``)."""
+        p = self.placeholder
+        return (
+            f"unnest({p}::integer[], {p}::timestamp[], {p}::bigint[], {p}::timestamp[], {p}::bigint[]) "
+            "AS m(m_sid, m_t0, m_r0, m_t1, m_r1)"
+        )
+
     @abstractmethod
     def regex_match(self, col: str) -> str:
         """SQL: ``col`` matches a regex (one placeholder), unanchored.
@@ -139,6 +154,13 @@ class DuckDBDialect(Dialect):
 
     def regex_match(self, col: str) -> str:
         return f"regexp_matches({col}, ?)"
+
+    def mask_relation(self) -> str:
+        # unnest() in a SELECT list zips arrays of equal length.
+        return (
+            "(SELECT unnest(?::INTEGER[]) AS m_sid, unnest(?::TIMESTAMP[]) AS m_t0, unnest(?::BIGINT[]) AS m_r0, "
+            "unnest(?::TIMESTAMP[]) AS m_t1, unnest(?::BIGINT[]) AS m_r1) AS m"
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -209,11 +231,76 @@ def _instance_order(row: InstanceRow) -> tuple:
     return row.sid, row.at, row.iid
 
 
+class RowMask:
+    """Which samples of some series a read keeps: per series, half-open
+    intervals of (time, row id), ``[(t0, r0), (t1, r1))``, an open end where
+    ``t1`` is None. Times are epoch microseconds. A geo-query becomes one:
+    the intervals in which an entity's location matched, repeated for each
+    of its series, so a sample is kept when its row's location matched. A
+    series not listed keeps nothing."""
+
+    __slots__ = ("intervals",)
+
+    def __init__(self, intervals: dict[int, list[tuple[int, int, int | None, int | None]]]):
+        self.intervals = intervals
+
+    def arrays(self) -> list[list]:
+        """The five parallel arrays ``Dialect.mask_relation`` binds."""
+        sids, t0, r0, t1, r1 = [], [], [], [], []
+        for sid, spans in self.intervals.items():
+            for a, ra, b, rb in spans:
+                sids.append(sid)
+                t0.append(_EPOCH + timedelta(microseconds=a))
+                r0.append(ra)
+                t1.append(None if b is None else _EPOCH + timedelta(microseconds=b))
+                r1.append(rb)
+        return [sids, t0, r0, t1, r1]
+
+    def keep(self, sid: int, rows: list[tuple]) -> list[tuple]:
+        """Those of ``rows`` (sorted by (t µs, rid, ...)) the mask keeps."""
+        out: list[tuple] = []
+        for a, ra, b, rb in self.intervals.get(sid, ()):
+            lo = bisect.bisect_left(rows, (a, ra))
+            hi = len(rows) if b is None else bisect.bisect_left(rows, (b, rb))
+            out.extend(rows[lo:hi])
+        return out
+
+
+def mask_filter(dialect: Dialect, mask: RowMask) -> tuple[str, list]:
+    """SQL: the sample's (t, rid) lies in one of its series' mask intervals.
+    ``sid``, ``t`` and ``rid`` are the enclosing query's columns."""
+    return (
+        f"EXISTS (SELECT 1 FROM {dialect.mask_relation()} WHERE m_sid = sid "
+        "AND (t > m_t0 OR (t = m_t0 AND rid >= m_r0)) "
+        "AND (m_t1 IS NULL OR t < m_t1 OR (t = m_t1 AND rid < m_r1)))",
+        mask.arrays(),
+    )
+
+
+def box_test(dialect: Dialect, prefilter) -> tuple[str, list]:
+    """SQL: a sample's stored bounding box passes ``prefilter``
+    (``("intersects" | "within", BBox)``; None passes everything)."""
+    if prefilter is None:
+        return "TRUE", []
+    how, box = prefilter
+    p = dialect.placeholder
+    if how == "within":
+        sql = f"(min_lon >= {p} AND max_lon <= {p} AND min_lat >= {p} AND max_lat <= {p})"
+    else:
+        sql = f"(max_lon >= {p} AND min_lon <= {p} AND max_lat >= {p} AND min_lat <= {p})"
+    return sql, [box.min_lon, box.max_lon, box.min_lat, box.max_lat]
+
+
 # Row layouts returned by SqlQuerier (tuples, for speed):
 #   raw_rows:    (sid, rid, iso_time, kind, num, txt, js)
 #   aggregate:   (branch, sid, iso_bucket | None, n_present, n_numeric, value, all_integer)
 #   latest:      (sid, iso_time)
 #   last_values: (sid, iso_time, kind, atype, num, txt, js)
+#   location_samples: (sid, t µs, rid, box passes, is a point, lon, lat, GeoJSON or None)
+#
+# ``mask`` (a RowMask, optional) on raw_rows, aggregate, latest_index and
+# count keeps only the samples it lists: everything else (ordering, lastN,
+# limit, offset, aggregation) then happens in the database as without it.
 
 
 class SqlQuerier(Querier):
@@ -242,8 +329,19 @@ class SqlQuerier(Querier):
 
     # -- samples -----------------------------------------------------------------
 
-    def _where(self, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
-        return series_time_filter(self.dialect, sids, time)
+    def _where(self, sids: Sequence[int], time: TimeRange, mask: RowMask | None = None) -> tuple[str, list]:
+        where, params = series_time_filter(self.dialect, sids, time)
+        if mask is not None:
+            test, more = mask_filter(self.dialect, mask)
+            where += f" AND {test}"
+            params += more
+        return where, params
+
+    def _samples(self, columns: str, mask: RowMask | None) -> str:
+        """The FROM item; a mask also needs each sample's row id."""
+        if mask is not None and "rid" not in columns.split(", "):
+            columns += ", rid"
+        return self.dialect.samples(columns)
 
     def raw_rows(
         self,
@@ -255,6 +353,7 @@ class SqlQuerier(Querier):
         offset: int,
         one_per_row: bool,
         attrs_per_row: int = 1,
+        mask: RowMask | None = None,
     ) -> list[tuple]:
         """Samples of the selected rows, oldest first.
 
@@ -273,7 +372,7 @@ class SqlQuerier(Querier):
             return []
         d = self.dialect
         p = d.placeholder
-        where, params = self._where(sids, time)
+        where, params = self._where(sids, time, mask)
         direction = "DESC" if newest_first else "ASC"
         cols = f"sid, rid, {d.iso_ms('t')}, kind, num, txt, js"
         table = d.samples("sid, rid, t, kind, num, txt, js")
@@ -306,7 +405,9 @@ class SqlQuerier(Querier):
         )
         return self._fetch(sql, [*params_thr, *params_thr, limit, min(offset, _MAX_BIGINT)])
 
-    def aggregate(self, branches: Sequence[AggBranch], time: TimeRange, agg: Aggregation) -> list[tuple]:
+    def aggregate(
+        self, branches: Sequence[AggBranch], time: TimeRange, agg: Aggregation, mask: RowMask | None = None
+    ) -> list[tuple]:
         """Per-series (and per period) partial aggregates of each branch."""
         d = self.dialect
         parts: list[str] = []
@@ -316,7 +417,7 @@ class SqlQuerier(Querier):
         for number, branch in enumerate(branches):
             if not branch.sids:
                 continue
-            where, wparams = self._where(branch.sids, time)
+            where, wparams = self._where(branch.sids, time, mask)
             sel_params: list = []
             if not branch.steps:
                 value, vparams = f"CASE WHEN kind IN ({NUMERIC_KINDS}) THEN num END", []
@@ -338,19 +439,30 @@ class SqlQuerier(Querier):
                 f"count(*) FILTER (WHERE {present}) AS n_present, "
                 f"count({value}) AS n_numeric, {agg_sql} AS value, "
                 f"bool_and({is_int}) FILTER (WHERE {value} IS NOT NULL) AS all_integer "
-                f"FROM {d.samples('sid, t, kind, num, js')} WHERE {where} GROUP BY {group}"
+                f"FROM {self._samples('sid, t, kind, num, js', mask)} WHERE {where} GROUP BY {group}"
             )
             params += sel_params + wparams
+        # Retention/rollups (storage/rollups.py): hours whose raw samples
+        # retention folded away, in this same statement (one snapshot).
+        # Never under a geo mask: rolled-up hours carry no locations to check.
+        rollup_sql, rollup_params = rollup_parts(self, branches, time, agg) if mask is None else ("", [])
+        if rollup_sql:
+            parts.append(rollup_sql)
+            params += rollup_params
         if not parts:
             return []
-        return self._fetch(" UNION ALL ".join(parts), params)
+        sql = " UNION ALL ".join(parts)
+        if budget.current() is not None:  # one row past the request's budget detects an overflow
+            sql = f"SELECT * FROM ({sql}) AS parts LIMIT {d.placeholder}"
+            params.append(budget.row_cap(_MAX_BIGINT))
+        return self._fetch(sql, params)
 
-    def latest_index(self, sids: Sequence[int], time: TimeRange) -> list[tuple]:
+    def latest_index(self, sids: Sequence[int], time: TimeRange, mask: RowMask | None = None) -> list[tuple]:
         if not sids:
             return []
-        where, params = self._where(sids, time)
+        where, params = self._where(sids, time, mask)
         d = self.dialect
-        sql = f"SELECT sid, {d.iso_ms('max(t)')} FROM {d.samples('sid, t')} WHERE {where} GROUP BY sid"
+        sql = f"SELECT sid, {d.iso_ms('max(t)')} FROM {self._samples('sid, t', mask)} WHERE {where} GROUP BY sid"
         return self._fetch(sql, params)
 
     def last_values(self, sids: Sequence[int]) -> list[tuple]:
@@ -375,30 +487,97 @@ class SqlQuerier(Querier):
             return []
         d = self.dialect
         where, params = self._where(sids, time)
-        outer, outer_params = "", []
-        if prefilter is not None:
-            how, box = prefilter
-            p = d.placeholder
-            if how == "within":
-                outer = f" AND min_lon >= {p} AND max_lon <= {p} AND min_lat >= {p} AND max_lat <= {p}"
-                outer_params = [box.min_lon, box.max_lon, box.min_lat, box.max_lat]
-            else:
-                outer = f" AND max_lon >= {p} AND min_lon <= {p} AND max_lat >= {p} AND min_lat <= {p}"
-                outer_params = [box.min_lon, box.max_lon, box.min_lat, box.max_lat]
+        test, test_params = box_test(d, prefilter)
         sql = (
             "SELECT sid, geo FROM (SELECT sid, geo, min_lon, min_lat, max_lon, max_lat, "
             "row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn "
             f"FROM {d.samples('sid, rid, t, kind, geo, min_lon, min_lat, max_lon, max_lat')} "
-            f"WHERE {where} AND kind = {GEO_KIND}) latest WHERE rn = 1{outer}"
+            f"WHERE {where} AND kind = {GEO_KIND}) latest WHERE rn = 1 AND {test}"
         )
-        return self._fetch(sql, [*params, *outer_params])
+        return self._fetch(sql, [*params, *test_params])
 
-    def count(self, sids: Sequence[int], time: TimeRange) -> int:
+    # -- locations over time (geo-queries on samples) ------------------------------
+
+    def location_extents(self, sids: Sequence[int], prefilter) -> list[tuple] | None:
+        """(sid, min_lon, min_lat, max_lon, max_lat, first t µs, first rid) per
+        located series whose extent may pass ``prefilter``, where the backend
+        keeps extents in memory; None here (SQL would cost a full scan)."""
+        return None
+
+    def location_candidates(self, sids: Sequence[int], time: TimeRange, prefilter) -> list[int]:
+        """Those of ``sids`` with a geo sample at or before ``time.end``
+        whose box passes ``prefilter``: only they can have a matching
+        location in ``time`` (an earlier position still counts at its start)."""
+        if not sids or prefilter is None:
+            return list(sids)
+        d = self.dialect
+        where, params = self._where(sids, TimeRange(None, time.end))
+        test, test_params = box_test(d, prefilter)
+        sql = (
+            f"SELECT DISTINCT sid FROM {d.samples('sid, t, kind, geo, min_lon, min_lat, max_lon, max_lat')} "
+            f"WHERE {where} AND kind = {GEO_KIND} AND geo IS NOT NULL AND {test}"
+        )
+        return [row[0] for row in self._fetch(sql, [*params, *test_params])]
+
+    def location_samples(self, sids: Sequence[int], time: TimeRange, prefilter) -> list[tuple]:
+        """Every geo sample of ``sids`` in ``time``, plus each series' latest
+        one before ``time.start`` (the location its first samples in the
+        window had), ordered by (sid, t, rid). Points come as (lon, lat);
+        other shapes as GeoJSON, and only where the box passes ``prefilter``
+        (the others cannot match, so they are not parsed)."""
+        if not sids:
+            return []
+        d = self.dialect
+        parts, params = self._location_rows(sids, time)
+        test, test_params = box_test(d, prefilter)
+        sql = (
+            "SELECT sid, t_us, rid, ok, pt, min_lon, min_lat, CASE WHEN ok AND NOT pt THEN geo END FROM ("
+            f"SELECT sid, {d.epoch_us('t')} AS t_us, rid, geo, min_lon, min_lat, {test} AS ok, "
+            f"(min_lon = max_lon AND min_lat = max_lat) AS pt FROM ({parts}) u) x ORDER BY sid, t_us, rid"
+        )
+        return self._fetch(sql, [*test_params, *params])
+
+    def _location_rows(self, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
+        """SQL and parameters: the rows ``location_samples`` reads."""
+        d = self.dialect
+        where, params = self._where(sids, time)
+        parts = (
+            f"SELECT {_LOCATION_COLUMNS} FROM {d.samples(_LOCATION_COLUMNS)} "
+            f"WHERE {where} AND kind = {GEO_KIND} AND geo IS NOT NULL"
+        )
+        if time.start is not None:
+            seeds, seed_params = self._location_seeds(sids, time.start)
+            parts = f"{parts} UNION ALL {seeds}"
+            params += seed_params
+        return parts, params
+
+    def _location_seeds(self, sids: Sequence[int], before: datetime) -> tuple[str, list]:
+        """SQL (columns as in ``location_samples``): each series' latest geo
+        sample strictly before ``before``."""
+        d = self.dialect
+        columns = _LOCATION_COLUMNS
+        where, params = d.sid_filter(sids)
+        params.append(d.time_value(before))
+        return (
+            f"SELECT {columns} FROM (SELECT {columns}, "
+            "row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn "
+            f"FROM {d.samples(columns)} WHERE {where} AND t < {d.placeholder} AND kind = {GEO_KIND} "
+            "AND geo IS NOT NULL) seed WHERE rn = 1",
+            params,
+        )
+
+    def count(self, sids: Sequence[int], time: TimeRange, mask: RowMask | None = None) -> int:
+        """Samples of ``sids`` in ``time``; when there are none (and no geo
+        mask), the rolled-up hours a delete would remove (``storage.rollups``):
+        non-zero whenever a delete has something to remove."""
         if not sids:
             return 0
-        where, params = self._where(sids, time)
-        rows = self._fetch(f"SELECT count(*) FROM {self.dialect.samples('sid, t')} WHERE {where}", params)
-        return int(rows[0][0]) if rows else 0
+        where, params = self._where(sids, time, mask)
+        rows = self._fetch(f"SELECT count(*) FROM {self._samples('sid, t', mask)} WHERE {where}", params)
+        raw = int(rows[0][0]) if rows else 0
+        if raw or mask is not None:
+            return raw
+        return rolled_up_count(self, sids, time)  # retention/rollups
 
 
     # -- NGSI-LD attribute instances ------------------------------------------------
@@ -480,7 +659,8 @@ def delete_statements(
     dialect: Dialect, tables: Sequence[str], sids: Sequence[int], time: TimeRange, upto_rid: int
 ) -> list[tuple[str, list]]:
     """DELETEs for the samples of ``sids`` in ``time``, written up to ``upto_rid``
-    (rows appended after the delete was asked for survive it)."""
+    (rows appended after the delete was asked for survive it), and for their
+    rolled-up hours that overlap ``time`` (``storage.rollups``)."""
     p = dialect.placeholder
     out = []
     for table in tables:
@@ -488,6 +668,7 @@ def delete_statements(
         where += f" AND rid <= {p}"
         params.append(upto_rid)
         out.append((f"DELETE FROM {quote_ident(table)} WHERE {where}", params))
+    out.append(rollup_delete_sql(dialect, sids, time.start, time.end))  # retention/rollups
     return out
 
 

@@ -6,7 +6,11 @@ the waiters together. Throughput comes from amortising the commit; safety
 comes from answering only after the commit returned.
 
 If a group fails, its operations are retried one by one, so one poisonous
-notification fails alone instead of taking its neighbours down with it.
+notification fails alone instead of taking its neighbours down with it. An
+appender that knows retrying cannot help (the database is down, or the
+commit's outcome is unknown) raises ``Unavailable`` instead: the group is
+answered with that error as it stands, never retried, because a retry after a
+commit that did land would store everything twice.
 
 Several writer threads may share the queue. A commit is mostly waiting (for
 the log's fsync, for the GIL held by the event loop), so while one writer
@@ -176,6 +180,13 @@ class GroupCommitter:
             for waiter in group:
                 appender.stage(waiter.op)
             appender.commit()
+        except Unavailable as exc:
+            # The appender says what happened (nothing stored, or unknown).
+            appender.rollback()
+            log.debug("write of %d ops refused: %s", len(group), exc.description)
+            self._tell("failed_ops", group)
+            _resolve(group, exc)
+            return
         except Exception:
             appender.rollback()
             if len(group) > 1:

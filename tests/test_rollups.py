@@ -1,0 +1,195 @@
+"""Hourly rollups answer aggregations over what retention deleted.
+
+Every aggregation whose period is an hour or longer (or none) gives the same
+answer after retention folded the old samples into rollups as before, also
+when it spans rolled-up and raw data; late samples, user deletes, rollup
+retention and a restart keep it so. Minute buckets, value paths and ranges
+that cut an hour only see raw samples, as documented."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+from urllib.parse import quote
+
+import pytest
+
+from tsdb_service.history.query import EntityFilter, Scope
+
+NOW = datetime.now(UTC).replace(minute=0, second=0, microsecond=0)
+OLD = NOW - timedelta(days=60) - timedelta(hours=7)  # 50 hours from here: rolled up
+NEW = NOW - timedelta(days=2)  # 10 hours from here: raw
+MS = timedelta(milliseconds=1)
+H = {"Fiware-Service": "acme"}
+SETTINGS = dict(retention="acme=30d", rollups=True, retention_batch_rows=40, retention_pause=0,
+                retention_interval=3600)
+
+
+def iso(moment: datetime) -> str:
+    return moment.isoformat(timespec="milliseconds")
+
+
+def sample(eid: str, moment: datetime, i: int) -> dict:
+    """Floats in quarters and integers, so every sum is exact in any order."""
+    body = {
+        "id": eid, "type": "Robot",
+        "TimeInstant": {"type": "DateTime", "value": iso(moment)},
+        "speed": {"type": "Number", "value": (i % 17) * 0.25 - 1},
+        "ticks": {"type": "Integer", "value": i * 3 - 50},
+        "label": {"type": "Text", "value": f"s{i % 3}"},
+        "odom": {"type": "StructuredValue", "value": {"x": i % 5}},
+    }
+    # 'mixed' is an integer in some hours and a float in others; one in ten has no value.
+    body["mixed"] = {"value": None} if i % 10 == 0 else {"type": "Number", "value": i if i % 4 else i + 0.5}
+    return body
+
+
+def history(eid: str, start: datetime, hours: int, seed: int) -> list[dict]:
+    return [sample(eid, start + timedelta(hours=h, minutes=m), seed + h * 3 + k)
+            for h in range(hours) for k, m in enumerate((0, 20, 40))]
+
+
+def load(client, notify) -> None:
+    for eid, seed in (("Robot:1", 0), ("Robot:2", 7)):
+        notify(client, {"subscriptionId": "s", "data": history(eid, OLD, 50, seed)}, H)
+        notify(client, {"subscriptionId": "s", "data": history(eid, NEW, 10, seed + 500)}, H)
+
+
+def queries() -> list[str]:
+    spans = [
+        "",  # everything: rolled-up and raw
+        f"&fromDate={quote(iso(OLD + timedelta(hours=5)))}&toDate={quote(iso(OLD + timedelta(hours=29) - MS))}",
+        f"&fromDate={quote(iso(OLD + timedelta(hours=30)))}&toDate={quote(iso(NEW + timedelta(hours=4)))}",
+    ]
+    out = []
+    for method in ("count", "sum", "avg", "min", "max"):
+        for period in ("", "&aggrPeriod=hour", "&aggrPeriod=day", "&aggrPeriod=month", "&aggrPeriod=year"):
+            for span in spans:
+                q = f"aggrMethod={method}{period}{span}"
+                out += [f"/v2/entities/Robot:1/attrs/{attr}?{q}" for attr in ("speed", "ticks", "mixed", "label")]
+                out.append(f"/v2/entities/Robot:2?{q}")
+                out.append(f"/v2/types/Robot/attrs/ticks?{q}")
+                out.append(f"/v2/attrs?{q}&aggrScope=global")
+            out.append(f"/v2/entities/Robot:1/attrs/speed?aggrMethod={method}{period}&lastN=3")
+    return out
+
+
+def answers(client, paths: list[str]) -> dict[str, tuple[int, object]]:
+    return {p: (r.status_code, r.json()) for p in paths for r in [client.get(p, headers=H)]}
+
+
+def raw_count(client) -> int:
+    """Raw samples left (``Querier.count`` also counts rolled-up hours)."""
+    return client.app.state.store.querier()._fetch("SELECT count(*) FROM samples_all", [])[0][0]
+
+
+def rollup_rows(client) -> list[tuple]:
+    q = client.app.state.store.querier()
+    return q._fetch("SELECT sid, bucket, n_present FROM rollups_hourly ORDER BY sid, bucket", [])
+
+
+@pytest.fixture
+def loaded(client_factory, store_url, notify):
+    with client_factory(store_url, **SETTINGS) as client:
+        load(client, notify)
+        yield client
+
+
+def test_answers_are_the_same_after_retention_folded_the_old_samples(loaded):
+    paths = queries()
+    before = answers(loaded, paths)
+    assert before["/v2/entities/Robot:1/attrs/ticks?aggrMethod=sum&aggrPeriod=day"][0] == 200
+    assert before["/v2/entities/Robot:1/attrs/label?aggrMethod=sum&aggrPeriod=day"][0] == 404  # text
+    deleted = loaded.app.state.store.retention.run_once()
+    assert deleted and sum(deleted.values()) == 2 * 50 * 3 * 6  # every old sample of 6 attributes (TimeInstant too)
+    assert raw_count(loaded) == 2 * 10 * 3 * 6
+    assert len(rollup_rows(loaded)) == 2 * 50 * 6  # one row per series and hour
+    after = answers(loaded, paths)
+    assert after == before
+
+
+def test_late_samples_are_counted_before_and_after_they_are_folded(loaded, notify):
+    path = "/v2/entities/Robot:1/attrs/ticks?aggrMethod=sum&aggrPeriod=day"
+    loaded.app.state.store.retention.run_once()
+    before = loaded.get(path, headers=H).json()
+    late = sample("Robot:1", OLD + timedelta(hours=2, minutes=10), 0)
+    late["ticks"]["value"] = 1000
+    notify(loaded, {"subscriptionId": "s", "data": [late]}, H)
+    day = iso((OLD + timedelta(hours=2)).replace(hour=0)).replace("Z", "+00:00")
+    expected = [v + 1000 if i == before["index"].index(day) else v for i, v in enumerate(before["values"])]
+    assert loaded.get(path, headers=H).json()["values"] == expected  # raw + rollup, same hour
+    assert sum(loaded.app.state.store.retention.run_once().values()) == 6  # the late notification's samples
+    assert loaded.get(path, headers=H).json()["values"] == expected  # folded into the same rollup row
+
+
+def test_minute_buckets_value_paths_and_cut_hours_see_raw_samples_only(loaded):
+    loaded.app.state.store.retention.run_once()
+    minute = loaded.get("/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&aggrPeriod=minute", headers=H).json()
+    assert len(minute["index"]) == 30 and all(i >= iso(NEW)[:13] for i in minute["index"])
+    path = loaded.get("/v2/entities/Robot:1/attrs/odom(x)?aggrMethod=count", headers=H).json()
+    assert path["values"] == [30]  # only the raw window
+    # A range starting mid-hour leaves that hour's rolled-up part out.
+    cut = loaded.get(f"/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&fromDate="
+                     f"{quote(iso(OLD + timedelta(hours=4, minutes=30)))}", headers=H).json()
+    whole = loaded.get(f"/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&fromDate="
+                       f"{quote(iso(OLD + timedelta(hours=5)))}", headers=H).json()
+    assert cut["values"] == whole["values"] == [(50 - 5) * 3 + 30]
+    # A range ending on an hour's first instant leaves that hour out; its last millisecond keeps it in.
+    ends = [OLD + timedelta(hours=10), OLD + timedelta(hours=10) - MS]
+    got = [loaded.get(f"/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&toDate={quote(iso(end))}",
+                      headers=H).json()["values"] for end in ends]
+    assert got == [[30], [30]]
+
+
+def test_deleting_an_entity_removes_its_rollups(loaded):
+    loaded.app.state.store.retention.run_once()
+    count = "/v2/entities/Robot:1/attrs/ticks?aggrMethod=count"
+    assert loaded.get(count, headers=H).json()["values"] == [180]
+    # A range delete removes every rolled-up hour it touches: 10:00 to 20:00 inclusive is 11 hours.
+    r = loaded.delete(f"/v2/entities/Robot:1?type=Robot&fromDate={quote(iso(OLD + timedelta(hours=10)))}"
+                      f"&toDate={quote(iso(OLD + timedelta(hours=20)))}", headers=H)
+    assert r.status_code == 204, r.text
+    assert loaded.get(count, headers=H).json()["values"] == [180 - 33]
+    assert loaded.delete("/v2/entities/Robot:2?type=Robot", headers=H).status_code == 204
+    assert loaded.get("/v2/entities/Robot:2?aggrMethod=count", headers=H).json() == []
+    store = loaded.app.state.store
+    robot2 = {r.sid for r in store.querier().series(Scope("acme"), EntityFilter(ids=("Robot:2",)))}
+    assert not [row for row in rollup_rows(loaded) if row[0] in robot2]
+
+
+def test_rollup_retention_trims_old_rollup_rows(client_factory, store_url, notify):
+    with client_factory(store_url, **{**SETTINGS, "rollup_retention": "acme=60d"}) as client:
+        load(client, notify)
+        worker = client.app.state.store.retention
+        worker.run_once()
+        horizon = worker.watermarks[("rollups", "acme")].replace(tzinfo=None)
+        buckets = [row[1] for row in rollup_rows(client)]
+        assert buckets and min(buckets) >= horizon
+        assert len(buckets) < 2 * 50 * 6  # the oldest hours are gone
+        assert OLD.replace(tzinfo=None) < horizon <= datetime.now(UTC).replace(tzinfo=None) - timedelta(days=60)
+
+
+def test_a_restart_keeps_rollups_and_watermarks(client_factory, store_url, notify):
+    paths = [p for p in queries() if "aggrScope" in p or "types" in p]
+    with client_factory(store_url, **SETTINGS) as client:
+        load(client, notify)
+        before = answers(client, paths)
+        client.app.state.store.retention.run_once()
+        marks = dict(client.app.state.store.retention.watermarks)
+    with client_factory(store_url, **SETTINGS) as client:
+        assert client.app.state.store.retention.watermarks == marks
+        assert answers(client, paths) == before
+    # Rollups keep answering with the feature switched off later.
+    with client_factory(store_url) as client:
+        assert answers(client, paths) == before
+
+
+def test_metrics_count_deleted_rows_and_report_the_watermark_lag(loaded):
+    loaded.app.state.store.retention.run_once()
+    text = loaded.get("/metrics").text
+    deleted = [line for line in text.splitlines() if line.startswith("tsdb_retention_deleted_rows_total{")]
+    assert sum(float(line.rsplit(" ", 1)[1]) for line in deleted) == 1800
+    assert all('tenant="acme"' in line for line in deleted)
+    lag = [line for line in text.splitlines() if line.startswith("tsdb_retention_watermark_lag_seconds{")]
+    assert lag and 'rule="acme"' in lag[0] and 'table="samples"' in lag[0]
+    assert 0 <= float(lag[0].rsplit(" ", 1)[1]) < 3600
+    assert "tsdb_retention_batch_duration_seconds_count" in text

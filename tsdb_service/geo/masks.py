@@ -1,0 +1,132 @@
+"""Sample semantics: a geo-query as per-series time masks.
+
+An entity's location is a step function of time: each location sample holds
+from its (time, row id) until the next one. A geo-query is resolved once per
+request into the intervals in which that location matched, then every read
+keeps only the samples inside them (``storage.sql.RowMask``, a join against
+bound arrays), so ordering, ``lastN``, ``limit``, ``offset`` and
+aggregations run in the database on the matching samples only.
+
+Resolving costs little because most entities are never near the query:
+
+1. candidates: the entities whose location series has a sample whose
+   bounding box passes the query's box (in-memory extents on DuckDB, SQL on
+   PostgreSQL). On DuckDB the extent also settles most of them: one that
+   lies wholly inside the query's region matched from its first position
+   on, one wholly outside never did;
+2. the others' location samples in the window, plus the last one before it
+   (SQL, which also tests each sample's box, so only those that pass are
+   parsed);
+3. the exact predicate for all of them at once (shapely 2 / pyproj arrays);
+4. runs of consecutive matching samples become intervals.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..history.query import TimeRange
+from ..storage.sql import RowMask
+from .filter import GeoFilter
+
+Span = tuple[int, int, int | None, int | None]  # t0 µs, rid0, t1 µs | None (open), rid1
+
+
+def sample_spans(querier, locations: dict[int, tuple], geo: GeoFilter, time: TimeRange) -> dict[tuple, list[Span]]:
+    """Entity -> the intervals in which its location matched, for the
+    entities of ``locations`` (location series id -> entity) that matched."""
+    sids = list(locations)
+    extents = querier.location_extents(sids, geo.prefilter)
+    spans: dict[int, list[Span]] = {}
+    if extents is None:  # no extents kept: read every candidate
+        read = querier.location_candidates(sids, time, geo.prefilter)
+    else:
+        read = _from_extents(extents, geo, spans)
+    if read:
+        spans.update(location_spans(querier.location_samples(read, time, geo.prefilter), geo))
+    return {locations[sid]: found for sid, found in spans.items()}
+
+
+def _from_extents(extents: list[tuple], geo: GeoFilter, spans: dict[int, list[Span]]) -> list[int]:
+    """Decide what the extents decide: a series whose every position matches
+    matched from its first one on (into ``spans``); one whose positions
+    cannot match is dropped. Returns the series to read."""
+    if not extents:
+        return []
+    boxes = np.array([row[1:5] for row in extents], dtype=float)
+    every, none = geo.classify_extents(boxes)
+    read = []
+    for (sid, *_box, first_t, first_rid), all_match, no_match in zip(extents, every.tolist(), none.tolist(),
+                                                                     strict=True):
+        if no_match:
+            continue
+        if all_match and first_t is not None:
+            spans[sid] = [(first_t, first_rid, None, None)]
+        else:
+            read.append(sid)
+    return read
+
+
+def location_spans(rows: list[tuple], geo: GeoFilter) -> dict[int, list[Span]]:
+    """Per location series, the intervals in which its location matched.
+    ``rows`` are ``location_samples`` rows, ordered by (sid, t, rid)."""
+    if not rows:
+        return {}
+    sid, t_us, rid, ok, point, lon, lat, geojson = zip(*rows, strict=True)
+    sid = np.fromiter(sid, np.int64, len(rows))
+    t_us = np.fromiter(t_us, np.int64, len(rows))
+    rid = np.fromiter(rid, np.int64, len(rows))
+    ok = np.fromiter(ok, bool, len(rows))
+    match = np.zeros(len(rows), dtype=bool)
+    test = np.flatnonzero(ok)
+    if len(test):
+        match[test] = geo.matches_array(
+            np.asarray(lon, dtype=float)[test], np.asarray(lat, dtype=float)[test],
+            np.asarray(geojson, dtype=object)[test], np.fromiter(point, bool, len(rows))[test],
+        )  # fmt: skip
+    return _runs(sid, t_us, rid, match)
+
+
+def _runs(sid: np.ndarray, t_us: np.ndarray, rid: np.ndarray, match: np.ndarray) -> dict[int, list[Span]]:
+    """Runs of consecutive matching samples of one series, each from its
+    first sample to the series' next (non-matching) sample, or open."""
+    same_next = np.zeros(len(sid), dtype=bool)
+    same_next[:-1] = sid[1:] == sid[:-1]
+    next_match = np.zeros(len(sid), dtype=bool)
+    next_match[:-1] = match[1:]
+    prev_match = np.zeros(len(sid), dtype=bool)
+    prev_match[1:] = match[:-1] & same_next[:-1]
+    firsts = np.flatnonzero(match & ~prev_match)
+    lasts = np.flatnonzero(match & ~(same_next & next_match))
+    out: dict[int, list[Span]] = {}
+    for first, last in zip(firsts.tolist(), lasts.tolist(), strict=True):
+        if same_next[last]:
+            span = (int(t_us[first]), int(rid[first]), int(t_us[last + 1]), int(rid[last + 1]))
+        else:
+            span = (int(t_us[first]), int(rid[first]), None, None)
+        out.setdefault(int(sid[first]), []).append(span)
+    return out
+
+
+class MaskedQuerier:
+    """A querier whose sample reads keep only the samples ``mask`` keeps;
+    everything else is the wrapped querier's."""
+
+    def __init__(self, inner, mask: RowMask):
+        self._inner = inner
+        self.mask = mask
+
+    def __getattr__(self, name: str):
+        return getattr(self._inner, name)
+
+    def raw_rows(self, sids, time, **options) -> list[tuple]:
+        return self._inner.raw_rows(sids, time, mask=self.mask, **options)
+
+    def aggregate(self, branches, time, agg) -> list[tuple]:
+        return self._inner.aggregate(branches, time, agg, mask=self.mask)
+
+    def latest_index(self, sids, time) -> list[tuple]:
+        return self._inner.latest_index(sids, time, mask=self.mask)
+
+    def count(self, sids, time) -> int:
+        return self._inner.count(sids, time, mask=self.mask)

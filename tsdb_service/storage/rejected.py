@@ -1,0 +1,135 @@
+"""Bounds and pages of the rejected store, the same on both backends.
+
+Every notification we refuse is kept so an operator can recover it, but a
+client that keeps sending bad notifications must not fill the disk, and one
+listing must not hand out gigabytes. So:
+
+* **bounds**, per tenant: at most ``max_count`` rows and ``max_bytes`` of
+  stored body and headers, none older than ``max_age_s``. Enforced in the
+  transaction that records a rejection (oldest dropped first; a tenant's
+  newest rejection is always kept, so what was just refused can be read);
+  what is dropped is counted by reason (``count``, ``bytes``, ``age``) for
+  ``/metrics``. The tenant is the one the row is stored under (a tenant
+  header the API refuses is its own tenant, as received).
+* **pages** by size as well as by count: a listing stops before its rendered
+  rows pass ``max_bytes`` (always at least one row), and says where the next
+  page starts.
+
+Backends differ only in placeholders and how a string's byte length is
+written (``Dialect``); every value is a bound parameter.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import orjson
+
+REASONS = ("count", "bytes", "age")
+# What the listing shows, in rejected_row's argument order (duckdb_store.rejected_row).
+COLUMNS = "id, tenant, received_at, error, description, headers, body, body_size, body_truncated"
+
+
+@dataclass(frozen=True, slots=True)
+class RejectedLimits:
+    max_count: int = 1000
+    max_bytes: int = 64 * 1024 * 1024
+    max_age_s: float = 30 * 86400.0
+
+    @classmethod
+    def from_settings(cls, settings) -> RejectedLimits:
+        return cls(settings.rejected_max_per_tenant, settings.rejected_max_bytes_per_tenant,
+                   settings.rejected_max_age_days * 86400.0)  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True)
+class Dialect:
+    placeholder: str  # "?" (DuckDB) or "%s" (psycopg)
+    text_bytes: str  # the function giving a text column's length in bytes
+
+    @property
+    def row_bytes(self) -> str:
+        """Stored bytes of a row: body and headers (what the bounds count)."""
+        return f"octet_length(body) + {self.text_bytes}(headers)"
+
+
+DUCKDB = Dialect("?", "strlen")
+POSTGRES = Dialect("%s", "octet_length")
+
+Execute = Callable[[str, list], list[tuple]]
+
+
+def prune(execute: Execute, dialect: Dialect, tenants: Iterable[str], limits: RejectedLimits,
+          now: datetime | None = None) -> dict[str, int]:  # fmt: skip
+    """Drop what is over the bounds, oldest first, inside the caller's
+    transaction; returns rows dropped per reason. ``tenants`` are the ones
+    that just got a rejection (only they can be over count or bytes)."""
+    p = dialect.placeholder
+    now = now or datetime.now(UTC)
+    oldest = (now - timedelta(seconds=limits.max_age_s)).replace(tzinfo=None)
+    dropped = dict.fromkeys(REASONS, 0)
+    dropped["age"] = len(execute(f"DELETE FROM rejected_notifications WHERE received_at < {p} RETURNING id", [oldest]))
+    ranked = (
+        "SELECT id, row_number() OVER w AS n, sum({bytes}) OVER w AS b FROM rejected_notifications "
+        f"WHERE tenant = {p} WINDOW w AS (ORDER BY id DESC)"
+    ).format(bytes=dialect.row_bytes)
+    for tenant in sorted(set(tenants)):
+        for reason, condition, bound in (("count", "n", limits.max_count), ("bytes", "b", limits.max_bytes)):
+            sql = (f"DELETE FROM rejected_notifications WHERE id IN (SELECT id FROM ({ranked}) r "
+                   f"WHERE n > 1 AND {condition} > {p}) RETURNING id")  # fmt: skip
+            dropped[reason] += len(execute(sql, [tenant, bound]))
+    return dropped
+
+
+def page(execute: Execute, dialect: Dialect, tenant: str | None, limit: int, offset: int, max_bytes: int,
+         render: Callable[..., dict[str, Any]]) -> tuple[list[dict[str, Any]], int | None]:  # fmt: skip
+    """Rows newest first, ``limit`` at most and about ``max_bytes`` of JSON
+    at most (never fewer than one row), and the offset of the next page
+    (None when this is the last). Sizes are read first, so rows that would
+    not fit are never loaded."""
+    p = dialect.placeholder
+    where, params = ("", []) if tenant is None else (f"WHERE tenant = {p} ", [tenant])
+    sizes = execute(
+        f"SELECT id, {dialect.row_bytes} + {dialect.text_bytes}(description) FROM rejected_notifications {where}"
+        f"ORDER BY id DESC LIMIT {p} OFFSET {p}",
+        [*params, limit + 1, offset],
+    )
+    more = len(sizes) > limit
+    sizes = sizes[:limit]
+    take, estimate = 0, 0
+    for _id, size in sizes:
+        estimate += int(size) * 4 // 3 + 256  # base64 for binary bodies, JSON punctuation
+        if take and estimate > max_bytes:
+            break
+        take += 1
+    if not take:
+        return [], None
+    first = sizes[0][0]
+    and_or_where = "AND" if where else "WHERE"
+    rows = execute(
+        f"SELECT {COLUMNS} FROM rejected_notifications {where}{and_or_where} id <= {p} ORDER BY id DESC LIMIT {p}",
+        [*params, first, take],
+    )
+    out, used = [], 0
+    for row in rows:
+        item = render(*row)
+        used += len(orjson.dumps(item))
+        if out and used > max_bytes:
+            break
+        out.append(item)
+    cut = len(out) < len(sizes)
+    return out, (offset + len(out) if more or cut else None)
+
+
+_COUNT_LOCK = threading.Lock()
+
+
+def count_dropped(totals: dict[str, int], dropped: dict[str, int]) -> None:
+    """Add one commit's drops to a store's totals (writer threads share them)."""
+    with _COUNT_LOCK:
+        for reason, n in dropped.items():
+            totals[reason] = totals.get(reason, 0) + n

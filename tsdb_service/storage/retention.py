@@ -1,0 +1,532 @@
+"""Retention: delete raw samples older than a tenant's (or type's) limit.
+
+``TSDB_RETENTION`` names how long samples are kept, per tenant and
+optionally per entity type (``*=365d,acme=30d,acme/Robot=7d``, see
+``RetentionPolicy``). A background thread (``RetentionWorker``) applies it
+every ``TSDB_RETENTION_INTERVAL`` seconds in bounded batches: at most
+``TSDB_RETENTION_BATCH_ROWS`` rows per batch and table, each batch its own
+short transaction, with a pause between batches, so ingest and queries never
+wait long behind it.
+
+With ``TSDB_ROLLUPS`` each batch folds the rows it deletes into hourly
+rollups in the same transaction (``storage.rollups``), and aggregation
+queries keep answering for that time. ``TSDB_ROLLUP_RETENTION`` limits how
+long rollup rows are kept, with the same syntax.
+
+Each backend batches its own way:
+
+* **DuckDB**: a batch holds the compactor's lock (as a user's delete does),
+  so it never races the compactor moving or rewriting the same rows; it
+  picks at most N expired rows by ``rowid``, folds them, deletes them, and
+  drops the touched series from the in-memory tails and latest locations.
+* **PostgreSQL**: one statement per batch picks at most N expired rows by
+  (``tableoid``, ``ctid``), deletes them and folds exactly the rows it
+  deleted (``RETURNING``). A session advisory lock lets one replica run a
+  pass at a time; the others skip theirs.
+
+After a rule's every batch is done, its *watermark* (the cutoff it applied:
+every sample of the rule older than that is gone, and folded when rollups
+are on) is saved in ``retention_state``, so the lag metric survives
+restarts.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+from typing import Protocol
+
+from ..model import Kind
+from .rollups import TABLE as ROLLUP_TABLE
+from .rollups import RollupPresence, fold_sql
+from .sql import quote_ident
+
+log = logging.getLogger(__name__)
+
+FOREVER = "forever"
+_DURATION = re.compile(r"^(\d+)([smhdwy])$")
+_UNIT_SECONDS = {"s": 1, "m": 60, "h": 3600, "d": 86_400, "w": 7 * 86_400, "y": 365 * 86_400}
+_TENANT = re.compile(r"^[a-z0-9_]{0,50}$")  # Fiware-Service, lower-cased; "" = default tenant
+_PG_LOCK = 0x7473_6472  # "tsdr": one retention pass at a time across replicas
+SAMPLES, ROLLUPS = "samples", "rollups"  # the two things retention trims
+
+Keep = timedelta | None  # None: forever
+
+
+# --- the policy --------------------------------------------------------------------
+
+
+def parse_duration(text: str, setting: str, key: str) -> Keep:
+    """``30d`` → 30 days; ``forever`` → None. Units: s, m, h, d, w, y (365 d)."""
+    value = text.strip().lower()
+    if value == FOREVER:
+        return None
+    match = _DURATION.match(value)
+    if not match:
+        raise ValueError(
+            f"{setting}: {key or '(default tenant)'}={text!r}: a duration is a whole number followed by "
+            "s, m, h, d, w or y (e.g. 30d, 12h), or 'forever'"
+        )
+    seconds = int(match[1]) * _UNIT_SECONDS[match[2]]
+    if seconds <= 0:
+        raise ValueError(f"{setting}: {key or '(default tenant)'}={text!r}: a duration must be positive")
+    return timedelta(seconds=seconds)
+
+
+def _rule_key(raw: str, setting: str) -> str:
+    """``*``, ``tenant`` or ``tenant/Type``; tenants lower-cased as the API
+    does, the empty tenant is the default one (``=30d``, ``/Robot=7d``)."""
+    key = raw.strip()
+    if key == "*":
+        return key
+    tenant, slash, entity_type = key.partition("/")
+    tenant = tenant.lower()
+    if tenant == "*" and slash:
+        raise ValueError(f"{setting}: {key!r}: a type rule needs its tenant (acme/{entity_type})")
+    if not _TENANT.match(tenant):
+        raise ValueError(
+            f"{setting}: {key!r}: a tenant is up to 50 letters, digits or '_' (its Fiware-Service), "
+            "or '*' for every tenant"
+        )
+    if slash and not entity_type:
+        raise ValueError(f"{setting}: {key!r}: the entity type after '/' is missing")
+    return f"{tenant}/{entity_type}" if slash else tenant
+
+
+def _entries(text: str, setting: str) -> list[tuple[str, str]]:
+    """(key, duration) pairs from the compact form or a JSON object."""
+    if text.startswith("{"):
+        try:
+            obj = json.loads(text)
+        except ValueError as exc:
+            raise ValueError(f"{setting}: not a valid JSON object ({exc})") from None
+        if not isinstance(obj, dict):
+            raise ValueError(f"{setting}: the JSON form must be an object of rule: duration")
+        out = []
+        for key, value in obj.items():
+            if value is None:
+                value = FOREVER
+            if not isinstance(value, str):
+                raise ValueError(f"{setting}: {key!r}: the duration must be a string such as \"30d\" or \"forever\"")
+            out.append((key, value))
+        return out
+    out = []
+    for entry in text.split(","):
+        key, eq, value = entry.strip().rpartition("=")
+        if not eq:
+            raise ValueError(
+                f"{setting}: {entry.strip()!r} is not rule=duration (e.g. '*=365d,acme=30d,acme/Robot=7d')"
+            )
+        out.append((key, value))
+    return out
+
+
+@dataclass(frozen=True)
+class RetentionPolicy:
+    """How long each tenant's (and type's) rows are kept.
+
+    Rules: ``*`` (every tenant), ``tenant``, ``tenant/Type``; the most
+    specific one that matches wins (tenant/Type, then tenant, then ``*``).
+    No matching rule, or ``forever``: kept forever."""
+
+    rules: tuple[tuple[str, Keep], ...] = ()
+    _by_key: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_by_key", dict(self.rules))
+
+    @classmethod
+    def parse(cls, text: str | None, setting: str = "TSDB_RETENTION") -> RetentionPolicy:
+        text = (text or "").strip()
+        if not text:
+            return cls()
+        rules: dict[str, Keep] = {}
+        for raw_key, value in _entries(text, setting):
+            key = _rule_key(raw_key, setting)
+            if key in rules:
+                raise ValueError(f"{setting}: the rule {key!r} is given twice")
+            rules[key] = parse_duration(value, setting, key)
+        return cls(tuple(rules.items()))
+
+    @property
+    def active(self) -> bool:
+        """Whether any rule deletes anything."""
+        return any(keep is not None for _, keep in self.rules)
+
+    def rule_for(self, tenant: str, entity_type: str) -> tuple[str, Keep] | None:
+        rules = self._by_key
+        for key in (f"{tenant}/{entity_type}", tenant, "*"):
+            if key in rules:
+                return key, rules[key]
+        return None
+
+    def describe(self) -> str:
+        return ",".join(f"{k}={_fmt(v)}" for k, v in self.rules) or "(keep everything)"
+
+
+def _fmt(keep: Keep) -> str:
+    if keep is None:
+        return FOREVER
+    seconds = int(keep.total_seconds())
+    for unit in "ydhms":
+        if seconds % _UNIT_SECONDS[unit] == 0:
+            return f"{seconds // _UNIT_SECONDS[unit]}{unit}"
+    return f"{seconds}s"  # pragma: no cover - "s" always divides
+
+
+@dataclass(frozen=True)
+class RetentionConfig:
+    samples: RetentionPolicy = field(default_factory=RetentionPolicy)
+    rollups: bool = False
+    rollup_policy: RetentionPolicy = field(default_factory=RetentionPolicy)
+    interval: float = 300.0
+    batch_rows: int = 50_000
+    pause: float = 0.05
+
+    @classmethod
+    def from_settings(cls, settings) -> RetentionConfig:
+        return cls(
+            samples=RetentionPolicy.parse(settings.retention, "TSDB_RETENTION"),
+            rollups=settings.rollups,
+            rollup_policy=RetentionPolicy.parse(settings.rollup_retention, "TSDB_ROLLUP_RETENTION"),
+            interval=settings.retention_interval,
+            batch_rows=settings.retention_batch_rows,
+            pause=settings.retention_pause,
+        )
+
+    @property
+    def active(self) -> bool:
+        return self.samples.active or self.rollup_policy.active
+
+
+# --- backends ----------------------------------------------------------------------
+
+
+class Session(Protocol):
+    """One pass's database access (a cursor or connection of its own)."""
+
+    tables: tuple[str, ...]
+
+    def series(self) -> list[tuple[int, str, str]]: ...
+
+    def delete_samples(self, table: str, sids: Sequence[int], cutoff: datetime, limit: int, fold: bool) -> int: ...
+
+    def delete_rollups(self, sids: Sequence[int], cutoff: datetime, limit: int) -> int: ...
+
+    def save_watermark(self, kind: str, rule: str, horizon: datetime) -> None: ...
+
+
+def _rollup_delete(dialect, sids: Sequence[int], cutoff: datetime, limit: int) -> tuple[str, list]:
+    """At most ``limit`` rollup rows of ``sids`` older than ``cutoff`` (by key: the primary key finds them)."""
+    where, params = dialect.sid_filter(sids)
+    p = dialect.placeholder
+    sql = (
+        f"DELETE FROM {ROLLUP_TABLE} WHERE (sid, bucket) IN (SELECT sid, bucket FROM {ROLLUP_TABLE} "
+        f"WHERE {where} AND bucket < {p} LIMIT {p})"
+    )
+    return sql, [*params, dialect.time_value(cutoff), limit]
+
+
+_SAVE_WATERMARK = (
+    "INSERT INTO retention_state (tbl, rule, horizon, updated_at) VALUES ({p}, {p}, {p}, {p}) "
+    "ON CONFLICT (tbl, rule) DO UPDATE SET horizon = EXCLUDED.horizon, updated_at = EXCLUDED.updated_at"
+)
+
+
+def _naive(moment: datetime) -> datetime:
+    return moment.astimezone(UTC).replace(tzinfo=None)
+
+
+class DuckDBSession:
+    tables = ("samples", "samples_hot")
+
+    def __init__(self, store, cur):
+        from .sql import DuckDBDialect
+
+        self._store = store
+        self._cur = cur
+        self._d = DuckDBDialect()
+
+    def series(self) -> list[tuple[int, str, str]]:
+        return self._cur.execute("SELECT sid, tenant, entity_type FROM series").fetchall()
+
+    def delete_samples(self, table: str, sids: Sequence[int], cutoff: datetime, limit: int, fold: bool) -> int:
+        """One batch, under the compactor's lock: pick, fold, delete, commit."""
+        cur = self._cur
+        where, params = self._d.sid_filter(sids)
+        with self._store._compactor._lock:
+            cur.execute("BEGIN")
+            try:
+                cur.execute(
+                    "CREATE OR REPLACE TEMP TABLE retention_batch AS SELECT rowid AS r, rid, sid, t, kind, num "
+                    f"FROM {quote_ident(table)} WHERE {where} AND t < ? LIMIT ?",
+                    [*params, _naive(cutoff), limit],
+                )
+                n, upto = cur.execute("SELECT count(*), max(rid) FROM retention_batch").fetchone()
+                if n:
+                    if fold:
+                        cur.execute(fold_sql("retention_batch"))
+                    cur.execute(f"DELETE FROM {quote_ident(table)} WHERE rowid IN (SELECT r FROM retention_batch)")
+                cur.execute("COMMIT")
+            except BaseException:
+                _rollback(cur)
+                raise
+        if n:
+            self._forget(upto)
+        return int(n)
+
+    def _forget(self, upto_rid: int) -> None:
+        """The in-memory tails and latest locations must not show deleted rows."""
+        from .duckdb_store import LATEST_GEO_SQL
+
+        store = self._store
+        cur = self._cur
+        sids = [r[0] for r in cur.execute("SELECT DISTINCT sid FROM retention_batch").fetchall()]
+        store.tail.drop(sids)
+        geo = [r[0] for r in cur.execute(
+            f"SELECT DISTINCT sid FROM retention_batch WHERE kind = {int(Kind.GEO)}").fetchall()]  # fmt: skip
+        if geo:
+            query = LATEST_GEO_SQL.format(where="AND sid IN (SELECT unnest(?::INTEGER[]))")
+            store.latest_geo.recompute(geo, upto_rid, lambda s: cur.execute(query, [s]).fetchall())
+
+    def delete_rollups(self, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
+        sql, params = _rollup_delete(self._d, sids, cutoff, limit)
+        with self._store._compactor._lock:  # user deletes touch rollups under it too
+            return int(self._cur.execute(sql, params).fetchone()[0])
+
+    def save_watermark(self, kind: str, rule: str, horizon: datetime) -> None:
+        self._cur.execute(_SAVE_WATERMARK.format(p="?"), [kind, rule, _naive(horizon), _naive(datetime.now(UTC))])
+
+
+class PostgresSession:
+    tables = ("samples",)
+
+    def __init__(self, conn):
+        from .postgres_querier import PostgresDialect
+
+        self._conn = conn
+        self._d = PostgresDialect()
+
+    def series(self) -> list[tuple[int, str, str]]:
+        return self._conn.execute("SELECT sid, tenant, entity_type FROM series").fetchall()
+
+    def delete_samples(self, table: str, sids: Sequence[int], cutoff: datetime, limit: int, fold: bool) -> int:
+        """One statement: pick by (tableoid, ctid), which stays right on a
+        TimescaleDB hypertable's chunks, delete, and fold what was deleted."""
+        folded = f", folded AS ({fold_sql('batch')})" if fold else ""
+        sql = (
+            f"WITH pick AS MATERIALIZED (SELECT tableoid AS tab, ctid AS tid FROM {quote_ident(table)} "
+            "WHERE sid = ANY(%s::integer[]) AND t < %s LIMIT %s), "
+            f"batch AS (DELETE FROM {quote_ident(table)} s USING pick WHERE s.tableoid = pick.tab "
+            "AND s.ctid = pick.tid RETURNING s.sid, s.t, s.kind, s.num)"
+            f"{folded} SELECT count(*) FROM batch"
+        )
+        with self._conn.transaction():
+            return int(self._conn.execute(sql, [list(sids), _naive(cutoff), limit]).fetchone()[0])
+
+    def delete_rollups(self, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
+        sql, params = _rollup_delete(self._d, sids, cutoff, limit)
+        with self._conn.transaction():
+            return self._conn.execute(sql, params).rowcount
+
+    def save_watermark(self, kind: str, rule: str, horizon: datetime) -> None:
+        self._conn.execute(_SAVE_WATERMARK.format(p="%s"), [kind, rule, _naive(horizon), _naive(datetime.now(UTC))])
+
+
+def _rollback(cur) -> None:
+    try:
+        cur.execute("ROLLBACK")
+    except Exception:  # no transaction open
+        pass
+
+
+@contextmanager
+def duckdb_session(store) -> Iterator[DuckDBSession]:
+    cur = store._con.cursor()
+    try:
+        yield DuckDBSession(store, cur)
+    finally:
+        cur.close()
+
+
+@contextmanager
+def postgres_session(store) -> Iterator[PostgresSession | None]:
+    """A connection of its own holding the pass lock; None when another
+    replica is running its pass."""
+    import psycopg
+
+    with psycopg.connect(store.url, autocommit=True) as conn:
+        if not conn.execute("SELECT pg_try_advisory_lock(%s)", [_PG_LOCK]).fetchone()[0]:
+            yield None
+            return
+        try:
+            yield PostgresSession(conn)
+        finally:
+            conn.execute("SELECT pg_advisory_unlock(%s)", [_PG_LOCK])
+
+
+def load_watermarks(store) -> dict[tuple[str, str], datetime]:
+    sql = "SELECT tbl, rule, horizon FROM retention_state"
+    if store.backend == "postgresql":
+        with store.connection() as conn:
+            rows = conn.execute(sql).fetchall()
+    else:
+        rows = store.cursor().execute(sql).fetchall()
+    return {(tbl, rule): horizon.replace(tzinfo=UTC) for tbl, rule, horizon in rows}
+
+
+# --- the worker ----------------------------------------------------------------------
+
+
+class RetentionObserver(Protocol):
+    """Told about each batch that deleted rows (``metrics.RetentionMetrics``)."""
+
+    def batch(self, table: str, tenant: str, rows: int, seconds: float) -> None: ...
+
+
+class RetentionWorker:
+    """Applies the policies in the background; ``run_once`` is one pass."""
+
+    def __init__(self, store, config: RetentionConfig, clock: Callable[[], datetime] | None = None):
+        self._store = store
+        self.config = config
+        self._clock = clock or (lambda: datetime.now(UTC))
+        self._session = postgres_session if store.backend == "postgresql" else duckdb_session
+        self._stop = threading.Event()
+        self._run_lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self.observer: RetentionObserver | None = None
+        self.watermarks = load_watermarks(store)
+        self.passes = 0
+        self.batches = 0
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._loop, name="tsdb-retention", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Finish the batch in progress, then stop (no batch is left half done)."""
+        self._stop.set()
+        if self._thread is not None and self._thread.is_alive():
+            self._thread.join()
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.config.interval):
+            try:
+                self.run_once()
+            except Exception:  # keep serving; the next pass retries
+                log.exception("retention pass failed; will retry")
+
+    def run_once(self) -> dict[str, int]:
+        """One pass over every rule; returns the rows deleted per table."""
+        deleted: dict[str, int] = {}
+        with self._run_lock, self._session(self._store) as session:
+            if session is None:
+                return deleted
+            now = self._clock()
+            series = session.series()
+            if self._apply(session, series, SAMPLES, now, deleted):
+                self._apply(session, series, ROLLUPS, now, deleted)
+            self.passes += 1
+        return deleted
+
+    def _apply(self, session, series, kind: str, now: datetime, deleted: dict[str, int]) -> bool:
+        """Every finite rule of one policy; False when stopped midway."""
+        policy = self.config.samples if kind == SAMPLES else self.config.rollup_policy
+        groups: dict[str, dict[str, list[int]]] = {}
+        for sid, tenant, entity_type in series:
+            found = policy.rule_for(tenant, entity_type)
+            if found is not None and found[1] is not None:
+                groups.setdefault(found[0], {}).setdefault(tenant, []).append(sid)
+        for rule, keep in policy.rules:
+            if keep is None:
+                continue
+            cutoff = self._cutoff(now, keep, hourly=kind == ROLLUPS or self.config.rollups)
+            for tenant, sids in sorted(groups.get(rule, {}).items()):
+                tables = session.tables if kind == SAMPLES else (ROLLUP_TABLE,)
+                for table in tables:
+                    if not self._drain(session, kind, table, tenant, sids, cutoff, deleted):
+                        return False
+            session.save_watermark(kind, rule, cutoff)
+            self.watermarks[(kind, rule)] = cutoff
+        return True
+
+    @staticmethod
+    def _cutoff(now: datetime, keep: timedelta, hourly: bool) -> datetime:
+        """Rows older than this go. With rollups, on an hour boundary: an
+        hour is then folded whole, never partly raw and partly rolled up."""
+        cutoff = (now - keep).astimezone(UTC)
+        if hourly:
+            return cutoff.replace(minute=0, second=0, microsecond=0)
+        return cutoff
+
+    def _drain(self, session, kind, table, tenant, sids, cutoff, deleted) -> bool:
+        """Batches until one comes back short; False when stopped."""
+        limit = self.config.batch_rows
+        while True:
+            if self._stop.is_set():
+                return False
+            start = time.perf_counter()
+            if kind == SAMPLES:
+                n = session.delete_samples(table, sids, cutoff, limit, self.config.rollups)
+            else:
+                n = session.delete_rollups(sids, cutoff, limit)
+            seconds = time.perf_counter() - start
+            self.batches += 1
+            if n:
+                deleted[table] = deleted.get(table, 0) + n
+                if kind == SAMPLES and self.config.rollups:
+                    self._store.rollup_presence.mark()
+                self._tell(table, tenant, n, seconds)
+            if n < limit:
+                return True
+            if self.config.pause:
+                self._stop.wait(self.config.pause)
+
+    def _tell(self, table: str, tenant: str, rows: int, seconds: float) -> None:
+        observer = self.observer
+        if observer is None:
+            return
+        try:
+            observer.batch(table, tenant, rows, seconds)
+        except Exception:  # metrics must never stop retention
+            log.exception("retention observer failed")
+
+    def lags(self) -> dict[tuple[str, str], float]:
+        """(kind, rule) → seconds the last completed pass's cutoff trails the
+        rule's cutoff now (about one interval when all is well). With rollups
+        the samples' lag is also the rollups' watermark lag: every sample
+        older than the watermark is in the rollups."""
+        now = self._clock()
+        out = {}
+        for kind, policy in ((SAMPLES, self.config.samples), (ROLLUPS, self.config.rollup_policy)):
+            for rule, keep in policy.rules:
+                mark = self.watermarks.get((kind, rule))
+                if keep is not None and mark is not None:
+                    out[(kind, rule)] = max(0.0, ((now - keep) - mark).total_seconds())
+        return out
+
+
+def attach_retention(store, settings, *, start: bool = True,
+                     clock: Callable[[], datetime] | None = None) -> RetentionWorker | None:
+    """Give ``store`` its rollup presence tracker and, when a policy deletes
+    anything, its retention worker (started unless ``start`` is False)."""
+    config = RetentionConfig.from_settings(settings)
+    store.rollup_presence = RollupPresence(enabled=config.rollups)
+    if not config.active:
+        if config.rollups:
+            log.info("rollups are on but no retention rule deletes anything: nothing to roll up")
+        return None
+    worker = store.retention = RetentionWorker(store, config, clock)
+    log.info("retention: samples %s, rollups %s (kept %s)", config.samples.describe(),
+             "on" if config.rollups else "off", config.rollup_policy.describe())
+    if start:
+        worker.start()
+    return worker
