@@ -236,7 +236,7 @@ def test_copy_keeps_instances(client_factory, store_url, store_url_factory):
     target_url = store_url_factory("copy_target")
     source, target = open_store(Settings(db=store_url)), open_store(Settings(db=target_url))
     try:
-        copy_history(source, target)
+        copy_history(source, target, source_id=store_url)
     finally:
         source.close()
         target.close()
