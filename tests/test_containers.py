@@ -38,7 +38,7 @@ def _published(service: str) -> dict[int, int]:
 
 
 def test_the_stack_has_its_services():
-    assert set(SERVICES) == {"mongo", "orion", "tsdb-service", "subscriptions", "grafana"}
+    assert set(SERVICES) == {"mongo", "orion", "tsdb-service", "subscriptions", "prometheus", "grafana"}
 
 
 @pytest.mark.parametrize("service", sorted(SERVICES))
@@ -104,8 +104,8 @@ def test_grafana_mounts_what_the_dashboards_readme_says():
     provider = yaml.safe_load((ROOT / "dashboards/provisioning/dashboards.yaml").read_text())
     assert mounts[provider["providers"][0]["options"]["path"]] == "./dashboards"
     datasources = yaml.safe_load((ROOT / "dashboards/provisioning/datasources.yaml").read_text())["datasources"]
+    assert {source["type"] for source in datasources} == {"yesoreyeram-infinity-datasource", "prometheus"}
     for source in datasources:
-        assert source["type"] == "yesoreyeram-infinity-datasource"
         url = urlsplit(source["url"])
         assert url.hostname in SERVICES and url.port in _published(url.hostname), source["url"]
 

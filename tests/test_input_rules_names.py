@@ -159,7 +159,7 @@ def test_every_history_endpoint_reaches_it(served, i):
     assert one.status_code == 200, one.text
     assert one.json()["id"] == entity_id
     assert {a["attrName"]: a["values"] for a in one.json()["attributes"]}[attr] == [i]
-    values = served.get(f"/v2/entities/{seg(entity_id)}/value").json()["values"]
+    values = served.get(f"/v2/entities/{seg(entity_id)}/value").json()["attributes"]
     assert {a["attrName"]: a["values"] for a in values}[attr] == [i]
     for url in (f"/v2/entities/{seg(entity_id)}/attrs/{seg(attr)}", f"/v2/entities/{seg(entity_id)}/attrs/{seg(attr)}/value"):
         response = served.get(url)

@@ -37,7 +37,7 @@ def register(subparsers, command) -> None:
     p.add_argument("--service", default="", help="tenant, as Fiware-Service (default: the default tenant)")
     p.add_argument("--service-path", default="/", help="Fiware-ServicePath: paths and their children (default /)")
     for flag, _, text in _FLAGS:
-        p.add_argument(flag, help=text)
+        p.add_argument(flag, help=text if "default" in text else f"{text} (default: all)")
     command("export")(cmd_export)
 
 

@@ -285,12 +285,13 @@ class DuckDBStore(Store):
         self._pending_series: dict[SeriesKey, int] = {}
         self._series: dict[SeriesKey, int] = {}
         self._layouts: dict[tuple[str, str], ValuesLayout] = {}
-        self._next_sid = self._next_rid = self._next_iid = self._next_rejected = 1
-        self.latest_instances = LatestInstances()
+        self._next_sid = self._next_rid = self._next_rejected = 1
         # Writers allocate series ids, row ids and rejection ids under this.
         self._alloc_lock = threading.Lock()
         self._series_lock = threading.Lock()
         self.tail = TailCache(*self._tail_args)
+        self.latest_instances = LatestInstances()
+        self._next_iid = 1
         self._con = connect(path, checkpoint_bytes=checkpoint_bytes)
         migrate_duckdb(self._con)
         self._load_state(self._con)
@@ -328,7 +329,6 @@ class DuckDBStore(Store):
             self._next_rejected = max(self._next_rejected, max_rejected + 1)
         self._layouts = layouts
         self.latest_geo = latest_geo
-        self.latest_instances = LatestInstances()  # refills on demand from the file
 
     # -- history reads (tsdb_service.storage.duckdb_querier) -------------------
 
@@ -470,6 +470,7 @@ class DuckDBStore(Store):
             self._con = con
             self._generation += 1
             self.tail = TailCache(*self._tail_args)
+            self.latest_instances = LatestInstances()
             self._querier = None
             self._compactor = Compactor(con, *self._compact_args, on_error=self.notice)
             self._compactor.start()

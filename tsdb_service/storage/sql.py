@@ -172,65 +172,6 @@ class AggBranch:
     steps: tuple[str | int, ...] = ()
 
 
-# NGSI-LD time properties → the SQL that reads them. observedAt falls back
-# to the row time for samples that had none (NGSIv2 data, or NGSI-LD without
-# observedAt), so every sample is an instance in observedAt order.
-_TIME_PROPERTY_SQL = {
-    "observedAt": "coalesce(observed_at, t)",
-    "createdAt": "created_at",
-    "modifiedAt": "modified_at",
-    "deletedAt": "deleted_at",
-}
-TIME_PROPERTIES = tuple(_TIME_PROPERTY_SQL)
-_INSTANCE_COLUMNS = "sid, iid, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
-_INSTANCE_SELECT = (
-    "sid, iid, {at} AS at_time, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
-)
-_INSTANCE_NAMES = (
-    "sid, iid, at_time, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
-)
-
-
-@dataclass(frozen=True, slots=True)
-class InstanceWindow:
-    """Which instances a temporal query selects: those whose ``timeproperty``
-    lies in [start, end) (either bound optional; NGSI-LD's ``timerel``:
-    ``after`` = start only, ``before`` = end only, ``between`` = both).
-    Times are timezone-aware."""
-
-    timeproperty: str = "observedAt"  # one of TIME_PROPERTIES
-    start: datetime | None = None
-    end: datetime | None = None
-
-    def __post_init__(self) -> None:
-        if self.timeproperty not in _TIME_PROPERTY_SQL:
-            raise ValueError(f"unknown time property {self.timeproperty!r}")
-
-
-class InstanceRow(NamedTuple):
-    """One NGSI-LD attribute instance. Times are naive UTC datetimes."""
-
-    sid: int
-    iid: int  # model.instance_urn(iid) is its instanceId
-    at: datetime  # the window's time property (observedAt: coalesce(observed_at, t))
-    t: datetime  # the NGSIv2 row time (time index)
-    observed_at: datetime | None  # as sent; None: the instance had no observedAt
-    created_at: datetime | None
-    modified_at: datetime | None
-    deleted_at: datetime | None  # set: a deletion instance (value urn:ngsi-ld:null)
-    dataset_id: str | None  # from the series; None: the default instance
-    kind: int  # model.Kind
-    atype: str | None  # Property, GeoProperty, Relationship, ... as notified
-    num: float | None
-    txt: str | None
-    js: str | None
-    md: str | None  # sub-properties as JSON text, exactly as received
-
-
-def _instance_order(row: InstanceRow) -> tuple:
-    return row.sid, row.at, row.iid
-
-
 class RowMask:
     """Which samples of some series a read keeps: per series, half-open
     intervals of (time, row id), ``[(t0, r0), (t1, r1))``, an open end where
@@ -289,6 +230,65 @@ def box_test(dialect: Dialect, prefilter) -> tuple[str, list]:
     else:
         sql = f"(max_lon >= {p} AND min_lon <= {p} AND max_lat >= {p} AND min_lat <= {p})"
     return sql, [box.min_lon, box.max_lon, box.min_lat, box.max_lat]
+
+
+# NGSI-LD time properties → the SQL that reads them. observedAt falls back
+# to the row time for samples that had none (NGSIv2 data, or NGSI-LD without
+# observedAt), so every sample is an instance in observedAt order.
+_TIME_PROPERTY_SQL = {
+    "observedAt": "coalesce(observed_at, t)",
+    "createdAt": "created_at",
+    "modifiedAt": "modified_at",
+    "deletedAt": "deleted_at",
+}
+TIME_PROPERTIES = tuple(_TIME_PROPERTY_SQL)
+_INSTANCE_COLUMNS = "sid, iid, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
+_INSTANCE_SELECT = (
+    "sid, iid, {at} AS at_time, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
+)
+_INSTANCE_NAMES = (
+    "sid, iid, at_time, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
+)
+
+
+@dataclass(frozen=True, slots=True)
+class InstanceWindow:
+    """Which instances a temporal query selects: those whose ``timeproperty``
+    lies in [start, end) (either bound optional; NGSI-LD's ``timerel``:
+    ``after`` = start only, ``before`` = end only, ``between`` = both).
+    Times are timezone-aware."""
+
+    timeproperty: str = "observedAt"  # one of TIME_PROPERTIES
+    start: datetime | None = None
+    end: datetime | None = None
+
+    def __post_init__(self) -> None:
+        if self.timeproperty not in _TIME_PROPERTY_SQL:
+            raise ValueError(f"unknown time property {self.timeproperty!r}")
+
+
+class InstanceRow(NamedTuple):
+    """One NGSI-LD attribute instance. Times are naive UTC datetimes."""
+
+    sid: int
+    iid: int  # model.instance_urn(iid) is its instanceId
+    at: datetime  # the window's time property (observedAt: coalesce(observed_at, t))
+    t: datetime  # the NGSIv2 row time (time index)
+    observed_at: datetime | None  # as sent; None: the instance had no observedAt
+    created_at: datetime | None
+    modified_at: datetime | None
+    deleted_at: datetime | None  # set: a deletion instance (value urn:ngsi-ld:null)
+    dataset_id: str | None  # from the series; None: the default instance
+    kind: int  # model.Kind
+    atype: str | None  # Property, GeoProperty, Relationship, ... as notified
+    num: float | None
+    txt: str | None
+    js: str | None
+    md: str | None  # sub-properties as JSON text, exactly as received
+
+
+def _instance_order(row: InstanceRow) -> tuple:
+    return row.sid, row.at, row.iid
 
 
 # Row layouts returned by SqlQuerier (tuples, for speed):
