@@ -114,3 +114,28 @@ def test_calendar_arithmetic():
     assert add_months(datetime(2024, 1, 31, tzinfo=UTC), 1) == datetime(2024, 2, 29, tzinfo=UTC)
     edges = boundaries(datetime(2024, 1, 31, tzinfo=UTC), datetime(2024, 4, 1, tzinfo=UTC), parse_duration("P1M"))
     assert len(edges) == 4  # Jan 31, Feb 29, Mar 31, Apr 30
+
+
+def test_one_statement_per_request(client):
+    """The periods' start (no timerel: the first instance) and each
+    attribute's type come from the one grouped statement: no extra round trip."""
+    store(client, "speed", [1, 3, 4, 4], HOURS)
+    querier = client.app.state.store.querier()
+    statements: list[str] = []
+    fetch = querier._fetch
+
+    def counting(sql, params):
+        statements.append(sql)
+        return fetch(sql, params)
+
+    querier._fetch = counting
+    try:
+        got = agg(client, "speed", "avg,max", aggrPeriodDuration="PT2H")["speed"]
+    finally:
+        del querier._fetch
+    assert got["type"] == "Property"
+    assert got["max"] == [[4, "2024-01-01T00:10:00.000Z", "2024-01-01T02:10:00.000Z"],
+                          [4, "2024-01-01T02:10:00.000Z", "2024-01-01T04:10:00.000Z"]]
+    assert [v for v, _, _ in got["avg"]] == [8 / 3, 4.0]
+    on_samples = [sql for sql in statements if "samples" in sql]
+    assert len(on_samples) == 1 and "GROUP BY" in on_samples[0] and "DISTINCT" not in on_samples[0], statements

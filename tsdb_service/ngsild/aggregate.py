@@ -1,5 +1,8 @@
 """The aggregated temporal representation (``format=aggregatedValues``),
-computed in the database by one grouped query.
+computed in the database by one grouped SQL statement per request (the
+start of the periods, when the window has none, is found by that same
+statement; only calendar periods over a window missing an end take a first
+statement that finds its span).
 
 Periods (``aggrPeriodDuration``):
 
@@ -36,6 +39,10 @@ import calendar
 import math
 from collections.abc import Sequence
 from datetime import UTC, datetime, timedelta
+from functools import lru_cache
+from itertools import groupby
+from operator import itemgetter
+from typing import NamedTuple
 
 from ..model import Kind
 from .errors import BadRequestData
@@ -47,8 +54,15 @@ _NUMBERISH = {int(_K.NUMBER), int(_K.INTEGER), int(_K.BOOLEAN)}
 _COUNTS = ("totalCount", "distinctCount")
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 
-# Aggregate rows: (sid, bucket, kind, is_array, n, n_distinct, sum_x, sum_xx,
-#                  min_x, max_x, min_txt, max_txt, all_integer, min_us, max_us)
+_INTEGRAL = {int(_K.INTEGER), int(_K.BOOLEAN)}
+LD_TYPES = frozenset({"Property", "GeoProperty", "Relationship", "LanguageProperty", "ListProperty",
+                      "ListRelationship", "VocabProperty", "JsonProperty"})
+
+# Aggregate rows: one per (series, period, kind, is-array, notified type).
+(R_SID, R_BUCKET, R_KIND, R_IS_ARRAY, R_ATYPE, R_N, R_DISTINCT, R_NX, R_SX, R_SXX, R_MIN, R_MAX,
+ R_MIN_TXT, R_MAX_TXT, R_MIN_US, R_MAX_US) = range(16)
+_SID, _BUCKET, _MAX_US = itemgetter(R_SID), itemgetter(R_BUCKET), itemgetter(R_MAX_US)
+_SID_BUCKET = itemgetter(R_SID, R_BUCKET)
 
 
 def us_to_datetime(us: int) -> datetime:
@@ -86,55 +100,63 @@ def boundaries(start: datetime, end: datetime, period: Duration) -> list[int]:
 
 
 class Aggregator:
+    """One grouped SQL statement per request: the database filters, buckets
+    and aggregates; Python only merges the few (kind, type) groups of a
+    period and applies the spec's type rules."""
+
     def __init__(self, fetcher):
         self.f = fetcher
         self.d = fetcher.d
 
-    def run(self, sids: Sequence[int], window: Window, agg: Aggregation) -> dict[int, list[tuple[int, int, dict]]]:
-        """sid → [(period start µs, period end µs, {method: value})], periods in order."""
+    def run(self, sids: Sequence[int], window: Window, agg: Aggregation) -> dict[int, SeriesAggregate]:
+        """sid → its NGSI-LD attribute type and periods, in order, bounds
+        already as text (every series of a response shares them)."""
         if not sids:
             return {}
-        period = agg.period
+        period, distinct = agg.period, "distinctCount" in agg.methods
         if period.zero:
-            rows = self._query(sids, window, "0", [])
+            rows = self._query(sids, window, distinct, "0", [])
             return self._whole(rows, window, agg.methods)
         if not period.calendar:
-            start = window.start
-            if start is None:
-                bounds = self._span(sids, window)
-                if bounds is None:
-                    return {}
-                start_us = bounds[0]
-            else:
-                start_us = datetime_to_us(start)
             step = period.fixed_micros
-            tp = self.d.epoch_us("tp")
             p = self.d.placeholder
-            rows = self._query(sids, window, f"CAST(floor(({tp} - {p}) / CAST({p} AS DOUBLE PRECISION)) AS BIGINT)",
-                               [start_us, step])
-            return self._combine(rows, agg.methods, lambda b: (start_us + b * step, start_us + (b + 1) * step))
-        bounds = self._span(sids, window)
-        if bounds is None:
-            return {}
-        start = window.start or us_to_datetime(bounds[0])
-        end = window.end or us_to_datetime(bounds[1] + 1)
+            if window.start is not None:
+                start_us = datetime_to_us(window.start)
+                origin, origin_params = p, [start_us]
+            else:  # the first instance in the window, found by the same statement
+                origin, origin_params = "(SELECT min(tp) FROM s)", []
+            bucket = f"{origin} + {p} * CAST(floor((tp - {origin}) / CAST({p} AS DOUBLE PRECISION)) AS BIGINT)"
+            rows = self._query(sids, window, distinct, bucket, [*origin_params, step, *origin_params, step])
+            return self._combine(rows, agg.methods, lambda lo: (lo, lo + step))
+        start, end = window.start, window.end
+        if start is None or end is None:  # calendar periods need both ends to lay out the months
+            bounds = self._span(sids, window)
+            if bounds is None:
+                return {}
+            start = start or us_to_datetime(bounds[0])
+            end = end or us_to_datetime(bounds[1] + 1)
         edges = boundaries(start, end, period)
-        rows = self._calendar_query(sids, window, edges)
+        rows = self._calendar_query(sids, window, distinct, edges)
         following = dict(zip(edges, edges[1:]))
         return self._combine(rows, agg.methods, lambda lo: (lo, following[lo]))
 
     # -- SQL -------------------------------------------------------------------------
 
     def _inner(self, sids: Sequence[int], window: Window) -> tuple[str, list]:
+        """The instances in the window: time (epoch µs), kind, type, text, the
+        number a method works on (``x``), whether the value is an array, and
+        the value as text for ``distinctCount``."""
         d = self.d
         expr, where_t, params_t = self.f.time_filter(window)
         where_s, params_s = d.sid_filter(sids)
         is_array = f"(kind = {int(_K.STRUCTURED)} AND substr(js, 1, 1) = '[')"
         x = (f"CASE WHEN kind IN ({int(_K.NUMBER)}, {int(_K.INTEGER)}, {int(_K.BOOLEAN)}, {int(_K.DATETIME)}) "
              f"THEN num WHEN {is_array} THEN CAST({self._array_length('js')} AS DOUBLE PRECISION) END")
-        table = d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, num, txt, js")
-        sql = (f"SELECT sid, {expr} AS tp, kind, txt, js, num, CASE WHEN {is_array} THEN 1 ELSE 0 END AS is_array, "
-               f"{x} AS x FROM {table} WHERE {where_s} AND {where_t} AND kind <> {int(_K.NULL)}")
+        table = d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js")
+        sql = (f"SELECT sid, {d.epoch_us(expr)} AS tp, kind, atype, txt, "
+               "coalesce(txt, js, CAST(num AS VARCHAR)) AS dv, "
+               f"CASE WHEN {is_array} THEN 1 ELSE 0 END AS is_array, {x} AS x "
+               f"FROM {table} WHERE {where_s} AND {where_t} AND kind <> {int(_K.NULL)}")
         return sql, [*params_s, *params_t]
 
     def _array_length(self, col: str) -> str:
@@ -142,78 +164,93 @@ class Aggregator:
             return f"jsonb_array_length(({col})::jsonb)"
         return f"json_array_length({col})"
 
-    def _select(self) -> str:
-        us = self.d.epoch_us
+    @staticmethod
+    def _select(distinct: bool) -> str:
+        """Aggregate columns; see ``Row``. ``count(DISTINCT)`` only when asked:
+        it is the one aggregate that cannot stream."""
         return (
-            "SELECT sid, bucket, kind, is_array, count(*), "
-            "count(DISTINCT coalesce(txt, js, CAST(num AS VARCHAR))), sum(x), sum(x * x), min(x), max(x), "
-            f"min(txt), max(txt), bool_and(kind = {int(_K.INTEGER)} OR kind = {int(_K.BOOLEAN)}), "
-            f"min({us('tp')}), max({us('tp')})"
+            "SELECT sid, bucket, kind, is_array, atype, count(*), "
+            f"{'count(DISTINCT dv)' if distinct else '0'}, count(x), sum(x), sum(x * x), min(x), max(x), "
+            "min(txt), max(txt), min(tp), max(tp)"
         )
 
-    def _query(self, sids, window, bucket_sql: str, bucket_params: list) -> list[tuple]:
+    def _query(self, sids, window, distinct: bool, bucket_sql: str, bucket_params: list) -> list[tuple]:
         inner, params = self._inner(sids, window)
-        sql = (f"{self._select()} FROM (SELECT s.*, {bucket_sql} AS bucket FROM ({inner}) s) b "
-               "GROUP BY sid, bucket, kind, is_array")
-        # the bucket expression comes first in the text, so its parameters do too
-        return self.f.q._fetch(sql, [*bucket_params, *params])
+        sql = (f"WITH s AS ({inner}) {self._select(distinct)} FROM (SELECT s.*, {bucket_sql} AS bucket FROM s) b "
+               "GROUP BY sid, bucket, kind, is_array, atype")
+        return self.f.q._fetch(sql, [*params, *bucket_params])
 
-    def _calendar_query(self, sids, window, edges: list[int]) -> list[tuple]:
+    def _calendar_query(self, sids, window, distinct: bool, edges: list[int]) -> list[tuple]:
         inner, params = self._inner(sids, window)
         p = self.d.placeholder
-        tp = self.d.epoch_us("s.tp")
         if self.d.name == "postgresql":
             periods = f"unnest({p}::bigint[], {p}::bigint[]) AS per(lo, hi)"
         else:
             periods = f"(SELECT unnest({p}::BIGINT[]) AS lo, unnest({p}::BIGINT[]) AS hi) per"
-        sql = (f"{self._select()} FROM (SELECT s.*, per.lo AS bucket FROM ({inner}) s "
-               f"JOIN {periods} ON {tp} >= per.lo AND {tp} < per.hi) b GROUP BY sid, bucket, kind, is_array")
+        sql = (f"{self._select(distinct)} FROM (SELECT s.*, per.lo AS bucket FROM ({inner}) s "
+               f"JOIN {periods} ON s.tp >= per.lo AND s.tp < per.hi) b GROUP BY sid, bucket, kind, is_array, atype")
         return self.f.q._fetch(sql, [*params, edges[:-1], edges[1:]])
 
     def _span(self, sids, window) -> tuple[int, int] | None:
         inner, params = self._inner(sids, window)
-        us = self.d.epoch_us
-        rows = self.f.q._fetch(f"SELECT min({us('tp')}), max({us('tp')}) FROM ({inner}) s", params)
+        rows = self.f.q._fetch(f"SELECT min(tp), max(tp) FROM ({inner}) s", params)
         if not rows or rows[0][0] is None:
             return None
         return int(rows[0][0]), int(rows[0][1])
 
     # -- combining ---------------------------------------------------------------------
 
-    def _whole(self, rows, window: Window, methods) -> dict[int, list[tuple[int, int, dict]]]:
+    def _whole(self, rows, window: Window, methods) -> dict[int, SeriesAggregate]:
         if not rows:
             return {}
-        first = min(r[13] for r in rows)
-        last = max(r[14] for r in rows)
-        start = datetime_to_us(window.start) if window.start is not None else first
-        end = datetime_to_us(window.end) if window.end is not None else last
+        start = datetime_to_us(window.start) if window.start is not None else min(r[R_MIN_US] for r in rows)
+        end = datetime_to_us(window.end) if window.end is not None else max(r[R_MAX_US] for r in rows)
         return self._combine(rows, methods, lambda _b: (start, end))
 
-    def _combine(self, rows, methods, span) -> dict[int, list[tuple[int, int, dict]]]:
-        by_sid: dict[int, dict[object, list[tuple]]] = {}
-        for row in rows:
-            by_sid.setdefault(row[0], {}).setdefault(row[1], []).append(row)
-        out: dict[int, list[tuple[int, int, dict]]] = {}
-        for sid, buckets in by_sid.items():
-            family = _family(sid, [r for group in buckets.values() for r in group], methods)
+    def _combine(self, rows, methods, span) -> dict[int, SeriesAggregate]:
+        rows.sort(key=_SID_BUCKET)
+        out: dict[int, SeriesAggregate] = {}
+        for sid, group in groupby(rows, key=_SID):
+            series = list(group)
+            family = _family(series, methods)
+            newest = max(series, key=_MAX_US)
             periods = []
-            for bucket in sorted(buckets):
+            for bucket, parts in groupby(series, key=_BUCKET):
                 lo, hi = span(bucket)
-                periods.append((lo, hi, _values(buckets[bucket], family, methods)))
-            out[sid] = periods
+                periods.append((iso_us(lo), iso_us(hi), _values(list(parts), family, methods)))
+            out[sid] = SeriesAggregate(type_name(newest[R_ATYPE], newest[R_KIND]), periods)
         return out
 
 
-def _family(sid: int, rows: list[tuple], methods) -> str | None:
+class SeriesAggregate(NamedTuple):
+    attr_type: str  # the NGSI-LD type of the newest instance
+    periods: list[tuple[str, str, tuple]]  # (start, end, the methods' values in the order asked)
+
+
+def type_name(atype: str | None, kind: int) -> str:
+    """The NGSI-LD attribute type an instance renders as: the notified one,
+    else from what the value is (NGSIv2 samples)."""
+    if atype in LD_TYPES:
+        return atype
+    if kind == int(_K.RELATIONSHIP):
+        return "Relationship"
+    if kind == int(_K.GEO):
+        return "GeoProperty"
+    return "Property"
+
+
+def _family(rows: list[tuple], methods) -> str | None:
     """The one value family of a series' instances ("number", "array",
     "text", "datetime", or "other"), checked against the methods asked."""
     value_methods = [m for m in methods if m not in _COUNTS]
+    if not value_methods:
+        return None
     families = set()
     for row in rows:
-        kind, is_array = row[2], row[3]
+        kind = row[R_KIND]
         if kind in _NUMBERISH:
             families.add("number")
-        elif is_array:
+        elif row[R_IS_ARRAY]:
             families.add("array")
         elif kind == int(_K.TEXT):
             families.add("text")
@@ -221,8 +258,6 @@ def _family(sid: int, rows: list[tuple], methods) -> str | None:
             families.add("datetime")
         else:
             families.add("other")
-    if not value_methods:
-        return None
     if len(families) > 1:
         raise BadRequestData(f"cannot apply {', '.join(value_methods)} to an attribute whose instances mix "
                              f"{' and '.join(sorted(families))} values")
@@ -241,44 +276,54 @@ def _family(sid: int, rows: list[tuple], methods) -> str | None:
     return family
 
 
-def _values(rows: list[tuple], family: str | None, methods) -> dict:
-    n = sum(r[4] for r in rows)
-    out: dict = {}
+def _values(rows: list[tuple], family: str | None, methods) -> tuple:
+    """One period's methods from its groups (usually one: one kind, one type)."""
+    if len(rows) == 1:
+        (_, _, kind, _, _, n, distinct, nx, sx, sxx, mn, mx, mint, maxt, _, _), = rows
+        integral = kind in _INTEGRAL
+    else:
+        n = sum(r[R_N] for r in rows)
+        distinct = sum(r[R_DISTINCT] for r in rows)
+        xs = [r for r in rows if r[R_NX]]
+        nx = sum(r[R_NX] for r in xs)
+        sx = sum(r[R_SX] for r in xs)
+        sxx = sum(r[R_SXX] for r in xs)
+        mn = min((r[R_MIN] for r in xs), default=None)
+        mx = max((r[R_MAX] for r in xs), default=None)
+        texts = [r for r in rows if r[R_MIN_TXT] is not None]
+        mint = min((r[R_MIN_TXT] for r in texts), default=None)
+        maxt = max((r[R_MAX_TXT] for r in texts), default=None)
+        integral = all(r[R_KIND] in _INTEGRAL for r in rows)
+    integral = integral and family == "number"
+    out = []
     for method in methods:
         if method == "totalCount":
-            out[method] = n
+            out.append(n)
         elif method == "distinctCount":
-            out[method] = sum(r[5] for r in rows)
+            out.append(distinct)
+        elif family == "text":
+            out.append(mint if method == "min" else maxt)
+        elif not nx:
+            out.append(None)
         else:
-            out[method] = _value(rows, family, method, n)
-    return out
+            out.append(_value(method, family, integral, nx, sx, sxx, mn, mx))
+    return tuple(out)
 
 
-def _value(rows: list[tuple], family: str | None, method: str, n: int):
-    integral = family == "number" and all(r[12] for r in rows)
-    if family == "text":
-        texts = [r[10] if method == "min" else r[11] for r in rows if r[10] is not None]
-        return (min(texts) if method == "min" else max(texts)) if texts else None
-    xs = [r for r in rows if r[6] is not None]
-    count = sum(r[4] for r in xs)
-    if not xs or count == 0:
-        return None
-    total = sum(r[6] for r in xs)
+def _value(method: str, family: str | None, integral: bool, nx: int, sx, sxx, mn, mx):
     if method == "min":
-        value = min(r[8] for r in xs)
+        value = mn
     elif method == "max":
-        value = max(r[9] for r in xs)
+        value = mx
     elif method == "sum":
-        value = total
+        value = sx
     elif method == "sumsq":
-        value = sum(r[7] for r in xs)
+        value = sxx
     elif method == "avg":
-        value = total / count
-        integral = False
+        value, integral = sx / nx, False
     else:  # stddev, population
-        mean = total / count
-        value = math.sqrt(max(0.0, sum(r[7] for r in xs) / count - mean * mean))
-        integral = False
+        mean = sx / nx
+        value, integral = math.sqrt(max(0.0, sxx / nx - mean * mean)), False
     if family == "datetime":
         return _iso_seconds(value)
     if integral and float(value).is_integer():
@@ -298,5 +343,11 @@ def iso(moment: datetime) -> str:
     return f"{text}.{micro // 1000:03d}Z" if micro % 1000 == 0 else f"{text}.{micro:06d}Z"
 
 
+@lru_cache(maxsize=65_536)
+def _iso_us(us: int) -> str:
+    return iso(us_to_datetime(us))
+
+
 def iso_us(us: int | None) -> str | None:
-    return None if us is None else iso(us_to_datetime(us))
+    """Cached: the periods of every series of a response share their bounds."""
+    return None if us is None else _iso_us(us)

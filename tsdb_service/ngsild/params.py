@@ -143,7 +143,8 @@ def window(timerel, time_at, end_time_at, timeproperty) -> Window:
             prop = TimeProperty(str(timeproperty))
         except ValueError:
             raise BadRequestData(
-                f"timeproperty must be one of {', '.join(p.value for p in TimeProperty)}, not {str(timeproperty)[:40]!r}"
+                f"timeproperty must be one of {', '.join(p.value for p in TimeProperty)}, "
+                f"not {str(timeproperty)[:40]!r}"
             ) from None
     if timerel in (None, ""):
         if time_at not in (None, "") or end_time_at not in (None, ""):

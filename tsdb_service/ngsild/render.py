@@ -24,8 +24,8 @@ from typing import Any
 import orjson
 
 from ..history.service import decode
-from ..model import Kind, instance_urn
-from .aggregate import iso, iso_us
+from ..model import instance_urn
+from .aggregate import iso, type_name
 
 LD_NULL = "urn:ngsi-ld:null"
 # attribute type → (member of one instance, member of the simplified form)
@@ -44,13 +44,7 @@ _OWN_MEMBERS = frozenset({"type", "observedAt", "createdAt", "modifiedAt", "dele
 
 
 def ld_type(row) -> str:
-    if row.atype in MEMBERS:
-        return row.atype
-    if row.kind == Kind.RELATIONSHIP:
-        return "Relationship"
-    if row.kind == Kind.GEO:
-        return "GeoProperty"
-    return "Property"
+    return type_name(row.atype, row.kind)
 
 
 def value_of(row, attr_type: str) -> Any:
@@ -122,13 +116,14 @@ def simplified(rows: list) -> dict | list[dict]:
     return out[0] if len(out) == 1 else out
 
 
-def aggregated(series: list[tuple[str | None, str, list[tuple[int, int, dict]]]], methods: Iterable[str]):
-    """``series``: (datasetId, attribute type, periods) per stored series of one attribute."""
+def aggregated(series: list[tuple[str | None, str, list[tuple[str, str, tuple]]]], methods: Iterable[str]):
+    """``series``: (datasetId, attribute type, periods) per stored series of
+    one attribute; a period is (start, end, values in the order of ``methods``)."""
     out = []
     for dataset, attr_type, periods in sorted(series, key=lambda s: (s[0] is not None, s[0] or "")):
         item: dict[str, Any] = {"type": attr_type}
-        for method in methods:
-            item[method] = [[values[method], iso_us(lo), iso_us(hi)] for lo, hi, values in periods]
+        for i, method in enumerate(methods):
+            item[method] = [[values[i], lo, hi] for lo, hi, values in periods]
         if dataset is not None:
             item["datasetId"] = dataset
         out.append(item)

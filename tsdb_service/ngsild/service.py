@@ -16,7 +16,7 @@ from .context import TermMap
 from .errors import NonexistentTenant, ResourceNotFound
 from .fetch import EntityKey, Fetcher
 from .query import Format, TemporalQuery
-from .render import aggregated, entity, ld_type, normalized, simplified
+from .render import aggregated, entity, normalized, simplified
 
 
 @dataclass
@@ -45,7 +45,7 @@ def run(querier, terms: TermMap, query: TemporalQuery, cap: int) -> TemporalResu
     content_range = None
     if query.format is Format.AGGREGATED:
         periods = Aggregator(fetcher).run(sids, query.window, query.aggregation)
-        rendered = _aggregated(query, selected, iris, periods, fetcher)
+        rendered = _aggregated(query, selected, iris, periods)
     else:
         rows, content_range = _instances(querier, query, sids, cap)
         rendered = _instances_rendered(query, selected, iris, rows)
@@ -122,25 +122,16 @@ def _instances_rendered(query: TemporalQuery, selected, iris, rows) -> dict[Enti
     return out
 
 
-def _aggregated(query: TemporalQuery, selected, iris, periods, fetcher) -> dict[EntityKey, dict[str, object]]:
+def _aggregated(query: TemporalQuery, selected, iris, periods) -> dict[EntityKey, dict[str, object]]:
     out: dict[EntityKey, dict[str, object]] = {}
-    types = _attr_types(fetcher, [r.sid for refs in selected.values() for r in refs if r.sid in periods])
     for key, refs in selected.items():
         attrs: dict[str, list] = {}
         for ref in refs:
-            if ref.sid in periods:
-                attrs.setdefault(iris[ref.sid], []).append((ref.dataset_id, types.get(ref.sid, "Property"),
-                                                            periods[ref.sid]))
+            series = periods.get(ref.sid)
+            if series is not None:
+                attrs.setdefault(iris[ref.sid], []).append((ref.dataset_id, series.attr_type, series.periods))
         out[key] = {iri: aggregated(series, query.aggregation.methods) for iri, series in attrs.items()}
     return out
-
-
-def _attr_types(fetcher: Fetcher, sids) -> dict[int, str]:
-    """The NGSI-LD type of each series (from its newest instance)."""
-    if not sids:
-        return {}
-    rows = fetcher.q.temporal_instances(sids, None, last_n=1)
-    return {row.sid: ld_type(row) for row in rows}
 
 
 def _entities(query: TemporalQuery, page_keys: list[EntityKey], rendered, terms: TermMap) -> list[dict]:
