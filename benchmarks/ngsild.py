@@ -17,11 +17,15 @@
    * aggregate: ``format=aggregatedValues&aggrMethods=avg,max&
      aggrPeriodDuration=PT1H`` over 100 entities (10,000 instances);
      target p50 <= 20 ms;
-   * q + geo: ``type=Sensor&q=temperature>24&georel=near;maxDistance==2000``
-     over a two-hour window, ``lastN=1``; target p50 <= 100 ms.
+   * q + geo: ``type=Sensor&q=temperature>24&georel=near;maxDistance==3000``
+     over a two-hour window that holds one location instance of every
+     entity, ``lastN=1``; target p50 <= 100 ms. About 1.4 % of the
+     entities are within 3 km and a quarter of those pass ``q``, so every
+     scale down to 0.01 matches some (the mean is reported; none is an error).
 
-3. Prints p50/p99 per request kind and the process RSS, PASS/FAIL against
-   the targets (exit 0 = all pass). Not a test: run it by hand.
+3. Prints p50/p99 per request kind, the process RSS and the load average
+   (the machine may be shared), PASS/FAIL against the targets (exit 0 = all
+   pass). Not a test: run it by hand.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import random
 import socket
 import statistics
@@ -131,9 +136,9 @@ def requests(kind: str, entities: int, rng: random.Random) -> tuple[str, dict]:
                       "attrs": "temperature", "format": "aggregatedValues", "aggrMethods": "avg,max",
                       "aggrPeriodDuration": "PT1H"}
     lon, lat = place(rng)
-    start = START + rng.randrange(INSTANCES - 8) * STEP
+    start = START + 10 * rng.randrange(INSTANCES // 10) * STEP  # a location instance (every 10th) is in the window
     return base, {"type": "Sensor", "attrs": "temperature", "q": "temperature>24", "lastN": "1", "limit": "1000",
-                  "georel": "near;maxDistance==2000", "geometry": "Point", "coordinates": json.dumps([lon, lat]),
+                  "georel": "near;maxDistance==3000", "geometry": "Point", "coordinates": json.dumps([lon, lat]),
                   "timerel": "between", "timeAt": start.isoformat(), "endTimeAt": (start + 8 * STEP).isoformat()}
 
 
@@ -142,7 +147,7 @@ def measure(port: int, kind: str, entities: int, n: int) -> dict:
 
     rng = random.Random(kind)
     times = []
-    checked = None
+    sizes = []
     with httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"NGSILD-Tenant": "bench"}, timeout=60) as http:
         for i in range(n + 5):
             path, params = requests(kind, entities, rng)
@@ -153,15 +158,13 @@ def measure(port: int, kind: str, entities: int, n: int) -> dict:
                 raise SystemExit(f"{kind}: {response.status_code} {response.text[:300]}")
             if i >= 5:  # warm-up
                 times.append(elapsed)
-            checked = response.json()
+                body = response.json()
+                sizes.append(len(body.get("temperature", [])) if kind == "retrieve" else len(body))
     times.sort()
-    summary = {"p50_ms": round(statistics.median(times), 1), "p99_ms": round(times[int(len(times) * 0.99) - 1], 1)}
-    if kind == "retrieve":
-        summary["instances"] = len(checked.get("temperature", []))
-    elif kind == "aggregate":
-        summary["entities"] = len(checked)
-    else:
-        summary["entities"] = len(checked)
+    summary = {"p50_ms": round(statistics.median(times), 1), "p99_ms": round(times[int(len(times) * 0.99) - 1], 1),
+               ("instances" if kind == "retrieve" else "entities"): round(statistics.mean(sizes), 1)}
+    if not any(sizes):
+        raise SystemExit(f"{kind}: no request matched anything, so it measured nothing: {summary}")
     return summary
 
 
@@ -209,7 +212,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {kind:10s} p50 {got['p50_ms']:7.1f} ms  p99 {got['p99_ms']:7.1f} ms  "
                   f"target p50 <= {TARGETS[kind]:.0f} ms  {'PASS' if verdict else 'FAIL'}  {got}", flush=True)
         results["rss_mb"] = rss_mb()
-        print(f"  RSS {results['rss_mb']} MB", flush=True)
+        results["load_average"] = [round(x, 1) for x in os.getloadavg()]
+        print(f"  RSS {results['rss_mb']} MB, load average {results['load_average']}", flush=True)
         server.should_exit = True
         thread.join(timeout=30)
     finally:

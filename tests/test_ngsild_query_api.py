@@ -46,6 +46,16 @@ def test_last_n_is_per_attribute_per_entity(vehicles):
     assert [len(e["brandName"]) for e in got] == [2, 2]
 
 
+def test_first_n_is_the_oldest_per_attribute_per_entity(vehicles):
+    got = get(vehicles, {"type": "Vehicle", "attrs": "speed,brandName", "firstN": "2"}).json()
+    assert [[v for v, _ in speeds(e)] for e in got] == [[40, 60], [120, 80]]
+    assert [len(e["brandName"]) for e in got] == [2, 2]
+    both = get(vehicles, {"type": "Vehicle", "lastN": "1", "firstN": "1"}, status=400)
+    assert error_type(both) == "BadRequestData"
+    offset = get(vehicles, {"type": "Vehicle", "firstN": "1", "offsetN": "1"}, status=422)
+    assert error_type(offset) == "OperationNotSupported" and "Content-Range" in offset.json()["detail"]
+
+
 def test_ids_id_pattern_and_type_expressions(vehicles):
     assert ids(get(vehicles, {"type": "Vehicle", "id": A8311})) == [A8311]
     assert ids(get(vehicles, {"type": "Vehicle", "idPattern": "B92"})) == [B9211]

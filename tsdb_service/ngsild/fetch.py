@@ -173,11 +173,14 @@ class Fetcher:
         """Entities with a location instance in the window that satisfies the geo-query."""
         owner = {r.sid: key for key, refs in by_entity.items() for r in refs}
         sids = [sid for sid in owner if iris[sid] == geo.geoproperty]
+        prefilter = geo.filter.prefilter
+        if sids and prefilter is not None:
+            sids = self._ever_near(sids, prefilter)
         if not sids:
             return set()
         _, where_t, params_t = self.time_filter(window)
         where_s, params_s = self.d.sid_filter(sids)
-        box_sql, box_params = _box_filter(geo.filter.prefilter, self.d.placeholder)
+        box_sql, box_params = _box_filter(prefilter, self.d.placeholder)
         table = self.d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, geo, "
                                "min_lon, min_lat, max_lon, max_lat")
         sql = (f"SELECT DISTINCT sid, geo FROM {table} WHERE {where_s} AND {where_t} "
@@ -194,6 +197,17 @@ class Fetcher:
             if ok:
                 matched.add(key)
         return matched
+
+    def _ever_near(self, sids: list[int], prefilter) -> list[int]:
+        """Those of ``sids`` whose locations were ever inside the box, where
+        the store keeps each series' extent in memory (DuckDB): the SQL then
+        reads only them. Elsewhere all of ``sids`` (finding out would cost
+        the scan the SQL makes anyway)."""
+        extents = self.q.location_extents(sids, prefilter)
+        if extents is None:
+            return sids
+        near = {row[0] for row in extents}
+        return [sid for sid in sids if sid in near]
 
     # -- 4. instances --------------------------------------------------------------
 

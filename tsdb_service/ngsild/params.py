@@ -383,6 +383,9 @@ def _refuse_unsupported(params: Mapping[str, str]) -> None:
         raise OperationNotSupported("scopeQ is not supported: scopes are not stored")
     if params.get("csf") not in (None, ""):
         raise OperationNotSupported("csf is not supported: there are no context sources here")
+    if params.get("offsetN") not in (None, ""):
+        raise OperationNotSupported("offsetN is not supported: page through instances with firstN or lastN and "
+                                    "timerel, following the Content-Range of a 206 answer")
 
 
 # --- small parsers ------------------------------------------------------------------

@@ -58,10 +58,11 @@ def _matching(fetcher: Fetcher, query: TemporalQuery, by_entity, iris) -> list[E
     if query.attrs is not None and query.entity_id is None:
         wanted = set(query.attrs)
         keys = {k for k in keys if any(iris[r.sid] in wanted for r in by_entity[k])}
-    if query.q is not None and keys:
-        keys &= fetcher.q_matches(query.q, query.window, {k: by_entity[k] for k in keys}, iris)
+    # The geo-query first: its bounding box usually leaves few entities for q.
     if query.geo is not None and keys:
         keys &= fetcher.geo_matches(query.geo, query.window, {k: by_entity[k] for k in keys}, iris)
+    if query.q is not None and keys:
+        keys &= fetcher.q_matches(query.q, query.window, {k: by_entity[k] for k in keys}, iris)
     return sorted(keys)
 
 
