@@ -180,6 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--backend", choices=("duckdb", "postgresql"), default="duckdb")
     parser.add_argument("--db", help="a DuckDB file or postgresql:// URL to load into (default: a temporary one)")
     parser.add_argument("--requests", type=int, default=200)
+    parser.add_argument("--skip-load", action="store_true",
+                        help="measure --db as it is (loaded by an earlier run with the same --scale)")
     parser.add_argument("--json", help="write the results here")
     args = parser.parse_args(argv)
 
@@ -197,9 +199,11 @@ def main(argv: list[str] | None = None) -> int:
         db = str(Path(tempfile.mkdtemp(prefix="ngsild-bench-")) / "bench.duckdb")
     settings = Settings(db=db)
     try:
-        print(f"loading {entities:,} entities x {INSTANCES} instances into {args.backend} ...", flush=True)
-        loaded = load(settings, entities)
-        print(f"  {loaded}", flush=True)
+        loaded = {}
+        if not args.skip_load:
+            print(f"loading {entities:,} entities x {INSTANCES} instances into {args.backend} ...", flush=True)
+            loaded = load(settings, entities)
+            print(f"  {loaded}", flush=True)
         port = free_port()
         server, thread = serve(settings, port)
         results = {"entities": entities, "backend": args.backend, **loaded}

@@ -113,21 +113,21 @@ class Aggregator:
         already as text (every series of a response shares them)."""
         if not sids:
             return {}
-        period, distinct = agg.period, "distinctCount" in agg.methods
+        period, methods = agg.period, agg.methods
         if period.zero:
-            rows = self._query(sids, window, distinct, "0", [])
-            return self._whole(rows, window, agg.methods)
+            rows = self._query(sids, window, methods, "0", [])
+            return self._whole(rows, window, methods)
         if not period.calendar:
             step = period.fixed_micros
-            p = self.d.placeholder
+            p, div = self.d.placeholder, self._int_div()
             if window.start is not None:
                 start_us = datetime_to_us(window.start)
-                origin, origin_params = p, [start_us]
-            else:  # the first instance in the window, found by the same statement
-                origin, origin_params = "(SELECT min(tp) FROM s)", []
-            bucket = f"{origin} + {p} * CAST(floor((tp - {origin}) / CAST({p} AS DOUBLE PRECISION)) AS BIGINT)"
-            rows = self._query(sids, window, distinct, bucket, [*origin_params, step, *origin_params, step])
-            return self._combine(rows, agg.methods, lambda lo: (lo, lo + step))
+                bucket = f"{p} + {p} * ((tp - {p}) {div} {p})"
+                rows = self._query(sids, window, methods, bucket, [start_us, step, start_us, step])
+            else:  # from the first instance in the window, found by the same statement
+                bucket = f"o.origin + {p} * ((tp - o.origin) {div} {p})"
+                rows = self._query(sids, window, methods, bucket, [step, step], origin=True)
+            return self._combine(rows, methods, lambda lo: (lo, lo + step))
         start, end = window.start, window.end
         if start is None or end is None:  # calendar periods need both ends to lay out the months
             bounds = self._span(sids, window)
@@ -136,28 +136,32 @@ class Aggregator:
             start = start or us_to_datetime(bounds[0])
             end = end or us_to_datetime(bounds[1] + 1)
         edges = boundaries(start, end, period)
-        rows = self._calendar_query(sids, window, distinct, edges)
+        rows = self._calendar_query(sids, window, agg.methods, edges)
         following = dict(zip(edges, edges[1:]))
         return self._combine(rows, agg.methods, lambda lo: (lo, following[lo]))
 
     # -- SQL -------------------------------------------------------------------------
 
-    def _inner(self, sids: Sequence[int], window: Window) -> tuple[str, list]:
+    def _inner(self, sids: Sequence[int], window: Window, methods) -> tuple[str, list]:
         """The instances in the window: time (epoch µs), kind, type, text, the
-        number a method works on (``x``), whether the value is an array, and
-        the value as text for ``distinctCount``."""
+        number a method works on (``x``), whether the value is an array and,
+        for ``distinctCount``, the value as text."""
         d = self.d
         expr, where_t, params_t = self.f.time_filter(window)
         where_s, params_s = d.sid_filter(sids)
         is_array = f"(kind = {int(_K.STRUCTURED)} AND substr(js, 1, 1) = '[')"
         x = (f"CASE WHEN kind IN ({int(_K.NUMBER)}, {int(_K.INTEGER)}, {int(_K.BOOLEAN)}, {int(_K.DATETIME)}) "
              f"THEN num WHEN {is_array} THEN CAST({self._array_length('js')} AS DOUBLE PRECISION) END")
+        dv = ", coalesce(txt, js, CAST(num AS VARCHAR)) AS dv" if "distinctCount" in methods else ""
         table = d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js")
-        sql = (f"SELECT sid, {d.epoch_us(expr)} AS tp, kind, atype, txt, "
-               "coalesce(txt, js, CAST(num AS VARCHAR)) AS dv, "
+        sql = (f"SELECT sid, {d.epoch_us(expr)} AS tp, kind, atype, txt{dv}, "
                f"CASE WHEN {is_array} THEN 1 ELSE 0 END AS is_array, {x} AS x "
                f"FROM {table} WHERE {where_s} AND {where_t} AND kind <> {int(_K.NULL)}")
         return sql, [*params_s, *params_t]
+
+    def _int_div(self) -> str:
+        """Integer division of BIGINTs (``/`` is exact division in DuckDB)."""
+        return "/" if self.d.name == "postgresql" else "//"
 
     def _array_length(self, col: str) -> str:
         if self.d.name == "postgresql":
@@ -165,34 +169,48 @@ class Aggregator:
         return f"json_array_length({col})"
 
     @staticmethod
-    def _select(distinct: bool) -> str:
-        """Aggregate columns; see ``Row``. ``count(DISTINCT)`` only when asked:
-        it is the one aggregate that cannot stream."""
+    def _select(methods) -> str:
+        """Aggregate columns (see ``R_*``), each only when a method needs it:
+        every aggregate costs, ``count(DISTINCT)`` most (it cannot stream)."""
+        wanted = set(methods)
+
+        def col(sql: str, needed) -> str:
+            return sql if needed else "NULL"
+
         return (
             "SELECT sid, bucket, kind, is_array, atype, count(*), "
-            f"{'count(DISTINCT dv)' if distinct else '0'}, count(x), sum(x), sum(x * x), min(x), max(x), "
-            "min(txt), max(txt), min(tp), max(tp)"
+            f"{col('count(DISTINCT dv)', 'distinctCount' in wanted)}, {col('count(x)', wanted - set(_COUNTS))}, "
+            f"{col('sum(x)', wanted & {'sum', 'avg', 'stddev'})}, {col('sum(x * x)', wanted & {'stddev', 'sumsq'})}, "
+            f"{col('min(x)', 'min' in wanted)}, {col('max(x)', 'max' in wanted)}, "
+            f"{col('min(txt)', 'min' in wanted)}, {col('max(txt)', 'max' in wanted)}, min(tp), max(tp)"
         )
 
-    def _query(self, sids, window, distinct: bool, bucket_sql: str, bucket_params: list) -> list[tuple]:
-        inner, params = self._inner(sids, window)
-        sql = (f"WITH s AS ({inner}) {self._select(distinct)} FROM (SELECT s.*, {bucket_sql} AS bucket FROM s) b "
+    def _query(self, sids, window, methods, bucket_sql: str, bucket_params: list, origin: bool = False):
+        """One grouped statement; with ``origin`` the periods start at the
+        first instance, which the statement finds itself."""
+        inner, params = self._inner(sids, window, methods)
+        ctes = f"WITH s AS ({inner})"
+        source = "s"
+        if origin:
+            ctes += ", o AS (SELECT min(tp) AS origin FROM s)"
+            source = "s, o"
+        sql = (f"{ctes} {self._select(methods)} FROM (SELECT s.*, {bucket_sql} AS bucket FROM {source}) b "
                "GROUP BY sid, bucket, kind, is_array, atype")
         return self.f.q._fetch(sql, [*params, *bucket_params])
 
-    def _calendar_query(self, sids, window, distinct: bool, edges: list[int]) -> list[tuple]:
-        inner, params = self._inner(sids, window)
+    def _calendar_query(self, sids, window, methods, edges: list[int]) -> list[tuple]:
+        inner, params = self._inner(sids, window, methods)
         p = self.d.placeholder
         if self.d.name == "postgresql":
             periods = f"unnest({p}::bigint[], {p}::bigint[]) AS per(lo, hi)"
         else:
             periods = f"(SELECT unnest({p}::BIGINT[]) AS lo, unnest({p}::BIGINT[]) AS hi) per"
-        sql = (f"{self._select(distinct)} FROM (SELECT s.*, per.lo AS bucket FROM ({inner}) s "
+        sql = (f"{self._select(methods)} FROM (SELECT s.*, per.lo AS bucket FROM ({inner}) s "
                f"JOIN {periods} ON s.tp >= per.lo AND s.tp < per.hi) b GROUP BY sid, bucket, kind, is_array, atype")
         return self.f.q._fetch(sql, [*params, edges[:-1], edges[1:]])
 
     def _span(self, sids, window) -> tuple[int, int] | None:
-        inner, params = self._inner(sids, window)
+        inner, params = self._inner(sids, window, ())
         rows = self.f.q._fetch(f"SELECT min(tp), max(tp) FROM ({inner}) s", params)
         if not rows or rows[0][0] is None:
             return None
@@ -283,16 +301,15 @@ def _values(rows: list[tuple], family: str | None, methods) -> tuple:
         integral = kind in _INTEGRAL
     else:
         n = sum(r[R_N] for r in rows)
-        distinct = sum(r[R_DISTINCT] for r in rows)
+        distinct = sum(r[R_DISTINCT] or 0 for r in rows)
         xs = [r for r in rows if r[R_NX]]
         nx = sum(r[R_NX] for r in xs)
-        sx = sum(r[R_SX] for r in xs)
-        sxx = sum(r[R_SXX] for r in xs)
-        mn = min((r[R_MIN] for r in xs), default=None)
-        mx = max((r[R_MAX] for r in xs), default=None)
-        texts = [r for r in rows if r[R_MIN_TXT] is not None]
-        mint = min((r[R_MIN_TXT] for r in texts), default=None)
-        maxt = max((r[R_MAX_TXT] for r in texts), default=None)
+        sx = sum(r[R_SX] or 0 for r in xs)
+        sxx = sum(r[R_SXX] or 0 for r in xs)
+        mn = min((r[R_MIN] for r in xs if r[R_MIN] is not None), default=None)
+        mx = max((r[R_MAX] for r in xs if r[R_MAX] is not None), default=None)
+        mint = min((r[R_MIN_TXT] for r in rows if r[R_MIN_TXT] is not None), default=None)
+        maxt = max((r[R_MAX_TXT] for r in rows if r[R_MAX_TXT] is not None), default=None)
         integral = all(r[R_KIND] in _INTEGRAL for r in rows)
     integral = integral and family == "number"
     out = []
