@@ -17,15 +17,15 @@ Steps:
    prefilters by bounding box in SQL and applies the exact, geodesic
    predicate in Python.
 3. The matching entities are sorted by id (then type) and paged.
-4. Only the page's series are read: instances in the window, ``lastN`` per
-   attribute instance (series), at most ``cap + 1`` per series so a cut is
-   detected (206), or one grouped aggregation query (``ngsild.aggregate``).
+4. Only the page's series are read (``ngsild.service``): instances in the
+   window through ``Querier.temporal_instances`` (``lastN`` per series, at
+   most ``cap + 1`` so a cut is detected: 206), or one grouped aggregation
+   statement (``ngsild.aggregate``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 
 import orjson
 
@@ -50,18 +50,7 @@ _NUMERIC = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
 _TEXT = f"{int(Kind.TEXT)}, {int(Kind.RELATIONSHIP)}"
 _GEO = int(Kind.GEO)
 _NULL = int(Kind.NULL)
-
-# Instance rows as fetched (tuples, for speed):
-#   (sid, iid, time_us, kind, atype, num, txt, js, md, observed_us, created_us, modified_us, deleted_us)
-ROW_SID, ROW_IID, ROW_TIME = 0, 1, 2
-
-
-@dataclass
-class Matched:
-    """The entities a query matched, in response order, with their series."""
-
-    keys: list[EntityKey]
-    series: dict[EntityKey, list[SeriesRef]] = field(default_factory=dict)
+PER_SERIES_BRANCHES = 64  # most series read as one UNION ALL branch each (DuckDB)
 
 
 class Fetcher:
@@ -151,22 +140,33 @@ class Fetcher:
 
     def _term_sids(self, term: qlang.Term, sids: list[int], window: Window) -> set[int]:
         _, where_t, params_t = self.time_filter(window)
-        where_s, params_s = self.d.sid_filter(sids)
-        p = self.d.placeholder
-        base_where = f"{where_s} AND {where_t}"
-        base_params = [*params_s, *params_t]
-        pushed = _pushdown(term, p)
+        pushed = _pushdown(term, self.d.placeholder)
         table = self.d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, num, txt, js, md")
         if pushed is not None:
             cond, cparams = pushed
-            sql = f"SELECT DISTINCT sid FROM {table} WHERE {base_where} AND {cond}"
-            return {row[0] for row in self.q._fetch(sql, [*base_params, *cparams])}
-        sql = f"SELECT DISTINCT sid, kind, num, txt, js, md FROM {table} WHERE {base_where} AND kind <> {_NULL}"
+            rows = self._per_series(f"SELECT DISTINCT sid FROM {table}", f"{where_t} AND {cond}",
+                                    [*params_t, *cparams], sids)
+            return {row[0] for row in rows}
+        rows = self._per_series(f"SELECT DISTINCT sid, kind, num, txt, js, md FROM {table}",
+                                f"{where_t} AND kind <> {_NULL}", params_t, sids)
         out = set()
-        for sid, kind, num, txt, js, md in self.q._fetch(sql, base_params):
+        for sid, kind, num, txt, js, md in rows:
             if sid not in out and term.matches(term_value(term, kind, num, txt, js, md)):
                 out.add(sid)
         return out
+
+    def _per_series(self, head: str, where: str, params: list, sids: list[int]) -> list[tuple]:
+        """``{head} WHERE <sid in sids> AND {where}``. On DuckDB a few
+        scattered series become one ``sid = ?`` branch each (UNION ALL):
+        the table is sorted by series, so each branch reads its own row
+        groups, where one IN list over far-apart ids scans all between."""
+        p = self.d.placeholder
+        if self.d.name == "duckdb" and 1 < len(sids) <= PER_SERIES_BRANCHES and _scattered(sids):
+            branch = f"{head} WHERE sid = {p} AND {where}"
+            return self.q._fetch(" UNION ALL ".join([branch] * len(sids)),
+                                 [value for sid in sids for value in (sid, *params)])
+        where_s, params_s = self.d.sid_filter(sids)
+        return self.q._fetch(f"{head} WHERE {where_s} AND {where}", [*params_s, *params])
 
     def geo_matches(self, geo, window: Window, by_entity: dict[EntityKey, list[SeriesRef]],
                     iris: dict[int, str]) -> set[EntityKey]:
@@ -179,15 +179,15 @@ class Fetcher:
         if not sids:
             return set()
         _, where_t, params_t = self.time_filter(window)
-        where_s, params_s = self.d.sid_filter(sids)
         box_sql, box_params = _box_filter(prefilter, self.d.placeholder)
         table = self.d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, geo, "
                                "min_lon, min_lat, max_lon, max_lat")
-        sql = (f"SELECT DISTINCT sid, geo FROM {table} WHERE {where_s} AND {where_t} "
-               f"AND kind = {_GEO} AND geo IS NOT NULL{box_sql}")
+        rows = self._per_series(f"SELECT DISTINCT sid, geo FROM {table}",
+                                f"{where_t} AND kind = {_GEO} AND geo IS NOT NULL{box_sql}",
+                                [*params_t, *box_params], sids)
         matched: set[EntityKey] = set()
         verdicts: dict[str, bool] = {}
-        for sid, geojson in self.q._fetch(sql, [*params_s, *params_t, *box_params]):
+        for sid, geojson in rows:
             key = owner[sid]
             if key in matched:
                 continue
@@ -209,30 +209,10 @@ class Fetcher:
         near = {row[0] for row in extents}
         return [sid for sid in sids if sid in near]
 
-    # -- 4. instances --------------------------------------------------------------
 
-    def instances(self, sids: Sequence[int], window: Window, last_n: int | None, cap: int) -> list[tuple]:
-        """Instance rows of ``sids`` in ``window``, per series the oldest (or,
-        with ``lastN``, the newest ``lastN``) up to ``cap + 1``, oldest first."""
-        if not sids:
-            return []
-        d = self.d
-        expr, where_t, params_t = self.time_filter(window)
-        where_s, params_s = d.sid_filter(sids)
-        per_series = min(last_n, cap + 1) if last_n is not None else cap + 1
-        direction = "DESC" if last_n is not None else "ASC"
-        table = d.samples("sid, rid, iid, t, observed_at, created_at, modified_at, deleted_at, kind, atype, "
-                          "num, txt, js, md")
-        us = d.epoch_us
-        sql = (
-            f"SELECT sid, iid, {us('tp')}, kind, atype, num, txt, js, md, {us('observed_at')}, "
-            f"{us('created_at')}, {us('modified_at')}, {us('deleted_at')} FROM ("
-            f"SELECT sid, iid, {expr} AS tp, kind, atype, num, txt, js, md, coalesce(observed_at, t) AS observed_at, "
-            f"created_at, modified_at, deleted_at, row_number() OVER (PARTITION BY sid ORDER BY {expr} {direction}, "
-            f"rid {direction}) AS rn FROM {table} WHERE {where_s} AND {where_t}) picked "
-            f"WHERE rn <= {d.placeholder} ORDER BY sid, tp, iid"
-        )
-        return self.q._fetch(sql, [*params_s, *params_t, per_series])
+def _scattered(sids: list[int]) -> bool:
+    """Far enough apart that the ids' span holds mostly other series."""
+    return max(sids) - min(sids) + 1 > 4 * len(sids)
 
 
 def _pushdown(term: qlang.Term, p: str) -> tuple[str, list] | None:
