@@ -63,6 +63,9 @@ def test_limits_and_unsupported():
         q(type="V", limit=1001)
     with pytest.raises(OperationNotSupported):
         q(type="V", scopeQ="/Madrid")
+    for unsupported in ({"options": "concise"}, {"format": "concise"}, {"offsetN": "5"}):
+        with pytest.raises(OperationNotSupported):
+            q(type="V", **unsupported)
 
 
 def test_one_of_the_required_filters_is_enough():

@@ -310,6 +310,9 @@ def _representation(query: TemporalQuery, options, fmt, methods, period) -> Temp
     unknown = [o for o in opts if o not in OPTIONS]
     if unknown:
         raise BadRequestData(f"unknown options: {', '.join(o[:40] for o in unknown)}")
+    if "concise" in opts or fmt == "concise":
+        raise OperationNotSupported("the concise temporal representation is not supported: use normalized, "
+                                    "temporalValues or aggregatedValues")
     chosen = Format.NORMALIZED
     if fmt not in (None, ""):
         try:
