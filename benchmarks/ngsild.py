@@ -100,6 +100,11 @@ def load(settings, entities: int) -> dict:
             store.compact(full=True)
     finally:
         store.close()
+    if settings.backend == "postgresql":
+        import psycopg
+
+        with psycopg.connect(settings.db, autocommit=True) as conn:
+            conn.execute("VACUUM (ANALYZE)")
     return {"instances": written, "load_s": round(load_s, 1), "total_s": round(time.perf_counter() - t0, 1)}
 
 
