@@ -234,3 +234,13 @@ def test_q_and_geo_over_scattered_series(client):
     near = get(client, {"type": "Robot", "attrs": "speed", "q": "speed!=3", "georel": "near;maxDistance==1500",
                         "geometry": "Point", "coordinates": "[0.03, 0.0]"})
     assert ids(near) == [f"urn:ngsi-ld:Robot:{n}" for n in (2, 4)]
+
+
+def test_read_budget_is_too_complex_query(client_factory, store_url):
+    """A type query over more series than a request may read (TSDB_READ_MAX_SERIES)
+    is refused before any sample is read, as NGSI-LD's TooComplexQuery."""
+    with client_factory(store_url, read_max_series=6) as client:
+        load_vehicles(client)
+        response = get(client, {"type": "Vehicle"}, status=422)
+        assert error_type(response) == "TooComplexQuery" and "TSDB_READ_MAX_SERIES" in response.json()["detail"]
+        assert len(get(client, {"type": "Vehicle", "id": B9211, "attrs": "speed"}).json()) == 1
