@@ -76,20 +76,23 @@ class Fetcher:
                 types = {r.entity_type for r in found}
                 iris = dict(zip(types, self.terms.expand_all(types), strict=True))
                 ok = {t for t in types if type_matches(selector.types, lambda n, t=t: iris[t] == n.iri)}
-                found = [r for r in found if r.entity_type in ok]
+                if ok != types:
+                    found = [r for r in found if r.entity_type in ok]
             refs.extend(found)
+        if len(query.selectors) > 1:  # alternatives may select a series twice
+            refs = list({ref.sid: ref for ref in refs}.values())
         grouped: dict[EntityKey, list[SeriesRef]] = {}
-        seen: set[int] = set()
         for ref in refs:
-            if ref.sid not in seen:
-                seen.add(ref.sid)
-                grouped.setdefault((ref.entity_id, ref.entity_type), []).append(ref)
+            grouped.setdefault((ref.entity_id, ref.entity_type), []).append(ref)
         return grouped
 
     def attr_iris(self, refs: Sequence[SeriesRef]) -> dict[int, str]:
-        """sid → the expanded IRI of its NGSI-LD attribute name."""
-        names = [r.ld_attr for r in refs]
-        return dict(zip((r.sid for r in refs), self.terms.expand_all(names), strict=True))
+        """sid → the expanded IRI of its NGSI-LD attribute name (each
+        distinct name expanded once: a type's entities share them)."""
+        names = {r.sid: r.ld_attr for r in refs}
+        distinct = list(set(names.values()))
+        iri = dict(zip(distinct, self.terms.expand_all(distinct), strict=True))
+        return {sid: iri[name] for sid, name in names.items()}
 
     def selected(self, query: TemporalQuery, refs: Sequence[SeriesRef], iris: dict[int, str]) -> list[SeriesRef]:
         """The series a response shows: attrs/pick narrowed, omit removed, datasetIds kept."""
