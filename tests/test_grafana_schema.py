@@ -226,8 +226,8 @@ def test_dashboards_command_writes_and_checks(tmp_path, capsys):
     from tsdb_service.cli import main
 
     assert main(["dashboards", "build", "--out", str(tmp_path)]) == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["drone.json", "lawnmower.json", "provisioning",
-                                                          "service.json", "warehouse.json"]  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["drone-ld.json", "drone.json", "lawnmower.json",
+                                                          "provisioning", "service.json", "warehouse.json"]  # fmt: skip
     assert main(["dashboards", "build", "--out", str(tmp_path), "--check"]) == 0
     (tmp_path / "drone.json").write_text("{}")
     assert main(["dashboards", "build", "--out", str(tmp_path), "--check"]) == 1

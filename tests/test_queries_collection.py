@@ -157,7 +157,7 @@ def test_postman_collection_is_v2_1_with_a_test_per_request():
     assert [item["name"] for item in items] == [q.name for q in QUERIES], "folders keep the collection's order"
     for item, query in zip(items, QUERIES, strict=True):
         request = item["request"]
-        assert request["url"]["raw"].startswith(("{{baseUrl}}/v2/", "{{baseUrl}}/grafana/"))
+        assert request["url"]["raw"].startswith(("{{baseUrl}}/v2/", "{{baseUrl}}/grafana/", "{{baseUrl}}/ngsi-ld/v1/"))
         assert {h["key"]: h["value"] for h in request["header"]} == query.headers()
         script = "\n".join(item["event"][0]["script"]["exec"])
         assert item["event"][0]["listen"] == "test" and "pm.test(" in script

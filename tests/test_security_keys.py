@@ -206,6 +206,11 @@ def test_bad_keys_file_line(tmp_path):
         ("DELETE", "/v2/entities/r1", ADMIN_SCOPE),
         ("DELETE", "/v2/types/Robot", ADMIN_SCOPE),
         ("PATCH", "/anything", WRITE),
+        ("GET", "/ngsi-ld/v1/temporal/entities", READ),
+        ("POST", "/ngsi-ld/v1/temporal/entityOperations/query", READ),
+        ("POST", "/ngsi-ld/v1/temporal/entities", WRITE),
+        ("PATCH", "/ngsi-ld/v1/temporal/entities/e1/attrs/speed/i1", WRITE),
+        ("DELETE", "/ngsi-ld/v1/temporal/entities/e1", ADMIN_SCOPE),
     ],
 )
 def test_required_scope(method, path, scope):

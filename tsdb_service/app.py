@@ -20,6 +20,7 @@ from .api.openapi import install as install_openapi
 from .api.responses import JSON
 from .budget import ReadBudgetMiddleware, ReadLimits
 from .config import Settings, get_settings
+from .ngsild import routes_read as ngsild_read
 from .ngsild import write as ngsild_write
 from .security import protect
 from .storage import open_store
@@ -104,6 +105,7 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
     app.include_router(export_api.router)
     app.include_router(ui.router)
     app.include_router(ngsild_write.router)
+    app.include_router(ngsild_read.router)
     return app
 
 

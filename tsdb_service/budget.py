@@ -44,6 +44,7 @@ class QueryTooLarge(TsdbError):
 
     status = 422
     error = "QueryTooLarge"
+    ld_type = "TooComplexQuery"  # on /ngsi-ld/ paths
 
 
 @dataclass(frozen=True, slots=True)

@@ -154,6 +154,16 @@ class Settings(BaseSettings):
     jwt_scope_prefix: str = Field("", description="Only claim values with this prefix count (e.g. 'tsdb:').")
     jwt_tenants_claim: str = Field("", description="Claim listing the tenants a token may touch; empty: all.")
     jwt_jwks_cache_seconds: int = Field(300, ge=1, le=86_400, description="How long fetched JWKS keys are kept.")
+    # -- NGSI-LD temporal API reads (see README "NGSI-LD temporal API") --
+    ngsild_default_limit: int = Field(100, ge=1, description="Entities per page when a temporal query gives no limit.")
+    ngsild_max_limit: int = Field(1000, ge=1, description="Largest limit a temporal query may ask for.")
+    ngsild_max_instances: int = Field(
+        10_000, ge=1, description="Instances in one temporal answer; past it the answer is 206 Partial Content."
+    )
+    ngsild_contexts: str = Field(
+        "", description="Local JSON-LD @context files: 'URL=path' pairs separated by ';' (served instead of fetching)."
+    )
+    ngsild_context_timeout: float = Field(2.0, gt=0, le=60, description="Seconds to wait for a remote @context.")
     cors_origins: str = Field(
         "", description="Origins browsers may call us from, comma list ('*': any); none by default."
     )

@@ -369,7 +369,58 @@ def _use_cases() -> list[Query]:
     ]  # fmt: skip
 
 
-QUERIES: tuple[Query, ...] = (*_basics(), *_aggregations(), *_geo(), *_use_cases())
+LD_ENTITIES = "/ngsi-ld/v1/temporal/entities"
+LD_IDS = "*.id"
+
+
+def _lon_lat(points: Iterable[tuple[float, float]]) -> list[list[float]]:
+    return [[lon, lat] for lat, lon in points]
+
+
+def _ngsi_ld() -> list[Query]:
+    """The mission's queries in NGSI-LD form (the temporal API): the drone's
+    remote sensors, stored from NGSIv2 notifications, read as Properties."""
+    folder, drone = "NGSI-LD temporal API", sites.DRONE
+    sensor = f"{LD_ENTITIES}/{sites.SENSOR_IDS[0]}"
+    sensors = (("type", sites.SENSOR_TYPE), ("attrs", "temperature"))
+    period = (("timerel", "between"), ("timeAt", "{{fromDate}}"), ("endTimeAt", "{{toDate}}"))
+    near = sites.sensors_within(NEAR_POINT, NEAR_METRES)
+    in_area = sites.sensors_inside(EAST_AREA)
+    lat, lon = NEAR_POINT
+    return [
+        Query("NGSI-LD: first N instances", folder,
+              "The 5 oldest temperatures of one remote sensor (firstN, simplified temporal representation).",
+              sensor, (("attrs", "temperature"), ("firstN", "5"), ("format", "temporalValues")), drone,
+              (count("temperature.values", 1, 5),)),
+        Query("NGSI-LD: last N instances", folder,
+              "The 5 newest temperatures of one remote sensor, oldest first (lastN).",
+              sensor, (("attrs", "temperature"), ("lastN", "5"), ("format", "temporalValues")), drone,
+              (count("temperature.values", 1, 5),)),
+        Query("NGSI-LD: entities at an offset", folder,
+              "Remote sensors 4 to 6 (by id) with their newest temperature: paging with limit and offset.",
+              LD_ENTITIES, (*sensors, ("lastN", "1"), ("limit", "3"), ("offset", "3"), ("count", "true")), drone,
+              (count(LD_IDS, 1, 3), each_in(LD_IDS, SENSOR_IDS[3:6]))),
+        Query("NGSI-LD: sum, min and max over a period", folder,
+              "Hourly sum, minimum and maximum of every remote sensor's temperature between fromDate and toDate "
+              "(aggregatedValues).",
+              LD_ENTITIES, (*sensors, ("format", "aggregatedValues"), ("aggrMethods", "sum,min,max"),
+                            ("aggrPeriodDuration", "PT1H"), *period), drone,
+              (count(LD_IDS, 1, 8), each_in(LD_IDS, SENSOR_IDS))),
+        Query("NGSI-LD: near a point", folder,
+              f"The newest temperatures of the remote sensors within {NEAR_METRES} m of the field centre "
+              "(coordinates are longitude, latitude).",
+              LD_ENTITIES, (*sensors, ("lastN", "5"), ("georel", f"near;maxDistance=={NEAR_METRES}"),
+                            ("geometry", "Point"), ("coordinates", json.dumps([lon, lat], separators=(",", ":")))),
+              drone, (count(LD_IDS, 1, len(near)), each_in(LD_IDS, near))),
+        Query("NGSI-LD: in an area", folder,
+              "The newest temperatures of the remote sensors in the east half of the field (georel=within).",
+              LD_ENTITIES, (*sensors, ("lastN", "5"), ("georel", "within"), ("geometry", "Polygon"),
+                            ("coordinates", json.dumps([_lon_lat(EAST_AREA)], separators=(",", ":")))),
+              drone, (count(LD_IDS, 1, len(in_area)), each_in(LD_IDS, in_area))),
+    ]  # fmt: skip
+
+
+QUERIES: tuple[Query, ...] = (*_basics(), *_aggregations(), *_geo(), *_use_cases(), *_ngsi_ld())
 
 # What the demo prints as "try this".
 DEMO_EXAMPLES = (

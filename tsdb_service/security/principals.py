@@ -17,7 +17,7 @@ SCOPES = frozenset({READ, WRITE, ADMIN})
 DEFAULT_TENANT_TOKEN = "-"  # stands for "" (no Fiware-Service) in tenant lists
 
 # Reads that travel as POST (a query in a body) need read, not write.
-_READ_POSTS = ("/grafana/", "/v2/op/query")
+_READ_POSTS = ("/grafana/", "/v2/op/query", "/ngsi-ld/v1/temporal/entityOperations/query")  # queries in a body
 
 
 class Unauthorized(TsdbError):

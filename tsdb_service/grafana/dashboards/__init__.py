@@ -2,8 +2,9 @@
 Grafana provisioning files.
 
 ``build(name)`` gives a dashboard as JSON data; ``write(folder)`` regenerates
-``<name>.json`` for every use case and ``service.json`` (tsdb-service itself,
-from Prometheus), plus ``provisioning/dashboards.yaml`` and
+``<name>.json`` for every use case, ``drone-ld.json`` (the drone through the
+NGSI-LD temporal API) and ``service.json`` (tsdb-service itself, from
+Prometheus), plus ``provisioning/dashboards.yaml`` and
 ``provisioning/datasources.yaml`` (``tsdb-service dashboards build``).
 """
 
@@ -13,15 +14,16 @@ from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 
-from . import drone, kit, lawnmower, service, warehouse
+from . import drone, drone_ld, kit, lawnmower, service, warehouse
 
 BUILDERS: dict[str, Callable] = {
     "lawnmower": lawnmower.build,
     "warehouse": warehouse.build,
     "drone": drone.build,
 }
-# Every dashboard written to dashboards/: the use cases and the service's own.
-DASHBOARDS: dict[str, Callable] = {**BUILDERS, "service": service.build}
+# Every dashboard written to dashboards/: the use cases, the drone through
+# the NGSI-LD temporal API, and the service's own.
+DASHBOARDS: dict[str, Callable] = {**BUILDERS, "drone-ld": drone_ld.build, "service": service.build}
 TITLES = {"lawnmower": "Bosch lawnmower", "warehouse": "PIAP smart warehouse", "drone": "eProsima drone"}
 FOLDER = "tsdb-service"
 # Where `dashboards/` is mounted inside the Grafana container (see dashboards/README.md).

@@ -1,0 +1,370 @@
+"""The aggregated temporal representation (``format=aggregatedValues``),
+computed in the database by one grouped SQL statement per request (the
+start of the periods, when the window has none, is found by that same
+statement; only calendar periods over a window missing an end take a first
+statement that finds its span).
+
+Periods (``aggrPeriodDuration``):
+
+* start at the window's start (``timeAt`` of ``after``/``between``); for
+  ``before`` or no ``timerel`` at the first instance in the window of the
+  entities on the page; they follow each other without gaps;
+* fixed-length durations (weeks, days, hours, minutes, seconds) are
+  bucketed arithmetically; durations with years or months step through the
+  calendar (adding P1M to 31 January gives the last day of February, the
+  next period starts from the start plus 2 months, so there is no drift);
+* ``PT0S`` (or none) is one period over the whole window, from its start
+  (or the first instance) to its end (or the last instance);
+* periods without instances are left out.
+
+Methods by value type (the stored kind of each instance):
+
+* numbers: every method; booleans count as 1 and 0;
+* arrays: the methods on their sizes (``sum``, ``avg``, ``min``, ``max``, ``stddev``, ``sumsq``);
+* text: ``min``/``max`` compare lexicographically;
+* DateTime: ``min``, ``max`` and ``avg`` are date-times;
+* Relationships, objects, languageMaps, geometries: ``totalCount`` and
+  ``distinctCount`` only;
+* any other combination, and one attribute mixing such families, is 400.
+
+``stddev`` is the *population* standard deviation (divides by n), so one
+instance gives 0; ``sumsq`` is the sum of squares. ``totalCount`` counts
+instances with a value (deletion instances are not values), ``distinctCount``
+distinct values.
+"""
+
+from __future__ import annotations
+
+import calendar
+import math
+from collections.abc import Sequence
+from datetime import UTC, datetime, timedelta
+from functools import lru_cache
+from itertools import groupby
+from operator import itemgetter
+from typing import NamedTuple
+
+from ..model import Kind
+from .errors import BadRequestData
+from .query import Aggregation, Duration, Window
+
+MAX_PERIODS = 100_000
+_K = Kind
+_NUMBERISH = {int(_K.NUMBER), int(_K.INTEGER), int(_K.BOOLEAN)}
+_COUNTS = ("totalCount", "distinctCount")
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+
+_INTEGRAL = {int(_K.INTEGER), int(_K.BOOLEAN)}
+LD_TYPES = frozenset({"Property", "GeoProperty", "Relationship", "LanguageProperty", "ListProperty",
+                      "ListRelationship", "VocabProperty", "JsonProperty"})
+
+# Aggregate rows: one per (series, period, kind, is-array, notified type).
+(R_SID, R_BUCKET, R_KIND, R_IS_ARRAY, R_ATYPE, R_N, R_DISTINCT, R_NX, R_SX, R_SXX, R_MIN, R_MAX,
+ R_MIN_TXT, R_MAX_TXT, R_MIN_US, R_MAX_US) = range(16)
+_SID, _BUCKET, _MAX_US = itemgetter(R_SID), itemgetter(R_BUCKET), itemgetter(R_MAX_US)
+_SID_BUCKET = itemgetter(R_SID, R_BUCKET)
+
+
+def us_to_datetime(us: int) -> datetime:
+    return _EPOCH + timedelta(microseconds=us)
+
+
+def datetime_to_us(moment: datetime) -> int:
+    delta = moment - _EPOCH
+    return (delta.days * 86_400 + delta.seconds) * 1_000_000 + delta.microseconds
+
+
+def add_months(moment: datetime, months: int) -> datetime:
+    """``moment`` plus whole months, the day clamped to the month's end."""
+    index = moment.year * 12 + moment.month - 1 + months
+    year, month = divmod(index, 12)
+    if not 1 <= year <= 9999:
+        raise BadRequestData("aggregation periods run past the year 9999")
+    day = min(moment.day, calendar.monthrange(year, month + 1)[1])
+    return moment.replace(year=year, month=month + 1, day=day)
+
+
+def boundaries(start: datetime, end: datetime, period: Duration) -> list[int]:
+    """Period starts (epoch µs) from ``start`` until one reaches ``end``, plus that last one."""
+    out = []
+    k = 0
+    while True:
+        moment = add_months(start, k * period.months) + timedelta(days=k * period.days,
+                                                                   microseconds=k * period.micros)
+        out.append(datetime_to_us(moment))
+        if moment >= end:
+            return out
+        k += 1
+        if k > MAX_PERIODS:
+            raise BadRequestData(f"aggrPeriodDuration makes more than {MAX_PERIODS} periods in this window")
+
+
+class Aggregator:
+    """One grouped SQL statement per request: the database filters, buckets
+    and aggregates; Python only merges the few (kind, type) groups of a
+    period and applies the spec's type rules."""
+
+    def __init__(self, fetcher):
+        self.f = fetcher
+        self.d = fetcher.d
+
+    def run(self, sids: Sequence[int], window: Window, agg: Aggregation) -> dict[int, SeriesAggregate]:
+        """sid → its NGSI-LD attribute type and periods, in order, bounds
+        already as text (every series of a response shares them)."""
+        if not sids:
+            return {}
+        period, methods = agg.period, agg.methods
+        if period.zero:
+            rows = self._query(sids, window, methods, "0", [])
+            return self._whole(rows, window, methods)
+        if not period.calendar:
+            step = period.fixed_micros
+            p, div = self.d.placeholder, self._int_div()
+            if window.start is not None:
+                start_us = datetime_to_us(window.start)
+                bucket = f"{p} + {p} * ((tp - {p}) {div} {p})"
+                rows = self._query(sids, window, methods, bucket, [start_us, step, start_us, step])
+            else:  # from the first instance in the window, found by the same statement
+                bucket = f"o.origin + {p} * ((tp - o.origin) {div} {p})"
+                rows = self._query(sids, window, methods, bucket, [step, step], origin=True)
+            return self._combine(rows, methods, lambda lo: (lo, lo + step))
+        start, end = window.start, window.end
+        if start is None or end is None:  # calendar periods need both ends to lay out the months
+            bounds = self._span(sids, window)
+            if bounds is None:
+                return {}
+            start = start or us_to_datetime(bounds[0])
+            end = end or us_to_datetime(bounds[1] + 1)
+        edges = boundaries(start, end, period)
+        rows = self._calendar_query(sids, window, agg.methods, edges)
+        following = dict(zip(edges, edges[1:]))
+        return self._combine(rows, agg.methods, lambda lo: (lo, following[lo]))
+
+    # -- SQL -------------------------------------------------------------------------
+
+    def _inner(self, sids: Sequence[int], window: Window, methods) -> tuple[str, list]:
+        """The instances in the window: time (epoch µs), kind, type, text, the
+        number a method works on (``x``), whether the value is an array and,
+        for ``distinctCount``, the value as text."""
+        d = self.d
+        expr, where_t, params_t = self.f.time_filter(window)
+        where_s, params_s = d.sid_filter(sids)
+        is_array = f"(kind = {int(_K.STRUCTURED)} AND substr(js, 1, 1) = '[')"
+        x = (f"CASE WHEN kind IN ({int(_K.NUMBER)}, {int(_K.INTEGER)}, {int(_K.BOOLEAN)}, {int(_K.DATETIME)}) "
+             f"THEN num WHEN {is_array} THEN CAST({self._array_length('js')} AS DOUBLE PRECISION) END")
+        dv = ", coalesce(txt, js, CAST(num AS VARCHAR)) AS dv" if "distinctCount" in methods else ""
+        table = d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js")
+        sql = (f"SELECT sid, {d.epoch_us(expr)} AS tp, kind, atype, txt{dv}, "
+               f"CASE WHEN {is_array} THEN 1 ELSE 0 END AS is_array, {x} AS x "
+               f"FROM {table} WHERE {where_s} AND {where_t} AND kind <> {int(_K.NULL)}")
+        return sql, [*params_s, *params_t]
+
+    def _int_div(self) -> str:
+        """Integer division of BIGINTs (``/`` is exact division in DuckDB)."""
+        return "/" if self.d.name == "postgresql" else "//"
+
+    def _array_length(self, col: str) -> str:
+        if self.d.name == "postgresql":
+            return f"jsonb_array_length(({col})::jsonb)"
+        return f"json_array_length({col})"
+
+    @staticmethod
+    def _select(methods) -> str:
+        """Aggregate columns (see ``R_*``), each only when a method needs it:
+        every aggregate costs, ``count(DISTINCT)`` most (it cannot stream)."""
+        wanted = set(methods)
+
+        def col(sql: str, needed) -> str:
+            return sql if needed else "NULL"
+
+        return (
+            "SELECT sid, bucket, kind, is_array, atype, count(*), "
+            f"{col('count(DISTINCT dv)', 'distinctCount' in wanted)}, {col('count(x)', wanted - set(_COUNTS))}, "
+            f"{col('sum(x)', wanted & {'sum', 'avg', 'stddev'})}, {col('sum(x * x)', wanted & {'stddev', 'sumsq'})}, "
+            f"{col('min(x)', 'min' in wanted)}, {col('max(x)', 'max' in wanted)}, "
+            f"{col('min(txt)', 'min' in wanted)}, {col('max(txt)', 'max' in wanted)}, min(tp), max(tp)"
+        )
+
+    def _query(self, sids, window, methods, bucket_sql: str, bucket_params: list, origin: bool = False):
+        """One grouped statement; with ``origin`` the periods start at the
+        first instance, which the statement finds itself."""
+        inner, params = self._inner(sids, window, methods)
+        ctes = f"WITH s AS ({inner})"
+        source = "s"
+        if origin:
+            ctes += ", o AS (SELECT min(tp) AS origin FROM s)"
+            source = "s, o"
+        sql = (f"{ctes} {self._select(methods)} FROM (SELECT s.*, {bucket_sql} AS bucket FROM {source}) b "
+               "GROUP BY sid, bucket, kind, is_array, atype")
+        return self.f.q._fetch(sql, [*params, *bucket_params])
+
+    def _calendar_query(self, sids, window, methods, edges: list[int]) -> list[tuple]:
+        inner, params = self._inner(sids, window, methods)
+        p = self.d.placeholder
+        if self.d.name == "postgresql":
+            periods = f"unnest({p}::bigint[], {p}::bigint[]) AS per(lo, hi)"
+        else:
+            periods = f"(SELECT unnest({p}::BIGINT[]) AS lo, unnest({p}::BIGINT[]) AS hi) per"
+        sql = (f"{self._select(methods)} FROM (SELECT s.*, per.lo AS bucket FROM ({inner}) s "
+               f"JOIN {periods} ON s.tp >= per.lo AND s.tp < per.hi) b GROUP BY sid, bucket, kind, is_array, atype")
+        return self.f.q._fetch(sql, [*params, edges[:-1], edges[1:]])
+
+    def _span(self, sids, window) -> tuple[int, int] | None:
+        inner, params = self._inner(sids, window, ())
+        rows = self.f.q._fetch(f"SELECT min(tp), max(tp) FROM ({inner}) s", params)
+        if not rows or rows[0][0] is None:
+            return None
+        return int(rows[0][0]), int(rows[0][1])
+
+    # -- combining ---------------------------------------------------------------------
+
+    def _whole(self, rows, window: Window, methods) -> dict[int, SeriesAggregate]:
+        if not rows:
+            return {}
+        start = datetime_to_us(window.start) if window.start is not None else min(r[R_MIN_US] for r in rows)
+        end = datetime_to_us(window.end) if window.end is not None else max(r[R_MAX_US] for r in rows)
+        return self._combine(rows, methods, lambda _b: (start, end))
+
+    def _combine(self, rows, methods, span) -> dict[int, SeriesAggregate]:
+        rows.sort(key=_SID_BUCKET)
+        out: dict[int, SeriesAggregate] = {}
+        for sid, group in groupby(rows, key=_SID):
+            series = list(group)
+            family = _family(series, methods)
+            newest = max(series, key=_MAX_US)
+            periods = []
+            for bucket, parts in groupby(series, key=_BUCKET):
+                lo, hi = span(bucket)
+                periods.append((iso_us(lo), iso_us(hi), _values(list(parts), family, methods)))
+            out[sid] = SeriesAggregate(type_name(newest[R_ATYPE], newest[R_KIND]), periods)
+        return out
+
+
+class SeriesAggregate(NamedTuple):
+    attr_type: str  # the NGSI-LD type of the newest instance
+    periods: list[tuple[str, str, tuple]]  # (start, end, the methods' values in the order asked)
+
+
+def type_name(atype: str | None, kind: int) -> str:
+    """The NGSI-LD attribute type an instance renders as: the notified one,
+    else from what the value is (NGSIv2 samples)."""
+    if atype in LD_TYPES:
+        return atype
+    if kind == int(_K.RELATIONSHIP):
+        return "Relationship"
+    if kind == int(_K.GEO):
+        return "GeoProperty"
+    return "Property"
+
+
+def _family(rows: list[tuple], methods) -> str | None:
+    """The one value family of a series' instances ("number", "array",
+    "text", "datetime", or "other"), checked against the methods asked."""
+    value_methods = [m for m in methods if m not in _COUNTS]
+    if not value_methods:
+        return None
+    families = set()
+    for row in rows:
+        kind = row[R_KIND]
+        if kind in _NUMBERISH:
+            families.add("number")
+        elif row[R_IS_ARRAY]:
+            families.add("array")
+        elif kind == int(_K.TEXT):
+            families.add("text")
+        elif kind == int(_K.DATETIME):
+            families.add("datetime")
+        else:
+            families.add("other")
+    if len(families) > 1:
+        raise BadRequestData(f"cannot apply {', '.join(value_methods)} to an attribute whose instances mix "
+                             f"{' and '.join(sorted(families))} values")
+    family = families.pop()
+    allowed = {
+        "number": {"sum", "avg", "min", "max", "stddev", "sumsq"},
+        "array": {"sum", "avg", "min", "max", "stddev", "sumsq"},
+        "text": {"min", "max"},
+        "datetime": {"min", "max", "avg"},
+        "other": set(),
+    }[family]
+    refused = [m for m in value_methods if m not in allowed]
+    if refused:
+        what = {"other": "relationships, objects, language maps or geometries"}.get(family, f"{family} values")
+        raise BadRequestData(f"aggrMethods {', '.join(refused)} cannot be applied to {what}")
+    return family
+
+
+def _values(rows: list[tuple], family: str | None, methods) -> tuple:
+    """One period's methods from its groups (usually one: one kind, one type)."""
+    if len(rows) == 1:
+        (_, _, kind, _, _, n, distinct, nx, sx, sxx, mn, mx, mint, maxt, _, _), = rows
+        integral = kind in _INTEGRAL
+    else:
+        n = sum(r[R_N] for r in rows)
+        distinct = sum(r[R_DISTINCT] or 0 for r in rows)
+        xs = [r for r in rows if r[R_NX]]
+        nx = sum(r[R_NX] for r in xs)
+        sx = sum(r[R_SX] or 0 for r in xs)
+        sxx = sum(r[R_SXX] or 0 for r in xs)
+        mn = min((r[R_MIN] for r in xs if r[R_MIN] is not None), default=None)
+        mx = max((r[R_MAX] for r in xs if r[R_MAX] is not None), default=None)
+        mint = min((r[R_MIN_TXT] for r in rows if r[R_MIN_TXT] is not None), default=None)
+        maxt = max((r[R_MAX_TXT] for r in rows if r[R_MAX_TXT] is not None), default=None)
+        integral = all(r[R_KIND] in _INTEGRAL for r in rows)
+    integral = integral and family == "number"
+    out = []
+    for method in methods:
+        if method == "totalCount":
+            out.append(n)
+        elif method == "distinctCount":
+            out.append(distinct)
+        elif family == "text":
+            out.append(mint if method == "min" else maxt)
+        elif not nx:
+            out.append(None)
+        else:
+            out.append(_value(method, family, integral, nx, sx, sxx, mn, mx))
+    return tuple(out)
+
+
+def _value(method: str, family: str | None, integral: bool, nx: int, sx, sxx, mn, mx):
+    if method == "min":
+        value = mn
+    elif method == "max":
+        value = mx
+    elif method == "sum":
+        value = sx
+    elif method == "sumsq":
+        value = sxx
+    elif method == "avg":
+        value, integral = sx / nx, False
+    else:  # stddev, population
+        mean = sx / nx
+        value, integral = math.sqrt(max(0.0, sxx / nx - mean * mean)), False
+    if family == "datetime":
+        return _iso_seconds(value)
+    if integral and float(value).is_integer():
+        return int(value)
+    return value
+
+
+def _iso_seconds(seconds: float) -> str:
+    moment = _EPOCH + timedelta(microseconds=round(seconds * 1_000_000))
+    return iso(moment)
+
+
+def iso(moment: datetime) -> str:
+    """UTC ``YYYY-MM-DDTHH:MM:SS.sssZ``, microseconds when they are not whole milliseconds."""
+    text = moment.strftime("%Y-%m-%dT%H:%M:%S")
+    micro = moment.microsecond
+    return f"{text}.{micro // 1000:03d}Z" if micro % 1000 == 0 else f"{text}.{micro:06d}Z"
+
+
+@lru_cache(maxsize=65_536)
+def _iso_us(us: int) -> str:
+    return iso(us_to_datetime(us))
+
+
+def iso_us(us: int | None) -> str | None:
+    """Cached: the periods of every series of a response share their bounds."""
+    return None if us is None else _iso_us(us)

@@ -1,0 +1,278 @@
+"""Running a ``TemporalQuery`` against the store: which entities, then
+their instances, in as few SQL statements as the question allows.
+
+Names: the store keeps attribute and type names as they were notified
+(compacted by the broker, usually with the same @context clients use), so
+a stored name is read as a term of the *request's* @context and expanded
+with it; a stored full IRI stays itself. A request's names match stored
+ones when their IRIs are equal, and responses compact them back.
+
+Steps:
+
+1. Series from the in-memory catalog: entity ids / idPattern, types (type
+   expressions), attributes, datasetIds. No sample is read.
+2. ``q`` and the geo-query, when given, each need a look at the instances
+   in the window: a comparison on numbers or text runs in SQL (``SELECT
+   DISTINCT sid``), anything else reads the candidate values; a geo-query
+   prefilters by bounding box in SQL and applies the exact, geodesic
+   predicate in Python.
+3. The matching entities are sorted by id (then type) and paged.
+4. Only the page's series are read (``ngsild.service``): instances in the
+   window through ``Querier.temporal_instances`` (``lastN`` per series, at
+   most ``cap + 1`` so a cut is detected: 206), or one grouped aggregation
+   statement (``ngsild.aggregate``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import orjson
+
+from ..history.query import EntityFilter, Scope
+from ..model import Kind
+from ..storage.catalog import SeriesRef
+from . import qlang
+from .context import TermMap
+from .query import DEFAULT_DATASET, TemporalQuery, TimeProperty, Window, type_matches
+
+EntityKey = tuple[str, str]  # (entity id, stored entity type)
+
+# Column expression of each time property; observedAt falls back to the row
+# time, which is what NGSIv2 samples (and LD ones without observedAt) have.
+TIME_COLUMNS = {
+    TimeProperty.OBSERVED_AT: "coalesce(observed_at, t)",
+    TimeProperty.CREATED_AT: "created_at",
+    TimeProperty.MODIFIED_AT: "modified_at",
+    TimeProperty.DELETED_AT: "deleted_at",
+}
+_NUMERIC = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
+_TEXT = f"{int(Kind.TEXT)}, {int(Kind.RELATIONSHIP)}"
+_GEO = int(Kind.GEO)
+_NULL = int(Kind.NULL)
+PER_SERIES_BRANCHES = 64  # most series read as one UNION ALL branch each (DuckDB)
+
+
+class Fetcher:
+    """Runs one query's SQL through a ``SqlQuerier`` (its dialect and ``_fetch``)."""
+
+    def __init__(self, querier, terms: TermMap):
+        self.q = querier
+        self.d = querier.dialect
+        self.terms = terms
+
+    # -- 1. series ---------------------------------------------------------------
+
+    def series(self, query: TemporalQuery) -> dict[EntityKey, list[SeriesRef]]:
+        """Every selected series, grouped by entity; attributes and datasetIds
+        narrowed, entities kept even when none of their attributes is selected
+        (they still match; their attributes are empty)."""
+        scope = Scope(query.tenant)
+        refs: list[SeriesRef] = []
+        for selector in query.selectors:
+            ids = (query.entity_id,) if query.entity_id is not None else selector.ids
+            found = self.q.series(scope, EntityFilter(ids=ids, id_pattern=selector.id_pattern))
+            if selector.types is not None:
+                types = {r.entity_type for r in found}
+                iris = dict(zip(types, self.terms.expand_all(types), strict=True))
+                ok = {t for t in types if type_matches(selector.types, lambda n, t=t: iris[t] == n.iri)}
+                if ok != types:
+                    found = [r for r in found if r.entity_type in ok]
+            refs.extend(found)
+        if len(query.selectors) > 1:  # alternatives may select a series twice
+            refs = list({ref.sid: ref for ref in refs}.values())
+        grouped: dict[EntityKey, list[SeriesRef]] = {}
+        for ref in refs:
+            grouped.setdefault((ref.entity_id, ref.entity_type), []).append(ref)
+        return grouped
+
+    def attr_iris(self, refs: Sequence[SeriesRef]) -> dict[int, str]:
+        """sid → the expanded IRI of its NGSI-LD attribute name (each
+        distinct name expanded once: a type's entities share them)."""
+        names = {r.sid: r.ld_attr for r in refs}
+        distinct = list(set(names.values()))
+        iri = dict(zip(distinct, self.terms.expand_all(distinct), strict=True))
+        return {sid: iri[name] for sid, name in names.items()}
+
+    def selected(self, query: TemporalQuery, refs: Sequence[SeriesRef], iris: dict[int, str]) -> list[SeriesRef]:
+        """The series a response shows: attrs/pick narrowed, omit removed, datasetIds kept."""
+        wanted = query.wanted_attrs
+        wanted_set = None if wanted is None else set(wanted)
+        omit = set(query.omit or ())
+        datasets = None if query.dataset_ids is None else set(query.dataset_ids)
+        out = []
+        for ref in refs:
+            iri = iris[ref.sid]
+            if wanted_set is not None and iri not in wanted_set:
+                continue
+            if iri in omit:
+                continue
+            if datasets is not None and (ref.dataset_id or DEFAULT_DATASET) not in datasets:
+                continue
+            out.append(ref)
+        return out
+
+    # -- 2. q and geo over the window ---------------------------------------------
+
+    def time_filter(self, window: Window) -> tuple[str, str, list]:
+        """(time expression, WHERE fragment, params) for ``window`` (half-open)."""
+        expr = TIME_COLUMNS[window.timeproperty]
+        p = self.d.placeholder
+        where, params = f"{expr} IS NOT NULL", []
+        if window.start is not None:
+            where += f" AND {expr} >= {p}"
+            params.append(self.d.time_value(window.start))
+        if window.end is not None:
+            where += f" AND {expr} < {p}"
+            params.append(self.d.time_value(window.end))
+        return expr, where, params
+
+    def q_matches(self, node: qlang.Node, window: Window, by_entity: dict[EntityKey, list[SeriesRef]],
+                  iris: dict[int, str]) -> set[EntityKey]:
+        """Entities for which ``q`` holds: a term holds when some instance of
+        its attribute in the window satisfies it."""
+        owner = {r.sid: key for key, refs in by_entity.items() for r in refs}
+        sids_of: dict[str, list[int]] = {}
+        for sid in owner:
+            sids_of.setdefault(iris[sid], []).append(sid)
+        holding: dict[qlang.Term, set[EntityKey]] = {}
+        for term in dict.fromkeys(qlang.terms(node)):
+            sids = sids_of.get(term.attr, [])
+            holding[term] = {owner[s] for s in self._term_sids(term, sids, window)} if sids else set()
+        return {key for key in by_entity if qlang.evaluate(node, lambda t, k=key: k in holding[t])}
+
+    def _term_sids(self, term: qlang.Term, sids: list[int], window: Window) -> set[int]:
+        _, where_t, params_t = self.time_filter(window)
+        pushed = _pushdown(term, self.d.placeholder)
+        table = self.d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, num, txt, js, md")
+        if pushed is not None:
+            cond, cparams = pushed
+            rows = self._per_series(f"SELECT DISTINCT sid FROM {table}", f"{where_t} AND {cond}",
+                                    [*params_t, *cparams], sids)
+            return {row[0] for row in rows}
+        rows = self._per_series(f"SELECT DISTINCT sid, kind, num, txt, js, md FROM {table}",
+                                f"{where_t} AND kind <> {_NULL}", params_t, sids)
+        out = set()
+        for sid, kind, num, txt, js, md in rows:
+            if sid not in out and term.matches(term_value(term, kind, num, txt, js, md)):
+                out.add(sid)
+        return out
+
+    def _per_series(self, head: str, where: str, params: list, sids: list[int]) -> list[tuple]:
+        """``{head} WHERE <sid in sids> AND {where}``. On DuckDB a few
+        scattered series become one ``sid = ?`` branch each (UNION ALL):
+        the table is sorted by series, so each branch reads its own row
+        groups, where one IN list over far-apart ids scans all between."""
+        p = self.d.placeholder
+        if self.d.name == "duckdb" and 1 < len(sids) <= PER_SERIES_BRANCHES and _scattered(sids):
+            branch = f"{head} WHERE sid = {p} AND {where}"
+            return self.q._fetch(" UNION ALL ".join([branch] * len(sids)),
+                                 [value for sid in sids for value in (sid, *params)])
+        where_s, params_s = self.d.sid_filter(sids)
+        return self.q._fetch(f"{head} WHERE {where_s} AND {where}", [*params_s, *params])
+
+    def geo_matches(self, geo, window: Window, by_entity: dict[EntityKey, list[SeriesRef]],
+                    iris: dict[int, str]) -> set[EntityKey]:
+        """Entities with a location instance in the window that satisfies the geo-query."""
+        owner = {r.sid: key for key, refs in by_entity.items() for r in refs}
+        sids = [sid for sid in owner if iris[sid] == geo.geoproperty]
+        prefilter = geo.filter.prefilter
+        if sids and prefilter is not None:
+            sids = self._ever_near(sids, prefilter)
+        if not sids:
+            return set()
+        _, where_t, params_t = self.time_filter(window)
+        box_sql, box_params = _box_filter(prefilter, self.d.placeholder)
+        table = self.d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, geo, "
+                               "min_lon, min_lat, max_lon, max_lat")
+        rows = self._per_series(f"SELECT DISTINCT sid, geo FROM {table}",
+                                f"{where_t} AND kind = {_GEO} AND geo IS NOT NULL{box_sql}",
+                                [*params_t, *box_params], sids)
+        matched: set[EntityKey] = set()
+        verdicts: dict[str, bool] = {}
+        for sid, geojson in rows:
+            key = owner[sid]
+            if key in matched:
+                continue
+            ok = verdicts.get(geojson)
+            if ok is None:
+                ok = verdicts[geojson] = geo.filter.matches(geojson)
+            if ok:
+                matched.add(key)
+        return matched
+
+    def _ever_near(self, sids: list[int], prefilter) -> list[int]:
+        """Those of ``sids`` whose locations were ever inside the box, where
+        the store keeps each series' extent in memory (DuckDB): the SQL then
+        reads only them. Elsewhere all of ``sids`` (finding out would cost
+        the scan the SQL makes anyway)."""
+        extents = self.q.location_extents(sids, prefilter)
+        if extents is None:
+            return sids
+        near = {row[0] for row in extents}
+        return [sid for sid in sids if sid in near]
+
+
+def _scattered(sids: list[int]) -> bool:
+    """Far enough apart that the ids' span holds mostly other series."""
+    return max(sids) - min(sids) + 1 > 4 * len(sids)
+
+
+def _pushdown(term: qlang.Term, p: str) -> tuple[str, list] | None:
+    """SQL for a term on a plain value (no sub-property or value path): a
+    numeric comparison, text equality or existence. Else None (Python)."""
+    if term.sub or term.inner:
+        return None
+    if term.op is None:
+        return f"kind <> {_NULL}", []
+    value = term.value
+    sql_op = {"==": "=", "!=": "<>", ">": ">", ">=": ">=", "<": "<", "<=": "<="}.get(term.op)
+    if sql_op is None or isinstance(value, bool):
+        return None
+    if isinstance(value, (int, float)):
+        if term.op == "!=":
+            return None  # != also holds for non-numbers; Python decides
+        return f"kind IN ({_NUMERIC}) AND num {sql_op} {p}", [float(value)]
+    if isinstance(value, str) and term.op == "==":
+        return f"kind IN ({_TEXT}) AND txt = {p}", [value]
+    return None
+
+
+def _box_filter(prefilter, p: str) -> tuple[str, list]:
+    if prefilter is None:
+        return "", []
+    how, box = prefilter
+    if how == "within":
+        return (f" AND min_lon >= {p} AND max_lon <= {p} AND min_lat >= {p} AND max_lat <= {p}",
+                [box.min_lon, box.max_lon, box.min_lat, box.max_lat])
+    return (f" AND max_lon >= {p} AND min_lon <= {p} AND max_lat >= {p} AND min_lat <= {p}",
+            [box.min_lon, box.max_lon, box.min_lat, box.max_lat])
+
+
+_VALUE_KEYS = ("value", "object", "languageMap", "valueList", "objectList", "vocab", "json")
+
+
+def term_value(term: qlang.Term, kind, num, txt, js, md):
+    """The value a q term looks at in one stored instance: the attribute's
+    value, a sub-property's value (``a.b``) or a member inside the value (``a[k]``)."""
+    from ..history.service import decode
+
+    if term.sub:
+        try:
+            node = orjson.loads(md) if md else {}
+        except orjson.JSONDecodeError:
+            return None
+        for step in term.sub:
+            if not isinstance(node, dict) or step not in node:
+                return None
+            node = node[step]
+        value = node
+        if isinstance(node, dict):
+            value = next((node[k] for k in _VALUE_KEYS if k in node), node)
+    else:
+        value = decode(kind, num, txt, js)
+    for step in term.inner:
+        if not isinstance(value, dict) or step not in value:
+            return None
+        value = value[step]
+    return value
