@@ -12,7 +12,7 @@ def test_every_dashboard_is_listed_with_its_datasources(client):
     listed = client.get("/dashboards")
     assert listed.status_code == 200, listed.text
     by_name = {d["name"]: d for d in listed.json()}
-    assert list(by_name) == list(dashboards.DASHBOARDS) == ["lawnmower", "warehouse", "drone", "service"]
+    assert list(by_name) == list(dashboards.DASHBOARDS) == ["lawnmower", "warehouse", "drone", "drone-ld", "service"]
     for name, source in kit.DATASOURCES.items():
         entry = by_name[name]
         assert entry["use_case"] == name

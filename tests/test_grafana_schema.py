@@ -236,7 +236,7 @@ def test_dashboards_command_writes_and_checks(tmp_path, capsys):
 def test_dashboards_are_served(client):
     listed = client.get("/dashboards")
     assert listed.status_code == 200
-    assert [d["use_case"] for d in listed.json()] == [*USE_CASES, None]  # and the service's own
+    assert [d["use_case"] for d in listed.json()] == [*USE_CASES, None, None]  # drone-ld and the service's own
     for item in listed.json():
         one = client.get(item["url"])
         assert one.status_code == 200 and one.json() == dashboards.build(item["name"])

@@ -145,6 +145,7 @@ _ERROR_TEXT = {
     404: "Nothing matched, or no such resource",
     409: "Ambiguous: the entity id exists in several types",
     413: "The body exceeds the size limit (kept in the rejected store)",
+    406: "None of the accepted media types can be answered (NGSI-LD: application/json or application/ld+json)",
     415: "Not a JSON media type (kept in the rejected store)",
     422: "The query would exceed a read budget (QueryTooLarge): narrow it",
     502: "The broker answered with an error",
@@ -368,6 +369,23 @@ def ld_spec(*parameters: dict, ok_codes: dict[int, str], errors_: tuple[int, ...
         extra.update(body)
     responses = {code: {"description": text} for code, text in ok_codes.items()}
     return {"response_model": None, "responses": {**responses, **ld_errors(*errors_)}, "openapi_extra": extra}
+
+
+LD_READ_ERRORS = (400, *AUTH, 404, 406, 413, 415, 422, 503)
+_LD_DOCUMENT = {"description": "Temporal entities (JSON, or JSON-LD with the @context in the body)",
+                "content": {"application/json": {"schema": {"type": ["object", "array"]}},
+                            "application/ld+json": {"schema": {"type": ["object", "array"]}}}}
+
+
+def ld_read_spec(*, body: dict | None = None) -> dict:
+    """``spec`` for the NGSI-LD temporal reads: a JSON or JSON-LD document,
+    206 past the instance cap, errors as ProblemDetails."""
+    extra: dict[str, Any] = {"parameters": list(LD_HEADERS)}
+    if body:
+        extra.update(body)
+    partial = {**_LD_DOCUMENT, "description": "Partial: more instances than the cap (see Content-Range)"}
+    return {"response_model": None, "openapi_extra": extra,
+            "responses": {200: _LD_DOCUMENT, 206: partial, **ld_errors(*LD_READ_ERRORS)}}
 
 
 LD_ENTITY_BODY = json_body(ref("EntityLD"), media_types=("application/json", "application/ld+json"))

@@ -15,6 +15,7 @@ from __future__ import annotations
 from urllib.parse import urlencode
 
 import orjson
+from ..api import openapi as oa
 from fastapi import APIRouter, Request
 from starlette.concurrency import run_in_threadpool
 from starlette.responses import Response
@@ -76,7 +77,7 @@ def accepted(header: str | None) -> str:
     return best
 
 
-@router.get("/temporal/entities")
+@router.get("/temporal/entities", summary="Query temporal entities", **oa.ld_read_spec())
 async def query_entities(request: Request) -> Response:
     media = accepted(request.headers.get("accept"))
     params = dict(request.query_params)
@@ -90,7 +91,7 @@ async def query_entities(request: Request) -> Response:
     return _respond(request, media, terms, result, query, many=True)
 
 
-@router.get("/temporal/entities/{entity_id}")
+@router.get("/temporal/entities/{entity_id}", summary="Retrieve one temporal entity", **oa.ld_read_spec())
 async def retrieve_entity(entity_id: str, request: Request) -> Response:
     media = accepted(request.headers.get("accept"))
     if not entity_id or len(entity_id) > 2048:
@@ -106,7 +107,8 @@ async def retrieve_entity(entity_id: str, request: Request) -> Response:
     return _respond(request, media, terms, result, query, many=False)
 
 
-@router.post("/temporal/entityOperations/query")
+@router.post("/temporal/entityOperations/query", summary="Query temporal entities with a Query body",
+             **oa.ld_read_spec(body=oa.LD_FRAGMENT_BODY))
 async def query_post(request: Request) -> Response:
     media = accepted(request.headers.get("accept"))
     content_type = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
