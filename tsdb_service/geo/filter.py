@@ -52,44 +52,12 @@ class GeoFilter:
 
     @cached_property
     def prefilter(self) -> tuple[str, BBox] | None:
-        """What SQL may check on a sample's stored bounding box:
-        ("intersects", box) — the sample's box must overlap ``box``;
-        ("within", box) — the sample's box must lie inside ``box``;
-        None — no safe prefilter (disjoint, minDistance-only)."""
-        if self.georel == "near":
-            if self.max_distance is None:
-                return None
-            bbox = radius_bbox(self.shape.x, self.shape.y, self.max_distance)
-            return None if bbox is None else ("intersects", BBox(*bbox))
-        if self.georel == "disjoint":
-            return None
-        bounds = BBox(*self.shape.bounds)
-        if self.georel in ("coveredBy", "equals"):
-            return ("within", bounds)
-        return ("intersects", bounds)
+        """See ``box_prefilter``."""
+        return box_prefilter(self.georel, self.shape, self.max_distance)
 
     def matches(self, geojson: str | dict) -> bool:
         """The exact predicate against one stored (normalised) geometry."""
-        try:
-            candidate = shape(orjson.loads(geojson) if isinstance(geojson, str) else geojson)
-        except (ValueError, TypeError, AttributeError, KeyError, shapely.errors.GEOSException):
-            return False
-        if candidate.is_empty:
-            return False
-        if self.georel == "near":
-            distance = geodesic_distance_m(self.shape, candidate)
-            if self.max_distance is not None and distance > self.max_distance:
-                return False
-            if self.min_distance is not None and distance < self.min_distance:
-                return False
-            return True
-        if self.georel == "coveredBy":
-            return self.shape.covers(candidate)
-        if self.georel == "intersects":
-            return self.shape.intersects(candidate)
-        if self.georel == "disjoint":
-            return self.shape.disjoint(candidate)
-        return self.shape.equals(candidate)  # equals
+        return relation_holds(self.georel, self.shape, geojson, self.max_distance, self.min_distance)
 
 
     def matches_array(self, lon: np.ndarray, lat: np.ndarray, geojson: np.ndarray, point: np.ndarray) -> np.ndarray:
@@ -205,6 +173,55 @@ def _boxes(boxes: np.ndarray) -> np.ndarray:
         diagonal[point] = shapely.points(lo[flat][point])
         out[flat] = diagonal
     return out
+
+
+# Relations whose stored geometry must lie inside the query shape's box
+# (NGSIv2 ``coveredBy`` is NGSI-LD's ``within``).
+_WITHIN_BOX = frozenset({"coveredBy", "within", "equals"})
+
+
+def box_prefilter(georel: str, query: BaseGeometry, max_distance: float | None) -> tuple[str, BBox] | None:
+    """What SQL may check on a stored bounding box, for the NGSIv2 and the
+    NGSI-LD relations alike: ("intersects", box), the stored box must
+    overlap ``box``; ("within", box), it must lie inside ``box``; None, no
+    safe prefilter (disjoint, minDistance-only near)."""
+    if georel == "near":
+        if max_distance is None:
+            return None
+        bbox = radius_bbox(query.x, query.y, max_distance)
+        return None if bbox is None else ("intersects", BBox(*bbox))
+    if georel == "disjoint":
+        return None
+    bounds = BBox(*query.bounds)
+    return ("within", bounds) if georel in _WITHIN_BOX else ("intersects", bounds)
+
+
+def relation_holds(georel: str, query: BaseGeometry, geojson: str | dict,
+                   max_distance: float | None = None, min_distance: float | None = None) -> bool:  # fmt: skip
+    """The exact predicate between the query shape and one stored GeoJSON
+    geometry; an unreadable or empty stored geometry never matches."""
+    try:
+        candidate = shape(orjson.loads(geojson) if isinstance(geojson, str) else geojson)
+    except (ValueError, TypeError, AttributeError, KeyError, shapely.errors.GEOSException):
+        return False
+    if candidate.is_empty:
+        return False
+    if georel == "near":
+        distance = geodesic_distance_m(query, candidate)
+        if max_distance is not None and distance > max_distance:
+            return False
+        return min_distance is None or distance >= min_distance
+    if georel in ("coveredBy", "within"):
+        return query.covers(candidate)
+    if georel == "contains":
+        return candidate.covers(query)
+    if georel == "intersects":
+        return query.intersects(candidate)
+    if georel == "disjoint":
+        return query.disjoint(candidate)
+    if georel == "overlaps":
+        return query.overlaps(candidate)
+    return query.equals(candidate)  # equals
 
 
 def parse_geo(

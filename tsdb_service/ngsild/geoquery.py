@@ -17,8 +17,7 @@ import shapely
 from shapely.geometry import shape
 from shapely.geometry.base import BaseGeometry
 
-from ..geo.filter import BBox
-from ..geo.geodesic import geodesic_distance_m, radius_bbox
+from ..geo.filter import BBox, box_prefilter, relation_holds
 from .errors import BadRequestData
 
 GEORELS = ("near", "within", "contains", "intersects", "equals", "disjoint", "overlaps")
@@ -36,42 +35,10 @@ class LdGeoFilter:
     @property
     def prefilter(self) -> tuple[str, BBox] | None:
         """("intersects" | "within", box) a stored bounding box must satisfy, or None."""
-        if self.georel == "near":
-            if self.max_distance is None:
-                return None
-            bbox = radius_bbox(self.shape.x, self.shape.y, self.max_distance)
-            return None if bbox is None else ("intersects", BBox(*bbox))
-        if self.georel == "disjoint":
-            return None
-        bounds = BBox(*self.shape.bounds)
-        if self.georel in ("within", "equals"):
-            return ("within", bounds)
-        return ("intersects", bounds)
+        return box_prefilter(self.georel, self.shape, self.max_distance)
 
     def matches(self, geojson: str | dict) -> bool:
-        try:
-            candidate = shape(orjson.loads(geojson) if isinstance(geojson, str) else geojson)
-        except (ValueError, TypeError, AttributeError, KeyError, shapely.errors.GEOSException):
-            return False
-        if candidate.is_empty:
-            return False
-        rel = self.georel
-        if rel == "near":
-            distance = geodesic_distance_m(self.shape, candidate)
-            if self.max_distance is not None and distance > self.max_distance:
-                return False
-            return self.min_distance is None or distance >= self.min_distance
-        if rel == "within":
-            return self.shape.covers(candidate)
-        if rel == "contains":
-            return candidate.covers(self.shape)
-        if rel == "intersects":
-            return self.shape.intersects(candidate)
-        if rel == "disjoint":
-            return self.shape.disjoint(candidate)
-        if rel == "overlaps":
-            return self.shape.overlaps(candidate)
-        return self.shape.equals(candidate)
+        return relation_holds(self.georel, self.shape, geojson, self.max_distance, self.min_distance)
 
 
 def parse_ld_geo(georel: str | None, geometry: str | None, coordinates) -> LdGeoFilter | None:
