@@ -23,11 +23,16 @@ from fastapi import FastAPI, Request, Response
 app = FastAPI(title="bare ceilings")
 
 _START = datetime(2024, 5, 1, tzinfo=UTC)
-_LASTN_100 = json.dumps({
-    "attrName": "batteryLevel", "entityId": "urn:ngsi-ld:Lawnmower:q00", "entityType": "Lawnmower",
-    "index": [(_START + timedelta(minutes=m)).strftime("%Y-%m-%dT%H:%M:%S.000+00:00") for m in range(1340, 1440)],
-    "values": [100 - m / 10 for m in range(100)],
-}, separators=(",", ":")).encode()
+_LASTN_100 = json.dumps(
+    {
+        "attrName": "batteryLevel",
+        "entityId": "urn:ngsi-ld:Lawnmower:q00",
+        "entityType": "Lawnmower",
+        "index": [(_START + timedelta(minutes=m)).strftime("%Y-%m-%dT%H:%M:%S.000+00:00") for m in range(1340, 1440)],
+        "values": [100 - m / 10 for m in range(100)],
+    },
+    separators=(",", ":"),
+).encode()
 
 
 @app.post("/v2/notify")

@@ -93,8 +93,13 @@ QL_REFERENCE = {
 }
 
 INGEST = [("ingest16", 16), ("ingest64", 64)]
-QUERIES = [("lastN8", "lastN", 8), ("lastN1", "lastN", 1), ("hourly8", "hourly_avg", 8),
-           ("hourly1", "hourly_avg", 1), ("types1", "type_lastN", 1)]
+QUERIES = [
+    ("lastN8", "lastN", 8),
+    ("lastN1", "lastN", 1),
+    ("hourly8", "hourly_avg", 8),
+    ("hourly1", "hourly_avg", 1),
+    ("types1", "type_lastN", 1),
+]
 BARE_GETS = [("lastN8", 8), ("lastN1", 1)]
 LABELS = {
     "ingest16": "ingest, 16 connections",
@@ -139,9 +144,19 @@ class Runner:
 
             host, port = _host_port(url)
             s = run_load(host, port, factory, connections=connections, duration=duration, warmup=0)
-            stats = {"requests": s.total_requests, "ok": s.total_ok, "non_2xx": s.total_non_2xx,
-                     "errors": s.total_errors, "seconds": duration, "rps": s.rps, "p50_ms": s.p50_ms,
-                     "p90_ms": s.p90_ms, "p99_ms": s.p99_ms, "max_ms": s.max_ms, "mean_ms": math.nan}
+            stats = {
+                "requests": s.total_requests,
+                "ok": s.total_ok,
+                "non_2xx": s.total_non_2xx,
+                "errors": s.total_errors,
+                "seconds": duration,
+                "rps": s.rps,
+                "p50_ms": s.p50_ms,
+                "p90_ms": s.p90_ms,
+                "p99_ms": s.p99_ms,
+                "max_ms": s.max_ms,
+                "mean_ms": math.nan,
+            }
         stats["connections"] = connections
         stats["wall_s"] = round(time.monotonic() - t0, 2)
         return stats
@@ -165,8 +180,11 @@ def ingest_load(url: str, run_id: str, ledger: list):
         ledger.append(rid)
         prelude, expr = lawnmower.ingest_lua(rid, POOL)
         script = wrkrun.post_script("/v2/notify", hdrs, prelude, expr, threads=2)
-        head = (f"POST /v2/notify HTTP/1.1\r\nHost: {host}:{port}\r\n"
-                + "".join(f"{k}: {v}\r\n" for k, v in hdrs.items()) + "Content-Length: ").encode()
+        head = (
+            f"POST /v2/notify HTTP/1.1\r\nHost: {host}:{port}\r\n"
+            + "".join(f"{k}: {v}\r\n" for k, v in hdrs.items())
+            + "Content-Length: "
+        ).encode()
 
         def factory(seq: int) -> bytes:
             body = lawnmower.ingest_body(rid, seq, POOL)
@@ -209,8 +227,9 @@ def free_port() -> int:
 class Spawned:
     """A server we start as a subprocess; its log in the work dir."""
 
-    def __init__(self, name: str, cmd: list[str], port: int, workdir: Path, health: str,
-                 env: dict[str, str] | None = None):
+    def __init__(
+        self, name: str, cmd: list[str], port: int, workdir: Path, health: str, env: dict[str, str] | None = None
+    ):
         self.name, self.cmd, self.port, self.health = name, cmd, port, health
         self.extra_env = env or {}
         self.url = f"http://{HOST}:{port}"
@@ -224,8 +243,14 @@ class Spawned:
         env.update(self.extra_env)
         t0 = time.monotonic()
         with open(self.log_path, "wb") as log:
-            self.proc = subprocess.Popen(self.cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                         env=env, start_new_session=True)
+            self.proc = subprocess.Popen(
+                self.cmd,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                env=env,
+                start_new_session=True,
+            )
         deadline = t0 + timeout
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
@@ -282,8 +307,21 @@ def ours_cmd(db: str, port: int, workers: int) -> list[str]:
 
 
 def bare_cmd(port: int) -> list[str]:
-    return [sys.executable, "-m", "uvicorn", "--app-dir", str(HERE), "bare_app:app", "--host", HOST,
-            "--port", str(port), "--log-level", "warning", *UVICORN_FLAGS]
+    return [
+        sys.executable,
+        "-m",
+        "uvicorn",
+        "--app-dir",
+        str(HERE),
+        "bare_app:app",
+        "--host",
+        HOST,
+        "--port",
+        str(port),
+        "--log-level",
+        "warning",
+        *UVICORN_FLAGS,
+    ]
 
 
 # --- the store check ----------------------------------------------------------------------
@@ -293,10 +331,11 @@ def stored_notifications(db: str, run_ids: list[str]) -> tuple[int, int]:
     """(stored notifications, distinct ones) of the ingest runs, read from
     the store after the server stopped: one batteryLevel sample each."""
     prefixes = [f"urn:ngsi-ld:Lawnmower:{r}-" for r in run_ids]
-    where = ("s.tenant = {p} AND s.attr = 'batteryLevel' AND "
-             "regexp_replace(s.entity_id, '-[0-9]+$', '-') = ANY({p})")
-    sql = ("SELECT count(*), count(DISTINCT (s.entity_id, a.num)) FROM series s JOIN samples_all a "
-           "ON a.sid = s.sid WHERE " + where)
+    where = "s.tenant = {p} AND s.attr = 'batteryLevel' AND regexp_replace(s.entity_id, '-[0-9]+$', '-') = ANY({p})"
+    sql = (
+        "SELECT count(*), count(DISTINCT (s.entity_id, a.num)) FROM series s JOIN samples_all a "
+        "ON a.sid = s.sid WHERE " + where
+    )
     if db.startswith("postgresql://"):
         import psycopg
 
@@ -318,8 +357,13 @@ def check_store(db: str, run_ids: list[str], runs: list[dict]) -> dict:
     acked = sum(r["ok"] for r in runs) + 1  # + the sanity notification
     slack = sum(r["non_2xx"] + r["errors"] + r["connections"] for r in runs)
     stored, distinct = stored_notifications(db, run_ids)
-    return {"acknowledged": acked, "stored": stored, "distinct": distinct, "lost": max(0, acked - stored),
-            "ok": acked <= stored <= acked + slack and distinct == stored}
+    return {
+        "acknowledged": acked,
+        "stored": stored,
+        "distinct": distinct,
+        "lost": max(0, acked - stored),
+        "ok": acked <= stored <= acked + slack and distinct == stored,
+    }
 
 
 # --- one target -------------------------------------------------------------------------
@@ -340,15 +384,17 @@ class Result:
 
 
 def post_one(url: str, body: bytes) -> None:
-    req = urllib.request.Request(url + "/v2/notify", data=body, method="POST",
-                                 headers=lawnmower.headers(lawnmower.INGEST_TENANT))
+    req = urllib.request.Request(
+        url + "/v2/notify", data=body, method="POST", headers=lawnmower.headers(lawnmower.INGEST_TENANT)
+    )
     with urllib.request.urlopen(req, timeout=30) as resp:
         if not 200 <= resp.status < 300:
             raise RuntimeError(f"sanity notification answered {resp.status}")
 
 
-def measure_target(result: Result, url: str, runner: Runner, only: set[str], load: bool,
-                   server: Spawned | None = None) -> list[str]:
+def measure_target(
+    result: Result, url: str, runner: Runner, only: set[str], load: bool, server: Spawned | None = None
+) -> list[str]:
     """Ingest and query scenarios against ``url``; returns the run ids used."""
     run_id = f"{int(time.time()) % 10**6}{os.getpid() % 100:02d}"
     ledger: list[str] = []
@@ -387,13 +433,18 @@ def _print_runs(runs: list[dict]) -> None:
     for r in runs:
         if r.get("warmup"):
             continue
-        print(f"    {r['rps']:9,.0f}/s  p50 {r['p50_ms']:7.2f} ms  p99 {r['p99_ms']:8.2f} ms  "
-              f"non-2xx {r['non_2xx']}  errors {r['errors']}  (load {os.getloadavg()[0]:.1f})", flush=True)
+        print(
+            f"    {r['rps']:9,.0f}/s  p50 {r['p50_ms']:7.2f} ms  p99 {r['p99_ms']:8.2f} ms  "
+            f"non-2xx {r['non_2xx']}  errors {r['errors']}  (load {os.getloadavg()[0]:.1f})",
+            flush=True,
+        )
 
 
 def run_ours(key: str, runner: Runner, only: set[str], workdir: Path, env: dict[str, str]) -> Result:
     backend, workers = OURS[key]
-    name = {"duckdb": "ours, DuckDB", "postgresql": "ours, PostgreSQL", "postgresql2": "ours, PostgreSQL (2 workers)"}[key]
+    name = {"duckdb": "ours, DuckDB", "postgresql": "ours, PostgreSQL", "postgresql2": "ours, PostgreSQL (2 workers)"}[
+        key
+    ]
     result = Result(name, "ours", backend, workers)
     cluster = None
     try:
@@ -429,8 +480,20 @@ def run_ours(key: str, runner: Runner, only: set[str], workdir: Path, env: dict[
 def run_geo(backend: str, runner: Runner, workdir: Path) -> list[dict]:
     """benchmarks/geo.py as it is (another module owns its semantics), once."""
     out = workdir / f"geo-{backend}.json"
-    cmd = [sys.executable, str(HERE / "geo.py"), "--backend", backend, "--connections", "4",
-           "--duration", str(runner.duration), "--warmup", str(max(runner.warmup, 1.0)), "--json", str(out)]
+    cmd = [
+        sys.executable,
+        str(HERE / "geo.py"),
+        "--backend",
+        backend,
+        "--connections",
+        "4",
+        "--duration",
+        str(runner.duration),
+        "--warmup",
+        str(max(runner.warmup, 1.0)),
+        "--json",
+        str(out),
+    ]
     print(f"  geo.py --backend {backend} (loads 10k entities x 100 positions first) ...", flush=True)
     proc = subprocess.run(cmd, capture_output=True, text=True)
     (workdir / f"geo-{backend}.log").write_text(proc.stdout + proc.stderr)
@@ -486,8 +549,13 @@ def ql_figures(results: list[Result]) -> tuple[dict, str]:
     quantumleap, else issue 15's table."""
     for r in results:
         if r.kind == "external" and r.name.lower() in ("ql", "quantumleap"):
-            return ({k: {"rps": r.get(k, "rps"), "p50_ms": r.get(k, "p50_ms"), "p99_ms": r.get(k, "p99_ms")}
-                     for k in r.runs}, f"measured in this run ({r.name})")
+            return (
+                {
+                    k: {"rps": r.get(k, "rps"), "p50_ms": r.get(k, "p50_ms"), "p99_ms": r.get(k, "p99_ms")}
+                    for k in r.runs
+                },
+                f"measured in this run ({r.name})",
+            )
     return QL_REFERENCE, "issue 15's table (not measured in this run)"
 
 
@@ -503,21 +571,43 @@ def print_comparison(results: list[Result]) -> None:
         if not any(key in r.runs for r in cols):
             continue
         q = ql.get(key, {})
-        qtext = " ".join(x for x in (f"{q['rps']:,.0f}/s" if q.get("rps") else "",
-                                     f"p50 {q['p50_ms']:.1f}" if q.get("p50_ms") else "",
-                                     f"p99 {q['p99_ms']:.0f}" if q.get("p99_ms") else "") if x) or "-"
+        qtext = (
+            " ".join(
+                x
+                for x in (
+                    f"{q['rps']:,.0f}/s" if q.get("rps") else "",
+                    f"p50 {q['p50_ms']:.1f}" if q.get("p50_ms") else "",
+                    f"p99 {q['p99_ms']:.0f}" if q.get("p99_ms") else "",
+                )
+                if x
+            )
+            or "-"
+        )
         rows.append([LABELS[key] + ": req/s", qtext] + [cell(r.runs.get(key), "rps") for r in cols])
         rows.append(["  p50 ms", ""] + [cell(r.runs.get(key), "p50_ms", 2) for r in cols])
         rows.append(["  p99 ms", ""] + [cell(r.runs.get(key), "p99_ms", 1) for r in cols])
         if q.get("rps"):
-            rows.append(["  vs QuantumLeap (rate)", "1"] + [
-                f"{r.get(key, 'rps') / q['rps']:.1f}x" if r.kind == "ours" and r.get(key, "rps") else ""
-                for r in cols])
+            rows.append(
+                ["  vs QuantumLeap (rate)", "1"]
+                + [
+                    f"{r.get(key, 'rps') / q['rps']:.1f}x" if r.kind == "ours" and r.get(key, "rps") else ""
+                    for r in cols
+                ]
+            )
     rows.append(["start-up s", ""] + [str(r.info.get("startup_s", "")) for r in cols])
     rows.append(["server RSS MiB (end)", ""] + [str(r.info.get("rss_mib", "")) for r in cols])
-    rows.append(["store check (lost / acknowledged)", ""] + [
-        (f"{r.info['store_check']['lost']} / {r.info['store_check']['acknowledged']:,}"
-         + ("" if r.info['store_check']['ok'] else " FAIL")) if "store_check" in r.info else "" for r in cols])
+    rows.append(
+        ["store check (lost / acknowledged)", ""]
+        + [
+            (
+                f"{r.info['store_check']['lost']} / {r.info['store_check']['acknowledged']:,}"
+                + ("" if r.info["store_check"]["ok"] else " FAIL")
+            )
+            if "store_check" in r.info
+            else ""
+            for r in cols
+        ]
+    )
     _print_rows(header, rows)
 
 
@@ -577,8 +667,10 @@ def print_targets(rows: list[dict]) -> None:
     if not rows:
         return
     print("\ntargets (issue 15), on the medians:")
-    _print_rows(["target", "who", "measured", "result"],
-                [[t["target"], t["who"], t["value"], "PASS" if t["pass"] else "FAIL"] for t in rows])
+    _print_rows(
+        ["target", "who", "measured", "result"],
+        [[t["target"], t["who"], t["value"], "PASS" if t["pass"] else "FAIL"] for t in rows],
+    )
 
 
 # --- main ----------------------------------------------------------------------------------
@@ -586,15 +678,25 @@ def print_targets(rows: list[dict]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--url", action="append", default=[], metavar="NAME=URL",
-                    help="a running service to measure too (repeatable); name ql or quantumleap makes it the "
-                         "reference")
+    ap.add_argument(
+        "--url",
+        action="append",
+        default=[],
+        metavar="NAME=URL",
+        help="a running service to measure too (repeatable); name ql or quantumleap makes it the reference",
+    )
     ap.add_argument("--no-load", action="store_true", help="do not POST the query data set to --url services")
-    ap.add_argument("--ours", default="duckdb,postgresql,postgresql2",
-                    help="our configurations: duckdb, postgresql, postgresql2 (2 workers), or none")
+    ap.add_argument(
+        "--ours",
+        default="duckdb,postgresql,postgresql2",
+        help="our configurations: duckdb, postgresql, postgresql2 (2 workers), or none",
+    )
     ap.add_argument("--no-bare", action="store_true", help="leave the bare FastAPI ceiling out")
-    ap.add_argument("--only", default="ingest,queries,geo",
-                    help="comma list of ingest, queries, geo, growth (default: all but growth)")
+    ap.add_argument(
+        "--only",
+        default="ingest,queries,geo",
+        help="comma list of ingest, queries, geo, growth (default: all but growth)",
+    )
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--duration", type=float, default=10.0, help="seconds per measured run")
     ap.add_argument("--warmup", type=float, default=2.0, help="seconds of the warm-up run before each scenario")
@@ -602,8 +704,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--loadgen", action="store_true", help="use loadgen.py instead of wrk")
     ap.add_argument("--sizes", default="1M,10M,100M", help="growth curve sizes (with --only growth)")
     ap.add_argument("--growth-backends", default="duckdb", help="growth curve backends: duckdb,postgresql")
-    ap.add_argument("--server-env", action="append", default=[], metavar="KEY=VALUE",
-                    help="settings for our servers (e.g. TSDB_WRITER_THREADS=2); TSDB_* of this shell are not passed")
+    ap.add_argument(
+        "--server-env",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="settings for our servers (e.g. TSDB_WRITER_THREADS=2); TSDB_* of this shell are not passed",
+    )
     ap.add_argument("--json", type=Path, help="write every raw figure here")
     ap.add_argument("--keep", action="store_true", help="keep the work dir (databases, logs)")
     ap.add_argument("--strict", action="store_true", help="exit 1 when a target fails")
@@ -620,22 +727,25 @@ def main(argv: list[str] | None = None) -> int:
     if set(ours) - OURS.keys():
         ap.error(f"--ours takes {', '.join(OURS)} or none")
     workdir = Path(tempfile.mkdtemp(prefix="tsdb-compare-"))
-    print(f"compare: {os.cpu_count()} CPUs, load {_load()}, {'wrk' if use_wrk else 'loadgen.py'}, "
-          f"{runner.reps} reps x {runner.duration:g} s (+ {runner.warmup:g} s warm-up); work dir {workdir}",
-          flush=True)
+    print(
+        f"compare: {os.cpu_count()} CPUs, load {_load()}, {'wrk' if use_wrk else 'loadgen.py'}, "
+        f"{runner.reps} reps x {runner.duration:g} s (+ {runner.warmup:g} s warm-up); work dir {workdir}",
+        flush=True,
+    )
     results: list[Result] = []
     failed: list[str] = []
-    doc: dict = {"started_at": datetime.now(UTC).isoformat(timespec="seconds"),
-                 "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                             "platform": platform.platform()},
-                 "config": {**vars(args), "json": str(args.json), "generator": "wrk" if use_wrk else "loadgen"},
-                 "loadavg": {"start": os.getloadavg()}}
+    doc: dict = {
+        "started_at": datetime.now(UTC).isoformat(timespec="seconds"),
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+        "config": {**vars(args), "json": str(args.json), "generator": "wrk" if use_wrk else "loadgen"},
+        "loadavg": {"start": os.getloadavg()},
+    }
     steps = []
     if only - {"growth"}:
-        named = [u.split("=", 1) if "=" in u.split("://", 1)[0] else (f"service {i + 1}", u)
-                 for i, u in enumerate(args.url)]
-        steps += [(f"url:{u}", lambda n=n, u=u: run_external(n, u, runner, only, not args.no_load))
-                  for n, u in named]
+        named = [
+            u.split("=", 1) if "=" in u.split("://", 1)[0] else (f"service {i + 1}", u) for i, u in enumerate(args.url)
+        ]
+        steps += [(f"url:{u}", lambda n=n, u=u: run_external(n, u, runner, only, not args.no_load)) for n, u in named]
         steps += [(f"ours:{k}", lambda k=k: run_ours(k, runner, only, workdir, server_env)) for k in ours]
         if not args.no_bare and only & {"ingest", "queries"}:
             steps.append(("bare", lambda: run_bare(runner, only, workdir)))

@@ -52,14 +52,24 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT))
 
-from loadgen import build_request, run_load  # noqa: E402
-from pgutil import BenchCluster  # noqa: E402
-from queries import (  # noqa: E402
-    HOST, finish_load, free_port, get, is_pg, measure, open_store, start_server, stop_server, tree_cpu, tree_rss,
-)
-
 import psutil  # noqa: E402
+from loadgen import build_request  # noqa: E402
+from pgutil import BenchCluster  # noqa: E402
 from pyproj import Geod  # noqa: E402
+
+from queries import (  # noqa: E402
+    HOST,
+    finish_load,
+    free_port,
+    get,
+    is_pg,
+    measure,
+    open_store,
+    start_server,
+    stop_server,
+    tree_cpu,
+    tree_rss,
+)
 
 ENTITIES = 10_000
 SAMPLES = 100
@@ -132,8 +142,11 @@ def load(db: Path | str, every: bool, batch_notifications: int = 50_000, cluster
                 if every or i == 0:
                     lon, lat = paths[e][i if every else 0]
                     value = {"type": "Point", "coordinates": [lon, lat]}
-                    attrs.append(AttrSample("location", "geo:json", Kind.GEO, js=orjson.dumps(value).decode(),
-                                            geo=from_geojson(value)))
+                    attrs.append(
+                        AttrSample(
+                            "location", "geo:json", Kind.GEO, js=orjson.dumps(value).decode(), geo=from_geojson(value)
+                        )
+                    )
                 batch.append(EntitySample("", "/", ids[e], ENTITY_TYPE, moment, attrs))
                 written += len(attrs)
                 if len(batch) >= batch_notifications:
@@ -156,8 +169,10 @@ def load(db: Path | str, every: bool, batch_notifications: int = 50_000, cluster
 
 
 def query_path(lon: float, lat: float) -> str:
-    return (f"/v2/types/{ENTITY_TYPE}/attrs/temperature?georel=near;maxDistance:{MAX_DISTANCE}"
-            f"&geometry=point&coords={lat},{lon}&lastN={LAST_N}")
+    return (
+        f"/v2/types/{ENTITY_TYPE}/attrs/temperature?georel=near;maxDistance:{MAX_DISTANCE}"
+        f"&geometry=point&coords={lat},{lon}&lastN={LAST_N}"
+    )
 
 
 def matching_samples(paths: list[list[tuple[float, float]]], lon: float, lat: float) -> dict[int, list[int]]:
@@ -191,15 +206,18 @@ def check_answers(port: int, every: bool, points: int = 20) -> dict:
         inside = matching_samples(paths, lon, lat)
         expected = {entity_id(e) for e in inside}
         matched_counts.append(len(expected))
-        status, body = get(port, f"/v2/entities?type={ENTITY_TYPE}&georel=near;maxDistance:{MAX_DISTANCE}"
-                                 f"&geometry=point&coords={lat},{lon}&limit=10000")
+        status, body = get(
+            port,
+            f"/v2/entities?type={ENTITY_TYPE}&georel=near;maxDistance:{MAX_DISTANCE}"
+            f"&geometry=point&coords={lat},{lon}&limit=10000",
+        )
         got = {e["id"] for e in json.loads(body)} if status == 200 else None
         assert got == expected, (lat, lon, status, sorted(expected ^ (got or set()))[:10])
         status, body = get(port, query_path(lon, lat))
         assert status == 200, (status, body[:300])
         doc = json.loads(body)
         rows = set()
-        for ent in ([] if doc == [] else doc["entities"]):
+        for ent in [] if doc == [] else doc["entities"]:
             e = int(ent["id"].rsplit(":", 1)[1])
             for t, value in zip(ent["index"], ent["values"], strict=True):
                 i = round((datetime.fromisoformat(t) - START) / STEP)
@@ -207,8 +225,12 @@ def check_answers(port: int, every: bool, points: int = 20) -> dict:
                 rows.add((i, e))
         newest = sorted((i, e) for e, indexes in inside.items() for i in indexes)[-LAST_N:]
         assert rows == set(newest), (lat, lon, sorted(rows ^ set(newest))[:10])
-    return {"points_checked": points, "matched_min": min(matched_counts), "matched_max": max(matched_counts),
-            "matched_mean": round(sum(matched_counts) / points, 1)}
+    return {
+        "points_checked": points,
+        "matched_min": min(matched_counts),
+        "matched_max": max(matched_counts),
+        "matched_mean": round(sum(matched_counts) / points, 1),
+    }
 
 
 # --- 3. load generation ---------------------------------------------------------------------
@@ -227,8 +249,11 @@ def requests(port: int, every: bool, n: int = 1024) -> tuple[list[bytes], list[b
         geo_reqs.append(build_request("GET", query_path(lon, lat), HOST, port))
         ids = [entity_id(e) for e in sorted(matching_samples(paths, lon, lat))]
         if ids:
-            by_id.append(build_request(
-                "GET", f"/v2/types/{ENTITY_TYPE}/attrs/temperature?id={','.join(ids)}&lastN={LAST_N}", HOST, port))
+            by_id.append(
+                build_request(
+                    "GET", f"/v2/types/{ENTITY_TYPE}/attrs/temperature?id={','.join(ids)}&lastN={LAST_N}", HOST, port
+                )
+            )
     return geo_reqs, by_id
 
 
@@ -237,12 +262,23 @@ def requests(port: int, every: bool, n: int = 1024) -> tuple[list[bytes], list[b
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--backend", choices=("duckdb", "postgresql"), default="duckdb",
-                    help="duckdb (default: a temp file) or postgresql (a private cluster started for the run)")
-    ap.add_argument("--db", help="reuse this DuckDB file (loaded there if missing) or this loaded postgresql:// "
-                                 "database (default: load a fresh one)")
-    ap.add_argument("--location", choices=("every", "once"), default="every",
-                    help="location in every sample (moving devices, default) or only the first")
+    ap.add_argument(
+        "--backend",
+        choices=("duckdb", "postgresql"),
+        default="duckdb",
+        help="duckdb (default: a temp file) or postgresql (a private cluster started for the run)",
+    )
+    ap.add_argument(
+        "--db",
+        help="reuse this DuckDB file (loaded there if missing) or this loaded postgresql:// "
+        "database (default: load a fresh one)",
+    )
+    ap.add_argument(
+        "--location",
+        choices=("every", "once"),
+        default="every",
+        help="location in every sample (moving devices, default) or only the first",
+    )
     ap.add_argument("--keep", action="store_true", help="keep the temporary database")
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--warmup", type=float, default=2.0)
@@ -254,8 +290,9 @@ def main(argv: list[str] | None = None) -> int:
     every = args.location == "every"
     load_start = os.getloadavg()
     where = "every sample" if every else "the first sample only"
-    print(f"geo benchmark on {args.backend}: {ENTITIES:,} entities x {SAMPLES} samples, location in {where}",
-          flush=True)
+    print(
+        f"geo benchmark on {args.backend}: {ENTITIES:,} entities x {SAMPLES} samples, location in {where}", flush=True
+    )
 
     tmp = Path(tempfile.mkdtemp(prefix="tsdb-geo-"))
     cluster: BenchCluster | None = None
@@ -303,8 +340,13 @@ def main(argv: list[str] | None = None) -> int:
                 stats = measure(port, reqs, conns, args.duration, args.warmup)
                 cpu_ms = (tree_cpu(server) - cpu0) / max(stats.total_ok, 1) * 1e3
                 db_cpu_ms = ((cluster.cpu_seconds() - db_cpu0) / max(stats.total_ok, 1) * 1e3) if cluster else None
-                results[key] = {"label": text, "connections": conns, "server_cpu_ms_per_req": cpu_ms,
-                                "db_cpu_ms_per_req": db_cpu_ms, **stats.to_dict()}
+                results[key] = {
+                    "label": text,
+                    "connections": conns,
+                    "server_cpu_ms_per_req": cpu_ms,
+                    "db_cpu_ms_per_req": db_cpu_ms,
+                    **stats.to_dict(),
+                }
             rss = tree_rss(server)
         finally:
             stop_server(proc)
@@ -314,36 +356,66 @@ def main(argv: list[str] | None = None) -> int:
 
     checks = {
         f"p50 <= {TARGET_P50_MS:g} ms (1 connection)": _le(results["1conn"]["p50_ms"], TARGET_P50_MS),
-        f"p50 <= {TARGET_P50_MS:g} ms ({args.connections} connections)": _le(results["loaded"]["p50_ms"],
-                                                                             TARGET_P50_MS),
+        f"p50 <= {TARGET_P50_MS:g} ms ({args.connections} connections)": _le(
+            results["loaded"]["p50_ms"], TARGET_P50_MS
+        ),
         "no errors": all(r["errors"] == 0 and r["non_2xx"] == 0 for r in results.values()),
     }
     db_col = cluster is not None
     print()
     print(f"backend: {args.backend}, 1 server process")
-    print(f"GET /v2/types/{ENTITY_TYPE}/attrs/temperature?georel=near;maxDistance:{MAX_DISTANCE}"
-          f"&geometry=point&coords=<random>&lastN={LAST_N}")
-    print(f"{ENTITIES:,} entities x {SAMPLES} samples, location in {where}, "
-          f"{checked['matched_mean']} entities within {MAX_DISTANCE} m on average")
-    print(f"{'scenario':<40} {'conns':>5} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu ms/req':>10}"
-          + (f" {'db ms/req':>9}" if db_col else "") + f" {'errors':>6}")
+    print(
+        f"GET /v2/types/{ENTITY_TYPE}/attrs/temperature?georel=near;maxDistance:{MAX_DISTANCE}"
+        f"&geometry=point&coords=<random>&lastN={LAST_N}"
+    )
+    print(
+        f"{ENTITIES:,} entities x {SAMPLES} samples, location in {where}, "
+        f"{checked['matched_mean']} entities within {MAX_DISTANCE} m on average"
+    )
+    print(
+        f"{'scenario':<40} {'conns':>5} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu ms/req':>10}"
+        + (f" {'db ms/req':>9}" if db_col else "")
+        + f" {'errors':>6}"
+    )
     for r in results.values():
-        print(f"{r['label']:<40} {r['connections']:>5} {r['rps']:>8.1f} {_fmt(r['p50_ms'])} {_fmt(r['p99_ms'])} "
-              f"{r['server_cpu_ms_per_req']:>10.2f}" + (f" {r['db_cpu_ms_per_req']:>9.2f}" if db_col else "")
-              + f" {r['errors'] + r['non_2xx']:>6}")
+        print(
+            f"{r['label']:<40} {r['connections']:>5} {r['rps']:>8.1f} {_fmt(r['p50_ms'])} {_fmt(r['p99_ms'])} "
+            f"{r['server_cpu_ms_per_req']:>10.2f}"
+            + (f" {r['db_cpu_ms_per_req']:>9.2f}" if db_col else "")
+            + f" {r['errors'] + r['non_2xx']:>6}"
+        )
     print(f"server RSS: {rss / 2**20:.0f} MiB")
-    print(f"load average (1/5/15 min) at start {_load(load_start)}, at end {_load(os.getloadavg())} "
-          f"on {os.cpu_count()} CPUs: other processes' load inflates every latency")
+    print(
+        f"load average (1/5/15 min) at start {_load(load_start)}, at end {_load(os.getloadavg())} "
+        f"on {os.cpu_count()} CPUs: other processes' load inflates every latency"
+    )
     print()
     for name, ok in checks.items():
         print(f"{'PASS' if ok else 'FAIL'}  {name}")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps({
-            "benchmark": "geo", "backend": args.backend, "entities": ENTITIES, "samples_per_entity": SAMPLES,
-            "load": loaded, "location": args.location, "check": checked, "results": results, "checks": checks,
-            "rss_bytes": rss, "machine": {"cpus": os.cpu_count(), "load_average_start": load_start,
-                                          "load_average_end": os.getloadavg()}}, indent=2))
+        Path(args.json).write_text(
+            json.dumps(
+                {
+                    "benchmark": "geo",
+                    "backend": args.backend,
+                    "entities": ENTITIES,
+                    "samples_per_entity": SAMPLES,
+                    "load": loaded,
+                    "location": args.location,
+                    "check": checked,
+                    "results": results,
+                    "checks": checks,
+                    "rss_bytes": rss,
+                    "machine": {
+                        "cpus": os.cpu_count(),
+                        "load_average_start": load_start,
+                        "load_average_end": os.getloadavg(),
+                    },
+                },
+                indent=2,
+            )
+        )
     if args.keep and isinstance(db, Path) and tmp in db.parents:
         print(f"kept {db}")
     else:

@@ -89,7 +89,7 @@ def _series_rows() -> list[list]:
 def load_duckdb(path: str, size: int) -> dict:
     import duckdb
 
-    from tsdb_service.storage.duckdb_store import DuckDBStore
+    from tsdb_service.storage.duckdb.store import DuckDBStore
 
     DuckDBStore(path).close()  # schema
     k = per_series(size)
@@ -97,10 +97,12 @@ def load_duckdb(path: str, size: int) -> dict:
     t0 = time.perf_counter()
     try:
         sid, tenant, sp, eid, etype, attr = _series_rows()
-        con.execute("INSERT INTO series BY NAME SELECT unnest($1::INTEGER[]) AS sid, unnest($2::VARCHAR[]) AS tenant, "
-                    "unnest($3::VARCHAR[]) AS service_path, unnest($4::VARCHAR[]) AS entity_id, "
-                    "unnest($5::VARCHAR[]) AS entity_type, unnest($6::VARCHAR[]) AS attr",
-                    [sid, tenant, sp, eid, etype, attr])
+        con.execute(
+            "INSERT INTO series BY NAME SELECT unnest($1::INTEGER[]) AS sid, unnest($2::VARCHAR[]) AS tenant, "
+            "unnest($3::VARCHAR[]) AS service_path, unnest($4::VARCHAR[]) AS entity_id, "
+            "unnest($5::VARCHAR[]) AS entity_type, unnest($6::VARCHAR[]) AS attr",
+            [sid, tenant, sp, eid, etype, attr],
+        )
         step = max(1, CHUNK // (len(ATTRS) * k))
         for e0 in range(0, ENTITIES, step):
             con.execute(
@@ -109,7 +111,9 @@ def load_duckdb(path: str, size: int) -> dict:
                        TIMESTAMP '2024-05-01' + to_minutes(kk) AS t, 1::UTINYINT AS kind, 'Number' AS atype,
                        (e + a + (kk % 1440) / 100.0)::DOUBLE AS num
                 FROM range(?, ?) r1(e), range({len(ATTRS)}) r2(a), range(?) r3(kk)
-                ORDER BY sid, t""", [e0, min(ENTITIES, e0 + step), k])
+                ORDER BY sid, t""",
+                [e0, min(ENTITIES, e0 + step), k],
+            )
         con.execute("CHECKPOINT")
     finally:
         con.close()
@@ -119,16 +123,18 @@ def load_duckdb(path: str, size: int) -> dict:
 def load_postgres(url: str, size: int) -> dict:
     import psycopg
 
-    from tsdb_service.storage.postgres_store import PostgresStore
+    from tsdb_service.storage.postgres.store import PostgresStore
 
     PostgresStore(url).close()  # schema
     k = per_series(size)
     t0 = time.perf_counter()
     with psycopg.connect(url, autocommit=True) as conn:
         sid, tenant, sp, eid, etype, attr = _series_rows()
-        conn.execute("INSERT INTO series (sid, tenant, service_path, entity_id, entity_type, attr) "
-                     "SELECT * FROM unnest(%s::int[], %s::text[], %s::text[], %s::text[], %s::text[], %s::text[])",
-                     [sid, tenant, sp, eid, etype, attr])
+        conn.execute(
+            "INSERT INTO series (sid, tenant, service_path, entity_id, entity_type, attr) "
+            "SELECT * FROM unnest(%s::int[], %s::text[], %s::text[], %s::text[], %s::text[], %s::text[])",
+            [sid, tenant, sp, eid, etype, attr],
+        )
         conn.execute("SELECT setval(pg_get_serial_sequence('series', 'sid'), %s)", [SERIES])
         step = max(1, 5_000_000 // (len(ATTRS) * k))
         for e0 in range(0, ENTITIES, step):
@@ -139,7 +145,9 @@ def load_postgres(url: str, size: int) -> dict:
                        e + a + (kk %% 1440) / 100.0
                 FROM generate_series(%s::int, %s::int) e, generate_series(0, {len(ATTRS) - 1}) a,
                      generate_series(0, %s::int) kk
-                ORDER BY 2, 3""", [e0, min(ENTITIES, e0 + step) - 1, k - 1])
+                ORDER BY 2, 3""",
+                [e0, min(ENTITIES, e0 + step) - 1, k - 1],
+            )
         conn.execute("SELECT setval('sample_rid_seq', %s)", [k * ENTITIES])
         conn.execute("VACUUM (ANALYZE) samples")
         conn.execute("CHECKPOINT")
@@ -157,9 +165,11 @@ def check_layout(db: str, size: int) -> dict:
 
     moment = START + timedelta(minutes=per_series(size) + 5)
     attrs = ",".join(f'"{a}":{{"type":"Number","value":{i + 0.5},"metadata":{{}}}}' for i, a in enumerate(ATTRS))
-    body = (f'{{"subscriptionId":"{lawnmower.SUBSCRIPTION}","data":[{{"id":"{entity_id(0)}","type":"Lawnmower",'
-            f'"TimeInstant":{{"type":"DateTime","value":"{moment:%Y-%m-%dT%H:%M:%S}.000Z","metadata":{{}}}},'
-            f'{attrs}}}]}}').encode()
+    body = (
+        f'{{"subscriptionId":"{lawnmower.SUBSCRIPTION}","data":[{{"id":"{entity_id(0)}","type":"Lawnmower",'
+        f'"TimeInstant":{{"type":"DateTime","value":"{moment:%Y-%m-%dT%H:%M:%S}.000Z","metadata":{{}}}},'
+        f"{attrs}}}]}}"
+    ).encode()
     hdrs = {k.lower(): v for k, v in lawnmower.headers(TENANT).items()}
     entities = parse_notification(body, hdrs, received_at=datetime.now(UTC), values_layout=lambda *a: None)
     pg = db.startswith("postgresql://")
@@ -168,8 +178,9 @@ def check_layout(db: str, size: int) -> dict:
         store.write_sync([AppendSamples(entities)])
     finally:
         store.close()
-    sql = ("SELECT * FROM samples_all WHERE sid BETWEEN 1 AND {n} AND t IN "
-           "(TIMESTAMP '2024-05-01', {p}) ORDER BY t, sid").format(n=len(ATTRS), p="%s" if pg else "?")
+    sql = (
+        "SELECT * FROM samples_all WHERE sid BETWEEN 1 AND {n} AND t IN (TIMESTAMP '2024-05-01', {p}) ORDER BY t, sid"
+    ).format(n=len(ATTRS), p="%s" if pg else "?")
     stamp = moment.replace(tzinfo=None)
     if pg:
         import psycopg
@@ -191,7 +202,7 @@ def check_layout(db: str, size: int) -> dict:
     if len(rows) != 2 * len(ATTRS):
         raise RuntimeError(f"layout check: expected {2 * len(ATTRS)} rows, found {len(rows)}")
     keep = [i for i, n in enumerate(names) if n not in ("rid", "t", "num")]
-    bulk, service = rows[:len(ATTRS)], rows[len(ATTRS):]
+    bulk, service = rows[: len(ATTRS)], rows[len(ATTRS) :]
     for b, s in zip(bulk, service):
         if [b[i] for i in keep] != [s[i] for i in keep]:
             raise RuntimeError(f"layout check: bulk row {b} differs from the service's {s} (columns {names})")
@@ -202,10 +213,10 @@ def check_layout(db: str, size: int) -> dict:
 
 def compare_store(db: str):
     if db.startswith("postgresql://"):
-        from tsdb_service.storage.postgres_store import PostgresStore
+        from tsdb_service.storage.postgres.store import PostgresStore
 
         return PostgresStore(db)
-    from tsdb_service.storage.duckdb_store import DuckDBStore
+    from tsdb_service.storage.duckdb.store import DuckDBStore
 
     return DuckDBStore(db)
 
@@ -222,7 +233,7 @@ def measure(db: str, size: int, runner: compare.Runner, workdir: Path, tag: str)
         rng = random.Random(5)
         hdrs = lawnmower.query_headers(TENANT)
         last_day = START + timedelta(minutes=per_series(size) - 1440)
-        day = (f"fromDate={last_day:%Y-%m-%dT%H:%M:%S}Z&toDate={last_day + timedelta(days=1):%Y-%m-%dT%H:%M:%S}Z")
+        day = f"fromDate={last_day:%Y-%m-%dT%H:%M:%S}Z&toDate={last_day + timedelta(days=1):%Y-%m-%dT%H:%M:%S}Z"
         picks = [(rng.randrange(ENTITIES), rng.choice(ATTRS)) for _ in range(64)]
         lastn = [f"/v2/entities/{entity_id(e)}/attrs/{a}?lastN=100" for e, a in picks]
         hourly = [f"/v2/entities/{entity_id(e)}/attrs/{a}?aggrMethod=avg&aggrPeriod=hour&{day}" for e, a in picks]
@@ -267,7 +278,11 @@ def run(sizes_text: str, backends_text: str, runner: compare.Runner, workdir: Pa
                     loaded = load_duckdb(db, size)
                 print(f"    {loaded}", flush=True)
                 check_layout(db, size)
-                point = {"size": size, **loaded, "bytes_per_sample": round(db_bytes(db, cluster) / loaded["samples"], 1)}
+                point = {
+                    "size": size,
+                    **loaded,
+                    "bytes_per_sample": round(db_bytes(db, cluster) / loaded["samples"], 1),
+                }
                 point.update(measure(db, size, runner, workdir, tag))
                 points.append(point)
                 print(f"    {point}", flush=True)
@@ -291,28 +306,54 @@ def print_curve(curve: dict, sizes: list[int]) -> None:
         if not points:
             continue
         print(f"\ngrowth curve, {backend} (1,000 series; medians over the reps):")
-        header = ["samples", "load s", "B/sample", "start-up s", "RSS start MiB", "RSS end MiB",
-                  "lastN=100 p50 ms", "hourly avg p50 ms", "ingest 16 conns /s"]
-        rows = [[f"{p['size']:,}", p["load_s"], p["bytes_per_sample"], p["startup_s"], p["rss_start_mib"],
-                 p["rss_end_mib"], _fmt(_p50(p, "lastN1")), _fmt(_p50(p, "hourly1")), _fmt(_p50(p, "ingest16"), 0)]
-                for p in points]
+        header = [
+            "samples",
+            "load s",
+            "B/sample",
+            "start-up s",
+            "RSS start MiB",
+            "RSS end MiB",
+            "lastN=100 p50 ms",
+            "hourly avg p50 ms",
+            "ingest 16 conns /s",
+        ]
+        rows = [
+            [
+                f"{p['size']:,}",
+                p["load_s"],
+                p["bytes_per_sample"],
+                p["startup_s"],
+                p["rss_start_mib"],
+                p["rss_end_mib"],
+                _fmt(_p50(p, "lastN1")),
+                _fmt(_p50(p, "hourly1")),
+                _fmt(_p50(p, "ingest16"), 0),
+            ]
+            for p in points
+        ]
         compare._print_rows(header, [[str(c) for c in r] for r in rows])
         first, last = points[0], points[-1]
         if len(points) > 1:
             for key, label in (("lastN1", "lastN=100"), ("hourly1", "hourly avg")):
                 a, b = _p50(first, key), _p50(last, key)
                 if a and b:
-                    print(f"{'PASS' if b <= 2 * a else 'FAIL'}  {label} p50 flat within 2x: "
-                          f"{a:.2f} ms at {first['size']:,} -> {b:.2f} ms at {last['size']:,} ({b / a:.1f}x)")
+                    print(
+                        f"{'PASS' if b <= 2 * a else 'FAIL'}  {label} p50 flat within 2x: "
+                        f"{a:.2f} ms at {first['size']:,} -> {b:.2f} ms at {last['size']:,} ({b / a:.1f}x)"
+                    )
             ok = last["rss_end_mib"] <= 1.25 * first["rss_end_mib"] + 64
-            print(f"{'PASS' if ok else 'FAIL'}  RSS does not grow with stored data: "
-                  f"{first['rss_end_mib']} MiB -> {last['rss_end_mib']} MiB")
+            print(
+                f"{'PASS' if ok else 'FAIL'}  RSS does not grow with stored data: "
+                f"{first['rss_end_mib']} MiB -> {last['rss_end_mib']} MiB"
+            )
         rate = last["samples"] / max(last["load_s"], 0.1)
         for size in (10**8,):
             if size not in sizes:
-                print(f"estimate for {size:,} samples on {backend}: ~{size * last['bytes_per_sample'] / 2**30:.1f} GiB "
-                      f"on disk, bulk load ~{size / rate / 60:.0f} min (at {rate:,.0f} samples/s measured at "
-                      f"{last['samples']:,})")
+                print(
+                    f"estimate for {size:,} samples on {backend}: ~{size * last['bytes_per_sample'] / 2**30:.1f} GiB "
+                    f"on disk, bulk load ~{size / rate / 60:.0f} min (at {rate:,.0f} samples/s measured at "
+                    f"{last['samples']:,})"
+                )
 
 
 def _fmt(v, digits: int = 2) -> str:

@@ -38,13 +38,13 @@ import tempfile
 import time
 import urllib.error
 import urllib.request
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from loadgen import LoadStats, build_request, run_load  # noqa: E402
+from loadgen import LoadStats, run_load  # noqa: E402
 from pgutil import BenchCluster  # noqa: E402
 
 try:
@@ -76,7 +76,7 @@ class NotificationFactory:
     time + seq ms, so the store can be checked entity by entity afterwards.
     """
 
-    BASE_TIME = datetime(2024, 5, 1, tzinfo=timezone.utc)
+    BASE_TIME = datetime(2024, 5, 1, tzinfo=UTC)
 
     def __init__(self, port: int, run_id: str, tenant: str = TENANT, pool: int = 0):
         self.run_id = run_id
@@ -141,7 +141,9 @@ class Target:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
-                raise RuntimeError(f"{self.name} exited with code {self.proc.returncode} during start-up\n{self.log_tail()}")
+                raise RuntimeError(
+                    f"{self.name} exited with code {self.proc.returncode} during start-up\n{self.log_tail()}"
+                )
             if self._ready():
                 return
             time.sleep(0.1)
@@ -344,7 +346,19 @@ def fmt(v: float | None, digits: int = 1) -> str:
 
 
 def print_table(rows: dict[str, dict]) -> None:
-    cols = ["target", "requests", "non-2xx", "errors", "notif/s", "p50 ms", "p90 ms", "p99 ms", "max ms", "srv CPU%", "gen CPU%"]
+    cols = [
+        "target",
+        "requests",
+        "non-2xx",
+        "errors",
+        "notif/s",
+        "p50 ms",
+        "p90 ms",
+        "p99 ms",
+        "max ms",
+        "srv CPU%",
+        "gen CPU%",
+    ]
     widths = [max(22, *(len(name) for name in rows)), 9, 8, 7, 9, 8, 8, 8, 8, 9, 9]
     print("  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(cols, widths))))
     for name, r in rows.items():
@@ -375,13 +389,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--targets", default="ours,bare", help="comma list of: ours, bare (default both)")
     ap.add_argument("--server-env", action="append", default=[], metavar="KEY=VALUE", help="extra env for our server")
     ap.add_argument("--start-timeout", type=float, default=60.0, help="seconds to wait for a server to be ready")
-    ap.add_argument("--entities", type=int, default=1000,
-                    help="entities notified in turn (default 1000, as a deployment has); 0 = a new entity per notification")
+    ap.add_argument(
+        "--entities",
+        type=int,
+        default=1000,
+        help="entities notified in turn (default 1000, as a deployment has); 0 = a new entity per notification",
+    )
     ap.add_argument("--keep", action="store_true", help="keep the temp dir (DuckDB file, server logs)")
-    ap.add_argument("--backend", choices=("duckdb", "postgresql"), default="duckdb",
-                    help="store behind our server: a temp DuckDB file (default) or a private PostgreSQL cluster")
-    ap.add_argument("--workers", type=int, default=1,
-                    help="uvicorn workers for our server (PostgreSQL only; default 1). The bare ceiling keeps 1.")
+    ap.add_argument(
+        "--backend",
+        choices=("duckdb", "postgresql"),
+        default="duckdb",
+        help="store behind our server: a temp DuckDB file (default) or a private PostgreSQL cluster",
+    )
+    ap.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="uvicorn workers for our server (PostgreSQL only; default 1). The bare ceiling keeps 1.",
+    )
     args = ap.parse_args(argv)
     if args.workers < 1 or (args.workers > 1 and args.backend != "postgresql"):
         ap.error("--workers > 1 needs --backend postgresql (a DuckDB file belongs to one process)")
@@ -395,7 +421,7 @@ def main(argv: list[str] | None = None) -> int:
     run_id = f"{int(time.time())}{os.getpid() % 1000:03d}"
     results: dict = {
         "benchmark": "ingest",
-        "started_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "started_at": datetime.now(UTC).isoformat(timespec="seconds"),
         "config": {
             "backend": args.backend,
             "workers": args.workers,
@@ -452,8 +478,11 @@ def main(argv: list[str] | None = None) -> int:
                 "exit_code": code,
                 "sigterm_exit_s": round(stop_s, 3),
                 "verification": verification,
-                "db_bytes": (cluster.database_bytes() if cluster
-                             else sum(p.stat().st_size for p in workdir.glob("ingest.duckdb*"))),
+                "db_bytes": (
+                    cluster.database_bytes()
+                    if cluster
+                    else sum(p.stat().st_size for p in workdir.glob("ingest.duckdb*"))
+                ),
             }
             if cluster is not None:
                 # the PostgreSQL server's own CPU (backends + background processes), same window
@@ -465,8 +494,21 @@ def main(argv: list[str] | None = None) -> int:
                 print(ours.log_tail(), flush=True)
         if "bare" in targets:
             port = free_port()
-            cmd = [sys.executable, "-m", "uvicorn", "--app-dir", str(HERE), "bare_app:app", "--host", HOST,
-                   "--port", str(port), "--log-level", "warning", *UVICORN_FLAGS]  # fmt: skip
+            cmd = [
+                sys.executable,
+                "-m",
+                "uvicorn",
+                "--app-dir",
+                str(HERE),
+                "bare_app:app",
+                "--host",
+                HOST,
+                "--port",
+                str(port),
+                "--log-level",
+                "warning",
+                *UVICORN_FLAGS,
+            ]
             bare = Target("bare FastAPI", cmd, port, workdir / "bare.log", server_env([]), None)
             print(f"- bare FastAPI on :{port} ...", flush=True)
             try:
@@ -493,20 +535,26 @@ def main(argv: list[str] | None = None) -> int:
     checks = []
     ours_row, bare_row = results["targets"].get("ours"), results["targets"].get("bare")
     if ours_row and "db_cpu_pct" in ours_row:
-        print(f"\nPostgreSQL server CPU during the measured window: {fmt(ours_row['db_cpu_pct'], 0)}% "
-              "(on top of srv CPU%; all on the same cores)")
+        print(
+            f"\nPostgreSQL server CPU during the measured window: {fmt(ours_row['db_cpu_pct'], 0)}% "
+            "(on top of srv CPU%; all on the same cores)"
+        )
     ratio = None
     if ours_row and bare_row and bare_row["load"]["rps"]:
         ratio = ours_row["load"]["rps"] / bare_row["load"]["rps"]
         results["ratio"] = ratio
-        print(f"\nratio = ours / bare ceiling = {ours_row['load']['rps']:,.0f} / {bare_row['load']['rps']:,.0f} = {ratio:.2f}")
+        print(
+            f"\nratio = ours / bare ceiling = {ours_row['load']['rps']:,.0f} / {bare_row['load']['rps']:,.0f} = {ratio:.2f}"
+        )
     if ours_row:
         s, v = ours_row["load"], ours_row["verification"]
         checks.append(("throughput (notif/s)", f">= {TARGET_RPS:,.0f}", fmt(s["rps"], 0), s["rps"] >= TARGET_RPS))
         if ratio is not None:
             checks.append(("ratio ours / bare", f">= {TARGET_RATIO:.2f}", f"{ratio:.2f}", ratio >= TARGET_RATIO))
         p99 = s["p99_ms"]
-        checks.append(("p99 latency (ms)", f"<= {TARGET_P99_MS:g}", fmt(p99, 2), p99 is not None and p99 <= TARGET_P99_MS))
+        checks.append(
+            ("p99 latency (ms)", f"<= {TARGET_P99_MS:g}", fmt(p99, 2), p99 is not None and p99 <= TARGET_P99_MS)
+        )
         checks.append(("non-2xx + errors", "= 0", f"{s['non_2xx'] + s['errors']}", s["non_2xx"] + s["errors"] == 0))
         checks.append(
             (

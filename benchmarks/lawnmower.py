@@ -53,8 +53,12 @@ NOTIFICATION_FMT = '{"subscriptionId":"' + SUBSCRIPTION + '","data":[%s]}'
 
 
 def headers(tenant: str) -> dict[str, str]:
-    return {"Content-Type": "application/json", "Fiware-Service": tenant, "Fiware-ServicePath": "/",
-            "Ngsiv2-AttrsFormat": "normalized"}
+    return {
+        "Content-Type": "application/json",
+        "Fiware-Service": tenant,
+        "Fiware-ServicePath": "/",
+        "Ngsiv2-AttrsFormat": "normalized",
+    }
 
 
 def query_headers(tenant: str = QUERY_TENANT) -> dict[str, str]:
@@ -71,8 +75,15 @@ def ingest_body(run_id: str, seq: int, pool: int) -> bytes:
     t = datetime.fromtimestamp(BASE_EPOCH + seq // 1000, UTC)
     stamp = t.strftime("%Y-%m-%dT%H:%M:%S") + f".{ms:03d}Z"
     entity = ENTITY_FMT % (
-        f"{run_id}-{e}", stamp, f"{seq}.25", (seq % 50) / 100, STATES[seq % 3],
-        -3.7 + (seq % 1000) / 100000, 40.4 + (e % 1000) / 100000, (seq % 10) / 10, (seq % 7) / 10,
+        f"{run_id}-{e}",
+        stamp,
+        f"{seq}.25",
+        (seq % 50) / 100,
+        STATES[seq % 3],
+        -3.7 + (seq % 1000) / 100000,
+        40.4 + (e % 1000) / 100000,
+        (seq % 10) / 10,
+        (seq % 7) / 10,
     )
     return (NOTIFICATION_FMT % entity).encode()
 
@@ -81,7 +92,7 @@ def ingest_lua(run_id: str, pool: int) -> tuple[str, str]:
     """(prelude, body expression) building ``ingest_body`` in wrk's Lua."""
     entity = ENTITY_FMT.replace('"id":"urn:ngsi-ld:Lawnmower:%s"', '"id":"urn:ngsi-ld:Lawnmower:%s-%d"')
     prelude = f"""
-local FMT = [==[{NOTIFICATION_FMT.replace('%s', entity)}]==]
+local FMT = [==[{NOTIFICATION_FMT.replace("%s", entity)}]==]
 local STATES = {{"{STATES[0]}", "{STATES[1]}", "{STATES[2]}"}}
 local RUN = "{run_id}"
 local POOL = {pool}
@@ -112,10 +123,20 @@ def dataset_notification(minute: int) -> bytes:
     for e in range(DATASET_ENTITIES):
         seq = minute * DATASET_ENTITIES + e
         battery = 100 - (minute % 600) / 10 + e
-        parts.append(ENTITY_FMT % (
-            dataset_entity(e), stamp, repr(battery), ((minute + e) % 50) / 100, STATES[(minute // 60) % 3],
-            -3.7 + (seq % 1000) / 100000, 40.4 + e / 1000, (minute % 10) / 10, (minute % 7) / 10,
-        ))
+        parts.append(
+            ENTITY_FMT
+            % (
+                dataset_entity(e),
+                stamp,
+                repr(battery),
+                ((minute + e) % 50) / 100,
+                STATES[(minute // 60) % 3],
+                -3.7 + (seq % 1000) / 100000,
+                40.4 + e / 1000,
+                (minute % 10) / 10,
+                (minute % 7) / 10,
+            )
+        )
     return (NOTIFICATION_FMT % ",".join(parts)).encode()
 
 
@@ -147,10 +168,15 @@ def load_dataset(url: str, connections: int = 4, minutes: int = DATASET_MINUTES)
 def query_paths() -> dict[str, list[str]]:
     """The measured GETs: lastN=100 on one entity, the type-level hourly average
     over the day, the type-level lastN=1000."""
-    lastn = [f"/v2/entities/urn:ngsi-ld:Lawnmower:{dataset_entity(e)}/attrs/{a}?lastN=100"
-             for e in range(DATASET_ENTITIES) for a in ("batteryLevel", "speed")]
-    hourly = [f"/v2/types/{ENTITY_TYPE}/attrs/{a}?aggrMethod=avg&aggrPeriod=hour&fromDate={DAY_FROM}&toDate={DAY_TO}"
-              for a in ("batteryLevel", "speed")]
+    lastn = [
+        f"/v2/entities/urn:ngsi-ld:Lawnmower:{dataset_entity(e)}/attrs/{a}?lastN=100"
+        for e in range(DATASET_ENTITIES)
+        for a in ("batteryLevel", "speed")
+    ]
+    hourly = [
+        f"/v2/types/{ENTITY_TYPE}/attrs/{a}?aggrMethod=avg&aggrPeriod=hour&fromDate={DAY_FROM}&toDate={DAY_TO}"
+        for a in ("batteryLevel", "speed")
+    ]
     types = [f"/v2/types/{ENTITY_TYPE}/attrs/{a}?lastN=1000" for a in ("batteryLevel", "speed")]
     return {"lastN": lastn, "hourly_avg": hourly, "type_lastN": types}
 
@@ -170,14 +196,19 @@ def check_dataset(url: str) -> dict:
                 raise RuntimeError(f"{name}: {paths[0]} answered {resp.status}: {data[:300]!r}")
             doc = json.loads(data)
             if "entities" in doc:
-                found[name] = {"entities": len(doc["entities"]),
-                               "values": sum(len(x.get("values", [])) for x in doc["entities"])}
+                found[name] = {
+                    "entities": len(doc["entities"]),
+                    "values": sum(len(x.get("values", [])) for x in doc["entities"]),
+                }
             else:
                 found[name] = {"values": len(doc.get("values", []))}
     finally:
         conn.close()
-    want = {"lastN": {"values": 100}, "hourly_avg": {"entities": DATASET_ENTITIES, "values": DATASET_ENTITIES * 24},
-            "type_lastN": {"values": 1000}}
+    want = {
+        "lastN": {"values": 100},
+        "hourly_avg": {"entities": DATASET_ENTITIES, "values": DATASET_ENTITIES * 24},
+        "type_lastN": {"values": 1000},
+    }
     for name, expected in want.items():
         for key, value in expected.items():
             if found[name].get(key) != value:

@@ -133,7 +133,7 @@ def _percentile(sorted_values: list[float], q: float) -> float:
 
 
 class _Conn(asyncio.Protocol):
-    __slots__ = ("run", "transport", "buf", "t_start", "busy", "closed")
+    __slots__ = ("buf", "busy", "closed", "run", "t_start", "transport")
 
     def __init__(self, run: _Run):
         self.run = run
@@ -359,7 +359,7 @@ class _Run:
         self.check_done()
         try:
             await asyncio.wait_for(asyncio.shield(self.done), drain_timeout)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             for conn in list(self.conns):
                 if conn.busy:
                     conn.busy = False
@@ -556,4 +556,7 @@ if __name__ == "__main__":  # tiny smoke run: python loadgen.py PORT [PATH]
     _port = int(sys.argv[1])
     _path = sys.argv[2] if len(sys.argv) > 2 else "/"
     _req = build_request("GET", _path, "127.0.0.1", _port)
-    print(run_load("127.0.0.1", _port, lambda seq: _req, connections=8, duration=2, warmup=0.5).to_dict() | {"pid": os.getpid()})
+    print(
+        run_load("127.0.0.1", _port, lambda seq: _req, connections=8, duration=2, warmup=0.5).to_dict()
+        | {"pid": os.getpid()}
+    )

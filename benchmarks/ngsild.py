@@ -61,8 +61,10 @@ def entity_id(n: int) -> str:
 
 def place(rng: random.Random) -> tuple[float, float]:
     distance, bearing = 25_000 * math.sqrt(rng.random()), rng.random() * 2 * math.pi
-    return (CENTRE[0] + distance * math.sin(bearing) / (111_320 * math.cos(math.radians(CENTRE[1]))),
-            CENTRE[1] + distance * math.cos(bearing) / 110_540)
+    return (
+        CENTRE[0] + distance * math.sin(bearing) / (111_320 * math.cos(math.radians(CENTRE[1]))),
+        CENTRE[1] + distance * math.cos(bearing) / 110_540,
+    )
 
 
 def load(settings, entities: int) -> dict:
@@ -83,13 +85,27 @@ def load(settings, entities: int) -> dict:
         for i in range(INSTANCES):
             moment = START + i * STEP
             for e in range(entities):
-                temp = AttrSample("temperature", "Property", Kind.NUMBER, num=15 + 10 * math.sin(e + i / 10),
-                                  md='{"unitCode":"CEL"}', observed_at=moment)
+                temp = AttrSample(
+                    "temperature",
+                    "Property",
+                    Kind.NUMBER,
+                    num=15 + 10 * math.sin(e + i / 10),
+                    md='{"unitCode":"CEL"}',
+                    observed_at=moment,
+                )
                 attrs = [temp]
                 if i % 10 == 0:
                     value = {"type": "Point", "coordinates": list(spots[e])}
-                    attrs.append(AttrSample("location", "GeoProperty", Kind.GEO, js=orjson.dumps(value).decode(),
-                                            geo=from_geojson(value), observed_at=moment))
+                    attrs.append(
+                        AttrSample(
+                            "location",
+                            "GeoProperty",
+                            Kind.GEO,
+                            js=orjson.dumps(value).decode(),
+                            geo=from_geojson(value),
+                            observed_at=moment,
+                        )
+                    )
                 batch.append(EntitySample("bench", "/", entity_id(e), "Sensor", moment, attrs))
                 written += len(attrs)
                 if len(batch) >= 50_000:
@@ -136,17 +152,35 @@ def requests(kind: str, entities: int, rng: random.Random) -> tuple[str, dict]:
     if kind == "retrieve":
         day = START + timedelta(hours=1)
         return f"{base}/{entity_id(rng.randrange(entities))}", {
-            "timerel": "between", "timeAt": day.isoformat(), "endTimeAt": (day + timedelta(days=1)).isoformat()}
+            "timerel": "between",
+            "timeAt": day.isoformat(),
+            "endTimeAt": (day + timedelta(days=1)).isoformat(),
+        }
     if kind == "aggregate":
         first = rng.randrange(max(1, entities - 100))
-        return base, {"id": ",".join(entity_id(first + k) for k in range(min(100, entities))), "limit": "100",
-                      "attrs": "temperature", "format": "aggregatedValues", "aggrMethods": "avg,max",
-                      "aggrPeriodDuration": "PT1H"}
+        return base, {
+            "id": ",".join(entity_id(first + k) for k in range(min(100, entities))),
+            "limit": "100",
+            "attrs": "temperature",
+            "format": "aggregatedValues",
+            "aggrMethods": "avg,max",
+            "aggrPeriodDuration": "PT1H",
+        }
     lon, lat = place(rng)
     start = START + 10 * rng.randrange(INSTANCES // 10) * STEP  # a location instance (every 10th) is in the window
-    return base, {"type": "Sensor", "attrs": "temperature", "q": "temperature>24", "lastN": "1", "limit": "1000",
-                  "georel": "near;maxDistance==3000", "geometry": "Point", "coordinates": json.dumps([lon, lat]),
-                  "timerel": "between", "timeAt": start.isoformat(), "endTimeAt": (start + 8 * STEP).isoformat()}
+    return base, {
+        "type": "Sensor",
+        "attrs": "temperature",
+        "q": "temperature>24",
+        "lastN": "1",
+        "limit": "1000",
+        "georel": "near;maxDistance==3000",
+        "geometry": "Point",
+        "coordinates": json.dumps([lon, lat]),
+        "timerel": "between",
+        "timeAt": start.isoformat(),
+        "endTimeAt": (start + 8 * STEP).isoformat(),
+    }
 
 
 def measure(port: int, kind: str, entities: int, n: int) -> dict:
@@ -168,8 +202,11 @@ def measure(port: int, kind: str, entities: int, n: int) -> dict:
                 body = response.json()
                 sizes.append(len(body.get("temperature", [])) if kind == "retrieve" else len(body))
     times.sort()
-    summary = {"p50_ms": round(statistics.median(times), 1), "p99_ms": round(times[int(len(times) * 0.99) - 1], 1),
-               ("instances" if kind == "retrieve" else "entities"): round(statistics.mean(sizes), 1)}
+    summary = {
+        "p50_ms": round(statistics.median(times), 1),
+        "p99_ms": round(times[int(len(times) * 0.99) - 1], 1),
+        ("instances" if kind == "retrieve" else "entities"): round(statistics.mean(sizes), 1),
+    }
     if not any(sizes):
         raise SystemExit(f"{kind}: no request matched anything, so it measured nothing: {summary}")
     return summary
@@ -187,8 +224,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--backend", choices=("duckdb", "postgresql"), default="duckdb")
     parser.add_argument("--db", help="a DuckDB file or postgresql:// URL to load into (default: a temporary one)")
     parser.add_argument("--requests", type=int, default=200)
-    parser.add_argument("--skip-load", action="store_true",
-                        help="measure --db as it is (loaded by an earlier run with the same --scale)")
+    parser.add_argument(
+        "--skip-load",
+        action="store_true",
+        help="measure --db as it is (loaded by an earlier run with the same --scale)",
+    )
     parser.add_argument("--json", help="write the results here")
     args = parser.parse_args(argv)
 
@@ -198,7 +238,8 @@ def main(argv: list[str] | None = None) -> int:
     cluster = None
     db = args.db
     if db is None and args.backend == "postgresql":
-        from tsdb_service.storage.pg_cluster import PgCluster
+        import pgutil  # noqa: F401 - puts tests/ (pg_cluster.py) on the path
+        from pg_cluster import PgCluster
 
         cluster = PgCluster().start()
         db = cluster.database("ngsild_bench")
@@ -222,8 +263,11 @@ def main(argv: list[str] | None = None) -> int:
             verdict = got["p50_ms"] <= TARGETS[kind]
             ok &= verdict
             results[kind] = got
-            print(f"  {kind:10s} p50 {got['p50_ms']:7.1f} ms  p99 {got['p99_ms']:7.1f} ms  "
-                  f"target p50 <= {TARGETS[kind]:.0f} ms  {'PASS' if verdict else 'FAIL'}  {got}", flush=True)
+            print(
+                f"  {kind:10s} p50 {got['p50_ms']:7.1f} ms  p99 {got['p99_ms']:7.1f} ms  "
+                f"target p50 <= {TARGETS[kind]:.0f} ms  {'PASS' if verdict else 'FAIL'}  {got}",
+                flush=True,
+            )
         results["rss_mb"] = rss_mb()
         results["load_average"] = [round(x, 1) for x in os.getloadavg()]
         print(f"  RSS {results['rss_mb']} MB, load average {results['load_average']}", flush=True)

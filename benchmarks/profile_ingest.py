@@ -45,8 +45,11 @@ def top_frames(raw: Path, n: int) -> dict:
         c = int(count)
         frames = stack.split(";")
         thread = frames[0]
-        kind = "writer" if "writer" in thread else ("event loop" if "MainThread" in thread or "uvicorn" in thread
-                                                     else "other")
+        kind = (
+            "writer"
+            if "writer" in thread
+            else ("event loop" if "MainThread" in thread or "uvicorn" in thread else "other")
+        )
         threads[kind] += c
         total += c
         frames = [_short(f) for f in frames[1:]]
@@ -90,19 +93,49 @@ def main(argv=None) -> int:
             script = wrkrun.post_script("/v2/notify", lawnmower.headers(lawnmower.INGEST_TENANT), prelude, expr, 2)
             wrkrun.run(server.url, script, args.connections, 2)  # warm-up
             result: dict = {}
-            load = threading.Thread(target=lambda: result.update(
-                wrkrun.run(server.url, script, args.connections, args.seconds + 2).to_dict()))
+            load = threading.Thread(
+                target=lambda: result.update(
+                    wrkrun.run(server.url, script, args.connections, args.seconds + 2).to_dict()
+                )
+            )
             load.start()
             raw = workdir / "profile.raw"
-            cmd = [pyspy, "record", "--pid", str(server.proc.pid), "--duration", str(int(args.seconds)),
-                   "--format", "raw", "--threads", "--output", str(raw), "--rate", "200", "--nonblocking"]
+            cmd = [
+                pyspy,
+                "record",
+                "--pid",
+                str(server.proc.pid),
+                "--duration",
+                str(int(args.seconds)),
+                "--format",
+                "raw",
+                "--threads",
+                "--output",
+                str(raw),
+                "--rate",
+                "200",
+                "--nonblocking",
+            ]
             if args.workers > 1:
                 cmd.append("--subprocesses")
             subprocess.run(cmd, check=True, capture_output=True)
             if args.svg:
-                subprocess.run([pyspy, "record", "--pid", str(server.proc.pid), "--duration", "3",
-                                "--threads", "--output", str(args.svg), "--nonblocking"],
-                               check=False, capture_output=True)
+                subprocess.run(
+                    [
+                        pyspy,
+                        "record",
+                        "--pid",
+                        str(server.proc.pid),
+                        "--duration",
+                        "3",
+                        "--threads",
+                        "--output",
+                        str(args.svg),
+                        "--nonblocking",
+                    ],
+                    check=False,
+                    capture_output=True,
+                )
             load.join()
         finally:
             server.stop()
@@ -110,8 +143,10 @@ def main(argv=None) -> int:
     finally:
         if cluster is not None:
             cluster.stop()
-    print(f"ingest profile: {args.backend}, {args.workers} worker(s), {args.connections} connections; "
-          f"wrk: {result.get('rps', 0):,.0f}/s p50 {result.get('p50_ms', 0):.1f} ms p99 {result.get('p99_ms', 0):.1f} ms")
+    print(
+        f"ingest profile: {args.backend}, {args.workers} worker(s), {args.connections} connections; "
+        f"wrk: {result.get('rps', 0):,.0f}/s p50 {result.get('p50_ms', 0):.1f} ms p99 {result.get('p99_ms', 0):.1f} ms"
+    )
     total = top["total"] or 1
     print("samples per thread kind: " + ", ".join(f"{k} {v / total:.0%}" for k, v in top["threads"].items()))
     for what in ("self", "inclusive"):

@@ -47,10 +47,9 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT))
 
+import psutil  # noqa: E402
 from loadgen import build_request, run_load  # noqa: E402
 from pgutil import BenchCluster  # noqa: E402
-
-import psutil  # noqa: E402
 
 HOST = "127.0.0.1"
 ENTITIES = 1_000
@@ -98,10 +97,10 @@ def finish_load(store, db, cluster) -> dict:
 def open_store(db: Path | str):
     """The store the server would open for ``--db``, opened in-process."""
     if is_pg(db):
-        from tsdb_service.storage.postgres_store import PostgresStore
+        from tsdb_service.storage.postgres.store import PostgresStore
 
         return PostgresStore(str(db))
-    from tsdb_service.storage.duckdb_store import DuckDBStore
+    from tsdb_service.storage.duckdb.store import DuckDBStore
 
     return DuckDBStore(str(db))
 
@@ -109,8 +108,9 @@ def open_store(db: Path | str):
 # --- 1. load ---------------------------------------------------------------------------
 
 
-def load(db: Path | str, per_series: int = SAMPLES, batch_notifications: int = 20_000,
-         cluster: BenchCluster | None = None) -> dict:
+def load(
+    db: Path | str, per_series: int = SAMPLES, batch_notifications: int = 20_000, cluster: BenchCluster | None = None
+) -> dict:
     from tsdb_service.model import AttrSample, EntitySample, Kind
     from tsdb_service.storage.base import AppendSamples
 
@@ -126,9 +126,7 @@ def load(db: Path | str, per_series: int = SAMPLES, batch_notifications: int = 2
             moment = START + i * STEP
             for e in range(ENTITIES):
                 base = e + i * 0.01
-                attrs = [
-                    AttrSample(names[a], "Number", Kind.NUMBER, num=base + a + rng.random()) for a in range(ATTRS)
-                ]
+                attrs = [AttrSample(names[a], "Number", Kind.NUMBER, num=base + a + rng.random()) for a in range(ATTRS)]
                 batch.append(EntitySample("", "/", ids[e], ENTITY_TYPE, moment, attrs))
                 if len(batch) >= batch_notifications:
                     store.write_sync([AppendSamples(batch)])
@@ -154,7 +152,7 @@ def engine_ceiling(db: Path | str, seconds: float = 4.0, threads: int = 2) -> di
     import threading
 
     from tsdb_service.history.params import history_query
-    from tsdb_service.history.query import Shape
+    from tsdb_service.query import Shape
 
     store = open_store(db)
     querier = store.querier()
@@ -165,11 +163,19 @@ def engine_ceiling(db: Path | str, seconds: float = 4.0, threads: int = 2) -> di
         n = 0
         end = time.perf_counter() + seconds
         while time.perf_counter() < end:
-            query = history_query(Shape.ENTITY_ATTR, {"lastN": "100"}, {}, "", 10_000,
-                                  entity_id=entity_id(rng.randrange(ENTITIES)), attr=attr_name(rng.randrange(ATTRS)))
+            query = history_query(
+                Shape.ENTITY_ATTR,
+                {"lastN": "100"},
+                {},
+                "",
+                10_000,
+                entity_id=entity_id(rng.randrange(ENTITIES)),
+                attr=attr_name(rng.randrange(ATTRS)),
+            )
             refs = querier.series(query.scope, query.entities, {query.attrs[0].attr})
-            querier.raw_rows([r.sid for r in refs], query.time, newest_first=True, limit=100, offset=0,
-                             one_per_row=True)
+            querier.raw_rows(
+                [r.sid for r in refs], query.time, newest_first=True, limit=100, offset=0, one_per_row=True
+            )
             n += 1
         counts.append(n)
 
@@ -207,8 +213,9 @@ def start_server(db: Path | str, port: int, log_path: Path, workers: int = 1) ->
         cmd += ["--workers", str(workers)]
     env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}
     log = open(log_path, "wb")
-    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env, start_new_session=True
+    )
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
         if proc.poll() is not None:
@@ -281,16 +288,22 @@ def scenarios(port: int) -> dict[str, list[bytes]]:
     out: dict[str, list[bytes]] = {"lastN": [], "hourly_avg": [], "type_lastN": []}
     for _ in range(4096):
         e, a = rng.randrange(ENTITIES), rng.randrange(ATTRS)
-        out["lastN"].append(build_request("GET", f"/v2/entities/{entity_id(e)}/attrs/{attr_name(a)}?lastN=100",
-                                          HOST, port))
-        out["hourly_avg"].append(build_request(
-            "GET",
-            f"/v2/entities/{entity_id(e)}/attrs/{attr_name(a)}?aggrMethod=avg&aggrPeriod=hour"
-            f"&fromDate={day_from}&toDate={day_to}",
-            HOST, port))
+        out["lastN"].append(
+            build_request("GET", f"/v2/entities/{entity_id(e)}/attrs/{attr_name(a)}?lastN=100", HOST, port)
+        )
+        out["hourly_avg"].append(
+            build_request(
+                "GET",
+                f"/v2/entities/{entity_id(e)}/attrs/{attr_name(a)}?aggrMethod=avg&aggrPeriod=hour"
+                f"&fromDate={day_from}&toDate={day_to}",
+                HOST,
+                port,
+            )
+        )
     for a in range(ATTRS):
-        out["type_lastN"].append(build_request("GET", f"/v2/types/{ENTITY_TYPE}/attrs/{attr_name(a)}?lastN=1000",
-                                               HOST, port))
+        out["type_lastN"].append(
+            build_request("GET", f"/v2/types/{ENTITY_TYPE}/attrs/{attr_name(a)}?lastN=1000", HOST, port)
+        )
     return out
 
 
@@ -307,8 +320,11 @@ def check_answers(port: int, per_series: int = SAMPLES) -> None:
     assert status == 200 and len(doc["values"]) == 100, (status, body[:300])
     last = (START + (per_series - 1) * STEP).strftime("%Y-%m-%dT%H:%M:%S.000+00:00")
     assert doc["index"][-1] == last, doc["index"][-1]
-    status, body = get(port, f"/v2/entities/{entity_id(e)}/attrs/{attr_name(a)}?aggrMethod=avg&aggrPeriod=hour"
-                             f"&fromDate=2024-05-01T00:00:00Z&toDate=2024-05-01T23:59:59Z")
+    status, body = get(
+        port,
+        f"/v2/entities/{entity_id(e)}/attrs/{attr_name(a)}?aggrMethod=avg&aggrPeriod=hour"
+        f"&fromDate=2024-05-01T00:00:00Z&toDate=2024-05-01T23:59:59Z",
+    )
     doc = json.loads(body)
     assert status == 200 and len(doc["values"]) == hours_covered(per_series), (status, body[:300])
     status, body = get(port, f"/v2/types/{ENTITY_TYPE}/attrs/{attr_name(a)}?lastN=1000")
@@ -318,8 +334,9 @@ def check_answers(port: int, per_series: int = SAMPLES) -> None:
 
 def measure(port: int, requests: list[bytes], connections: int, duration: float, warmup: float):
     n = len(requests)
-    return run_load(HOST, port, lambda seq: requests[seq % n], connections=connections, duration=duration,
-                    warmup=warmup)
+    return run_load(
+        HOST, port, lambda seq: requests[seq % n], connections=connections, duration=duration, warmup=warmup
+    )
 
 
 # --- 4. report -------------------------------------------------------------------------------
@@ -327,19 +344,32 @@ def measure(port: int, requests: list[bytes], connections: int, duration: float,
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--backend", choices=("duckdb", "postgresql"), default="duckdb",
-                    help="duckdb (default: a temp file) or postgresql (a private cluster started for the run)")
-    ap.add_argument("--db", help="reuse this loaded DuckDB file, or this loaded postgresql:// database "
-                                 "(default: load a fresh one)")
-    ap.add_argument("--scale", type=float, default=1.0,
-                    help="fraction of the 1,000 samples per series to load (default 1 = 10M samples; min 0.1)")
+    ap.add_argument(
+        "--backend",
+        choices=("duckdb", "postgresql"),
+        default="duckdb",
+        help="duckdb (default: a temp file) or postgresql (a private cluster started for the run)",
+    )
+    ap.add_argument(
+        "--db", help="reuse this loaded DuckDB file, or this loaded postgresql:// database (default: load a fresh one)"
+    )
+    ap.add_argument(
+        "--scale",
+        type=float,
+        default=1.0,
+        help="fraction of the 1,000 samples per series to load (default 1 = 10M samples; min 0.1)",
+    )
     ap.add_argument("--workers", type=int, default=1, help="server workers (PostgreSQL only; default 1)")
     ap.add_argument("--keep", action="store_true", help="keep the temporary database")
     ap.add_argument("--duration", type=float, default=10.0)
-    ap.add_argument("--warmup", type=float, default=6.0,
-                    help="seconds of load before measuring (default 6: long enough to read each of the "
-                         "~3,400 series the scenarios use once, as a running deployment's dashboards have; "
-                         "--warmup 0.5 shows first reads)")
+    ap.add_argument(
+        "--warmup",
+        type=float,
+        default=6.0,
+        help="seconds of load before measuring (default 6: long enough to read each of the "
+        "~3,400 series the scenarios use once, as a running deployment's dashboards have; "
+        "--warmup 0.5 shows first reads)",
+    )
     ap.add_argument("--connections", type=int, default=8)
     ap.add_argument("--type-connections", type=int, default=2, help="connections for the /v2/types scenario")
     ap.add_argument("--json", help="write the results here")
@@ -353,9 +383,11 @@ def main(argv: list[str] | None = None) -> int:
 
     per_series = samples_per_series(args.scale)
     samples = ENTITIES * ATTRS * per_series
-    dataset = (f"{ENTITIES:,} entities x {ATTRS} attrs x {per_series:,} samples = {samples:,} samples "
-               f"(scale {args.scale:g}"
-               + (")" if per_series == SAMPLES else f" -- NOT the 10,000,000-sample data set of the target)"))
+    dataset = (
+        f"{ENTITIES:,} entities x {ATTRS} attrs x {per_series:,} samples = {samples:,} samples "
+        f"(scale {args.scale:g}"
+        + (")" if per_series == SAMPLES else " -- NOT the 10,000,000-sample data set of the target)")
+    )
     print(f"history query benchmark on {args.backend}: {dataset}", flush=True)
 
     tmp = Path(tempfile.mkdtemp(prefix="tsdb-queries-"))
@@ -425,8 +457,13 @@ def main(argv: list[str] | None = None) -> int:
                     db_mem_peak = max(db_mem_peak or 0, cluster.memory_bytes() or 0)
                 cpu_ms = (cpu1 - cpu0) / max(stats.total_ok, 1) * 1e3
                 db_cpu_ms = (db_cpu1 - db_cpu0) / max(stats.total_ok, 1) * 1e3
-                results[key] = {"label": label, "connections": conns, "server_cpu_ms_per_req": cpu_ms,
-                                **({"db_cpu_ms_per_req": db_cpu_ms} if cluster else {}), **stats.to_dict()}
+                results[key] = {
+                    "label": label,
+                    "connections": conns,
+                    "server_cpu_ms_per_req": cpu_ms,
+                    **({"db_cpu_ms_per_req": db_cpu_ms} if cluster else {}),
+                    **stats.to_dict(),
+                }
             rss_end = tree_rss(server)
             db_mem_end = cluster.memory_bytes() if cluster else None
         finally:
@@ -446,35 +483,59 @@ def main(argv: list[str] | None = None) -> int:
     print(f"backend: {args.backend}" + (f", {args.workers} workers" if args.workers > 1 else ", 1 server process"))
     print(f"data set: {dataset}")
     db_col = cluster is not None
-    print(f"{'scenario':<48} {'conns':>5} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu ms/req':>10}"
-          + (f" {'db ms/req':>9}" if db_col else "") + f" {'errors':>6}")
+    print(
+        f"{'scenario':<48} {'conns':>5} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu ms/req':>10}"
+        + (f" {'db ms/req':>9}" if db_col else "")
+        + f" {'errors':>6}"
+    )
     for r in results.values():
-        print(f"{r['label']:<48} {r['connections']:>5} {r['rps']:>8.0f} {r['p50_ms']:>8.2f} {r['p99_ms']:>8.2f} "
-              f"{r['server_cpu_ms_per_req']:>10.2f}" + (f" {r['db_cpu_ms_per_req']:>9.2f}" if db_col else "")
-              + f" {r['errors'] + r['non_2xx']:>6}")
-    print(f"{'engine alone: lastN=100 in-process, 2 threads':<48} {'-':>5} {ceiling['queries_per_s']:>8.0f} "
-          f"{'-':>8} {'-':>8} {ceiling['cpu_ms_per_query']:>10.2f}")
+        print(
+            f"{r['label']:<48} {r['connections']:>5} {r['rps']:>8.0f} {r['p50_ms']:>8.2f} {r['p99_ms']:>8.2f} "
+            f"{r['server_cpu_ms_per_req']:>10.2f}"
+            + (f" {r['db_cpu_ms_per_req']:>9.2f}" if db_col else "")
+            + f" {r['errors'] + r['non_2xx']:>6}"
+        )
+    print(
+        f"{'engine alone: lastN=100 in-process, 2 threads':<48} {'-':>5} {ceiling['queries_per_s']:>8.0f} "
+        f"{'-':>8} {'-':>8} {ceiling['cpu_ms_per_query']:>10.2f}"
+    )
     if db_col:
         print("(cpu ms/req: the service process(es); db ms/req: the PostgreSQL server, same cores)")
     print()
     print(f"server RSS: {rss_end / 2**20:.0f} MiB (peak seen {rss_peak / 2**20:.0f} MiB)")
     if db_mem_end is not None:
-        print(f"PostgreSQL server memory (PSS, all its processes): {db_mem_end / 2**20:.0f} MiB "
-              f"(peak seen {db_mem_peak / 2**20:.0f} MiB; shared_buffers = 256 MB)")
+        print(
+            f"PostgreSQL server memory (PSS, all its processes): {db_mem_end / 2**20:.0f} MiB "
+            f"(peak seen {db_mem_peak / 2**20:.0f} MiB; shared_buffers = 256 MB)"
+        )
     if disk is not None:
-        print(f"on disk: {disk / 2**20:.0f} MiB for {samples:,} samples = {disk / samples:.1f} bytes/sample"
-              + (" (pg_database_size: heap + index + catalog)" if db_col else ""))
+        print(
+            f"on disk: {disk / 2**20:.0f} MiB for {samples:,} samples = {disk / samples:.1f} bytes/sample"
+            + (" (pg_database_size: heap + index + catalog)" if db_col else "")
+        )
     print()
     for name, ok in checks.items():
         print(f"{'PASS' if ok else 'FAIL'}  {name}")
     report = {
-        "benchmark": "queries", "backend": args.backend, "workers": args.workers,
-        "scale": args.scale, "entities": ENTITIES, "attrs": ATTRS, "samples_per_series": per_series,
-        "samples": samples, "dataset": dataset,
-        "load": loaded, "results": results, "rss_bytes": rss_end, "rss_peak_bytes": rss_peak,
-        "db_server_memory_bytes": db_mem_end, "db_server_memory_peak_bytes": db_mem_peak,
-        "disk_bytes": disk, "bytes_per_sample": disk / samples if disk is not None else None,
-        "checks": checks, "engine_alone": ceiling,
+        "benchmark": "queries",
+        "backend": args.backend,
+        "workers": args.workers,
+        "scale": args.scale,
+        "entities": ENTITIES,
+        "attrs": ATTRS,
+        "samples_per_series": per_series,
+        "samples": samples,
+        "dataset": dataset,
+        "load": loaded,
+        "results": results,
+        "rss_bytes": rss_end,
+        "rss_peak_bytes": rss_peak,
+        "db_server_memory_bytes": db_mem_end,
+        "db_server_memory_peak_bytes": db_mem_peak,
+        "disk_bytes": disk,
+        "bytes_per_sample": disk / samples if disk is not None else None,
+        "checks": checks,
+        "engine_alone": ceiling,
         "machine": {"cpus": os.cpu_count()},
     }
     if args.json:

@@ -120,15 +120,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--backends", default="duckdb,postgresql")
     ap.add_argument("--requests", type=int, default=300, help="GETs per rep and query")
     ap.add_argument("--reps", type=int, default=3)
-    ap.add_argument("--no-vacuum", action="store_true",
-                    help="PostgreSQL: measure right after the load, before any VACUUM (as compare.py does)")
+    ap.add_argument(
+        "--no-vacuum",
+        action="store_true",
+        help="PostgreSQL: measure right after the load, before any VACUUM (as compare.py does)",
+    )
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     results = {}
     with tempfile.TemporaryDirectory(prefix="reads-cpu-") as tmp:
         for backend in args.backends.split(","):
-            results[backend] = run_backend(backend, Path(tmp), args.requests, args.reps,
-                                           not args.no_vacuum)
+            results[backend] = run_backend(backend, Path(tmp), args.requests, args.reps, not args.no_vacuum)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
     return 0

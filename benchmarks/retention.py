@@ -38,6 +38,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT))
 
 from pgutil import BenchCluster  # noqa: E402
+
 from queries import finish_load, is_pg, open_store  # noqa: E402
 
 ENTITIES = 1_000
@@ -94,8 +95,15 @@ class Probe:
     a day, recording latencies until stopped."""
 
     def __init__(self, store, day_start: datetime):
-        from tsdb_service.history.query import Aggregation, AggrMethod, AggrPeriod, EntityFilter, Scope, TimeRange
-        from tsdb_service.storage.sql import AggBranch
+        from tsdb_service.query import (
+            AggBranch,
+            Aggregation,
+            AggrMethod,
+            AggrPeriod,
+            EntityFilter,
+            Scope,
+            TimeRange,
+        )
 
         self.store = store
         q = store.querier()
@@ -147,29 +155,42 @@ def pct(values: list[float]) -> dict:
     if not values:
         return {}
     ordered = sorted(values)
-    return {"n": len(ordered), "p50": round(statistics.median(ordered), 2),
-            "p99": round(ordered[min(len(ordered) - 1, int(len(ordered) * 0.99))], 2),
-            "max": round(ordered[-1], 2)}
+    return {
+        "n": len(ordered),
+        "p50": round(statistics.median(ordered), 2),
+        "p99": round(ordered[min(len(ordered) - 1, int(len(ordered) * 0.99))], 2),
+        "max": round(ordered[-1], 2),
+    }
 
 
 def one_pass(store, settings_kw: dict, clock_at: datetime, batch_rows: int) -> dict:
     from tsdb_service.config import Settings
     from tsdb_service.storage.retention import attach_retention
 
-    settings = Settings(db="unused", retention=f"*={int(KEEP.total_seconds())}s", retention_pause=0,
-                        retention_batch_rows=batch_rows, **settings_kw)
+    settings = Settings(
+        db="unused",
+        retention=f"*={int(KEEP.total_seconds())}s",
+        retention_pause=0,
+        retention_batch_rows=batch_rows,
+        **settings_kw,
+    )
     worker = attach_retention(store, settings, start=False, clock=lambda: clock_at)
     batches = worker.observer = Batches()
     t0 = time.perf_counter()
     worker.run_once()
     seconds = time.perf_counter() - t0
-    return {"rows": batches.rows, "seconds": round(seconds, 2), "rows_per_s": round(batches.rows / seconds),
-            "batches": len(batches.seconds), "batch_ms": pct([s * 1000 for s in batches.seconds])}
+    return {
+        "rows": batches.rows,
+        "seconds": round(seconds, 2),
+        "rows_per_s": round(batches.rows / seconds),
+        "batches": len(batches.seconds),
+        "batch_ms": pct([s * 1000 for s in batches.seconds]),
+    }
 
 
 def rolled_up_query_ms(store, probe) -> dict:
     """An hourly average over 8 hours that only rollups hold."""
-    from tsdb_service.history.query import TimeRange
+    from tsdb_service.query import TimeRange
 
     window = TimeRange(START + timedelta(hours=9), START + timedelta(hours=17))
     times = []
@@ -194,8 +215,7 @@ def run(db, cluster, args) -> dict:
         out["pass_plain"] = {**first.pop("result"), **first}
         print("plain  ", json.dumps(out["pass_plain"]), flush=True)
         # Pass 2, rollups: up to START + 16h (the cutoff is floored to the hour), folded.
-        second = probe.measure(lambda: one_pass(store, {"rollups": True}, START + 2 * SPAN / 3 + KEEP,
-                                                args.batch_rows))
+        second = probe.measure(lambda: one_pass(store, {"rollups": True}, START + 2 * SPAN / 3 + KEEP, args.batch_rows))
         out["pass_rollups"] = {**second.pop("result"), **second}
         print("rollups", json.dumps(out["pass_rollups"]), flush=True)
         out["rolled_up_hourly_avg_8h_ms"] = rolled_up_query_ms(store, probe)

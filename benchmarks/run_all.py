@@ -74,16 +74,17 @@ def geo_capabilities(python: str) -> dict:
     text = out.stdout + out.stderr
     if out.returncode != 0:
         return {"usable": False, "why": f"geo.py --help exited {out.returncode}: {text.strip()[-300:]}"}
-    caps = {flag: flag in text for flag in ("--json", "--backend", "--scale", "--duration", "--warmup",
-                                            "--quick", "--entities")}
+    caps = {
+        flag: flag in text
+        for flag in ("--json", "--backend", "--scale", "--duration", "--warmup", "--quick", "--entities")
+    }
     if not caps["--json"]:
         return {"usable": False, "why": "geo.py has no --json option", **caps}
     return {"usable": True, **caps}
 
 
 class Step:
-    def __init__(self, key: str, backend: str, cmd: list[str], json_path: Path, timeout: float,
-                 log_dir: Path = LOGS):
+    def __init__(self, key: str, backend: str, cmd: list[str], json_path: Path, timeout: float, log_dir: Path = LOGS):
         self.key, self.backend, self.cmd, self.json_path, self.timeout = key, backend, cmd, json_path, timeout
         self.log_path = log_dir / f"{key}-{backend}.log"
         self.result: dict | None = None
@@ -96,15 +97,25 @@ class Step:
     def run(self) -> None:
         self.json_path.unlink(missing_ok=True)
         self.load_before = loadavg()
-        print(f"[{datetime.now().strftime('%H:%M:%S')}] {self.key} on {LABEL[self.backend]} "
-              f"(load avg {' '.join(map(str, self.load_before))}) ... ", end="", flush=True)
+        print(
+            f"[{datetime.now().strftime('%H:%M:%S')}] {self.key} on {LABEL[self.backend]} "
+            f"(load avg {' '.join(map(str, self.load_before))}) ... ",
+            end="",
+            flush=True,
+        )
         t0 = time.monotonic()
         with open(self.log_path, "w") as log:
             log.write("$ " + " ".join(self.cmd) + "\n\n")
             log.flush()
             try:
-                proc = subprocess.Popen(self.cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT,
-                                        stdin=subprocess.DEVNULL, start_new_session=True)
+                proc = subprocess.Popen(
+                    self.cmd,
+                    stdout=log,
+                    stderr=subprocess.STDOUT,
+                    cwd=ROOT,
+                    stdin=subprocess.DEVNULL,
+                    start_new_session=True,
+                )
                 try:
                     self.rc = proc.wait(self.timeout)
                 except subprocess.TimeoutExpired:
@@ -127,13 +138,24 @@ class Step:
                 self.error = self.error or f"unreadable JSON: {exc}"
         elif not self.error:
             self.error = f"exit code {self.rc}, no JSON written"
-        status = f"error: {self.error}" if self.error else f"done (exit {self.rc}: {'all targets pass' if self.rc == 0 else 'some target fails'})"
+        status = (
+            f"error: {self.error}"
+            if self.error
+            else f"done (exit {self.rc}: {'all targets pass' if self.rc == 0 else 'some target fails'})"
+        )
         print(f"{status}, {self.seconds:.0f} s, log {self.log_path.relative_to(ROOT)}", flush=True)
 
     def to_dict(self) -> dict:
-        return {"cmd": self.cmd, "exit_code": self.rc, "error": self.error, "seconds": round(self.seconds, 1),
-                "loadavg_before": self.load_before, "loadavg_after": self.load_after, "log": str(self.log_path),
-                "result": self.result}
+        return {
+            "cmd": self.cmd,
+            "exit_code": self.rc,
+            "error": self.error,
+            "seconds": round(self.seconds, 1),
+            "loadavg_before": self.load_before,
+            "loadavg_after": self.load_after,
+            "log": str(self.log_path),
+            "result": self.result,
+        }
 
 
 # --------------------------------------------------------------------------
@@ -149,8 +171,17 @@ def num(v, digits: int = 0, unit: str = "") -> str:
 class Row:
     """One metric, one cell per backend; pass/fail per backend when there is a target."""
 
-    def __init__(self, bench: str, metric: str, target: str = "", check=None, ql: float | None = None,
-                 ql_text: str = "", vs_ql=None, digits: int = 0):
+    def __init__(
+        self,
+        bench: str,
+        metric: str,
+        target: str = "",
+        check=None,
+        ql: float | None = None,
+        ql_text: str = "",
+        vs_ql=None,
+        digits: int = 0,
+    ):
         self.bench, self.metric, self.target, self.check = bench, metric, target, check
         self.ql, self.ql_text, self.vs_ql, self.digits = ql, ql_text, vs_ql, digits
         self.values: dict[str, object] = {}
@@ -212,19 +243,36 @@ def build_rows(steps: dict[tuple[str, str], Step], backends: list[str]) -> tuple
     geo = lambda b: result("geo", b)  # noqa: E731
 
     # ingest ------------------------------------------------------------------------------
-    add(Row("ingest", "notif/s, 1 server process", ">= 5,000", lambda v: v >= 5000, QL_INGEST_NOTIF_S,
-            "515 (2 workers)", faster), lambda b: dig(ing(b), "targets", "ours", "load", "rps"))
-    add(Row("ingest", "notif/s, 2 workers", "", None, QL_INGEST_NOTIF_S, "515 (2 workers)", faster),
-        lambda b: dig(ing2(b), "targets", "ours", "load", "rps") if b == "postgresql" else None)
-    add(Row("ingest", "bare FastAPI ceiling, notif/s", "", None, None, "~7,000"),
-        lambda b: dig(ing(b), "targets", "bare", "load", "rps"))
-    add(Row("ingest", "ratio ours / bare", ">= 0.60", lambda v: v >= 0.6, digits=2),
-        lambda b: dig(ing(b), "ratio"))
+    add(
+        Row(
+            "ingest",
+            "notif/s, 1 server process",
+            ">= 5,000",
+            lambda v: v >= 5000,
+            QL_INGEST_NOTIF_S,
+            "515 (2 workers)",
+            faster,
+        ),
+        lambda b: dig(ing(b), "targets", "ours", "load", "rps"),
+    )
+    add(
+        Row("ingest", "notif/s, 2 workers", "", None, QL_INGEST_NOTIF_S, "515 (2 workers)", faster),
+        lambda b: dig(ing2(b), "targets", "ours", "load", "rps") if b == "postgresql" else None,
+    )
+    add(
+        Row("ingest", "bare FastAPI ceiling, notif/s", "", None, None, "~7,000"),
+        lambda b: dig(ing(b), "targets", "bare", "load", "rps"),
+    )
+    add(Row("ingest", "ratio ours / bare", ">= 0.60", lambda v: v >= 0.6, digits=2), lambda b: dig(ing(b), "ratio"))
     add(Row("ingest", "p50 latency ms", "", digits=1), lambda b: dig(ing(b), "targets", "ours", "load", "p50_ms"))
-    add(Row("ingest", "p99 latency ms", "<= 50", lambda v: v <= 50, digits=1),
-        lambda b: dig(ing(b), "targets", "ours", "load", "p99_ms"))
-    add(Row("ingest", "p99 latency ms, 2 workers", "", digits=1),
-        lambda b: dig(ing2(b), "targets", "ours", "load", "p99_ms") if b == "postgresql" else None)
+    add(
+        Row("ingest", "p99 latency ms", "<= 50", lambda v: v <= 50, digits=1),
+        lambda b: dig(ing(b), "targets", "ours", "load", "p99_ms"),
+    )
+    add(
+        Row("ingest", "p99 latency ms, 2 workers", "", digits=1),
+        lambda b: dig(ing2(b), "targets", "ours", "load", "p99_ms") if b == "postgresql" else None,
+    )
 
     def errors(b):
         s = dig(ing(b), "targets", "ours", "load")
@@ -236,18 +284,32 @@ def build_rows(steps: dict[tuple[str, str], Step], backends: list[str]) -> tuple
         v = dig(get(b), "targets", "ours", "verification")
         if v is None:
             return None
-        return (v["lost"] if v["ok"] else max(v["lost"], 1),
-                f"{v['lost']:,} of {v['acknowledged']:,}" + ("" if v["ok"] else " (check failed)"))
+        return (
+            v["lost"] if v["ok"] else max(v["lost"], 1),
+            f"{v['lost']:,} of {v['acknowledged']:,}" + ("" if v["ok"] else " (check failed)"),
+        )
 
     add(Row("ingest", "acknowledged but not stored", "= 0", lambda v: v == 0), lost)
-    add(Row("ingest", "  same, 2 workers", "= 0", lambda v: v == 0),
-        lambda b: lost(b, ing2) if b == "postgresql" else None)
-    add(Row("ingest", "server CPU % (+ PostgreSQL CPU %)"), lambda b: (
-        dig(ing(b), "targets", "ours", "server_cpu_pct"),
-        num(dig(ing(b), "targets", "ours", "server_cpu_pct"))
-        + (f" (+{num(dig(ing(b), 'targets', 'ours', 'db_cpu_pct'))})"
-           if dig(ing(b), "targets", "ours", "db_cpu_pct") is not None else ""))
-        if dig(ing(b), "targets", "ours") else None)
+    add(
+        Row("ingest", "  same, 2 workers", "= 0", lambda v: v == 0),
+        lambda b: lost(b, ing2) if b == "postgresql" else None,
+    )
+    add(
+        Row("ingest", "server CPU % (+ PostgreSQL CPU %)"),
+        lambda b: (
+            (
+                dig(ing(b), "targets", "ours", "server_cpu_pct"),
+                num(dig(ing(b), "targets", "ours", "server_cpu_pct"))
+                + (
+                    f" (+{num(dig(ing(b), 'targets', 'ours', 'db_cpu_pct'))})"
+                    if dig(ing(b), "targets", "ours", "db_cpu_pct") is not None
+                    else ""
+                ),
+            )
+            if dig(ing(b), "targets", "ours")
+            else None
+        ),
+    )
 
     # queries -----------------------------------------------------------------------------
     def dataset(b):
@@ -266,33 +328,48 @@ def build_rows(steps: dict[tuple[str, str], Step], backends: list[str]) -> tuple
         if not ld or "load_s" not in ld:
             return None
         post = ld.get("compact_s", ld.get("vacuum_analyze_s"))
-        return ld["samples"] / ld["load_s"], (f"{ld['samples'] / ld['load_s'] / 1000:,.0f}k/s "
-                                              f"({ld['load_s']:.0f} s + {post:.0f} s)")
+        return ld["samples"] / ld["load_s"], (
+            f"{ld['samples'] / ld['load_s'] / 1000:,.0f}k/s ({ld['load_s']:.0f} s + {post:.0f} s)"
+        )
 
     add(Row("queries", "bulk load samples/s (load + compact/vacuum)"), load_rate)
-    add(Row("queries", "lastN=100 req/s (8 conns)", ">= 2,000", lambda v: v >= 2000, QL_LASTN_RPS, "311", faster),
-        lambda b: dig(qry(b), "results", "lastN", "rps"))
-    add(Row("queries", "lastN=100 p50 ms", "<= 5", lambda v: v <= 5, QL_LASTN_P50_MS, "24", quicker, digits=2),
-        lambda b: dig(qry(b), "results", "lastN", "p50_ms"))
+    add(
+        Row("queries", "lastN=100 req/s (8 conns)", ">= 2,000", lambda v: v >= 2000, QL_LASTN_RPS, "311", faster),
+        lambda b: dig(qry(b), "results", "lastN", "rps"),
+    )
+    add(
+        Row("queries", "lastN=100 p50 ms", "<= 5", lambda v: v <= 5, QL_LASTN_P50_MS, "24", quicker, digits=2),
+        lambda b: dig(qry(b), "results", "lastN", "p50_ms"),
+    )
     add(Row("queries", "lastN=100 p99 ms", "", digits=2), lambda b: dig(qry(b), "results", "lastN", "p99_ms"))
-    add(Row("queries", "lastN=100 p50 ms, 1 conn (unloaded)", "", digits=2),
-        lambda b: dig(qry(b), "results", "lastN_1conn", "p50_ms"))
-    add(Row("queries", "hourly avg over 1 day req/s", "", None, QL_MINUTE_AGGR_RPS, "73 (minute aggr)*", faster),
-        lambda b: dig(qry(b), "results", "hourly_avg", "rps"))
-    add(Row("queries", "hourly avg p50 ms", "<= 20", lambda v: v <= 20, digits=2),
-        lambda b: dig(qry(b), "results", "hourly_avg", "p50_ms"))
+    add(
+        Row("queries", "lastN=100 p50 ms, 1 conn (unloaded)", "", digits=2),
+        lambda b: dig(qry(b), "results", "lastN_1conn", "p50_ms"),
+    )
+    add(
+        Row("queries", "hourly avg over 1 day req/s", "", None, QL_MINUTE_AGGR_RPS, "73 (minute aggr)*", faster),
+        lambda b: dig(qry(b), "results", "hourly_avg", "rps"),
+    )
+    add(
+        Row("queries", "hourly avg p50 ms", "<= 20", lambda v: v <= 20, digits=2),
+        lambda b: dig(qry(b), "results", "hourly_avg", "p50_ms"),
+    )
     add(Row("queries", "types lastN=1000 req/s (2 conns)"), lambda b: dig(qry(b), "results", "type_lastN", "rps"))
-    add(Row("queries", "types lastN=1000 p50 ms", digits=1),
-        lambda b: dig(qry(b), "results", "type_lastN", "p50_ms"))
+    add(Row("queries", "types lastN=1000 p50 ms", digits=1), lambda b: dig(qry(b), "results", "type_lastN", "p50_ms"))
 
     def query_errors(b):
         res = dig(qry(b), "results")
         return None if res is None else sum(r["errors"] + r["non_2xx"] for r in res.values())
 
     add(Row("queries", "non-2xx + errors, all scenarios", "= 0", lambda v: v == 0), query_errors)
-    add(Row("queries", "server RSS MiB"), lambda b: (dig(qry(b), "rss_bytes") / 2**20) if dig(qry(b), "rss_bytes") else None)
-    add(Row("queries", "PostgreSQL server memory MiB (PSS)"),
-        lambda b: (dig(qry(b), "db_server_memory_bytes") / 2**20) if dig(qry(b), "db_server_memory_bytes") else None)
+    add(
+        Row("queries", "server RSS MiB"),
+        lambda b: (dig(qry(b), "rss_bytes") / 2**20) if dig(qry(b), "rss_bytes") else None,
+    )
+    add(
+        Row("queries", "PostgreSQL server memory MiB (PSS)"),
+        lambda b: (dig(qry(b), "db_server_memory_bytes") / 2**20) if dig(qry(b), "db_server_memory_bytes") else None,
+    )
     add(Row("queries", "bytes on disk per sample", digits=1), lambda b: dig(qry(b), "bytes_per_sample"))
 
     # geo (benchmarks/geo.py: scenarios "1conn", "loaded", "baseline") -------------------------
@@ -302,10 +379,14 @@ def build_rows(steps: dict[tuple[str, str], Step], backends: list[str]) -> tuple
     def geo_conns(b):
         return dig(geo(b), "results", "loaded", "connections")
 
-    add(Row("geo", "near;maxDistance:1000 + lastN=10 p50 ms, 1 conn", "<= 30", lambda v: v <= 30, digits=1),
-        geo_get("1conn", "p50_ms"))
-    add(Row("geo", "same, p50 ms under load (4 conns)", "<= 30", lambda v: v <= 30, digits=1),
-        geo_get("loaded", "p50_ms"))
+    add(
+        Row("geo", "near;maxDistance:1000 + lastN=10 p50 ms, 1 conn", "<= 30", lambda v: v <= 30, digits=1),
+        geo_get("1conn", "p50_ms"),
+    )
+    add(
+        Row("geo", "same, p50 ms under load (4 conns)", "<= 30", lambda v: v <= 30, digits=1),
+        geo_get("loaded", "p50_ms"),
+    )
     add(Row("geo", "same, req/s under load (4 conns)", digits=1), geo_get("loaded", "rps"))
     add(Row("geo", "same entities by id, no geo: p50 ms, 1 conn", digits=1), geo_get("baseline", "p50_ms"))
 
@@ -317,34 +398,62 @@ def build_rows(steps: dict[tuple[str, str], Step], backends: list[str]) -> tuple
     if any(geo(b) for b in backends):
         g = next(geo(b) for b in backends if geo(b))
         samples = dig(g, "load", "samples")
-        notes.append(f"geo: 10,000 entities x 100 samples{f' ({samples:,} samples incl. positions)' if samples else ''}"
-                     f", location in {g.get('location', '?')} sample; "
-                     f"{dig(g, 'check', 'matched_mean')} entities within 1,000 m on average.")
+        notes.append(
+            f"geo: 10,000 entities x 100 samples{f' ({samples:,} samples incl. positions)' if samples else ''}"
+            f", location in {g.get('location', '?')} sample; "
+            f"{dig(g, 'check', 'matched_mean')} entities within 1,000 m on average."
+        )
 
     if any(("queries", b) in steps for b in backends):
-        notes.append("* QuantumLeap's 73 req/s is for aggrPeriod=minute; ours is aggrPeriod=hour over one day: "
-                     "same kind of query, not the same one.")
-    notes.append("vs QL: ours / QuantumLeap for rates, QuantumLeap / ours for latencies (higher = better for us); "
-                 + " / ".join(LABEL[b] for b in backends) + ".")
+        notes.append(
+            "* QuantumLeap's 73 req/s is for aggrPeriod=minute; ours is aggrPeriod=hour over one day: "
+            "same kind of query, not the same one."
+        )
+    notes.append(
+        "vs QL: ours / QuantumLeap for rates, QuantumLeap / ours for latencies (higher = better for us); "
+        + " / ".join(LABEL[b] for b in backends)
+        + "."
+    )
     return rows, notes
 
 
 def print_table(rows: list[Row], backends: list[str]) -> list[dict]:
-    header = ["benchmark", "metric", *[LABEL[b] for b in backends], "target",
-              "pass/fail (" + "/".join("D" if b == "duckdb" else "P" for b in backends) + ")", "QuantumLeap", "vs QL"]
+    header = [
+        "benchmark",
+        "metric",
+        *[LABEL[b] for b in backends],
+        "target",
+        "pass/fail (" + "/".join("D" if b == "duckdb" else "P" for b in backends) + ")",
+        "QuantumLeap",
+        "vs QL",
+    ]
     table = []
     for r in rows:
         verdicts = [r.verdict(b) for b in backends]
-        pf = "" if all(v is None for v in verdicts) else " / ".join(
-            "-" if v is None else ("PASS" if v else "FAIL") for v in verdicts)
-        table.append([r.bench, r.metric, *[r.texts.get(b, "n/a") for b in backends], r.target, pf,
-                      r.ql_text, r.ratio_text(backends)])
+        pf = (
+            ""
+            if all(v is None for v in verdicts)
+            else " / ".join("-" if v is None else ("PASS" if v else "FAIL") for v in verdicts)
+        )
+        table.append(
+            [
+                r.bench,
+                r.metric,
+                *[r.texts.get(b, "n/a") for b in backends],
+                r.target,
+                pf,
+                r.ql_text,
+                r.ratio_text(backends),
+            ]
+        )
     widths = [max(len(str(x)) for x in col) for col in zip(header, *table)]
     line = "  ".join("-" * w for w in widths)
 
     def fmt(cells):
-        return "  ".join(str(c).ljust(w) if i < 2 else str(c).rjust(w) if 2 <= i < 2 + len(backends)
-                         else str(c).ljust(w) for i, (c, w) in enumerate(zip(cells, widths)))
+        return "  ".join(
+            str(c).ljust(w) if i < 2 else str(c).rjust(w) if 2 <= i < 2 + len(backends) else str(c).ljust(w)
+            for i, (c, w) in enumerate(zip(cells, widths))
+        )
 
     print(fmt(header))
     print(line)
@@ -356,9 +465,16 @@ def print_table(rows: list[Row], backends: list[str]) -> list[dict]:
         print(fmt(cells))
     out = []
     for r in rows:
-        out.append({"benchmark": r.bench, "metric": r.metric, "target": r.target, "quantumleap": r.ql_text,
-                    **{b: {"value": r.values.get(b), "text": r.texts.get(b), "pass": r.verdict(b)} for b in backends},
-                    "vs_quantumleap": r.ratio_text(backends)})
+        out.append(
+            {
+                "benchmark": r.bench,
+                "metric": r.metric,
+                "target": r.target,
+                "quantumleap": r.ql_text,
+                **{b: {"value": r.values.get(b), "text": r.texts.get(b), "pass": r.verdict(b)} for b in backends},
+                "vs_quantumleap": r.ratio_text(backends),
+            }
+        )
     return out
 
 
@@ -376,8 +492,10 @@ def report(path: Path) -> int:
         step.result, step.rc, step.error = data["result"], data["exit_code"], data["error"]
         steps[(key, backend)] = step
     quick = combined.get("quick")
-    print(f"RESULTS of {combined['started_at']} ({'QUICK smoke run, queries at scale ' + format(combined['queries_scale'], 'g') if quick else 'full run'}"
-          f"; {combined['machine']['cpus']} CPUs)")
+    print(
+        f"RESULTS of {combined['started_at']} ({'QUICK smoke run, queries at scale ' + format(combined['queries_scale'], 'g') if quick else 'full run'}"
+        f"; {combined['machine']['cpus']} CPUs)"
+    )
     rows, notes = build_rows(steps, backends)
     print_table(rows, backends)
     print()
@@ -386,27 +504,41 @@ def report(path: Path) -> int:
     geo_caps = combined.get("geo") or {}
     if not geo_caps.get("usable", True):
         print(f"geo: skipped -- {geo_caps.get('why')}")
-    print(f"load average (1/5/15 min): {' '.join(map(str, combined['machine']['loadavg_start']))} at start, "
-          f"{' '.join(map(str, combined['machine']['loadavg_end']))} at end")
+    print(
+        f"load average (1/5/15 min): {' '.join(map(str, combined['machine']['loadavg_start']))} at start, "
+        f"{' '.join(map(str, combined['machine']['loadavg_end']))} at end"
+    )
     for name, data in combined["steps"].items():
-        print(f"  {name:<28} {data['seconds']:>6.0f} s  load avg before {' '.join(map(str, data['loadavg_before']))}"
-              f", after {' '.join(map(str, data['loadavg_after']))}")
+        print(
+            f"  {name:<28} {data['seconds']:>6.0f} s  load avg before {' '.join(map(str, data['loadavg_before']))}"
+            f", after {' '.join(map(str, data['loadavg_after']))}"
+        )
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true",
-                    help="smoke run: short windows, queries at scale 0.1 (1M samples); under 3 minutes")
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help="smoke run: short windows, queries at scale 0.1 (1M samples); under 3 minutes",
+    )
     ap.add_argument("--backends", default="duckdb,postgresql", help="comma list of duckdb, postgresql (default both)")
-    ap.add_argument("--only", help="comma list of ingest, queries, geo (default: all; with --quick: ingest, "
-                                   "queries -- geo.py has no reduced scale, its load alone takes ~1.5 min)")
+    ap.add_argument(
+        "--only",
+        help="comma list of ingest, queries, geo (default: all; with --quick: ingest, "
+        "queries -- geo.py has no reduced scale, its load alone takes ~1.5 min)",
+    )
     ap.add_argument("--no-pg-workers", action="store_true", help="skip the 2-worker ingest run on PostgreSQL")
     ap.add_argument("--scale", type=float, help="queries data-set scale (default 1, or 0.1 with --quick)")
     ap.add_argument("--out", type=Path, default=RESULTS / "latest.json", help="combined JSON (default %(default)s)")
     ap.add_argument("--strict", action="store_true", help="exit 1 when any target fails")
-    ap.add_argument("--report", type=Path, metavar="FILE",
-                    help="run nothing: print the table of a combined JSON written earlier (e.g. latest.json)")
+    ap.add_argument(
+        "--report",
+        type=Path,
+        metavar="FILE",
+        help="run nothing: print the table of a combined JSON written earlier (e.g. latest.json)",
+    )
     args = ap.parse_args(argv)
     if args.report:
         return report(args.report)
@@ -437,35 +569,82 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.quick and only_default:
         only.discard("geo")
-        geo_caps = {"usable": False, "why": "not part of --quick (geo.py has no reduced scale: loading its 2M rows "
-                                            "alone takes ~1.5 min); run it with --quick --only geo, or without --quick"}
+        geo_caps = {
+            "usable": False,
+            "why": "not part of --quick (geo.py has no reduced scale: loading its 2M rows "
+            "alone takes ~1.5 min); run it with --quick --only geo, or without --quick",
+        }
     elif "geo" in only:
         geo_caps = geo_capabilities(python)
     else:
         geo_caps = {"usable": False, "why": "not selected (--only)"}
     started = datetime.now(UTC)
     load_start = loadavg()
-    print(f"benchmarks: {', '.join(LABEL[b] for b in backends)}; {'QUICK smoke run' if args.quick else 'full run'}; "
-          f"{os.cpu_count()} CPUs; load average {' '.join(map(str, load_start))} (1/5/15 min)", flush=True)
+    print(
+        f"benchmarks: {', '.join(LABEL[b] for b in backends)}; {'QUICK smoke run' if args.quick else 'full run'}; "
+        f"{os.cpu_count()} CPUs; load average {' '.join(map(str, load_start))} (1/5/15 min)",
+        flush=True,
+    )
     if not geo_caps["usable"]:
         print(f"note: geo benchmark skipped: {geo_caps['why']}", flush=True)
 
     steps: dict[tuple[str, str], Step] = {}
     for b in backends:
         if "ingest" in only:
-            steps[("ingest", b)] = Step("ingest", b, [python, str(HERE / "ingest.py"), "--backend", b, *ingest_opts,
-                                                      "--json", str(RESULTS / f"ingest-{b}.json")],
-                                        RESULTS / f"ingest-{b}.json", timeout, log_dir)
+            steps[("ingest", b)] = Step(
+                "ingest",
+                b,
+                [
+                    python,
+                    str(HERE / "ingest.py"),
+                    "--backend",
+                    b,
+                    *ingest_opts,
+                    "--json",
+                    str(RESULTS / f"ingest-{b}.json"),
+                ],
+                RESULTS / f"ingest-{b}.json",
+                timeout,
+                log_dir,
+            )
             if b == "postgresql" and not args.no_pg_workers:
                 steps[("ingest-2workers", b)] = Step(
-                    "ingest-2workers", b,
-                    [python, str(HERE / "ingest.py"), "--backend", b, "--workers", "2", "--targets", "ours",
-                     *ingest_opts, "--json", str(RESULTS / f"ingest-2workers-{b}.json")],
-                    RESULTS / f"ingest-2workers-{b}.json", timeout, log_dir)
+                    "ingest-2workers",
+                    b,
+                    [
+                        python,
+                        str(HERE / "ingest.py"),
+                        "--backend",
+                        b,
+                        "--workers",
+                        "2",
+                        "--targets",
+                        "ours",
+                        *ingest_opts,
+                        "--json",
+                        str(RESULTS / f"ingest-2workers-{b}.json"),
+                    ],
+                    RESULTS / f"ingest-2workers-{b}.json",
+                    timeout,
+                    log_dir,
+                )
         if "queries" in only:
-            steps[("queries", b)] = Step("queries", b, [python, str(HERE / "queries.py"), "--backend", b, *query_opts,
-                                                        "--json", str(RESULTS / f"queries-{b}.json")],
-                                         RESULTS / f"queries-{b}.json", timeout, log_dir)
+            steps[("queries", b)] = Step(
+                "queries",
+                b,
+                [
+                    python,
+                    str(HERE / "queries.py"),
+                    "--backend",
+                    b,
+                    *query_opts,
+                    "--json",
+                    str(RESULTS / f"queries-{b}.json"),
+                ],
+                RESULTS / f"queries-{b}.json",
+                timeout,
+                log_dir,
+            )
         if geo_caps["usable"]:
             if b != "duckdb" and not geo_caps.get("--backend"):
                 print(f"note: geo benchmark not run on {LABEL[b]}: geo.py has no --backend option", flush=True)
@@ -488,8 +667,10 @@ def main(argv: list[str] | None = None) -> int:
     load_end = loadavg()
 
     print()
-    print(f"RESULTS ({'QUICK smoke run: short windows, queries at scale ' + format(scale, 'g') if args.quick else 'full run'}"
-          f"; {os.cpu_count()} CPUs, {platform.machine()}; one server process unless stated)")
+    print(
+        f"RESULTS ({'QUICK smoke run: short windows, queries at scale ' + format(scale, 'g') if args.quick else 'full run'}"
+        f"; {os.cpu_count()} CPUs, {platform.machine()}; one server process unless stated)"
+    )
     rows, notes = build_rows(steps, backends)
     table = print_table(rows, backends)
     print()
@@ -499,24 +680,39 @@ def main(argv: list[str] | None = None) -> int:
         print(f"geo: skipped -- {geo_caps['why']}")
     elif any(b != "duckdb" for b in backends) and not geo_caps.get("--backend"):
         print("geo: DuckDB only -- benchmarks/geo.py has no --backend option yet")
-    print(f"load average (1/5/15 min): {' '.join(map(str, load_start))} at start, "
-          f"{' '.join(map(str, load_end))} at end; per step in {args.out.relative_to(ROOT) if args.out.is_relative_to(ROOT) else args.out}")
+    print(
+        f"load average (1/5/15 min): {' '.join(map(str, load_start))} at start, "
+        f"{' '.join(map(str, load_end))} at end; per step in {args.out.relative_to(ROOT) if args.out.is_relative_to(ROOT) else args.out}"
+    )
 
     crashed = [f"{s.key} on {LABEL[s.backend]}: {s.error}" for s in steps.values() if s.error]
     failed_targets = [f"{r['metric']} ({LABEL[b]})" for r in table for b in backends if r[b]["pass"] is False]
     combined = {
         "started_at": started.isoformat(timespec="seconds"),
         "finished_at": datetime.now(UTC).isoformat(timespec="seconds"),
-        "quick": args.quick, "queries_scale": scale, "backends": backends,
-        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
-                    "loadavg_start": load_start, "loadavg_end": load_end},
-        "quantumleap_reference": {"ingest_notif_s_2_workers": QL_INGEST_NOTIF_S, "lastN_100_rps": QL_LASTN_RPS,
-                                  "lastN_100_p50_ms": QL_LASTN_P50_MS, "minute_aggr_rps": QL_MINUTE_AGGR_RPS,
-                                  "bare_fastapi_notif_s": BARE_FASTAPI_REF},
+        "quick": args.quick,
+        "queries_scale": scale,
+        "backends": backends,
+        "machine": {
+            "cpus": os.cpu_count(),
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+            "loadavg_start": load_start,
+            "loadavg_end": load_end,
+        },
+        "quantumleap_reference": {
+            "ingest_notif_s_2_workers": QL_INGEST_NOTIF_S,
+            "lastN_100_rps": QL_LASTN_RPS,
+            "lastN_100_p50_ms": QL_LASTN_P50_MS,
+            "minute_aggr_rps": QL_MINUTE_AGGR_RPS,
+            "bare_fastapi_notif_s": BARE_FASTAPI_REF,
+        },
         "geo": geo_caps,
-        "table": table, "notes": notes,
+        "table": table,
+        "notes": notes,
         "steps": {f"{k}:{b}": s.to_dict() for (k, b), s in steps.items()},
-        "crashed": crashed, "failed_targets": failed_targets,
+        "crashed": crashed,
+        "failed_targets": failed_targets,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(combined, indent=2, default=str) + "\n")

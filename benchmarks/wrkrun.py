@@ -127,8 +127,9 @@ def ensure_wrk() -> str | None:
     return shutil.which("wrk")
 
 
-def run(url: str, script: str, connections: int, duration: float, threads: int = 2,
-        timeout_s: float = 10.0) -> WrkStats:
+def run(
+    url: str, script: str, connections: int, duration: float, threads: int = 2, timeout_s: float = 10.0
+) -> WrkStats:
     """One wrk invocation against ``url`` (scheme://host:port); returns its figures."""
     wrk = ensure_wrk()
     if wrk is None:
@@ -139,22 +140,42 @@ def run(url: str, script: str, connections: int, duration: float, threads: int =
         script_path = f.name
     try:
         proc = subprocess.run(
-            [wrk, "-t", str(threads), "-c", str(connections), "-d", f"{max(1, round(duration))}s",
-             "--timeout", f"{timeout_s:g}s", "-s", script_path, url],
-            capture_output=True, text=True, timeout=duration + timeout_s + 60,
+            [
+                wrk,
+                "-t",
+                str(threads),
+                "-c",
+                str(connections),
+                "-d",
+                f"{max(1, round(duration))}s",
+                "--timeout",
+                f"{timeout_s:g}s",
+                "-s",
+                script_path,
+                url,
+            ],
+            capture_output=True,
+            text=True,
+            timeout=duration + timeout_s + 60,
         )
     finally:
         Path(script_path).unlink(missing_ok=True)
     line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("WRKJSON ")), None)
     if proc.returncode != 0 or line is None:
         raise RuntimeError(f"wrk failed ({proc.returncode}): {proc.stderr.strip()[:500]} {proc.stdout[-500:]}")
-    d = json.loads(line[len("WRKJSON "):])
+    d = json.loads(line[len("WRKJSON ") :])
     seconds = d["duration_us"] / 1e6
     ok = d["requests"] - d["non_2xx"]
     return WrkStats(
-        requests=d["requests"], ok=ok, non_2xx=d["non_2xx"],
+        requests=d["requests"],
+        ok=ok,
+        non_2xx=d["non_2xx"],
         errors=d["connect"] + d["read"] + d["write"] + d["timeout"],
-        seconds=seconds, rps=ok / seconds if seconds else 0.0,
-        p50_ms=d["p50_us"] / 1000, p90_ms=d["p90_us"] / 1000, p99_ms=d["p99_us"] / 1000,
-        max_ms=d["max_us"] / 1000, mean_ms=d["mean_us"] / 1000,
+        seconds=seconds,
+        rps=ok / seconds if seconds else 0.0,
+        p50_ms=d["p50_us"] / 1000,
+        p90_ms=d["p90_us"] / 1000,
+        p99_ms=d["p99_us"] / 1000,
+        max_ms=d["max_us"] / 1000,
+        mean_ms=d["mean_us"] / 1000,
     )

@@ -34,7 +34,7 @@ def _backends() -> list[str]:
 def pg_cluster():
     """A private PostgreSQL cluster for the whole run (initdb + pg_ctl on a
     temporary directory and a free port), stopped at the end."""
-    from tsdb_service.storage.pg_cluster import PgCluster, find_bin
+    from pg_cluster import PgCluster, find_bin
 
     if not (find_bin("initdb") and find_bin("pg_ctl")):
         pytest.skip("PostgreSQL server binaries (initdb, pg_ctl) are not installed")

@@ -30,7 +30,7 @@ def robot(i: int, eid: str = "Robot:1", etype: str = "Robot") -> dict:
     attrs = {
         "battery": {"type": "Number", "value": 90.5 - i},
         "count": {"type": "Integer", "value": i * 1000},
-        "mode": {"type": "Text", "value": ["mowing", "docked", "", "a,\"quoted\"\nline"][i % 4]},
+        "mode": {"type": "Text", "value": ["mowing", "docked", "", 'a,"quoted"\nline'][i % 4]},
         "docked": {"type": "Boolean", "value": i % 3 == 0},
         "seen": {"type": "DateTime", "value": "2024-04-30T08:00:00.000Z"},
         "odom": {"type": "StructuredValue", "value": {"twist": {"linear": {"x": i / 10}}, "tags": [1, "b", None]}},
@@ -45,13 +45,24 @@ def robot(i: int, eid: str = "Robot:1", etype: str = "Robot") -> dict:
 
 
 def sensor(i: int) -> dict:
-    return {"subscriptionId": "s", "data": [{
-        "id": "Sensor:1", "type": "Sensor",
-        "humidity": {"type": "Number", "value": 40 + i % 5},
-        "area": {"type": "geo:json", "value": {"type": "Polygon", "coordinates": [
-            [[-3.7, 40.4], [-3.6, 40.4], [-3.6, 40.5], [-3.7, 40.4]]]}},
-        "TimeInstant": {"type": "DateTime", "value": moment(i)},
-    }]}  # fmt: skip
+    return {
+        "subscriptionId": "s",
+        "data": [
+            {
+                "id": "Sensor:1",
+                "type": "Sensor",
+                "humidity": {"type": "Number", "value": 40 + i % 5},
+                "area": {
+                    "type": "geo:json",
+                    "value": {
+                        "type": "Polygon",
+                        "coordinates": [[[-3.7, 40.4], [-3.6, 40.4], [-3.6, 40.5], [-3.7, 40.4]]],
+                    },
+                },
+                "TimeInstant": {"type": "DateTime", "value": moment(i)},
+            }
+        ],
+    }
 
 
 def load(client) -> None:

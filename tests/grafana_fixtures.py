@@ -63,10 +63,19 @@ async def _feed(url: str, end_ms: int) -> dict:
     """Every burst's simulated span ends at ``end_ms``."""
     end = datetime.fromtimestamp(end_ms / 1000, tz=UTC)
     runs = [
-        run([SIMULATORS[name]], RunConfig(url, speedup=speedup, duration=seconds, seed=SEED, concurrency=CONCURRENCY,
-                                          start=end - timedelta(seconds=speedup * seconds)))
+        run(
+            [SIMULATORS[name]],
+            RunConfig(
+                url,
+                speedup=speedup,
+                duration=seconds,
+                seed=SEED,
+                concurrency=CONCURRENCY,
+                start=end - timedelta(seconds=speedup * seconds),
+            ),
+        )
         for name, (speedup, seconds) in BURSTS.items()
-    ]  # fmt: skip
+    ]
     stats = {}
     for result in await asyncio.gather(*runs):
         stats.update(result)

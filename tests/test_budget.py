@@ -24,10 +24,17 @@ ATTRS = ("temperature", "humidity", "pressure")
 
 def _load(client, entities: int = ENTITIES, samples: int = SAMPLES, attrs=ATTRS) -> None:
     batch = [
-        EntitySample("", "/", f"Room:{e:03d}", "Room", T0 + timedelta(seconds=s),
-                     [AttrSample(a, "Number", Kind.NUMBER, num=float(s)) for a in attrs])
-        for s in range(samples) for e in range(entities)
-    ]  # fmt: skip
+        EntitySample(
+            "",
+            "/",
+            f"Room:{e:03d}",
+            "Room",
+            T0 + timedelta(seconds=s),
+            [AttrSample(a, "Number", Kind.NUMBER, num=float(s)) for a in attrs],
+        )
+        for s in range(samples)
+        for e in range(entities)
+    ]
     client.app.state.store.write_sync([AppendSamples(batch)])
 
 
@@ -80,8 +87,9 @@ def test_history_rows(client_factory, store_url):
         assert r.status_code == 200, r.text
         r = client.get("/v2/entities/Room:000", params={"aggrMethod": "avg"})
         assert r.status_code == 200, r.text
-        _too_large(client.get("/v2/types/Room", params={"aggrMethod": "max", "aggrPeriod": "second"}),
-                   "TSDB_READ_MAX_ROWS")  # 600 aggregate rows  # fmt: skip
+        _too_large(
+            client.get("/v2/types/Room", params={"aggrMethod": "max", "aggrPeriod": "second"}), "TSDB_READ_MAX_ROWS"
+        )  # 600 aggregate rows
         r = client.get("/v2/types/Room", params={"aggrMethod": "max", "aggrPeriod": "minute"})
         assert r.status_code == 200, r.text
 
@@ -90,8 +98,9 @@ def test_response_bytes(client_factory, store_url):
     with client_factory(store_url, read_max_response_bytes=4096) as client:
         _load(client, entities=2, samples=200)
         _too_large(client.get("/v2/types/Room"), "TSDB_READ_MAX_RESPONSE_BYTES")
-        _too_large(client.get("/grafana/infinity/series", params={"attrs": "temperature"}),
-                   "TSDB_READ_MAX_RESPONSE_BYTES")  # fmt: skip
+        _too_large(
+            client.get("/grafana/infinity/series", params={"attrs": "temperature"}), "TSDB_READ_MAX_RESPONSE_BYTES"
+        )
         r = client.get("/v2/entities/Room:000/attrs/temperature", params={"lastN": 5})
         assert r.status_code == 200, r.text
         assert client.get("/health").status_code == 200

@@ -51,8 +51,15 @@ def test_serve_help_shows_defaults_and_variables():
     done = run_cli("serve", "--help")
     assert done.returncode == 0
     text = " ".join(done.stdout.split())
-    for expected in ("--port PORT", "default 8668; env TSDB_PORT", "default ./data/tsdb.duckdb; env TSDB_DB",
-                     "--max-body-bytes", "env TSDB_MAX_BODY_BYTES", "--log-level", "default info"):
+    for expected in (
+        "--port PORT",
+        "default 8668; env TSDB_PORT",
+        "default ./data/tsdb.duckdb; env TSDB_DB",
+        "--max-body-bytes",
+        "env TSDB_MAX_BODY_BYTES",
+        "--log-level",
+        "default info",
+    ):
         assert expected in text, expected
 
 
@@ -62,7 +69,7 @@ def test_demo_help_says_a_run_can_overrun():
 
 
 def test_queries_run_against_an_unreachable_service_says_so_once():
-    from tsdb_service.storage.pg_cluster import free_port
+    from pg_cluster import free_port
 
     url = f"http://127.0.0.1:{free_port()}"
     done = run_cli("queries", "run", "--url", url)
@@ -72,7 +79,7 @@ def test_queries_run_against_an_unreachable_service_says_so_once():
 
 
 def test_demo_feeding_an_unreachable_service_says_so_once():
-    from tsdb_service.storage.pg_cluster import free_port
+    from pg_cluster import free_port
 
     url = f"http://127.0.0.1:{free_port()}"
     done = run_cli("demo", "--no-serve", "--url", url, "--duration", "1")

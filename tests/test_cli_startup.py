@@ -16,8 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
-
-from tsdb_service.storage.pg_cluster import free_port
+from pg_cluster import free_port
 
 try:
     from test_cli_settings import run_cli
@@ -38,9 +37,16 @@ def assert_one_line(done: subprocess.CompletedProcess, *needles: str, status: in
 def locked_duckdb(tmp_path):
     """A DuckDB file held open by another process (its pid, its path)."""
     path = tmp_path / "held.duckdb"
-    holder = subprocess.Popen([sys.executable, "-c", "import duckdb, sys, time; c = duckdb.connect(sys.argv[1]); "
-                               "print('held', flush=True); time.sleep(120)", str(path)],
-                              stdout=subprocess.PIPE, text=True)  # fmt: skip
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import duckdb, sys, time; c = duckdb.connect(sys.argv[1]); print('held', flush=True); time.sleep(120)",
+            str(path),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     assert holder.stdout.readline().strip() == "held"
     yield holder.pid, path
     holder.kill()
@@ -50,8 +56,9 @@ def locked_duckdb(tmp_path):
 
 def test_a_duckdb_file_held_by_another_process(locked_duckdb):
     pid, path = locked_duckdb
-    assert_one_line(run_cli("serve", "--db", str(path), "--port", str(free_port())),
-                    str(path), "another process", f"PID {pid}")  # fmt: skip
+    assert_one_line(
+        run_cli("serve", "--db", str(path), "--port", str(free_port())), str(path), "another process", f"PID {pid}"
+    )
     assert_one_line(run_cli("compact", "--db", str(path)), "another process")
     assert_one_line(run_cli("migrate", "--db", str(path)), "another process")
 
@@ -62,8 +69,9 @@ def test_a_lifespan_failure_inside_uvicorn_is_one_line(locked_duckdb):
     _, path = locked_duckdb
     code = "import sys, uvicorn; uvicorn.run('tsdb_service.cli:serve_app', factory=True, port=int(sys.argv[1]))"
     env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")} | {"TSDB_DB": str(path)}
-    done = subprocess.run([sys.executable, "-c", code, str(free_port())], capture_output=True, text=True,
-                          env=env, timeout=60)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-c", code, str(free_port())], capture_output=True, text=True, env=env, timeout=60
+    )
     assert done.returncode == 3, done.stderr
     assert "Traceback" not in done.stderr, done.stderr
     errors = [line for line in done.stderr.splitlines() if "error: " in line]
@@ -74,8 +82,10 @@ def test_a_lifespan_failure_inside_uvicorn_is_one_line(locked_duckdb):
 def test_a_directory_that_cannot_be_written(tmp_path):
     blocker = tmp_path / "a-file"
     blocker.write_text("not a directory")
-    assert_one_line(run_cli("serve", "--db", str(blocker / "tsdb.duckdb"), "--port", str(free_port())),
-                    "cannot create the directory")  # fmt: skip
+    assert_one_line(
+        run_cli("serve", "--db", str(blocker / "tsdb.duckdb"), "--port", str(free_port())),
+        "cannot create the directory",
+    )
     assert_one_line(run_cli("serve", "--db", str(tmp_path), "--port", str(free_port())), "is a directory")
     assert_one_line(run_cli("serve", "--db", str(blocker), "--port", str(free_port())), "not a DuckDB database")
 
@@ -102,11 +112,16 @@ def test_postgresql_unreachable():
 
 def test_postgresql_database_or_role_missing(pg_cluster):
     base = pg_cluster.url.rsplit("/", 1)[0]
-    assert_one_line(run_cli("serve", "--db", f"{base}/no_such_db", "--port", str(free_port())),
-                    "database 'no_such_db' does not exist", "createdb")  # fmt: skip
+    assert_one_line(
+        run_cli("serve", "--db", f"{base}/no_such_db", "--port", str(free_port())),
+        "database 'no_such_db' does not exist",
+        "createdb",
+    )
     no_role = base.replace("postgres@", "no_such_role@")
-    assert_one_line(run_cli("serve", "--db", f"{no_role}/postgres", "--port", str(free_port())),
-                    "role 'no_such_role' does not exist")  # fmt: skip
+    assert_one_line(
+        run_cli("serve", "--db", f"{no_role}/postgres", "--port", str(free_port())),
+        "role 'no_such_role' does not exist",
+    )
 
 
 def test_a_password_never_reaches_the_message():
@@ -126,7 +141,18 @@ def test_serve_still_starts_on_a_good_database(tmp_path):
     port = free_port()
     db = tmp_path / "new" / "dir" / "tsdb.duckdb"
     env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}
-    command = [sys.executable, "-m", "tsdb_service", "serve", "--db", str(db), "--host", "127.0.0.1", "--port", str(port)]
+    command = [
+        sys.executable,
+        "-m",
+        "tsdb_service",
+        "serve",
+        "--db",
+        str(db),
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+    ]
     proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
     try:
         import httpx

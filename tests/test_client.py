@@ -74,9 +74,16 @@ def test_entity_attr_last_n_and_value_path(tsdb, service):
 def test_entity_time_window_many_attrs(tsdb, service):
     window = {"from_date": "2024-05-01T10:00:02Z", "to_date": datetime(2024, 5, 1, 10, 0, 5)}
     frame = tsdb.entity("Robot:1", ["battery", "mode", "odom"], entity_type="Robot", **window)
-    expected = _json(service, "/v2/entities/Robot:1", {
-        "type": "Robot", "attrs": "battery,mode,odom", "fromDate": "2024-05-01T10:00:02Z",
-        "toDate": "2024-05-01T10:00:05Z"})  # fmt: skip
+    expected = _json(
+        service,
+        "/v2/entities/Robot:1",
+        {
+            "type": "Robot",
+            "attrs": "battery,mode,odom",
+            "fromDate": "2024-05-01T10:00:02Z",
+            "toDate": "2024-05-01T10:00:05Z",
+        },
+    )
     assert list(frame.index) == _times(expected["index"])
     for attr in expected["attributes"]:
         assert list(frame[attr["attrName"]]) == attr["values"]
@@ -110,8 +117,9 @@ def test_type_history(tsdb, service):
     expected = _json(service, "/v2/types/Robot", {"attrs": "battery,docked", "lastN": 2})
     rows = [
         (ent["id"], pd.Timestamp(t), *[a["values"][i] for a in ent["attributes"]])
-        for ent in expected["entities"] for i, t in enumerate(ent["index"])
-    ]  # fmt: skip
+        for ent in expected["entities"]
+        for i, t in enumerate(ent["index"])
+    ]
     assert list(frame.columns) == ["entity_id", "time", "battery", "docked"]
     assert [tuple(r) for r in frame.itertuples(index=False)] == rows
     scoped = Client(service.url, service=TENANT, service_path="/site/b")
@@ -124,8 +132,18 @@ def test_type_history(tsdb, service):
 def test_export_to_dataframe(tsdb, service):
     frame = tsdb.export(entity_type=["Robot", "Sensor"], attrs=["battery", "humidity", "odom"])
     expected = api_view(_Http(service.url), {"type": "Robot,Sensor", "attrs": "battery,humidity,odom"}, READ)
-    assert list(frame.columns) == ["time", "entity_id", "entity_type", "service_path", "attribute", "ngsi_type",
-                                   "value_number", "value_text", "value_bool", "value_json"]
+    assert list(frame.columns) == [
+        "time",
+        "entity_id",
+        "entity_type",
+        "service_path",
+        "attribute",
+        "ngsi_type",
+        "value_number",
+        "value_text",
+        "value_bool",
+        "value_json",
+    ]
     assert str(frame.time.dt.tz) == "UTC"
     got = {}
     for row in frame.itertuples(index=False):
@@ -155,4 +173,3 @@ def test_empty_answers_are_empty_frames(tsdb):
     assert tsdb.entity("Nobody").empty
     assert tsdb.type_history("Nothing").empty
     assert tsdb.entities(entity_type="Nothing").empty
-

@@ -17,13 +17,21 @@ MARK = "disconnected before sending the whole body"
 
 ROUTES = [
     ("POST", "/v2/op/query", "application/json", b'{"entities":[{"idPattern":".*"}],"attrs":["v"]}'),
-    ("POST", "/grafana/simplejson/query", "application/json",
-     b'{"targets":[{"target":"E/v"}],"range":{"from":"2024-01-01T00:00:00Z","to":"2024-01-02T00:00:00Z"}}'),
+    (
+        "POST",
+        "/grafana/simplejson/query",
+        "application/json",
+        b'{"targets":[{"target":"E/v"}],"range":{"from":"2024-01-01T00:00:00Z","to":"2024-01-02T00:00:00Z"}}',
+    ),
     ("POST", "/grafana/simplejson/search", "application/json", b'{"target":"some search text"}'),
     ("PUT", "/v2/notify/subscriptions/s1", "application/json", b'{"attrs":["id","v"],"entityType":"T"}'),
-    ("POST", "/ngsi-ld/v1/temporal/entities", "application/json",
-     b'{"id":"urn:ngsi-ld:T:1","type":"T","v":[{"type":"Property","value":1}]}'),
-]  # fmt: skip
+    (
+        "POST",
+        "/ngsi-ld/v1/temporal/entities",
+        "application/json",
+        b'{"id":"urn:ngsi-ld:T:1","type":"T","v":[{"type":"Property","value":1}]}',
+    ),
+]
 
 
 @pytest.fixture
@@ -33,8 +41,9 @@ def server(store_url, tmp_path):
 
 
 def _half_body_then_close(port: int, method: str, path: str, media_type: str, body: bytes) -> None:
-    head = (f"{method} {path} HTTP/1.1\r\nHost: x\r\nContent-Type: {media_type}\r\n"
-            f"Content-Length: {len(body)}\r\n\r\n").encode()  # fmt: skip
+    head = (
+        f"{method} {path} HTTP/1.1\r\nHost: x\r\nContent-Type: {media_type}\r\nContent-Length: {len(body)}\r\n\r\n"
+    ).encode()
     with socket.create_connection(("127.0.0.1", port), timeout=5) as sock:
         sock.sendall(head + body[: len(body) // 2])
         time.sleep(0.2)
@@ -63,6 +72,9 @@ def test_disconnect_mid_body_is_one_log_line(server):
     assert httpx.get(server.url + "/health", timeout=5).status_code == 200
     # The request metric records each disconnect as a 400, never a 500.
     text = httpx.get(server.url + "/metrics", timeout=5).text
-    errors = [line for line in text.splitlines()
-              if line.startswith("tsdb_http_request_duration_seconds_count") and 'status="500"' in line]
+    errors = [
+        line
+        for line in text.splitlines()
+        if line.startswith("tsdb_http_request_duration_seconds_count") and 'status="500"' in line
+    ]
     assert not errors, errors

@@ -113,7 +113,9 @@ def test_subscriptions_run_once_orion_and_the_service_are_healthy():
     job = SERVICES["subscriptions"]
     assert job["image"] == SERVICES["tsdb-service"]["image"] and job["build"] == "." and job["restart"] == "no"
     assert {name: dep["condition"] for name, dep in job["depends_on"].items()} == {
-        "orion": "service_healthy", "tsdb-service": "service_healthy"}  # fmt: skip
+        "orion": "service_healthy",
+        "tsdb-service": "service_healthy",
+    }
     assert "entrypoint" not in job and _instructions("ENTRYPOINT") == ['["tsdb-service"]']
     args = build_parser().parse_args(job["command"])
     assert (args.command, args.use_case, args.force) == ("subscribe", "all", False)  # keeps what exists

@@ -36,14 +36,20 @@ QUERIES = [
 
 
 def _notification(i: int) -> dict:
-    return {"subscriptionId": "s", "data": [{
-        "id": f"Mower:{i % 2}", "type": "Mower",
-        "battery": {"type": "Number", "value": 90 - i},
-        "mode": {"type": "Text", "value": "mowing" if i % 3 else "docked"},
-        "odom": {"type": "Object", "value": {"twist": {"twist": {"linear": {"x": i / 10}}}}},
-        "location": {"type": "geo:point", "value": f"40.4168, -3.70{i % 10}"},
-        "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:{i // 60:02d}:{i % 60:02d}.250Z"},
-    }]}
+    return {
+        "subscriptionId": "s",
+        "data": [
+            {
+                "id": f"Mower:{i % 2}",
+                "type": "Mower",
+                "battery": {"type": "Number", "value": 90 - i},
+                "mode": {"type": "Text", "value": "mowing" if i % 3 else "docked"},
+                "odom": {"type": "Object", "value": {"twist": {"twist": {"linear": {"x": i / 10}}}}},
+                "location": {"type": "geo:point", "value": f"40.4168, -3.70{i % 10}"},
+                "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:{i // 60:02d}:{i % 60:02d}.250Z"},
+            }
+        ],
+    }
 
 
 def _answers(client) -> list:
@@ -79,7 +85,6 @@ def test_copy_refuses_the_same_store(tmp_path):
     assert main(["copy", "--from", same, "--to", same]) == 2
 
 
-
 # -- copying cannot hurt: refusals, totals, resuming -------------------------------------------
 #
 # These run the real command (``python -m tsdb_service copy``) as a subprocess,
@@ -93,19 +98,34 @@ DIRECTIONS = ["duckdb-to-postgresql", "postgresql-to-duckdb"]
 
 def copy_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}
-    return subprocess.run([sys.executable, "-m", "tsdb_service", "copy", *args, "--quiet"],
-                          capture_output=True, text=True, env=env, timeout=timeout)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-m", "tsdb_service", "copy", *args, "--quiet"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=timeout,
+    )
 
 
 def _fill(url: str, entities: int, tenant: str = "copyland", start: int = 0) -> int:
     """``entities`` notifications of 3 samples each, written through the store; returns samples written."""
     store = open_store(Settings(db=url))
     try:
-        batch = [EntitySample(tenant, "/", f"Robot:{i % 7}", "Robot", T0 + timedelta(seconds=start + i), [
-            AttrSample("battery", "Number", Kind.NUMBER, num=float(i % 100)),
-            AttrSample("mode", "Text", Kind.TEXT, txt="mowing" if i % 2 else "docked"),
-            AttrSample("speed", "Number", Kind.NUMBER, num=i / 10),
-        ]) for i in range(entities)]  # fmt: skip
+        batch = [
+            EntitySample(
+                tenant,
+                "/",
+                f"Robot:{i % 7}",
+                "Robot",
+                T0 + timedelta(seconds=start + i),
+                [
+                    AttrSample("battery", "Number", Kind.NUMBER, num=float(i % 100)),
+                    AttrSample("mode", "Text", Kind.TEXT, txt="mowing" if i % 2 else "docked"),
+                    AttrSample("speed", "Number", Kind.NUMBER, num=i / 10),
+                ],
+            )
+            for i in range(entities)
+        ]
         store.write_sync([AppendSamples(batch)])
     finally:
         store.close()
@@ -116,7 +136,8 @@ def _counts(url: str) -> dict[str, int]:
     store = open_store(Settings(db=url))
     try:
         rows = store.querier()._fetch(
-            "SELECT s.tenant, count(*) FROM samples_all x JOIN series s ON s.sid = x.sid GROUP BY s.tenant", [])
+            "SELECT s.tenant, count(*) FROM samples_all x JOIN series s ON s.sid = x.sid GROUP BY s.tenant", []
+        )
         return {tenant: int(n) for tenant, n in rows}
     finally:
         store.close()
@@ -221,8 +242,11 @@ def test_a_killed_copy_process_resumes(tmp_path, pg_cluster):
     source, target = str(tmp_path / "big.duckdb"), pg_cluster.database("copy_killed")
     _fill(source, 3000)
     env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}
-    proc = subprocess.Popen([sys.executable, "-m", "tsdb_service", "copy", "--from", source, "--to", target,
-                             "--batch-rows", "60"], stderr=subprocess.PIPE, env=env)  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tsdb_service", "copy", "--from", source, "--to", target, "--batch-rows", "60"],
+        stderr=subprocess.PIPE,
+        env=env,
+    )
     try:
         progress = b""
         while b"%" not in progress:  # the first batch is committed

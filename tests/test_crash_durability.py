@@ -96,8 +96,9 @@ def drive_then_kill(servers: list[ServerProcess], outcomes: dict[int, str]) -> t
     seqs = itertools.count()
     stop = threading.Event()
     threads = [
-        threading.Thread(target=client, args=(servers[i % len(servers)].port, seqs, outcomes, stop),
-                         name=f"client-{i}", daemon=True)
+        threading.Thread(
+            target=client, args=(servers[i % len(servers)].port, seqs, outcomes, stop), name=f"client-{i}", daemon=True
+        )
         for i in range(THREADS)
     ]
     try:
@@ -154,7 +155,9 @@ def test_acknowledged_notifications_survive_sigkill(tmp_path):
     restart_s = time.monotonic() - t_restart
     exit_code = restarted.terminate()
     # uvicorn re-raises the captured SIGTERM after a graceful shutdown
-    assert exit_code in (0, -signal.SIGTERM), f"restarted server exited with {exit_code} after SIGTERM:\n{restarted.output()[-3000:]}"
+    assert exit_code in (0, -signal.SIGTERM), (
+        f"restarted server exited with {exit_code} after SIGTERM:\n{restarted.output()[-3000:]}"
+    )
 
     stored = stored_temperatures(db_path)
     acked = [s for s, o in outcomes.items() if o == ACK]

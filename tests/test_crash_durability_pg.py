@@ -17,7 +17,15 @@ try:
 except ImportError:  # tests/ imported as a package
     from tests.support.server import ServerProcess
 
-from test_crash_durability import ACK, FAILED, REJECTED, TENANT, drive_then_kill, entity_id, temperature
+from test_crash_durability import (
+    ACK,
+    FAILED,
+    REJECTED,
+    TENANT,
+    drive_then_kill,
+    entity_id,
+    temperature,
+)
 
 
 def stored_temperatures(url: str) -> dict[str, set[float]]:
@@ -33,8 +41,10 @@ def stored_temperatures(url: str) -> dict[str, set[float]]:
     return stored
 
 
-@pytest.mark.skipif("postgresql" not in os.environ.get("TSDB_TEST_BACKENDS", "postgresql"),
-                    reason="PostgreSQL is not among TSDB_TEST_BACKENDS")
+@pytest.mark.skipif(
+    "postgresql" not in os.environ.get("TSDB_TEST_BACKENDS", "postgresql"),
+    reason="PostgreSQL is not among TSDB_TEST_BACKENDS",
+)
 def test_two_replicas_lose_nothing_acknowledged_on_sigkill(pg_cluster):
     url = pg_cluster.database("crash_two_replicas")
     replicas = [ServerProcess(url).start(), ServerProcess(url).start()]
@@ -49,7 +59,9 @@ def test_two_replicas_lose_nothing_acknowledged_on_sigkill(pg_cluster):
     acked = [s for s, o in outcomes.items() if o == ACK]
     unacked = [s for s, o in outcomes.items() if o in (FAILED, REJECTED)]
     lost = [s for s in acked if temperature(s) not in stored.get(entity_id(s), ())]
-    print(f"crash test (PostgreSQL, 2 replicas): {len(acked)} acknowledged, {len(lost)} lost, "
-          f"{len(unacked)} unacknowledged")
+    print(
+        f"crash test (PostgreSQL, 2 replicas): {len(acked)} acknowledged, {len(lost)} lost, "
+        f"{len(unacked)} unacknowledged"
+    )
     assert len(acked) > 100
     assert not lost, f"acknowledged but lost: {[entity_id(s) for s in lost[:10]]}"

@@ -40,7 +40,14 @@ except ImportError:  # tests/ imported as a package
     from tests.support.server import ServerProcess, free_port
 
 from tsdb_service.demo import enums, orion, sites
-from tsdb_service.demo.runner import Progress, RunConfig, Stats, _Clock, live_window, run
+from tsdb_service.demo.runner import (
+    Progress,
+    RunConfig,
+    Stats,
+    _Clock,
+    live_window,
+    run,
+)
 from tsdb_service.demo.subscriptions import broker_headers, subscription, write_examples
 from tsdb_service.demo.usecases import SIMULATORS
 
@@ -153,9 +160,9 @@ def test_subscription_selects_the_entities_the_simulator_sends(name):
     selectors = sub["subject"]["entities"]
     for emission in _emissions(name, 200):
         entity = emission.entity
-        assert any(
-            re.search(s["idPattern"], entity["id"]) and s["type"] == entity["type"] for s in selectors
-        ), f"{entity['id']} would not be notified"
+        assert any(re.search(s["idPattern"], entity["id"]) and s["type"] == entity["type"] for s in selectors), (
+            f"{entity['id']} would not be notified"
+        )
     headers = json.loads((ROOT / "notifications" / name / "notification.headers.json").read_text())
     body = (ROOT / "notifications" / name / "notification.json").read_bytes()
     assert headers["Fiware-Service"] == SIMULATORS[name].tenancy.service
@@ -171,14 +178,14 @@ class _Broker(http.server.BaseHTTPRequestHandler):
 
     received: list = []
 
-    def do_GET(self):  # noqa: N802 - http.server's naming
+    def do_GET(self):
         self.send_response(200)
         self.send_header("Content-Type", "application/json")
         self.send_header("Content-Length", "2")
         self.end_headers()
         self.wfile.write(b"[]")
 
-    def do_POST(self):  # noqa: N802 - http.server's naming
+    def do_POST(self):
         body = self.rfile.read(int(self.headers["Content-Length"]))
         self.received.append((self.path, dict(self.headers), json.loads(body)))
         if self.headers["Fiware-Service"] == "drone":
@@ -296,8 +303,16 @@ def test_lawnmower_publishes_its_topics_once_a_second(demo):
     client, _ = demo
     doc = _get(client, sites.LAWNMOWER, f"/v2/entities/{sites.LAWNMOWER_ID}", lastN=1)
     latest = {a["attrName"]: a["values"][0] for a in doc["attributes"]}
-    assert {"odom", "location", "navigationState", "navigationSubState", "perimeterLeft", "perimeterRight",
-            "obstacleDistance", "cmd_vel"} <= set(latest)  # fmt: skip
+    assert {
+        "odom",
+        "location",
+        "navigationState",
+        "navigationSubState",
+        "perimeterLeft",
+        "perimeterRight",
+        "obstacleDistance",
+        "cmd_vel",
+    } <= set(latest)
     assert set(latest["cmd_vel"]) == {"linear", "angular"}
     lon, lat = latest["location"]["coordinates"]
     assert sites.distance_m(sites.GARDEN_ORIGIN, (lat, lon)) < 50
@@ -416,8 +431,22 @@ def _ts(text: str) -> float:
 def test_demo_command_serves_feeds_and_prints_where_to_look(tmp_path):
     port = free_port()
     db = tmp_path / "data" / "tsdb.duckdb"
-    command = [sys.executable, "-m", "tsdb_service", "demo", "--db", str(db), "--port", str(port),
-               "--duration", "3", "--speedup", "30", "--seed", "1"]  # fmt: skip
+    command = [
+        sys.executable,
+        "-m",
+        "tsdb_service",
+        "demo",
+        "--db",
+        str(db),
+        "--port",
+        str(port),
+        "--duration",
+        "3",
+        "--speedup",
+        "30",
+        "--seed",
+        "1",
+    ]
     done = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert done.returncode == 0, done.stdout + done.stderr
     out = done.stdout
@@ -483,7 +512,7 @@ def test_a_run_starts_after_an_earlier_run_and_still_ends_on_time():
 class _SlowService(http.server.BaseHTTPRequestHandler):
     """Acknowledges every notification, 20 ms late: a service the simulators outrun."""
 
-    def do_POST(self):  # noqa: N802 - http.server's naming
+    def do_POST(self):
         self.rfile.read(int(self.headers["Content-Length"]))
         time.sleep(0.02)
         self.send_response(200)
@@ -524,8 +553,21 @@ def test_the_expected_end_follows_the_pace_so_far():
 
 
 def _demo(db: Path, *args: str) -> tuple[subprocess.CompletedProcess, float, float]:
-    command = [sys.executable, "-m", "tsdb_service", "demo", "--db", str(db), "--port", str(free_port()),
-               "--use-case", "warehouse", "--seed", "3", *args]  # fmt: skip
+    command = [
+        sys.executable,
+        "-m",
+        "tsdb_service",
+        "demo",
+        "--db",
+        str(db),
+        "--port",
+        str(free_port()),
+        "--use-case",
+        "warehouse",
+        "--seed",
+        "3",
+        *args,
+    ]
     began = time.time()
     done = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=db.parent)
     assert done.returncode == 0, done.stdout + done.stderr

@@ -18,12 +18,26 @@ import pytest
 
 try:
     from support.disk_full import (
-        ENTITY, HEADERS, READ_HEADERS, Outcomes, check_exactly_once, health, stored_seqs, wait_healthy,
+        ENTITY,
+        HEADERS,
+        READ_HEADERS,
+        Outcomes,
+        check_exactly_once,
+        health,
+        stored_seqs,
+        wait_healthy,
     )
     from support.tmpfs import fill, small_tmpfs
 except ImportError:  # tests/ imported as a package
     from tests.support.disk_full import (
-        ENTITY, HEADERS, READ_HEADERS, Outcomes, check_exactly_once, health, stored_seqs, wait_healthy,
+        ENTITY,
+        HEADERS,
+        READ_HEADERS,
+        Outcomes,
+        check_exactly_once,
+        health,
+        stored_seqs,
+        wait_healthy,
     )
     from tests.support.tmpfs import fill, small_tmpfs
 
@@ -90,7 +104,6 @@ def test_checkpoint_failure_is_acknowledged_and_the_store_reopens(tmp_path, clie
                 assert outcomes.send(post) == 200
             check_exactly_once(outcomes, stored_seqs(post))
             assert outcomes.statuses.keys() <= {200, 503}
-
 
         # And the file holds exactly that after a clean close and a fresh open.
         with client_factory(str(disk / "tsdb.duckdb")) as client:

@@ -20,12 +20,26 @@ import pytest
 
 try:
     from support.disk_full import (
-        ENTITY, HEADERS, READ_HEADERS, Outcomes, check_exactly_once, health, stored_seqs, wait_healthy,
+        ENTITY,
+        HEADERS,
+        READ_HEADERS,
+        Outcomes,
+        check_exactly_once,
+        health,
+        stored_seqs,
+        wait_healthy,
     )
     from support.tmpfs import fill, small_tmpfs
 except ImportError:  # tests/ imported as a package
     from tests.support.disk_full import (
-        ENTITY, HEADERS, READ_HEADERS, Outcomes, check_exactly_once, health, stored_seqs, wait_healthy,
+        ENTITY,
+        HEADERS,
+        READ_HEADERS,
+        Outcomes,
+        check_exactly_once,
+        health,
+        stored_seqs,
+        wait_healthy,
     )
     from tests.support.tmpfs import fill, small_tmpfs
 
@@ -109,7 +123,7 @@ def test_the_writer_reconnects_when_its_connection_is_killed(backend, store_url,
         pytest.skip("PostgreSQL writer connections")
     import psycopg
 
-    from tsdb_service.storage.postgres_store import WRITER_APPLICATION_NAME
+    from tsdb_service.storage.postgres.store import WRITER_APPLICATION_NAME
 
     with client_factory(store_url) as client:
         post = poster(client)

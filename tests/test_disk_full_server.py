@@ -15,11 +15,23 @@ import threading
 import time
 
 try:
-    from support.disk_full import HEADERS, READ_HEADERS, Outcomes, check_exactly_once, stored_seqs
+    from support.disk_full import (
+        HEADERS,
+        READ_HEADERS,
+        Outcomes,
+        check_exactly_once,
+        stored_seqs,
+    )
     from support.server import ServerProcess
     from support.tmpfs import fill, small_tmpfs
 except ImportError:  # tests/ imported as a package
-    from tests.support.disk_full import HEADERS, READ_HEADERS, Outcomes, check_exactly_once, stored_seqs
+    from tests.support.disk_full import (
+        HEADERS,
+        READ_HEADERS,
+        Outcomes,
+        check_exactly_once,
+        stored_seqs,
+    )
     from tests.support.server import ServerProcess
     from tests.support.tmpfs import fill, small_tmpfs
 
@@ -80,8 +92,9 @@ def test_disk_full_under_load_recovers_without_restart(tmp_path):
                 assert outcomes.send(post) == 200
             filler = fill(disk, leave=LEAVE_BYTES)
             stop, errors = threading.Event(), []
-            clients = [threading.Thread(target=load, args=(Http(server.port), outcomes, stop, errors))
-                       for _ in range(CLIENTS)]
+            clients = [
+                threading.Thread(target=load, args=(Http(server.port), outcomes, stop, errors)) for _ in range(CLIENTS)
+            ]
             for thread in clients:
                 thread.start()
             try:

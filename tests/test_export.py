@@ -13,9 +13,17 @@ from datetime import UTC, datetime
 import pyarrow.parquet as pq
 import pytest
 
+from tests.export_fixtures import (
+    H_A,
+    H_B,
+    READ,
+    api_view,
+    export_view,
+    load,
+    read_csv,
+    read_parquet,
+)
 from tsdb_service.export import stream as export_stream
-
-from tests.export_fixtures import H_A, H_B, READ, api_view, export_view, load, read_csv, read_parquet
 
 SELECTIONS = [
     pytest.param({}, READ, id="whole-tenant"),
@@ -25,8 +33,11 @@ SELECTIONS = [
     pytest.param({"id": "Robot:1"}, READ, id="id-in-two-types"),
     pytest.param({"id": "Robot:1", "type": "Dock"}, READ, id="id-and-type"),
     pytest.param({"idPattern": "^Robot:[2]$"}, READ, id="id-pattern"),
-    pytest.param({"fromDate": "2024-05-01T10:00:02.250074Z", "toDate": "2024-05-01T12:00:05+02:00"}, READ,
-                 id="time-range-inclusive"),
+    pytest.param(
+        {"fromDate": "2024-05-01T10:00:02.250074Z", "toDate": "2024-05-01T12:00:05+02:00"},
+        READ,
+        id="time-range-inclusive",
+    ),
     pytest.param({"type": "Robot", "attrs": "temperature,spare,odom,location"}, H_A, id="changing-and-null"),
 ]
 

@@ -6,7 +6,15 @@ from pathlib import Path
 
 import pytest
 
-from tests.export_fixtures import READ, TENANT, api_view, export_view, load, read_csv, read_parquet
+from tests.export_fixtures import (
+    READ,
+    TENANT,
+    api_view,
+    export_view,
+    load,
+    read_csv,
+    read_parquet,
+)
 from tsdb_service.cli import main
 from tsdb_service.export import ExportFormat, SampleStream, write_file
 
@@ -24,8 +32,19 @@ def stored(client_factory, store_url):
 def test_parquet_file_equals_the_api(stored, tmp_path, capsys):
     url, expected, _ = stored
     out = tmp_path / "robots.parquet"
-    args = ["export", "--db", url, "--out", str(out), "--service", TENANT, "--type", "Robot",
-            "--attrs", "battery,mode,odom"]  # fmt: skip
+    args = [
+        "export",
+        "--db",
+        url,
+        "--out",
+        str(out),
+        "--service",
+        TENANT,
+        "--type",
+        "Robot",
+        "--attrs",
+        "battery,mode,odom",
+    ]
     assert main(args) == 0
     assert export_view(read_parquet(out.read_bytes())) == expected
     said = capsys.readouterr().out
@@ -45,9 +64,27 @@ def test_csv_by_suffix_whole_tenant(stored, tmp_path):
 def test_time_range_and_service_path(stored, tmp_path):
     url, _, _ = stored
     out = tmp_path / "b.dat"
-    args = ["export", "--db", url, "--out", str(out), "--format", "parquet", "--service", TENANT,
-            "--service-path", "/site/b", "--id", "Robot:2", "--attrs", "count",
-            "--from-date", "2024-05-01T10:00:02Z", "--to-date", "2024-05-01T10:00:04Z"]  # fmt: skip
+    args = [
+        "export",
+        "--db",
+        url,
+        "--out",
+        str(out),
+        "--format",
+        "parquet",
+        "--service",
+        TENANT,
+        "--service-path",
+        "/site/b",
+        "--id",
+        "Robot:2",
+        "--attrs",
+        "count",
+        "--from-date",
+        "2024-05-01T10:00:02Z",
+        "--to-date",
+        "2024-05-01T10:00:04Z",
+    ]
     assert main(args) == 0
     rows = read_parquet(out.read_bytes()).to_pylist()
     assert [r["value_number"] for r in rows] == [2000.0, 3000.0]
@@ -70,9 +107,11 @@ def test_bad_parameters_are_one_line(stored, tmp_path, capsys):
 
 def test_an_interrupted_export_leaves_no_file(tmp_path):
     """A cut-short export (here: the disk fills after one batch) removes its partial file."""
-    one_row = read_csv(b'"time","entity_id","entity_type","service_path","attribute","ngsi_type",'
-                       b'"value_number","value_text","value_bool","value_json"\n'
-                       b'2024-05-01 10:00:00.000001Z,"E","T","/","a","Number",1,,,\n').to_batches()
+    one_row = read_csv(
+        b'"time","entity_id","entity_type","service_path","attribute","ngsi_type",'
+        b'"value_number","value_text","value_bool","value_json"\n'
+        b'2024-05-01 10:00:00.000001Z,"E","T","/","a","Number",1,,,\n'
+    ).to_batches()
     handed = iter(one_row)
 
     def next_or_fail():

@@ -28,7 +28,8 @@ import hypothesis
 import orjson
 import pytest
 import schemathesis
-from hypothesis import HealthCheck, Phase, strategies as st
+from hypothesis import HealthCheck, Phase
+from hypothesis import strategies as st
 from schemathesis import GenerationMode
 from schemathesis.checks import (
     content_type_conformance,
@@ -44,31 +45,62 @@ from tsdb_service.history.shape import iso_ms
 from tsdb_service.ngsi import parse_notification
 
 EXAMPLES = int(os.environ.get("TSDB_FUZZ_EXAMPLES", "10"))
-CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance,
-          response_headers_conformance]  # fmt: skip
+CHECKS = [
+    not_a_server_error,
+    status_code_conformance,
+    content_type_conformance,
+    response_schema_conformance,
+    response_headers_conformance,
+]
 NOTIFY_PATHS = ("/v2/notify", "/ngsi-ld/v1/notify")
 # Connection refused at once: /v2/subscribe must not reach out to generated hosts.
 UNREACHABLE_BROKER = "http://127.0.0.1:9/v2"
 
 ROOM = "urn:ngsi-ld:Room:1"
 DATASET = [
-    {"subscriptionId": "s1", "data": [
-        {"id": ROOM, "type": "Room", "temperature": {"type": "Number", "value": 20.5 + i},
-         "state": {"type": "Text", "value": "open" if i % 2 else "closed"},
-         "on": {"type": "Boolean", "value": i % 2 == 0},
-         "odom": {"type": "StructuredValue", "value": {"twist": {"linear": {"x": i / 10}}}},
-         "location": {"type": "geo:json", "value": {"type": "Point", "coordinates": [13.4 + i / 1000, 52.5]}},
-         "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:0{i}:00Z"}}
-        for i in range(5)]},
-    {"subscriptionId": "s1", "data": [
-        {"id": "urn:ngsi-ld:Room:2", "type": "Room", "temperature": {"type": "Number", "value": 18},
-         "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"}},
-        {"id": "Lawnmower01", "type": "ROS2System", "speed": {"type": "Number", "value": 0.4},
-         "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:30Z"}}]},
-]  # fmt: skip
-KNOWN_PATH = {"entity_id": ROOM, "entity_type": "Room", "attr_name": "temperature", "use_case": "lawnmower",
-              "subscription_id": "s1", "attr_id": "temperature",
-              "instance_id": "urn:ngsi-ld:attribute:instance:0000000000000001"}  # fmt: skip
+    {
+        "subscriptionId": "s1",
+        "data": [
+            {
+                "id": ROOM,
+                "type": "Room",
+                "temperature": {"type": "Number", "value": 20.5 + i},
+                "state": {"type": "Text", "value": "open" if i % 2 else "closed"},
+                "on": {"type": "Boolean", "value": i % 2 == 0},
+                "odom": {"type": "StructuredValue", "value": {"twist": {"linear": {"x": i / 10}}}},
+                "location": {"type": "geo:json", "value": {"type": "Point", "coordinates": [13.4 + i / 1000, 52.5]}},
+                "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:0{i}:00Z"},
+            }
+            for i in range(5)
+        ],
+    },
+    {
+        "subscriptionId": "s1",
+        "data": [
+            {
+                "id": "urn:ngsi-ld:Room:2",
+                "type": "Room",
+                "temperature": {"type": "Number", "value": 18},
+                "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"},
+            },
+            {
+                "id": "Lawnmower01",
+                "type": "ROS2System",
+                "speed": {"type": "Number", "value": 0.4},
+                "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:30Z"},
+            },
+        ],
+    },
+]
+KNOWN_PATH = {
+    "entity_id": ROOM,
+    "entity_type": "Room",
+    "attr_name": "temperature",
+    "use_case": "lawnmower",
+    "subscription_id": "s1",
+    "attr_id": "temperature",
+    "instance_id": "urn:ngsi-ld:attribute:instance:0000000000000001",
+}
 
 
 @dataclass
@@ -111,8 +143,10 @@ def test_fuzz_the_openapi_description(fuzz_app):
     if not checked_durability:
         _check_acknowledged_readable(app, client, tally)
     elapsed = time.monotonic() - started
-    print(f"\nfuzzed {tally.operations} operations with {tally.examples} examples in {elapsed:.1f} s; "
-          f"statuses {dict(sorted(tally.statuses.items()))}; {len(tally.acked)} notifications acknowledged")
+    print(
+        f"\nfuzzed {tally.operations} operations with {tally.examples} examples in {elapsed:.1f} s; "
+        f"statuses {dict(sorted(tally.statuses.items()))}; {len(tally.acked)} notifications acknowledged"
+    )
     assert tally.operations >= 45
     if tally.failures and os.environ.get("TSDB_FUZZ_TRACE"):
         with open(os.environ["TSDB_FUZZ_TRACE"], "w") as out:
@@ -130,10 +164,15 @@ def _fuzz(operation, app, client, tally: Tally) -> None:
             continue
 
         @hypothesis.settings(
-            max_examples=EXAMPLES * (2 if operation.path in NOTIFY_PATHS else 1), derandomize=True, database=None, deadline=None,
-            phases=[Phase.explicit, Phase.generate], suppress_health_check=list(HealthCheck),
-            report_multiple_bugs=False, verbosity=hypothesis.Verbosity.quiet,
-        )  # fmt: skip
+            max_examples=EXAMPLES * (2 if operation.path in NOTIFY_PATHS else 1),
+            derandomize=True,
+            database=None,
+            deadline=None,
+            phases=[Phase.explicit, Phase.generate],
+            suppress_health_check=list(HealthCheck),
+            report_multiple_bugs=False,
+            verbosity=hypothesis.Verbosity.quiet,
+        )
         @hypothesis.given(case=strategy)
         def run(case):
             tally.examples += 1
@@ -148,7 +187,7 @@ def _fuzz(operation, app, client, tally: Tally) -> None:
             run()
         except hypothesis.errors.Unsatisfiable:
             pass  # nothing to break in this operation (no parameters, no body)
-        except (Exception, BaseExceptionGroup) as exc:  # noqa: BLE001 - collected, reported below
+        except (Exception, BaseExceptionGroup) as exc:
             tally.failures.append(f"{operation.method.upper()} {operation.path} ({mode.value}): {exc}")
         if os.environ.get("TSDB_FUZZ_TRACE"):
             print(f"{time.monotonic() - t0:6.2f}s {operation.method.upper()} {operation.path} {mode.value}")
@@ -159,7 +198,7 @@ def _strategy(operation, mode: GenerationMode):
     fixed = {"query": {"orionUrl": UNREACHABLE_BROKER}} if operation.path == "/v2/subscribe" else {}
     try:
         free = operation.as_strategy(generation_mode=mode, **fixed)
-    except Exception:  # noqa: BLE001 - nothing to negate in this operation
+    except Exception:
         return None
     if not names:
         return free
@@ -202,5 +241,7 @@ def _read_back(client, sample, attr, *, fell_back: bool, tally: Tally) -> None:
         return
     doc = r.json()
     if expected not in doc["values"] or (not fell_back and iso_ms(sample.time_index) not in doc["index"]):
-        tally.failures.append(f"acknowledged sample read back differently: {where}: sent {expected!r}, "
-                              f"read {doc['values'][:5]!r} at {doc['index'][:5]!r}")
+        tally.failures.append(
+            f"acknowledged sample read back differently: {where}: sent {expected!r}, "
+            f"read {doc['values'][:5]!r} at {doc['index'][:5]!r}"
+        )

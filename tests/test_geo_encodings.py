@@ -6,7 +6,12 @@ import json
 
 import pytest
 
-from tsdb_service.geo.encodings import from_geojson, from_ngsi, looks_like_geojson, parse_lat_lon
+from tsdb_service.geo.encodings import (
+    from_geojson,
+    from_ngsi,
+    looks_like_geojson,
+    parse_lat_lon,
+)
 
 
 def coords(geometry):
@@ -107,12 +112,21 @@ def test_geojson_altitude_kept():
         ({"type": "MultiLineString", "coordinates": [[[0, 0], [0, 2]], [[2, 0], [2, 2]]]}, (1, 1), (0, 0, 2, 2)),
         ({"type": "Polygon", "coordinates": [[[0, 0], [4, 0], [4, 2], [0, 2], [0, 0]]]}, (2, 1), (0, 0, 4, 2)),
         (
-            {"type": "MultiPolygon", "coordinates": [[[[0, 0], [1, 0], [1, 1], [0, 1], [0, 0]]], [[[2, 0], [3, 0], [3, 1], [2, 1], [2, 0]]]]},
+            {
+                "type": "MultiPolygon",
+                "coordinates": [[[[0, 0], [1, 0], [1, 1], [0, 1], [0, 0]]], [[[2, 0], [3, 0], [3, 1], [2, 1], [2, 0]]]],
+            },
             (1.5, 0.5),
             (0, 0, 3, 1),
         ),
         (
-            {"type": "GeometryCollection", "geometries": [{"type": "Point", "coordinates": [5, 5]}, {"type": "Polygon", "coordinates": [[[0, 0], [2, 0], [2, 2], [0, 2], [0, 0]]]}]},
+            {
+                "type": "GeometryCollection",
+                "geometries": [
+                    {"type": "Point", "coordinates": [5, 5]},
+                    {"type": "Polygon", "coordinates": [[[0, 0], [2, 0], [2, 2], [0, 2], [0, 0]]]},
+                ],
+            },
             (1, 1),
             (0, 0, 5, 5),
         ),

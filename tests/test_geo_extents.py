@@ -46,8 +46,9 @@ def test_verdicts_hold_for_every_position_inside(lat, georel, geometry, coords):
     rnd = random.Random(f"{lat}{georel}")
     lon = 10.0
     stretch = 1 / math.cos(math.radians(lat))  # the same metres east-west at every latitude
-    query = coords.format(lat=lat, lon=lon, lat0=lat - 0.005, lon0=lon - 0.007 * stretch, lat1=lat + 0.006,
-                          lon1=lon + 0.008 * stretch)
+    query = coords.format(
+        lat=lat, lon=lon, lat0=lat - 0.005, lon0=lon - 0.007 * stretch, lat1=lat + 0.006, lon1=lon + 0.008 * stretch
+    )
     geo = parse_geo(georel, geometry, query)
     boxes = []
     for _ in range(300):  # boxes of 0..0.02°: small and not, straddling the thresholds

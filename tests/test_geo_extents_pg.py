@@ -16,8 +16,10 @@ import os
 import psycopg
 import pytest
 
-pytestmark = pytest.mark.skipif("postgresql" not in os.environ.get("TSDB_TEST_BACKENDS", "postgresql"),
-                                reason="PostgreSQL is not among TSDB_TEST_BACKENDS")
+pytestmark = pytest.mark.skipif(
+    "postgresql" not in os.environ.get("TSDB_TEST_BACKENDS", "postgresql"),
+    reason="PostgreSQL is not among TSDB_TEST_BACKENDS",
+)
 
 AREA = "georel=coveredBy&geometry=box&coords=41.370,2.170;41.380,2.185"
 NEAR_FAR = "georel=near;maxDistance:500&geometry=point&coords=41.4500,2.2500"
@@ -25,9 +27,12 @@ INSIDE, FAR = (41.375, 2.178), (41.450, 2.250)
 
 
 def _note(eid: str, minute: int, where: tuple[float, float] | None, reading: float) -> dict:
-    entity = {"id": eid, "type": "Robot",
-              "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:{minute:02d}:00Z"},
-              "speed": {"type": "Number", "value": reading}}
+    entity = {
+        "id": eid,
+        "type": "Robot",
+        "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:{minute:02d}:00Z"},
+        "speed": {"type": "Number", "value": reading},
+    }
     if where is not None:
         entity["location"] = {"type": "geo:point", "value": f"{where[0]}, {where[1]}"}
     return {"data": [entity]}
@@ -83,8 +88,7 @@ def test_parked_inside_matches_from_its_first_position(pg_cluster, client_factor
         for minute in range(1, 5):
             notify(client, _note("r1", minute, INSIDE if minute % 2 else None, float(minute)))
         assert _readings(client, AREA) == [1.0, 2.0, 3.0, 4.0]
-        response = client.delete("/v2/entities/r1?type=Robot&fromDate=2024-05-01T10:00:30Z"
-                                 "&toDate=2024-05-01T10:01:30Z")
+        response = client.delete("/v2/entities/r1?type=Robot&fromDate=2024-05-01T10:00:30Z&toDate=2024-05-01T10:01:30Z")
         assert response.status_code == 204, response.text
         # The first position is gone; the next one (minute 3) starts the match.
         assert _readings(client, AREA) == [3.0, 4.0]

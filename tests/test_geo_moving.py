@@ -43,8 +43,10 @@ OUTSIDE = "41.3900, 2.1000"
 
 
 def _note(eid: str, etype: str, t: str, **attrs) -> dict:
-    return {"subscriptionId": "geo-moving",
-            "data": [{"id": eid, "type": etype, "TimeInstant": {"type": "DateTime", "value": t}, **attrs}]}
+    return {
+        "subscriptionId": "geo-moving",
+        "data": [{"id": eid, "type": etype, "TimeInstant": {"type": "DateTime", "value": t}, **attrs}],
+    }
 
 
 def _point(text: str | None) -> dict:
@@ -64,10 +66,20 @@ def moving(client_factory, store_url_factory, notify):
                 extra = {"location": _point(PARKED)} if i == 0 else {}
                 notify(client, _note("robot-2", "Robot", t, temperature=_number(20 + i // 2), **extra))
             notify(client, _note("robot-3", "Robot", t, location=_point(f"41.40{i}0, 2.1000"), temperature=_number(10)))
-            notify(client, _note("drone-1", "Drone", t, gps=_point(PARKED if i == 0 else ROBOT_1_PATH[4]),
-                                 home=_point("41.3874, 2.1686"), altitude=_number(100 + i)))
-        notify(client, _note("drone-2", "Drone", T[0], location=_point(OUTSIDE), aaa=_point(PARKED),
-                             altitude=_number(50)))
+            notify(
+                client,
+                _note(
+                    "drone-1",
+                    "Drone",
+                    t,
+                    gps=_point(PARKED if i == 0 else ROBOT_1_PATH[4]),
+                    home=_point("41.3874, 2.1686"),
+                    altitude=_number(100 + i),
+                ),
+            )
+        notify(
+            client, _note("drone-2", "Drone", T[0], location=_point(OUTSIDE), aaa=_point(PARKED), altitude=_number(50))
+        )
         _rovers(client, notify)
         yield client
 
@@ -119,24 +131,38 @@ def test_scene_geometry():
 def test_a_robot_that_left_keeps_its_samples_inside(moving):
     """robot-1 drove through AREA and left: its readings taken inside."""
     assert get(moving, f"/v2/entities/robot-1/attrs/temperature?{AREA}") == {
-        "id": "robot-1", "type": "Robot", "attrName": "temperature", "index": IDX[1:3], "values": [31.0, 32.0]}
+        "id": "robot-1",
+        "type": "Robot",
+        "attrName": "temperature",
+        "index": IDX[1:3],
+        "values": [31.0, 32.0],
+    }
     assert get(moving, f"/v2/entities/robot-1/attrs/location?{AREA}")["values"] == ROBOT_1_PATH[1:3]
 
 
 def test_samples_without_location_use_the_previous_one(moving):
     """robot-2's only location is from t0: its later readings were taken there."""
     assert get(moving, f"/v2/types/Robot/attrs/temperature?{AREA}") == {
-        "type": "Robot", "attrName": "temperature", "entities": [
+        "type": "Robot",
+        "attrName": "temperature",
+        "entities": [
             {"id": "robot-1", "index": IDX[1:3], "values": [31.0, 32.0]},
             {"id": "robot-2", "index": [IDX[0], IDX[2], IDX[4]], "values": [20.0, 21.0, 22.0]},
-        ]}
+        ],
+    }
 
 
 def test_entities_list_every_entity_with_a_matching_sample(moving):
     """The index is the entity's latest matching sample."""
     found = {e["id"]: e["index"] for e in get(moving, f"/v2/entities?{AREA}")}
-    assert found == {"robot-1": IDX[2], "robot-2": IDX[4], "drone-1": IDX[0], "rover-1": IDX[1],
-                     "rover-2": IDX[1], "rover-3": IDX[1]}
+    assert found == {
+        "robot-1": IDX[2],
+        "robot-2": IDX[4],
+        "drone-1": IDX[0],
+        "rover-1": IDX[1],
+        "rover-2": IDX[1],
+        "rover-3": IDX[1],
+    }
     assert ids(moving, f"/v2/entities?type=Robot&{PL_CATALUNYA}") == {"robot-1"}
     assert ids(moving, f"/v2/entities?{PL_CATALUNYA}") == {"robot-1", "drone-1"}
 
@@ -159,10 +185,13 @@ def test_location_before_fromDate_counts(moving):
     """fromDate=t2: robot-2's location (t0) is from before the window; its
     readings in the window were still taken inside."""
     assert get(moving, f"/v2/types/Robot/attrs/temperature?{AREA}&fromDate={T[2]}&toDate={T[4]}") == {
-        "type": "Robot", "attrName": "temperature", "entities": [
+        "type": "Robot",
+        "attrName": "temperature",
+        "entities": [
             {"id": "robot-1", "index": [IDX[2]], "values": [32.0]},
             {"id": "robot-2", "index": [IDX[2], IDX[4]], "values": [21.0, 22.0]},
-        ]}
+        ],
+    }
     assert ids(moving, f"/v2/entities?type=Robot&{AREA}&fromDate={T[3]}") == {"robot-2"}
 
 
@@ -170,19 +199,32 @@ def test_lastN_counts_matching_samples(moving):
     """lastN applies after the filter: robot-1's newest samples (t3, t4) are
     outside, its newest matching one is t2."""
     assert get(moving, f"/v2/entities/robot-1/attrs/temperature?{AREA}&lastN=1") == {
-        "id": "robot-1", "type": "Robot", "attrName": "temperature", "index": [IDX[2]], "values": [32.0]}
+        "id": "robot-1",
+        "type": "Robot",
+        "attrName": "temperature",
+        "index": [IDX[2]],
+        "values": [32.0],
+    }
     assert get(moving, f"/v2/entities/robot-1/attrs/location?{PL_CATALUNYA}&lastN=3") == {
-        "id": "robot-1", "type": "Robot", "attrName": "location", "index": [IDX[4]], "values": [ROBOT_1_PATH[4]]}
+        "id": "robot-1",
+        "type": "Robot",
+        "attrName": "location",
+        "index": [IDX[4]],
+        "values": [ROBOT_1_PATH[4]],
+    }
 
 
 def test_lastN_across_entities(moving):
     """Newest first over the whole answer: robot-2 at t4 and t2, then robot-1
     at t2 (it arrived before robot-2's notification of the same time)."""
     assert get(moving, f"/v2/types/Robot/attrs/temperature?{AREA}&lastN=3") == {
-        "type": "Robot", "attrName": "temperature", "entities": [
+        "type": "Robot",
+        "attrName": "temperature",
+        "entities": [
             {"id": "robot-1", "index": [IDX[2]], "values": [32.0]},
             {"id": "robot-2", "index": [IDX[2], IDX[4]], "values": [21.0, 22.0]},
-        ]}
+        ],
+    }
 
 
 def test_limit_and_offset_count_matching_samples(moving):
@@ -197,11 +239,15 @@ def test_limit_and_offset_count_matching_samples(moving):
 def test_every_attribute_of_an_entity(moving):
     """All attributes of the rows taken inside (one notification = one row)."""
     assert get(moving, f"/v2/entities/robot-1?{AREA}") == {
-        "id": "robot-1", "type": "Robot", "index": IDX[1:3], "attributes": [
+        "id": "robot-1",
+        "type": "Robot",
+        "index": IDX[1:3],
+        "attributes": [
             {"attrName": "TimeInstant", "values": T[1:3]},
             {"attrName": "location", "values": ROBOT_1_PATH[1:3]},
             {"attrName": "temperature", "values": [31.0, 32.0]},
-        ]}
+        ],
+    }
 
 
 @pytest.mark.parametrize(
@@ -241,8 +287,12 @@ def test_first_geo_attribute_by_name_when_no_location(moving):
     Plaça de Catalunya) is not its location."""
     assert get(moving, f"/v2/entities/drone-1/attrs/altitude?{AREA}")["values"] == [100.0]
     assert get(moving, f"/v2/entities/drone-1/attrs/altitude?{PL_CATALUNYA}") == {
-        "id": "drone-1", "type": "Drone", "attrName": "altitude", "index": IDX[1:], "values": [101.0, 102.0, 103.0,
-                                                                                               104.0]}
+        "id": "drone-1",
+        "type": "Drone",
+        "attrName": "altitude",
+        "index": IDX[1:],
+        "values": [101.0, 102.0, 103.0, 104.0],
+    }
     assert get(moving, f"/v2/entities/drone-1/attrs/altitude?{PL_CATALUNYA}&lastN=2")["values"] == [103.0, 104.0]
 
 
@@ -281,12 +331,20 @@ def test_entity_scope_returns_the_whole_history(moving):
     """robot-1 is near Plaça de Catalunya now: its latest 3 locations come
     back, though two of them are far from it."""
     assert get(moving, f"/v2/entities/robot-1/attrs/location?{PL_CATALUNYA}&lastN=3&{ENTITY}") == {
-        "id": "robot-1", "type": "Robot", "attrName": "location", "index": IDX[2:], "values": ROBOT_1_PATH[2:]}
+        "id": "robot-1",
+        "type": "Robot",
+        "attrName": "location",
+        "index": IDX[2:],
+        "values": ROBOT_1_PATH[2:],
+    }
     assert get(moving, f"/v2/types/Robot/attrs/location?{AREA}&toDate={T[2]}&lastN=4&{ENTITY}") == {
-        "type": "Robot", "attrName": "location", "entities": [
+        "type": "Robot",
+        "attrName": "location",
+        "entities": [
             {"id": "robot-1", "index": IDX[:3], "values": ROBOT_1_PATH[:3]},
             {"id": "robot-2", "index": [IDX[0]], "values": [PARKED]},
-        ]}
+        ],
+    }
 
 
 def test_entity_scope_fallback_attribute(moving):
@@ -294,4 +352,6 @@ def test_entity_scope_fallback_attribute(moving):
     assert ids(moving, f"/v2/types/Drone?{AREA}&toDate={T[0]}&{ENTITY}") == {"drone-1"}
     assert ids(moving, f"/v2/types/Drone?{PL_CATALUNYA}&toDate={T[0]}&{ENTITY}") == set()  # home is there, gps not
     assert get(moving, f"/v2/entities/drone-1/attrs/altitude?{PL_CATALUNYA}&lastN=2&{ENTITY}")["values"] == [
-        103.0, 104.0]
+        103.0,
+        104.0,
+    ]

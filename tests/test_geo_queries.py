@@ -31,8 +31,12 @@ IDX = "2024-05-01T10:00:00.000+00:00"
 
 
 def _v2(eid: str, etype: str, location: dict | None, temperature: float) -> dict:
-    entity = {"id": eid, "type": etype, "TimeInstant": {"type": "DateTime", "value": T0},
-              "temperature": {"type": "Number", "value": temperature}}
+    entity = {
+        "id": eid,
+        "type": etype,
+        "TimeInstant": {"type": "DateTime", "value": T0},
+        "temperature": {"type": "Number", "value": temperature},
+    }
     if location is not None:
         entity["location"] = location
     return {"subscriptionId": "geo-golden", "data": [entity]}
@@ -50,8 +54,12 @@ CIBELES_GEOJSON = {"type": "Point", "coordinates": [-3.6932, 40.4193]}
 CENTRO_RING = ["40.4140, -3.7080", "40.4140, -3.7000", "40.4190, -3.7000", "40.4190, -3.7080", "40.4140, -3.7080"]
 RETIRO_PARK_BOX = ["40.4080, -3.6900", "40.4200, -3.6760"]
 GRAN_VIA = ["40.4200, -3.7100", "40.4200, -3.6980"]
-PLAZA_MAYOR = {"type": "Polygon", "coordinates": [[[-3.7078, 40.4150], [-3.7068, 40.4150], [-3.7068, 40.4160],
-                                                   [-3.7078, 40.4160], [-3.7078, 40.4150]]]}
+PLAZA_MAYOR = {
+    "type": "Polygon",
+    "coordinates": [
+        [[-3.7078, 40.4150], [-3.7068, 40.4150], [-3.7068, 40.4160], [-3.7078, 40.4160], [-3.7078, 40.4150]]
+    ],
+}
 
 # id -> (type, location attribute or None, temperature)
 NGSIV2_ENTITIES = {
@@ -82,12 +90,14 @@ LD_NOTIFICATION = {
     "id": "urn:ngsi-ld:Notification:geo-golden",
     "type": "Notification",
     "notifiedAt": T0,
-    "data": [{
-        "id": LD_ID,
-        "type": "Sensor",
-        "location": {"type": "GeoProperty", "value": CIBELES_GEOJSON},
-        "temperature": {"type": "Property", "value": 20.5, "observedAt": T0},
-    }],
+    "data": [
+        {
+            "id": LD_ID,
+            "type": "Sensor",
+            "location": {"type": "GeoProperty", "value": CIBELES_GEOJSON},
+            "temperature": {"type": "Property", "value": 20.5, "observedAt": T0},
+        }
+    ],
 }
 
 CIBELES = LD_ID
@@ -103,53 +113,89 @@ NORTH_OF_GRAN_VIA = "40.4218,-3.7020"  # 200 m north of Gran Via, 311 m from the
 # (case id, georel, geometry, coords, expected ids)
 CASES = [
     # near: point only. Distances to stored lines/areas are to their nearest point.
-    ("near-max-helsinki-60N", "near;maxDistance:1000", "point", HEL,
-     {"hel-centre", "hel-east", "hel-ne", "hel-north"}),
-    ("near-min-helsinki-60N", "near;minDistance:1000", "point", HEL,
-     LOCATED - {"hel-centre", "hel-east", "hel-ne", "hel-north"}),
+    ("near-max-helsinki-60N", "near;maxDistance:1000", "point", HEL, {"hel-centre", "hel-east", "hel-ne", "hel-north"}),
+    (
+        "near-min-helsinki-60N",
+        "near;minDistance:1000",
+        "point",
+        HEL,
+        LOCATED - {"hel-centre", "hel-east", "hel-ne", "hel-north"},
+    ),
     ("near-max-min", "near;maxDistance:1000;minDistance:900", "point", HEL, {"hel-ne", "hel-north"}),
     ("near-min-max", "near;minDistance:900;maxDistance:1000", "point", HEL, {"hel-ne", "hel-north"}),
     ("near-max-250-line", "near;maxDistance:250", "point", NORTH_OF_GRAN_VIA, {"granvia"}),
     ("near-max-350-line-polygon", "near;maxDistance:350", "point", NORTH_OF_GRAN_VIA, {"granvia", "centro"}),
     ("near-max-700", "near;maxDistance:700", "point", NORTH_OF_GRAN_VIA, {"granvia", "centro", "callao", "sol"}),
-    ("near-min-max-ring-madrid", "near;minDistance:300;maxDistance:700", "point", NORTH_OF_GRAN_VIA,
-     {"centro", "callao", "sol"}),
+    (
+        "near-min-max-ring-madrid",
+        "near;minDistance:300;maxDistance:700",
+        "point",
+        NORTH_OF_GRAN_VIA,
+        {"centro", "callao", "sol"},
+    ),
     ("near-inside-box-is-distance-0", "near;maxDistance:1", "point", "40.4100,-3.6800", {"retiro-park"}),
     ("near-max-0-exact-point", "near;maxDistance:0", "point", "40.4153,-3.6845", {"retiro", "retiro-park"}),
     # coveredBy: the stored geometry lies inside the query geometry (boundary included)
     ("coveredBy-point", "coveredBy", "point", SOL, {"sol"}),
     ("coveredBy-line", "coveredBy", "line", "40.4200,-3.7150;40.4200,-3.6900", {"granvia", "callao"}),
     ("coveredBy-polygon", "coveredBy", "polygon", PENTAGON, {"sol", "callao", "granvia", "centro", "plaza-mayor"}),
-    ("coveredBy-box", "coveredBy", "box", "40.405,-3.695;40.425,-3.670",
-     {"retiro", "retiro-park", CIBELES, "atocha"}),
-    ("coveredBy-box-60N", "coveredBy", "box", "60.16,24.92;60.1786,24.955",
-     {"hel-centre", "hel-east", "hel-ne", "hel-north"}),
+    ("coveredBy-box", "coveredBy", "box", "40.405,-3.695;40.425,-3.670", {"retiro", "retiro-park", CIBELES, "atocha"}),
+    (
+        "coveredBy-box-60N",
+        "coveredBy",
+        "box",
+        "60.16,24.92;60.1786,24.955",
+        {"hel-centre", "hel-east", "hel-ne", "hel-north"},
+    ),
     # intersects
     ("intersects-point", "intersects", "point", "40.4200,-3.7060", {"callao", "granvia"}),
     ("intersects-line", "intersects", "line", NS_LINE, {"granvia", "centro"}),
-    ("intersects-polygon", "intersects", "polygon", "40.4150,-3.6950;40.4250,-3.6950;40.4250,-3.6800;40.4150,-3.6950",
-     {CIBELES, "retiro-park"}),
+    (
+        "intersects-polygon",
+        "intersects",
+        "polygon",
+        "40.4150,-3.6950;40.4250,-3.6950;40.4250,-3.6800;40.4150,-3.6950",
+        {CIBELES, "retiro-park"},
+    ),
     ("intersects-box", "intersects", "box", "40.4150,-3.7010;40.4250,-3.6990", {"centro", "granvia"}),
     # equals: topological equality (any vertex order / orientation / corner order)
     ("equals-point", "equals", "point", "40.4153,-3.6845", {"retiro"}),
     ("equals-point-ld", "equals", "point", "40.4193,-3.6932", {CIBELES}),
     ("equals-line-reversed", "equals", "line", "40.4200,-3.6980;40.4200,-3.7100", {"granvia"}),
-    ("equals-polygon-rotated-reversed", "equals", "polygon",
-     "40.4190,-3.7000;40.4140,-3.7000;40.4140,-3.7080;40.4190,-3.7080;40.4190,-3.7000", {"centro"}),
-    ("equals-polygon-geojson", "equals", "polygon",
-     "40.4150,-3.7078;40.4150,-3.7068;40.4160,-3.7068;40.4160,-3.7078;40.4150,-3.7078", {"plaza-mayor"}),
+    (
+        "equals-polygon-rotated-reversed",
+        "equals",
+        "polygon",
+        "40.4190,-3.7000;40.4140,-3.7000;40.4140,-3.7080;40.4190,-3.7080;40.4190,-3.7000",
+        {"centro"},
+    ),
+    (
+        "equals-polygon-geojson",
+        "equals",
+        "polygon",
+        "40.4150,-3.7078;40.4150,-3.7068;40.4160,-3.7068;40.4160,-3.7078;40.4150,-3.7078",
+        {"plaza-mayor"},
+    ),
     ("equals-box-swapped-corners", "equals", "box", "40.4200,-3.6760;40.4080,-3.6900", {"retiro-park"}),
     # disjoint: every located entity that does not intersect (never the Room without location)
     ("disjoint-point", "disjoint", "point", SOL, LOCATED - {"sol", "centro"}),
     ("disjoint-line", "disjoint", "line", NS_LINE, LOCATED - {"granvia", "centro"}),
-    ("disjoint-polygon", "disjoint", "polygon", PENTAGON,
-     LOCATED - {"sol", "callao", "granvia", "centro", "plaza-mayor"}),
+    (
+        "disjoint-polygon",
+        "disjoint",
+        "polygon",
+        PENTAGON,
+        LOCATED - {"sol", "callao", "granvia", "centro", "plaza-mayor"},
+    ),
     ("disjoint-box-helsinki", "disjoint", "box", "60.16,24.92;60.19,24.97", LOCATED - HELSINKI),
 ]
 
 # What NGSIv2 allows: near with point; the four others with every geometry.
-ALLOWED = {("near", "point")} | {(rel, geom) for rel in ("coveredBy", "intersects", "equals", "disjoint")
-                                  for geom in ("point", "line", "polygon", "box")}
+ALLOWED = {("near", "point")} | {
+    (rel, geom)
+    for rel in ("coveredBy", "intersects", "equals", "disjoint")
+    for geom in ("point", "line", "polygon", "box")
+}
 
 
 def geo(georel: str, geometry: str, coords: str) -> str:
@@ -182,12 +228,17 @@ def test_cases_cover_every_allowed_combination():
     covered = {(georel.split(";")[0], geometry) for _id, georel, geometry, _c, _e in CASES}
     assert covered == ALLOWED
     modifiers = {georel for _id, georel, *_ in CASES if georel.startswith("near")}
-    assert {"near;maxDistance:1000", "near;minDistance:1000", "near;maxDistance:1000;minDistance:900",
-            "near;minDistance:900;maxDistance:1000"} <= modifiers
+    assert {
+        "near;maxDistance:1000",
+        "near;minDistance:1000",
+        "near;maxDistance:1000;minDistance:900",
+        "near;minDistance:900;maxDistance:1000",
+    } <= modifiers
 
 
-@pytest.mark.parametrize(("georel", "geometry", "coords", "expected"),
-                         [pytest.param(*case[1:], id=case[0]) for case in CASES])
+@pytest.mark.parametrize(
+    ("georel", "geometry", "coords", "expected"), [pytest.param(*case[1:], id=case[0]) for case in CASES]
+)
 def test_georel_geometry(geo_client, georel, geometry, coords, expected):
     assert entity_ids(geo_client, geo(georel, geometry, coords)) == set(expected)
 
@@ -234,72 +285,194 @@ NEAR_700 = geo("near;maxDistance:700", "point", NORTH_OF_GRAN_VIA)  # sol, calla
 BOX_EAST = geo("coveredBy", "box", "40.405,-3.695;40.425,-3.670")  # retiro, atocha, cibeles, retiro-park
 
 GOLDEN = [
-    ("entities", f"/v2/entities?{NEAR_700}", [
-        {"id": "callao", "type": "Sensor", "index": IDX},  # the page listed by id
-        {"id": "centro", "type": "Zone", "index": IDX},
-        {"id": "granvia", "type": "Street", "index": IDX},
-        {"id": "sol", "type": "Sensor", "index": IDX},
-    ]),
-    ("entities-type", f"/v2/entities?type=Sensor&{NEAR_700}", [
-        {"id": "callao", "type": "Sensor", "index": IDX},
-        {"id": "sol", "type": "Sensor", "index": IDX},
-    ]),
-    ("type-attr-location-raw", f"/v2/types/Sensor/attrs/location?{BOX_EAST}", {
-        "type": "Sensor", "attrName": "location", "entities": [
-            {"id": "atocha", "index": [IDX], "values": ["40.4066, -3.6892"]},
-            {"id": "retiro", "index": [IDX], "values": ["40.4153, -3.6845"]},
-            {"id": CIBELES, "index": [IDX], "values": [CIBELES_GEOJSON]},
-        ]}),
-    ("type-attr-value", f"/v2/types/Sensor/attrs/temperature/value?{NEAR_700}", {
-        "values": [{"id": "callao", "index": [IDX], "values": [22.0]},
-                   {"id": "sol", "index": [IDX], "values": [21.0]}]}),
-    ("type-attr", f"/v2/types/Zone/attrs/location?{NEAR_700}", {
-        "type": "Zone", "attrName": "location", "entities": [
-            {"id": "centro", "index": [IDX], "values": [CENTRO_RING]}]}),
-    ("type", f"/v2/types/Zone?{BOX_EAST}&attrs=location,temperature", {
-        "type": "Zone", "entities": [
-            {"id": "retiro-park", "index": [IDX], "attributes": [
-                {"attrName": "location", "values": [RETIRO_PARK_BOX]},
-                {"attrName": "temperature", "values": [18.0]}]}]}),
-    ("type-value", f"/v2/types/Street/value?{NEAR_700}&attrs=location", {
-        "values": [{"id": "granvia", "index": [IDX], "attributes": [{"attrName": "location", "values": [GRAN_VIA]}]}]}),
-    ("entity-match", f"/v2/entities/plaza-mayor?{geo('coveredBy', 'polygon', PENTAGON)}&attrs=location", {
-        "id": "plaza-mayor", "type": "Zone", "index": [IDX],
-        "attributes": [{"attrName": "location", "values": [PLAZA_MAYOR]}]}),
+    (
+        "entities",
+        f"/v2/entities?{NEAR_700}",
+        [
+            {"id": "callao", "type": "Sensor", "index": IDX},  # the page listed by id
+            {"id": "centro", "type": "Zone", "index": IDX},
+            {"id": "granvia", "type": "Street", "index": IDX},
+            {"id": "sol", "type": "Sensor", "index": IDX},
+        ],
+    ),
+    (
+        "entities-type",
+        f"/v2/entities?type=Sensor&{NEAR_700}",
+        [
+            {"id": "callao", "type": "Sensor", "index": IDX},
+            {"id": "sol", "type": "Sensor", "index": IDX},
+        ],
+    ),
+    (
+        "type-attr-location-raw",
+        f"/v2/types/Sensor/attrs/location?{BOX_EAST}",
+        {
+            "type": "Sensor",
+            "attrName": "location",
+            "entities": [
+                {"id": "atocha", "index": [IDX], "values": ["40.4066, -3.6892"]},
+                {"id": "retiro", "index": [IDX], "values": ["40.4153, -3.6845"]},
+                {"id": CIBELES, "index": [IDX], "values": [CIBELES_GEOJSON]},
+            ],
+        },
+    ),
+    (
+        "type-attr-value",
+        f"/v2/types/Sensor/attrs/temperature/value?{NEAR_700}",
+        {
+            "values": [
+                {"id": "callao", "index": [IDX], "values": [22.0]},
+                {"id": "sol", "index": [IDX], "values": [21.0]},
+            ]
+        },
+    ),
+    (
+        "type-attr",
+        f"/v2/types/Zone/attrs/location?{NEAR_700}",
+        {
+            "type": "Zone",
+            "attrName": "location",
+            "entities": [{"id": "centro", "index": [IDX], "values": [CENTRO_RING]}],
+        },
+    ),
+    (
+        "type",
+        f"/v2/types/Zone?{BOX_EAST}&attrs=location,temperature",
+        {
+            "type": "Zone",
+            "entities": [
+                {
+                    "id": "retiro-park",
+                    "index": [IDX],
+                    "attributes": [
+                        {"attrName": "location", "values": [RETIRO_PARK_BOX]},
+                        {"attrName": "temperature", "values": [18.0]},
+                    ],
+                }
+            ],
+        },
+    ),
+    (
+        "type-value",
+        f"/v2/types/Street/value?{NEAR_700}&attrs=location",
+        {"values": [{"id": "granvia", "index": [IDX], "attributes": [{"attrName": "location", "values": [GRAN_VIA]}]}]},
+    ),
+    (
+        "entity-match",
+        f"/v2/entities/plaza-mayor?{geo('coveredBy', 'polygon', PENTAGON)}&attrs=location",
+        {
+            "id": "plaza-mayor",
+            "type": "Zone",
+            "index": [IDX],
+            "attributes": [{"attrName": "location", "values": [PLAZA_MAYOR]}],
+        },
+    ),
     ("entity-no-match", f"/v2/entities/plaza-mayor?{NEAR_700}", []),
-    ("entity-value", f"/v2/entities/sol/value?{NEAR_700}&attrs=temperature", {
-        "index": [IDX], "attributes": [{"attrName": "temperature", "values": [21.0]}]}),
-    ("entity-attr-match", f"/v2/entities/hel-east/attrs/location?{geo('near;maxDistance:1000', 'point', HEL)}", {
-        "id": "hel-east", "type": "Sensor", "attrName": "location", "index": [IDX],
-        "values": [{"type": "Point", "coordinates": [24.9504, 60.1699]}]}),
+    (
+        "entity-value",
+        f"/v2/entities/sol/value?{NEAR_700}&attrs=temperature",
+        {"index": [IDX], "attributes": [{"attrName": "temperature", "values": [21.0]}]},
+    ),
+    (
+        "entity-attr-match",
+        f"/v2/entities/hel-east/attrs/location?{geo('near;maxDistance:1000', 'point', HEL)}",
+        {
+            "id": "hel-east",
+            "type": "Sensor",
+            "attrName": "location",
+            "index": [IDX],
+            "values": [{"type": "Point", "coordinates": [24.9504, 60.1699]}],
+        },
+    ),
     ("entity-attr-no-match", f"/v2/entities/hel-edge/attrs/location?{geo('near;maxDistance:1000', 'point', HEL)}", []),
-    ("entity-attr-value", f"/v2/entities/{CIBELES}/attrs/temperature/value?{BOX_EAST}", {
-        "index": [IDX], "values": [20.5]}),
-    ("attrs-attr", f"/v2/attrs/temperature?{NEAR_700}", {
-        "attrName": "temperature", "types": [
-            {"type": "Sensor", "entities": [{"id": "callao", "index": [IDX], "values": [22.0]},
-                                            {"id": "sol", "index": [IDX], "values": [21.0]}]},
-            {"type": "Street", "entities": [{"id": "granvia", "index": [IDX], "values": [24.0]}]},
-            {"type": "Zone", "entities": [{"id": "centro", "index": [IDX], "values": [25.0]}]}]}),
-    ("attrs-attr-value", f"/v2/attrs/location/value?{geo('equals', 'box', '40.4200,-3.6760;40.4080,-3.6900')}", {
-        "values": [{"type": "Zone", "entities": [
-            {"id": "retiro-park", "index": [IDX], "values": [RETIRO_PARK_BOX]}]}]}),
-    ("attrs", f"/v2/attrs?{geo('equals', 'line', '40.4200,-3.6980;40.4200,-3.7100')}&attrs=location", {
-        "attrs": [{"attrName": "location", "types": [{"type": "Street", "entities": [
-            {"id": "granvia", "index": [IDX], "values": [GRAN_VIA]}]}]}]}),
-    ("attrs-value", f"/v2/attrs/value?{geo('intersects', 'point', '40.4200,-3.7060')}&attrs=temperature", {
-        "values": [{"attrName": "temperature", "types": [
-            {"type": "Sensor", "entities": [{"id": "callao", "index": [IDX], "values": [22.0]}]},
-            {"type": "Street", "entities": [{"id": "granvia", "index": [IDX], "values": [24.0]}]}]}]}),
-    ("aggregation-global", f"/v2/types/Sensor/attrs/temperature?aggrMethod=avg&aggrScope=global&{NEAR_700}", {
-        "type": "Sensor", "attrName": "temperature", "entities": [
-            {"ids": ["callao", "sol"], "index": [], "values": [21.5]}]}),
-    ("aggregation-per-entity", f"/v2/attrs/temperature?aggrMethod=max&{BOX_EAST}", {
-        "attrName": "temperature", "types": [
-            {"type": "Sensor", "entities": [{"id": "atocha", "index": [], "values": [23.0]},
-                                            {"id": "retiro", "index": [], "values": [19.0]},
-                                            {"id": CIBELES, "index": [], "values": [20.5]}]},
-            {"type": "Zone", "entities": [{"id": "retiro-park", "index": [], "values": [18.0]}]}]}),
+    (
+        "entity-attr-value",
+        f"/v2/entities/{CIBELES}/attrs/temperature/value?{BOX_EAST}",
+        {"index": [IDX], "values": [20.5]},
+    ),
+    (
+        "attrs-attr",
+        f"/v2/attrs/temperature?{NEAR_700}",
+        {
+            "attrName": "temperature",
+            "types": [
+                {
+                    "type": "Sensor",
+                    "entities": [
+                        {"id": "callao", "index": [IDX], "values": [22.0]},
+                        {"id": "sol", "index": [IDX], "values": [21.0]},
+                    ],
+                },
+                {"type": "Street", "entities": [{"id": "granvia", "index": [IDX], "values": [24.0]}]},
+                {"type": "Zone", "entities": [{"id": "centro", "index": [IDX], "values": [25.0]}]},
+            ],
+        },
+    ),
+    (
+        "attrs-attr-value",
+        f"/v2/attrs/location/value?{geo('equals', 'box', '40.4200,-3.6760;40.4080,-3.6900')}",
+        {
+            "values": [
+                {"type": "Zone", "entities": [{"id": "retiro-park", "index": [IDX], "values": [RETIRO_PARK_BOX]}]}
+            ]
+        },
+    ),
+    (
+        "attrs",
+        f"/v2/attrs?{geo('equals', 'line', '40.4200,-3.6980;40.4200,-3.7100')}&attrs=location",
+        {
+            "attrs": [
+                {
+                    "attrName": "location",
+                    "types": [
+                        {"type": "Street", "entities": [{"id": "granvia", "index": [IDX], "values": [GRAN_VIA]}]}
+                    ],
+                }
+            ]
+        },
+    ),
+    (
+        "attrs-value",
+        f"/v2/attrs/value?{geo('intersects', 'point', '40.4200,-3.7060')}&attrs=temperature",
+        {
+            "values": [
+                {
+                    "attrName": "temperature",
+                    "types": [
+                        {"type": "Sensor", "entities": [{"id": "callao", "index": [IDX], "values": [22.0]}]},
+                        {"type": "Street", "entities": [{"id": "granvia", "index": [IDX], "values": [24.0]}]},
+                    ],
+                }
+            ]
+        },
+    ),
+    (
+        "aggregation-global",
+        f"/v2/types/Sensor/attrs/temperature?aggrMethod=avg&aggrScope=global&{NEAR_700}",
+        {
+            "type": "Sensor",
+            "attrName": "temperature",
+            "entities": [{"ids": ["callao", "sol"], "index": [], "values": [21.5]}],
+        },
+    ),
+    (
+        "aggregation-per-entity",
+        f"/v2/attrs/temperature?aggrMethod=max&{BOX_EAST}",
+        {
+            "attrName": "temperature",
+            "types": [
+                {
+                    "type": "Sensor",
+                    "entities": [
+                        {"id": "atocha", "index": [], "values": [23.0]},
+                        {"id": "retiro", "index": [], "values": [19.0]},
+                        {"id": CIBELES, "index": [], "values": [20.5]},
+                    ],
+                },
+                {"type": "Zone", "entities": [{"id": "retiro-park", "index": [], "values": [18.0]}]},
+            ],
+        },
+    ),
     ("no-location-never-matches", f"/v2/types/Room?{geo('disjoint', 'point', SOL)}", []),
 ]
 
@@ -333,16 +506,26 @@ def large_client(client_factory, store_url_factory, notify):
     [
         pytest.param("type=Area&" + geo("intersects", "point", "40.045,-1"), set(), id="5km-north-intersects"),
         pytest.param("type=Area&" + geo("near;maxDistance:1000", "point", "40.045,-1"), set(), id="5km-north-max1000"),
-        pytest.param("type=Area&" + geo("near;minDistance:4900;maxDistance:5100", "point", "40.045,-1"),
-                     {"region", "parallel-road"}, id="5km-north-ring"),
-        pytest.param("type=Area&" + geo("near;minDistance:1000", "point", "40.045,-1"),
-                     {"region", "parallel-road"}, id="5km-north-min1000"),
-        pytest.param("type=Area&" + geo("near;maxDistance:100", "point", "40.0001,-1"),
-                     {"region", "parallel-road"}, id="11m-north-max100"),
+        pytest.param(
+            "type=Area&" + geo("near;minDistance:4900;maxDistance:5100", "point", "40.045,-1"),
+            {"region", "parallel-road"},
+            id="5km-north-ring",
+        ),
+        pytest.param(
+            "type=Area&" + geo("near;minDistance:1000", "point", "40.045,-1"),
+            {"region", "parallel-road"},
+            id="5km-north-min1000",
+        ),
+        pytest.param(
+            "type=Area&" + geo("near;maxDistance:100", "point", "40.0001,-1"),
+            {"region", "parallel-road"},
+            id="11m-north-max100",
+        ),
         pytest.param("type=Area&" + geo("near;minDistance:100", "point", "40.0001,-1"), set(), id="11m-north-min100"),
         pytest.param("type=Planet&" + geo("intersects", "point", "-17,180"), set(), id="antimeridian-intersects"),
-        pytest.param("type=Planet&" + geo("near;maxDistance:100000", "point", "-17,180"), set(),
-                     id="antimeridian-max100km"),
+        pytest.param(
+            "type=Planet&" + geo("near;maxDistance:100000", "point", "-17,180"), set(), id="antimeridian-max100km"
+        ),
     ],
 )
 def test_near_to_large_shapes(large_client, query, expected):

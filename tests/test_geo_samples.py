@@ -76,8 +76,12 @@ QUERIES = {
 
 
 def _post(client, robot: str, t: int, location, reading: float) -> None:
-    entity = {"id": robot, "type": "Robot", "TimeInstant": {"type": "DateTime", "value": _iso(t) + "Z"},
-              "speed": {"type": "Number", "value": reading}}
+    entity = {
+        "id": robot,
+        "type": "Robot",
+        "TimeInstant": {"type": "DateTime", "value": _iso(t) + "Z"},
+        "speed": {"type": "Number", "value": reading},
+    }
     if location is not None:
         entity["location"] = {"type": "geo:json", "value": {"type": "Point", "coordinates": [location[1], location[0]]}}
     assert client.post("/v2/notify", json={"data": [entity]}, headers=H).status_code == 200
@@ -88,9 +92,9 @@ def _expected(model: Model, inside, params: dict) -> dict[str, list]:
     end = params.get("to", 10**9)
     rows = model.matching(inside, start, end)
     if "lastN" in params:
-        rows = rows[max(0, len(rows) - params["lastN"]):]
+        rows = rows[max(0, len(rows) - params["lastN"]) :]
     else:
-        rows = rows[params.get("offset", 0): params.get("offset", 0) + params.get("limit", 10**9)]
+        rows = rows[params.get("offset", 0) : params.get("offset", 0) + params.get("limit", 10**9)]
     out: dict[str, list] = defaultdict(list)
     for t, _k, robot, _loc, reading in rows:
         out[robot].append((_iso(t) + ".000+00:00", reading))
@@ -146,7 +150,7 @@ def test_one_scan_for_many_series(client_factory, store_url_factory, store_url, 
     ``geo_extents`` (GiST) instead of ``sid = ANY``: force that path."""
     if not store_url.startswith("postgresql"):
         pytest.skip("PostgreSQL only")
-    monkeypatch.setattr("tsdb_service.storage.postgres_querier.MANY_SIDS", 0)
+    monkeypatch.setattr("tsdb_service.storage.postgres.querier.MANY_SIDS", 0)
     with client_factory(store_url_factory("geo_samples_scan")) as client:
         _drive(client, random.Random(77), 150)
 
@@ -171,9 +175,11 @@ def _drive(client, rnd: random.Random, steps: int) -> None:
         elif roll < 0.78:
             robot, start = f"R{rnd.randint(0, ROBOTS + 1)}", rnd.randint(0, now)
             end = start + rnd.randint(0, 20)
-            response = client.delete(f"/v2/entities/{robot}", headers=H,
-                                     params={"type": "Robot", "fromDate": _iso(start) + "Z",
-                                             "toDate": _iso(end) + "Z"})
+            response = client.delete(
+                f"/v2/entities/{robot}",
+                headers=H,
+                params={"type": "Robot", "fromDate": _iso(start) + "Z", "toDate": _iso(end) + "Z"},
+            )
             assert response.status_code in (204, 404), response.text
             model.delete(robot, start, end)
         else:

@@ -50,8 +50,11 @@ def _datasources() -> dict[str, dict]:
     out = {}
     for ds in doc["datasources"]:
         json_data, secure = ds.get("jsonData", {}), ds.get("secureJsonData", {})
-        headers = {json_data[f"httpHeaderName{i}"]: secure[f"httpHeaderValue{i}"]
-                   for i in range(1, 10) if f"httpHeaderName{i}" in json_data}  # fmt: skip
+        headers = {
+            json_data[f"httpHeaderName{i}"]: secure[f"httpHeaderValue{i}"]
+            for i in range(1, 10)
+            if f"httpHeaderName{i}" in json_data
+        }
         out[ds["uid"]] = {"url": ds["url"], "headers": headers, "type": ds["type"]}
     return out
 
@@ -217,8 +220,9 @@ def test_every_panel_query_returns_the_fields_it_reads(use_case, views, grafana_
 
 
 def test_the_drone_map_shows_the_drone_and_the_8_sensors_with_readings(views, grafana_server, grafana_http):  # noqa: F811
-    where, panel, target, time_range, max_points = next(v for v in views if v[1] and v[1]["type"] == "geomap"
-                                                        and v[1]["options"]["layers"][0]["type"] == "markers")  # fmt: skip
+    where, panel, target, time_range, max_points = next(
+        v for v in views if v[1] and v[1]["type"] == "geomap" and v[1]["options"]["layers"][0]["type"] == "markers"
+    )
     rows = _run(grafana_http, grafana_server, target, time_range, max_points)
     by_type: dict[str, list] = {}
     for row in rows:
@@ -228,8 +232,9 @@ def test_the_drone_map_shows_the_drone_and_the_8_sensors_with_readings(views, gr
 
 
 def test_the_heatmap_has_many_drone_positions(views, grafana_server, grafana_http):  # noqa: F811
-    where, panel, target, time_range, max_points = next(v for v in views if v[1] and v[1]["type"] == "geomap"
-                                                        and v[1]["options"]["layers"][0]["type"] == "heatmap")  # fmt: skip
+    where, panel, target, time_range, max_points = next(
+        v for v in views if v[1] and v[1]["type"] == "geomap" and v[1]["options"]["layers"][0]["type"] == "heatmap"
+    )
     rows = _run(grafana_http, grafana_server, target, time_range, max_points)
     assert len(rows) > 500 and {row["entity"] for row in rows} == {"urn:ngsiv2:ROS2System:Drone01"}, where
 
@@ -237,10 +242,16 @@ def test_the_heatmap_has_many_drone_positions(views, grafana_server, grafana_htt
 def test_the_contract_catches_a_panel_without_data(views, grafana_server, grafana_http):  # noqa: F811
     """A typo in a value path, or the wrong tenant, leaves a panel empty: the check fails."""
     where, panel, target, time_range, max_points = next(v for v in views if v[1] and v[1]["type"] == "stat")
-    broken = dict(target, url_options=dict(target["url_options"], params=[
-        {"key": p["key"], "value": p["value"].replace("(", "(nope.") if p["key"] == "attrs" else p["value"]}
-        for p in target["url_options"]["params"]
-    ]))  # fmt: skip
+    broken = dict(
+        target,
+        url_options=dict(
+            target["url_options"],
+            params=[
+                {"key": p["key"], "value": p["value"].replace("(", "(nope.") if p["key"] == "attrs" else p["value"]}
+                for p in target["url_options"]["params"]
+            ],
+        ),
+    )
     with pytest.raises(AssertionError, match="No data|missing or always null"):
         _check_columns(where, broken, _run(grafana_http, grafana_server, broken, time_range, max_points))
     other_tenant = dict(target, datasource={**target["datasource"], "uid": "tsdb-drone"})
@@ -268,16 +279,23 @@ def test_series_downsamples_avg_for_numbers_and_last_for_states(grafana_server, 
     cols = "speed=odom(twist.twist.linear.x),state=navigationState(data)"
     raw = _get(grafana_http, "/series", {"id": MOWER, "attrs": cols, "from": start, "to": end, "max_points": 100000})
     assert len(raw) > 1000 and all(set(r) == {"time", "entity", "speed", "state"} for r in raw)
-    few = _get(grafana_http, "/series", {"id": MOWER, "attrs": cols, "from": start, "to": end, "max_points": 20,
-                                         "interval_ms": 1000})  # fmt: skip
+    few = _get(
+        grafana_http,
+        "/series",
+        {"id": MOWER, "attrs": cols, "from": start, "to": end, "max_points": 20, "interval_ms": 1000},
+    )
     assert 2 <= len(few) <= 20
     codes = set(enums.LAWNMOWER_NAVIGATION_STATE)
     assert all(row["state"] in codes for row in few), "states are the last code of each bucket, not averages"
     assert any(row["speed"] not in {r["speed"] for r in raw} for row in few), "speeds are bucket averages"
     mean = sum(r["speed"] for r in raw) / len(raw)
     assert min(r["speed"] for r in few) <= mean <= max(r["speed"] for r in few)
-    wide = _get(grafana_http, "/series", {"type": "RemoteSensor", "attrs": "t=temperature", "layout": "wide",
-                                          "from": _iso(start), "to": _iso(end)}, headers=DRONE_HEADERS)  # fmt: skip
+    wide = _get(
+        grafana_http,
+        "/series",
+        {"type": "RemoteSensor", "attrs": "t=temperature", "layout": "wide", "from": _iso(start), "to": _iso(end)},
+        headers=DRONE_HEADERS,
+    )
     assert set(wide[0]) == {"time", *(f"Sensor0{i} t" for i in range(1, 9))}
 
 
@@ -287,8 +305,12 @@ def _iso(ms: int) -> str:
 
 def test_tenant_as_query_parameters(grafana_http):  # noqa: F811
     by_headers = _get(grafana_http, "/latest", {"attrs": "s=navigationState(data)"})
-    by_params = _get(grafana_http, "/latest", {"attrs": "s=navigationState(data)", "service": "lawnmower",
-                                               "servicepath": "/bosch"}, headers={})  # fmt: skip
+    by_params = _get(
+        grafana_http,
+        "/latest",
+        {"attrs": "s=navigationState(data)", "service": "lawnmower", "servicepath": "/bosch"},
+        headers={},
+    )
     assert by_headers == by_params and len(by_params) == 1
     assert _get(grafana_http, "/latest", {"attrs": "s=navigationState(data)", "servicepath": "/piap"}) == []
 
@@ -303,27 +325,57 @@ def test_states_are_changes_only(grafana_server, grafana_http):  # noqa: F811
 
 def test_events_with_equals_and_positions_with_a_geo_query(grafana_server, grafana_http):  # noqa: F811
     start, end = grafana_server.range_ms
-    reading = _get(grafana_http, "/events", {"id": "urn:ngsiv2:ROS2System:Drone01", "attrs": "m=missionState(data)",
-                                             "equals": "3", "from": start, "to": end}, headers=DRONE_HEADERS)
+    reading = _get(
+        grafana_http,
+        "/events",
+        {
+            "id": "urn:ngsiv2:ROS2System:Drone01",
+            "attrs": "m=missionState(data)",
+            "equals": "3",
+            "from": start,
+            "to": end,
+        },
+        headers=DRONE_HEADERS,
+    )
     assert len(reading) >= 10 and all(r["timeEnd"] >= r["time"] for r in reading)
     field = "40.6050,-3.6905;40.6110,-3.6812"  # the sensor field (lat,lon corners)
-    inside = _get(grafana_http, "/positions", {"georel": "coveredBy", "geometry": "box", "coords": field,
-                                               "from": start, "to": end}, headers=DRONE_HEADERS)  # fmt: skip
+    inside = _get(
+        grafana_http,
+        "/positions",
+        {"georel": "coveredBy", "geometry": "box", "coords": field, "from": start, "to": end},
+        headers=DRONE_HEADERS,
+    )
     assert inside and all(40.6050 <= r["lat"] <= 40.6110 and -3.6905 <= r["lon"] <= -3.6812 for r in inside)
-    latest = _get(grafana_http, "/positions", {"latest": "true", "georel": "coveredBy", "geometry": "box",
-                                               "coords": field}, headers=DRONE_HEADERS)  # fmt: skip
+    latest = _get(
+        grafana_http,
+        "/positions",
+        {"latest": "true", "georel": "coveredBy", "geometry": "box", "coords": field},
+        headers=DRONE_HEADERS,
+    )
     assert {r["name"] for r in latest} >= {f"Sensor0{i}" for i in range(1, 9)}
-    near = _get(grafana_http, "/positions", {"latest": "true", "georel": "near;maxDistance:50", "geometry": "point",
-                                             "coords": "40.603,-3.693"}, headers=DRONE_HEADERS)  # fmt: skip
+    near = _get(
+        grafana_http,
+        "/positions",
+        {"latest": "true", "georel": "near;maxDistance:50", "geometry": "point", "coords": "40.603,-3.693"},
+        headers=DRONE_HEADERS,
+    )
     assert all(r["name"] == "Drone01" for r in near)
 
 
 def test_aggregate_per_entity(grafana_server, grafana_http):  # noqa: F811
-    counts = _get(grafana_http, "/aggregate", {"type": "RemoteSensor", "attrs": "n=temperature", "method": "count"},
-                  headers=DRONE_HEADERS)  # fmt: skip
+    counts = _get(
+        grafana_http,
+        "/aggregate",
+        {"type": "RemoteSensor", "attrs": "n=temperature", "method": "count"},
+        headers=DRONE_HEADERS,
+    )
     assert len(counts) == 8 and sum(r["n"] for r in counts) >= 8 + 15, "installation plus one reading per visit"
-    hourly = _get(grafana_http, "/aggregate", {"type": "RemoteSensor", "attrs": "t=temperature", "period": "hour"},
-                  headers=DRONE_HEADERS)  # fmt: skip
+    hourly = _get(
+        grafana_http,
+        "/aggregate",
+        {"type": "RemoteSensor", "attrs": "t=temperature", "period": "hour"},
+        headers=DRONE_HEADERS,
+    )
     assert all(row["time"].endswith(":00:00.000Z") for row in hourly)
 
 
@@ -353,7 +405,7 @@ def test_aggregate_per_entity(grafana_server, grafana_http):  # noqa: F811
         ("/aggregate", {"attrs": "odom", "period": "week"}),
         ("/events", {"attrs": "perimeterLeft(data)", "limit": "-1"}),
     ],
-)  # fmt: skip
+)
 def test_bad_parameters_are_400_in_the_ngsi_shape(grafana_http, path, params):  # noqa: F811
     doc = _get(grafana_http, path, params, status=400)
     assert set(doc) == {"error", "description"} and doc["description"]

@@ -23,8 +23,7 @@ from urllib.parse import urljoin
 import pytest
 import yaml
 
-from tests.grafana_fixtures import ROOT, grafana_http, grafana_server  # noqa: F401
-from tests.grafana_fixtures import panels_of
+from tests.grafana_fixtures import ROOT, grafana_http, grafana_server, panels_of  # noqa: F401
 from tsdb_service.demo import enums, sites
 from tsdb_service.grafana import dashboards
 
@@ -70,16 +69,24 @@ def test_the_path_subset():
     body = [{"id": "a", "t": {"values": [[{"data": 1.5}, "2024-01-01T00:00:00Z"]]}}]
     assert select(body, "0.t.values.0.0.data") == 1.5
     assert select(body, "0.t.values.1") is _MISSING and select(body, "0.x") is _MISSING
-    target = {"root_selector": "0.t.values", "columns": [{"selector": "1", "text": "time", "type": "timestamp"},
-                                                         {"selector": "0.nope", "text": "v", "type": "number"}]}
+    target = {
+        "root_selector": "0.t.values",
+        "columns": [
+            {"selector": "1", "text": "time", "type": "timestamp"},
+            {"selector": "0.nope", "text": "v", "type": "number"},
+        ],
+    }
     assert frame(body, target) == [{"time": "2024-01-01T00:00:00Z", "v": None}]
 
 
 def _datasource(uid: str) -> dict:
     doc = yaml.safe_load((ROOT / "dashboards" / "provisioning" / "datasources.yaml").read_text())
     ds = next(d for d in doc["datasources"] if d["uid"] == uid)
-    headers = {ds["jsonData"][f"httpHeaderName{i}"]: ds["secureJsonData"][f"httpHeaderValue{i}"]
-               for i in range(1, 10) if f"httpHeaderName{i}" in ds["jsonData"]}  # fmt: skip
+    headers = {
+        ds["jsonData"][f"httpHeaderName{i}"]: ds["secureJsonData"][f"httpHeaderValue{i}"]
+        for i in range(1, 10)
+        if f"httpHeaderName{i}" in ds["jsonData"]
+    }
     return {"headers": headers}
 
 
@@ -97,8 +104,9 @@ def _run(http, server, target: dict, time_range: tuple[int, int]) -> list[dict]:
     assert target["type"] == "json" and target["source"] == "url" and target["parser"] == "backend"
     assert target["url"].startswith("/ngsi-ld/v1/temporal/entities")
     params = [(p["key"], _interpolate(p["value"], *time_range)) for p in target["url_options"]["params"]]
-    response = http.get(urljoin(server.url, target["url"]), params=params,
-                        headers=_datasource(target["datasource"]["uid"])["headers"])  # fmt: skip
+    response = http.get(
+        urljoin(server.url, target["url"]), params=params, headers=_datasource(target["datasource"]["uid"])["headers"]
+    )
     assert response.status_code == 200, f"{target['url']} {params}: {response.status_code} {response.text[:300]}"
     return frame(response.json(), target)
 
@@ -118,8 +126,12 @@ def _views(server) -> list[tuple[str, dict, dict, tuple[int, int]]]:
     match = re.fullmatch(r"now-(\d+)h", doc["time"]["from"])
     assert match and doc["time"]["to"] == "now"
     time_range = (now - int(match.group(1)) * 3_600_000, now)
-    return [(f"panel {p['id']} {p['title']!r} target {t['refId']}", p, t, time_range)
-            for p in panels_of(doc) if p["type"] != "row" for t in p["targets"]]  # fmt: skip
+    return [
+        (f"panel {p['id']} {p['title']!r} target {t['refId']}", p, t, time_range)
+        for p in panels_of(doc)
+        if p["type"] != "row"
+        for t in p["targets"]
+    ]
 
 
 def _check(where: str, panel: dict, target: dict, rows: list[dict]) -> None:
@@ -165,8 +177,9 @@ def test_what_the_panels_show(grafana_server, grafana_http):  # noqa: F811
     assert len(latest) == 8 and all(row["time"] for row in latest)
     track = rows("Where the drone flew")
     assert len(track) > 100
-    assert all(abs(row["lat"] - sites.DRONE_HOME[0]) < 0.05 and abs(row["lon"] - sites.DRONE_HOME[1]) < 0.05
-               for row in track)  # fmt: skip
+    assert all(
+        abs(row["lat"] - sites.DRONE_HOME[0]) < 0.05 and abs(row["lon"] - sites.DRONE_HOME[1]) < 0.05 for row in track
+    )
 
 
 def test_the_contract_catches_a_wrong_selector(grafana_server, grafana_http):  # noqa: F811

@@ -56,8 +56,10 @@ def _relax_geomap(definitions: dict) -> dict:
     """README quirk 1: geomap view and layer numbers are typed ``integer``;
     Grafana stores floats (lat 48.8566, zoom 3.58, opacity 0.6)."""
     definitions = copy.deepcopy(definitions)
-    for name, props in (("MapViewConfig", ("lat", "lon", "zoom", "minZoom", "maxZoom", "padding")),
-                        ("MapLayerOptions", ("opacity",))):  # fmt: skip
+    for name, props in (
+        ("MapViewConfig", ("lat", "lon", "zoom", "minZoom", "maxZoom", "padding")),
+        ("MapLayerOptions", ("opacity",)),
+    ):
         for prop in props:
             schema = definitions.get(name, {}).get("properties", {}).get(prop)
             if schema is not None and schema.get("type") == "integer":
@@ -73,8 +75,10 @@ def _validator(file: str, definition: str) -> jsonschema.Draft7Validator:
 
 
 def _errors(validator: jsonschema.Draft7Validator, doc, where: str) -> list[str]:
-    return [f"{where}{'/' + '/'.join(map(str, e.absolute_path)) if e.absolute_path else ''}: {e.message[:300]}"
-            for e in validator.iter_errors(doc)]  # fmt: skip
+    return [
+        f"{where}{'/' + '/'.join(map(str, e.absolute_path)) if e.absolute_path else ''}: {e.message[:300]}"
+        for e in validator.iter_errors(doc)
+    ]
 
 
 @needs_schemas
@@ -156,7 +160,7 @@ def test_panels_fit_24_columns_and_do_not_overlap(board):
     for panel in _panels(doc):
         pos = panel["gridPos"]
         assert pos["w"] >= 1 and pos["h"] >= 1, f"{name} panel {panel['id']}: empty gridPos {pos}"
-        assert 0 <= pos["x"] and pos["x"] + pos["w"] <= 24, f"{name} panel {panel['id']}: {pos} exceeds 24 columns"
+        assert pos["x"] >= 0 and pos["x"] + pos["w"] <= 24, f"{name} panel {panel['id']}: {pos} exceeds 24 columns"
         for x in range(pos["x"], pos["x"] + pos["w"]):
             for y in range(pos["y"], pos["y"] + pos["h"]):
                 assert (x, y) not in taken, f"{name}: panels {taken[(x, y)]} and {panel['id']} overlap at {(x, y)}"
@@ -226,8 +230,14 @@ def test_dashboards_command_writes_and_checks(tmp_path, capsys):
     from tsdb_service.cli import main
 
     assert main(["dashboards", "build", "--out", str(tmp_path)]) == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["drone-ld.json", "drone.json", "lawnmower.json",
-                                                          "provisioning", "service.json", "warehouse.json"]  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "drone-ld.json",
+        "drone.json",
+        "lawnmower.json",
+        "provisioning",
+        "service.json",
+        "warehouse.json",
+    ]
     assert main(["dashboards", "build", "--out", str(tmp_path), "--check"]) == 0
     (tmp_path / "drone.json").write_text("{}")
     assert main(["dashboards", "build", "--out", str(tmp_path), "--check"]) == 1

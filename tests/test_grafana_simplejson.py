@@ -37,30 +37,53 @@ def span(grafana_server):  # noqa: F811
 def _classic_query(span, targets, max_points=500, **extra) -> dict:
     start, end = span
     return {
-        "timezone": "browser", "panelId": 2, "dashboardId": 1,
+        "timezone": "browser",
+        "panelId": 2,
+        "dashboardId": 1,
         "range": {"from": _iso(start), "to": _iso(end), "raw": {"from": "now-6h", "to": "now"}},
         "rangeRaw": {"from": "now-6h", "to": "now"},
-        "interval": "20s", "intervalMs": 20000, "maxDataPoints": max_points, "format": "json",
+        "interval": "20s",
+        "intervalMs": 20000,
+        "maxDataPoints": max_points,
+        "format": "json",
         "targets": targets,
-        "scopedVars": {"__interval": {"text": "20s", "value": "20s"}, "__interval_ms": {"text": "20000", "value": 20000}},
-        "adhocFilters": [], **extra,
-    }  # fmt: skip
+        "scopedVars": {
+            "__interval": {"text": "20s", "value": "20s"},
+            "__interval_ms": {"text": "20000", "value": 20000},
+        },
+        "adhocFilters": [],
+        **extra,
+    }
 
 
 def _simpod_query(span, targets, **extra) -> dict:
     start, end = span
     body = _classic_query(span, targets, **extra)
-    body.update({
-        "app": "dashboard", "requestId": "SQR108", "dashboardUID": "abc", "panelPluginId": "timeseries",
-        "startTime": end, "timeInfo": "", "liveStreaming": False, "filters": [],
-        "range": {"from": _iso(start), "to": _iso(end), "raw": {"from": "now-6h", "to": "now"}},
-    })  # fmt: skip
+    body.update(
+        {
+            "app": "dashboard",
+            "requestId": "SQR108",
+            "dashboardUID": "abc",
+            "panelPluginId": "timeseries",
+            "startTime": end,
+            "timeInfo": "",
+            "liveStreaming": False,
+            "filters": [],
+            "range": {"from": _iso(start), "to": _iso(end), "raw": {"from": "now-6h", "to": "now"}},
+        }
+    )
     return body
 
 
 def _simpod_target(target: str, ref: str = "A", **payload) -> dict:
-    return {"refId": ref, "datasource": {"type": "simpod-json-datasource", "uid": "P1809F7CD0C75ACF3"},
-            "editorMode": "code", "target": target, "payload": payload, "key": "Q-1"}  # fmt: skip
+    return {
+        "refId": ref,
+        "datasource": {"type": "simpod-json-datasource", "uid": "P1809F7CD0C75ACF3"},
+        "editorMode": "code",
+        "target": target,
+        "payload": payload,
+        "key": "Q-1",
+    }
 
 
 def _post(http, path: str, body, headers=LAWNMOWER, status: int = 200):
@@ -82,7 +105,9 @@ def test_search_lists_metrics_and_variable_values(grafana_http):  # noqa: F811
     metrics = _post(grafana_http, "/search", {"target": ""})
     assert f"{MOWER}/odom" in metrics and f"{MOWER}/navigationState" in metrics
     assert _post(grafana_http, "/search", {"type": "timeserie", "target": "perimeter"}) == [
-        f"{MOWER}/perimeterLeft", f"{MOWER}/perimeterRight"]  # fmt: skip
+        f"{MOWER}/perimeterLeft",
+        f"{MOWER}/perimeterRight",
+    ]
     assert _post(grafana_http, "/search", {"target": "entities"}) == [MOWER]
     sensors = _post(grafana_http, "/search", {"target": f"entities:{sites.SENSOR_TYPE}"}, headers=DRONE)
     assert sensors == list(sites.SENSOR_IDS)
@@ -109,7 +134,9 @@ def test_table_target(grafana_http, span):  # noqa: F811
     assert [c["text"] for c in table["columns"]] == ["Time", "entity", "navigationState(data)"]
     assert [c["type"] for c in table["columns"]] == ["time", "string", "number"]
     assert table["rows"] and all(len(r) == 3 and r[1] == MOWER for r in table["rows"])
-    assert {r[2] for r in table["rows"]} <= set(enums.LAWNMOWER_NAVIGATION_STATE), "states are kept (last), not averaged"
+    assert {r[2] for r in table["rows"]} <= set(enums.LAWNMOWER_NAVIGATION_STATE), (
+        "states are kept (last), not averaged"
+    )
 
 
 def test_hidden_and_empty_targets_are_skipped(grafana_http, span):  # noqa: F811
@@ -120,11 +147,17 @@ def test_hidden_and_empty_targets_are_skipped(grafana_http, span):  # noqa: F811
 def test_classic_annotations(grafana_http, span):  # noqa: F811
     start, end = span
     body = {
-        "range": {"from": _iso(start), "to": _iso(end)}, "rangeRaw": {"from": "now-1h", "to": "now"},
-        "annotation": {"name": "perimeter", "datasource": "tsdb", "iconColor": "rgba(255, 96, 96, 1)",
-                       "enable": True, "query": f"{MOWER}/perimeterLeft(data)=true"},
+        "range": {"from": _iso(start), "to": _iso(end)},
+        "rangeRaw": {"from": "now-1h", "to": "now"},
+        "annotation": {
+            "name": "perimeter",
+            "datasource": "tsdb",
+            "iconColor": "rgba(255, 96, 96, 1)",
+            "enable": True,
+            "query": f"{MOWER}/perimeterLeft(data)=true",
+        },
         "variables": [],
-    }  # fmt: skip
+    }
     events = _post(grafana_http, "/annotations", body)
     assert events
     for event in events:
@@ -137,14 +170,21 @@ def test_classic_annotations(grafana_http, span):  # noqa: F811
 
 def test_ad_hoc_filters(grafana_http, span):  # noqa: F811
     assert _post(grafana_http, "/tag-keys", {}) == [
-        {"type": "string", "text": "entity"}, {"type": "string", "text": "type"}, {"type": "string", "text": "name"}]
+        {"type": "string", "text": "entity"},
+        {"type": "string", "text": "type"},
+        {"type": "string", "text": "name"},
+    ]
     names = _post(grafana_http, "/tag-values", {"key": "name"}, headers=DRONE)
     assert [n["text"] for n in names] == ["Drone01", *(f"Sensor0{i}" for i in range(1, 9))]
     target = {"target": "*/temperature", "refId": "A", "type": "timeserie"}
     every = _post(grafana_http, "/query", _classic_query(span, [target]), headers=DRONE)
     assert len(every) == 8
-    only = _post(grafana_http, "/query", _classic_query(span, [target], adhocFilters=[
-        {"key": "name", "operator": "=~", "value": "Sensor0[12]$"}]), headers=DRONE)  # fmt: skip
+    only = _post(
+        grafana_http,
+        "/query",
+        _classic_query(span, [target], adhocFilters=[{"key": "name", "operator": "=~", "value": "Sensor0[12]$"}]),
+        headers=DRONE,
+    )
     assert [s["target"] for s in only] == ["Sensor01 temperature", "Sensor02 temperature"]
 
 
@@ -152,10 +192,14 @@ def test_ad_hoc_filters(grafana_http, span):  # noqa: F811
 
 
 def test_simpod_query_with_payload_and_grafanas_whole_request(grafana_http, span):  # noqa: F811
-    body = _simpod_query(span, [
-        _simpod_target(f"{MOWER}/odom", "A", path="twist.twist.angular.z", alias="yaw_rate"),
-        _simpod_target(f"{MOWER}/perimeterRight(data)", "B", format="table"),
-    ], max_points=5000)  # fmt: skip
+    body = _simpod_query(
+        span,
+        [
+            _simpod_target(f"{MOWER}/odom", "A", path="twist.twist.angular.z", alias="yaw_rate"),
+            _simpod_target(f"{MOWER}/perimeterRight(data)", "B", format="table"),
+        ],
+        max_points=5000,
+    )
     series, table = _post(grafana_http, "/query", body)
     assert series["target"] == "yaw_rate" and series["refId"] == "A" and series["datapoints"]
     assert table["type"] == "table" and table["columns"][2] == {"text": "perimeterRight(data)", "type": "boolean"}
@@ -185,8 +229,9 @@ def test_simpod_annotations_through_query(grafana_http, span):  # noqa: F811
 def test_simpod_variable(grafana_http, span):  # noqa: F811
     start, end = span
     rng = {"from": _iso(start), "to": _iso(end), "raw": {"from": "now-6h", "to": "now"}}
-    values = _post(grafana_http, "/variable", {"payload": {"target": "entities:RemoteSensor"}, "range": rng},
-                   headers=DRONE)  # fmt: skip
+    values = _post(
+        grafana_http, "/variable", {"payload": {"target": "entities:RemoteSensor"}, "range": rng}, headers=DRONE
+    )
     assert values[0] == {"__text": "Sensor01", "__value": "urn:ngsiv2:RemoteSensor:Sensor01"} and len(values) == 8
     as_text = _post(grafana_http, "/variable", {"payload": "types", "range": rng}, headers=DRONE)
     assert [v["__value"] for v in as_text] == ["ROS2System", "RemoteSensor"]
@@ -199,8 +244,7 @@ def test_simpod_metrics_and_payload_options(grafana_http):  # noqa: F811
     assert {p["name"] for p in odom["payloads"]} == {"path", "agg", "format", "alias"}
     first = _post(grafana_http, "/metrics", {"metric": f"{MOWER}/odom", "payload": {"agg": "avg"}})
     assert first[0]["value"] == f"{MOWER}/odom"
-    paths = _post(grafana_http, "/metric-payload-options",
-                  {"metric": f"{MOWER}/odom", "payload": {}, "name": "path"})  # fmt: skip
+    paths = _post(grafana_http, "/metric-payload-options", {"metric": f"{MOWER}/odom", "payload": {}, "name": "path"})
     values = [p["value"] for p in paths]
     assert "twist.twist.linear.x" in values and "pose.pose.position.x" in values and "pose.covariance[0]" in values
     aggs = _post(grafana_http, "/metric-payload-options", {"metric": "", "payload": {}, "name": "agg"})
@@ -220,28 +264,46 @@ def test_simpod_metrics_and_payload_options(grafana_http):  # noqa: F811
         ("/query", {"targets": [{"target": SPEED, "refId": "A", "payload": {"format": "xml"}}]}),
         ("/query", {"targets": "A", "range": {"from": "x"}}),
         ("/query", {"targets": [], "range": {"from": "yesterday", "to": "now"}}),
-        ("/query", {"targets": [{"target": SPEED}], "range": {"from": "2024-02-01T00:00:00Z", "to": "2024-01-01T00:00:00Z"}}),
+        (
+            "/query",
+            {"targets": [{"target": SPEED}], "range": {"from": "2024-02-01T00:00:00Z", "to": "2024-01-01T00:00:00Z"}},
+        ),
         ("/query", {"targets": [{"target": SPEED}], "maxDataPoints": -3}),
         ("/query", {"targets": [{"target": SPEED, "payload": {"idPattern": "("}}]}),
-        ("/query", {"targets": [{"target": SPEED}], "adhocFilters": [{"key": "entity", "operator": "=~", "value": "("}]}),
+        (
+            "/query",
+            {"targets": [{"target": SPEED}], "adhocFilters": [{"key": "entity", "operator": "=~", "value": "("}]},
+        ),
     ],
-)  # fmt: skip
+)
 def test_bad_requests_are_400_in_the_ngsi_shape(grafana_http, path, body):  # noqa: F811
     doc = _post(grafana_http, path, body, status=400)
     assert set(doc) == {"error", "description"} and doc["description"]
 
 
 @pytest.mark.parametrize("body", [None, [], "text", 42, {"targets": None}, {"range": None}, {"annotation": 3}])
-@pytest.mark.parametrize("path", ["/search", "/query", "/annotations", "/variable", "/metrics",
-                                  "/metric-payload-options", "/tag-keys", "/tag-values"])  # fmt: skip
+@pytest.mark.parametrize(
+    "path",
+    [
+        "/search",
+        "/query",
+        "/annotations",
+        "/variable",
+        "/metrics",
+        "/metric-payload-options",
+        "/tag-keys",
+        "/tag-values",
+    ],
+)
 def test_odd_bodies_never_cause_a_500(grafana_http, path, body):  # noqa: F811
     response = grafana_http.post(PREFIX + path, json=body, headers=LAWNMOWER)
     assert response.status_code in (200, 400), f"{path} {body!r}: {response.status_code} {response.text[:200]}"
 
 
 def test_malformed_json_and_bad_tenant_are_400(grafana_http):  # noqa: F811
-    response = grafana_http.post(PREFIX + "/query", content=b"{not json", headers={**LAWNMOWER,
-                                                                                  "Content-Type": "application/json"})
+    response = grafana_http.post(
+        PREFIX + "/query", content=b"{not json", headers={**LAWNMOWER, "Content-Type": "application/json"}
+    )
     assert response.status_code == 400 and response.json()["error"] == "BadRequest"
     response = grafana_http.post(PREFIX + "/search", json={}, headers={"Fiware-Service": "bad tenant!"})
     assert response.status_code == 400 and set(response.json()) == {"error", "description"}

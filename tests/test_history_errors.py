@@ -24,7 +24,7 @@ ENDPOINTS = [
 ]
 
 BAD = {
-    "fromDate": ["yesterday", "2024-02-30T00:00:00Z", "", "\"\"", "2024-01-01T25:00:00Z", "99999-01-01", "1e10"],
+    "fromDate": ["yesterday", "2024-02-30T00:00:00Z", "", '""', "2024-01-01T25:00:00Z", "99999-01-01", "1e10"],
     "toDate": ["later", "2024-01-01T00:00:00+25:00", "0000-01-01"],
     "lastN": ["0", "-1", "abc", "1.5", "1" * 40, " "],
     "limit": ["0", "-5", "x", "1" * 40],
@@ -40,8 +40,13 @@ BAD = {
 
 # Valid but unusual values: they must work (2xx) or be refused (4xx), never 500.
 ODD = {
-    "fromDate": ["9999-12-31T23:59:59.999999Z", "0001-01-01T00:00:00Z", "2024-05-01T10:00:00+14:00",
-                 "2024-05-01", '"2024-05-01T10:00:00"'],
+    "fromDate": [
+        "9999-12-31T23:59:59.999999Z",
+        "0001-01-01T00:00:00Z",
+        "2024-05-01T10:00:00+14:00",
+        "2024-05-01",
+        '"2024-05-01T10:00:00"',
+    ],
     "toDate": ["0001-01-01T00:00:00-12:00", "9999-12-31"],
     "lastN": ["1", "999999999999999999"],
     "limit": ["1", "999999999999999999"],
@@ -61,12 +66,20 @@ ODD = {
 def loaded(client_factory, store_url_factory, notify):
     with client_factory(store_url_factory("errors")) as client:
         for i in range(3):
-            notify(client, {"data": [{
-                "id": "Room1", "type": "Room",
-                "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:0{i}:00Z"},
-                "temperature": {"type": "Number", "value": 20 + i},
-                "name": {"type": "Text", "value": "k"},
-            }]})
+            notify(
+                client,
+                {
+                    "data": [
+                        {
+                            "id": "Room1",
+                            "type": "Room",
+                            "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:0{i}:00Z"},
+                            "temperature": {"type": "Number", "value": 20 + i},
+                            "name": {"type": "Text", "value": "k"},
+                        }
+                    ]
+                },
+            )
         yield client
 
 
@@ -145,13 +158,20 @@ def test_error_shape_for_each_status(loaded):
     _assert_ngsi_error(loaded.delete("/v2/entities/Nope"), 404)
     _assert_ngsi_error(loaded.get("/v2/nothing/here"), 404)
     _assert_ngsi_error(loaded.get("/v2/attrs", headers={"Fiware-Service": "bad tenant!"}), 400)
-    _assert_ngsi_error(loaded.post("/v2/op/query", content=b"{not json", headers={"Content-Type": "application/json"}),
-                       400)
+    _assert_ngsi_error(
+        loaded.post("/v2/op/query", content=b"{not json", headers={"Content-Type": "application/json"}), 400
+    )
 
 
 def test_odd_path_segments(loaded):
-    for path in ["/v2/entities/%00/attrs/x", "/v2/entities/a%2Fb", "/v2/types/%20", "/v2/attrs/%28%29",
-                 "/v2/entities/" + "x" * 2000, "/v2/entities/Room1/attrs/" + "y" * 300]:
+    for path in [
+        "/v2/entities/%00/attrs/x",
+        "/v2/entities/a%2Fb",
+        "/v2/types/%20",
+        "/v2/attrs/%28%29",
+        "/v2/entities/" + "x" * 2000,
+        "/v2/entities/Room1/attrs/" + "y" * 300,
+    ]:
         response = loaded.get(path)
         assert response.status_code < 500, (path, response.text)
         if response.status_code >= 400:

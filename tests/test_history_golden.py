@@ -76,8 +76,7 @@ def check(case: dict, status: int, body) -> None:
         case["status"], case["response"] = status, body
         return
     assert (status, body) == (case["status"], case.get("response")), (
-        f"{case.get('method', 'GET')} {case['path']}: got {status} "
-        f"{json.dumps(body, indent=1)[:3000]}"
+        f"{case.get('method', 'GET')} {case['path']}: got {status} {json.dumps(body, indent=1)[:3000]}"
     )
 
 

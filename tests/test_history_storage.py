@@ -9,8 +9,8 @@ from datetime import UTC, datetime, timedelta
 import pytest
 
 from tsdb_service.config import Settings
-from tsdb_service.history.query import EntityFilter, Scope, TimeRange
 from tsdb_service.model import AttrSample, EntitySample, Kind
+from tsdb_service.query import EntityFilter, Scope, TimeRange
 from tsdb_service.storage import open_store
 from tsdb_service.storage.base import AppendSamples, DeleteSamples
 
@@ -26,8 +26,14 @@ def store(store_url):
 
 
 def entity(eid: str, i: int, attrs: dict[str, float], etype: str = "T", tenant: str = "") -> EntitySample:
-    return EntitySample(tenant, "/", eid, etype, T0 + timedelta(seconds=i),
-                        [AttrSample(a, "Number", Kind.NUMBER, num=v) for a, v in attrs.items()])
+    return EntitySample(
+        tenant,
+        "/",
+        eid,
+        etype,
+        T0 + timedelta(seconds=i),
+        [AttrSample(a, "Number", Kind.NUMBER, num=v) for a, v in attrs.items()],
+    )
 
 
 def values(store, eid: str, attr: str) -> list[float]:
@@ -75,8 +81,9 @@ def test_new_series_are_visible_at_once(store):
 
 
 def test_catalog_keeps_tenants_apart(store):
-    store.write_sync([AppendSamples([entity("same", 0, {"a": 1.0}, tenant="t1"),
-                                     entity("same", 0, {"a": 2.0}, tenant="t2")])])
+    store.write_sync(
+        [AppendSamples([entity("same", 0, {"a": 1.0}, tenant="t1"), entity("same", 0, {"a": 2.0}, tenant="t2")])]
+    )
     q = store.querier()
     (r1,) = q.series(Scope("t1"), EntityFilter(ids=("same",)))
     (r2,) = q.series(Scope("t2"), EntityFilter(ids=("same",)))
@@ -106,8 +113,15 @@ def test_row_windows_match_a_brute_force_model(store, seed):
     sids = [r.sid for r in refs]
     for newest_first in (False, True):
         for limit, offset in [(1, 0), (5, 0), (7, 3), (50, 10), (400, 0), (3, 298)]:
-            rows = q.raw_rows(sids, TimeRange(), newest_first=newest_first, limit=limit, offset=offset,
-                              one_per_row=False, attrs_per_row=3)
+            rows = q.raw_rows(
+                sids,
+                TimeRange(),
+                newest_first=newest_first,
+                limit=limit,
+                offset=offset,
+                one_per_row=False,
+                attrs_per_row=3,
+            )
             got = []
             for _sid, rid, iso, *_ in rows:
                 if not got or got[-1][0] != rid:
@@ -115,6 +129,7 @@ def test_row_windows_match_a_brute_force_model(store, seed):
             ordered = sorted(model, reverse=newest_first)
             want = ordered[offset : offset + limit]
             want.sort()
-            assert [iso[17:19] for _rid, iso in got] == [f"{(T0 + timedelta(seconds=t)).second:02d}"
-                                                         for t, _i, _e in want]
+            assert [iso[17:19] for _rid, iso in got] == [
+                f"{(T0 + timedelta(seconds=t)).second:02d}" for t, _i, _e in want
+            ]
             assert len(got) == len(want)

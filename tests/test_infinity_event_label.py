@@ -12,11 +12,21 @@ RANGE = {"from": "2025-06-02T08:00:00Z", "to": "2025-06-02T10:00:00Z"}
 
 def _notify(client, notify):
     for i, state in enumerate(STATES):
-        notify(client, {"subscriptionId": "s", "data": [{
-            "id": DRONE, "type": "ROS2System",
-            "missionState": {"type": "Object", "value": {"data": state}},
-            "TimeInstant": {"type": "DateTime", "value": f"2025-06-02T09:00:{i:02d}.000Z"},
-        }]}, H)  # fmt: skip
+        notify(
+            client,
+            {
+                "subscriptionId": "s",
+                "data": [
+                    {
+                        "id": DRONE,
+                        "type": "ROS2System",
+                        "missionState": {"type": "Object", "value": {"data": state}},
+                        "TimeInstant": {"type": "DateTime", "value": f"2025-06-02T09:00:{i:02d}.000Z"},
+                    }
+                ],
+            },
+            H,
+        )
 
 
 def _events(client, **params) -> list[dict]:
@@ -34,7 +44,8 @@ def test_a_run_of_several_states_names_them_all(client, notify):
     ]
     assert [(e["time"], e["timeEnd"]) for e in events] == [
         ("2025-06-02T09:00:01.000Z", "2025-06-02T09:00:04.000Z"),
-        ("2025-06-02T09:00:06.000Z", "2025-06-02T09:00:07.000Z")]  # fmt: skip
+        ("2025-06-02T09:00:06.000Z", "2025-06-02T09:00:07.000Z"),
+    ]
     assert all(e["title"] == "missionState(data) on Drone01" for e in events)
 
 
@@ -48,5 +59,6 @@ def test_the_same_run_reads_the_same_in_both_apis(client, notify):
 def test_a_condition_and_a_fixed_text_still_win(client, notify):
     _notify(client, notify)
     assert [e["text"] for e in _events(client, attrs="missionState(data)", equals="2")] == [
-        f"missionState(data) = 2 on {DRONE}"]  # fmt: skip
+        f"missionState(data) = 2 on {DRONE}"
+    ]
     assert [e["text"] for e in _events(client, attrs="m=missionState(data)", text="mission")] == ["mission"] * 2

@@ -17,8 +17,16 @@ CONCURRENT = 16
 
 
 def _body(entity: str, value: int) -> dict:
-    return {"data": [{"id": entity, "type": "Racer", "a": {"type": "Number", "value": value},
-                      "b": {"type": "Number", "value": -value}}]}
+    return {
+        "data": [
+            {
+                "id": entity,
+                "type": "Racer",
+                "a": {"type": "Number", "value": value},
+                "b": {"type": "Number", "value": -value},
+            }
+        ]
+    }
 
 
 async def _burst(app) -> list[int]:
@@ -27,9 +35,9 @@ async def _burst(app) -> list[int]:
         async with httpx.AsyncClient(transport=transport, base_url="http://tsdb") as client:
             statuses = []
             for r in range(ROUNDS):
-                responses = await asyncio.gather(*(
-                    client.post("/v2/notify", json=_body(f"E{r}", i), headers=HEADERS) for i in range(CONCURRENT)
-                ))
+                responses = await asyncio.gather(
+                    *(client.post("/v2/notify", json=_body(f"E{r}", i), headers=HEADERS) for i in range(CONCURRENT))
+                )
                 statuses += [resp.status_code for resp in responses]
             counts = []
             for r in range(ROUNDS):

@@ -13,13 +13,29 @@ import pytest
 PAYLOADS = Path(__file__).parent / "payloads"
 BODY = {"subscriptionId": "s", "data": [{"id": "E", "type": "T", "temperature": {"type": "Number", "value": 21.5}}]}
 
-ACCEPTED = ["application/json", "application/json; charset=utf-8", "Application/JSON;charset=UTF-8",
-            "application/ld+json", "application/ld+json; charset=utf-8", "application/geo+json",
-            " application/json ", "application/vnd.example+json"]
+ACCEPTED = [
+    "application/json",
+    "application/json; charset=utf-8",
+    "Application/JSON;charset=UTF-8",
+    "application/ld+json",
+    "application/ld+json; charset=utf-8",
+    "application/geo+json",
+    " application/json ",
+    "application/vnd.example+json",
+]
 # The "simple" request types of the Fetch standard (no CORS preflight), and
 # other non-JSON types.
-REFUSED = ["text/plain", "text/plain; charset=utf-8", "application/x-www-form-urlencoded",
-           "multipart/form-data; boundary=x", None, "", "text/json", "application/xml", "application/jsonp"]
+REFUSED = [
+    "text/plain",
+    "text/plain; charset=utf-8",
+    "application/x-www-form-urlencoded",
+    "multipart/form-data; boundary=x",
+    None,
+    "",
+    "text/json",
+    "application/xml",
+    "application/jsonp",
+]
 
 
 @pytest.mark.parametrize("path", ["/v2/notify", "/ngsi-ld/v1/notify"])

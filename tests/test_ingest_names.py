@@ -16,10 +16,36 @@ from tsdb_service.errors import BadRequest
 from tsdb_service.history.valuepath import parse_value_path
 from tsdb_service.ngsi.names import name_problem
 
-GOOD = ["temperature", "Ünïcødé_温度_🌡", "https://example.org/ns#speed", "ex:speed", "a.b$c", "x" * 256,
-        "temperature~ground", "a&b?c%d", "@id-ish", "urn:ngsi-ld:Property:1", "a/b"]
-BAD = ["", "x" * 257, "a b", " a", "a ", "a\t", "a\nb", "a\x00", "a\x7f", "a\x9f", "a\u3000b", "a\u00a0",
-       ".", "..", *(f"a{c}b" for c in "<>\"'=;(),")]
+GOOD = [
+    "temperature",
+    "Ünïcødé_温度_🌡",
+    "https://example.org/ns#speed",
+    "ex:speed",
+    "a.b$c",
+    "x" * 256,
+    "temperature~ground",
+    "a&b?c%d",
+    "@id-ish",
+    "urn:ngsi-ld:Property:1",
+    "a/b",
+]
+BAD = [
+    "",
+    "x" * 257,
+    "a b",
+    " a",
+    "a ",
+    "a\t",
+    "a\nb",
+    "a\x00",
+    "a\x7f",
+    "a\x9f",
+    "a\u3000b",
+    "a\u00a0",
+    ".",
+    "..",
+    *(f"a{c}b" for c in "<>\"'=;(),"),
+]
 
 # Every name works as one URL path segment too, "/" percent-encoded as %2F
 # (the history routes are matched on the raw path: tsdb_service.rawpath).
@@ -42,8 +68,12 @@ def test_bad_names_are_refused_on_both_sides(name):
 @pytest.mark.parametrize("name", ['quo"te', "Temp'; DROP TABLE x;--", " padded ", "x" * 300, "a,b", "f(x)"])
 def test_ingest_refuses_with_the_reason_and_keeps_the_body(client, name):
     headers = {"Fiware-Service": "names"}
-    body = {"subscriptionId": "s", "data": [{"id": "E", "type": "T", name: {"type": "Number", "value": 1},
-                                             "fine": {"type": "Number", "value": 2}}]}
+    body = {
+        "subscriptionId": "s",
+        "data": [
+            {"id": "E", "type": "T", name: {"type": "Number", "value": 1}, "fine": {"type": "Number", "value": 2}}
+        ],
+    }
     response = client.post("/v2/notify", json=body, headers=headers)
     assert response.status_code == 400, response.text
     description = response.json()["description"]

@@ -76,8 +76,11 @@ def test_geojson_features_are_entities_with_geometry(loaded):
     record = load(PAYLOADS / "geojson" / "simplified.json")
     listed = loaded.get("/v2/entities", params={"type": "Drone"}, headers=tenant_headers(record)).json()
     assert {"urn:ngsi-ld:Drone:simplified", "urn:ngsi-ld:Drone:parked"} <= {e["id"] for e in listed}
-    near = loaded.get("/v2/entities", headers=tenant_headers(record), params={
-        "type": "Drone", "georel": "near;maxDistance:100", "geometry": "point", "coords": "40.4168,-3.7038"}).json()
+    near = loaded.get(
+        "/v2/entities",
+        headers=tenant_headers(record),
+        params={"type": "Drone", "georel": "near;maxDistance:100", "geometry": "point", "coords": "40.4168,-3.7038"},
+    ).json()
     assert "urn:ngsi-ld:Drone:simplified" in {e["id"] for e in near}
     assert "urn:ngsi-ld:Drone:parked" not in {e["id"] for e in near}
 
@@ -92,10 +95,32 @@ def test_v1_id_metadata_is_kept_in_metadata():
 
 
 def test_v1_same_name_without_distinct_id_is_refused(client):
-    body = {"contextResponses": [{"contextElement": {"id": "G", "type": "T", "isPattern": "false", "attributes": [
-        {"name": "t", "type": "float", "value": "1", "metadatas": [{"name": "ID", "type": "string", "value": "a"}]},
-        {"name": "t", "type": "float", "value": "2", "metadatas": [{"name": "ID", "type": "string", "value": "a"}]},
-    ]}, "statusCode": {"code": "200", "reasonPhrase": "OK"}}]}
+    body = {
+        "contextResponses": [
+            {
+                "contextElement": {
+                    "id": "G",
+                    "type": "T",
+                    "isPattern": "false",
+                    "attributes": [
+                        {
+                            "name": "t",
+                            "type": "float",
+                            "value": "1",
+                            "metadatas": [{"name": "ID", "type": "string", "value": "a"}],
+                        },
+                        {
+                            "name": "t",
+                            "type": "float",
+                            "value": "2",
+                            "metadatas": [{"name": "ID", "type": "string", "value": "a"}],
+                        },
+                    ],
+                },
+                "statusCode": {"code": "200", "reasonPhrase": "OK"},
+            }
+        ]
+    }
     response = client.post("/v2/notify", json=body, headers={"Fiware-Service": "v1dup"})
     assert response.status_code == 400
     assert "'t~a' appears twice" in response.json()["description"]
@@ -104,21 +129,33 @@ def test_v1_same_name_without_distinct_id_is_refused(client):
 
 
 def ld_notification(entity: dict) -> dict:
-    return {"id": "urn:ngsi-ld:Notification:1", "type": "Notification", "subscriptionId": "urn:s",
-            "notifiedAt": "2024-05-01T10:00:00Z", "data": [entity]}
+    return {
+        "id": "urn:ngsi-ld:Notification:1",
+        "type": "Notification",
+        "subscriptionId": "urn:s",
+        "notifiedAt": "2024-05-01T10:00:00Z",
+        "data": [entity],
+    }
 
 
-ENTITY = {"id": "urn:E", "type": "T", "when": {"type": "DateTime", "value": "2024-05-01T09:00:00Z"},
-          "size": {"value": 5, "unit": "m"}}
+ENTITY = {
+    "id": "urn:E",
+    "type": "T",
+    "when": {"type": "DateTime", "value": "2024-05-01T09:00:00Z"},
+    "size": {"value": 5, "unit": "m"},
+}
 
 
-@pytest.mark.parametrize("headers", [
-    {"Ngsild-Attribute-Format": "Simplified"},
-    {"Ngsild-Attribute-Format": "SIMPLIFIED"},
-    {"Ngsild-Attribute-Format": " simplified "},
-    {"Ngsiv2-AttrsFormat": "keyValues"},
-    {"Ngsild-Attribute-Format": "Simplified", "Ngsiv2-AttrsFormat": "normalized"},
-])
+@pytest.mark.parametrize(
+    "headers",
+    [
+        {"Ngsild-Attribute-Format": "Simplified"},
+        {"Ngsild-Attribute-Format": "SIMPLIFIED"},
+        {"Ngsild-Attribute-Format": " simplified "},
+        {"Ngsiv2-AttrsFormat": "keyValues"},
+        {"Ngsild-Attribute-Format": "Simplified", "Ngsiv2-AttrsFormat": "normalized"},
+    ],
+)
 def test_simplified_objects_are_values(headers):
     [entity] = parse_notification(orjson.dumps(ld_notification(ENTITY)), headers, received_at=NOW)
     values = {a.name: json.loads(a.js) for a in entity.attrs}
@@ -126,8 +163,9 @@ def test_simplified_objects_are_values(headers):
     assert all(a.md is None for a in entity.attrs)
 
 
-@pytest.mark.parametrize("headers", [{}, {"Ngsild-Attribute-Format": "Concise"},
-                                     {"Ngsild-Attribute-Format": "normalized"}])
+@pytest.mark.parametrize(
+    "headers", [{}, {"Ngsild-Attribute-Format": "Concise"}, {"Ngsild-Attribute-Format": "normalized"}]
+)
 def test_concise_reads_value_members(headers):
     # Without a header the body's shape decides: NGSI-LD's concise form,
     # where {"value": 5, "unit": "m"} is a Property of 5 with a sub-property.
@@ -138,15 +176,20 @@ def test_concise_reads_value_members(headers):
 
 def test_unknown_ld_attribute_format_is_refused():
     with pytest.raises(ParseError, match="Ngsild-Attribute-Format 'verbose'"):
-        parse_notification(orjson.dumps(ld_notification(ENTITY)), {"Ngsild-Attribute-Format": "verbose"},
-                           received_at=NOW)
+        parse_notification(
+            orjson.dumps(ld_notification(ENTITY)), {"Ngsild-Attribute-Format": "verbose"}, received_at=NOW
+        )
 
 
 def test_geojson_single_feature_and_geometry_without_attribute():
     # A geometry no attribute carries (e.g. a subscription's geometryProperty
     # filtered out of the attributes) is kept as "location".
-    feature = {"id": "urn:D", "type": "Feature", "properties": {"type": "Drone", "alt": 3},
-               "geometry": {"type": "Point", "coordinates": [1.0, 2.0]}}
+    feature = {
+        "id": "urn:D",
+        "type": "Feature",
+        "properties": {"type": "Drone", "alt": 3},
+        "geometry": {"type": "Point", "coordinates": [1.0, 2.0]},
+    }
     body = {"id": "urn:n", "type": "Notification", "subscriptionId": "urn:s", "data": feature}
     [entity] = parse_notification(orjson.dumps(body), {"Ngsild-Attribute-Format": "Normalized"}, received_at=NOW)
     by_name = {a.name: a for a in entity.attrs}
@@ -155,9 +198,15 @@ def test_geojson_single_feature_and_geometry_without_attribute():
     assert by_name["location"].geo is not None
 
 
-@pytest.mark.parametrize("data", [{"type": "FeatureCollection"}, {"type": "FeatureCollection", "features": 5},
-                                  {"type": "FeatureCollection", "features": [{"id": "x", "properties": 3}]},
-                                  {"type": "FeatureCollection", "features": [7]}])
+@pytest.mark.parametrize(
+    "data",
+    [
+        {"type": "FeatureCollection"},
+        {"type": "FeatureCollection", "features": 5},
+        {"type": "FeatureCollection", "features": [{"id": "x", "properties": 3}]},
+        {"type": "FeatureCollection", "features": [7]},
+    ],
+)
 def test_malformed_geojson_is_a_parse_error(data):
     body = {"id": "urn:n", "type": "Notification", "subscriptionId": "urn:s", "data": data}
     with pytest.raises(ParseError):

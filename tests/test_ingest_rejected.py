@@ -53,8 +53,9 @@ def listing(client, tenant="big"):
 
 def test_over_the_limit_under_the_cap_is_kept_whole(small):
     raw = body_of(2000)
-    response = small.post("/v2/notify", content=raw, headers={"Content-Type": "application/json",
-                                                              "Fiware-Service": "big"})
+    response = small.post(
+        "/v2/notify", content=raw, headers={"Content-Type": "application/json", "Fiware-Service": "big"}
+    )
     assert response.status_code == 413
     assert "2000 bytes exceeds the 1024-byte limit" in response.json()["description"]
     [kept] = listing(small)
@@ -64,17 +65,22 @@ def test_over_the_limit_under_the_cap_is_kept_whole(small):
 
 def test_over_the_cap_keeps_the_first_bytes_and_the_size(small):
     raw = body_of(50_000)
-    assert small.post("/v2/notify", content=raw, headers={"Content-Type": "application/json",
-                                                          "Fiware-Service": "big"}).status_code == 413
+    assert (
+        small.post(
+            "/v2/notify", content=raw, headers={"Content-Type": "application/json", "Fiware-Service": "big"}
+        ).status_code
+        == 413
+    )
     [kept] = listing(small)
     assert (kept["body"].encode(), kept["bodySize"], kept["bodyTruncated"]) == (raw[:3000], 50_000, True)
 
 
 def test_a_chunked_body_is_counted(small):
     raw = body_of(20_000)
-    chunks = (raw[i:i + 1000] for i in range(0, len(raw), 1000))
-    response = small.post("/v2/notify", content=chunks, headers={"Content-Type": "application/json",
-                                                                 "Fiware-Service": "big"})
+    chunks = (raw[i : i + 1000] for i in range(0, len(raw), 1000))
+    response = small.post(
+        "/v2/notify", content=chunks, headers={"Content-Type": "application/json", "Fiware-Service": "big"}
+    )
     assert response.status_code == 413
     [kept] = listing(small)
     assert (kept["body"].encode(), kept["bodySize"], kept["bodyTruncated"]) == (raw[:3000], 20_000, True)
@@ -90,8 +96,9 @@ def test_a_415_over_the_limit_is_kept_too(small):
 
 def test_a_parse_error_keeps_the_body(client):
     raw = b'{"subscriptionId": "s", "data": [{"id": 5}]}'
-    response = client.post("/v2/notify", content=raw, headers={"Content-Type": "application/json",
-                                                               "Fiware-Service": "big"})
+    response = client.post(
+        "/v2/notify", content=raw, headers={"Content-Type": "application/json", "Fiware-Service": "big"}
+    )
     assert response.status_code == 400
     [kept] = listing(client)
     assert (kept["body"].encode(), kept["bodySize"], kept["bodyTruncated"]) == (raw, len(raw), False)
@@ -101,15 +108,17 @@ def test_a_parse_error_keeps_the_body(client):
 def test_operator_listing_across_tenants(client):
     bad_tenant = "Not A Tenant!"
     for tenant in ("alpha", "beta", bad_tenant):
-        response = client.post("/v2/notify", content=b"{broken",
-                               headers={"Content-Type": "application/json", "Fiware-Service": tenant})
+        response = client.post(
+            "/v2/notify", content=b"{broken", headers={"Content-Type": "application/json", "Fiware-Service": tenant}
+        )
         assert response.status_code == 400
     assert [r["tenant"] for r in listing(client, "alpha")] == ["alpha"]
     # The refused tenant cannot be named on the per-tenant listing...
     assert client.get("/v2/notify/rejected", headers={"Fiware-Service": bad_tenant}).status_code == 400
     # ...but the operator listing shows it, stored as received, newest first.
-    every = client.get("/v2/notify/rejected", params={"allTenants": "true"},
-                       headers={"Fiware-Service": bad_tenant}).json()
+    every = client.get(
+        "/v2/notify/rejected", params={"allTenants": "true"}, headers={"Fiware-Service": bad_tenant}
+    ).json()
     assert [r["tenant"] for r in every] == [bad_tenant, "beta", "alpha"]
     assert every[0]["headers"]["fiware-service"] == bad_tenant and every[0]["body"] == "{broken"
     paged = client.get("/v2/notify/rejected", params={"allTenants": "true", "limit": 1, "offset": 1}).json()
@@ -129,9 +138,11 @@ def test_a_database_from_before_0002_keeps_working(client_factory, store_url, ba
 
 def _downgrade_to_0001(url: str, backend: str) -> None:
     """Make the store look like one written before migration 0002."""
-    statements = ["ALTER TABLE rejected_notifications DROP COLUMN body_size",
-                  "ALTER TABLE rejected_notifications DROP COLUMN body_truncated",
-                  "DELETE FROM schema_migrations WHERE version = 2"]
+    statements = [
+        "ALTER TABLE rejected_notifications DROP COLUMN body_size",
+        "ALTER TABLE rejected_notifications DROP COLUMN body_truncated",
+        "DELETE FROM schema_migrations WHERE version = 2",
+    ]
     if backend == "postgresql":
         import psycopg
 
@@ -156,8 +167,14 @@ def test_rejected_rows_survive_copy_with_size(client_factory, store_url_factory)
 
     source_url, target_url = store_url_factory("copy_source"), store_url_factory("copy_target")
     with client_factory(source_url, max_body_bytes=1024, rejected_body_max_bytes=3000) as client:
-        assert client.post("/v2/notify", content=body_of(50_000),
-                           headers={"Content-Type": "application/json", "Fiware-Service": "big"}).status_code == 413
+        assert (
+            client.post(
+                "/v2/notify",
+                content=body_of(50_000),
+                headers={"Content-Type": "application/json", "Fiware-Service": "big"},
+            ).status_code
+            == 413
+        )
     source, target = open_store(Settings(db=source_url)), open_store(Settings(db=target_url))
     try:
         copy_history(source, target, source_id=source_url)
@@ -170,8 +187,12 @@ def test_rejected_rows_survive_copy_with_size(client_factory, store_url_factory)
 
 def test_rejected_listing_is_json_for_binary_bodies(client):
     raw = b"\xff\xfe{"
-    assert client.post("/v2/notify", content=raw, headers={"Content-Type": "application/json",
-                                                           "Fiware-Service": "big"}).status_code == 400
+    assert (
+        client.post(
+            "/v2/notify", content=raw, headers={"Content-Type": "application/json", "Fiware-Service": "big"}
+        ).status_code
+        == 400
+    )
     [kept] = listing(client)
     assert kept["bodyEncoding"] == "base64" and kept["bodySize"] == 3
     assert orjson.loads(orjson.dumps(kept)) == kept

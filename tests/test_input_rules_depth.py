@@ -75,8 +75,11 @@ def test_too_deep_metadata_is_refused(client):
 
 
 def test_too_deep_ngsi_ld_sub_property_is_refused(client):
-    entity = {"id": "urn:E1", "type": "T",
-              "p": {"type": "Property", "value": 1, "sub": {"type": "Property", "value": nested(MAX_DEPTH)}}}
+    entity = {
+        "id": "urn:E1",
+        "type": "T",
+        "p": {"type": "Property", "value": 1, "sub": {"type": "Property", "value": nested(MAX_DEPTH)}},
+    }
     body = {"id": "urn:n", "type": "Notification", "data": [entity]}
     response = client.post("/ngsi-ld/v1/notify", json=body, headers=HEADERS)
     assert response.status_code == 400, response.text
@@ -102,10 +105,21 @@ def _path_to_bottom(levels: int, stop: int) -> str:
 @pytest.mark.parametrize(
     "url",
     [
-        "/v2/entities/E1", "/v2/entities/E1/value", "/v2/entities/E1/attrs/deep", "/v2/entities/E1/attrs/deep/value",
-        "/v2/types/T", "/v2/types/T/value", "/v2/types/T/attrs/deep", "/v2/types/T/attrs/deep/value",
-        "/v2/attrs", "/v2/attrs/value", "/v2/attrs/deep", "/v2/attrs/deep/value",
-        "/v2/entities/E1?lastN=1", "/v2/attrs?aggrMethod=count", "/v2/types/T?aggrMethod=count&aggrScope=global",
+        "/v2/entities/E1",
+        "/v2/entities/E1/value",
+        "/v2/entities/E1/attrs/deep",
+        "/v2/entities/E1/attrs/deep/value",
+        "/v2/types/T",
+        "/v2/types/T/value",
+        "/v2/types/T/attrs/deep",
+        "/v2/types/T/attrs/deep/value",
+        "/v2/attrs",
+        "/v2/attrs/value",
+        "/v2/attrs/deep",
+        "/v2/attrs/deep/value",
+        "/v2/entities/E1?lastN=1",
+        "/v2/attrs?aggrMethod=count",
+        "/v2/types/T?aggrMethod=count&aggrScope=global",
     ],
 )
 def test_every_history_read_renders_it(deepest, url):
@@ -141,7 +155,9 @@ def test_grafana_infinity_renders_it(deepest, endpoint):
 
 @pytest.mark.parametrize("fmt", ["timeseries", "table", "dataframe"])
 def test_grafana_simplejson_renders_it(deepest, fmt):
-    body = {"targets": [{"target": "E1/deep", "refId": "A", "payload": {"format": fmt}}],
-            "range": {"from": "2024-05-01T00:00:00Z", "to": "2024-05-02T00:00:00Z"}}
+    body = {
+        "targets": [{"target": "E1/deep", "refId": "A", "payload": {"format": fmt}}],
+        "range": {"from": "2024-05-01T00:00:00Z", "to": "2024-05-02T00:00:00Z"},
+    }
     response = deepest.post("/grafana/simplejson/query", json=body, headers=HEADERS)
     assert response.status_code == 200, response.text[:300]

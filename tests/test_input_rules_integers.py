@@ -21,16 +21,38 @@ NOT_INTEGERS = ["1.5", "abc", "0x10", "1e3", " "]
 @pytest.fixture(scope="module")
 def loaded(client_factory, store_url_factory):
     with client_factory(store_url_factory("ints")) as client:
-        body = {"subscriptionId": "s", "data": [{"id": "E1", "type": "T", "x": {"type": "Number", "value": 1},
-                                                 "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"}}]}
+        body = {
+            "subscriptionId": "s",
+            "data": [
+                {
+                    "id": "E1",
+                    "type": "T",
+                    "x": {"type": "Number", "value": 1},
+                    "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"},
+                }
+            ],
+        }
         assert client.post("/v2/notify", json=body, headers=HEADERS).status_code == 200
-        assert client.post("/v2/notify", content=b"{broken", headers={**HEADERS, "Content-Type": "application/json"}
-                           ).status_code == 400
+        assert (
+            client.post(
+                "/v2/notify", content=b"{broken", headers={**HEADERS, "Content-Type": "application/json"}
+            ).status_code
+            == 400
+        )
         yield client
 
 
-HISTORY = ["/v2/entities/E1", "/v2/entities/E1/value", "/v2/entities/E1/attrs/x", "/v2/entities/E1/attrs/x/value",
-           "/v2/types/T", "/v2/types/T/attrs/x", "/v2/attrs", "/v2/attrs/x", "/v2/attrs/x/value"]
+HISTORY = [
+    "/v2/entities/E1",
+    "/v2/entities/E1/value",
+    "/v2/entities/E1/attrs/x",
+    "/v2/entities/E1/attrs/x/value",
+    "/v2/types/T",
+    "/v2/types/T/attrs/x",
+    "/v2/attrs",
+    "/v2/attrs/x",
+    "/v2/attrs/x/value",
+]
 CASES = (
     [(url, name) for url in HISTORY for name in ("limit", "offset", "lastN")]
     + [("/v2/entities", "limit"), ("/v2/entities", "offset")]
@@ -57,14 +79,19 @@ def test_the_largest_allowed_value_is_answered(loaded, url, name):
 
 
 def test_rejected_offset_from_the_issue(loaded):
-    _assert_400(loaded.get("/v2/notify/rejected", params={"offset": "9223372036854775808"}, headers=HEADERS),
-                "offset")
+    _assert_400(loaded.get("/v2/notify/rejected", params={"offset": "9223372036854775808"}, headers=HEADERS), "offset")
     paged = loaded.get("/v2/notify/rejected", params={"offset": "0", "limit": "1"}, headers=HEADERS)
     assert paged.status_code == 200 and len(paged.json()) == 1
 
 
-INFINITY = [("series", "max_points"), ("series", "interval_ms"), ("states", "max_points"), ("events", "limit"),
-            ("positions", "max_points"), ("aggregate", "limit")]
+INFINITY = [
+    ("series", "max_points"),
+    ("series", "interval_ms"),
+    ("states", "max_points"),
+    ("events", "limit"),
+    ("positions", "max_points"),
+    ("aggregate", "limit"),
+]
 
 
 @pytest.mark.parametrize(("endpoint", "name"), INFINITY)

@@ -27,9 +27,17 @@ T0 = "2024-05-01T10:00:00Z"
 
 
 def notification(entity_id: str, entity_type: str, attr: str = "x", value: float = 1.0) -> dict:
-    return {"subscriptionId": "s", "data": [{"id": entity_id, "type": entity_type,
-                                             attr: {"type": "Number", "value": value},
-                                             "TimeInstant": {"type": "DateTime", "value": T0}}]}
+    return {
+        "subscriptionId": "s",
+        "data": [
+            {
+                "id": entity_id,
+                "type": entity_type,
+                attr: {"type": "Number", "value": value},
+                "TimeInstant": {"type": "DateTime", "value": T0},
+            }
+        ],
+    }
 
 
 def seg(text: str) -> str:
@@ -72,8 +80,9 @@ def test_values_layout_refuses_an_unaddressable_entity(client):
 
 def _refused(client, body: dict, headers: dict, what: str) -> None:
     headers = {"Fiware-Service": "rules", **headers}
-    response = client.post("/v2/notify", content=orjson.dumps(body),
-                           headers={"Content-Type": "application/json", **headers})
+    response = client.post(
+        "/v2/notify", content=orjson.dumps(body), headers={"Content-Type": "application/json", **headers}
+    )
     assert response.status_code == 400, response.text
     assert what in response.json()["description"]
     [kept] = client.get("/v2/notify/rejected", headers={"Fiware-Service": "rules"}).json()
@@ -112,8 +121,23 @@ def test_query_service_paths_follow_the_rule(client, path):
 
 # --- everything stored is reached by its name, over real HTTP ---------------------------------------------
 
-IDS = ["urn:ngsi-ld:Robot:a/b", "https://example.org/e/1?q=1&r=2#frag", "a%2Fb", "50%", "%", "a b", "value",
-       "attrs", "ü/ü", "a;b=c(d)", "x" * 1024, "/leading", "trailing/", "a//b", "E1"]
+IDS = [
+    "urn:ngsi-ld:Robot:a/b",
+    "https://example.org/e/1?q=1&r=2#frag",
+    "a%2Fb",
+    "50%",
+    "%",
+    "a b",
+    "value",
+    "attrs",
+    "ü/ü",
+    "a;b=c(d)",
+    "x" * 1024,
+    "/leading",
+    "trailing/",
+    "a//b",
+    "E1",
+]
 TYPES = ["https://uri.fiware.org/ns/data-models#Robot", "a/b", "T%2F", "t" * 1024, "Type With Spaces"]
 ATTRS = ["https://example.org/ns/speed", "a/b", "value", "p%2Fq", "ex:x"]
 PATHS = ["/" + "c" * 256, "/a/b/c", "/ünï/códe"]
@@ -128,8 +152,15 @@ class _Server(uvicorn.Server):
 def served(app_factory, store_url_factory):
     """The app behind real uvicorn (the path decoding under test is the
     server's), holding one entity per id, type and attribute name."""
-    server = _Server(uvicorn.Config(app_factory(store_url_factory("names")), host="127.0.0.1", port=free_port(),
-                                    log_level="warning", lifespan="on"))
+    server = _Server(
+        uvicorn.Config(
+            app_factory(store_url_factory("names")),
+            host="127.0.0.1",
+            port=free_port(),
+            log_level="warning",
+            lifespan="on",
+        )
+    )
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
     while not server.started:
@@ -140,8 +171,11 @@ def served(app_factory, store_url_factory):
         for i, entity_id in enumerate(IDS):
             attr, entity_type = ATTRS[i % len(ATTRS)], TYPES[i % len(TYPES)]
             path = PATHS[i % len(PATHS)]
-            response = http.post("/v2/notify", json=notification(entity_id, entity_type, attr, i),
-                                 headers={"Fiware-ServicePath": path.encode()})
+            response = http.post(
+                "/v2/notify",
+                json=notification(entity_id, entity_type, attr, i),
+                headers={"Fiware-ServicePath": path.encode()},
+            )
             assert response.status_code == 200, response.text
         yield http
     server.should_exit = True
@@ -161,7 +195,10 @@ def test_every_history_endpoint_reaches_it(served, i):
     assert {a["attrName"]: a["values"] for a in one.json()["attributes"]}[attr] == [i]
     values = served.get(f"/v2/entities/{seg(entity_id)}/value").json()["attributes"]
     assert {a["attrName"]: a["values"] for a in values}[attr] == [i]
-    for url in (f"/v2/entities/{seg(entity_id)}/attrs/{seg(attr)}", f"/v2/entities/{seg(entity_id)}/attrs/{seg(attr)}/value"):
+    for url in (
+        f"/v2/entities/{seg(entity_id)}/attrs/{seg(attr)}",
+        f"/v2/entities/{seg(entity_id)}/attrs/{seg(attr)}/value",
+    ):
         response = served.get(url)
         assert response.status_code == 200, (url, response.text)
         assert response.json()["values"] == [i]
@@ -188,8 +225,9 @@ def test_op_query_and_grafana_reach_it(served, i):
     entity_id, entity_type, attr, _ = _case(i)
     [found] = served.post("/v2/op/query", json={"entities": [{"id": entity_id, "type": entity_type}]}).json()
     assert found["id"] == entity_id and found[attr]["value"] == i
-    rows = served.get("/grafana/infinity/latest", params={"id": entity_id, "type": entity_type,
-                                                          "attrs": f"v={attr}"}).json()
+    rows = served.get(
+        "/grafana/infinity/latest", params={"id": entity_id, "type": entity_type, "attrs": f"v={attr}"}
+    ).json()
     assert [(r["entity"], r["v"]) for r in rows] == [(entity_id, i)]
 
 

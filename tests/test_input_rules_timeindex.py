@@ -12,7 +12,7 @@ those years is misread.
 from __future__ import annotations
 
 import re
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 
 import orjson
 import pytest
@@ -21,7 +21,7 @@ from tsdb_service.ngsi import parse_notification
 from tsdb_service.ngsi.timeindex import FALLBACK_METADATA, parse_time
 from tsdb_service.storage.copy import _stream
 
-UTC = timezone.utc
+UTC = UTC
 RECEIVED = datetime(2030, 1, 1, 12, 0, tzinfo=UTC)
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 LAST_SECOND_OF_9999 = 253402300799
@@ -30,8 +30,7 @@ FIRST_SECOND_OF_YEAR_1 = -62135596800
 
 def parse(entity: dict, headers: dict | None = None):
     body = orjson.dumps({"subscriptionId": "s", "data": [{"id": "E1", "type": "T", **entity}]})
-    [sample] = parse_notification(body, {"Ngsiv2-AttrsFormat": "normalized", **(headers or {})},
-                                  received_at=RECEIVED)
+    [sample] = parse_notification(body, {"Ngsiv2-AttrsFormat": "normalized", **(headers or {})}, received_at=RECEIVED)
     return sample
 
 
@@ -63,8 +62,9 @@ def test_epoch_numbers(number, expected):
     assert parse_time(number) == expected
 
 
-@pytest.mark.parametrize("number", [LAST_SECOND_OF_9999 + 1, 9e11, 999_999_999_999, FIRST_SECOND_OF_YEAR_1 - 1,
-                                    1e20, -1e20, 2.6e14])
+@pytest.mark.parametrize(
+    "number", [LAST_SECOND_OF_9999 + 1, 9e11, 999_999_999_999, FIRST_SECOND_OF_YEAR_1 - 1, 1e20, -1e20, 2.6e14]
+)
 def test_numbers_that_are_no_instant(number):
     # LAST_SECOND_OF_9999 + 1 (the year 10000 in seconds) was read as 1978.
     assert parse_time(number) is None
@@ -79,8 +79,19 @@ def test_every_year_in_seconds_is_read_as_seconds():
 # --- the fallback is recorded ------------------------------------------------------------
 
 
-@pytest.mark.parametrize("bad", ["0000-01-01T00:00:00Z", "99999-01-01T00:00:00Z", "+099999-01-01", 1e20, True,
-                                 LAST_SECOND_OF_9999 + 1, "n/a", "2024-13-45"])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        "0000-01-01T00:00:00Z",
+        "99999-01-01T00:00:00Z",
+        "+099999-01-01",
+        1e20,
+        True,
+        LAST_SECOND_OF_9999 + 1,
+        "n/a",
+        "2024-13-45",
+    ],
+)
 def test_unusable_time_instant_is_recorded_on_every_sample(bad):
     sample = parse({"TimeInstant": {"type": "DateTime", "value": bad}, "x": {"type": "Number", "value": 1}})
     assert sample.time_index == RECEIVED
@@ -88,12 +99,21 @@ def test_unusable_time_instant_is_recorded_on_every_sample(bad):
 
 
 def test_each_unusable_source_is_named_and_metadata_kept():
-    sample = parse({
-        "x": {"type": "Number", "value": 1, "metadata": {"TimeInstant": {"type": "DateTime", "value": False},
-                                                         "unit": {"type": "Text", "value": "m"}}},
-        "timestamp": {"type": "Number", "value": 1e20},
-        "when": {"type": "Text", "value": "never"},
-    }, headers={"Fiware-TimeIndex-Attribute": "when"})
+    sample = parse(
+        {
+            "x": {
+                "type": "Number",
+                "value": 1,
+                "metadata": {
+                    "TimeInstant": {"type": "DateTime", "value": False},
+                    "unit": {"type": "Text", "value": "m"},
+                },
+            },
+            "timestamp": {"type": "Number", "value": 1e20},
+            "when": {"type": "Text", "value": "never"},
+        },
+        headers={"Fiware-TimeIndex-Attribute": "when"},
+    )
     assert sample.time_index == RECEIVED
     md = orjson.loads(sample.attrs[0].md)
     assert md["unit"] == {"type": "Text", "value": "m"}
@@ -106,15 +126,30 @@ def test_no_time_at_all_is_not_flagged():
 
 
 def test_a_later_usable_source_is_not_a_fallback():
-    sample = parse({"TimeInstant": {"type": "DateTime", "value": True},
-                    "dateModified": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"}})
+    sample = parse(
+        {
+            "TimeInstant": {"type": "DateTime", "value": True},
+            "dateModified": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"},
+        }
+    )
     assert sample.time_index == datetime(2024, 5, 1, 10, tzinfo=UTC)
     assert flags(sample) == [None, None]
 
 
 def test_ngsi_ld_observed_at_year_zero():
-    body = orjson.dumps({"id": "urn:n", "type": "Notification", "data": [
-        {"id": "urn:E", "type": "T", "p": {"type": "Property", "value": 1, "observedAt": "0000-01-01T00:00:00Z"}}]})
+    body = orjson.dumps(
+        {
+            "id": "urn:n",
+            "type": "Notification",
+            "data": [
+                {
+                    "id": "urn:E",
+                    "type": "T",
+                    "p": {"type": "Property", "value": 1, "observedAt": "0000-01-01T00:00:00Z"},
+                }
+            ],
+        }
+    )
     [sample] = parse_notification(body, {}, received_at=RECEIVED)
     assert sample.time_index == RECEIVED
     md = orjson.loads(sample.attrs[0].md)
@@ -133,17 +168,33 @@ def _fallbacks(client) -> float:
 
 def test_stored_with_the_flag_and_counted(client):
     before = _fallbacks(client)
-    body = {"subscriptionId": "s", "data": [
-        {"id": "E1", "type": "T", "TimeInstant": {"type": "DateTime", "value": "0000-01-01T00:00:00Z"},
-         "x": {"type": "Number", "value": 1}},
-        {"id": "E2", "type": "T", "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"},
-         "x": {"type": "Number", "value": 2}},
-    ]}
+    body = {
+        "subscriptionId": "s",
+        "data": [
+            {
+                "id": "E1",
+                "type": "T",
+                "TimeInstant": {"type": "DateTime", "value": "0000-01-01T00:00:00Z"},
+                "x": {"type": "Number", "value": 1},
+            },
+            {
+                "id": "E2",
+                "type": "T",
+                "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"},
+                "x": {"type": "Number", "value": 2},
+            },
+        ],
+    }
     assert client.post("/v2/notify", json=body).status_code == 200
     assert _fallbacks(client) == before + 1
     store = client.app.state.store
-    rows = list(_stream(store, "SELECT s.entity_id, s.attr, x.md FROM samples_all x JOIN series s ON s.sid = x.sid "
-                               "ORDER BY s.entity_id, s.attr"))
+    rows = list(
+        _stream(
+            store,
+            "SELECT s.entity_id, s.attr, x.md FROM samples_all x JOIN series s ON s.sid = x.sid "
+            "ORDER BY s.entity_id, s.attr",
+        )
+    )
     got = {(eid, attr): (orjson.loads(md) if md else {}).get(FALLBACK_METADATA) for eid, attr, md in rows}
     flag = {"type": "StructuredValue", "value": ["TimeInstant"]}
     assert got == {("E1", "TimeInstant"): flag, ("E1", "x"): flag, ("E2", "TimeInstant"): None, ("E2", "x"): None}

@@ -19,10 +19,17 @@ NEAR = {"georel": "near;maxDistance:1500", "geometry": "point", "coords": "40.41
 
 def _move(client, robot: int, step: int, t: int, rnd: random.Random) -> None:
     lon, lat = -3.74 + rnd.random() * 0.08, 40.38 + rnd.random() * 0.08
-    body = {"data": [{"id": f"Bot{robot}", "type": "Robot",
-                      "location": {"type": "geo:json", "value": {"type": "Point", "coordinates": [lon, lat]}},
-                      "battery": {"type": "Number", "value": step},
-                      "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:{t // 60:02d}:{t % 60:02d}Z"}}]}
+    body = {
+        "data": [
+            {
+                "id": f"Bot{robot}",
+                "type": "Robot",
+                "location": {"type": "geo:json", "value": {"type": "Point", "coordinates": [lon, lat]}},
+                "battery": {"type": "Number", "value": step},
+                "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:{t // 60:02d}:{t % 60:02d}Z"},
+            }
+        ]
+    }
     assert client.post("/v2/notify", json=body, headers=H).status_code == 200
 
 
@@ -42,8 +49,11 @@ def test_index_and_database_agree(client):
             t = step if rnd.random() < 0.85 else rnd.randint(0, step)
             _move(client, rnd.randint(0, 5), step, t, rnd)
         elif roll < 0.65:
-            client.delete(f"/v2/entities/Bot{rnd.randint(0, 5)}", headers=H,
-                          params={"type": "Robot", "fromDate": f"2024-05-01T10:0{rnd.randint(1, 3)}:00Z"})
+            client.delete(
+                f"/v2/entities/Bot{rnd.randint(0, 5)}",
+                headers=H,
+                params={"type": "Robot", "fromDate": f"2024-05-01T10:0{rnd.randint(1, 3)}:00Z"},
+            )
         else:
             for query in (AREA, NEAR, {**AREA, "geoScope": "entity"}, {**NEAR, "geoScope": "entity"}):
                 memory = _ids(client, query)

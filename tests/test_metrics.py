@@ -51,8 +51,9 @@ def entity(i: int, timed: bool) -> dict:
 
 def post(client, tenant: str, body: bytes | dict, headers: dict | None = None):
     content = body if isinstance(body, bytes) else orjson.dumps(body)
-    return client.post("/v2/notify", content=content,
-                       headers={**JSON_HEADERS, "Fiware-Service": tenant, **(headers or {})})  # fmt: skip
+    return client.post(
+        "/v2/notify", content=content, headers={**JSON_HEADERS, "Fiware-Service": tenant, **(headers or {})}
+    )
 
 
 def load(client) -> None:
@@ -65,7 +66,9 @@ def load(client) -> None:
     assert post(client, "beta", b"[]").status_code == 400
     assert post(client, "beta", b"{}", {"Content-Type": "text/plain"}).status_code == 415
     layout = {"attrs": ["id", "temperature"], "entityType": "Robot"}
-    assert client.put("/v2/notify/subscriptions/s1", json=layout, headers={"Fiware-Service": "alpha"}).status_code == 200
+    assert (
+        client.put("/v2/notify/subscriptions/s1", json=layout, headers={"Fiware-Service": "alpha"}).status_code == 200
+    )
     for i in range(QUERIES):
         answer = client.get(f"/v2/entities/Robot:{i}/attrs/temperature", headers={"Fiware-Service": "alpha"})
         assert answer.status_code == 200, answer.text
@@ -112,8 +115,10 @@ def test_commit_latency_and_group_sizes(loaded):
 
 def test_request_latency_is_labelled_by_route_template(loaded):
     _, samples, _ = loaded
-    assert value(samples, "tsdb_http_request_duration_seconds_count",
-                 route=ATTR_ROUTE, method="GET", status="200") == QUERIES  # fmt: skip
+    assert (
+        value(samples, "tsdb_http_request_duration_seconds_count", route=ATTR_ROUTE, method="GET", status="200")
+        == QUERIES
+    )
     notify = {"route": "/v2/notify", "method": "POST"}
     assert value(samples, "tsdb_http_request_duration_seconds_count", status="200", **notify) == GOOD_ALPHA + GOOD_BETA
     assert value(samples, "tsdb_http_request_duration_seconds_count", status="400", **notify) == 2
@@ -127,10 +132,11 @@ def test_unknown_paths_and_methods_stay_bounded(client):
         assert client.get(f"/no/such/{i}").status_code == 404
     assert client.request("BREW", "/v2/entities").status_code == 405
     samples = scrape(client)
-    assert value(samples, "tsdb_http_request_duration_seconds_count",
-                 route=UNMATCHED, method="GET", status="404") == 3  # fmt: skip
-    assert value(samples, "tsdb_http_request_duration_seconds_count",
-                 route="/v2/entities", method=OTHER, status="405") == 1  # fmt: skip
+    assert value(samples, "tsdb_http_request_duration_seconds_count", route=UNMATCHED, method="GET", status="404") == 3
+    assert (
+        value(samples, "tsdb_http_request_duration_seconds_count", route="/v2/entities", method=OTHER, status="405")
+        == 1
+    )
 
 
 def test_fallback_time_indexes(loaded):
@@ -157,8 +163,11 @@ def test_tenant_labels_are_capped(store_url):
         for tenant in ("t1", "t2", "t3", "t4", "t1"):
             assert post(client, tenant, {"subscriptionId": "s", "data": [entity(1, True)]}).status_code == 200
         samples = scrape(client)
-    accepted = {dict(labels)["tenant"]: v for (name, labels), v in samples.items()
-                if name == "tsdb_notifications_accepted_total"}  # fmt: skip
+    accepted = {
+        dict(labels)["tenant"]: v
+        for (name, labels), v in samples.items()
+        if name == "tsdb_notifications_accepted_total"
+    }
     assert accepted == {"t1": 2, "t2": 1, OTHER: 2}
 
 

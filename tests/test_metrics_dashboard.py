@@ -20,8 +20,11 @@ METRIC = re.compile(r"\b((?:tsdb|process)_[a-z_]+)\b")
 
 def exposed_names(client) -> set[str]:
     text = client.get("/metrics").text
-    return {family.name + suffix for family in text_string_to_metric_families(text)
-            for suffix in SUFFIXES.get(family.type, ("",))}  # fmt: skip
+    return {
+        family.name + suffix
+        for family in text_string_to_metric_families(text)
+        for suffix in SUFFIXES.get(family.type, ("",))
+    }
 
 
 def test_every_query_names_an_exposed_metric(client):

@@ -16,9 +16,19 @@ GOOD, BAD, QUERIES = 6, 2, 3
 
 
 def notification(i: int) -> bytes:
-    return orjson.dumps({"subscriptionId": "s", "data": [{
-        "id": f"Door:{i}", "type": "Door", "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"},
-        "open": {"type": "Boolean", "value": i % 2 == 0}}]})  # fmt: skip
+    return orjson.dumps(
+        {
+            "subscriptionId": "s",
+            "data": [
+                {
+                    "id": f"Door:{i}",
+                    "type": "Door",
+                    "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"},
+                    "open": {"type": "Boolean", "value": i % 2 == 0},
+                }
+            ],
+        }
+    )
 
 
 def test_a_served_process_reports_its_load(store_url_factory):
@@ -32,8 +42,11 @@ def test_a_served_process_reports_its_load(store_url_factory):
             assert http.get(f"/v2/entities/Door:{i}", headers=headers).status_code == 200
         scrape = http.get("/metrics")
     assert scrape.status_code == 200
-    samples = {(s.name, tuple(sorted(s.labels.items()))): s.value
-               for family in text_string_to_metric_families(scrape.text) for s in family.samples}  # fmt: skip
+    samples = {
+        (s.name, tuple(sorted(s.labels.items()))): s.value
+        for family in text_string_to_metric_families(scrape.text)
+        for s in family.samples
+    }
     assert samples[("tsdb_notifications_received_total", (("tenant", "site"),))] == GOOD + BAD
     assert samples[("tsdb_notifications_accepted_total", (("tenant", "site"),))] == GOOD
     assert samples[("tsdb_notifications_rejected_total", (("reason", "ParseError"), ("tenant", "site")))] == BAD

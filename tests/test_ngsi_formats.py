@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import random
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import orjson
 import pytest
@@ -13,7 +13,7 @@ from tsdb_service.errors import ParseError
 from tsdb_service.model import Kind
 from tsdb_service.ngsi import ValuesLayout, parse_notification
 
-RECEIVED = datetime(2030, 1, 1, tzinfo=timezone.utc)
+RECEIVED = datetime(2030, 1, 1, tzinfo=UTC)
 
 
 def parse(body, headers=None, **kwargs):
@@ -65,7 +65,15 @@ def test_normalized():
 
 
 def test_normalized_is_lenient_with_bare_values_and_missing_types():
-    [e] = v2({"id": "R", "type": "T", "bare": 5, "untyped": {"value": "2024-05-01T00:00:00Z"}, "geo": {"type": "Point", "coordinates": [1, 2]}})
+    [e] = v2(
+        {
+            "id": "R",
+            "type": "T",
+            "bare": 5,
+            "untyped": {"value": "2024-05-01T00:00:00Z"},
+            "geo": {"type": "Point", "coordinates": [1, 2]},
+        }
+    )
     a = attrs(e)
     assert (a["bare"].kind, a["bare"].num) == (Kind.INTEGER, 5.0)
     assert (a["untyped"].kind, a["untyped"].ngsi_type) == (Kind.DATETIME, "DateTime")
@@ -74,7 +82,17 @@ def test_normalized_is_lenient_with_bare_values_and_missing_types():
 
 def test_key_values():
     [e] = v2(
-        {"id": "R", "type": "T", "t": 21.5, "n": 3, "s": "x", "b": False, "o": {"a": 1}, "location": {"type": "Point", "coordinates": [2.1, 41.3]}, "z": None},
+        {
+            "id": "R",
+            "type": "T",
+            "t": 21.5,
+            "n": 3,
+            "s": "x",
+            "b": False,
+            "o": {"a": 1},
+            "location": {"type": "Point", "coordinates": [2.1, 41.3]},
+            "z": None,
+        },
         fmt="keyValues",
     )
     kinds = {n: a.kind for n, a in attrs(e).items()}
@@ -106,7 +124,10 @@ def test_simplified_key_values():
 
 
 def test_header_name_and_value_case_insensitive():
-    [e] = parse({"subscriptionId": "s", "data": [{"id": "R", "t": {"type": "Number", "value": 1}}]}, {"NGSIV2-ATTRSFORMAT": "Normalized"})
+    [e] = parse(
+        {"subscriptionId": "s", "data": [{"id": "R", "t": {"type": "Number", "value": 1}}]},
+        {"NGSIV2-ATTRSFORMAT": "Normalized"},
+    )
     assert attrs(e)["t"].kind is Kind.NUMBER
 
 
@@ -124,7 +145,9 @@ def test_missing_type_is_thing():
     assert e.entity_type == "Thing"
 
 
-@pytest.mark.parametrize("entity", [{"type": "T"}, {"id": "", "type": "T"}, {"id": 5, "type": "T"}, {"id": None}, {"id": ["a"]}])
+@pytest.mark.parametrize(
+    "entity", [{"type": "T"}, {"id": "", "type": "T"}, {"id": 5, "type": "T"}, {"id": None}, {"id": ["a"]}]
+)
 def test_entity_id_required(entity):
     with pytest.raises(ParseError, match="entity id"):
         v2(entity)
@@ -140,8 +163,17 @@ def test_names_preserved_exactly():
     # Entity ids and types keep any text; attribute names keep everything the
     # name rule allows (names with quotes, white space or over 256 characters
     # are refused: see test_ingest_names.py).
-    weird = ["Temp'; DROP TABLE entities;--", 'say "hi"', "Ünïcødé 温度 🌡", "x" * 256, "MiXeD", "a.b$c",
-             "https://example.org/ns#speed", "Ünïcødé_温度_🌡", "DROP%20TABLE--"]
+    weird = [
+        "Temp'; DROP TABLE entities;--",
+        'say "hi"',
+        "Ünïcødé 温度 🌡",
+        "x" * 256,
+        "MiXeD",
+        "a.b$c",
+        "https://example.org/ns#speed",
+        "Ünïcødé_温度_🌡",
+        "DROP%20TABLE--",
+    ]
     entity = {"id": weird[0], "type": weird[1]}
     entity.update({name: {"type": "Number", "value": 1} for name in weird[3:]})
     [e] = v2(entity, headers={"Fiware-ServicePath": "/Ünïcødé"})
@@ -163,7 +195,11 @@ def test_values_with_id_and_type_columns():
         calls.append((tenant, subscription))
         return ValuesLayout(attrs=("id", "type", "temperature", "on"))
 
-    out = parse(values_body(["R1", "Room", 21.5, True], ["R2", "Room", None, False]), {"Ngsiv2-AttrsFormat": "values", "Fiware-Service": "Acme"}, values_layout=lookup)
+    out = parse(
+        values_body(["R1", "Room", 21.5, True], ["R2", "Room", None, False]),
+        {"Ngsiv2-AttrsFormat": "values", "Fiware-Service": "Acme"},
+        values_layout=lookup,
+    )
     assert calls == [("acme", "sub1")]
     assert [(e.entity_id, e.entity_type, e.tenant) for e in out] == [("R1", "Room", "acme"), ("R2", "Room", "acme")]
     assert [a.name for a in out[0].attrs] == ["temperature", "on"]
@@ -172,9 +208,11 @@ def test_values_with_id_and_type_columns():
 
 def test_values_with_fixed_entity():
     layout = ValuesLayout(attrs=("temperature", "TimeInstant"), entity_id="R1", entity_type="Room")
-    [e] = parse(values_body([20, "2024-05-01T10:00:00Z"]), {"Ngsiv2-AttrsFormat": "values"}, values_layout=lambda t, s: layout)
+    [e] = parse(
+        values_body([20, "2024-05-01T10:00:00Z"]), {"Ngsiv2-AttrsFormat": "values"}, values_layout=lambda t, s: layout
+    )
     assert (e.entity_id, e.entity_type) == ("R1", "Room")
-    assert e.time_index == datetime(2024, 5, 1, 10, tzinfo=timezone.utc)
+    assert e.time_index == datetime(2024, 5, 1, 10, tzinfo=UTC)
 
 
 def test_values_fixed_entity_without_type_is_thing():
@@ -224,7 +262,12 @@ def test_legacy_context_responses():
                     "type": "Room",
                     "isPattern": "false",
                     "attributes": [
-                        {"name": "temperature", "type": "float", "value": "23", "metadatas": [{"name": "TimeInstant", "type": "ISO8601", "value": "2024-05-01T10:00:00Z"}]}
+                        {
+                            "name": "temperature",
+                            "type": "float",
+                            "value": "23",
+                            "metadatas": [{"name": "TimeInstant", "type": "ISO8601", "value": "2024-05-01T10:00:00Z"}],
+                        }
                     ],
                 },
                 "statusCode": {"code": "200", "reasonPhrase": "OK"},
@@ -234,12 +277,18 @@ def test_legacy_context_responses():
     [e] = parse(body, {"Ngsiv2-AttrsFormat": "legacy"})
     [t] = e.attrs
     assert (e.entity_id, t.name, t.kind, t.num) == ("Room1", "temperature", Kind.NUMBER, 23.0)
-    assert e.time_index == datetime(2024, 5, 1, 10, tzinfo=timezone.utc)
+    assert e.time_index == datetime(2024, 5, 1, 10, tzinfo=UTC)
 
 
 @pytest.mark.parametrize(
     "responses",
-    ["x", [5], [{"contextElement": 5}], [{"contextElement": {"id": "R", "attributes": 5}}], [{"contextElement": {"id": "R", "attributes": [{"value": 1}]}}]],
+    [
+        "x",
+        [5],
+        [{"contextElement": 5}],
+        [{"contextElement": {"id": "R", "attributes": 5}}],
+        [{"contextElement": {"id": "R", "attributes": [{"value": 1}]}}],
+    ],
 )
 def test_legacy_errors(responses):
     with pytest.raises(ParseError):
@@ -258,22 +307,35 @@ def test_ld_normalized():
             "createdAt": "2024-01-01T00:00:00Z",
             "modifiedAt": "2024-05-01T00:00:00Z",
             "scope": "/a",
-            "speed": {"type": "Property", "value": 80, "unitCode": "KMH", "observedAt": "2024-05-01T09:00:00Z", "accuracy": {"type": "Property", "value": 0.5}},
+            "speed": {
+                "type": "Property",
+                "value": 80,
+                "unitCode": "KMH",
+                "observedAt": "2024-05-01T09:00:00Z",
+                "accuracy": {"type": "Property", "value": 0.5},
+            },
             "location": {"type": "GeoProperty", "value": {"type": "Point", "coordinates": [2.1493, 41.3763]}},
             "owner": {"type": "Relationship", "object": "urn:ngsi-ld:Person:1"},
             "name": {"type": "LanguageProperty", "languageMap": {"en": "car", "es": "coche"}},
         }
     )
-    assert (e.entity_id, e.entity_type) == ("urn:ngsi-ld:Vehicle:1", "https://uri.etsi.org/ngsi-ld/default-context/Vehicle")
+    assert (e.entity_id, e.entity_type) == (
+        "urn:ngsi-ld:Vehicle:1",
+        "https://uri.etsi.org/ngsi-ld/default-context/Vehicle",
+    )
     a = attrs(e)
     assert list(a) == ["speed", "location", "owner", "name"]
     assert (a["speed"].kind, a["speed"].num, a["speed"].ngsi_type) == (Kind.INTEGER, 80.0, "Property")
-    assert json.loads(a["speed"].md) == {"unitCode": "KMH", "observedAt": "2024-05-01T09:00:00Z", "accuracy": {"type": "Property", "value": 0.5}}
+    assert json.loads(a["speed"].md) == {
+        "unitCode": "KMH",
+        "observedAt": "2024-05-01T09:00:00Z",
+        "accuracy": {"type": "Property", "value": 0.5},
+    }
     assert (a["location"].kind, a["location"].ngsi_type, a["location"].md) == (Kind.GEO, "GeoProperty", None)
     assert (a["location"].geo.lon, a["location"].geo.lat) == (2.1493, 41.3763)
     assert (a["owner"].kind, a["owner"].txt) == (Kind.RELATIONSHIP, "urn:ngsi-ld:Person:1")
     assert (a["name"].kind, json.loads(a["name"].js)) == (Kind.STRUCTURED, {"en": "car", "es": "coche"})
-    assert e.time_index == datetime(2024, 5, 1, 9, tzinfo=timezone.utc)
+    assert e.time_index == datetime(2024, 5, 1, 9, tzinfo=UTC)
 
 
 def test_ld_type_list_uses_first():
@@ -320,11 +382,20 @@ def test_ld_concise_and_key_values():
         }
     )
     a = attrs(e)
-    assert (a["speed"].kind, a["speed"].ngsi_type, json.loads(a["speed"].md)) == (Kind.INTEGER, "Property", {"observedAt": "2024-05-01T09:00:00Z"})
+    assert (a["speed"].kind, a["speed"].ngsi_type, json.loads(a["speed"].md)) == (
+        Kind.INTEGER,
+        "Property",
+        {"observedAt": "2024-05-01T09:00:00Z"},
+    )
     assert (a["owner"].kind, a["owner"].ngsi_type) == (Kind.RELATIONSHIP, "Relationship")
     assert (a["location"].kind, a["location"].ngsi_type) == (Kind.GEO, "GeoProperty")
-    assert (a["plain"].kind, a["text"].kind, a["array"].kind, a["obj"].kind) == (Kind.INTEGER, Kind.TEXT, Kind.STRUCTURED, Kind.STRUCTURED)
-    assert e.time_index == datetime(2024, 5, 1, 9, tzinfo=timezone.utc)
+    assert (a["plain"].kind, a["text"].kind, a["array"].kind, a["obj"].kind) == (
+        Kind.INTEGER,
+        Kind.TEXT,
+        Kind.STRUCTURED,
+        Kind.STRUCTURED,
+    )
+    assert e.time_index == datetime(2024, 5, 1, 9, tzinfo=UTC)
 
 
 def test_ld_relationship_with_value_is_accepted():
@@ -333,19 +404,31 @@ def test_ld_relationship_with_value_is_accepted():
 
 
 def test_ld_envelope_wins_over_v2_header():
-    body = {"id": "urn:n", "type": "Notification", "data": [{"id": "urn:x", "type": "T", "p": {"type": "Property", "value": 1, "observedAt": "2024-05-01T00:00:00Z"}}]}
+    body = {
+        "id": "urn:n",
+        "type": "Notification",
+        "data": [
+            {"id": "urn:x", "type": "T", "p": {"type": "Property", "value": 1, "observedAt": "2024-05-01T00:00:00Z"}}
+        ],
+    }
     [e] = parse(body, {"Ngsiv2-AttrsFormat": "normalized"})
     assert json.loads(e.attrs[0].md) == {"observedAt": "2024-05-01T00:00:00Z"}
 
 
 def test_ld_entities_detected_without_envelope_type():
-    body = {"subscriptionId": "s", "data": [{"id": "urn:x", "type": "T", "p": {"type": "Property", "value": 1, "unitCode": "CEL"}}]}
+    body = {
+        "subscriptionId": "s",
+        "data": [{"id": "urn:x", "type": "T", "p": {"type": "Property", "value": 1, "unitCode": "CEL"}}],
+    }
     [e] = parse(body)
     assert json.loads(e.attrs[0].md) == {"unitCode": "CEL"}
 
 
 def test_v2_relationship_without_header_stays_v2():
-    body = {"subscriptionId": "s", "data": [{"id": "R", "type": "T", "ref": {"type": "Relationship", "value": "urn:b", "metadata": {}}}]}
+    body = {
+        "subscriptionId": "s",
+        "data": [{"id": "R", "type": "T", "ref": {"type": "Relationship", "value": "urn:b", "metadata": {}}}],
+    }
     [e] = parse(body)
     assert (e.attrs[0].kind, e.attrs[0].txt) == (Kind.RELATIONSHIP, "urn:b")
 
@@ -386,7 +469,9 @@ def test_conflicting_tenant_headers_are_refused_in_every_format():
             parse_as({"id": "urn:x"}, headers={"NGSILD-Tenant": "ld", "Fiware-Service": "v2"})
 
 
-@pytest.mark.parametrize("header, expected", [("/", "/"), ("/a", "/a"), ("/a/", "/a"), ("/a/b", "/a/b"), (" /a ", "/a"), ("", "/")])
+@pytest.mark.parametrize(
+    "header, expected", [("/", "/"), ("/a", "/a"), ("/a/", "/a"), ("/a/b", "/a/b"), (" /a ", "/a"), ("", "/")]
+)
 def test_service_path(header, expected):
     assert v2({"id": "R"}, headers={"Fiware-ServicePath": header})[0].service_path == expected
 
@@ -401,7 +486,17 @@ def test_single_service_path_applies_to_all():
     assert [e.service_path for e in out] == ["/a", "/a"]
 
 
-@pytest.mark.parametrize("header, message", [("/a,/b,/c", "3 paths for 2"), ("a", "start with"), ("/a//b", "empty component"), ("/a/#", "#"), ("/a,", "start with"), ("//", "empty component")])
+@pytest.mark.parametrize(
+    "header, message",
+    [
+        ("/a,/b,/c", "3 paths for 2"),
+        ("a", "start with"),
+        ("/a//b", "empty component"),
+        ("/a/#", "#"),
+        ("/a,", "start with"),
+        ("//", "empty component"),
+    ],
+)
 def test_service_path_errors(header, message):
     with pytest.raises(ParseError, match=message):
         v2({"id": "A"}, {"id": "B"}, headers={"Fiware-ServicePath": header})
@@ -410,7 +505,9 @@ def test_service_path_errors(header, message):
 # --- malformed input -------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("body", [b"", b"{", b"nope", b"\xff\xfe", b"[1, 2]", b"5", b"null", b'"x"', b"{}", b'{"data": 5}', b'{"foo": 1}'])
+@pytest.mark.parametrize(
+    "body", [b"", b"{", b"nope", b"\xff\xfe", b"[1, 2]", b"5", b"null", b'"x"', b"{}", b'{"data": 5}', b'{"foo": 1}']
+)
 def test_unusable_bodies(body):
     with pytest.raises(ParseError):
         parse(body)
@@ -456,14 +553,22 @@ MALFORMED = [
     {"id": "n", "type": "Notification", "data": [{"id": "x", "type": [None]}]},
     {"id": "n", "type": "Notification", "data": [{"id": "x", "type": []}]},
     {"id": "n", "type": "Notification", "data": [{"id": "x", "modifiedAt": {"a": 1}}]},
-    {"id": "n", "type": "Notification", "data": [{"id": "x", "a": {"type": "Property", "value": {"@type": "DateTime"}}}]},
+    {
+        "id": "n",
+        "type": "Notification",
+        "data": [{"id": "x", "a": {"type": "Property", "value": {"@type": "DateTime"}}}],
+    },
     {"id": "n", "type": "Notification", "data": [{"id": "x", "a": {"type": "Relationship", "object": [1, 2]}}]},
     {"id": "n", "type": "Notification", "data": [{"id": "x", "a": {"type": "GeoProperty", "value": "41, 2"}}]},
     {"id": "n", "type": "Notification", "data": [{"id": "x", "a": {"type": 5, "object": 5, "observedAt": [1]}}]},
     {"id": "n", "type": ["Notification"], "data": [{"id": "x"}]},
     {"contextResponses": None},
     {"contextResponses": [{"contextElement": {"id": "x", "attributes": [{"name": "a", "metadatas": 5}]}}]},
-    {"contextResponses": [{"contextElement": {"id": "x", "attributes": [{"name": "a", "metadatas": [5, {"name": 1}]}]}}]},
+    {
+        "contextResponses": [
+            {"contextElement": {"id": "x", "attributes": [{"name": "a", "metadatas": [5, {"name": 1}]}]}}
+        ]
+    },
     {"id": None},
     {"id": ""},
     {"id": "x", "type": 5},
@@ -499,12 +604,44 @@ def _random_json(rng: random.Random, depth: int = 0):
     if kind == "float":
         return rng.choice([0.5, -1e300, 1e11, 3.14])
     if kind == "str":
-        return rng.choice(["", "5", "id", "type", "value", "Point", "41, 2", "2024-05-01", "urn:x", "/a", "Notification", "geo:point", "Number", "std_msgs.msg.String"])
+        return rng.choice(
+            [
+                "",
+                "5",
+                "id",
+                "type",
+                "value",
+                "Point",
+                "41, 2",
+                "2024-05-01",
+                "urn:x",
+                "/a",
+                "Notification",
+                "geo:point",
+                "Number",
+                "std_msgs.msg.String",
+            ]
+        )
     if kind == "date":
         return "2024-05-01T10:00:00+02:00"
     if kind == "list":
         return [_random_json(rng, depth + 1) for _ in range(rng.randint(0, 4))]
-    keys = ["id", "type", "value", "data", "metadata", "object", "coordinates", "datasetId", "observedAt", "TimeInstant", "location", "subscriptionId", "contextResponses", "attributes"]
+    keys = [
+        "id",
+        "type",
+        "value",
+        "data",
+        "metadata",
+        "object",
+        "coordinates",
+        "datasetId",
+        "observedAt",
+        "TimeInstant",
+        "location",
+        "subscriptionId",
+        "contextResponses",
+        "attributes",
+    ]
     return {rng.choice(keys): _random_json(rng, depth + 1) for _ in range(rng.randint(0, 5))}
 
 
@@ -524,7 +661,16 @@ def _random_body(rng: random.Random):
 
 def test_random_shapes_raise_only_parse_error():
     rng = random.Random(20240501)
-    formats = [None, "normalized", "keyValues", "simplifiedNormalized", "simplifiedKeyValues", "values", "legacy", "bogus"]
+    formats = [
+        None,
+        "normalized",
+        "keyValues",
+        "simplifiedNormalized",
+        "simplifiedKeyValues",
+        "values",
+        "legacy",
+        "bogus",
+    ]
     parsed = 0
     for _ in range(3000):
         fmt = rng.choice(formats)

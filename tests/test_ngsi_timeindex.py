@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta, timezone
 
 import orjson
 import pytest
@@ -10,7 +10,7 @@ import pytest
 from tsdb_service.ngsi import parse_notification
 from tsdb_service.ngsi.timeindex import parse_time
 
-UTC = timezone.utc
+UTC = UTC
 RECEIVED = datetime(2030, 1, 1, 12, 0, tzinfo=UTC)
 
 
@@ -196,7 +196,11 @@ def test_ld_time_instant_beats_observed_at():
 
 
 def test_rule5_modified_at():
-    entity = {"a": {"type": "Property", "value": 1}, "modifiedAt": "2024-04-01T00:00:00Z", "createdAt": "2020-01-01T00:00:00Z"}
+    entity = {
+        "a": {"type": "Property", "value": 1},
+        "modifiedAt": "2024-04-01T00:00:00Z",
+        "createdAt": "2020-01-01T00:00:00Z",
+    }
     assert ld_index_of(entity) == utc(2024, 4, 1)
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import pytest
 
@@ -11,7 +11,7 @@ from tsdb_service.errors import ParseError
 from tsdb_service.model import Kind
 from tsdb_service.ngsi.values import attr_sample, decode_firos, to_json
 
-EPOCH_2024_05_01_10 = datetime(2024, 5, 1, 10, tzinfo=timezone.utc).timestamp()
+EPOCH_2024_05_01_10 = datetime(2024, 5, 1, 10, tzinfo=UTC).timestamp()
 
 
 def sample(ngsi_type, value, name="a", md=None):
@@ -69,7 +69,17 @@ def test_integer_variants():
 # --- booleans, text, datetimes -----------------------------------------------------
 
 
-@pytest.mark.parametrize("value, num, js", [(True, 1.0, "true"), (False, 0.0, "false"), ("TRUE", 1.0, "true"), ("false", 0.0, "false"), (1, 1.0, "true"), (0, 0.0, "false")])
+@pytest.mark.parametrize(
+    "value, num, js",
+    [
+        (True, 1.0, "true"),
+        (False, 0.0, "false"),
+        ("TRUE", 1.0, "true"),
+        ("false", 0.0, "false"),
+        (1, 1.0, "true"),
+        (0, 0.0, "false"),
+    ],
+)
 def test_boolean(value, num, js):
     s = sample("Boolean", value)
     assert (s.kind, s.num, s.js) == (Kind.BOOLEAN, num, js)

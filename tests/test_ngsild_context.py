@@ -11,12 +11,19 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 import pytest
 from ngsild_fixtures import B9211, ENTITIES, H, error_type, get, ld_notify
 
-from tsdb_service.ngsild.context import (CORE_CONTEXT_URL, DEFAULT_VOCAB, ContextStore, core_context, link_context,
-                                         parse_local_contexts)
+from tsdb_service.ngsild.context import (
+    CORE_CONTEXT_URL,
+    DEFAULT_VOCAB,
+    ContextStore,
+    core_context,
+    link_context,
+    parse_local_contexts,
+)
 from tsdb_service.ngsild.errors import BadRequestData, LdContextNotAvailable
 
-USER_CONTEXT = {"@context": {"speed": "https://example.org/vehicle#speed",
-                             "Vehicle": "https://example.org/vehicle#Vehicle"}}
+USER_CONTEXT = {
+    "@context": {"speed": "https://example.org/vehicle#speed", "Vehicle": "https://example.org/vehicle#Vehicle"}
+}
 
 
 class _Server:
@@ -25,7 +32,7 @@ class _Server:
         server = self
 
         class Handler(BaseHTTPRequestHandler):
-            def do_GET(self):  # noqa: N802 - http.server's naming
+            def do_GET(self):
                 server.hits[self.path] = server.hits.get(self.path, 0) + 1
                 doc = documents.get(self.path)
                 if doc is None:
@@ -78,7 +85,10 @@ def test_user_context_fetched_once_and_cached(context_server):
     url = context_server.url + "/vehicle.jsonld"
     terms = store.term_map(url)
     assert terms.expand_all(["speed", "Vehicle", "other"]) == [
-        "https://example.org/vehicle#speed", "https://example.org/vehicle#Vehicle", DEFAULT_VOCAB + "other"]
+        "https://example.org/vehicle#speed",
+        "https://example.org/vehicle#Vehicle",
+        DEFAULT_VOCAB + "other",
+    ]
     assert terms.compact("https://example.org/vehicle#speed") == "speed"
     assert store.term_map(url) is terms
     assert ContextStore().term_map(url).expand("speed") and context_server.hits["/vehicle.jsonld"] >= 1
@@ -91,7 +101,9 @@ def test_local_context_files(tmp_path):
     path = tmp_path / "ctx.jsonld"
     path.write_text(json.dumps(USER_CONTEXT))
     store = ContextStore(parse_local_contexts(f"https://contexts.example/vehicle.jsonld={path}"))
-    assert store.term_map("https://contexts.example/vehicle.jsonld").expand("speed") == "https://example.org/vehicle#speed"
+    assert (
+        store.term_map("https://contexts.example/vehicle.jsonld").expand("speed") == "https://example.org/vehicle#speed"
+    )
     with pytest.raises(ValueError):
         parse_local_contexts("no-equals-sign")
 
@@ -106,26 +118,44 @@ def test_unreachable_and_broken_contexts(context_server):
 
 def test_link_header_parsing():
     assert link_context(None) is None
-    assert link_context('<https://x.org/c.jsonld>; rel="http://www.w3.org/ns/json-ld#context"') == "https://x.org/c.jsonld"
+    assert (
+        link_context('<https://x.org/c.jsonld>; rel="http://www.w3.org/ns/json-ld#context"') == "https://x.org/c.jsonld"
+    )
     assert link_context('<https://x.org/a>; rel="next"') is None
     with pytest.raises(BadRequestData):
-        link_context('<https://x.org/a>; rel="http://www.w3.org/ns/json-ld#context", '
-                     '<https://x.org/b>; rel="http://www.w3.org/ns/json-ld#context"')
+        link_context(
+            '<https://x.org/a>; rel="http://www.w3.org/ns/json-ld#context", '
+            '<https://x.org/b>; rel="http://www.w3.org/ns/json-ld#context"'
+        )
     with pytest.raises(BadRequestData):
         link_context('<file:///etc/passwd>; rel="http://www.w3.org/ns/json-ld#context"')
 
 
 def test_query_with_a_user_context_expands_and_compacts(client, context_server):
     url = context_server.url + "/vehicle.jsonld"
-    ld_notify(client, [{"id": B9211, "type": "Vehicle",
-                        "speed": {"type": "Property", "value": 9, "observedAt": "2018-08-01T12:00:00Z"},
-                        "https://example.org/vehicle#odometer": {"type": "Property", "value": 1,
-                                                                 "observedAt": "2018-08-01T12:00:00Z"}}])
+    ld_notify(
+        client,
+        [
+            {
+                "id": B9211,
+                "type": "Vehicle",
+                "speed": {"type": "Property", "value": 9, "observedAt": "2018-08-01T12:00:00Z"},
+                "https://example.org/vehicle#odometer": {
+                    "type": "Property",
+                    "value": 1,
+                    "observedAt": "2018-08-01T12:00:00Z",
+                },
+            }
+        ],
+    )
     got = get(client, {"type": "Vehicle", "attrs": "speed"}, headers=link(url))
     assert got.json()[0]["speed"][0]["value"] == 9
     assert got.headers["Link"].startswith(f"<{url}>")
-    full = get(client, {"type": "https://example.org/vehicle#Vehicle", "attrs": "https://example.org/vehicle#speed"},
-               headers=link(url))
+    full = get(
+        client,
+        {"type": "https://example.org/vehicle#Vehicle", "attrs": "https://example.org/vehicle#speed"},
+        headers=link(url),
+    )
     assert full.json()[0]["type"] == "Vehicle" and "speed" in full.json()[0]
     # without the user context the stored short names are core-context terms
     core = get(client, {"type": "Vehicle", "attrs": "https://example.org/vehicle#speed"})
@@ -136,8 +166,16 @@ def test_query_with_a_user_context_expands_and_compacts(client, context_server):
 
 def test_accept_ld_json_puts_the_context_in_the_body(client, context_server):
     url = context_server.url + "/vehicle.jsonld"
-    ld_notify(client, [{"id": B9211, "type": "Vehicle",
-                        "speed": {"type": "Property", "value": 9, "observedAt": "2018-08-01T12:00:00Z"}}])
+    ld_notify(
+        client,
+        [
+            {
+                "id": B9211,
+                "type": "Vehicle",
+                "speed": {"type": "Property", "value": 9, "observedAt": "2018-08-01T12:00:00Z"},
+            }
+        ],
+    )
     ld = get(client, {"type": "Vehicle"}, headers={**link(url), "Accept": "application/ld+json"})
     assert ld.headers["Content-Type"].startswith("application/ld+json")
     assert ld.json()[0]["@context"] == [url, CORE_CONTEXT_URL]
@@ -150,14 +188,24 @@ def test_accept_ld_json_puts_the_context_in_the_body(client, context_server):
 
 def test_post_query_with_ld_json_body_context(client, context_server):
     url = context_server.url + "/vehicle.jsonld"
-    ld_notify(client, [{"id": B9211, "type": "Vehicle",
-                        "speed": {"type": "Property", "value": 9, "observedAt": "2018-08-01T12:00:00Z"}}])
+    ld_notify(
+        client,
+        [
+            {
+                "id": B9211,
+                "type": "Vehicle",
+                "speed": {"type": "Property", "value": 9, "observedAt": "2018-08-01T12:00:00Z"},
+            }
+        ],
+    )
     body = {"type": "Query", "entities": [{"type": "Vehicle"}], "attrs": ["speed"], "@context": url}
     path = "/ngsi-ld/v1/temporal/entityOperations/query"
     ok = client.post(path, content=json.dumps(body), headers={**H, "Content-Type": "application/ld+json"})
     assert ok.status_code == 200, ok.text
     assert ok.json()[0]["speed"][0]["value"] == 9
-    both = client.post(path, content=json.dumps(body), headers={**H, **link(url), "Content-Type": "application/ld+json"})
+    both = client.post(
+        path, content=json.dumps(body), headers={**H, **link(url), "Content-Type": "application/ld+json"}
+    )
     assert both.status_code == 400 and error_type(both) == "BadRequestData"
     no_ctx = client.post(path, json=body, headers=H)
     assert no_ctx.status_code == 400

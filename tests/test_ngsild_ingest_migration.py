@@ -9,14 +9,17 @@ import duckdb
 import psycopg
 
 from tsdb_service.config import Settings
-from tsdb_service.history.query import EntityFilter, Scope
 from tsdb_service.model import AttrSample, EntitySample, Kind
+from tsdb_service.query import EntityFilter, Scope
 from tsdb_service.storage import open_store
 from tsdb_service.storage.base import AppendSamples
 from tsdb_service.storage.migrate import SCHEMA_TABLE, load_migrations, split_statements
 
-OLD_ROWS = [(1, 1, "2024-01-01 00:00:00", 1, "Number", 1.5), (1, 2, "2024-01-01 00:00:00", 1, "Number", 2.5),
-            (2, 1, "2024-01-02 00:00:00", 1, "Number", 3.5)]
+OLD_ROWS = [
+    (1, 1, "2024-01-01 00:00:00", 1, "Number", 1.5),
+    (1, 2, "2024-01-01 00:00:00", 1, "Number", 2.5),
+    (2, 1, "2024-01-02 00:00:00", 1, "Number", 3.5),
+]
 
 
 def _old_store(url: str, backend: str) -> None:
@@ -31,10 +34,10 @@ def _old_store(url: str, backend: str) -> None:
                 con.execute(statement)
             con.execute("INSERT INTO schema_migrations (version, name) VALUES (?, ?)", [m.version, m.name])
         con.execute(series + "(1, '', '/', 'e', 'T', 'a'), (2, '', '/', 'e', 'T', 'b')")
-        con.executemany("INSERT INTO samples (rid, sid, t, kind, atype, num) VALUES (?, ?, ?, ?, ?, ?)",
-                        OLD_ROWS[:2])
-        con.executemany("INSERT INTO samples_hot (rid, sid, t, kind, atype, num) VALUES (?, ?, ?, ?, ?, ?)",
-                        OLD_ROWS[2:])
+        con.executemany("INSERT INTO samples (rid, sid, t, kind, atype, num) VALUES (?, ?, ?, ?, ?, ?)", OLD_ROWS[:2])
+        con.executemany(
+            "INSERT INTO samples_hot (rid, sid, t, kind, atype, num) VALUES (?, ?, ?, ?, ?, ?)", OLD_ROWS[2:]
+        )
         con.close()
         return
     with psycopg.connect(url) as conn:
@@ -45,8 +48,9 @@ def _old_store(url: str, backend: str) -> None:
         conn.execute(series + "(1, '', '/', 'e', 'T', 'a'), (2, '', '/', 'e', 'T', 'b')")
         conn.execute("SELECT setval(pg_get_serial_sequence('series', 'sid'), 2)")
         with conn.cursor() as cur:
-            cur.executemany("INSERT INTO samples (rid, sid, t, kind, atype, num) VALUES (%s, %s, %s, %s, %s, %s)",
-                            OLD_ROWS)
+            cur.executemany(
+                "INSERT INTO samples (rid, sid, t, kind, atype, num) VALUES (%s, %s, %s, %s, %s, %s)", OLD_ROWS
+            )
 
 
 def test_existing_samples_get_instance_ids(store_url, backend):
@@ -60,8 +64,22 @@ def test_existing_samples_get_instance_ids(store_url, backend):
         old_ids = {r.iid for r in rows}
         assert len(old_ids) == 3 and None not in old_ids
         assert all(r.observed_at is None and r.dataset_id is None for r in rows)
-        store.write_sync([AppendSamples([EntitySample("", "/", "e", "T", datetime(2024, 2, 1, tzinfo=UTC),
-                                                      [AttrSample("a", "Number", Kind.NUMBER, num=9.0)])])])
+        store.write_sync(
+            [
+                AppendSamples(
+                    [
+                        EntitySample(
+                            "",
+                            "/",
+                            "e",
+                            "T",
+                            datetime(2024, 2, 1, tzinfo=UTC),
+                            [AttrSample("a", "Number", Kind.NUMBER, num=9.0)],
+                        )
+                    ]
+                )
+            ]
+        )
         new = {r.iid for r in q.temporal_instances([r.sid for r in refs])} - old_ids
         assert len(new) == 1 and min(new) > max(old_ids)
     finally:

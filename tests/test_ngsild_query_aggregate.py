@@ -15,12 +15,18 @@ ALL = "totalCount,distinctCount,sum,avg,min,max,stddev,sumsq"
 def store(client, attr: str, values: list, times: list[str], attr_type: str = "Property") -> None:
     member = {"Property": "value", "Relationship": "object"}[attr_type]
     for value, at in zip(values, times, strict=True):
-        ld_notify(client, [{"id": B9211, "type": "Vehicle", attr: {"type": attr_type, member: value, "observedAt": at}}])
+        ld_notify(
+            client, [{"id": B9211, "type": "Vehicle", attr: {"type": attr_type, member: value, "observedAt": at}}]
+        )
 
 
 def agg(client, attr: str, methods: str = ALL, status: int = 200, **params):
-    response = get(client, path=f"{ENTITIES}/{B9211}", status=status,
-                   params={"format": "aggregatedValues", "aggrMethods": methods, "attrs": attr, **params})
+    response = get(
+        client,
+        path=f"{ENTITIES}/{B9211}",
+        status=status,
+        params={"format": "aggregatedValues", "aggrMethods": methods, "attrs": attr, **params},
+    )
     return response.json() if status == 200 else response
 
 
@@ -31,9 +37,11 @@ def test_numbers_hourly_from_time_at(client):
     store(client, "speed", [1, 3, 4, 4], HOURS)
     got = agg(client, "speed", aggrPeriodDuration="PT1H", timerel="after", timeAt="2024-01-01T00:00:00Z")["speed"]
     assert got["type"] == "Property"
-    assert got["totalCount"] == [[2, "2024-01-01T00:00:00.000Z", "2024-01-01T01:00:00.000Z"],
-                                 [1, "2024-01-01T01:00:00.000Z", "2024-01-01T02:00:00.000Z"],
-                                 [1, "2024-01-01T03:00:00.000Z", "2024-01-01T04:00:00.000Z"]]  # no empty period
+    assert got["totalCount"] == [
+        [2, "2024-01-01T00:00:00.000Z", "2024-01-01T01:00:00.000Z"],
+        [1, "2024-01-01T01:00:00.000Z", "2024-01-01T02:00:00.000Z"],
+        [1, "2024-01-01T03:00:00.000Z", "2024-01-01T04:00:00.000Z"],
+    ]  # no empty period
     assert [v for v, _, _ in got["sum"]] == [4, 4, 4]
     assert [v for v, _, _ in got["avg"]] == [2.0, 4.0, 4.0]
     assert [v for v, _, _ in got["min"]] == [1, 4, 4] and [v for v, _, _ in got["max"]] == [3, 4, 4]
@@ -47,28 +55,39 @@ def test_whole_range_and_first_instance_start(client):
     whole = agg(client, "speed", "avg,distinctCount", aggrPeriodDuration="PT0S")["speed"]
     assert whole["avg"] == [[3.0, "2024-01-01T00:10:00.000Z", "2024-01-01T03:05:00.000Z"]]
     assert whole["distinctCount"][0][0] == 3
-    window = agg(client, "speed", "max", timerel="between", timeAt="2024-01-01T00:00:00Z",
-                 endTimeAt="2024-01-01T02:00:00Z")["speed"]
+    window = agg(
+        client, "speed", "max", timerel="between", timeAt="2024-01-01T00:00:00Z", endTimeAt="2024-01-01T02:00:00Z"
+    )["speed"]
     assert window["max"] == [[4, "2024-01-01T00:00:00.000Z", "2024-01-01T02:00:00.000Z"]]
-    before = agg(client, "speed", "totalCount", aggrPeriodDuration="PT2H", timerel="before",
-                 timeAt="2024-01-02T00:00:00Z")["speed"]
-    assert before["totalCount"] == [[3, "2024-01-01T00:10:00.000Z", "2024-01-01T02:10:00.000Z"],
-                                    [1, "2024-01-01T02:10:00.000Z", "2024-01-01T04:10:00.000Z"]]
+    before = agg(
+        client, "speed", "totalCount", aggrPeriodDuration="PT2H", timerel="before", timeAt="2024-01-02T00:00:00Z"
+    )["speed"]
+    assert before["totalCount"] == [
+        [3, "2024-01-01T00:10:00.000Z", "2024-01-01T02:10:00.000Z"],
+        [1, "2024-01-01T02:10:00.000Z", "2024-01-01T04:10:00.000Z"],
+    ]
 
 
 def test_calendar_periods(client):
     times = ["2024-01-31T10:00:00Z", "2024-02-15T00:00:00Z", "2024-03-01T00:00:00Z", "2025-02-01T00:00:00Z"]
     store(client, "speed", [1, 2, 3, 4], times)
-    monthly = agg(client, "speed", "sum", aggrPeriodDuration="P1M", timerel="after",
-                  timeAt="2024-01-31T00:00:00Z")["speed"]["sum"]
-    assert monthly[:2] == [[3, "2024-01-31T00:00:00.000Z", "2024-02-29T00:00:00.000Z"],
-                           [3, "2024-02-29T00:00:00.000Z", "2024-03-31T00:00:00.000Z"]]
-    yearly = agg(client, "speed", "totalCount", aggrPeriodDuration="P1Y", timerel="after",
-                 timeAt="2024-01-01T00:00:00Z")["speed"]["totalCount"]
-    assert yearly == [[3, "2024-01-01T00:00:00.000Z", "2025-01-01T00:00:00.000Z"],
-                      [1, "2025-01-01T00:00:00.000Z", "2026-01-01T00:00:00.000Z"]]
-    weekly = agg(client, "speed", "totalCount", aggrPeriodDuration="P1W", timerel="after",
-                 timeAt="2024-01-29T00:00:00Z")["speed"]["totalCount"]
+    monthly = agg(client, "speed", "sum", aggrPeriodDuration="P1M", timerel="after", timeAt="2024-01-31T00:00:00Z")[
+        "speed"
+    ]["sum"]
+    assert monthly[:2] == [
+        [3, "2024-01-31T00:00:00.000Z", "2024-02-29T00:00:00.000Z"],
+        [3, "2024-02-29T00:00:00.000Z", "2024-03-31T00:00:00.000Z"],
+    ]
+    yearly = agg(
+        client, "speed", "totalCount", aggrPeriodDuration="P1Y", timerel="after", timeAt="2024-01-01T00:00:00Z"
+    )["speed"]["totalCount"]
+    assert yearly == [
+        [3, "2024-01-01T00:00:00.000Z", "2025-01-01T00:00:00.000Z"],
+        [1, "2025-01-01T00:00:00.000Z", "2026-01-01T00:00:00.000Z"],
+    ]
+    weekly = agg(
+        client, "speed", "totalCount", aggrPeriodDuration="P1W", timerel="after", timeAt="2024-01-29T00:00:00Z"
+    )["speed"]["totalCount"]
     assert weekly[0] == [1, "2024-01-29T00:00:00.000Z", "2024-02-05T00:00:00.000Z"]
 
 
@@ -92,20 +111,41 @@ def test_type_rules(client):
 
 
 def test_datetime_values(client, notify):
-    for value, at in [("2024-01-01T00:00:00Z", "2024-01-01T00:10:00Z"), ("2024-01-01T02:00:00Z", "2024-01-01T00:50:00Z")]:
-        notify(client, {"subscriptionId": "s", "data": [{
-            "id": B9211, "type": "Vehicle", "lastSeen": {"type": "DateTime", "value": value},
-            "TimeInstant": {"type": "DateTime", "value": at}}]}, {"Fiware-Service": "fleet"})
+    for value, at in [
+        ("2024-01-01T00:00:00Z", "2024-01-01T00:10:00Z"),
+        ("2024-01-01T02:00:00Z", "2024-01-01T00:50:00Z"),
+    ]:
+        notify(
+            client,
+            {
+                "subscriptionId": "s",
+                "data": [
+                    {
+                        "id": B9211,
+                        "type": "Vehicle",
+                        "lastSeen": {"type": "DateTime", "value": value},
+                        "TimeInstant": {"type": "DateTime", "value": at},
+                    }
+                ],
+            },
+            {"Fiware-Service": "fleet"},
+        )
     got = agg(client, "lastSeen", "min,max,avg,totalCount")["lastSeen"]
     assert [got[m][0][0] for m in ("min", "max", "avg", "totalCount")] == [
-        "2024-01-01T00:00:00.000Z", "2024-01-01T02:00:00.000Z", "2024-01-01T01:00:00.000Z", 2]
+        "2024-01-01T00:00:00.000Z",
+        "2024-01-01T02:00:00.000Z",
+        "2024-01-01T01:00:00.000Z",
+        2,
+    ]
     assert error_type(agg(client, "lastSeen", "sum", status=400)) == "BadRequestData"
 
 
 def test_aggregation_needs_methods(client):
     store(client, "speed", [1], HOURS[:1])
-    assert error_type(get(client, path=f"{ENTITIES}/{B9211}", params={"format": "aggregatedValues"},
-                          status=400)) == "BadRequestData"
+    assert (
+        error_type(get(client, path=f"{ENTITIES}/{B9211}", params={"format": "aggregatedValues"}, status=400))
+        == "BadRequestData"
+    )
 
 
 def test_calendar_arithmetic():
@@ -134,8 +174,10 @@ def test_one_statement_per_request(client):
     finally:
         del querier._fetch
     assert got["type"] == "Property"
-    assert got["max"] == [[4, "2024-01-01T00:10:00.000Z", "2024-01-01T02:10:00.000Z"],
-                          [4, "2024-01-01T02:10:00.000Z", "2024-01-01T04:10:00.000Z"]]
+    assert got["max"] == [
+        [4, "2024-01-01T00:10:00.000Z", "2024-01-01T02:10:00.000Z"],
+        [4, "2024-01-01T02:10:00.000Z", "2024-01-01T04:10:00.000Z"],
+    ]
     assert [v for v, _, _ in got["avg"]] == [8 / 3, 4.0]
     on_samples = [sql for sql in statements if "samples" in sql]
     assert len(on_samples) == 1 and "GROUP BY" in on_samples[0] and "DISTINCT" not in on_samples[0], statements

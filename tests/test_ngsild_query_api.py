@@ -5,7 +5,17 @@ NGSI-LD notifications, on both backends."""
 from __future__ import annotations
 
 import pytest
-from ngsild_fixtures import A8311, B9211, ENTITIES, H, error_type, get, ids, ld_notify, load_vehicles
+from ngsild_fixtures import (
+    A8311,
+    B9211,
+    ENTITIES,
+    H,
+    error_type,
+    get,
+    ids,
+    ld_notify,
+    load_vehicles,
+)
 
 
 @pytest.fixture
@@ -23,8 +33,16 @@ def test_timerel_before_after_between_are_half_open(vehicles):
     assert [speeds(e) for e in before.json()] == [[], [(120, "2018-08-01T12:03:00.000Z")]]
     after = get(vehicles, {"type": "Vehicle", "attrs": "speed", "timerel": "after", "timeAt": "2018-08-01T12:14:00Z"})
     assert [[v for v, _ in speeds(e)] for e in after.json()] == [[60, 50], []]
-    between = get(vehicles, {"type": "Vehicle", "attrs": "speed", "timerel": "between",
-                             "timeAt": "2018-08-01T12:05:00Z", "endTimeAt": "2018-08-01T12:14:00Z"})
+    between = get(
+        vehicles,
+        {
+            "type": "Vehicle",
+            "attrs": "speed",
+            "timerel": "between",
+            "timeAt": "2018-08-01T12:05:00Z",
+            "endTimeAt": "2018-08-01T12:14:00Z",
+        },
+    )
     assert [[v for v, _ in speeds(e)] for e in between.json()] == [[40], [80, 100]]
 
 
@@ -79,11 +97,11 @@ def test_q_is_evaluated_over_the_instances_in_the_window(vehicles):
     late = {"timerel": "after", "timeAt": "2018-08-01T12:04:00Z"}
     assert ids(get(vehicles, {"type": "Vehicle", "q": "speed>100", **late})) == []
     assert ids(get(vehicles, {"type": "Vehicle", "q": "speed==80|speed==60"})) == [A8311, B9211]
-    assert ids(get(vehicles, {"type": "Vehicle", "q": "speed==80;brandName==\"brand0\""})) == [B9211]
-    assert ids(get(vehicles, {"type": "Vehicle", "q": "speed.unitCode==\"KMH\";speed<45"})) == [A8311]
-    assert ids(get(vehicles, {"type": "Vehicle", "q": "name[es]==\"coche 2\""})) == [A8311, B9211]
+    assert ids(get(vehicles, {"type": "Vehicle", "q": 'speed==80;brandName=="brand0"'})) == [B9211]
+    assert ids(get(vehicles, {"type": "Vehicle", "q": 'speed.unitCode=="KMH";speed<45'})) == [A8311]
+    assert ids(get(vehicles, {"type": "Vehicle", "q": 'name[es]=="coche 2"'})) == [A8311, B9211]
     assert ids(get(vehicles, {"type": "Vehicle", "q": "isParked==urn:ngsi-ld:OffStreetParking:2"})) == [A8311, B9211]
-    assert ids(get(vehicles, {"type": "Vehicle", "q": "brandName~=\"^brand[12]$\";speed>=100"})) == [B9211]
+    assert ids(get(vehicles, {"type": "Vehicle", "q": 'brandName~="^brand[12]$";speed>=100'})) == [B9211]
     assert ids(get(vehicles, {"type": "Vehicle", "q": "speed!=120"})) == [A8311, B9211]
     assert ids(get(vehicles, {"type": "Vehicle", "q": "speed==100..130"})) == [B9211]
     assert ids(get(vehicles, {"q": "missing"})) == []
@@ -97,10 +115,12 @@ def test_geo_query_over_the_window(vehicles):
     assert ids(get(vehicles, {"type": "Vehicle", **tight})) == [B9211]
     assert ids(get(vehicles, {"type": "Vehicle", **tight, "timerel": "before", "timeAt": "2018-08-01T12:06:00Z"})) == []
     barcelona = "[[[2.1, 41.3], [2.3, 41.3], [2.3, 41.5], [2.1, 41.5], [2.1, 41.3]]]"
-    assert ids(get(vehicles, {"type": "Vehicle", "georel": "within", "geometry": "Polygon",
-                              "coordinates": barcelona})) == [A8311]
-    assert ids(get(vehicles, {"type": "Vehicle", "georel": "disjoint", "geometry": "Polygon",
-                              "coordinates": barcelona})) == [B9211]
+    assert ids(
+        get(vehicles, {"type": "Vehicle", "georel": "within", "geometry": "Polygon", "coordinates": barcelona})
+    ) == [A8311]
+    assert ids(
+        get(vehicles, {"type": "Vehicle", "georel": "disjoint", "geometry": "Polygon", "coordinates": barcelona})
+    ) == [B9211]
     far = {"georel": "near;minDistance==100000", "geometry": "Point", "coordinates": "[-3.7038, 40.4168]"}
     assert ids(get(vehicles, {"type": "Vehicle", **far})) == [A8311]
     assert ids(get(vehicles, {"type": "Vehicle", **near_madrid, "geoproperty": "speed"})) == []
@@ -118,60 +138,106 @@ def test_limit_offset_count_and_links(vehicles):
 
 
 def test_dataset_ids(client):
-    for speed, source, at in [(10, None, "12:00"), (11, "urn:ngsi-ld:Dataset:gps", "12:01"),
-                              (12, "urn:ngsi-ld:Dataset:gps", "12:02")]:
+    for speed, source, at in [
+        (10, None, "12:00"),
+        (11, "urn:ngsi-ld:Dataset:gps", "12:01"),
+        (12, "urn:ngsi-ld:Dataset:gps", "12:02"),
+    ]:
         attr = {"type": "Property", "value": speed, "observedAt": f"2018-08-01T{at}:00Z"}
         if source:
             attr["datasetId"] = source
         ld_notify(client, [{"id": B9211, "type": "Vehicle", "speed": attr}])
     every = get(client, {"type": "Vehicle"}).json()[0]["speed"]
     assert [(i["value"], i.get("datasetId")) for i in every] == [
-        (10, None), (11, "urn:ngsi-ld:Dataset:gps"), (12, "urn:ngsi-ld:Dataset:gps")]
+        (10, None),
+        (11, "urn:ngsi-ld:Dataset:gps"),
+        (12, "urn:ngsi-ld:Dataset:gps"),
+    ]
     gps = get(client, {"type": "Vehicle", "datasetId": "urn:ngsi-ld:Dataset:gps"}).json()[0]["speed"]
     assert [i["value"] for i in gps] == [11, 12]
     default = get(client, {"type": "Vehicle", "datasetId": "@none"}).json()[0]["speed"]
     assert [i["value"] for i in default] == [10]
     simplified = get(client, {"type": "Vehicle", "format": "temporalValues"}).json()[0]["speed"]
-    assert simplified == [{"type": "Property", "values": [[10, "2018-08-01T12:00:00.000Z"]]},
-                          {"type": "Property", "values": [[11, "2018-08-01T12:01:00.000Z"],
-                                                          [12, "2018-08-01T12:02:00.000Z"]],
-                           "datasetId": "urn:ngsi-ld:Dataset:gps"}]
+    assert simplified == [
+        {"type": "Property", "values": [[10, "2018-08-01T12:00:00.000Z"]]},
+        {
+            "type": "Property",
+            "values": [[11, "2018-08-01T12:01:00.000Z"], [12, "2018-08-01T12:02:00.000Z"]],
+            "datasetId": "urn:ngsi-ld:Dataset:gps",
+        },
+    ]
 
 
 def test_time_properties_and_sys_attrs(client):
-    ld_notify(client, [{"id": B9211, "type": "Vehicle",
-                        "speed": {"type": "Property", "value": 5, "observedAt": "2018-08-01T12:00:00Z",
-                                  "createdAt": "2018-08-01T11:00:00Z", "modifiedAt": "2018-08-01T12:00:01Z"}}])
-    ld_notify(client, [{"id": B9211, "type": "Vehicle",
-                        "speed": {"type": "Property", "value": "urn:ngsi-ld:null",
-                                  "deletedAt": "2018-08-01T13:00:00Z"}}])
+    ld_notify(
+        client,
+        [
+            {
+                "id": B9211,
+                "type": "Vehicle",
+                "speed": {
+                    "type": "Property",
+                    "value": 5,
+                    "observedAt": "2018-08-01T12:00:00Z",
+                    "createdAt": "2018-08-01T11:00:00Z",
+                    "modifiedAt": "2018-08-01T12:00:01Z",
+                },
+            }
+        ],
+    )
+    ld_notify(
+        client,
+        [
+            {
+                "id": B9211,
+                "type": "Vehicle",
+                "speed": {"type": "Property", "value": "urn:ngsi-ld:null", "deletedAt": "2018-08-01T13:00:00Z"},
+            }
+        ],
+    )
     plain = get(client, {"type": "Vehicle"}).json()[0]["speed"]
     assert "createdAt" not in plain[0] and plain[-1]["value"] == "urn:ngsi-ld:null"
     assert plain[-1]["deletedAt"] == "2018-08-01T13:00:00.000Z"
     sys = get(client, {"type": "Vehicle", "options": "sysAttrs"}).json()[0]["speed"][0]
     assert (sys["createdAt"], sys["modifiedAt"]) == ("2018-08-01T11:00:00.000Z", "2018-08-01T12:00:01.000Z")
-    created = get(client, {"type": "Vehicle", "timeproperty": "createdAt", "timerel": "before",
-                           "timeAt": "2018-08-01T11:30:00Z"}).json()[0]["speed"]
+    created = get(
+        client, {"type": "Vehicle", "timeproperty": "createdAt", "timerel": "before", "timeAt": "2018-08-01T11:30:00Z"}
+    ).json()[0]["speed"]
     assert [i["value"] for i in created] == [5]
-    deleted = get(client, {"type": "Vehicle", "timeproperty": "deletedAt", "timerel": "after",
-                           "timeAt": "2018-08-01T00:00:00Z"}).json()[0]["speed"]
+    deleted = get(
+        client, {"type": "Vehicle", "timeproperty": "deletedAt", "timerel": "after", "timeAt": "2018-08-01T00:00:00Z"}
+    ).json()[0]["speed"]
     assert [i["value"] for i in deleted] == ["urn:ngsi-ld:null"]
 
 
 def test_ngsiv2_data_reads_as_plain_properties(client, notify):
-    body = {"subscriptionId": "s", "data": [{
-        "id": "Drone:1", "type": "Drone",
-        "altitude": {"type": "Number", "value": 12.5, "metadata": {"accuracy": {"type": "Number", "value": 0.5}}},
-        "owner": {"type": "Relationship", "value": "Company:1"},
-        "location": {"type": "geo:json", "value": {"type": "Point", "coordinates": [8.68, 49.41]}},
-        "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"}}]}
+    body = {
+        "subscriptionId": "s",
+        "data": [
+            {
+                "id": "Drone:1",
+                "type": "Drone",
+                "altitude": {
+                    "type": "Number",
+                    "value": 12.5,
+                    "metadata": {"accuracy": {"type": "Number", "value": 0.5}},
+                },
+                "owner": {"type": "Relationship", "value": "Company:1"},
+                "location": {"type": "geo:json", "value": {"type": "Point", "coordinates": [8.68, 49.41]}},
+                "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"},
+            }
+        ],
+    }
     notify(client, body, {"Fiware-Service": "fleet"})
     got = get(client, path=f"{ENTITIES}/Drone:1").json()
     assert got["type"] == "Drone"
-    assert got["altitude"][0] == {"type": "Property", "value": 12.5,
-                                  "accuracy": {"type": "Property", "value": 0.5},
-                                  "instanceId": got["altitude"][0]["instanceId"],
-                                  "observedAt": "2024-05-01T10:00:00.000Z"}
+    assert got["altitude"][0] == {
+        "type": "Property",
+        "value": 12.5,
+        "accuracy": {"type": "Property", "value": 0.5},
+        "instanceId": got["altitude"][0]["instanceId"],
+        "observedAt": "2024-05-01T10:00:00.000Z",
+    }
     assert got["owner"][0]["type"] == "Relationship" and got["owner"][0]["object"] == "Company:1"
     assert got["location"][0]["type"] == "GeoProperty"
     near = {"georel": "near;maxDistance==10", "geometry": "Point", "coordinates": "[8.68, 49.41]"}
@@ -179,14 +245,24 @@ def test_ngsiv2_data_reads_as_plain_properties(client, notify):
 
 
 def test_post_entity_operations_query(vehicles):
-    body = {"type": "Query", "entities": [{"type": "Vehicle"}], "attrs": ["speed"], "q": "speed>=60",
-            "temporalQ": {"timerel": "between", "timeAt": "2018-08-01T12:00:00Z",
-                          "endTimeAt": "2018-08-01T12:20:00Z"}}
-    response = vehicles.post("/ngsi-ld/v1/temporal/entityOperations/query", json=body,
-                             params={"options": "temporalValues", "lastN": "1"}, headers=H)
+    body = {
+        "type": "Query",
+        "entities": [{"type": "Vehicle"}],
+        "attrs": ["speed"],
+        "q": "speed>=60",
+        "temporalQ": {"timerel": "between", "timeAt": "2018-08-01T12:00:00Z", "endTimeAt": "2018-08-01T12:20:00Z"},
+    }
+    response = vehicles.post(
+        "/ngsi-ld/v1/temporal/entityOperations/query",
+        json=body,
+        params={"options": "temporalValues", "lastN": "1"},
+        headers=H,
+    )
     assert response.status_code == 200, response.text
     assert [(e["id"], e["speed"]["values"]) for e in response.json()] == [
-        (A8311, [[50, "2018-08-01T12:16:00.000Z"]]), (B9211, [[100, "2018-08-01T12:07:00.000Z"]])]
+        (A8311, [[50, "2018-08-01T12:16:00.000Z"]]),
+        (B9211, [[100, "2018-08-01T12:07:00.000Z"]]),
+    ]
     bad = vehicles.post("/ngsi-ld/v1/temporal/entityOperations/query", content=b"{", headers=H)
     assert bad.status_code == 400 and error_type(bad) == "InvalidRequest"
 
@@ -197,8 +273,10 @@ def test_errors(vehicles):
     assert missing.json()["type"] == "https://uri.etsi.org/ngsi-ld/errors/ResourceNotFound"
     assert missing.json()["status"] == 404 and missing.json()["detail"]
     assert error_type(get(vehicles, {}, status=400)) == "BadRequestData"
-    assert error_type(get(vehicles, {"type": "Vehicle", "timerel": "later", "timeAt": "x"}, status=400)) \
+    assert (
+        error_type(get(vehicles, {"type": "Vehicle", "timerel": "later", "timeAt": "x"}, status=400))
         == "BadRequestData"
+    )
     unknown_tenant = get(vehicles, {"type": "Vehicle"}, headers={"NGSILD-Tenant": "nobody"}, status=404)
     assert error_type(unknown_tenant) == "NonexistentTenant"
     assert ids(get(vehicles, {"type": "Vehicle"}, headers={"NGSILD-Tenant": ""})) == []
@@ -211,9 +289,14 @@ def test_retrieve_merges_nothing_across_tenants(vehicles):
 
 
 def test_temporal_writes_read_back(client):
-    entity = {"id": "urn:ngsi-ld:Vehicle:W1", "type": "Vehicle",
-              "speed": [{"type": "Property", "value": 7, "observedAt": "2020-01-01T00:00:00Z"},
-                        {"type": "Property", "value": 8, "observedAt": "2020-01-01T00:01:00Z"}]}
+    entity = {
+        "id": "urn:ngsi-ld:Vehicle:W1",
+        "type": "Vehicle",
+        "speed": [
+            {"type": "Property", "value": 7, "observedAt": "2020-01-01T00:00:00Z"},
+            {"type": "Property", "value": 8, "observedAt": "2020-01-01T00:01:00Z"},
+        ],
+    }
     created = client.post(ENTITIES, json=entity, headers=H)
     assert created.status_code in (201, 204), created.text
     got = get(client, path=f"{ENTITIES}/urn:ngsi-ld:Vehicle:W1", params={"format": "temporalValues"}).json()
@@ -225,14 +308,35 @@ def test_q_and_geo_over_scattered_series(client):
     (DuckDB reads such a set one series per UNION ALL branch): same answers."""
     for n in range(5):
         attrs = {f"extra{k}": {"type": "Property", "value": k, "observedAt": "2024-01-01T00:00:00Z"} for k in range(9)}
-        ld_notify(client, [{"id": f"urn:ngsi-ld:Robot:{n}", "type": "Robot", **attrs,
-                            "speed": {"type": "Property", "value": n, "observedAt": "2024-01-01T00:00:00Z"},
-                            "location": {"type": "GeoProperty", "observedAt": "2024-01-01T00:00:00Z",
-                                         "value": {"type": "Point", "coordinates": [n * 0.01, 0.0]}}}])
+        ld_notify(
+            client,
+            [
+                {
+                    "id": f"urn:ngsi-ld:Robot:{n}",
+                    "type": "Robot",
+                    **attrs,
+                    "speed": {"type": "Property", "value": n, "observedAt": "2024-01-01T00:00:00Z"},
+                    "location": {
+                        "type": "GeoProperty",
+                        "observedAt": "2024-01-01T00:00:00Z",
+                        "value": {"type": "Point", "coordinates": [n * 0.01, 0.0]},
+                    },
+                }
+            ],
+        )
     fast = get(client, {"type": "Robot", "attrs": "speed", "q": "speed>=2"})
     assert ids(fast) == [f"urn:ngsi-ld:Robot:{n}" for n in (2, 3, 4)]
-    near = get(client, {"type": "Robot", "attrs": "speed", "q": "speed!=3", "georel": "near;maxDistance==1500",
-                        "geometry": "Point", "coordinates": "[0.03, 0.0]"})
+    near = get(
+        client,
+        {
+            "type": "Robot",
+            "attrs": "speed",
+            "q": "speed!=3",
+            "georel": "near;maxDistance==1500",
+            "geometry": "Point",
+            "coordinates": "[0.03, 0.0]",
+        },
+    )
     assert ids(near) == [f"urn:ngsi-ld:Robot:{n}" for n in (2, 4)]
 
 

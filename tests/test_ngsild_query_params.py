@@ -8,9 +8,25 @@ from datetime import UTC, datetime
 import pytest
 
 from tsdb_service.ngsild.context import DEFAULT_VOCAB, ContextStore
-from tsdb_service.ngsild.errors import BadRequestData, OperationNotSupported, TooManyResults
-from tsdb_service.ngsild.params import parse_duration, parse_types, query_from_body, query_from_params
-from tsdb_service.ngsild.query import Duration, Format, TimeProperty, TypeAnd, TypeName, TypeOr
+from tsdb_service.ngsild.errors import (
+    BadRequestData,
+    OperationNotSupported,
+    TooManyResults,
+)
+from tsdb_service.ngsild.params import (
+    parse_duration,
+    parse_types,
+    query_from_body,
+    query_from_params,
+)
+from tsdb_service.ngsild.query import (
+    Duration,
+    Format,
+    TimeProperty,
+    TypeAnd,
+    TypeName,
+    TypeOr,
+)
 
 TERMS = ContextStore().term_map(None)
 V = DEFAULT_VOCAB
@@ -33,26 +49,41 @@ def test_timerel_windows_are_half_open():
     assert (w.start, w.timeproperty) == (at, TimeProperty.MODIFIED_AT)
 
 
-@pytest.mark.parametrize("params", [
-    {"type": "V", "timerel": "during", "timeAt": "2018-08-01T12:00:00Z"},
-    {"type": "V", "timerel": "before"},
-    {"type": "V", "timerel": "between", "timeAt": "2018-08-01T12:00:00Z"},
-    {"type": "V", "timerel": "between", "timeAt": "2018-08-01T12:00:00Z", "endTimeAt": "2018-08-01T11:00:00Z"},
-    {"type": "V", "timeAt": "2018-08-01T12:00:00Z"},
-    {"type": "V", "timerel": "after", "timeAt": "yesterday"},
-    {"type": "V", "timeproperty": "updatedAt"},
-    {"type": "V", "lastN": "0"}, {"type": "V", "lastN": "-1"}, {"type": "V", "limit": "x"},
-    {"type": "V", "options": "fancy"}, {"type": "V", "format": "keyValues"},
-    {"type": "V", "format": "aggregatedValues"}, {"type": "V", "format": "aggregatedValues", "aggrMethods": "median"},
-    {"type": "V", "aggrMethods": "sum"}, {"type": "V", "q": "speed>"}, {"type": "(V"}, {"type": "V;;W"},
-    {"type": "V", "idPattern": "("}, {"type": "V", "georel": "near;maxDistance==10"},
-    {"type": "V", "georel": "near", "geometry": "Point", "coordinates": "[1,2]"},
-    {"type": "V", "georel": "within", "geometry": "Circle", "coordinates": "[1,2]"},
-    {"type": "V", "georel": "within", "geometry": "Polygon", "coordinates": "[[1,2]]"},
-    {"type": "V", "georel": "near;maxDistance==10", "geometry": "Point", "coordinates": "[200,2]"},
-    {"type": "V", "orderBy": "speed"}, {"type": "V", "local": "yes"}, {"type": "V", "limit": "0"},
-    {}, {"id": "urn:a"}, {"timerel": "after", "timeAt": "2018-08-01T12:00:00Z"},
-])
+@pytest.mark.parametrize(
+    "params",
+    [
+        {"type": "V", "timerel": "during", "timeAt": "2018-08-01T12:00:00Z"},
+        {"type": "V", "timerel": "before"},
+        {"type": "V", "timerel": "between", "timeAt": "2018-08-01T12:00:00Z"},
+        {"type": "V", "timerel": "between", "timeAt": "2018-08-01T12:00:00Z", "endTimeAt": "2018-08-01T11:00:00Z"},
+        {"type": "V", "timeAt": "2018-08-01T12:00:00Z"},
+        {"type": "V", "timerel": "after", "timeAt": "yesterday"},
+        {"type": "V", "timeproperty": "updatedAt"},
+        {"type": "V", "lastN": "0"},
+        {"type": "V", "lastN": "-1"},
+        {"type": "V", "limit": "x"},
+        {"type": "V", "options": "fancy"},
+        {"type": "V", "format": "keyValues"},
+        {"type": "V", "format": "aggregatedValues"},
+        {"type": "V", "format": "aggregatedValues", "aggrMethods": "median"},
+        {"type": "V", "aggrMethods": "sum"},
+        {"type": "V", "q": "speed>"},
+        {"type": "(V"},
+        {"type": "V;;W"},
+        {"type": "V", "idPattern": "("},
+        {"type": "V", "georel": "near;maxDistance==10"},
+        {"type": "V", "georel": "near", "geometry": "Point", "coordinates": "[1,2]"},
+        {"type": "V", "georel": "within", "geometry": "Circle", "coordinates": "[1,2]"},
+        {"type": "V", "georel": "within", "geometry": "Polygon", "coordinates": "[[1,2]]"},
+        {"type": "V", "georel": "near;maxDistance==10", "geometry": "Point", "coordinates": "[200,2]"},
+        {"type": "V", "orderBy": "speed"},
+        {"type": "V", "local": "yes"},
+        {"type": "V", "limit": "0"},
+        {},
+        {"id": "urn:a"},
+        {"timerel": "after", "timeAt": "2018-08-01T12:00:00Z"},
+    ],
+)
 def test_bad_requests(params):
     with pytest.raises(BadRequestData):
         q(**params)
@@ -78,10 +109,12 @@ def test_one_of_the_required_filters_is_enough():
 def test_type_expressions():
     assert parse_types("Vehicle", TERMS) == TypeName(V + "Vehicle", "Vehicle")
     assert parse_types("A,B", TERMS) == TypeOr((TypeName(V + "A", "A"), TypeName(V + "B", "B")))
-    assert parse_types("A;B|C", TERMS) == TypeOr((TypeAnd((TypeName(V + "A", "A"), TypeName(V + "B", "B"))),
-                                                  TypeName(V + "C", "C")))
-    assert parse_types("(A|B);C", TERMS) == TypeAnd((TypeOr((TypeName(V + "A", "A"), TypeName(V + "B", "B"))),
-                                                     TypeName(V + "C", "C")))
+    assert parse_types("A;B|C", TERMS) == TypeOr(
+        (TypeAnd((TypeName(V + "A", "A"), TypeName(V + "B", "B"))), TypeName(V + "C", "C"))
+    )
+    assert parse_types("(A|B);C", TERMS) == TypeAnd(
+        (TypeOr((TypeName(V + "A", "A"), TypeName(V + "B", "B"))), TypeName(V + "C", "C"))
+    )
     assert parse_types("https://example.org/T", TERMS) == TypeName("https://example.org/T", "https://example.org/T")
 
 
@@ -95,11 +128,18 @@ def test_representation_format_wins_over_options():
     assert q(type="V", format="normalized", options="temporalValues").format is Format.NORMALIZED
 
 
-@pytest.mark.parametrize("text,duration", [
-    ("PT0S", Duration()), ("P0D", Duration()), ("PT1H", Duration(micros=3_600_000_000)),
-    ("P1W", Duration(days=7)), ("P1Y2M", Duration(months=14)), ("P1DT0.5S", Duration(days=1, micros=500_000)),
-    ("P3Y6M4DT12H30M5S", Duration(42, 4, (12 * 3600 + 30 * 60 + 5) * 1_000_000)),
-])
+@pytest.mark.parametrize(
+    "text,duration",
+    [
+        ("PT0S", Duration()),
+        ("P0D", Duration()),
+        ("PT1H", Duration(micros=3_600_000_000)),
+        ("P1W", Duration(days=7)),
+        ("P1Y2M", Duration(months=14)),
+        ("P1DT0.5S", Duration(days=1, micros=500_000)),
+        ("P3Y6M4DT12H30M5S", Duration(42, 4, (12 * 3600 + 30 * 60 + 5) * 1_000_000)),
+    ],
+)
 def test_durations(text, duration):
     assert parse_duration(text) == duration
 
@@ -111,8 +151,18 @@ def test_bad_durations(bad):
 
 
 def test_pick_omit_attrs_dataset_paging():
-    query = q(type="V", attrs="speed,name", pick="id,speed", omit="name", datasetId="urn:ds:1,@none",
-              limit=5, offset=10, count="true", lastN=3, orderBy="id")
+    query = q(
+        type="V",
+        attrs="speed,name",
+        pick="id,speed",
+        omit="name",
+        datasetId="urn:ds:1,@none",
+        limit=5,
+        offset=10,
+        count="true",
+        lastN=3,
+        orderBy="id",
+    )
     assert query.pick == ("id", V + "speed") and query.omit == (V + "name",)
     assert query.wanted_attrs == (V + "speed",)
     assert query.dataset_ids == ("urn:ds:1", "@none")
@@ -120,16 +170,31 @@ def test_pick_omit_attrs_dataset_paging():
 
 
 def test_post_query_body():
-    body = {"type": "Query", "entities": [{"type": "Vehicle"}, {"id": "urn:x", "type": "Car"}], "attrs": ["speed"],
-            "q": "speed>50", "geoQ": {"georel": "near;maxDistance==2000", "geometry": "Point",
-                                      "coordinates": [-3.7, 40.4], "geoproperty": "location"},
-            "temporalQ": {"timerel": "after", "timeAt": "2018-08-01T12:00:00Z", "lastN": 2}}
+    body = {
+        "type": "Query",
+        "entities": [{"type": "Vehicle"}, {"id": "urn:x", "type": "Car"}],
+        "attrs": ["speed"],
+        "q": "speed>50",
+        "geoQ": {
+            "georel": "near;maxDistance==2000",
+            "geometry": "Point",
+            "coordinates": [-3.7, 40.4],
+            "geoproperty": "location",
+        },
+        "temporalQ": {"timerel": "after", "timeAt": "2018-08-01T12:00:00Z", "lastN": 2},
+    }
     query = query_from_body(body, {"options": "temporalValues"}, "t", TERMS, limits=(100, 1000))
     assert len(query.selectors) == 2 and query.selectors[1].ids == ("urn:x",)
     assert query.last_n == 2 and query.format is Format.TEMPORAL_VALUES
     assert query.geo.geoproperty == "https://uri.etsi.org/ngsi-ld/location"
-    for bad in [{"type": "Query"}, {"type": "Nope", "attrs": ["a"]}, [], {"type": "Query", "attrs": [1]},
-                {"type": "Query", "attrs": ["a"], "temporalQ": []}, {"type": "Query", "attrs": ["a"], "x": 1},
-                {"type": "Query", "entities": [{"idx": 1}]}]:
+    for bad in [
+        {"type": "Query"},
+        {"type": "Nope", "attrs": ["a"]},
+        [],
+        {"type": "Query", "attrs": [1]},
+        {"type": "Query", "attrs": ["a"], "temporalQ": []},
+        {"type": "Query", "attrs": ["a"], "x": 1},
+        {"type": "Query", "entities": [{"idx": 1}]},
+    ]:
         with pytest.raises(BadRequestData):
             query_from_body(bad, {}, "t", TERMS, limits=(100, 1000))

@@ -8,8 +8,8 @@ from datetime import datetime
 
 import pytest
 
-from tsdb_service.history.query import EntityFilter, Scope
 from tsdb_service.model import Kind, instance_urn
+from tsdb_service.query import EntityFilter, Scope
 
 BASE = "/ngsi-ld/v1/temporal/entities"
 VEHICLE = "urn:ngsi-ld:Vehicle:B9211"
@@ -61,16 +61,33 @@ def test_create_then_upsert(client):
     assert all(r.created_at is not None and r.created_at == r.modified_at for _, r in rows)
     assert '"unitCode":"KMH"' in speed[0].md
     # The same entity again: its instances are added (204).
-    again = create(client, {"id": VEHICLE, "type": "Vehicle",
-                            "speed": {"type": "Property", "value": 90, "observedAt": "2018-08-01T12:07:00Z"}})
+    again = create(
+        client,
+        {
+            "id": VEHICLE,
+            "type": "Vehicle",
+            "speed": {"type": "Property", "value": 90, "observedAt": "2018-08-01T12:07:00Z"},
+        },
+    )
     assert again.status_code == 204, again.text
     assert [r.num for name, r in stored(client) if name == "speed"] == [120, 80, 90]
 
 
 def test_system_members_sent_by_the_client_are_ignored(client):
-    body = {"id": VEHICLE, "type": "Vehicle", "speed": [{
-        "type": "Property", "value": 1, "observedAt": "2018-08-01T12:00:00Z", "createdAt": "2000-01-01T00:00:00Z",
-        "modifiedAt": "2000-01-01T00:00:00Z", "instanceId": "urn:ngsi-ld:attribute:instance:0000000000000001"}]}
+    body = {
+        "id": VEHICLE,
+        "type": "Vehicle",
+        "speed": [
+            {
+                "type": "Property",
+                "value": 1,
+                "observedAt": "2018-08-01T12:00:00Z",
+                "createdAt": "2000-01-01T00:00:00Z",
+                "modifiedAt": "2000-01-01T00:00:00Z",
+                "instanceId": "urn:ngsi-ld:attribute:instance:0000000000000001",
+            }
+        ],
+    }
     assert create(client, body).status_code == 201
     [(_, row)] = stored(client)
     assert row.created_at.year > 2000 and row.md == '{"observedAt":"2018-08-01T12:00:00Z"}'
@@ -91,18 +108,35 @@ def test_ld_json_body_carries_its_context(client):
     body = {**temporal_vehicle(), "@context": "https://uri.etsi.org/ngsi-ld/v1/ngsi-ld-core-context.jsonld"}
     response = client.post(BASE, json=body, headers={"Content-Type": "application/ld+json"})
     assert response.status_code == 201, response.text
-    problem(client.post(BASE, json=temporal_vehicle(), headers={"Content-Type": "application/ld+json"}),
-            400, "BadRequestData")
+    problem(
+        client.post(BASE, json=temporal_vehicle(), headers={"Content-Type": "application/ld+json"}),
+        400,
+        "BadRequestData",
+    )
     problem(client.post(BASE, json=body, headers=JSON), 400, "BadRequestData")
 
 
 def test_datasets_and_relationships(client):
-    body = {"id": VEHICLE, "type": "Vehicle",
-            "speed": [{"type": "Property", "value": 55, "datasetId": "urn:ngsi-ld:Dataset:gps",
-                       "observedAt": "2018-08-01T12:03:00Z"},
-                      {"type": "Property", "value": 56, "observedAt": "2018-08-01T12:03:00Z"}],
-            "isParked": [{"type": "Relationship", "object": "urn:ngsi-ld:OffStreetParking:Downtown1",
-                          "observedAt": "2018-08-01T12:03:00Z"}]}
+    body = {
+        "id": VEHICLE,
+        "type": "Vehicle",
+        "speed": [
+            {
+                "type": "Property",
+                "value": 55,
+                "datasetId": "urn:ngsi-ld:Dataset:gps",
+                "observedAt": "2018-08-01T12:03:00Z",
+            },
+            {"type": "Property", "value": 56, "observedAt": "2018-08-01T12:03:00Z"},
+        ],
+        "isParked": [
+            {
+                "type": "Relationship",
+                "object": "urn:ngsi-ld:OffStreetParking:Downtown1",
+                "observedAt": "2018-08-01T12:03:00Z",
+            }
+        ],
+    }
     assert create(client, body).status_code == 201
     rows = sorted((name, r.dataset_id or "", r.kind, r.num, r.txt) for name, r in stored(client))
     assert rows == [
@@ -120,18 +154,23 @@ def test_tenants_are_kept_apart(client):
     assert response.status_code == 200 and response.json()["values"] == [120, 80]
 
 
-@pytest.mark.parametrize("body, ld_type", [
-    ({"type": "Vehicle", "speed": [{"type": "Property", "value": 1}]}, "BadRequestData"),
-    ({"id": "not a uri", "type": "Vehicle", "speed": [{"type": "Property", "value": 1}]}, "BadRequestData"),
-    ({"id": VEHICLE, "speed": [{"type": "Property", "value": 1}]}, "BadRequestData"),
-    ({"id": VEHICLE, "type": 5, "speed": [{"type": "Property", "value": 1}]}, "BadRequestData"),
-    ({"id": VEHICLE, "type": "Vehicle", "speed": [5]}, "BadRequestData"),
-    ({"id": VEHICLE, "type": "Vehicle", "speed": [{"unitCode": "KMH"}]}, "BadRequestData"),
-    ({"id": VEHICLE, "type": "Vehicle", "sp eed": [{"type": "Property", "value": 1}]}, "BadRequestData"),
-    ({"id": VEHICLE, "type": "Vehicle"}, "BadRequestData"),
-    ({"id": VEHICLE, "type": "Vehicle", "speed": [{"type": "Property", "value": 1, "datasetId": 5}]},
-     "BadRequestData"),
-])
+@pytest.mark.parametrize(
+    "body, ld_type",
+    [
+        ({"type": "Vehicle", "speed": [{"type": "Property", "value": 1}]}, "BadRequestData"),
+        ({"id": "not a uri", "type": "Vehicle", "speed": [{"type": "Property", "value": 1}]}, "BadRequestData"),
+        ({"id": VEHICLE, "speed": [{"type": "Property", "value": 1}]}, "BadRequestData"),
+        ({"id": VEHICLE, "type": 5, "speed": [{"type": "Property", "value": 1}]}, "BadRequestData"),
+        ({"id": VEHICLE, "type": "Vehicle", "speed": [5]}, "BadRequestData"),
+        ({"id": VEHICLE, "type": "Vehicle", "speed": [{"unitCode": "KMH"}]}, "BadRequestData"),
+        ({"id": VEHICLE, "type": "Vehicle", "sp eed": [{"type": "Property", "value": 1}]}, "BadRequestData"),
+        ({"id": VEHICLE, "type": "Vehicle"}, "BadRequestData"),
+        (
+            {"id": VEHICLE, "type": "Vehicle", "speed": [{"type": "Property", "value": 1, "datasetId": 5}]},
+            "BadRequestData",
+        ),
+    ],
+)
 def test_create_refuses_bad_bodies(client, body, ld_type):
     problem(create(client, body), 400, ld_type)
     assert stored(client) == []
@@ -146,9 +185,14 @@ def test_create_refuses_what_is_not_json(client):
 
 def test_append_instances(client):
     assert create(client).status_code == 201
-    response = client.post(f"{BASE}/{VEHICLE}/attrs", headers=JSON, json={
-        "speed": [{"type": "Property", "value": 70, "observedAt": "2018-08-01T12:09:00Z"}],
-        "brandName": {"type": "Property", "value": "Volvo", "observedAt": "2018-08-01T12:09:00Z"}})
+    response = client.post(
+        f"{BASE}/{VEHICLE}/attrs",
+        headers=JSON,
+        json={
+            "speed": [{"type": "Property", "value": 70, "observedAt": "2018-08-01T12:09:00Z"}],
+            "brandName": {"type": "Property", "value": "Volvo", "observedAt": "2018-08-01T12:09:00Z"},
+        },
+    )
     assert response.status_code == 204, response.text
     rows = stored(client)
     assert [r.num for name, r in rows if name == "speed"] == [120, 80, 70]
@@ -160,10 +204,14 @@ def test_append_errors(client):
     problem(client.post(f"{BASE}/urn:ngsi-ld:Vehicle:none/attrs", headers=JSON, json=body), 404, "ResourceNotFound")
     assert create(client).status_code == 201
     problem(client.post(f"{BASE}/{VEHICLE}/attrs", headers=JSON, json={}), 400, "BadRequestData")
-    problem(client.post(f"{BASE}/{VEHICLE}/attrs", headers=JSON, json={"id": "urn:x:other", **body}),
-            400, "BadRequestData")
-    problem(client.post(f"{BASE}/{VEHICLE}/attrs", headers={**JSON, "NGSILD-Tenant": "nobody"}, json=body),
-            404, "NonexistentTenant")
+    problem(
+        client.post(f"{BASE}/{VEHICLE}/attrs", headers=JSON, json={"id": "urn:x:other", **body}), 400, "BadRequestData"
+    )
+    problem(
+        client.post(f"{BASE}/{VEHICLE}/attrs", headers={**JSON, "NGSILD-Tenant": "nobody"}, json=body),
+        404,
+        "NonexistentTenant",
+    )
 
 
 def test_delete_entity(client):
@@ -177,11 +225,16 @@ def test_delete_entity(client):
 
 
 def test_delete_attribute_default_dataset_and_all(client):
-    body = {"id": VEHICLE, "type": "Vehicle", "speed": [
-        {"type": "Property", "value": 1, "observedAt": "2018-08-01T12:00:00Z"},
-        {"type": "Property", "value": 2, "datasetId": "urn:ds:a", "observedAt": "2018-08-01T12:00:00Z"},
-        {"type": "Property", "value": 3, "datasetId": "urn:ds:b", "observedAt": "2018-08-01T12:00:00Z"}],
-        "fuelLevel": [{"type": "Property", "value": 9}]}
+    body = {
+        "id": VEHICLE,
+        "type": "Vehicle",
+        "speed": [
+            {"type": "Property", "value": 1, "observedAt": "2018-08-01T12:00:00Z"},
+            {"type": "Property", "value": 2, "datasetId": "urn:ds:a", "observedAt": "2018-08-01T12:00:00Z"},
+            {"type": "Property", "value": 3, "datasetId": "urn:ds:b", "observedAt": "2018-08-01T12:00:00Z"},
+        ],
+        "fuelLevel": [{"type": "Property", "value": 9}],
+    }
     assert create(client, body).status_code == 201
 
     def speeds():
@@ -264,8 +317,10 @@ def test_ld_paths_answer_problem_details(client):
 def test_deletion_instances_from_notifications_and_writes_mix(client):
     """A notified deletion and written instances are one history."""
     assert create(client).status_code == 201
-    notification = {"type": "Notification", "data": [{"id": VEHICLE, "type": "Vehicle",
-                                                      "deletedAt": "2018-08-02T00:00:00Z"}]}
+    notification = {
+        "type": "Notification",
+        "data": [{"id": VEHICLE, "type": "Vehicle", "deletedAt": "2018-08-02T00:00:00Z"}],
+    }
     assert client.post("/ngsi-ld/v1/notify", json=notification, headers=JSON).status_code == 200
     deleted = [(name, r.deleted_at) for name, r in stored(client) if r.deleted_at is not None]
     assert sorted(deleted) == [("fuelLevel", datetime(2018, 8, 2)), ("speed", datetime(2018, 8, 2))]

@@ -197,6 +197,9 @@ def test_checks_fail_on_wrong_answers():
     outside = {"type": "Point", "coordinates": [sites.DRONE_HOME[1], sites.DRONE_HOME[0]]}
     assert collection.inside("values", sites.SENSOR_FIELD).failure({"values": [outside]})
     lat, lon = sites.SENSORS[0][1]
-    assert collection.inside("values", sites.SENSOR_FIELD).failure(
-        {"values": [{"type": "Point", "coordinates": [lon, lat]}]}
-    ) is None
+    assert (
+        collection.inside("values", sites.SENSOR_FIELD).failure(
+            {"values": [{"type": "Point", "coordinates": [lon, lat]}]}
+        )
+        is None
+    )

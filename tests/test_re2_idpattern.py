@@ -23,8 +23,12 @@ assert len(IDS[0]) == 29
 
 
 def _entity(eid: str, value: float) -> dict:
-    return {"id": eid, "type": "Room", "temperature": {"type": "Number", "value": value},
-            "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"}}  # fmt: skip
+    return {
+        "id": eid,
+        "type": "Room",
+        "temperature": {"type": "Number", "value": value},
+        "TimeInstant": {"type": "DateTime", "value": "2024-05-01T10:00:00Z"},
+    }
 
 
 def _load(post) -> None:
@@ -43,12 +47,22 @@ def _requests(pattern: str) -> list[tuple[str, str, dict]]:
         ("POST", "/v2/op/query", {"json": {"entities": [{"idPattern": pattern}]}}),
         ("GET", "/grafana/infinity/series", {"params": {"attrs": "temperature", "idPattern": pattern}}),
         ("GET", "/grafana/infinity/entities", {"params": {"idPattern": pattern}}),
-        ("POST", "/grafana/simplejson/query",
-         {"json": {"targets": [{"target": "*/temperature", "payload": {"idPattern": pattern}}]}}),
-        ("POST", "/grafana/simplejson/query",
-         {"json": {"targets": [{"target": "*/temperature"}],
-                   "adhocFilters": [{"key": "entity", "operator": "=~", "value": pattern}]}}),
-    ]  # fmt: skip
+        (
+            "POST",
+            "/grafana/simplejson/query",
+            {"json": {"targets": [{"target": "*/temperature", "payload": {"idPattern": pattern}}]}},
+        ),
+        (
+            "POST",
+            "/grafana/simplejson/query",
+            {
+                "json": {
+                    "targets": [{"target": "*/temperature"}],
+                    "adhocFilters": [{"key": "entity", "operator": "=~", "value": pattern}],
+                }
+            },
+        ),
+    ]
 
 
 def test_hostile_pattern_answers_at_once_everywhere(client):
@@ -103,8 +117,11 @@ def test_hostile_pattern_does_not_block_other_clients(store_url, tmp_path):
                 for n in range(5):
                     start = time.monotonic()
                     assert http.get("/health").status_code == 200
-                    r = http.post("/v2/notify", json={"subscriptionId": "s", "data": [_entity(IDS[0], 100 + n)]},
-                                  headers={"Content-Type": "application/json"})  # fmt: skip
+                    r = http.post(
+                        "/v2/notify",
+                        json={"subscriptionId": "s", "data": [_entity(IDS[0], 100 + n)]},
+                        headers={"Content-Type": "application/json"},
+                    )
                     assert r.status_code == 200, r.text
                     assert time.monotonic() - start < 2.0
             finally:

@@ -10,8 +10,8 @@ from datetime import UTC, datetime, timedelta
 import pytest
 
 from tsdb_service.config import Settings
-from tsdb_service.history.query import EntityFilter, Scope, TimeRange
 from tsdb_service.model import AttrSample, EntitySample, Geometry, Kind
+from tsdb_service.query import EntityFilter, Scope, TimeRange
 from tsdb_service.storage import open_store
 from tsdb_service.storage.base import AppendSamples
 
@@ -22,8 +22,14 @@ DAY = timedelta(days=1)
 def entity(tenant: str, eid: str, etype: str, age: timedelta, n: int = 1, **extra) -> list[EntitySample]:
     """``n`` samples of attribute ``x``, one minute apart, starting ``age`` ago."""
     return [
-        EntitySample(tenant, "/", eid, etype, NOW - age + timedelta(minutes=i),
-                     [AttrSample("x", "Number", Kind.INTEGER, num=i), *extra.get("attrs", [])])
+        EntitySample(
+            tenant,
+            "/",
+            eid,
+            etype,
+            NOW - age + timedelta(minutes=i),
+            [AttrSample("x", "Number", Kind.INTEGER, num=i), *extra.get("attrs", [])],
+        )
         for i in range(n)
     ]
 
@@ -77,16 +83,20 @@ def test_old_samples_go_in_bounded_batches_new_ones_stay(store_url):
 def test_per_tenant_and_per_type(store_url):
     store = open_with(store_url, retention="*=365d,acme=30d,acme/Robot=7d")
     try:
-        write_in_both_tables(store, [
-            *entity("", "R1", "Room", 40 * DAY, n=3),          # '*': kept (365 d)
-            *entity("acme", "R2", "Room", 40 * DAY, n=3),      # 'acme': deleted
-            *entity("acme", "R2", "Room", 10 * DAY, n=2),      # 'acme': kept
-            *entity("acme", "B1", "Robot", 10 * DAY, n=4),     # 'acme/Robot': deleted
-        ], [
-            *entity("acme", "B1", "Robot", DAY, n=2),          # kept
-            *entity("beta", "B2", "Robot", 40 * DAY, n=3),     # '*': kept
-            *entity("beta", "B2", "Robot", 400 * DAY, n=6),    # '*': deleted
-        ])
+        write_in_both_tables(
+            store,
+            [
+                *entity("", "R1", "Room", 40 * DAY, n=3),  # '*': kept (365 d)
+                *entity("acme", "R2", "Room", 40 * DAY, n=3),  # 'acme': deleted
+                *entity("acme", "R2", "Room", 10 * DAY, n=2),  # 'acme': kept
+                *entity("acme", "B1", "Robot", 10 * DAY, n=4),  # 'acme/Robot': deleted
+            ],
+            [
+                *entity("acme", "B1", "Robot", DAY, n=2),  # kept
+                *entity("beta", "B2", "Robot", 40 * DAY, n=3),  # '*': kept
+                *entity("beta", "B2", "Robot", 400 * DAY, n=6),  # '*': deleted
+            ],
+        )
         batches = store.retention.observer = Batches()
         store.retention.run_once()
         assert count(store, "") == 3
@@ -155,11 +165,24 @@ def test_queries_stop_showing_deleted_samples(client_factory, store_url, notify)
     (latest locations in memory) see what retention deleted at once."""
     with client_factory(store_url, retention="*=30d", retention_interval=3600) as client:
         point = lambda i: {"type": "geo:point", "value": f"{40 + i}, -3"}  # noqa: E731
-        old = [{"id": "Bot", "type": "Robot", "x": {"type": "Number", "value": i}, "location": point(i),
-                "TimeInstant": {"type": "DateTime", "value": (NOW - 40 * DAY + timedelta(minutes=i)).isoformat()}}
-               for i in range(3)]
-        new = [{"id": "Bot2", "type": "Robot", "x": {"type": "Number", "value": 9},
-                "TimeInstant": {"type": "DateTime", "value": (NOW - DAY).isoformat()}}]
+        old = [
+            {
+                "id": "Bot",
+                "type": "Robot",
+                "x": {"type": "Number", "value": i},
+                "location": point(i),
+                "TimeInstant": {"type": "DateTime", "value": (NOW - 40 * DAY + timedelta(minutes=i)).isoformat()},
+            }
+            for i in range(3)
+        ]
+        new = [
+            {
+                "id": "Bot2",
+                "type": "Robot",
+                "x": {"type": "Number", "value": 9},
+                "TimeInstant": {"type": "DateTime", "value": (NOW - DAY).isoformat()},
+            }
+        ]
         notify(client, {"subscriptionId": "s", "data": old + new})
         r = client.get("/v2/entities/Bot/attrs/x?lastN=5")
         assert r.json()["values"] == [0, 1, 2]
@@ -176,13 +199,24 @@ def test_latest_location_recomputed_when_an_old_one_goes(store_url, geo_kind):
     """A series whose newest position is old loses it; a newer one stays."""
     store = open_with(store_url, retention="*=30d")
     try:
-        geo = lambda lon: AttrSample("location", "geo:json", geo_kind, js="{}",  # noqa: E731
-                                      geo=Geometry(f'{{"type":"Point","coordinates":[{lon},0]}}', lon, 0, lon, 0, lon, 0))
-        store.write_sync([AppendSamples([
-            EntitySample("", "/", "A", "T", NOW - 40 * DAY, [geo(1.0)]),
-            EntitySample("", "/", "B", "T", NOW - 40 * DAY, [geo(2.0)]),
-            EntitySample("", "/", "B", "T", NOW - DAY, [geo(3.0)]),
-        ])])
+        geo = lambda lon: AttrSample(
+            "location",
+            "geo:json",
+            geo_kind,
+            js="{}",
+            geo=Geometry(f'{{"type":"Point","coordinates":[{lon},0]}}', lon, 0, lon, 0, lon, 0),
+        )
+        store.write_sync(
+            [
+                AppendSamples(
+                    [
+                        EntitySample("", "/", "A", "T", NOW - 40 * DAY, [geo(1.0)]),
+                        EntitySample("", "/", "B", "T", NOW - 40 * DAY, [geo(2.0)]),
+                        EntitySample("", "/", "B", "T", NOW - DAY, [geo(3.0)]),
+                    ]
+                )
+            ]
+        )
         store.retention.run_once()
         q = store.querier()
         refs = q.series(Scope(""), EntityFilter(), {"location"})

@@ -12,11 +12,18 @@ H = {"Fiware-Service": "acme"}
 
 
 def batch(eid: str, start: datetime, n: int, first: int = 0) -> dict:
-    return {"subscriptionId": "s", "data": [
-        {"id": eid, "type": "Robot", "x": {"type": "Integer", "value": first + i},
-         "TimeInstant": {"type": "DateTime", "value": (start + timedelta(seconds=i)).isoformat()}}
-        for i in range(n)
-    ]}
+    return {
+        "subscriptionId": "s",
+        "data": [
+            {
+                "id": eid,
+                "type": "Robot",
+                "x": {"type": "Integer", "value": first + i},
+                "TimeInstant": {"type": "DateTime", "value": (start + timedelta(seconds=i)).isoformat()},
+            }
+            for i in range(n)
+        ],
+    }
 
 
 def counts(client) -> tuple[int, int]:
@@ -38,8 +45,9 @@ def wait_for(predicate, timeout: float = 20.0) -> bool:
 
 
 def test_the_worker_deletes_in_the_background_while_ingest_goes_on(client_factory, store_url, notify):
-    settings = dict(retention="acme=10d", rollups=True, retention_interval=0.05, retention_batch_rows=25,
-                    retention_pause=0.001)
+    settings = dict(
+        retention="acme=10d", rollups=True, retention_interval=0.05, retention_batch_rows=25, retention_pause=0.001
+    )
     with client_factory(store_url, **settings) as client:
         notify(client, batch("Old", NOW - timedelta(days=20), 300), H)
         acked_new = 0

@@ -13,15 +13,14 @@ from urllib.parse import quote
 
 import pytest
 
-from tsdb_service.history.query import EntityFilter, Scope
+from tsdb_service.query import EntityFilter, Scope
 
 NOW = datetime.now(UTC).replace(minute=0, second=0, microsecond=0)
 OLD = NOW - timedelta(days=60) - timedelta(hours=7)  # 50 hours from here: rolled up
 NEW = NOW - timedelta(days=2)  # 10 hours from here: raw
 MS = timedelta(milliseconds=1)
 H = {"Fiware-Service": "acme"}
-SETTINGS = dict(retention="acme=30d", rollups=True, retention_batch_rows=40, retention_pause=0,
-                retention_interval=3600)
+SETTINGS = dict(retention="acme=30d", rollups=True, retention_batch_rows=40, retention_pause=0, retention_interval=3600)
 
 
 def iso(moment: datetime) -> str:
@@ -31,7 +30,8 @@ def iso(moment: datetime) -> str:
 def sample(eid: str, moment: datetime, i: int) -> dict:
     """Floats in quarters and integers, so every sum is exact in any order."""
     body = {
-        "id": eid, "type": "Robot",
+        "id": eid,
+        "type": "Robot",
         "TimeInstant": {"type": "DateTime", "value": iso(moment)},
         "speed": {"type": "Number", "value": (i % 17) * 0.25 - 1},
         "ticks": {"type": "Integer", "value": i * 3 - 50},
@@ -44,8 +44,11 @@ def sample(eid: str, moment: datetime, i: int) -> dict:
 
 
 def history(eid: str, start: datetime, hours: int, seed: int) -> list[dict]:
-    return [sample(eid, start + timedelta(hours=h, minutes=m), seed + h * 3 + k)
-            for h in range(hours) for k, m in enumerate((0, 20, 40))]
+    return [
+        sample(eid, start + timedelta(hours=h, minutes=m), seed + h * 3 + k)
+        for h in range(hours)
+        for k, m in enumerate((0, 20, 40))
+    ]
 
 
 def load(client, notify) -> None:
@@ -128,15 +131,23 @@ def test_minute_buckets_value_paths_and_cut_hours_see_raw_samples_only(loaded):
     path = loaded.get("/v2/entities/Robot:1/attrs/odom(x)?aggrMethod=count", headers=H).json()
     assert path["values"] == [30]  # only the raw window
     # A range starting mid-hour leaves that hour's rolled-up part out.
-    cut = loaded.get(f"/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&fromDate="
-                     f"{quote(iso(OLD + timedelta(hours=4, minutes=30)))}", headers=H).json()
-    whole = loaded.get(f"/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&fromDate="
-                       f"{quote(iso(OLD + timedelta(hours=5)))}", headers=H).json()
+    cut = loaded.get(
+        f"/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&fromDate="
+        f"{quote(iso(OLD + timedelta(hours=4, minutes=30)))}",
+        headers=H,
+    ).json()
+    whole = loaded.get(
+        f"/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&fromDate={quote(iso(OLD + timedelta(hours=5)))}", headers=H
+    ).json()
     assert cut["values"] == whole["values"] == [(50 - 5) * 3 + 30]
     # A range ending on an hour's first instant leaves that hour out; its last millisecond keeps it in.
     ends = [OLD + timedelta(hours=10), OLD + timedelta(hours=10) - MS]
-    got = [loaded.get(f"/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&toDate={quote(iso(end))}",
-                      headers=H).json()["values"] for end in ends]
+    got = [
+        loaded.get(f"/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&toDate={quote(iso(end))}", headers=H).json()[
+            "values"
+        ]
+        for end in ends
+    ]
     assert got == [[30], [30]]
 
 
@@ -145,8 +156,11 @@ def test_deleting_an_entity_removes_its_rollups(loaded):
     count = "/v2/entities/Robot:1/attrs/ticks?aggrMethod=count"
     assert loaded.get(count, headers=H).json()["values"] == [180]
     # A range delete removes every rolled-up hour it touches: 10:00 to 20:00 inclusive is 11 hours.
-    r = loaded.delete(f"/v2/entities/Robot:1?type=Robot&fromDate={quote(iso(OLD + timedelta(hours=10)))}"
-                      f"&toDate={quote(iso(OLD + timedelta(hours=20)))}", headers=H)
+    r = loaded.delete(
+        f"/v2/entities/Robot:1?type=Robot&fromDate={quote(iso(OLD + timedelta(hours=10)))}"
+        f"&toDate={quote(iso(OLD + timedelta(hours=20)))}",
+        headers=H,
+    )
     assert r.status_code == 204, r.text
     assert loaded.get(count, headers=H).json()["values"] == [180 - 33]
     assert loaded.delete("/v2/entities/Robot:2?type=Robot", headers=H).status_code == 204

@@ -18,8 +18,10 @@ except ImportError:  # tests/ imported as a package
 ORION_KEY = "orion-subscription-key-0123456789"
 ADMIN_KEY = "operator-admin-key-0123456789"
 ORIGIN = "https://grafana.example.org"
-NOTE = {"subscriptionId": "s1", "data": [{"id": "urn:Robot:1", "type": "Robot",
-                                          "battery": {"type": "Number", "value": 42}}]}
+NOTE = {
+    "subscriptionId": "s1",
+    "data": [{"id": "urn:Robot:1", "type": "Robot", "battery": {"type": "Number", "value": 42}}],
+}
 ACME = {"Fiware-Service": "acme", "Fiware-ServicePath": "/"}
 
 
@@ -75,16 +77,24 @@ def test_orion_key_header_notification_then_jwt_read(server, issuer):
 
 def test_cors_preflight_and_admin_over_http(embedded_server):
     with httpx.Client(base_url=embedded_server.url, timeout=10) as http:
-        preflight = http.options("/v2/notify", headers={
-            "Origin": ORIGIN, "Access-Control-Request-Method": "POST",
-            "Access-Control-Request-Headers": "authorization, content-type"})
+        preflight = http.options(
+            "/v2/notify",
+            headers={
+                "Origin": ORIGIN,
+                "Access-Control-Request-Method": "POST",
+                "Access-Control-Request-Headers": "authorization, content-type",
+            },
+        )
         assert preflight.status_code == 200
         assert preflight.headers["access-control-allow-origin"] == ORIGIN
         refused = http.get("/v2/notify/rejected", headers={"Origin": ORIGIN})
         assert refused.status_code == 401
         assert refused.headers["access-control-allow-origin"] == ORIGIN  # the browser may read why
-        bad = http.post("/v2/notify", content=b"{broken",
-                        headers={**ACME, "Content-Type": "application/json", "X-Orion-Key": ORION_KEY})
+        bad = http.post(
+            "/v2/notify",
+            content=b"{broken",
+            headers={**ACME, "Content-Type": "application/json", "X-Orion-Key": ORION_KEY},
+        )
         assert bad.status_code == 400
         kept = http.get("/v2/notify/rejected", headers={**ACME, "Authorization": f"Bearer {ADMIN_KEY}"})
         assert kept.status_code == 200

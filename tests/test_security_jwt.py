@@ -97,16 +97,20 @@ def test_a_token_without_expiry_is_refused(keycloak, issuer):
 def test_forged_signature_and_alg_none_are_refused(keycloak, issuer):
     good = realm_token(issuer, ["admin"])
     header, payload, signature = good.split(".")
-    tampered = jwt.encode({"iss": ISSUER, "aud": AUD, "exp": int(time.time()) + 60, "scope": "admin"},
-                          key=None, algorithm="none")
+    tampered = jwt.encode(
+        {"iss": ISSUER, "aud": AUD, "exp": int(time.time()) + 60, "scope": "admin"}, key=None, algorithm="none"
+    )
     for token in (f"{header}.{payload}.{signature[:-4]}AAAA", tampered):
         assert keycloak.get("/v2/entities", headers=bearer(token)).status_code == 401
 
 
 def test_public_key_as_hmac_secret_is_refused(keycloak, issuer):
     """The classic algorithm confusion: sign HS256 with the published key."""
-    public_pem = issuer.keys[issuer.kid].public_key().public_bytes(
-        serialization.Encoding.PEM, serialization.PublicFormat.SubjectPublicKeyInfo)
+    public_pem = (
+        issuer.keys[issuer.kid]
+        .public_key()
+        .public_bytes(serialization.Encoding.PEM, serialization.PublicFormat.SubjectPublicKeyInfo)
+    )
     payload = {"iss": ISSUER, "aud": AUD, "exp": int(time.time()) + 60, "scope": "admin"}
 
     def b64(raw: bytes) -> str:
@@ -144,20 +148,34 @@ def test_issuer_unreachable_is_503_then_recovers(client_factory, embedded_db, is
 
 def test_keyrock_hs256_secret_and_role_objects(client_factory, embedded_db):
     secret = "keyrock-application-jwt-secret-0123456789"
-    token = jwt.encode({"app_id": AUD, "aud": AUD, "exp": int(time.time()) + 60,
-                        "roles": [{"id": "r-1", "name": "tsdb:write"}, {"id": "r-2", "name": "read"}]},
-                       secret, algorithm="HS256")
+    token = jwt.encode(
+        {
+            "app_id": AUD,
+            "aud": AUD,
+            "exp": int(time.time()) + 60,
+            "roles": [{"id": "r-1", "name": "tsdb:write"}, {"id": "r-2", "name": "read"}],
+        },
+        secret,
+        algorithm="HS256",
+    )
     with client_factory(embedded_db, jwt_key=secret, jwt_audience=AUD, jwt_scope_prefix="tsdb:") as client:
         assert client.post("/v2/notify", json=NOTE, headers=bearer(token)).status_code == 200
         assert client.get("/v2/entities", headers=bearer(token)).status_code == 403  # "read" lacks the prefix
-        forged = jwt.encode({"aud": AUD, "exp": int(time.time()) + 60, "roles": [{"name": "tsdb:admin"}]},
-                            "not-the-secret-0123456789-abcdefghij", algorithm="HS256")
+        forged = jwt.encode(
+            {"aud": AUD, "exp": int(time.time()) + 60, "roles": [{"name": "tsdb:admin"}]},
+            "not-the-secret-0123456789-abcdefghij",
+            algorithm="HS256",
+        )
         assert client.get("/v2/entities", headers=bearer(forged)).status_code == 401
 
 
 def test_static_public_key(client_factory, embedded_db, issuer):
-    pem = issuer.keys[issuer.kid].public_key().public_bytes(
-        serialization.Encoding.PEM, serialization.PublicFormat.SubjectPublicKeyInfo).decode()
+    pem = (
+        issuer.keys[issuer.kid]
+        .public_key()
+        .public_bytes(serialization.Encoding.PEM, serialization.PublicFormat.SubjectPublicKeyInfo)
+        .decode()
+    )
     with client_factory(embedded_db, jwt_key=pem, jwt_audience=AUD) as client:
         token = issuer.token(aud=AUD, scope="read")
         assert client.get("/v2/entities", headers=bearer(token)).status_code == 200

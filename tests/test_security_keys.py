@@ -16,15 +16,20 @@ from tsdb_service.security.guard import route_path
 
 READER, WRITER, ADMIN = "reader-0123456789abcdef", "writer-0123456789abcdef", "admin-0123456789abcdef"
 ACME_WRITER, DEFAULT_READER = "acme-writer-0123456789", "default-reader-0123456789"
-KEYS = (
-    f"{READER}:read; {WRITER}:write {ADMIN}:admin;"
-    f"{ACME_WRITER}:write,read:ACME,other_co  {DEFAULT_READER}:read:-"
-)
+KEYS = f"{READER}:read; {WRITER}:write {ADMIN}:admin;{ACME_WRITER}:write,read:ACME,other_co  {DEFAULT_READER}:read:-"
 
 
 def note(eid: str = "r1") -> dict:
-    return {"data": [{"id": eid, "type": "Robot", "TimeInstant": {"type": "DateTime", "value": "2024-05-01T00:00:00Z"},
-                      "battery": {"type": "Number", "value": 80}}]}
+    return {
+        "data": [
+            {
+                "id": eid,
+                "type": "Robot",
+                "TimeInstant": {"type": "DateTime", "value": "2024-05-01T00:00:00Z"},
+                "battery": {"type": "Number", "value": 80},
+            }
+        ]
+    }
 
 
 def bearer(key: str, **extra) -> dict:
@@ -57,8 +62,13 @@ def test_off_by_default(embedded_db):
 
 
 def test_missing_credential_is_401_with_a_challenge_everywhere(secured):
-    for method, path in [("POST", "/v2/notify"), ("POST", "/ngsi-ld/v1/notify"), ("GET", "/v2/entities"),
-                         ("POST", "/grafana/simplejson/query"), ("GET", "/no/such/path")]:
+    for method, path in [
+        ("POST", "/v2/notify"),
+        ("POST", "/ngsi-ld/v1/notify"),
+        ("GET", "/v2/entities"),
+        ("POST", "/grafana/simplejson/query"),
+        ("GET", "/no/such/path"),
+    ]:
         response = secured.request(method, path, json=note())
         assert response.status_code == 401, (path, response.text)
         assert response.headers["www-authenticate"] == 'Bearer realm="tsdb-service"'
@@ -92,8 +102,9 @@ def test_scopes(secured):
     assert secured.put("/v2/notify/subscriptions/s1", json=subscription, headers=bearer(WRITER)).status_code == 200
 
 
-@pytest.mark.parametrize(("method", "path"), [("DELETE", "/v2/entities/r1"), ("DELETE", "/v2/types/Robot"),
-                                              ("GET", "/v2/notify/rejected")])
+@pytest.mark.parametrize(
+    ("method", "path"), [("DELETE", "/v2/entities/r1"), ("DELETE", "/v2/types/Robot"), ("GET", "/v2/notify/rejected")]
+)
 def test_deletes_and_the_rejected_store_need_admin(secured_store, method, path):
     secured = secured_store
     secured.post("/v2/notify", json=note(), headers=bearer(WRITER))
@@ -129,8 +140,12 @@ def test_tenant_restricted_key(secured):
     assert secured.get("/v2/entities", headers=bearer(ACME_WRITER, **{"Fiware-Service": "ACME"})).status_code == 200
     ld = bearer(ACME_WRITER, **{"NGSILD-Tenant": "other_co"})
     assert secured.get("/v2/entities", headers=ld).status_code == 200
-    for headers in ({"Fiware-Service": "evil"}, {}, {"Fiware-Service": ""},
-                    {"Fiware-Service": "acme", "NGSILD-Tenant": "evil"}):
+    for headers in (
+        {"Fiware-Service": "evil"},
+        {},
+        {"Fiware-Service": ""},
+        {"Fiware-Service": "acme", "NGSILD-Tenant": "evil"},
+    ):
         response = secured.post("/v2/notify", json=note(), headers=bearer(ACME_WRITER, **headers))
         assert response.status_code == 403, headers
         assert "tenant" in response.json()["description"]

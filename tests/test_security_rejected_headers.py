@@ -30,8 +30,12 @@ def test_rejected_notification_keeps_no_credentials(client_factory, store_url):
         response = client.post(
             "/v2/notify",
             content=b"{broken",
-            headers={"Content-Type": "application/json", "Fiware-Service": "acme", "X-Orion-Key": "custom-secret",
-                     **SECRETS},
+            headers={
+                "Content-Type": "application/json",
+                "Fiware-Service": "acme",
+                "X-Orion-Key": "custom-secret",
+                **SECRETS,
+            },
         )
         assert response.status_code == 400
         rejected = client.get("/v2/notify/rejected", headers={"Fiware-Service": "acme"}).json()

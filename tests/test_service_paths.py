@@ -6,7 +6,7 @@ import pytest
 
 from tsdb_service.errors import BadRequest
 from tsdb_service.history.params import service_paths
-from tsdb_service.history.query import Scope
+from tsdb_service.query import Scope
 
 
 @pytest.mark.parametrize(
@@ -54,8 +54,16 @@ def test_matching(query, stored, match):
 
 
 def _note(eid: str) -> dict:
-    return {"data": [{"id": eid, "type": "T", "TimeInstant": {"type": "DateTime", "value": "2024-01-01T00:00:00Z"},
-                      "v": {"type": "Number", "value": 1}}]}
+    return {
+        "data": [
+            {
+                "id": eid,
+                "type": "T",
+                "TimeInstant": {"type": "DateTime", "value": "2024-01-01T00:00:00Z"},
+                "v": {"type": "Number", "value": 1},
+            }
+        ]
+    }
 
 
 def test_over_http(client, notify):

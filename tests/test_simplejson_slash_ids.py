@@ -21,10 +21,21 @@ NAMES = ["p%252Fq/v", "urn:a%2Fb/v", "urn:a/b%2Fv", "urn:plain/v"]
 @pytest.fixture
 def loaded(client, notify):
     for eid, attr, value in SERIES:
-        notify(client, {"subscriptionId": "s", "data": [{
-            "id": eid, "type": "T", attr: {"type": "Number", "value": value},
-            "TimeInstant": {"type": "DateTime", "value": "2025-06-02T09:00:00.000Z"},
-        }]}, H)  # fmt: skip
+        notify(
+            client,
+            {
+                "subscriptionId": "s",
+                "data": [
+                    {
+                        "id": eid,
+                        "type": "T",
+                        attr: {"type": "Number", "value": value},
+                        "TimeInstant": {"type": "DateTime", "value": "2025-06-02T09:00:00.000Z"},
+                    }
+                ],
+            },
+            H,
+        )
     return client
 
 

@@ -42,8 +42,11 @@ def _closed_by_peer(sock: socket.socket, wait: float) -> bool:
 
 @pytest.fixture
 def server(store_url, tmp_path):
-    env = {"TSDB_HEADER_TIMEOUT_S": str(TIMEOUT_S), "TSDB_BODY_TIMEOUT_S": str(TIMEOUT_S),
-           "TSDB_MAX_CONNECTIONS": "400"}  # fmt: skip
+    env = {
+        "TSDB_HEADER_TIMEOUT_S": str(TIMEOUT_S),
+        "TSDB_BODY_TIMEOUT_S": str(TIMEOUT_S),
+        "TSDB_MAX_CONNECTIONS": "400",
+    }
     with ServerProcess(store_url, extra_env=env, log_dir=tmp_path) as proc:
         yield proc
 
@@ -88,8 +91,9 @@ def test_connections_past_the_cap_get_503(store_url, tmp_path):
 
 
 def test_disconnect_mid_body_is_one_log_line(server):
-    head = (b"POST /v2/notify HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
-            b"Content-Length: %d\r\n\r\n" % len(NOTIFICATION))  # fmt: skip
+    head = b"POST /v2/notify HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: %d\r\n\r\n" % len(
+        NOTIFICATION
+    )
     sock = _connect(server.port, head + NOTIFICATION[: len(NOTIFICATION) // 2])
     time.sleep(0.2)
     sock.close()

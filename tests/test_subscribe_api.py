@@ -36,12 +36,14 @@ class StandInBroker:
     def __init__(self) -> None:
         self.subscriptions: dict[tuple[str, str], list[dict]] = {}
         self._ids = itertools.count(0x65F0C3D7E3B8A4C1E9A57200)
-        self.app = Starlette(routes=[
-            Route("/v2", self.index),
-            Route("/v2/subscriptions", self.create, methods=["POST"]),
-            Route("/v2/subscriptions", self.list, methods=["GET"]),
-            Route("/broken/v2/subscriptions", self.broken, methods=["POST"]),
-        ])  # fmt: skip
+        self.app = Starlette(
+            routes=[
+                Route("/v2", self.index),
+                Route("/v2/subscriptions", self.create, methods=["POST"]),
+                Route("/v2/subscriptions", self.list, methods=["GET"]),
+                Route("/broken/v2/subscriptions", self.broken, methods=["POST"]),
+            ]
+        )
 
     @staticmethod
     def tenant(request: Request) -> tuple[str, str]:
@@ -73,8 +75,12 @@ class StandInBroker:
         for (service, path), subs in self.subscriptions.items():
             for sub in subs:
                 target = sub["notification"].get("http") or sub["notification"]["httpCustom"]
-                headers = {"Content-Type": "application/json; charset=utf-8", "Fiware-ServicePath": path,
-                           "Ngsiv2-AttrsFormat": "normalized", **target.get("headers", {})}
+                headers = {
+                    "Content-Type": "application/json; charset=utf-8",
+                    "Fiware-ServicePath": path,
+                    "Ngsiv2-AttrsFormat": "normalized",
+                    **target.get("headers", {}),
+                }
                 if service:
                     headers["Fiware-Service"] = service
                 wanted = sub["notification"].get("attrs")
@@ -154,14 +160,24 @@ def test_defaults_follow_everything(client, broker):
 
 def test_custom_parameters_under_the_request_tenant(client, broker):
     headers = {"Fiware-Service": "custom", "Fiware-ServicePath": "/custom"}
-    r = subscribe(client, broker, headers, entityType="Room", idPattern="Room1",
-                  observedAttributes="temperature,pressure", notifiedAttributes="pressure", throttling="30")
+    r = subscribe(
+        client,
+        broker,
+        headers,
+        entityType="Room",
+        idPattern="Room1",
+        observedAttributes="temperature,pressure",
+        notifiedAttributes="pressure",
+        throttling="30",
+    )
     assert r.status_code == 201, r.text
     assert broker.subscriptions.get(("", "/")) is None
     assert only_subscription(broker, ("custom", "/custom")) == {
         "description": f"Created by tsdb-service {QL}.",
-        "subject": {"entities": [{"type": "Room", "idPattern": "Room1"}],
-                    "condition": {"attrs": ["temperature", "pressure"]}},
+        "subject": {
+            "entities": [{"type": "Room", "idPattern": "Room1"}],
+            "condition": {"attrs": ["temperature", "pressure"]},
+        },
         "notification": {"http": {"url": f"{QL}/notify"}, "attrs": ["pressure"], "metadata": METADATA},
         "throttling": 30,
     }
@@ -203,18 +219,21 @@ def test_base_urls_without_version_get_v2(client, broker):
 # --- refusals ----------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("params", [
-    {"quantumleapUrl": QL},
-    {"orionUrl": "http://orion:1026/v2"},
-    {"orionUrl": "blabla", "quantumleapUrl": QL},
-    {"orionUrl": "ftp://orion/v2", "quantumleapUrl": QL},
-    {"orionUrl": "http://orion:1026/v2", "quantumleapUrl": "http://:8668/v2"},
-    {"orionUrl": "http://orion:99999/v2", "quantumleapUrl": QL},
-    {"orionUrl": "http://orion:1026/v2?x=1", "quantumleapUrl": QL},
-    {"orionUrl": "http://orion:1026/v2", "quantumleapUrl": QL, "throttling": "-1"},
-    {"orionUrl": "http://orion:1026/v2", "quantumleapUrl": QL, "throttling": "soon"},
-    {"orionUrl": "http://orion:1026/v2", "quantumleapUrl": QL, "entityType": "T" * 300},
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "params",
+    [
+        {"quantumleapUrl": QL},
+        {"orionUrl": "http://orion:1026/v2"},
+        {"orionUrl": "blabla", "quantumleapUrl": QL},
+        {"orionUrl": "ftp://orion/v2", "quantumleapUrl": QL},
+        {"orionUrl": "http://orion:1026/v2", "quantumleapUrl": "http://:8668/v2"},
+        {"orionUrl": "http://orion:99999/v2", "quantumleapUrl": QL},
+        {"orionUrl": "http://orion:1026/v2?x=1", "quantumleapUrl": QL},
+        {"orionUrl": "http://orion:1026/v2", "quantumleapUrl": QL, "throttling": "-1"},
+        {"orionUrl": "http://orion:1026/v2", "quantumleapUrl": QL, "throttling": "soon"},
+        {"orionUrl": "http://orion:1026/v2", "quantumleapUrl": QL, "entityType": "T" * 300},
+    ],
+)
 def test_bad_parameters_are_400_before_any_broker_call(client, broker, params):
     r = client.post("/v2/subscribe", params=params)
     assert r.status_code == 400, r.text
@@ -240,7 +259,10 @@ def test_unreachable_broker_is_quantumleaps_400(client):
 
 def test_broker_refusal_is_passed_on(client, broker):
     r = subscribe(client, broker, idPattern="(")
-    assert (r.status_code, r.json()) == (400, {"error": "BadRequest", "description": "Invalid regex for entity idPattern"})
+    assert (r.status_code, r.json()) == (
+        400,
+        {"error": "BadRequest", "description": "Invalid regex for entity idPattern"},
+    )
 
 
 def test_not_a_broker_gets_a_hint(client, broker):
@@ -263,14 +285,26 @@ def test_broker_failure_is_502(client, broker):
 def test_subscription_feeds_the_service(app_factory, store_url, broker):
     tenant = {"Fiware-Service": "Building", "Fiware-ServicePath": "/floor1"}
     with serving(app_factory(store_url)) as service:
-        r = httpx.post(f"{service}/v2/subscribe", headers=tenant, timeout=10, params={
-            "orionUrl": broker.url + "/v2", "quantumleapUrl": service + "/v2", "entityType": "Room",
-            "notifiedAttributes": "temperature,measuredAt", "timeIndexAttribute": "measuredAt"})
+        r = httpx.post(
+            f"{service}/v2/subscribe",
+            headers=tenant,
+            timeout=10,
+            params={
+                "orionUrl": broker.url + "/v2",
+                "quantumleapUrl": service + "/v2",
+                "entityType": "Room",
+                "notifiedAttributes": "temperature,measuredAt",
+                "timeIndexAttribute": "measuredAt",
+            },
+        )
         assert r.status_code == 201, r.text
-        entity = {"id": "Room1", "type": "Room",
-                  "temperature": {"type": "Number", "value": 21.5, "metadata": {}},
-                  "pressure": {"type": "Number", "value": 1000, "metadata": {}},
-                  "measuredAt": {"type": "DateTime", "value": "2024-03-01T08:00:00.000Z", "metadata": {}}}
+        entity = {
+            "id": "Room1",
+            "type": "Room",
+            "temperature": {"type": "Number", "value": 21.5, "metadata": {}},
+            "pressure": {"type": "Number", "value": 1000, "metadata": {}},
+            "measuredAt": {"type": "DateTime", "value": "2024-03-01T08:00:00.000Z", "metadata": {}},
+        }
         assert broker.notify(entity) == [200]
         got = httpx.get(f"{service}/v2/entities/Room1", headers=tenant, timeout=10).json()
     assert got["index"] == ["2024-03-01T08:00:00.000+00:00"]

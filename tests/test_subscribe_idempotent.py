@@ -47,8 +47,14 @@ class PagingBroker(StandInBroker):
 
 
 def _as_orion_lists(sub: dict) -> dict:
-    notification = {**sub["notification"], "attrs": [], "onlyChangedAttrs": False, "timesSent": 12,
-                    "lastNotification": "2025-06-02T09:00:00.000Z", "covered": False}  # fmt: skip
+    notification = {
+        **sub["notification"],
+        "attrs": [],
+        "onlyChangedAttrs": False,
+        "timesSent": 12,
+        "lastNotification": "2025-06-02T09:00:00.000Z",
+        "covered": False,
+    }
     subject = {**sub["subject"], "condition": {"attrs": [], "notifyOnMetadataChange": True}}
     return {**sub, "status": "active", "subject": subject, "notification": notification}
 
@@ -66,8 +72,9 @@ def _subscribe(broker, *extra: str) -> int:
 
 
 def _seed(broker, tenant, document) -> None:
-    broker.subscriptions.setdefault(tenant, []).append({"id": f"seeded{len(broker.subscriptions.get(tenant, []))}",
-                                                        **document})  # fmt: skip
+    broker.subscriptions.setdefault(tenant, []).append(
+        {"id": f"seeded{len(broker.subscriptions.get(tenant, []))}", **document}
+    )
 
 
 def test_running_twice_creates_one_subscription(broker, capsys):

@@ -12,7 +12,7 @@ import random
 
 import pytest
 
-from tsdb_service.storage.tail_cache import TailCache, iso_ms
+from tsdb_service.storage.duckdb.tail_cache import TailCache, iso_ms
 
 SID = 7
 
@@ -20,15 +20,19 @@ SID = 7
 def _expected(truth, start, end, newest_first, limit, offset):
     rows = sorted(r for r in truth if (start is None or r[0] >= start) and (end is None or r[0] <= end))
     if newest_first:
-        picked = rows[::-1][offset: offset + limit]
+        picked = rows[::-1][offset : offset + limit]
         return picked[::-1]
-    return rows[offset: offset + limit]
+    return rows[offset : offset + limit]
 
 
 def _cols(rows):
     return {
-        "sid": [SID] * len(rows), "t": [r[0] for r in rows], "rid": [r[1] for r in rows],
-        "kind": [r[3] for r in rows], "num": [r[4] for r in rows], "txt": [r[5] for r in rows],
+        "sid": [SID] * len(rows),
+        "t": [r[0] for r in rows],
+        "rid": [r[1] for r in rows],
+        "kind": [r[3] for r in rows],
+        "num": [r[4] for r in rows],
+        "txt": [r[5] for r in rows],
         "js": [r[6] for r in rows],
     }
 

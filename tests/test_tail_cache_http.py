@@ -10,15 +10,25 @@ H = {"Content-Type": "application/json", "Fiware-Service": "tail"}
 
 
 def _post(client, i: int, t: int) -> None:
-    body = {"data": [{"id": f"R{i % 3}", "type": "Robot", "speed": {"type": "Number", "value": i},
-                      "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:{t // 60:02d}:{t % 60:02d}Z"}}]}
+    body = {
+        "data": [
+            {
+                "id": f"R{i % 3}",
+                "type": "Robot",
+                "speed": {"type": "Number", "value": i},
+                "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:{t // 60:02d}:{t % 60:02d}Z"},
+            }
+        ]
+    }
     assert client.post("/v2/notify", json=body, headers=H).status_code == 200
 
 
 def test_cached_and_uncached_answers_agree(client_factory, store_url_factory):
     rnd = random.Random(5)
-    with client_factory(store_url_factory("tail_on")) as cached, \
-         client_factory(store_url_factory("tail_off"), tail_cache_series=0) as plain:
+    with (
+        client_factory(store_url_factory("tail_on")) as cached,
+        client_factory(store_url_factory("tail_off"), tail_cache_series=0) as plain,
+    ):
         for step in range(250):
             roll = rnd.random()
             if roll < 0.5:

@@ -13,8 +13,16 @@ ENTITIES = 5
 
 
 def _post(client, i: int, entity: int, t: int) -> None:
-    body = {"data": [{"id": f"R{entity}", "type": "Robot", "speed": {"type": "Number", "value": i},
-                      "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:{t // 60:02d}:{t % 60:02d}Z"}}]}
+    body = {
+        "data": [
+            {
+                "id": f"R{entity}",
+                "type": "Robot",
+                "speed": {"type": "Number", "value": i},
+                "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:{t // 60:02d}:{t % 60:02d}Z"},
+            }
+        ]
+    }
     assert client.post("/v2/notify", json=body, headers=H).status_code == 200
 
 
@@ -25,8 +33,10 @@ def _entity(rnd: random.Random) -> int:
 
 def test_deep_type_lastn_agrees_with_the_database(client_factory, store_url_factory):
     rnd = random.Random(11)
-    with client_factory(store_url_factory("deep_on"), tail_cache_rows=8) as cached, \
-         client_factory(store_url_factory("deep_off"), tail_cache_series=0) as plain:
+    with (
+        client_factory(store_url_factory("deep_on"), tail_cache_rows=8) as cached,
+        client_factory(store_url_factory("deep_off"), tail_cache_series=0) as plain,
+    ):
         for step in range(400):
             roll = rnd.random()
             if roll < 0.55:

@@ -14,10 +14,22 @@ import orjson
 import pytest
 
 TIME = "2024-05-01T10:00:00Z"
-V2 = {"subscriptionId": "s", "data": [{"id": "E1", "type": "T", "x": {"type": "Number", "value": 1},
-                                       "TimeInstant": {"type": "DateTime", "value": TIME}}]}
-LD = {"id": "urn:n", "type": "Notification",
-      "data": [{"id": "E1", "type": "T", "x": {"type": "Property", "value": 1, "observedAt": TIME}}]}
+V2 = {
+    "subscriptionId": "s",
+    "data": [
+        {
+            "id": "E1",
+            "type": "T",
+            "x": {"type": "Number", "value": 1},
+            "TimeInstant": {"type": "DateTime", "value": TIME},
+        }
+    ],
+}
+LD = {
+    "id": "urn:n",
+    "type": "Notification",
+    "data": [{"id": "E1", "type": "T", "x": {"type": "Property", "value": 1, "observedAt": TIME}}],
+}
 CONFLICT = {"Fiware-Service": "alpha", "NGSILD-Tenant": "beta"}
 
 
@@ -25,8 +37,9 @@ def _post(client, body, headers, url="/v2/notify"):
     return client.post(url, content=orjson.dumps(body), headers={"Content-Type": "application/json", **headers})
 
 
-@pytest.mark.parametrize(("body", "url"), [(V2, "/v2/notify"), (LD, "/v2/notify"), (LD, "/ngsi-ld/v1/notify"),
-                                           (V2, "/ngsi-ld/v1/notify")])
+@pytest.mark.parametrize(
+    ("body", "url"), [(V2, "/v2/notify"), (LD, "/v2/notify"), (LD, "/ngsi-ld/v1/notify"), (V2, "/ngsi-ld/v1/notify")]
+)
 def test_conflicting_notification_is_refused_and_kept(client, body, url):
     response = _post(client, body, CONFLICT, url)
     assert response.status_code == 400, response.text
@@ -48,12 +61,15 @@ def test_repeated_header_with_two_values_conflicts(client):
     assert response.status_code == 400, response.text
 
 
-@pytest.mark.parametrize("headers", [
-    {"Fiware-Service": "Alpha", "NGSILD-Tenant": "alpha"},
-    {"NGSILD-Tenant": "alpha"},
-    {"Fiware-Service": " alpha "},
-    {"Fiware-Service": "alpha", "NGSILD-Tenant": ""},
-])
+@pytest.mark.parametrize(
+    "headers",
+    [
+        {"Fiware-Service": "Alpha", "NGSILD-Tenant": "alpha"},
+        {"NGSILD-Tenant": "alpha"},
+        {"Fiware-Service": " alpha "},
+        {"Fiware-Service": "alpha", "NGSILD-Tenant": ""},
+    ],
+)
 @pytest.mark.parametrize("body", [V2, LD])
 def test_one_tenant_however_named_is_stored_and_read_back_the_same(client, headers, body):
     assert _post(client, body, headers).status_code == 200
@@ -63,10 +79,19 @@ def test_one_tenant_however_named_is_stored_and_read_back_the_same(client, heade
     assert client.get("/v2/entities").json() == []  # not in the default tenant
 
 
-QUERIES = [("get", "/v2/entities"), ("get", "/v2/entities/E1"), ("get", "/v2/types/T"), ("get", "/v2/attrs"),
-           ("get", "/v2/attrs/x"), ("get", "/v2/notify/rejected"), ("get", "/v2/notify/subscriptions"),
-           ("delete", "/v2/entities/E1"), ("delete", "/v2/types/T"), ("post", "/v2/op/query"),
-           ("put", "/v2/notify/subscriptions/s1")]
+QUERIES = [
+    ("get", "/v2/entities"),
+    ("get", "/v2/entities/E1"),
+    ("get", "/v2/types/T"),
+    ("get", "/v2/attrs"),
+    ("get", "/v2/attrs/x"),
+    ("get", "/v2/notify/rejected"),
+    ("get", "/v2/notify/subscriptions"),
+    ("delete", "/v2/entities/E1"),
+    ("delete", "/v2/types/T"),
+    ("post", "/v2/op/query"),
+    ("put", "/v2/notify/subscriptions/s1"),
+]
 
 
 @pytest.mark.parametrize(("method", "url"), QUERIES)
@@ -79,9 +104,14 @@ def test_every_endpoint_refuses_conflicting_selectors(client, method, url):
     assert "conflicting tenant selectors" in response.json()["description"]
 
 
-GRAFANA = [("get", "/grafana/infinity/entities"), ("get", "/grafana/infinity/latest?attrs=x"),
-           ("get", "/grafana/simplejson/"), ("post", "/grafana/simplejson/search"),
-           ("post", "/grafana/simplejson/query"), ("post", "/grafana/simplejson/tag-keys")]
+GRAFANA = [
+    ("get", "/grafana/infinity/entities"),
+    ("get", "/grafana/infinity/latest?attrs=x"),
+    ("get", "/grafana/simplejson/"),
+    ("post", "/grafana/simplejson/search"),
+    ("post", "/grafana/simplejson/query"),
+    ("post", "/grafana/simplejson/tag-keys"),
+]
 
 
 @pytest.fixture(scope="module")
@@ -96,12 +126,16 @@ def two_tenants(client_factory, store_url_factory):
 def test_grafana_service_parameter_must_agree_with_the_header(two_tenants, method, url):
     sep = "&" if "?" in url else "?"
     kwargs = {"json": {}} if method == "post" else {}
-    conflicting = two_tenants.request(method.upper(), f"{url}{sep}service=beta", headers={"Fiware-Service": "alpha"},
-                                      **kwargs)
+    conflicting = two_tenants.request(
+        method.upper(), f"{url}{sep}service=beta", headers={"Fiware-Service": "alpha"}, **kwargs
+    )
     assert conflicting.status_code == 400, conflicting.text
     assert "conflicting tenant selectors" in conflicting.json()["description"]
-    for headers, query in (({"Fiware-Service": "alpha"}, "service=ALPHA"), ({}, "service=alpha"),
-                           ({"NGSILD-Tenant": "alpha"}, "")):
+    for headers, query in (
+        ({"Fiware-Service": "alpha"}, "service=ALPHA"),
+        ({}, "service=alpha"),
+        ({"NGSILD-Tenant": "alpha"}, ""),
+    ):
         response = two_tenants.request(method.upper(), f"{url}{sep}{query}", headers=headers, **kwargs)
         assert response.status_code == 200, (headers, query, response.text)
 

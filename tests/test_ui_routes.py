@@ -33,9 +33,14 @@ def test_tenants_lists_every_tenant_with_its_service_paths_and_counts(client, no
     tenants = client.get("/ui/tenants").json()
     assert tenants == [
         {"tenant": "", "servicePaths": ["/"], "types": ["Thing"], "entities": 1, "series": 1},
-        {"tenant": "farm", "servicePaths": ["/north", "/south/field"], "types": ["Robot", "Sensor"],
-         "entities": 3, "series": 4},
-    ]  # fmt: skip
+        {
+            "tenant": "farm",
+            "servicePaths": ["/north", "/south/field"],
+            "types": ["Robot", "Sensor"],
+            "entities": 3,
+            "series": 4,
+        },
+    ]
 
 
 def test_usecases_describe_the_demo_from_its_own_definitions(client):

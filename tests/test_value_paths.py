@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from tsdb_service.errors import BadRequest
-from tsdb_service.history.query import ValuePath
 from tsdb_service.history.valuepath import extract, parse_attr_list, parse_value_path
+from tsdb_service.query import ValuePath
 
 
 @pytest.mark.parametrize(
@@ -29,9 +29,28 @@ def test_parse(text, expected):
 
 @pytest.mark.parametrize(
     "text",
-    ["odom(", "odom()", "odom(.x)", "odom(x.)", "odom(x..y)", "odom(x[)", "odom(x[a])", "odom(x)(y)", "(x)",
-     "odom(x y)", "odom(x)y", "te mp", "a=b", "a;b", "a'b", 'a"b', "odom(x[1]y)", "a<b", "x" * 300,
-     "odom(" + ".".join(["k"] * 40) + ")"],
+    [
+        "odom(",
+        "odom()",
+        "odom(.x)",
+        "odom(x.)",
+        "odom(x..y)",
+        "odom(x[)",
+        "odom(x[a])",
+        "odom(x)(y)",
+        "(x)",
+        "odom(x y)",
+        "odom(x)y",
+        "te mp",
+        "a=b",
+        "a;b",
+        "a'b",
+        'a"b',
+        "odom(x[1]y)",
+        "a<b",
+        "x" * 300,
+        "odom(" + ".".join(["k"] * 40) + ")",
+    ],
 )
 def test_rejects(text):
     with pytest.raises(BadRequest):
@@ -140,8 +159,19 @@ def test_last_value(mower):
 def test_odd_keys_are_literal(client, notify):
     keys = ["a\\b", "*", "$", "a*b", "x/y", "~0", "{}", "a`b", "@", "?", "%"]
     value = {k: i for i, k in enumerate(keys)}
-    notify(client, {"data": [{"id": "E", "type": "T", "TimeInstant": {"type": "DateTime", "value": "2024-01-01T00:00:00Z"},
-                              "o": {"type": "StructuredValue", "value": value}}]})
+    notify(
+        client,
+        {
+            "data": [
+                {
+                    "id": "E",
+                    "type": "T",
+                    "TimeInstant": {"type": "DateTime", "value": "2024-01-01T00:00:00Z"},
+                    "o": {"type": "StructuredValue", "value": value},
+                }
+            ]
+        },
+    )
     from urllib.parse import quote
 
     for i, key in enumerate(keys):

@@ -56,14 +56,18 @@ class ReadLimits:
 
     @classmethod
     def from_settings(cls, settings) -> ReadLimits:
-        return cls(settings.read_max_series, settings.read_max_rows, settings.read_max_response_bytes,
-                   settings.read_max_seconds)  # fmt: skip
+        return cls(
+            settings.read_max_series,
+            settings.read_max_rows,
+            settings.read_max_response_bytes,
+            settings.read_max_seconds,
+        )
 
 
 class ReadBudget:
     """One request's allowance; shared by the threads serving that request."""
 
-    __slots__ = ("limits", "deadline", "rows")
+    __slots__ = ("deadline", "limits", "rows")
 
     def __init__(self, limits: ReadLimits):
         self.limits = limits
@@ -175,7 +179,7 @@ class _SizeGuard:
     rendered whole with a Content-Length (``api.responses.JSON``), so the
     size is known from the first message."""
 
-    __slots__ = ("_send", "_limit", "_refused")
+    __slots__ = ("_limit", "_refused", "_send")
 
     def __init__(self, send, limit: int):
         self._send = send
@@ -195,13 +199,19 @@ class _SizeGuard:
         await self._send(message)
 
     async def _refuse(self, size: int) -> None:
-        body = orjson.dumps(QueryTooLarge(
-            f"the answer would be {size} bytes, more than the {self._limit} allowed "
-            f"(TSDB_READ_MAX_RESPONSE_BYTES); {NARROW}"
-        ).body())  # fmt: skip
-        await self._send({"type": "http.response.start", "status": QueryTooLarge.status,
-                          "headers": [(b"content-type", b"application/json"),
-                                      (b"content-length", str(len(body)).encode())]})  # fmt: skip
+        body = orjson.dumps(
+            QueryTooLarge(
+                f"the answer would be {size} bytes, more than the {self._limit} allowed "
+                f"(TSDB_READ_MAX_RESPONSE_BYTES); {NARROW}"
+            ).body()
+        )
+        await self._send(
+            {
+                "type": "http.response.start",
+                "status": QueryTooLarge.status,
+                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())],
+            }
+        )
         await self._send({"type": "http.response.body", "body": body})
 
 

@@ -70,21 +70,27 @@ class _Formatter(argparse.RawDescriptionHelpFormatter):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tsdb-service", description="The history of a FIWARE deployment.",
-                                     formatter_class=_Formatter)  # fmt: skip
+    parser = argparse.ArgumentParser(
+        prog="tsdb-service", description="The history of a FIWARE deployment.", formatter_class=_Formatter
+    )
     parser.add_argument("--version", action="version", version=f"tsdb-service {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    serve = sub.add_parser("serve", help="run the HTTP service", formatter_class=_Formatter,
-                           description="Run the HTTP service. Every flag can also be given as the TSDB_* "
-                           "variable named in its help; flags win.")  # fmt: skip
+    serve = sub.add_parser(
+        "serve",
+        help="run the HTTP service",
+        formatter_class=_Formatter,
+        description="Run the HTTP service. Every flag can also be given as the TSDB_* "
+        "variable named in its help; flags win.",
+    )
     _add_settings(serve)
 
     migrate = sub.add_parser("migrate", help="apply pending schema migrations", formatter_class=_Formatter)
     _add_db(migrate)
 
-    compact = sub.add_parser("compact", help="sort all stored samples now (offline; the file must exist)",
-                             formatter_class=_Formatter)  # fmt: skip
+    compact = sub.add_parser(
+        "compact", help="sort all stored samples now (offline; the file must exist)", formatter_class=_Formatter
+    )
     _add_db(compact)
 
     sub.add_parser("version", help="print the version")
@@ -205,10 +211,10 @@ def cmd_migrate(args: argparse.Namespace) -> int:
 
 def _migrate(settings: Settings) -> list[int]:
     if settings.backend == "postgresql":
-        from .storage.postgres_store import migrate_url
+        from .storage.postgres.store import migrate_url
 
         return migrate_url(settings.db)
-    from .storage.duckdb_store import connect, migrate_duckdb
+    from .storage.duckdb.store import connect, migrate_duckdb
 
     con = connect(settings.db)
     try:

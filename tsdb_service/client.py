@@ -107,8 +107,7 @@ class Client:
     ) -> pd.DataFrame:
         """``GET /v2/entities``: one row per entity with its latest time index
         (columns ``entity_id``, ``entity_type``, ``time``)."""
-        params = _params(type=entity_type, id=_csv(entity_id), idPattern=id_pattern,
-                         fromDate=from_date, toDate=to_date)  # fmt: skip
+        params = _params(type=entity_type, id=_csv(entity_id), idPattern=id_pattern, fromDate=from_date, toDate=to_date)
         rows: list[dict] = []
         offset = 0
         while page := self._get("/v2/entities", {**params, "limit": self.page_size, "offset": offset}) or []:
@@ -137,8 +136,15 @@ class Client:
         """``GET /v2/entities/{id}``: one column per attribute (or value path),
         indexed by ``time``. With ``aggr_method`` and no ``aggr_period`` there
         is one row and no time index."""
-        params = _params(type=entity_type, attrs=_csv(attrs), fromDate=from_date, toDate=to_date,
-                         lastN=last_n, aggrMethod=aggr_method, aggrPeriod=aggr_period)  # fmt: skip
+        params = _params(
+            type=entity_type,
+            attrs=_csv(attrs),
+            fromDate=from_date,
+            toDate=to_date,
+            lastN=last_n,
+            aggrMethod=aggr_method,
+            aggrPeriod=aggr_period,
+        )
         frames = [
             _wide(page.get("index", []), {a["attrName"]: a["values"] for a in page.get("attributes", [])})
             for page in self._pages(f"/v2/entities/{_segment(entity_id)}", params, limit, offset)
@@ -162,8 +168,14 @@ class Client:
         """``GET /v2/entities/{id}/attrs/{attr}``: one column named ``attr``
         (a value path such as ``odom(twist.twist.linear.x)`` works), indexed
         by ``time``."""
-        params = _params(type=entity_type, fromDate=from_date, toDate=to_date, lastN=last_n,
-                         aggrMethod=aggr_method, aggrPeriod=aggr_period)  # fmt: skip
+        params = _params(
+            type=entity_type,
+            fromDate=from_date,
+            toDate=to_date,
+            lastN=last_n,
+            aggrMethod=aggr_method,
+            aggrPeriod=aggr_period,
+        )
         path = f"/v2/entities/{_segment(entity_id)}/attrs/{_segment(attr)}"
         frames = [
             _wide(page.get("index", []), {page.get("attrName", attr): page.get("values", [])})
@@ -192,9 +204,17 @@ class Client:
         and time (columns ``entity_id``, ``time``, then one per attribute).
         With ``aggr_scope="global"`` the ``entity_id`` of a row lists the
         aggregated entities, comma-separated."""
-        params = _params(attrs=_csv(attrs), id=_csv(entity_id), idPattern=id_pattern, fromDate=from_date,
-                         toDate=to_date, lastN=last_n, aggrMethod=aggr_method, aggrPeriod=aggr_period,
-                         aggrScope=aggr_scope)  # fmt: skip
+        params = _params(
+            attrs=_csv(attrs),
+            id=_csv(entity_id),
+            idPattern=id_pattern,
+            fromDate=from_date,
+            toDate=to_date,
+            lastN=last_n,
+            aggrMethod=aggr_method,
+            aggrPeriod=aggr_period,
+            aggrScope=aggr_scope,
+        )
         frames = []
         for page in self._pages(f"/v2/types/{_segment(entity_type)}", params, limit, offset):
             for ent in page.get("entities", []):
@@ -230,8 +250,15 @@ class Client:
         fd, name = tempfile.mkstemp(suffix=".parquet", prefix="tsdb-export-")
         os.close(fd)
         try:
-            self.export_file(name, entity_type=entity_type, entity_id=entity_id, id_pattern=id_pattern,
-                             attrs=attrs, from_date=from_date, to_date=to_date)  # fmt: skip
+            self.export_file(
+                name,
+                entity_type=entity_type,
+                entity_id=entity_id,
+                id_pattern=id_pattern,
+                attrs=attrs,
+                from_date=from_date,
+                to_date=to_date,
+            )
             return pd.read_parquet(name)
         finally:
             os.unlink(name)
@@ -250,8 +277,15 @@ class Client:
     ) -> Path:
         """Download an export (``format`` ``parquet`` or ``csv``) to ``path``,
         streamed to disk; returns the path."""
-        params = _params(format=format, type=_csv(entity_type), id=_csv(entity_id), idPattern=id_pattern,
-                         attrs=_csv(attrs), fromDate=from_date, toDate=to_date)  # fmt: skip
+        params = _params(
+            format=format,
+            type=_csv(entity_type),
+            id=_csv(entity_id),
+            idPattern=id_pattern,
+            attrs=_csv(attrs),
+            fromDate=from_date,
+            toDate=to_date,
+        )
         target = Path(path)
         with self._http.stream("GET", "/v2/export", params=params) as response:
             if response.status_code != 200:

@@ -30,24 +30,26 @@ class Settings(BaseSettings):
     port: int = Field(8668, ge=1, le=65535, description="QuantumLeap's port.")
     workers: int = Field(1, ge=1, description="uvicorn workers; PostgreSQL only.")
     max_body_bytes: int = Field(
-        9 * MIB, ge=1024,
+        9 * MIB,
+        ge=1024,
         description="Larger notifications get 413 (and are kept in the rejected store). Orion sends "
         "notifications of up to 8 MB by default (its -outReqMsgMaxSize): the default leaves headroom above it.",
     )
     rejected_body_max_bytes: int = Field(
-        16 * MIB, ge=0,
+        16 * MIB,
+        ge=0,
         description="The rejected store keeps a rejected notification's body up to this many bytes "
         "(its full size is recorded, and that it was truncated).",
     )
     default_limit: int = Field(10_000, ge=1, description="Rows returned when no limit is given.")
-    compact_rows: int = Field(
-        500_000, ge=1000, description="Move the hot table into the sorted one at this many rows."
-    )
+    compact_rows: int = Field(500_000, ge=1000, description="Move the hot table into the sorted one at this many rows.")
     major_compact_runs: int = Field(
         8, ge=1, description="Rewrite the sorted table after this many compactions into it."
     )
     writer_threads: int | None = Field(
-        None, ge=1, le=16,
+        None,
+        ge=1,
+        le=16,
         description="Group-commit writer threads; default 1 on DuckDB (more only contend for the GIL), "
         "3 on PostgreSQL (commits wait on the network, so they overlap).",
     )
@@ -59,45 +61,67 @@ class Settings(BaseSettings):
         1_000_000, ge=0, description="DuckDB: samples kept in all tails (~200 bytes each), oldest-read out first."
     )
     wal_checkpoint_bytes: int = Field(
-        16 * MIB, ge=64 * 1024,
+        16 * MIB,
+        ge=64 * 1024,
         description="DuckDB: fold the write-ahead log into the database file once it is this big.",
     )
     # --- limits (issue 12): read budgets, rejected-store bounds, slow clients ---
     read_max_series: int = Field(
-        50_000, ge=1, description="Series one request may select (per resolution step); more: 422 QueryTooLarge.",
+        50_000,
+        ge=1,
+        description="Series one request may select (per resolution step); more: 422 QueryTooLarge.",
     )
     read_max_rows: int = Field(
-        500_000, ge=1, description="Samples and aggregate rows one request may read in all; more: 422 QueryTooLarge.",
+        500_000,
+        ge=1,
+        description="Samples and aggregate rows one request may read in all; more: 422 QueryTooLarge.",
     )
     read_max_response_bytes: int = Field(
-        64 * MIB, ge=1024, description="Largest answer a read may render; larger: 422 QueryTooLarge.",
+        64 * MIB,
+        ge=1024,
+        description="Largest answer a read may render; larger: 422 QueryTooLarge.",
     )
     read_max_seconds: float = Field(
-        20.0, gt=0, description="Wall time of one read, checked between its steps; past it: 422 QueryTooLarge.",
+        20.0,
+        gt=0,
+        description="Wall time of one read, checked between its steps; past it: 422 QueryTooLarge.",
     )
     rejected_max_per_tenant: int = Field(
-        1000, ge=1, description="Rejected notifications kept per tenant; the oldest are dropped first.",
+        1000,
+        ge=1,
+        description="Rejected notifications kept per tenant; the oldest are dropped first.",
     )
     rejected_max_bytes_per_tenant: int = Field(
-        64 * MIB, ge=1024, description="Bytes of rejected bodies and headers kept per tenant; oldest dropped first "
+        64 * MIB,
+        ge=1024,
+        description="Bytes of rejected bodies and headers kept per tenant; oldest dropped first "
         "(a tenant's newest rejection is always kept).",
     )
     rejected_max_age_days: float = Field(
-        30.0, gt=0, description="Rejected notifications older than this are dropped (when the next is recorded).",
+        30.0,
+        gt=0,
+        description="Rejected notifications older than this are dropped (when the next is recorded).",
     )
     rejected_page_max_bytes: int = Field(
-        8 * MIB, ge=1024, description="A rejected listing stops before this many bytes (at least one row) and "
-        "points to the next page.",
+        8 * MIB,
+        ge=1024,
+        description="A rejected listing stops before this many bytes (at least one row) and points to the next page.",
     )
     header_timeout_s: float = Field(
-        10.0, gt=0, description="Close a connection whose request headers are not complete this long after it "
+        10.0,
+        gt=0,
+        description="Close a connection whose request headers are not complete this long after it "
         "opened (or after the request's first byte).",
     )
     body_timeout_s: float = Field(
-        60.0, gt=0, description="Cut off a request whose body is not complete this long after its headers.",
+        60.0,
+        gt=0,
+        description="Cut off a request whose body is not complete this long after its headers.",
     )
     max_connections: int = Field(
-        4096, ge=1, description="Open connections per process; past it a new connection gets 503 and is closed.",
+        4096,
+        ge=1,
+        description="Open connections per process; past it a new connection gets 503 and is closed.",
     )
     keep_alive_s: int = Field(5, ge=1, description="Close a kept-alive connection idle this long between requests.")
     # --- end of limits ---
@@ -131,7 +155,8 @@ class Settings(BaseSettings):
     # Plain strings, not lists: `serve` hands settings to workers as TSDB_*
     # variables via str(), and a comma list survives that round trip.
     api_keys: str = Field(
-        "", repr=False,
+        "",
+        repr=False,
         description="API keys as 'KEY:SCOPES[:TENANTS]' entries separated by ';' or spaces; "
         "SCOPES from read,write,admin; TENANTS a comma list ('-' is the default tenant), all if absent.",
     )
@@ -170,19 +195,24 @@ class Settings(BaseSettings):
 
     # --- Retention and rollups (storage/retention.py, storage/rollups.py; README "Retention and rollups") ---
     retention: str = Field(
-        "", description="How long raw samples are kept, per tenant and entity type: "
+        "",
+        description="How long raw samples are kept, per tenant and entity type: "
         "'*=365d,acme=30d,acme/Robot=7d' (or the same as a JSON object); empty: forever.",
     )
     rollups: bool = Field(
-        False, description="Fold the samples retention deletes into hourly count/sum/min/max per series, "
+        False,
+        description="Fold the samples retention deletes into hourly count/sum/min/max per series, "
         "which aggregation queries (aggrPeriod hour or longer, or none) keep answering from.",
     )
     rollup_retention: str = Field(
-        "", description="How long hourly rollups are kept, same syntax as retention; empty: forever.",
+        "",
+        description="How long hourly rollups are kept, same syntax as retention; empty: forever.",
     )
     retention_interval: float = Field(300.0, gt=0, description="Seconds between retention passes.")
     retention_batch_rows: int = Field(
-        50_000, ge=1, description="Rows deleted per batch and table, each batch its own short transaction.",
+        50_000,
+        ge=1,
+        description="Rows deleted per batch and table, each batch its own short transaction.",
     )
     retention_pause: float = Field(0.05, ge=0, description="Seconds to pause between retention batches.")
 
@@ -193,6 +223,7 @@ class Settings(BaseSettings):
 
         RetentionPolicy.parse(value, setting="TSDB_" + info.field_name.upper())  # raises ValueError
         return value
+
     # --- end of retention and rollups ---
 
     @property
@@ -213,11 +244,14 @@ def check_db(value: str) -> str:
     scheme = match[1]
     if scheme.lower() in ("postgresql", "postgres"):
         raise ValueError(f"{db!r} is not a PostgreSQL URL: write postgresql://user@host:port/database")
-    if db[match.end():].startswith("//"):
-        raise ValueError(f"{db!r}: unsupported scheme {scheme}:// (only postgresql:// or postgres:// URLs "
-                         "and DuckDB file paths)")  # fmt: skip
-    raise ValueError(f"{db!r} starts like a URL ({scheme}:): give a postgresql:// URL or a DuckDB file path "
-                     f"(./{db} for a file name with a colon)")  # fmt: skip
+    if db[match.end() :].startswith("//"):
+        raise ValueError(
+            f"{db!r}: unsupported scheme {scheme}:// (only postgresql:// or postgres:// URLs and DuckDB file paths)"
+        )
+    raise ValueError(
+        f"{db!r} starts like a URL ({scheme}:): give a postgresql:// URL or a DuckDB file path "
+        f"(./{db} for a file name with a colon)"
+    )
 
 
 class SettingsError(ValueError):
@@ -241,10 +275,11 @@ def describe(exc: ValidationError) -> str:
         message = error["msg"]
         for prefix in ("Value error, ", "Input should be "):
             if message.startswith(prefix):
-                message = ("must be " if prefix == "Input should be " else "") + message[len(prefix):]
+                message = ("must be " if prefix == "Input should be " else "") + message[len(prefix) :]
         flag = f"--{name.replace('_', '-')} (TSDB_{name.upper()})"
-        problems.append(f"{flag}: {message}, got {error['input']!r}" if error["type"] != "value_error"
-                        else f"{flag}: {message}")  # fmt: skip
+        problems.append(
+            f"{flag}: {message}, got {error['input']!r}" if error["type"] != "value_error" else f"{flag}: {message}"
+        )
     return "; ".join(problems)
 
 

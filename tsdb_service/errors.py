@@ -18,8 +18,9 @@ class TsdbError(Exception):
     error: str = "InternalError"
     ld_type: str = "InternalError"  # the NGSI-LD error type (https://uri.etsi.org/ngsi-ld/errors/<ld_type>)
 
-    def __init__(self, description: str, *, error: str | None = None, status: int | None = None,
-                 ld_type: str | None = None):
+    def __init__(
+        self, description: str, *, error: str | None = None, status: int | None = None, ld_type: str | None = None
+    ):
         super().__init__(description)
         self.description = description
         if error is not None:

@@ -36,8 +36,10 @@ from .config import Settings
 log = logging.getLogger("tsdb_service.http")
 
 _BUSY_BODY = b'{"error":"ServiceUnavailable","description":"too many connections; try again later"}'
-_BUSY = (b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\nconnection: close\r\n"
-         b"content-length: %d\r\n\r\n%s" % (len(_BUSY_BODY), _BUSY_BODY))
+_BUSY = (
+    b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\nconnection: close\r\n"
+    b"content-length: %d\r\n\r\n%s" % (len(_BUSY_BODY), _BUSY_BODY)
+)
 
 
 @cache
@@ -58,8 +60,9 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
     def connection_made(self, transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
         if len(self.connections) > self._max_connections:
-            log.warning("%d connections open (TSDB_MAX_CONNECTIONS): refusing %s", len(self.connections) - 1,
-                        _peer(self.client))  # fmt: skip
+            log.warning(
+                "%d connections open (TSDB_MAX_CONNECTIONS): refusing %s", len(self.connections) - 1, _peer(self.client)
+            )
             transport.write(_BUSY)
             transport.close()
             return
@@ -95,8 +98,12 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
     def _expire(self, what: str) -> None:
         self._deadline = None
         if not self.transport.is_closing():
-            log.debug("closing %s: request %s incomplete after the timeout (TSDB_%s_TIMEOUT_S)", _peer(self.client),
-                     what, "HEADER" if what == "headers" else "BODY")  # fmt: skip
+            log.debug(
+                "closing %s: request %s incomplete after the timeout (TSDB_%s_TIMEOUT_S)",
+                _peer(self.client),
+                what,
+                "HEADER" if what == "headers" else "BODY",
+            )
             self.transport.close()
 
 

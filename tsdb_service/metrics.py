@@ -50,7 +50,14 @@ from starlette.responses import Response
 
 from .api import openapi
 from .ngsi import timeindex
-from .storage.base import AppendSamples, DeleteSamples, PutLayout, RecordRejected, Store, WriteOp
+from .storage.base import (
+    AppendSamples,
+    DeleteSamples,
+    PutLayout,
+    RecordRejected,
+    Store,
+    WriteOp,
+)
 
 log = logging.getLogger(__name__)
 
@@ -119,22 +126,40 @@ class WriterMetrics:
     def __init__(self, registry: CollectorRegistry, tenants: TenantLabels):
         self._tenants = tenants
         self.received = Counter(
-            "tsdb_notifications_received", "Notifications that reached the store's write queue "
-            "(accepted + rejected + failed, once settled).", ["tenant"], registry=registry)  # fmt: skip
+            "tsdb_notifications_received",
+            "Notifications that reached the store's write queue (accepted + rejected + failed, once settled).",
+            ["tenant"],
+            registry=registry,
+        )
         self.accepted = Counter(
-            "tsdb_notifications_accepted", "Notifications committed and answered 200.", ["tenant"], registry=registry)
+            "tsdb_notifications_accepted", "Notifications committed and answered 200.", ["tenant"], registry=registry
+        )
         self.rejected = Counter(
-            "tsdb_notifications_rejected", "Notifications answered 4xx and kept in the rejected store, by error name.",
-            ["tenant", "reason"], registry=registry)  # fmt: skip
+            "tsdb_notifications_rejected",
+            "Notifications answered 4xx and kept in the rejected store, by error name.",
+            ["tenant", "reason"],
+            registry=registry,
+        )
         self.failed = Counter(
-            "tsdb_notifications_failed", "Notifications that could not be committed (answered 503; nothing stored).",
-            ["tenant"], registry=registry)  # fmt: skip
+            "tsdb_notifications_failed",
+            "Notifications that could not be committed (answered 503; nothing stored).",
+            ["tenant"],
+            registry=registry,
+        )
         self.commit_seconds = Histogram(
-            "tsdb_commit_duration_seconds", "Time to stage and commit one group, by op kind.",
-            ["kind"], buckets=COMMIT_BUCKETS, registry=registry)  # fmt: skip
+            "tsdb_commit_duration_seconds",
+            "Time to stage and commit one group, by op kind.",
+            ["kind"],
+            buckets=COMMIT_BUCKETS,
+            registry=registry,
+        )
         self.group_size = Histogram(
-            "tsdb_commit_group_size", "Ops committed together in one transaction, by op kind.",
-            ["kind"], buckets=GROUP_BUCKETS, registry=registry)  # fmt: skip
+            "tsdb_commit_group_size",
+            "Ops committed together in one transaction, by op kind.",
+            ["kind"],
+            buckets=GROUP_BUCKETS,
+            registry=registry,
+        )
         self._per_kind: dict[str, tuple[Any, Any]] = {}
         self._children: dict[tuple, Any] = {}
 
@@ -184,12 +209,19 @@ class RetentionMetrics:
     def __init__(self, registry: CollectorRegistry, tenants: TenantLabels):
         self._tenants = tenants
         self.deleted = Counter(
-            "tsdb_retention_deleted_rows", "Rows deleted by retention, by table (samples, samples_hot, "
+            "tsdb_retention_deleted_rows",
+            "Rows deleted by retention, by table (samples, samples_hot, "
             "rollups_hourly) and tenant; with rollups on, every deleted sample was folded into the rollups.",
-            ["table", "tenant"], registry=registry)  # fmt: skip
+            ["table", "tenant"],
+            registry=registry,
+        )
         self.batch_seconds = Histogram(
-            "tsdb_retention_batch_duration_seconds", "Time of one retention batch (one transaction), by table.",
-            ["table"], buckets=COMMIT_BUCKETS, registry=registry)  # fmt: skip
+            "tsdb_retention_batch_duration_seconds",
+            "Time of one retention batch (one transaction), by table.",
+            ["table"],
+            buckets=COMMIT_BUCKETS,
+            registry=registry,
+        )
 
     def batch(self, table: str, tenant: str, rows: int, seconds: float) -> None:
         self.deleted.labels(table, self._tenants(tenant)).inc(rows)
@@ -205,7 +237,8 @@ class RetentionLagCollector(Collector):
             "tsdb_retention_watermark_lag_seconds",
             "How far the cutoff of the last completed retention pass trails the rule's cutoff now, per "
             "table (samples, rollups) and rule; for samples with rollups on, also the rollups' watermark lag.",
-            labels=["table", "rule"])  # fmt: skip
+            labels=["table", "rule"],
+        )
         for (kind, rule), lag in sorted(self._worker.lags().items()):
             family.add_metric([kind, rule], lag)
         yield family
@@ -216,8 +249,12 @@ class RequestMetrics:
 
     def __init__(self, registry: CollectorRegistry):
         self.seconds = Histogram(
-            "tsdb_http_request_duration_seconds", "HTTP request latency by route template, method and status.",
-            ["route", "method", "status"], buckets=REQUEST_BUCKETS, registry=registry)  # fmt: skip
+            "tsdb_http_request_duration_seconds",
+            "HTTP request latency by route template, method and status.",
+            ["route", "method", "status"],
+            buckets=REQUEST_BUCKETS,
+            registry=registry,
+        )
         self._children: dict[tuple[str, str, int], Any] = {}
 
     def observe(self, scope, status: int, seconds: float, route: str | None = None) -> None:
@@ -269,13 +306,17 @@ class StoreCollector(Collector):
     def collect(self):
         depth = getattr(_committer(self._store), "queue_depth", None)
         if depth is not None:
-            yield GaugeMetricFamily("tsdb_write_queue_depth", "Write ops queued, not yet taken by a writer.",
-                                    value=depth)  # fmt: skip
+            yield GaugeMetricFamily(
+                "tsdb_write_queue_depth", "Write ops queued, not yet taken by a writer.", value=depth
+            )
         dropped = getattr(self._store, "rejected_dropped", None)
         if dropped is not None:
             family = CounterMetricFamily(
-                "tsdb_rejected_dropped", "Rejected notifications dropped to keep the rejected store within its "
-                "bounds (TSDB_REJECTED_MAX_*), by reason: count, bytes, age.", labels=["reason"])  # fmt: skip
+                "tsdb_rejected_dropped",
+                "Rejected notifications dropped to keep the rejected store within its "
+                "bounds (TSDB_REJECTED_MAX_*), by reason: count, bytes, age.",
+                labels=["reason"],
+            )
             for reason, n in sorted(dropped.items()):
                 family.add_metric([reason], n)
             yield family
@@ -285,11 +326,15 @@ class StoreCollector(Collector):
         store_bytes, rejected_rows, rejected_bytes = sizes
         yield GaugeMetricFamily(
             "tsdb_store_size_bytes",
-            "Database size: DuckDB file + WAL, or PostgreSQL pg_database_size.", value=store_bytes)  # fmt: skip
-        yield GaugeMetricFamily("tsdb_rejected_notifications", "Notifications kept in the rejected store.",
-                                value=rejected_rows)  # fmt: skip
-        yield GaugeMetricFamily("tsdb_rejected_store_bytes", "Bytes of raw bodies and headers in the rejected store.",
-                                value=rejected_bytes)  # fmt: skip
+            "Database size: DuckDB file + WAL, or PostgreSQL pg_database_size.",
+            value=store_bytes,
+        )
+        yield GaugeMetricFamily(
+            "tsdb_rejected_notifications", "Notifications kept in the rejected store.", value=rejected_rows
+        )
+        yield GaugeMetricFamily(
+            "tsdb_rejected_store_bytes", "Bytes of raw bodies and headers in the rejected store.", value=rejected_bytes
+        )
 
     def sizes(self) -> tuple[int, int, int] | None:
         """(store bytes, rejected rows, rejected bytes), at most ``ttl`` seconds old;
@@ -311,14 +356,17 @@ def _measure(store: Store) -> tuple[int, int, int]:
             size = conn.execute("SELECT pg_database_size(current_database())").fetchone()[0]
             rows, nbytes = conn.execute(
                 "SELECT count(*), coalesce(sum(octet_length(body) + octet_length(headers)), 0) "
-                "FROM rejected_notifications").fetchone()  # fmt: skip
+                "FROM rejected_notifications"
+            ).fetchone()
         return int(size), int(rows), int(nbytes)
     # fetchall, not fetchone: an unread result keeps this thread's cursor in
     # an open transaction, and a later UPDATE or DELETE committed elsewhere
     # (retention, in the background) then makes the CHECKPOINT at close fail.
-    [(rows, nbytes)] = store.cursor().execute(
-        "SELECT count(*), coalesce(sum(octet_length(body) + strlen(headers)), 0) FROM rejected_notifications"
-    ).fetchall()
+    [(rows, nbytes)] = (
+        store.cursor()
+        .execute("SELECT count(*), coalesce(sum(octet_length(body) + strlen(headers)), 0) FROM rejected_notifications")
+        .fetchall()
+    )
     return _file_bytes(store.path) + _file_bytes(store.path + ".wal"), int(rows), int(nbytes)
 
 

@@ -141,7 +141,7 @@ def instance_iid(urn: str) -> int | None:
     """The stored instance id an ``instanceId`` names, or None if it is not one of ours."""
     if not urn.startswith(INSTANCE_URN_PREFIX):
         return None
-    digits = urn[len(INSTANCE_URN_PREFIX):]
+    digits = urn[len(INSTANCE_URN_PREFIX) :]
     if not 1 <= len(digits) <= 16 or any(c not in "0123456789abcdef" for c in digits):
         return None
     return int(digits, 16)

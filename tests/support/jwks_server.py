@@ -64,7 +64,7 @@ class Issuer:
         issuer = self
 
         class Handler(BaseHTTPRequestHandler):
-            def do_GET(self):  # noqa: N802 (http.server's name)
+            def do_GET(self):
                 issuer.fetches += 1
                 if not issuer.available or self.path != "/certs":
                     self.send_error(503 if not issuer.available else 404)

@@ -92,10 +92,18 @@ class ServerProcess:
 
     def command(self, port: int) -> list[str]:
         return [
-            sys.executable, "-m", "tsdb_service", "serve",
-            "--db", self.db, "--host", HOST, "--port", str(port),
+            sys.executable,
+            "-m",
+            "tsdb_service",
+            "serve",
+            "--db",
+            self.db,
+            "--host",
+            HOST,
+            "--port",
+            str(port),
             *self.args,
-        ]  # fmt: skip
+        ]
 
     def environment(self) -> dict[str, str]:
         env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request
 
-from ..history.query import Shape
+from ..query import Shape
 from . import openapi as oa
 from .history import answer_history_async
 from .responses import JSON

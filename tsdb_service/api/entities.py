@@ -7,8 +7,8 @@ from starlette.concurrency import run_in_threadpool
 from starlette.responses import Response
 
 from ..history.params import delete_query, entity_list_query
-from ..history.query import Shape
 from ..history.service import delete_target, run_entity_list
+from ..query import Shape
 from ..storage.base import DeleteSamples
 from . import openapi as oa
 from .history import answer_history_async

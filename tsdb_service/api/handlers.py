@@ -52,8 +52,9 @@ def allowed_methods(request: Request) -> str:
 def _error(request: Request, error: str, description: str, status: int, ld_type: str, headers=None) -> JSON:
     """One error answer, in the shape of the API the path belongs to."""
     if ld.is_ngsild_path(request.url.path):
-        return JSON(ld.problem(ld_type, status, description), status_code=status, headers=headers,
-                    media_type=ld.MEDIA_TYPE)
+        return JSON(
+            ld.problem(ld_type, status, description), status_code=status, headers=headers, media_type=ld.MEDIA_TYPE
+        )
     return JSON({"error": error, "description": description}, status_code=status, headers=headers)
 
 
@@ -64,11 +65,17 @@ def client_disconnected(request: Request) -> JSON:
     nothing was done with the partial body."""
     client = request.client
     peer = f"{client.host}:{client.port}" if client else "a client"
-    log.warning("%s %s from %s abandoned: the client disconnected before sending the whole body "
-                "(Content-Length %s); nothing was done", request.method, request.url.path, peer,
-                request.headers.get("content-length"))  # fmt: skip
-    return _error(request, "ClientDisconnected", "the client disconnected before sending the whole body", 400,
-                  "BadRequestData")
+    log.warning(
+        "%s %s from %s abandoned: the client disconnected before sending the whole body "
+        "(Content-Length %s); nothing was done",
+        request.method,
+        request.url.path,
+        peer,
+        request.headers.get("content-length"),
+    )
+    return _error(
+        request, "ClientDisconnected", "the client disconnected before sending the whole body", 400, "BadRequestData"
+    )
 
 
 def install_error_handlers(app: FastAPI) -> None:
@@ -79,8 +86,7 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError) -> JSON:
         problems = "; ".join(
-            f"{'.'.join(str(p) for p in err.get('loc', ())[1:]) or 'request'}: {err.get('msg')}"
-            for err in exc.errors()
+            f"{'.'.join(str(p) for p in err.get('loc', ())[1:]) or 'request'}: {err.get('msg')}" for err in exc.errors()
         )
         return _error(request, "BadRequest", problems or "invalid request", 400, "BadRequestData")
 
@@ -101,5 +107,4 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(Exception)
     async def unexpected(request: Request, exc: Exception) -> JSON:
         request_id, body = internal_error(f"unhandled error in {request.method} {request.url.path}", exc)
-        return _error(request, body["error"], body["description"], 500, "InternalError",
-                      {"X-Request-Id": request_id})
+        return _error(request, body["error"], body["description"], 500, "InternalError", {"X-Request-Id": request_id})

@@ -12,9 +12,9 @@ from fastapi import Request
 from starlette.concurrency import run_in_threadpool
 
 from ..history.params import history_query
-from ..history.query import Shape
 from ..history.service import run_history
 from ..history.shape import render
+from ..query import Shape
 from ..storage.memory_only import in_memory_or_threadpool
 from .responses import JSON
 from .tenancy import tenant_of

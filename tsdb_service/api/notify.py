@@ -66,8 +66,13 @@ async def serve_notification(app, scope, receive, send) -> None:
     behaviour is the routes' above (same function); only the overhead goes."""
     scope["app"] = app
     status, payload = await receive_notification(Request(scope, receive))
-    await send({"type": "http.response.start", "status": status,
-                "headers": [*_JSON_HEADERS, (b"content-length", str(len(payload)).encode())]})
+    await send(
+        {
+            "type": "http.response.start",
+            "status": status,
+            "headers": [*_JSON_HEADERS, (b"content-length", str(len(payload)).encode())],
+        }
+    )
     await send({"type": "http.response.body", "body": payload})
 
 
@@ -78,8 +83,12 @@ async def receive_notification(request: Request) -> tuple[int, bytes]:
     except TsdbError as exc:
         return exc.status, orjson.dumps(exc.body())
     except ClientDisconnect:  # nothing was stored and nobody is left to answer: one line, no traceback
-        log.warning("notification from %s abandoned: the client disconnected before sending the whole body "
-                    "(Content-Length %s); nothing was stored", _peer(request), request.headers.get("content-length"))
+        log.warning(
+            "notification from %s abandoned: the client disconnected before sending the whole body "
+            "(Content-Length %s); nothing was stored",
+            _peer(request),
+            request.headers.get("content-length"),
+        )
         return 400, _DISCONNECTED
     except Exception:  # a bug: still answer in the NGSI shape
         return 500, orjson.dumps(internal_error("notification failed")[1])
@@ -142,7 +151,7 @@ def _media_advice(raw: str | None) -> str:
         f"notifications must be JSON (application/json, application/ld+json or application/geo+json), got {got}. "
         "An Orion custom notification (httpCustom) sends text/plain with 'payload' or with a Content-Type "
         "header override: use httpCustom 'json' instead of 'payload', or set httpCustom headers "
-        "{\"Content-Type\": \"application/json\"}. The notification is kept: GET /v2/notify/rejected"
+        '{"Content-Type": "application/json"}. The notification is kept: GET /v2/notify/rejected'
     )
 
 
@@ -157,8 +166,10 @@ class _Overflow(bytes):
 
     def description(self, limit: int) -> str:
         size = f"{self.size} bytes" if self.exact else f"more than {self.size} bytes"
-        return (f"notification of {size} exceeds the {limit}-byte limit (TSDB_MAX_BODY_BYTES); "
-                "it is kept in GET /v2/notify/rejected")
+        return (
+            f"notification of {size} exceeds the {limit}-byte limit (TSDB_MAX_BODY_BYTES); "
+            "it is kept in GET /v2/notify/rejected"
+        )
 
 
 async def _read_body(request: Request, limit: int, keep: int) -> bytes:
@@ -239,7 +250,8 @@ def list_rejected(
     limit: int = Query(100, ge=1, le=10_000),
     offset: int = Query(0, ge=0, le=MAX_INT_PARAM),
     all_tenants: bool = Query(
-        False, alias="allTenants",
+        False,
+        alias="allTenants",
         description="Operator listing: every tenant's rejections, each with its tenant as stored (a tenant "
         "header the API refuses is stored as received). Ignores Fiware-Service.",
     ),

@@ -14,10 +14,10 @@ from starlette.concurrency import run_in_threadpool
 
 from ..errors import BadRequest, ParseError
 from ..history.params import check_id, service_paths
-from ..history.query import EntityFilter, LastValueQuery, Scope
 from ..history.service import run_last_values
 from ..history.valuepath import parse_value_path
 from ..idpattern import compile_pattern
+from ..query import EntityFilter, LastValueQuery, Scope
 from . import openapi as oa
 from .responses import JSON
 from .tenancy import tenant_of
@@ -53,7 +53,7 @@ def last_value_query(body: bytes, tenant: str, service_path: str | None) -> Last
             raise BadRequest(f"{unsupported} is Not Supported", error="NotSupported")
     entities = doc.get("entities")
     if not isinstance(entities, list) or not entities:
-        raise BadRequest("'entities' must be a non-empty array of {\"id\" or \"idPattern\", \"type\"}")
+        raise BadRequest('\'entities\' must be a non-empty array of {"id" or "idPattern", "type"}')
     selectors = []
     for i, item in enumerate(entities):
         if not isinstance(item, dict):

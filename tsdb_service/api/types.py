@@ -7,8 +7,8 @@ from starlette.concurrency import run_in_threadpool
 from starlette.responses import Response
 
 from ..history.params import delete_query
-from ..history.query import Shape
 from ..history.service import delete_target
+from ..query import Shape
 from ..storage.base import DeleteSamples
 from . import openapi as oa
 from .history import answer_history_async
@@ -51,7 +51,9 @@ async def type_attr(entity_type: str, attr_name: str, request: Request) -> JSON:
     **oa.spec(*oa.TYPE_HISTORY, ok_=oa.ok(oa.maybe_empty("TypeAttrValues")), errors_=oa.HISTORY_ERRORS),
 )
 async def type_attr_value(entity_type: str, attr_name: str, request: Request) -> JSON:
-    return await answer_history_async(request, Shape.TYPE_ATTR, entity_type=entity_type, attr=attr_name, values_only=True)
+    return await answer_history_async(
+        request, Shape.TYPE_ATTR, entity_type=entity_type, attr=attr_name, values_only=True
+    )
 
 
 @router.delete(

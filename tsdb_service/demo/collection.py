@@ -68,7 +68,7 @@ class Check:
         return _FAILURES[self.kind](found, **self.args)
 
 
-def count(path: str, min: int = 1, max: int | None = None) -> Check:  # noqa: A002 - reads as prose
+def count(path: str, min: int = 1, max: int | None = None) -> Check:
     return Check("count", path, {"min": min} | ({} if max is None else {"max": max}))
 
 
@@ -105,7 +105,7 @@ def select(doc: Any, path: str) -> list[Any]:
     return [item for node in nodes for item in (node if isinstance(node, list) else [node])]
 
 
-def _count_failure(found, min, max=None):  # noqa: A002
+def _count_failure(found, min, max=None):
     if len(found) < min or (max is not None and len(found) > max):
         return f"{len(found)} items, expected between {min} and {max if max is not None else 'any number of'}"
     return None
@@ -267,34 +267,67 @@ def _basics() -> list[Query]:
     folder, where = "Sampled values", sites.WAREHOUSE
     values = (between("values", 10, 30), ascending("index"))
     return [
-        Query("List the first N sampled values", folder,
-              "The 5 oldest warehouse temperatures (std_msgs/Float32, read through the value path `(data)`).",
-              WAREHOUSE_TEMPERATURE, (("limit", "5"),), where, (count("index", 1, 5), *values)),
-        Query("List N sampled values at an offset", folder,
-              "5 warehouse temperatures after skipping the 5 oldest: paging with offset and limit.",
-              WAREHOUSE_TEMPERATURE, (("offset", "5"), ("limit", "5")), where, (count("index", 1, 5), *values)),
-        Query("List the latest N sampled values", folder,
-              "The 5 most recent warehouse temperatures, oldest first.",
-              WAREHOUSE_TEMPERATURE, (("lastN", "5"),), where, (count("index", 1, 5), *values)),
-    ]  # fmt: skip
+        Query(
+            "List the first N sampled values",
+            folder,
+            "The 5 oldest warehouse temperatures (std_msgs/Float32, read through the value path `(data)`).",
+            WAREHOUSE_TEMPERATURE,
+            (("limit", "5"),),
+            where,
+            (count("index", 1, 5), *values),
+        ),
+        Query(
+            "List N sampled values at an offset",
+            folder,
+            "5 warehouse temperatures after skipping the 5 oldest: paging with offset and limit.",
+            WAREHOUSE_TEMPERATURE,
+            (("offset", "5"), ("limit", "5")),
+            where,
+            (count("index", 1, 5), *values),
+        ),
+        Query(
+            "List the latest N sampled values",
+            folder,
+            "The 5 most recent warehouse temperatures, oldest first.",
+            WAREHOUSE_TEMPERATURE,
+            (("lastN", "5"),),
+            where,
+            (count("index", 1, 5), *values),
+        ),
+    ]
 
 
 def _aggregations() -> list[Query]:
     folder = "Aggregations over a time period"
     return [
-        Query("Sum over a time period: how far the lawnmower drove", folder,
-              "Sum of the 1 Hz odometry forward speed between fromDate and toDate, i.e. metres driven.",
-              LAWNMOWER_SPEED, (("aggrMethod", "sum"), *PERIOD), sites.LAWNMOWER,
-              (count("values", 1, 1), between("values", -1_000_000, 1_000_000))),
-        Query("Min over a time period: coldest reading of each sensor", folder,
-              "The minimum temperature each remote sensor reported to the drone in the period.",
-              _type(sites.SENSOR_TYPE, "temperature"), (("aggrMethod", "min"), *PERIOD), sites.DRONE,
-              (count(ENTITY_IDS, 1, 8), each_in(ENTITY_IDS, SENSOR_IDS), between("entities.*.values", -20, 50))),
-        Query("Max over a time period: warehouse temperature per hour", folder,
-              "Hourly maxima of the warehouse temperature (aggrPeriod=hour) in the period.",
-              WAREHOUSE_TEMPERATURE, (("aggrMethod", "max"), ("aggrPeriod", "hour"), *PERIOD), sites.WAREHOUSE,
-              (count("values", 1), between("values", 10, 30), ascending("index"))),
-    ]  # fmt: skip
+        Query(
+            "Sum over a time period: how far the lawnmower drove",
+            folder,
+            "Sum of the 1 Hz odometry forward speed between fromDate and toDate, i.e. metres driven.",
+            LAWNMOWER_SPEED,
+            (("aggrMethod", "sum"), *PERIOD),
+            sites.LAWNMOWER,
+            (count("values", 1, 1), between("values", -1_000_000, 1_000_000)),
+        ),
+        Query(
+            "Min over a time period: coldest reading of each sensor",
+            folder,
+            "The minimum temperature each remote sensor reported to the drone in the period.",
+            _type(sites.SENSOR_TYPE, "temperature"),
+            (("aggrMethod", "min"), *PERIOD),
+            sites.DRONE,
+            (count(ENTITY_IDS, 1, 8), each_in(ENTITY_IDS, SENSOR_IDS), between("entities.*.values", -20, 50)),
+        ),
+        Query(
+            "Max over a time period: warehouse temperature per hour",
+            folder,
+            "Hourly maxima of the warehouse temperature (aggrPeriod=hour) in the period.",
+            WAREHOUSE_TEMPERATURE,
+            (("aggrMethod", "max"), ("aggrPeriod", "hour"), *PERIOD),
+            sites.WAREHOUSE,
+            (count("values", 1), between("values", 10, 30), ascending("index")),
+        ),
+    ]
 
 
 def _geo() -> list[Query]:
@@ -302,71 +335,136 @@ def _geo() -> list[Query]:
     near = sites.sensors_within(NEAR_POINT, NEAR_METRES)
     in_area = sites.sensors_inside(EAST_AREA)
     return [
-        Query("Latest N of devices near a point", folder,
-              f"The latest temperatures of the remote sensors within {NEAR_METRES} m of the field centre "
-              f"(expected: {', '.join(i.rsplit(':', 1)[1] for i in near)}).",
-              _type(sites.SENSOR_TYPE, "temperature"),
-              (("lastN", "5"), ("georel", f"near;maxDistance:{NEAR_METRES}"), ("geometry", "point"),
-               ("coords", _coords([NEAR_POINT]))), sites.DRONE,
-              (count(ENTITY_IDS, 1, len(near)), each_in(ENTITY_IDS, near))),
-        Query("Latest N of devices in an area", folder,
-              f"The latest temperatures of the remote sensors in the east half of the field "
-              f"(expected: {', '.join(i.rsplit(':', 1)[1] for i in in_area)}).",
-              _type(sites.SENSOR_TYPE, "temperature"),
-              (("lastN", "5"), ("georel", "coveredBy"), ("geometry", "polygon"), ("coords", _coords(EAST_AREA))),
-              sites.DRONE, (count(ENTITY_IDS, 1, len(in_area)), each_in(ENTITY_IDS, in_area))),
-    ]  # fmt: skip
+        Query(
+            "Latest N of devices near a point",
+            folder,
+            f"The latest temperatures of the remote sensors within {NEAR_METRES} m of the field centre "
+            f"(expected: {', '.join(i.rsplit(':', 1)[1] for i in near)}).",
+            _type(sites.SENSOR_TYPE, "temperature"),
+            (
+                ("lastN", "5"),
+                ("georel", f"near;maxDistance:{NEAR_METRES}"),
+                ("geometry", "point"),
+                ("coords", _coords([NEAR_POINT])),
+            ),
+            sites.DRONE,
+            (count(ENTITY_IDS, 1, len(near)), each_in(ENTITY_IDS, near)),
+        ),
+        Query(
+            "Latest N of devices in an area",
+            folder,
+            f"The latest temperatures of the remote sensors in the east half of the field "
+            f"(expected: {', '.join(i.rsplit(':', 1)[1] for i in in_area)}).",
+            _type(sites.SENSOR_TYPE, "temperature"),
+            (("lastN", "5"), ("georel", "coveredBy"), ("geometry", "polygon"), ("coords", _coords(EAST_AREA))),
+            sites.DRONE,
+            (count(ENTITY_IDS, 1, len(in_area)), each_in(ENTITY_IDS, in_area)),
+        ),
+    ]
 
 
 def _use_cases() -> list[Query]:
     door, drone, mower = sites.WAREHOUSE, sites.DRONE, sites.LAWNMOWER
     return [
-        Query("Warehouse: door state history", "PIAP warehouse",
-              f"The last 100 door states: {DOOR_STATE}.",
-              _entity(sites.WAREHOUSE_ID, "doorState(data)"), (("lastN", "100"),), door,
-              (count("values", 1, 100), each_in("values", DOOR_STATE), ascending("index"))),
-        Query("Warehouse: door command and laser distance together", "PIAP warehouse",
-              "Two value paths of one entity in one wide answer: what the door did and how far the robot was.",
-              f"/v2/entities/{sites.WAREHOUSE_ID}",
-              (("attrs", "doorCommand(data),laserDistance(range)"), ("lastN", "20")), door,
-              (count("attributes", 2, 2), count("index", 1, 20))),
-        Query("Lawnmower: linear speed", "Bosch lawnmower",
-              "The forward speed from nav_msgs/Odometry, read through the value path `odom(twist.twist.linear.x)`.",
-              LAWNMOWER_SPEED, (("lastN", "20"),), mower,
-              (count("values", 1, 20), between("values", -0.5, 0.7), ascending("index"))),
-        Query("Lawnmower: average speed per minute", "Bosch lawnmower",
-              "A value path aggregates like a numeric attribute: the per-minute mean forward speed.",
-              LAWNMOWER_SPEED, (("aggrMethod", "avg"), ("aggrPeriod", "minute"), *PERIOD), mower,
-              (count("values", 1), between("values", -0.5, 0.7))),
-        Query("Lawnmower: navigation state history", "Bosch lawnmower",
-              f"The last 50 navigation states: {LAWNMOWER_NAVIGATION_STATE}.",
-              _entity(sites.LAWNMOWER_ID, "navigationState(data)"), (("lastN", "50"),), mower,
-              (count("values", 1, 50), each_in("values", LAWNMOWER_NAVIGATION_STATE))),
-        Query("Lawnmower: left perimeter detections", "Bosch lawnmower",
-              "std_msgs/Bool of the left border-wire coil.",
-              _entity(sites.LAWNMOWER_ID, "perimeterLeft(data)"), (("lastN", "100"),), mower,
-              (count("values", 1, 100), each_in("values", [True, False]))),
-        Query("Drone: positions inside the sensor field", "eProsima drone",
-              "Where the drone flew over the field: each GPS position covered by the field's polygon. "
-              "The history API's geo filter selects *devices* by their latest location; this asks about "
-              "*positions*, so it uses the positions endpoint, which applies the filter to every sample.",
-              "/grafana/infinity/positions",
-              (("id", sites.DRONE_ID), ("georel", "coveredBy"), ("geometry", "polygon"),
-               ("coords", _coords(sites.SENSOR_FIELD)), ("max_points", "5000")), drone,
-              (count("*", 1, 5000), inside("*", sites.SENSOR_FIELD))),
-        Query("Drone: mission states", "eProsima drone",
-              f"The last 50 mission states: {DRONE_MISSION_STATE}.",
-              _entity(sites.DRONE_ID, "missionState(data)"), (("lastN", "50"),), drone,
-              (count("values", 1, 50), each_in("values", DRONE_MISSION_STATE))),
-        Query("Drone: readings per sensor", "eProsima drone",
-              "How many temperature samples each sensor has: one at installation, then one per drone visit.",
-              _type(sites.SENSOR_TYPE, "temperature"), (("aggrMethod", "count"),), drone,
-              (count(ENTITY_IDS, 1, 8), each_in(ENTITY_IDS, SENSOR_IDS), between("entities.*.values", 1, 10**9))),
-        Query("Drone: average humidity per sensor", "eProsima drone",
-              "The mean humidity each sensor reported: the dashboard's 'average measures per sensor'.",
-              _type(sites.SENSOR_TYPE, "humidity"), (("aggrMethod", "avg"),), drone,
-              (count(ENTITY_IDS, 1, 8), each_in(ENTITY_IDS, SENSOR_IDS), between("entities.*.values", 0, 100))),
-    ]  # fmt: skip
+        Query(
+            "Warehouse: door state history",
+            "PIAP warehouse",
+            f"The last 100 door states: {DOOR_STATE}.",
+            _entity(sites.WAREHOUSE_ID, "doorState(data)"),
+            (("lastN", "100"),),
+            door,
+            (count("values", 1, 100), each_in("values", DOOR_STATE), ascending("index")),
+        ),
+        Query(
+            "Warehouse: door command and laser distance together",
+            "PIAP warehouse",
+            "Two value paths of one entity in one wide answer: what the door did and how far the robot was.",
+            f"/v2/entities/{sites.WAREHOUSE_ID}",
+            (("attrs", "doorCommand(data),laserDistance(range)"), ("lastN", "20")),
+            door,
+            (count("attributes", 2, 2), count("index", 1, 20)),
+        ),
+        Query(
+            "Lawnmower: linear speed",
+            "Bosch lawnmower",
+            "The forward speed from nav_msgs/Odometry, read through the value path `odom(twist.twist.linear.x)`.",
+            LAWNMOWER_SPEED,
+            (("lastN", "20"),),
+            mower,
+            (count("values", 1, 20), between("values", -0.5, 0.7), ascending("index")),
+        ),
+        Query(
+            "Lawnmower: average speed per minute",
+            "Bosch lawnmower",
+            "A value path aggregates like a numeric attribute: the per-minute mean forward speed.",
+            LAWNMOWER_SPEED,
+            (("aggrMethod", "avg"), ("aggrPeriod", "minute"), *PERIOD),
+            mower,
+            (count("values", 1), between("values", -0.5, 0.7)),
+        ),
+        Query(
+            "Lawnmower: navigation state history",
+            "Bosch lawnmower",
+            f"The last 50 navigation states: {LAWNMOWER_NAVIGATION_STATE}.",
+            _entity(sites.LAWNMOWER_ID, "navigationState(data)"),
+            (("lastN", "50"),),
+            mower,
+            (count("values", 1, 50), each_in("values", LAWNMOWER_NAVIGATION_STATE)),
+        ),
+        Query(
+            "Lawnmower: left perimeter detections",
+            "Bosch lawnmower",
+            "std_msgs/Bool of the left border-wire coil.",
+            _entity(sites.LAWNMOWER_ID, "perimeterLeft(data)"),
+            (("lastN", "100"),),
+            mower,
+            (count("values", 1, 100), each_in("values", [True, False])),
+        ),
+        Query(
+            "Drone: positions inside the sensor field",
+            "eProsima drone",
+            "Where the drone flew over the field: each GPS position covered by the field's polygon. "
+            "The history API's geo filter selects *devices* by their latest location; this asks about "
+            "*positions*, so it uses the positions endpoint, which applies the filter to every sample.",
+            "/grafana/infinity/positions",
+            (
+                ("id", sites.DRONE_ID),
+                ("georel", "coveredBy"),
+                ("geometry", "polygon"),
+                ("coords", _coords(sites.SENSOR_FIELD)),
+                ("max_points", "5000"),
+            ),
+            drone,
+            (count("*", 1, 5000), inside("*", sites.SENSOR_FIELD)),
+        ),
+        Query(
+            "Drone: mission states",
+            "eProsima drone",
+            f"The last 50 mission states: {DRONE_MISSION_STATE}.",
+            _entity(sites.DRONE_ID, "missionState(data)"),
+            (("lastN", "50"),),
+            drone,
+            (count("values", 1, 50), each_in("values", DRONE_MISSION_STATE)),
+        ),
+        Query(
+            "Drone: readings per sensor",
+            "eProsima drone",
+            "How many temperature samples each sensor has: one at installation, then one per drone visit.",
+            _type(sites.SENSOR_TYPE, "temperature"),
+            (("aggrMethod", "count"),),
+            drone,
+            (count(ENTITY_IDS, 1, 8), each_in(ENTITY_IDS, SENSOR_IDS), between("entities.*.values", 1, 10**9)),
+        ),
+        Query(
+            "Drone: average humidity per sensor",
+            "eProsima drone",
+            "The mean humidity each sensor reported: the dashboard's 'average measures per sensor'.",
+            _type(sites.SENSOR_TYPE, "humidity"),
+            (("aggrMethod", "avg"),),
+            drone,
+            (count(ENTITY_IDS, 1, 8), each_in(ENTITY_IDS, SENSOR_IDS), between("entities.*.values", 0, 100)),
+        ),
+    ]
 
 
 LD_ENTITIES = "/ngsi-ld/v1/temporal/entities"
@@ -388,36 +486,81 @@ def _ngsi_ld() -> list[Query]:
     in_area = sites.sensors_inside(EAST_AREA)
     lat, lon = NEAR_POINT
     return [
-        Query("NGSI-LD: first N instances", folder,
-              "The 5 oldest temperatures of one remote sensor (firstN, simplified temporal representation).",
-              sensor, (("attrs", "temperature"), ("firstN", "5"), ("format", "temporalValues")), drone,
-              (count("temperature.values", 1, 5),)),
-        Query("NGSI-LD: last N instances", folder,
-              "The 5 newest temperatures of one remote sensor, oldest first (lastN).",
-              sensor, (("attrs", "temperature"), ("lastN", "5"), ("format", "temporalValues")), drone,
-              (count("temperature.values", 1, 5),)),
-        Query("NGSI-LD: entities at an offset", folder,
-              "Remote sensors 4 to 6 (by id) with their newest temperature: paging with limit and offset.",
-              LD_ENTITIES, (*sensors, ("lastN", "1"), ("limit", "3"), ("offset", "3"), ("count", "true")), drone,
-              (count(LD_IDS, 1, 3), each_in(LD_IDS, SENSOR_IDS[3:6]))),
-        Query("NGSI-LD: sum, min and max over a period", folder,
-              "Hourly sum, minimum and maximum of every remote sensor's temperature between fromDate and toDate "
-              "(aggregatedValues).",
-              LD_ENTITIES, (*sensors, ("format", "aggregatedValues"), ("aggrMethods", "sum,min,max"),
-                            ("aggrPeriodDuration", "PT1H"), *period), drone,
-              (count(LD_IDS, 1, 8), each_in(LD_IDS, SENSOR_IDS))),
-        Query("NGSI-LD: near a point", folder,
-              f"The newest temperatures of the remote sensors within {NEAR_METRES} m of the field centre "
-              "(coordinates are longitude, latitude).",
-              LD_ENTITIES, (*sensors, ("lastN", "5"), ("georel", f"near;maxDistance=={NEAR_METRES}"),
-                            ("geometry", "Point"), ("coordinates", json.dumps([lon, lat], separators=(",", ":")))),
-              drone, (count(LD_IDS, 1, len(near)), each_in(LD_IDS, near))),
-        Query("NGSI-LD: in an area", folder,
-              "The newest temperatures of the remote sensors in the east half of the field (georel=within).",
-              LD_ENTITIES, (*sensors, ("lastN", "5"), ("georel", "within"), ("geometry", "Polygon"),
-                            ("coordinates", json.dumps([_lon_lat(EAST_AREA)], separators=(",", ":")))),
-              drone, (count(LD_IDS, 1, len(in_area)), each_in(LD_IDS, in_area))),
-    ]  # fmt: skip
+        Query(
+            "NGSI-LD: first N instances",
+            folder,
+            "The 5 oldest temperatures of one remote sensor (firstN, simplified temporal representation).",
+            sensor,
+            (("attrs", "temperature"), ("firstN", "5"), ("format", "temporalValues")),
+            drone,
+            (count("temperature.values", 1, 5),),
+        ),
+        Query(
+            "NGSI-LD: last N instances",
+            folder,
+            "The 5 newest temperatures of one remote sensor, oldest first (lastN).",
+            sensor,
+            (("attrs", "temperature"), ("lastN", "5"), ("format", "temporalValues")),
+            drone,
+            (count("temperature.values", 1, 5),),
+        ),
+        Query(
+            "NGSI-LD: entities at an offset",
+            folder,
+            "Remote sensors 4 to 6 (by id) with their newest temperature: paging with limit and offset.",
+            LD_ENTITIES,
+            (*sensors, ("lastN", "1"), ("limit", "3"), ("offset", "3"), ("count", "true")),
+            drone,
+            (count(LD_IDS, 1, 3), each_in(LD_IDS, SENSOR_IDS[3:6])),
+        ),
+        Query(
+            "NGSI-LD: sum, min and max over a period",
+            folder,
+            "Hourly sum, minimum and maximum of every remote sensor's temperature between fromDate and toDate "
+            "(aggregatedValues).",
+            LD_ENTITIES,
+            (
+                *sensors,
+                ("format", "aggregatedValues"),
+                ("aggrMethods", "sum,min,max"),
+                ("aggrPeriodDuration", "PT1H"),
+                *period,
+            ),
+            drone,
+            (count(LD_IDS, 1, 8), each_in(LD_IDS, SENSOR_IDS)),
+        ),
+        Query(
+            "NGSI-LD: near a point",
+            folder,
+            f"The newest temperatures of the remote sensors within {NEAR_METRES} m of the field centre "
+            "(coordinates are longitude, latitude).",
+            LD_ENTITIES,
+            (
+                *sensors,
+                ("lastN", "5"),
+                ("georel", f"near;maxDistance=={NEAR_METRES}"),
+                ("geometry", "Point"),
+                ("coordinates", json.dumps([lon, lat], separators=(",", ":"))),
+            ),
+            drone,
+            (count(LD_IDS, 1, len(near)), each_in(LD_IDS, near)),
+        ),
+        Query(
+            "NGSI-LD: in an area",
+            folder,
+            "The newest temperatures of the remote sensors in the east half of the field (georel=within).",
+            LD_ENTITIES,
+            (
+                *sensors,
+                ("lastN", "5"),
+                ("georel", "within"),
+                ("geometry", "Polygon"),
+                ("coordinates", json.dumps([_lon_lat(EAST_AREA)], separators=(",", ":"))),
+            ),
+            drone,
+            (count(LD_IDS, 1, len(in_area)), each_in(LD_IDS, in_area)),
+        ),
+    ]
 
 
 QUERIES: tuple[Query, ...] = (*_basics(), *_aggregations(), *_geo(), *_use_cases(), *_ngsi_ld())
@@ -468,8 +611,9 @@ def execute(client: httpx.Client, query: Query, variables: dict[str, str]) -> Ou
     elapsed = _ms(started)
     if response.status_code != query.status:
         text = response.text.strip()[:300]
-        return Outcome(query, False, f"HTTP {response.status_code}, expected {query.status}: {text}",
-                       response.status_code, elapsed)  # fmt: skip
+        return Outcome(
+            query, False, f"HTTP {response.status_code}, expected {query.status}: {text}", response.status_code, elapsed
+        )
     try:
         body = response.json()
     except ValueError:

@@ -51,18 +51,20 @@ def _add_demo(sub) -> None:
     p.add_argument("--url", help="service to feed with --no-serve (default http://localhost:8668)")
     p.add_argument("--speedup", type=_positive, default=1.0, help="simulated seconds per wall second (default 1)")
     p.add_argument(
-        "--duration", type=_positive,
+        "--duration",
+        type=_positive,
         help="wall seconds to run (default: until Ctrl-C). A run can overrun: when the simulators cannot "
         "keep up with --speedup, every notification is still sent and the run ends late (the progress "
         "display says by how much and when it will end)",
-    )  # fmt: skip
+    )
     p.add_argument("--seed", type=int, help="make the run reproducible (default: a random seed, printed)")
     p.add_argument(
-        "--use-case", action="append", metavar="NAME",
+        "--use-case",
+        action="append",
+        metavar="NAME",
         help=f"only these simulators ({', '.join(USE_CASE_NAMES)}; repeat or comma-separate; default: all three)",
-    )  # fmt: skip
-    p.add_argument("--concurrency", type=_positive_int, default=16,
-                   help="notifications in flight at most (default 16)")  # fmt: skip
+    )
+    p.add_argument("--concurrency", type=_positive_int, default=16, help="notifications in flight at most (default 16)")
 
 
 def _add_subscribe(sub) -> None:
@@ -70,15 +72,17 @@ def _add_subscribe(sub) -> None:
     p.add_argument("--broker", required=True, help="the broker's base URL, e.g. http://orion:1026")
     p.add_argument("--use-case", required=True, choices=[*USE_CASE_NAMES, "all"], help="whose subscription to create")
     p.add_argument(
-        "--notify-url", default=None,
+        "--notify-url",
+        default=None,
         help="where the broker sends notifications (default http://tsdb-service:8668/v2/notify)",
-    )  # fmt: skip
+    )
     p.add_argument(
-        "--force", action="store_true",
+        "--force",
+        action="store_true",
         help="create the subscription even if the broker has an equivalent one (same notify URL and entities) "
         "for the tenant: by default that one is kept and nothing is created, so running twice never stores "
         "every sample twice",
-    )  # fmt: skip
+    )
 
 
 def _add_queries(sub) -> None:
@@ -87,10 +91,12 @@ def _add_queries(sub) -> None:
     run = actions.add_parser("run", help="run the collection against a service, a PASS/FAIL line per request")
     run.add_argument("--url", default="http://localhost:8668", help="service base URL (default %(default)s)")
     run.add_argument("--only", help="only requests whose name contains this text (default: all)")
-    run.add_argument("--from-date", dest="from_date",
-                     help="fromDate of the period queries (ISO-8601; default: the collection's own)")
-    run.add_argument("--to-date", dest="to_date",
-                     help="toDate of the period queries (ISO-8601; default: the collection's own)")  # fmt: skip
+    run.add_argument(
+        "--from-date", dest="from_date", help="fromDate of the period queries (ISO-8601; default: the collection's own)"
+    )
+    run.add_argument(
+        "--to-date", dest="to_date", help="toDate of the period queries (ISO-8601; default: the collection's own)"
+    )
     build = actions.add_parser("build", help="write the Postman collection and the .http file")
     build.add_argument("--out", default="queries", help="folder (default ./queries)")
 
@@ -203,8 +209,9 @@ async def _run_demo(simulators, url: str, args: argparse.Namespace, seed: int, s
     loop = asyncio.get_running_loop()
     loop.add_signal_handler(signal.SIGINT, stop.set)  # first Ctrl-C: drain and stop cleanly
     loop.add_signal_handler(signal.SIGTERM, stop.set)
-    config = RunConfig(url=url, speedup=speedup, duration=args.duration, seed=seed,
-                       concurrency=args.concurrency, start=start)  # fmt: skip
+    config = RunConfig(
+        url=url, speedup=speedup, duration=args.duration, seed=seed, concurrency=args.concurrency, start=start
+    )
     try:
         return await run(simulators, config, progress=Progress(), stop=stop)
     finally:
@@ -234,11 +241,15 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start,
         end = start + timedelta(seconds=args.duration * speedup)
         print(f"  simulated time {iso(start)} to {iso(end)}: live, it ends when the run does")
         if speedup != args.speedup:
-            print(f"  (it starts after the data of an earlier run, so it replays at x{speedup:.3g} "
-                  f"instead of x{args.speedup:g} to still end on time)")  # fmt: skip
+            print(
+                f"  (it starts after the data of an earlier run, so it replays at x{speedup:.3g} "
+                f"instead of x{args.speedup:g} to still end on time)"
+            )
     elif args.speedup > 1:
-        print("  (open-ended at a speedup: simulated time starts now and runs ahead of the clock;"
-              " give --duration to end the replay at the present instead)")
+        print(
+            "  (open-ended at a speedup: simulated time starts now and runs ahead of the clock;"
+            " give --duration to end the replay at the present instead)"
+        )
     sys.stdout.flush()
 
 

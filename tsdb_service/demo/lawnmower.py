@@ -114,8 +114,15 @@ class _Mower:
             left, right = self._coils_out(ahead=linear * TICK_S) if linear >= 0 else (False, False)
             if left or right or not self._stays_inside(linear):
                 # The mower refuses to cross the wire and turns back in, whatever it is told.
-                yield self._step(0.0, self._towards_centre(), "remote control", "perimeter detected",
-                                 left=left, right=right, cmd=command)  # fmt: skip
+                yield self._step(
+                    0.0,
+                    self._towards_centre(),
+                    "remote control",
+                    "perimeter detected",
+                    left=left,
+                    right=right,
+                    cmd=command,
+                )
                 continue
             yield self._step(linear, angular, "remote control", "manual driving", cmd=command)
         yield self._step(0.0, 0.0, "remote control", "idle", cmd=(0.0, 0.0))
@@ -179,9 +186,14 @@ class _Mower:
         e.set("perimeterLeft", "Object", ros.scalar(left), t)
         e.set("perimeterRight", "Object", ros.scalar(right), t)
         sonar = ros.range_reading(
-            t, self._obstacle_distance() + rng.gauss(0.0, 0.01), frame_id="sonar_front",
-            radiation_type=ros.ULTRASOUND, fov=0.5, min_range=0.02, max_range=SONAR_MAX,
-        )  # fmt: skip
+            t,
+            self._obstacle_distance() + rng.gauss(0.0, 0.01),
+            frame_id="sonar_front",
+            radiation_type=ros.ULTRASOUND,
+            fov=0.5,
+            min_range=0.02,
+            max_range=SONAR_MAX,
+        )
         e.set("obstacleDistance", "Object", sonar, t)
         if cmd is not None:
             e.set("cmd_vel", "Object", ros.twist(*cmd), t)

@@ -109,8 +109,9 @@ def default_start(speedup: float, duration: float | None, now: datetime | None =
     return live_window(speedup, duration, now or datetime.now(UTC))[0]
 
 
-def live_window(speedup: float, duration: float | None, now: datetime,
-                previous_end: datetime | None = None) -> tuple[datetime, float]:  # fmt: skip
+def live_window(
+    speedup: float, duration: float | None, now: datetime, previous_end: datetime | None = None
+) -> tuple[datetime, float]:
     """(simulated start, speedup) of a run starting at ``now``.
 
     Bounded runs end at ``now + duration``: the span ``duration * speedup``
@@ -130,7 +131,8 @@ def live_window(speedup: float, duration: float | None, now: datetime,
             if start >= end:
                 raise ValueError(
                     f"the data of an earlier run reaches {previous_end.isoformat(timespec='seconds')}, "
-                    "beyond this run's end: wait until then, or use another --db")
+                    "beyond this run's end: wait until then, or use another --db"
+                )
             speedup = (end - start).total_seconds() / duration
     return _ms(start), speedup
 
@@ -260,7 +262,8 @@ class Progress:
         if over > OVERRUN_NOTE_S and all(row.done for row in stats.values()):
             self.stream.write(
                 f"  the run took {clock.elapsed():.1f} s for --duration {clock.duration:g}: {over:.1f} s over, "
-                f"the simulators could not keep up with x{clock.speedup:.3g} (a lower --speedup keeps time)\n")
+                f"the simulators could not keep up with x{clock.speedup:.3g} (a lower --speedup keeps time)\n"
+            )
         self.stream.flush()
 
     def _draw(self, stats: dict[str, Stats], clock: _Clock) -> None:
@@ -285,8 +288,10 @@ class Progress:
         if lag < BEHIND_NOTE_S or end is None:
             return text
         finish = datetime.now().astimezone() + timedelta(seconds=max(0.0, end - elapsed))
-        return (f"{text}   BEHIND by {lag:.1f} s: ends in ~{max(0.0, end - elapsed):.0f} s "
-                f"(~{finish:%H:%M:%S}), {max(0.0, end - clock.duration):.0f} s after --duration {clock.duration:g}")
+        return (
+            f"{text}   BEHIND by {lag:.1f} s: ends in ~{max(0.0, end - elapsed):.0f} s "
+            f"(~{finish:%H:%M:%S}), {max(0.0, end - clock.duration):.0f} s after --duration {clock.duration:g}"
+        )
 
     @staticmethod
     def line(row: Stats, lag: float = 0.0) -> str:

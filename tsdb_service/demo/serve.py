@@ -36,8 +36,18 @@ class LocalService:
         if "://" not in self.db:
             Path(self.db).parent.mkdir(parents=True, exist_ok=True)
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
-        command = [sys.executable, "-m", "tsdb_service", "serve", "--db", self.db,
-                   "--host", self.host, "--port", str(self.port)]  # fmt: skip
+        command = [
+            sys.executable,
+            "-m",
+            "tsdb_service",
+            "serve",
+            "--db",
+            self.db,
+            "--host",
+            self.host,
+            "--port",
+            str(self.port),
+        ]
         with open(self.log_path, "ab") as log:
             # Own session: a Ctrl-C reaches the demo, which drains and then stops us in order.
             self.proc = subprocess.Popen(

@@ -162,10 +162,15 @@ def notify_url_of(document: dict) -> str | None:
 def _selectors(document: dict) -> frozenset[tuple]:
     subject = document.get("subject")
     entities = subject.get("entities") if isinstance(subject, dict) else None
-    return frozenset(
-        (e.get("id"), e.get("idPattern"), e.get("type"), e.get("typePattern"))
-        for e in entities if isinstance(e, dict)
-    ) if isinstance(entities, list) else frozenset()  # fmt: skip
+    return (
+        frozenset(
+            (e.get("id"), e.get("idPattern"), e.get("type"), e.get("typePattern"))
+            for e in entities
+            if isinstance(e, dict)
+        )
+        if isinstance(entities, list)
+        else frozenset()
+    )
 
 
 def equivalent(existing: dict, wanted: dict) -> bool:
@@ -174,8 +179,9 @@ def equivalent(existing: dict, wanted: dict) -> bool:
     return notify_url_of(existing) == notify_url_of(wanted) and _selectors(existing) == _selectors(wanted)
 
 
-def ensure_subscription(broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0,
-                        force: bool = False) -> tuple[bool, str]:
+def ensure_subscription(
+    broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0, force: bool = False
+) -> tuple[bool, str]:
     """Create the subscription unless the broker already has an equivalent
     one for the use case's tenant and service path (``force``: create
     anyway). ``(ok?, what happened)``; a broker whose subscriptions cannot
@@ -192,8 +198,10 @@ def ensure_subscription(broker: str, sim: Simulator, notify_url: str, timeout: f
     if same is None:
         return post_subscription(broker, sim, notify_url, timeout)
     tenancy = f"tenant {sim.tenancy.service!r} {sim.tenancy.service_path}"
-    return True, (f"already subscribed: subscription {same.get('id', '?')} (status {same.get('status', 'unknown')}) "
-                  f"on {tenancy} notifies {notify_url}; nothing created (--force creates another)")
+    return True, (
+        f"already subscribed: subscription {same.get('id', '?')} (status {same.get('status', 'unknown')}) "
+        f"on {tenancy} notifies {notify_url}; nothing created (--force creates another)"
+    )
 
 
 def example_notification(sim: Simulator) -> tuple[dict[str, str], dict]:

@@ -27,7 +27,13 @@ from datetime import datetime, timedelta
 
 from . import ros, sites
 from .base import Emission, Simulator
-from .enums import DOOR_COMMAND, DOOR_STATE, WARNING_LIGHT_COMMAND, WARNING_LIGHT_STATE, code
+from .enums import (
+    DOOR_COMMAND,
+    DOOR_STATE,
+    WARNING_LIGHT_COMMAND,
+    WARNING_LIGHT_STATE,
+    code,
+)
 from .orion import EntityState
 
 TICK_S = 0.5
@@ -106,9 +112,14 @@ class _Site:
         self.tick += 1
         self.x += self.direction * speed * TICK_S
         laser = ros.range_reading(
-            self.t, abs(self.x) + self.rng.gauss(0.0, LASER_SIGMA), frame_id="door_laser",
-            radiation_type=ros.INFRARED, fov=0.02, min_range=0.05, max_range=8.0,
-        )  # fmt: skip
+            self.t,
+            abs(self.x) + self.rng.gauss(0.0, LASER_SIGMA),
+            frame_id="door_laser",
+            radiation_type=ros.INFRARED,
+            fov=0.02,
+            min_range=0.05,
+            max_range=8.0,
+        )
         self.door.control(laser["range"])  # the published reading, so stored data obeys the rule
         self._drift_environment()
         self._publish_system(laser)

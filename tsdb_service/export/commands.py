@@ -68,8 +68,10 @@ def cmd_export(args: argparse.Namespace) -> int:
     finally:
         store.close()
     rate = rows / seconds if seconds > 0 else 0.0
-    print(f"exported {rows:,} samples to {args.out} ({size:,} bytes, {query.format.value}) "
-          f"in {seconds:.2f} s ({rate:,.0f} samples/s)")
+    print(
+        f"exported {rows:,} samples to {args.out} ({size:,} bytes, {query.format.value}) "
+        f"in {seconds:.2f} s ({rate:,.0f} samples/s)"
+    )
     return 0
 
 

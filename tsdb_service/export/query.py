@@ -16,8 +16,8 @@ from enum import Enum
 
 from ..errors import BadRequest
 from ..history.params import _ids, _pattern, _types, service_paths, time_range
-from ..history.query import EntityFilter, Scope, TimeRange
 from ..history.valuepath import parse_attr_list
+from ..query import EntityFilter, Scope, TimeRange
 
 
 class ExportFormat(str, Enum):

@@ -26,8 +26,8 @@ from typing import TYPE_CHECKING
 import pyarrow as pa
 
 from ..errors import Unavailable
-from ..history.query import TimeRange
 from ..model import Kind
+from ..query import TimeRange
 from ..storage.sql import series_time_filter
 from .query import ExportQuery
 
@@ -180,16 +180,14 @@ def _time_windows(cursor, dialect, sids, time: TimeRange) -> list[TimeRange]:
     where, params = series_time_filter(dialect, sids, time)
     first, last, count = cursor.execute(
         f"SELECT {dialect.epoch_us('min(t)')}, {dialect.epoch_us('max(t)')}, count(*) "
-        f"FROM {dialect.samples('sid, t')} WHERE {where}", params,
-    ).fetchone()  # fmt: skip
+        f"FROM {dialect.samples('sid, t')} WHERE {where}",
+        params,
+    ).fetchone()
     if not count:
         return []
     pieces = max(1, -(-count // WINDOW_ROWS))
     step = -(-(last - first + 1) // pieces)
-    return [
-        TimeRange(_utc(start), _utc(min(start + step - 1, last)))
-        for start in range(first, last + 1, step)
-    ]
+    return [TimeRange(_utc(start), _utc(min(start + step - 1, last))) for start in range(first, last + 1, step)]
 
 
 def _utc(micros: int) -> datetime:
@@ -222,4 +220,3 @@ def _conform(columns) -> pa.RecordBatch:
     out = [columns[0].cast(pa.int64()).cast(UTC_MICROS)]
     out += [col.cast(field.type) for col, field in zip(columns[1:], _AFTER_TIME, strict=True)]
     return pa.RecordBatch.from_arrays(out, schema=SCHEMA)
-

@@ -106,5 +106,8 @@ def _union(a: Box, b: Box) -> Box:
 def _inside(box: Box, extent: Box | None) -> bool:
     return (
         extent is not None
-        and box[0] >= extent[0] and box[1] >= extent[1] and box[2] <= extent[2] and box[3] <= extent[3]
-    )  # fmt: skip
+        and box[0] >= extent[0]
+        and box[1] >= extent[1]
+        and box[2] <= extent[2]
+        and box[3] <= extent[3]
+    )

@@ -59,7 +59,6 @@ class GeoFilter:
         """The exact predicate against one stored (normalised) geometry."""
         return relation_holds(self.georel, self.shape, geojson, self.max_distance, self.min_distance)
 
-
     def matches_array(self, lon: np.ndarray, lat: np.ndarray, geojson: np.ndarray, point: np.ndarray) -> np.ndarray:
         """The exact predicate for many stored geometries at once (shapely 2
         and pyproj array calls, no loop per geometry): where ``point`` is
@@ -74,8 +73,9 @@ class GeoFilter:
             distance = np.full(len(point), np.inf)
             at = np.flatnonzero(point)
             if len(at):
-                _, _, metres = WGS84.inv(np.full(len(at), self.shape.x), np.full(len(at), self.shape.y),
-                                         lon[at], lat[at])
+                _, _, metres = WGS84.inv(
+                    np.full(len(at), self.shape.x), np.full(len(at), self.shape.y), lon[at], lat[at]
+                )
                 distance[at] = metres
             if geoms is not None:
                 usable = ~shapely.is_missing(geoms) & ~shapely.is_empty(geoms)
@@ -92,11 +92,14 @@ class GeoFilter:
             every[shapes] = geoms
         usable = ~shapely.is_missing(every) & ~shapely.is_empty(every)
         shapely.prepare(self.shape)
-        relation = {"coveredBy": shapely.covers, "intersects": shapely.intersects,
-                    "disjoint": shapely.disjoint, "equals": shapely.equals}[self.georel]
+        relation = {
+            "coveredBy": shapely.covers,
+            "intersects": shapely.intersects,
+            "disjoint": shapely.disjoint,
+            "equals": shapely.equals,
+        }[self.georel]
         out[usable] = relation(self.shape, every[usable])
         return out
-
 
     def classify_extents(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For lon/lat boxes ``boxes`` (n x 4: min_lon, min_lat, max_lon,
@@ -196,8 +199,13 @@ def box_prefilter(georel: str, query: BaseGeometry, max_distance: float | None) 
     return ("within", bounds) if georel in _WITHIN_BOX else ("intersects", bounds)
 
 
-def relation_holds(georel: str, query: BaseGeometry, geojson: str | dict,
-                   max_distance: float | None = None, min_distance: float | None = None) -> bool:  # fmt: skip
+def relation_holds(
+    georel: str,
+    query: BaseGeometry,
+    geojson: str | dict,
+    max_distance: float | None = None,
+    min_distance: float | None = None,
+) -> bool:
     """The exact predicate between the query shape and one stored GeoJSON
     geometry; an unreadable or empty stored geometry never matches."""
     try:
@@ -293,7 +301,9 @@ def _parse_coords(text: str) -> list[tuple[float, float]]:
             raise BadRequest(f"coords point {i + 1} ({pair!r}) must be 'lat,lon'")
         for label, part in (("latitude", parts[0]), ("longitude", parts[1])):
             if not _NUMBER.match(part):
-                raise BadRequest(f"coords point {i + 1} ({pair!r}) is not two numbers: {label} {part.strip()!r} is not a number")
+                raise BadRequest(
+                    f"coords point {i + 1} ({pair!r}) is not two numbers: {label} {part.strip()!r} is not a number"
+                )
         lat, lon = float(parts[0]), float(parts[1])
         if not (math.isfinite(lat) and -90 <= lat <= 90):
             raise BadRequest(f"coords point {i + 1}: latitude {parts[0].strip()} is outside -90..90")

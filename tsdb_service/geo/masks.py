@@ -26,8 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..history.query import TimeRange
-from ..storage.sql import RowMask
+from ..query import RowMask, TimeRange
 from .filter import GeoFilter
 
 Span = tuple[int, int, int | None, int | None]  # t0 µs, rid0, t1 µs | None (open), rid1
@@ -80,9 +79,11 @@ def location_spans(rows: list[tuple], geo: GeoFilter) -> dict[int, list[Span]]:
     test = np.flatnonzero(ok)
     if len(test):
         match[test] = geo.matches_array(
-            np.asarray(lon, dtype=float)[test], np.asarray(lat, dtype=float)[test],
-            np.asarray(geojson, dtype=object)[test], np.fromiter(point, bool, len(rows))[test],
-        )  # fmt: skip
+            np.asarray(lon, dtype=float)[test],
+            np.asarray(lat, dtype=float)[test],
+            np.asarray(geojson, dtype=object)[test],
+            np.fromiter(point, bool, len(rows))[test],
+        )
     return _runs(sid, t_us, rid, match)
 
 

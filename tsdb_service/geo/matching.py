@@ -31,8 +31,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from operator import attrgetter
 
-from ..history.query import EntityFilter, Scope, TimeRange
-from ..storage.catalog import SeriesRef
+from ..query import EntityFilter, Scope, SeriesRef, TimeRange
 from .filter import ENTITY, GeoFilter
 
 EntityKey = tuple[str, str, str]  # service path, entity type, entity id
@@ -54,7 +53,7 @@ def apply_geo(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesRe
     if geo.scope == ENTITY:
         matched = matching_entities(querier, locations, geo, time)
         return [r for r, key in zip(refs, map(entity_key, refs)) if key in matched], querier
-    from ..storage.sql import RowMask
+    from ..query import RowMask
     from .masks import MaskedQuerier, sample_spans
 
     intervals, kept = {}, []
@@ -100,9 +99,10 @@ def _selection(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesR
     for ref, k in zip(refs, keys, strict=True):
         refs_by_key.setdefault(k, []).append(ref)
     selection = _Selection(
-        dict(zip(map(_SID, named), named_keys, strict=True)), refs_by_key,
+        dict(zip(map(_SID, named), named_keys, strict=True)),
+        refs_by_key,
         frozenset(refs_by_key.keys() - set(named_keys)),
-    )  # fmt: skip
+    )
     with _memo_lock:
         cache[key] = selection
         while len(cache) > _MEMO_SIZE:

@@ -11,10 +11,11 @@ def register(subparsers, command) -> None:
     p = subparsers.add_parser("dashboards", help="the Grafana dashboards of the three use cases")
     actions = p.add_subparsers(dest="dashboards_action", required=True)
     build = actions.add_parser(
-        "build", help="regenerate dashboards/*.json and the provisioning YAML from the code",
+        "build",
+        help="regenerate dashboards/*.json and the provisioning YAML from the code",
         description="Write <use case>.json for each use case, provisioning/dashboards.yaml and "
         "provisioning/datasources.yaml into --out.",
-    )  # fmt: skip
+    )
     build.add_argument("--out", default="dashboards", help="folder (default ./dashboards)")
     build.add_argument("--check", action="store_true", help="write nothing; exit 1 if any file differs")
     command("dashboards")(cmd_dashboards)
@@ -25,8 +26,9 @@ def cmd_dashboards(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     if args.check:
-        stale = [rel for rel, content in files().items()
-                 if not (out / rel).exists() or (out / rel).read_text() != content]  # fmt: skip
+        stale = [
+            rel for rel, content in files().items() if not (out / rel).exists() or (out / rel).read_text() != content
+        ]
         for rel in stale:
             print(f"stale: {out / rel}", file=sys.stderr)
         return 1 if stale else 0

@@ -26,7 +26,8 @@ import orjson
 
 from ..errors import BadRequest
 from ..geo.encodings import from_geojson, parse_lat_lon
-from ..history.query import (
+from ..history.service import run_history, run_last_values
+from ..query import (
     Aggregation,
     AggrMethod,
     AggrPeriod,
@@ -39,7 +40,6 @@ from ..history.query import (
     TimeRange,
     ValuePath,
 )
-from ..history.service import run_history, run_last_values
 from ..storage.base import Querier
 from .params import Column
 
@@ -97,9 +97,14 @@ def fetch(
     """Raw samples of ``cols`` per entity, through the history service."""
     paths = tuple(dict.fromkeys(col.path for col in cols))
     query = HistoryQuery(
-        shape=Shape.ATTRS, scope=scope, entities=entities, attrs=paths, time=time,
-        last_n=max_rows, limit=max_rows,
-    )  # fmt: skip
+        shape=Shape.ATTRS,
+        scope=scope,
+        entities=entities,
+        attrs=paths,
+        time=time,
+        last_n=max_rows,
+        limit=max_rows,
+    )
     out = []
     for ent in run_history(querier, query).entities:
         series = EntitySeries(ent.entity_id, ent.entity_type, [epoch_ms(t) for t in ent.index])
@@ -434,8 +439,9 @@ def position_rows(
         return _latest_positions(querier, scope, entities, loc, cols, geo)
     rows = []
     for series in fetch(querier, scope, entities, (loc, *cols), time):
-        located = EntitySeries(series.entity_id, series.entity_type, [],
-                               {name: [] for name in ("lat", "lon", *(c.name for c in cols))})  # fmt: skip
+        located = EntitySeries(
+            series.entity_id, series.entity_type, [], {name: [] for name in ("lat", "lon", *(c.name for c in cols))}
+        )
         for i, t in enumerate(series.times):
             point = lon_lat(series.columns[loc.name][i])
             if point is None or (geo is not None and not _geo_ok(geo, point)):
@@ -460,8 +466,12 @@ def _latest_positions(querier, scope, entities, loc: Column, cols: Sequence[Colu
         point = lon_lat(item.pop(loc.name))
         if point is None or (geo is not None and not _geo_ok(geo, point)):
             continue
-        head = {"time": item.pop("time"), "entity": item.pop("entity"), "type": item.pop("type"),
-                "name": item.pop("name")}
+        head = {
+            "time": item.pop("time"),
+            "entity": item.pop("entity"),
+            "type": item.pop("type"),
+            "name": item.pop("name"),
+        }
         rows.append({**head, "lat": point[1], "lon": point[0], **item})
     rows.sort(key=lambda r: r["entity"])
     return rows
@@ -514,8 +524,9 @@ def aggregate_rows(
     except KeyError:
         raise BadRequest(f"unknown aggregation {method!r} / {period!r}") from None
     paths = tuple(dict.fromkeys(col.path for col in cols))
-    query = HistoryQuery(shape=Shape.ATTRS, scope=scope, entities=entities, attrs=paths, time=time,
-                         limit=limit, aggregation=aggregation)  # fmt: skip
+    query = HistoryQuery(
+        shape=Shape.ATTRS, scope=scope, entities=entities, attrs=paths, time=time, limit=limit, aggregation=aggregation
+    )
     rows = []
     for ent in run_history(querier, query).entities:
         head = {"entity": ent.entity_id, "type": ent.entity_type, "name": short_name(ent.entity_id)}

@@ -24,7 +24,16 @@ from ..api.responses import JSON
 from ..geo.filter import parse_geo
 from ..history.valuepath import parse_value_path
 from . import frames
-from .params import MAX_POINTS_LIMIT, choice, columns, entity_filter, flag, positive_int, scope_of, time_range
+from .params import (
+    MAX_POINTS_LIMIT,
+    choice,
+    columns,
+    entity_filter,
+    flag,
+    positive_int,
+    scope_of,
+    time_range,
+)
 
 router = APIRouter(prefix="/grafana/infinity", tags=["grafana"])
 
@@ -43,12 +52,16 @@ def series(request: Request) -> JSON:
     ``layout=wide`` gives one row per time and a column per entity and column."""
     querier, scope, entities, params = _common(request)
     rows = frames.series_rows(
-        querier, scope, entities, columns(params.get("attrs")), time_range(params),
+        querier,
+        scope,
+        entities,
+        columns(params.get("attrs")),
+        time_range(params),
         max_points=positive_int(params.get("max_points"), "max_points", 1000, MAX_POINTS_LIMIT),
         interval_ms=positive_int(params.get("interval_ms"), "interval_ms", None, 10**12),
         agg=choice(params.get("agg"), "agg", frames.AGGREGATIONS, "auto"),
         wide=choice(params.get("layout"), "layout", ("long", "wide"), "long") == "wide",
-    )  # fmt: skip
+    )
     return JSON(rows)
 
 
@@ -65,9 +78,13 @@ def states(request: Request) -> JSON:
     each entity's last sample."""
     querier, scope, entities, params = _common(request)
     rows = frames.state_rows(
-        querier, scope, entities, columns(params.get("attrs")), time_range(params),
+        querier,
+        scope,
+        entities,
+        columns(params.get("attrs")),
+        time_range(params),
         max_points=positive_int(params.get("max_points"), "max_points", 5000, MAX_POINTS_LIMIT),
-    )  # fmt: skip
+    )
     return JSON(rows)
 
 
@@ -77,11 +94,15 @@ def events(request: Request) -> JSON:
     run of samples where a column is truthy, or ``== equals`` (a JSON value)."""
     querier, scope, entities, params = _common(request)
     rows = frames.event_rows(
-        querier, scope, entities, columns(params.get("attrs")), time_range(params),
+        querier,
+        scope,
+        entities,
+        columns(params.get("attrs")),
+        time_range(params),
         matches=frames.condition(params.get("equals")),
         text=(params.get("text") or None),
         limit=positive_int(params.get("limit"), "limit", 1000, MAX_POINTS_LIMIT),
-    )  # fmt: skip
+    )
     return JSON(rows)
 
 
@@ -95,12 +116,16 @@ def positions(request: Request) -> JSON:
     querier, scope, entities, params = _common(request)
     geo = parse_geo(params.get("georel"), params.get("geometry"), params.get("coords"))
     rows = frames.position_rows(
-        querier, scope, entities, parse_value_path(params.get("location") or "location"),
-        columns(params.get("attrs"), required=False), time_range(params),
+        querier,
+        scope,
+        entities,
+        parse_value_path(params.get("location") or "location"),
+        columns(params.get("attrs"), required=False),
+        time_range(params),
         latest=flag(params.get("latest"), "latest"),
         max_points=positive_int(params.get("max_points"), "max_points", 5000, MAX_POINTS_LIMIT),
         geo=geo,
-    )  # fmt: skip
+    )
     return JSON(rows)
 
 
@@ -110,12 +135,16 @@ def aggregate(request: Request) -> JSON:
     (default), min, max, sum, count; optional ``period`` (second ... year)."""
     querier, scope, entities, params = _common(request)
     rows = frames.aggregate_rows(
-        querier, scope, entities, columns(params.get("attrs")), time_range(params),
+        querier,
+        scope,
+        entities,
+        columns(params.get("attrs")),
+        time_range(params),
         method=choice(params.get("method"), "method", ("avg", "min", "max", "sum", "count"), "avg"),
         period=choice(params.get("period"), "period", ("", "second", "minute", "hour", "day", "month", "year"), "")
         or None,
         limit=positive_int(params.get("limit"), "limit", 10_000, MAX_POINTS_LIMIT),
-    )  # fmt: skip
+    )
     return JSON(rows)
 
 
@@ -126,7 +155,9 @@ def entities(request: Request) -> JSON:
     found: dict[tuple[str, str], set[str]] = {}
     for ref in querier.series(scope, entities, None):
         found.setdefault((ref.entity_id, ref.entity_type), set()).add(ref.attr)
-    return JSON([
-        {"entity": eid, "type": etype, "name": frames.short_name(eid), "attrs": ",".join(sorted(attrs))}
-        for (eid, etype), attrs in sorted(found.items())
-    ])  # fmt: skip
+    return JSON(
+        [
+            {"entity": eid, "type": etype, "name": frames.short_name(eid), "attrs": ",".join(sorted(attrs))}
+            for (eid, etype), attrs in sorted(found.items())
+        ]
+    )

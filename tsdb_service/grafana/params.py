@@ -17,9 +17,9 @@ from datetime import UTC, datetime
 from ..api.tenancy import tenant_from
 from ..errors import BadRequest
 from ..history.params import MAX_INT_PARAM, check_id, parse_time, service_paths
-from ..history.query import EntityFilter, Scope, TimeRange, ValuePath
 from ..history.valuepath import parse_value_path
 from ..idpattern import compile_pattern
+from ..query import EntityFilter, Scope, TimeRange, ValuePath
 
 _ALIAS = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,63}$")
 _NUMBER = re.compile(r"^-?\d{1,16}(\.\d{1,9})?$")
@@ -79,8 +79,10 @@ def columns(raw: str | None, *, required: bool = True, what: str = "attrs") -> t
     attribute name or a value path, so the split is unambiguous)."""
     if raw is None or not raw.strip():
         if required:
-            raise BadRequest(f"{what} is required: a comma list of attributes or value paths, e.g. "
-                             f"{what}=speed=odom(twist.twist.linear.x),temperature")
+            raise BadRequest(
+                f"{what} is required: a comma list of attributes or value paths, e.g. "
+                f"{what}=speed=odom(twist.twist.linear.x),temperature"
+            )
         return ()
     out: dict[str, Column] = {}
     for item in (part.strip() for part in raw.split(",")):

@@ -29,16 +29,18 @@ def list_dashboards(request: Request) -> JSON:
     for name in dashboards.DASHBOARDS:
         doc = dashboards.build(name)
         sources = _datasources(doc)
-        out.append({
-            "name": name,
-            "use_case": name if name in dashboards.BUILDERS else None,
-            "uid": doc["uid"],
-            "title": doc["title"],
-            "tags": doc.get("tags", []),
-            "url": f"{request.url.path.rstrip('/')}/{name}",
-            "datasources": sources,
-            "datasource_uid": sources[0]["uid"] if sources else None,
-        })  # fmt: skip
+        out.append(
+            {
+                "name": name,
+                "use_case": name if name in dashboards.BUILDERS else None,
+                "uid": doc["uid"],
+                "title": doc["title"],
+                "tags": doc.get("tags", []),
+                "url": f"{request.url.path.rstrip('/')}/{name}",
+                "datasources": sources,
+                "datasource_uid": sources[0]["uid"] if sources else None,
+            }
+        )
     return JSON(out)
 
 

@@ -34,10 +34,10 @@ from .. import budget
 from ..api import openapi as oa
 from ..api.responses import JSON
 from ..errors import BadRequest
-from ..history.query import EntityFilter, LastValueQuery, TimeRange, ValuePath
 from ..history.service import run_last_values
 from ..history.valuepath import parse_value_path
 from ..idpattern import compile_pattern, compiled
+from ..query import EntityFilter, LastValueQuery, TimeRange, ValuePath
 from ..rawpath import escape_segment, unescape_segment
 from . import frames
 from .params import MAX_POINTS_LIMIT, Column, moment, positive_int, scope_of
@@ -117,8 +117,10 @@ class Target:
         self.ref_id = _str(raw.get("refId"), "refId", "A")
         parts = split_target(text)
         if parts is None:
-            raise BadRequest(f"target {text[:80]!r} must be <entity id or *>/<attribute or value path> "
-                             "('/' inside the id or the attribute written as %2F)")
+            raise BadRequest(
+                f"target {text[:80]!r} must be <entity id or *>/<attribute or value path> "
+                "('/' inside the id or the attribute written as %2F)"
+            )
         entity, path_text = parts
         path = parse_value_path(path_text)
         extra = _str(payload.get("path"), "payload.path").strip()
@@ -167,8 +169,9 @@ def _adhoc(body: dict) -> list[tuple[str, str, str]]:
 
 def _keep(series: frames.EntitySeries, filters: list[tuple[str, str, str]]) -> bool:
     for key, op, value in filters:
-        subject = {"entity": series.entity_id, "type": series.entity_type,
-                   "name": frames.short_name(series.entity_id)}[key]  # fmt: skip
+        subject = {"entity": series.entity_id, "type": series.entity_type, "name": frames.short_name(series.entity_id)}[
+            key
+        ]
         if op == "=":
             ok = subject == value
         elif op == "!=":
@@ -262,19 +265,35 @@ def variable(request: Request, body: Any = Body(None)) -> JSON:
     text = _str(payload.get("target") if isinstance(payload, dict) else payload, "payload.target").strip()
     named = _keyword(request, text)
     values = named if named is not None else _metric_names(request, text)
-    return JSON([{"__text": frames.short_name(unescape_segment(v)) if named is not None else v, "__value": v}
-                 for v in values])  # fmt: skip
+    return JSON(
+        [{"__text": frames.short_name(unescape_segment(v)) if named is not None else v, "__value": v} for v in values]
+    )
 
 
 _PAYLOADS = [
-    {"label": "Path inside the value", "name": "path", "type": "select", "placeholder": "e.g. twist.twist.linear.x",
-     "width": 40},
-    {"label": "Downsampling", "name": "agg", "type": "select", "width": 20,
-     "options": [{"label": a, "value": a} for a in frames.AGGREGATIONS]},
-    {"label": "Format", "name": "format", "type": "select", "width": 20,
-     "options": [{"label": f, "value": f} for f in FORMATS]},
+    {
+        "label": "Path inside the value",
+        "name": "path",
+        "type": "select",
+        "placeholder": "e.g. twist.twist.linear.x",
+        "width": 40,
+    },
+    {
+        "label": "Downsampling",
+        "name": "agg",
+        "type": "select",
+        "width": 20,
+        "options": [{"label": a, "value": a} for a in frames.AGGREGATIONS],
+    },
+    {
+        "label": "Format",
+        "name": "format",
+        "type": "select",
+        "width": 20,
+        "options": [{"label": f, "value": f} for f in FORMATS],
+    },
     {"label": "Alias", "name": "alias", "type": "input", "placeholder": "field name", "width": 20},
-]  # fmt: skip
+]
 
 
 @router.post("/metrics", summary="Metrics with their payload options (simPod builder)", **oa.SIMPLEJSON["metrics"])
@@ -291,7 +310,11 @@ def metrics(request: Request, body: Any = Body(None)) -> JSON:
     return JSON(out)
 
 
-@router.post("/metric-payload-options", summary="Options of one payload field (simPod builder)", **oa.SIMPLEJSON["metric-payload-options"])
+@router.post(
+    "/metric-payload-options",
+    summary="Options of one payload field (simPod builder)",
+    **oa.SIMPLEJSON["metric-payload-options"],
+)
 def metric_payload_options(request: Request, body: Any = Body(None)) -> JSON:
     """``{"metric", "payload", "name"}`` → ``[{"label", "value"}]``. For
     ``path``: the leaf paths found in the metric's latest value."""
@@ -363,7 +386,9 @@ def query(request: Request, body: Any = Body(None)) -> JSON:
         if target.format == "annotations":
             out.extend(_annotation_frames(querier, scope, target, time, filters))
             continue
-        fetched = [s for s in frames.fetch(querier, scope, target.entities, (target.column,), time) if _keep(s, filters)]
+        fetched = [
+            s for s in frames.fetch(querier, scope, target.entities, (target.column,), time) if _keep(s, filters)
+        ]
         span = (frames.ms_of(time.start), frames.ms_of(time.end))
         sampled = [frames.downsample(s, max_points, interval_ms, target.agg, frames._fill(span, s)) for s in fetched]
         out.extend(_render(target, sampled, several=len(sampled) > 1))
@@ -380,11 +405,13 @@ def _render(target: Target, sampled: list[frames.EntitySeries], several: bool) -
     name = target.column.name
     if target.format == "timeseries":
         return [
-            {"target": f"{frames.short_name(s.entity_id)} {name}" if several or not target.alias else name,
-             "refId": target.ref_id,
-             "datapoints": [[_number(v), t] for v, t in zip(s.columns[name], s.times, strict=True)]}
+            {
+                "target": f"{frames.short_name(s.entity_id)} {name}" if several or not target.alias else name,
+                "refId": target.ref_id,
+                "datapoints": [[_number(v), t] for v, t in zip(s.columns[name], s.times, strict=True)],
+            }
             for s in sampled
-        ]  # fmt: skip
+        ]
     if target.format == "table":
         values = [v for s in sampled for v in s.columns[name]]
         kind = _kind(values)
@@ -392,38 +419,54 @@ def _render(target: Target, sampled: list[frames.EntitySeries], several: bool) -
             ([t, s.entity_id, _cell(v, kind)] for s in sampled for t, v in zip(s.times, s.columns[name], strict=True)),
             key=lambda r: (r[0], r[1]),
         )
-        return [{"type": "table", "refId": target.ref_id,
-                 "columns": [{"text": "Time", "type": "time"}, {"text": "entity", "type": "string"},
-                             {"text": name, "type": kind}],
-                 "rows": rows}]  # fmt: skip
+        return [
+            {
+                "type": "table",
+                "refId": target.ref_id,
+                "columns": [
+                    {"text": "Time", "type": "time"},
+                    {"text": "entity", "type": "string"},
+                    {"text": name, "type": kind},
+                ],
+                "rows": rows,
+            }
+        ]
     out = []
     for s in sampled:
         kind = _kind(s.columns[name])
-        out.append({
-            "name": f"{frames.short_name(s.entity_id)} {name}",
-            "refId": target.ref_id,
-            "fields": [
-                {"name": "time", "type": "time", "values": s.times},
-                {"name": name, "type": kind, "values": [_cell(v, kind) for v in s.columns[name]],
-                 "labels": {"entity": s.entity_id}},
-            ],
-        })  # fmt: skip
+        out.append(
+            {
+                "name": f"{frames.short_name(s.entity_id)} {name}",
+                "refId": target.ref_id,
+                "fields": [
+                    {"name": "time", "type": "time", "values": s.times},
+                    {
+                        "name": name,
+                        "type": kind,
+                        "values": [_cell(v, kind) for v in s.columns[name]],
+                        "labels": {"entity": s.entity_id},
+                    },
+                ],
+            }
+        )
     return out
 
 
 def _annotation_frames(querier, scope, target: Target, time: TimeRange, filters) -> list[dict]:
     events = _events(querier, scope, target, time, filters, target.equals)
-    return [{
-        "name": target.column.name,
-        "refId": target.ref_id,
-        "fields": [
-            {"name": "time", "type": "time", "values": [e["time"] for e in events]},
-            {"name": "timeEnd", "type": "time", "values": [e["timeEnd"] for e in events]},
-            {"name": "title", "type": "string", "values": [e["title"] for e in events]},
-            {"name": "text", "type": "string", "values": [e["text"] for e in events]},
-            {"name": "tags", "type": "string", "values": [",".join(e["tags"]) for e in events]},
-        ],
-    }]  # fmt: skip
+    return [
+        {
+            "name": target.column.name,
+            "refId": target.ref_id,
+            "fields": [
+                {"name": "time", "type": "time", "values": [e["time"] for e in events]},
+                {"name": "timeEnd", "type": "time", "values": [e["timeEnd"] for e in events]},
+                {"name": "title", "type": "string", "values": [e["title"] for e in events]},
+                {"name": "text", "type": "string", "values": [e["text"] for e in events]},
+                {"name": "tags", "type": "string", "values": [",".join(e["tags"]) for e in events]},
+            ],
+        }
+    ]
 
 
 def _events(querier, scope, target: Target, time: TimeRange, filters, equals) -> list[dict]:
@@ -440,9 +483,16 @@ def _events(querier, scope, target: Target, time: TimeRange, filters, equals) ->
         values, short = series.columns[name], frames.short_name(series.entity_id)
         for first, last in frames.runs(values, matches):
             start, end = series.times[first], series.times[last]
-            out.append({"time": start, "timeEnd": end, "isRegion": end > start, "title": f"{name} on {short}",
-                        "text": f"{name} = {frames.run_label(values[first:last + 1])} on {series.entity_id}",
-                        "tags": [short, name]})  # fmt: skip
+            out.append(
+                {
+                    "time": start,
+                    "timeEnd": end,
+                    "isRegion": end > start,
+                    "title": f"{name} on {short}",
+                    "text": f"{name} = {frames.run_label(values[first : last + 1])} on {series.entity_id}",
+                    "tags": [short, name],
+                }
+            )
     out.sort(key=lambda e: (e["time"], e["tags"][0]))
     return out[-_MAX_EVENTS:]
 
@@ -472,8 +522,9 @@ def annotations(request: Request, body: Any = Body(None)) -> JSON:
 @router.post("/tag-keys", summary="Ad hoc filter keys", **oa.SIMPLEJSON["tag-keys"])
 def tag_keys(request: Request, body: Any = Body(None)) -> JSON:
     scope_of(request.query_params, request.headers)  # a bad tenant is still a 400
-    return JSON([{"type": "string", "text": "entity"}, {"type": "string", "text": "type"},
-                 {"type": "string", "text": "name"}])  # fmt: skip
+    return JSON(
+        [{"type": "string", "text": "entity"}, {"type": "string", "text": "type"}, {"type": "string", "text": "name"}]
+    )
 
 
 @router.post("/tag-values", summary="Ad hoc filter values of one key", **oa.SIMPLEJSON["tag-values"])

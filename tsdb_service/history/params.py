@@ -13,9 +13,14 @@ from datetime import UTC, datetime
 
 from ..errors import BadRequest
 from ..idpattern import compile_pattern
-from ..ngsi.names import ID_RULE, SERVICE_PATH_RULE, id_problem, normalize_service_path, service_path_problem
-from ..rawpath import unescape_segment
-from .query import (
+from ..ngsi.names import (
+    ID_RULE,
+    SERVICE_PATH_RULE,
+    id_problem,
+    normalize_service_path,
+    service_path_problem,
+)
+from ..query import (
     Aggregation,
     AggrMethod,
     AggrPeriod,
@@ -29,6 +34,7 @@ from .query import (
     TimeRange,
     ValuePath,
 )
+from ..rawpath import unescape_segment
 from .valuepath import parse_attr_list, parse_value_path
 
 _INT = re.compile(r"\+?[0-9]{1,20}\Z")
@@ -167,7 +173,9 @@ def parse_time(raw: str, name: str) -> datetime:
             raise ValueError("too long")
         moment = datetime.fromisoformat(text)
     except ValueError:
-        raise BadRequest(f"{name} must be an ISO 8601 date-time such as 2024-05-01T10:00:00Z, not {raw[:80]!r}") from None
+        raise BadRequest(
+            f"{name} must be an ISO 8601 date-time such as 2024-05-01T10:00:00Z, not {raw[:80]!r}"
+        ) from None
     if moment.tzinfo is None:
         return moment.replace(tzinfo=UTC)
     try:

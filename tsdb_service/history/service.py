@@ -16,10 +16,8 @@ import orjson
 from .. import budget
 from ..errors import Conflict, NotFound, TsdbError
 from ..model import Kind
-from ..storage.base import Querier
-from ..storage.catalog import SeriesRef
-from ..storage.sql import AggBranch
-from .query import (
+from ..query import (
+    AggBranch,
     AggrMethod,
     AggrScope,
     DeleteQuery,
@@ -28,10 +26,12 @@ from .query import (
     HistoryQuery,
     LastValueQuery,
     Scope,
+    SeriesRef,
     Shape,
     TimeRange,
     ValuePath,
 )
+from ..storage.base import Querier
 from .valuepath import extract
 
 _SINGLE_ENTITY = (Shape.ENTITY_ATTR, Shape.ENTITY)
@@ -119,8 +119,7 @@ def resolve_entity_series(
         if len(types) > 1:
             eid = entities.ids[0] if entities.ids else ""
             raise Conflict(
-                f"entity id {eid!r} exists in several types ({', '.join(sorted(types))}): "
-                "give 'type' to choose one",
+                f"entity id {eid!r} exists in several types ({', '.join(sorted(types))}): give 'type' to choose one",
                 error="AmbiguousNGSIIdError",
             )
         refs = [r for r in refs if r.entity_type in types]
@@ -192,8 +191,13 @@ def _raw(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> list[Entit
     attr_count = len({r.attr for r in refs})
     n = min(q.last_n, q.limit) if q.last_n else q.limit
     rows = querier.raw_rows(
-        list(by_sid), q.time, newest_first=q.last_n is not None, limit=budget.row_cap(n), offset=q.offset,
-        one_per_row=attr_count == 1, attrs_per_row=attr_count,
+        list(by_sid),
+        q.time,
+        newest_first=q.last_n is not None,
+        limit=budget.row_cap(n),
+        offset=q.offset,
+        one_per_row=attr_count == 1,
+        attrs_per_row=attr_count,
     )
     budget.charge_rows(len(rows))  # past the request's budget: 422 (tsdb_service.budget)
     if not rows:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from .query import AggrScope, HistoryQuery, Shape
+from ..query import AggrScope, HistoryQuery, Shape
 from .service import EntityResult, HistoryResult
 
 
@@ -69,16 +69,25 @@ def _entity_attr(q: HistoryQuery, entities: list[EntityResult]):
     values = ent.columns.get(name, [])
     if q.values_only:
         return {"index": _index(q, ent, False), "values": values}
-    return {"id": ent.entity_id, "type": ent.entity_type, "attrName": name, "index": _index(q, ent, False),
-            "values": values}
+    return {
+        "id": ent.entity_id,
+        "type": ent.entity_type,
+        "attrName": name,
+        "index": _index(q, ent, False),
+        "values": values,
+    }
 
 
 def _entity(q: HistoryQuery, entities: list[EntityResult]):
     ent = entities[0]
     if q.values_only:
         return {"index": _index(q, ent, False), "attributes": _attributes(ent)}
-    return {"id": ent.entity_id, "type": ent.entity_type, "index": _index(q, ent, False),
-            "attributes": _attributes(ent)}
+    return {
+        "id": ent.entity_id,
+        "type": ent.entity_type,
+        "index": _index(q, ent, False),
+        "attributes": _attributes(ent),
+    }
 
 
 def _head(q: HistoryQuery, ent: EntityResult) -> dict:

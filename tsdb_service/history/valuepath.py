@@ -17,7 +17,7 @@ import re
 
 from ..errors import BadRequest
 from ..ngsi.names import name_problem
-from .query import ValuePath
+from ..query import ValuePath
 
 _KEY = r"""[^\s.,\[\]()<>"'=;]+"""
 _STEP = re.compile(rf"\.?({_KEY})|\[(\d{{1,9}})\]")
@@ -46,7 +46,7 @@ def _steps(path: str, text: str) -> tuple[str | int, ...]:
         match = _STEP.match(path, pos)
         # A leading "." or a "." right after nothing is not allowed.
         if match is None or (pos == 0 and path[0] == "."):
-            raise BadRequest(f"invalid value path {text[:80]!r} at {path[pos:pos + 20]!r}")
+            raise BadRequest(f"invalid value path {text[:80]!r} at {path[pos : pos + 20]!r}")
         if match.group(1) is not None:
             if pos > 0 and path[pos] != ".":
                 raise BadRequest(f"invalid value path {text[:80]!r}: keys must be separated by '.'")

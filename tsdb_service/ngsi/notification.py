@@ -40,7 +40,13 @@ from tsdb_service.ngsi.names import (
     service_path_problem,
 )
 from tsdb_service.ngsi.tenancy import TenantProblem, select_tenant, selectors
-from tsdb_service.ngsi.timeindex import FALLBACK_METADATA, TimeClues, parse_time, to_utc, watched_attributes
+from tsdb_service.ngsi.timeindex import (
+    FALLBACK_METADATA,
+    TimeClues,
+    parse_time,
+    to_utc,
+    watched_attributes,
+)
 from tsdb_service.ngsi.values import TooDeep, attr_sample, to_json
 
 DEFAULT_ENTITY_TYPE = "Thing"  # what Orion assigns when none is given
@@ -73,8 +79,14 @@ _FORMAT_HEADER = {
 _LD_FORMAT_HEADER = {"normalized": False, "concise": False, "simplified": True, "keyvalues": True}
 
 # How error messages locate an entity in the body.
-_ENTITY_LABELS = {_SIMPLIFIED: "entity", _SIMPLIFIED_KEY_VALUES: "entity", _SIMPLIFIED_AUTO: "entity",
-                  _V1: "contextResponses", _GEOJSON: "data.features", _GEOJSON_SIMPLIFIED: "data.features"}
+_ENTITY_LABELS = {
+    _SIMPLIFIED: "entity",
+    _SIMPLIFIED_KEY_VALUES: "entity",
+    _SIMPLIFIED_AUTO: "entity",
+    _V1: "contextResponses",
+    _GEOJSON: "data.features",
+    _GEOJSON_SIMPLIFIED: "data.features",
+}
 
 # NGSIv1 tells same-named attributes apart by an "ID" metadata; each is its
 # own attribute, stored as name + this + ID (a character NGSI names and URL
@@ -259,8 +271,9 @@ def _service_path(path: str) -> str:
     path = normalize_service_path(path)
     problem = service_path_problem(path)
     if problem is not None:
-        raise ParseError(f"service path {path[:60]!r} {problem}; we store only paths every query can name: "
-                         f"{SERVICE_PATH_RULE}")
+        raise ParseError(
+            f"service path {path[:60]!r} {problem}; we store only paths every query can name: {SERVICE_PATH_RULE}"
+        )
     return path
 
 
@@ -280,13 +293,22 @@ def _entity_sample(parse, raw: Any, where: str, tenant: str, path: str, ctx: _Co
     for attr in attrs:
         problem = name_problem(attr.name)
         if problem is not None:
-            raise ParseError(f"{where}: attribute name {attr.name[:80]!r} {problem}; we store only names "
-                             f"every endpoint can be asked for: {RULE}")
+            raise ParseError(
+                f"{where}: attribute name {attr.name[:80]!r} {problem}; we store only names "
+                f"every endpoint can be asked for: {RULE}"
+            )
     time_index = clues.resolve(ctx.received_at)
     if clues.unusable:
         _mark_fallback(attrs, clues.unusable)
-    return EntitySample(tenant, path, entity_id, entity_type, time_index, attrs,
-                        _ld_entity_deleted_at(raw) if parse in _LD_ENTITY_PARSERS else None)
+    return EntitySample(
+        tenant,
+        path,
+        entity_id,
+        entity_type,
+        time_index,
+        attrs,
+        _ld_entity_deleted_at(raw) if parse in _LD_ENTITY_PARSERS else None,
+    )
 
 
 def _mark_fallback(attrs: list[AttrSample], unusable: tuple[str, ...]) -> None:
@@ -328,8 +350,10 @@ def _entity_type(entity: dict, where: str) -> str:
 def _check_id(value: str, what: str, where: str) -> None:
     problem = id_problem(value)
     if problem is not None:
-        raise ParseError(f"{where}: {what} {value[:80]!r} {problem}; we store only ids and types every "
-                         f"endpoint can be asked for: {ID_RULE}")
+        raise ParseError(
+            f"{where}: {what} {value[:80]!r} {problem}; we store only ids and types every "
+            f"endpoint can be asked for: {ID_RULE}"
+        )
 
 
 # --- NGSIv2 --------------------------------------------------------------------
@@ -437,8 +461,9 @@ def _ld_instance(name: str, ld_type: str, value: Any, raw: dict, key: str) -> At
         return attr_sample(name, ld_type, value, None)
     dataset = raw.get("datasetId")
     if dataset is not None and (type(dataset) is not str or not dataset):
-        raise ParseError(f"attribute {name[:80]!r}: datasetId must be a non-empty string (a URI), "
-                         f"got {_json_kind(dataset)}")
+        raise ParseError(
+            f"attribute {name[:80]!r}: datasetId must be a non-empty string (a URI), got {_json_kind(dataset)}"
+        )
     deleted = "deletedAt" in raw or value == LD_NULL
     sample = attr_sample(ld_series_name(name, dataset), ld_type, None if deleted else value, md)
     sample.dataset_id = dataset
@@ -446,8 +471,9 @@ def _ld_instance(name: str, ld_type: str, value: Any, raw: dict, key: str) -> At
     sample.created_at = parse_time(raw.get("createdAt"))
     sample.modified_at = parse_time(raw.get("modifiedAt"))
     if deleted:
-        sample.deleted_at = (parse_time(raw.get("deletedAt")) or sample.modified_at or sample.observed_at
-                             or datetime.now(UTC))
+        sample.deleted_at = (
+            parse_time(raw.get("deletedAt")) or sample.modified_at or sample.observed_at or datetime.now(UTC)
+        )
     return sample
 
 
@@ -459,13 +485,17 @@ def parse_ld_instance(name: str, raw: Any) -> AttrSample:
     if type(raw) is not dict:
         raise ParseError(f"attribute {name[:80]!r}: each instance must be an attribute object, got {_json_kind(raw)}")
     if not _is_instance_list([raw]) and raw.get("type") not in GEOMETRY_TYPES:
-        raise ParseError(f"attribute {name[:80]!r}: an instance needs an NGSI-LD type (Property, Relationship, "
-                         "GeoProperty, ...) or a value member (value, object, languageMap, ...)")
+        raise ParseError(
+            f"attribute {name[:80]!r}: an instance needs an NGSI-LD type (Property, Relationship, "
+            "GeoProperty, ...) or a value member (value, object, languageMap, ...)"
+        )
     sample = _ld_attr(name, raw, TimeClues(None, frozenset()))
     problem = name_problem(sample.name)
     if problem is not None:
-        raise ParseError(f"attribute name {sample.name[:80]!r} {problem}; we store only names every endpoint "
-                         f"can be asked for: {RULE}")
+        raise ParseError(
+            f"attribute name {sample.name[:80]!r} {problem}; we store only names every endpoint "
+            f"can be asked for: {RULE}"
+        )
     return sample
 
 
@@ -634,8 +664,10 @@ def _v1_entity(response: Any, index: int) -> dict:
         metadata = _v1_metadata(attribute)
         key = _v1_attr_name(name, metadata)
         if key in entity:
-            raise ParseError(f"contextResponses[{index}]: attribute {key[:80]!r} appears twice; NGSIv1 tells "
-                             "same-named attributes apart by an 'ID' metadata, and these have the same one or none")
+            raise ParseError(
+                f"contextResponses[{index}]: attribute {key[:80]!r} appears twice; NGSIv1 tells "
+                "same-named attributes apart by an 'ID' metadata, and these have the same one or none"
+            )
         entity[key] = {"type": attribute.get("type"), "value": attribute.get("value"), "metadata": metadata}
     return entity
 
@@ -655,7 +687,11 @@ def _v1_metadata(attribute: dict) -> dict:
     items = attribute.get("metadatas")
     if type(items) is not list:
         return {}
-    return {m["name"]: {"type": m.get("type"), "value": m.get("value")} for m in items if type(m) is dict and type(m.get("name")) is str}
+    return {
+        m["name"]: {"type": m.get("type"), "value": m.get("value")}
+        for m in items
+        if type(m) is dict and type(m.get("name")) is str
+    }
 
 
 _LD_ENTITY_PARSERS = frozenset({_ld_entity, _ld_simplified_entity})

@@ -34,10 +34,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
-UTC = timezone.utc
+UTC = UTC
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 
 # Epoch numbers this large are milliseconds (see the module docstring): the
@@ -140,8 +140,16 @@ def _meta_value(item: Any) -> Any:
 class TimeClues:
     """Raw time sources seen while parsing one entity, resolved on demand."""
 
-    __slots__ = ("header_attr", "watched", "values", "time_instant_md", "date_modified_md", "observed_at",
-                 "modified_at", "unusable")
+    __slots__ = (
+        "date_modified_md",
+        "header_attr",
+        "modified_at",
+        "observed_at",
+        "time_instant_md",
+        "unusable",
+        "values",
+        "watched",
+    )
 
     def __init__(self, header_attr: str | None, watched: frozenset[str]):
         self.header_attr = header_attr
@@ -174,8 +182,9 @@ class TimeClues:
                 if moment is not None:
                     return moment
         on_fallback()
-        self.unusable = tuple(dict.fromkeys(
-            label for label, raw, _ in self._candidates() if raw is not None and raw != []))
+        self.unusable = tuple(
+            dict.fromkeys(label for label, raw, _ in self._candidates() if raw is not None and raw != [])
+        )
         return received_at
 
     def _candidates(self):

@@ -55,12 +55,38 @@ _COUNTS = ("totalCount", "distinctCount")
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 
 _INTEGRAL = {int(_K.INTEGER), int(_K.BOOLEAN)}
-LD_TYPES = frozenset({"Property", "GeoProperty", "Relationship", "LanguageProperty", "ListProperty",
-                      "ListRelationship", "VocabProperty", "JsonProperty"})
+LD_TYPES = frozenset(
+    {
+        "Property",
+        "GeoProperty",
+        "Relationship",
+        "LanguageProperty",
+        "ListProperty",
+        "ListRelationship",
+        "VocabProperty",
+        "JsonProperty",
+    }
+)
 
 # Aggregate rows: one per (series, period, kind, is-array, notified type).
-(R_SID, R_BUCKET, R_KIND, R_IS_ARRAY, R_ATYPE, R_N, R_DISTINCT, R_NX, R_SX, R_SXX, R_MIN, R_MAX,
- R_MIN_TXT, R_MAX_TXT, R_MIN_US, R_MAX_US) = range(16)
+(
+    R_SID,
+    R_BUCKET,
+    R_KIND,
+    R_IS_ARRAY,
+    R_ATYPE,
+    R_N,
+    R_DISTINCT,
+    R_NX,
+    R_SX,
+    R_SXX,
+    R_MIN,
+    R_MAX,
+    R_MIN_TXT,
+    R_MAX_TXT,
+    R_MIN_US,
+    R_MAX_US,
+) = range(16)
 _SID, _BUCKET, _MAX_US = itemgetter(R_SID), itemgetter(R_BUCKET), itemgetter(R_MAX_US)
 _SID_BUCKET = itemgetter(R_SID, R_BUCKET)
 
@@ -89,8 +115,7 @@ def boundaries(start: datetime, end: datetime, period: Duration) -> list[int]:
     out = []
     k = 0
     while True:
-        moment = add_months(start, k * period.months) + timedelta(days=k * period.days,
-                                                                   microseconds=k * period.micros)
+        moment = add_months(start, k * period.months) + timedelta(days=k * period.days, microseconds=k * period.micros)
         out.append(datetime_to_us(moment))
         if moment >= end:
             return out
@@ -150,13 +175,17 @@ class Aggregator:
         expr, where_t, params_t = self.f.time_filter(window)
         where_s, params_s = d.sid_filter(sids)
         is_array = f"(kind = {int(_K.STRUCTURED)} AND substr(js, 1, 1) = '[')"
-        x = (f"CASE WHEN kind IN ({int(_K.NUMBER)}, {int(_K.INTEGER)}, {int(_K.BOOLEAN)}, {int(_K.DATETIME)}) "
-             f"THEN num WHEN {is_array} THEN CAST({self._array_length('js')} AS DOUBLE PRECISION) END")
+        x = (
+            f"CASE WHEN kind IN ({int(_K.NUMBER)}, {int(_K.INTEGER)}, {int(_K.BOOLEAN)}, {int(_K.DATETIME)}) "
+            f"THEN num WHEN {is_array} THEN CAST({self._array_length('js')} AS DOUBLE PRECISION) END"
+        )
         dv = ", coalesce(txt, js, CAST(num AS VARCHAR)) AS dv" if "distinctCount" in methods else ""
         table = d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js")
-        sql = (f"SELECT sid, {d.epoch_us(expr)} AS tp, kind, atype, txt{dv}, "
-               f"CASE WHEN {is_array} THEN 1 ELSE 0 END AS is_array, {x} AS x "
-               f"FROM {table} WHERE {where_s} AND {where_t} AND kind <> {int(_K.NULL)}")
+        sql = (
+            f"SELECT sid, {d.epoch_us(expr)} AS tp, kind, atype, txt{dv}, "
+            f"CASE WHEN {is_array} THEN 1 ELSE 0 END AS is_array, {x} AS x "
+            f"FROM {table} WHERE {where_s} AND {where_t} AND kind <> {int(_K.NULL)}"
+        )
         return sql, [*params_s, *params_t]
 
     def _int_div(self) -> str:
@@ -194,8 +223,10 @@ class Aggregator:
         if origin:
             ctes += ", o AS (SELECT min(tp) AS origin FROM s)"
             source = "s, o"
-        sql = (f"{ctes} {self._select(methods)} FROM (SELECT s.*, {bucket_sql} AS bucket FROM {source}) b "
-               "GROUP BY sid, bucket, kind, is_array, atype")
+        sql = (
+            f"{ctes} {self._select(methods)} FROM (SELECT s.*, {bucket_sql} AS bucket FROM {source}) b "
+            "GROUP BY sid, bucket, kind, is_array, atype"
+        )
         return self.f.q._fetch(sql, [*params, *bucket_params])
 
     def _calendar_query(self, sids, window, methods, edges: list[int]) -> list[tuple]:
@@ -205,8 +236,10 @@ class Aggregator:
             periods = f"unnest({p}::bigint[], {p}::bigint[]) AS per(lo, hi)"
         else:
             periods = f"(SELECT unnest({p}::BIGINT[]) AS lo, unnest({p}::BIGINT[]) AS hi) per"
-        sql = (f"{self._select(methods)} FROM (SELECT s.*, per.lo AS bucket FROM ({inner}) s "
-               f"JOIN {periods} ON s.tp >= per.lo AND s.tp < per.hi) b GROUP BY sid, bucket, kind, is_array, atype")
+        sql = (
+            f"{self._select(methods)} FROM (SELECT s.*, per.lo AS bucket FROM ({inner}) s "
+            f"JOIN {periods} ON s.tp >= per.lo AND s.tp < per.hi) b GROUP BY sid, bucket, kind, is_array, atype"
+        )
         return self.f.q._fetch(sql, [*params, edges[:-1], edges[1:]])
 
     def _span(self, sids, window) -> tuple[int, int] | None:
@@ -277,8 +310,10 @@ def _family(rows: list[tuple], methods) -> str | None:
         else:
             families.add("other")
     if len(families) > 1:
-        raise BadRequestData(f"cannot apply {', '.join(value_methods)} to an attribute whose instances mix "
-                             f"{' and '.join(sorted(families))} values")
+        raise BadRequestData(
+            f"cannot apply {', '.join(value_methods)} to an attribute whose instances mix "
+            f"{' and '.join(sorted(families))} values"
+        )
     family = families.pop()
     allowed = {
         "number": {"sum", "avg", "min", "max", "stddev", "sumsq"},
@@ -297,7 +332,7 @@ def _family(rows: list[tuple], methods) -> str | None:
 def _values(rows: list[tuple], family: str | None, methods) -> tuple:
     """One period's methods from its groups (usually one: one kind, one type)."""
     if len(rows) == 1:
-        (_, _, kind, _, _, n, distinct, nx, sx, sxx, mn, mx, mint, maxt, _, _), = rows
+        ((_, _, kind, _, _, n, distinct, nx, sx, sxx, mn, mx, mint, maxt, _, _),) = rows
         integral = kind in _INTEGRAL
     else:
         n = sum(r[R_N] for r in rows)

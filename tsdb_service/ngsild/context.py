@@ -44,7 +44,7 @@ DEFAULT_VOCAB = "https://uri.etsi.org/ngsi-ld/default-context/"
 CACHE_SECONDS = 3600.0
 MAX_CONTEXT_BYTES = 1 << 20
 MAX_TERM_MAPS = 256
-_LINK = re.compile(r'<([^>]*)>\s*((?:;\s*[^;,]+)*)')
+_LINK = re.compile(r"<([^>]*)>\s*((?:;\s*[^;,]+)*)")
 
 
 @lru_cache(maxsize=1)

@@ -33,9 +33,9 @@ TITLES = {
     "InternalError": "There has been an error during the operation execution",
     "TooComplexQuery": "The query associated to the operation is too complex and cannot be resolved",
     "TooManyResults": "The query associated to the operation is producing so many results that it can exhaust "
-                      "client or server resources; it should be made more restrictive",
+    "client or server resources; it should be made more restrictive",
     "LdContextNotAvailable": "A remote JSON-LD @context referenced in a request cannot be retrieved, so expansion "
-                             "or compaction cannot be performed",
+    "or compaction cannot be performed",
     "NoMultiTenantSupport": "The NGSI-LD system does not support multiple tenants",
     "NonexistentTenant": "The addressed tenant does not exist",
     "NotAcceptable": "The media type asked for in the Accept header is not supported",
@@ -107,8 +107,12 @@ def is_ngsild_path(path: str) -> bool:
 
 def problem(ld_type: str, status: int, detail: str) -> dict[str, object]:
     """A ProblemDetails body."""
-    return {"type": ERROR_TYPE_BASE + ld_type, "title": TITLES.get(ld_type, ld_type), "status": status,
-            "detail": detail}
+    return {
+        "type": ERROR_TYPE_BASE + ld_type,
+        "title": TITLES.get(ld_type, ld_type),
+        "status": status,
+        "detail": detail,
+    }
 
 
 def problem_of(exc: TsdbError) -> dict[str, object]:
@@ -116,8 +120,13 @@ def problem_of(exc: TsdbError) -> dict[str, object]:
 
 
 # Framework-level HTTP errors (no route, wrong method...) → NGSI-LD types.
-_HTTP_TYPES = {404: "ResourceNotFound", 405: "OperationNotSupported", 406: "NotAcceptable",
-               409: "AlreadyExists", 422: "OperationNotSupported"}
+_HTTP_TYPES = {
+    404: "ResourceNotFound",
+    405: "OperationNotSupported",
+    406: "NotAcceptable",
+    409: "AlreadyExists",
+    422: "OperationNotSupported",
+}
 
 
 def http_ld_type(status: int) -> str:

@@ -29,9 +29,8 @@ from collections.abc import Sequence
 
 import orjson
 
-from ..history.query import EntityFilter, Scope
 from ..model import Kind
-from ..storage.catalog import SeriesRef
+from ..query import EntityFilter, Scope, SeriesRef
 from . import qlang
 from .context import TermMap
 from .query import DEFAULT_DATASET, TemporalQuery, TimeProperty, Window, type_matches
@@ -127,8 +126,9 @@ class Fetcher:
             params.append(self.d.time_value(window.end))
         return expr, where, params
 
-    def q_matches(self, node: qlang.Node, window: Window, by_entity: dict[EntityKey, list[SeriesRef]],
-                  iris: dict[int, str]) -> set[EntityKey]:
+    def q_matches(
+        self, node: qlang.Node, window: Window, by_entity: dict[EntityKey, list[SeriesRef]], iris: dict[int, str]
+    ) -> set[EntityKey]:
         """Entities for which ``q`` holds: a term holds when some instance of
         its attribute in the window satisfies it."""
         owner = {r.sid: key for key, refs in by_entity.items() for r in refs}
@@ -147,11 +147,16 @@ class Fetcher:
         table = self.d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, num, txt, js, md")
         if pushed is not None:
             cond, cparams = pushed
-            rows = self._per_series(f"SELECT DISTINCT sid FROM {table}", f"{where_t} AND {cond}",
-                                    [*params_t, *cparams], sids)
+            rows = self._per_series(
+                f"SELECT DISTINCT sid FROM {table}", f"{where_t} AND {cond}", [*params_t, *cparams], sids
+            )
             return {row[0] for row in rows}
-        rows = self._per_series(f"SELECT DISTINCT sid, kind, num, txt, js, md FROM {table}",
-                                f"{where_t} AND kind <> {_NULL}", params_t, sids)
+        rows = self._per_series(
+            f"SELECT DISTINCT sid, kind, num, txt, js, md FROM {table}",
+            f"{where_t} AND kind <> {_NULL}",
+            params_t,
+            sids,
+        )
         out = set()
         for sid, kind, num, txt, js, md in rows:
             if sid not in out and term.matches(term_value(term, kind, num, txt, js, md)):
@@ -166,13 +171,15 @@ class Fetcher:
         p = self.d.placeholder
         if self.d.name == "duckdb" and 1 < len(sids) <= PER_SERIES_BRANCHES and _scattered(sids):
             branch = f"{head} WHERE sid = {p} AND {where}"
-            return self.q._fetch(" UNION ALL ".join([branch] * len(sids)),
-                                 [value for sid in sids for value in (sid, *params)])
+            return self.q._fetch(
+                " UNION ALL ".join([branch] * len(sids)), [value for sid in sids for value in (sid, *params)]
+            )
         where_s, params_s = self.d.sid_filter(sids)
         return self.q._fetch(f"{head} WHERE {where_s} AND {where}", [*params_s, *params])
 
-    def geo_matches(self, geo, window: Window, by_entity: dict[EntityKey, list[SeriesRef]],
-                    iris: dict[int, str]) -> set[EntityKey]:
+    def geo_matches(
+        self, geo, window: Window, by_entity: dict[EntityKey, list[SeriesRef]], iris: dict[int, str]
+    ) -> set[EntityKey]:
         """Entities with a location instance in the window that satisfies the geo-query."""
         owner = {r.sid: key for key, refs in by_entity.items() for r in refs}
         sids = [sid for sid in owner if iris[sid] == geo.geoproperty]
@@ -183,11 +190,15 @@ class Fetcher:
             return set()
         _, where_t, params_t = self.time_filter(window)
         box_sql, box_params = _box_filter(prefilter, self.d.placeholder)
-        table = self.d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, geo, "
-                               "min_lon, min_lat, max_lon, max_lat")
-        rows = self._per_series(f"SELECT DISTINCT sid, geo FROM {table}",
-                                f"{where_t} AND kind = {_GEO} AND geo IS NOT NULL{box_sql}",
-                                [*params_t, *box_params], sids)
+        table = self.d.samples(
+            "sid, t, observed_at, created_at, modified_at, deleted_at, kind, geo, min_lon, min_lat, max_lon, max_lat"
+        )
+        rows = self._per_series(
+            f"SELECT DISTINCT sid, geo FROM {table}",
+            f"{where_t} AND kind = {_GEO} AND geo IS NOT NULL{box_sql}",
+            [*params_t, *box_params],
+            sids,
+        )
         matched: set[EntityKey] = set()
         verdicts: dict[str, bool] = {}
         for sid, geojson in rows:
@@ -243,10 +254,14 @@ def _box_filter(prefilter, p: str) -> tuple[str, list]:
         return "", []
     how, box = prefilter
     if how == "within":
-        return (f" AND min_lon >= {p} AND max_lon <= {p} AND min_lat >= {p} AND max_lat <= {p}",
-                [box.min_lon, box.max_lon, box.min_lat, box.max_lat])
-    return (f" AND max_lon >= {p} AND min_lon <= {p} AND max_lat >= {p} AND min_lat <= {p}",
-            [box.min_lon, box.max_lon, box.min_lat, box.max_lat])
+        return (
+            f" AND min_lon >= {p} AND max_lon <= {p} AND min_lat >= {p} AND max_lat <= {p}",
+            [box.min_lon, box.max_lon, box.min_lat, box.max_lat],
+        )
+    return (
+        f" AND max_lon >= {p} AND min_lon <= {p} AND max_lat >= {p} AND min_lat <= {p}",
+        [box.min_lon, box.max_lon, box.min_lat, box.max_lat],
+    )
 
 
 _VALUE_KEYS = ("value", "object", "languageMap", "valueList", "objectList", "vocab", "json")

@@ -53,8 +53,11 @@ def query_from_params(
     selectors = (Selector(),)
     if entity_id is None:
         selectors = (
-            Selector(ids=_list(get("id"), "id"), id_pattern=_id_pattern(get("idPattern")),
-                     types=parse_types(get("type"), terms)),
+            Selector(
+                ids=_list(get("id"), "id"),
+                id_pattern=_id_pattern(get("idPattern")),
+                types=parse_types(get("type"), terms),
+            ),
         )
     query = TemporalQuery(
         tenant=tenant,
@@ -90,8 +93,25 @@ def query_from_body(
         raise BadRequestData("the body must be a JSON object of type Query")
     if body.get("type") != "Query":
         raise BadRequestData("the body's type must be 'Query'")
-    known = {"type", "entities", "attrs", "q", "geoQ", "temporalQ", "scopeQ", "lang", "csf", "@context", "pick",
-             "omit", "datasetId", "aggrMethods", "aggrPeriodDuration", "lastN", "local"}
+    known = {
+        "type",
+        "entities",
+        "attrs",
+        "q",
+        "geoQ",
+        "temporalQ",
+        "scopeQ",
+        "lang",
+        "csf",
+        "@context",
+        "pick",
+        "omit",
+        "datasetId",
+        "aggrMethods",
+        "aggrPeriodDuration",
+        "lastN",
+        "local",
+    }
     unknown = sorted(set(body) - known)
     if unknown:
         raise BadRequestData(f"unknown Query members: {', '.join(u[:40] for u in unknown[:5])}")
@@ -105,8 +125,9 @@ def query_from_body(
         raise BadRequestData("geoQ must be an object")
     query = TemporalQuery(
         tenant=tenant,
-        window=window(temporal.get("timerel"), temporal.get("timeAt"), temporal.get("endTimeAt"),
-                      temporal.get("timeproperty")),
+        window=window(
+            temporal.get("timerel"), temporal.get("timeAt"), temporal.get("endTimeAt"), temporal.get("timeproperty")
+        ),
         selectors=_selectors(body.get("entities"), terms),
         attrs=_names(_joined(body.get("attrs"), "attrs"), "attrs", terms),
         pick=_projection(_joined(body.get("pick"), "pick"), "pick", terms),
@@ -245,11 +266,13 @@ def _selectors(raw: Any, terms: TermMap) -> tuple[Selector, ...]:
         ident = item.get("id")
         if ident is not None and (not isinstance(ident, str) or not ident or len(ident) > MAX_ID_LENGTH):
             raise BadRequestData("an EntitySelector id must be a non-empty string")
-        out.append(Selector(
-            ids=(ident,) if ident else None,
-            id_pattern=_id_pattern(_string(item.get("idPattern"), "idPattern")),
-            types=parse_types(_string(item.get("type"), "type"), terms),
-        ))
+        out.append(
+            Selector(
+                ids=(ident,) if ident else None,
+                id_pattern=_id_pattern(_string(item.get("idPattern"), "idPattern")),
+                types=parse_types(_string(item.get("type"), "type"), terms),
+            )
+        )
     return tuple(out)
 
 
@@ -311,8 +334,9 @@ def _representation(query: TemporalQuery, options, fmt, methods, period) -> Temp
     if unknown:
         raise BadRequestData(f"unknown options: {', '.join(o[:40] for o in unknown)}")
     if "concise" in opts or fmt == "concise":
-        raise OperationNotSupported("the concise temporal representation is not supported: use normalized, "
-                                    "temporalValues or aggregatedValues")
+        raise OperationNotSupported(
+            "the concise temporal representation is not supported: use normalized, temporalValues or aggregatedValues"
+        )
     chosen = Format.NORMALIZED
     if fmt not in (None, ""):
         try:
@@ -330,8 +354,13 @@ def _representation(query: TemporalQuery, options, fmt, methods, period) -> Temp
         aggregation = Aggregation(_methods(methods), parse_duration(period))
     elif methods not in (None, "") or period not in (None, ""):
         raise BadRequestData("aggrMethods and aggrPeriodDuration need format=aggregatedValues")
-    return replace(query, format=chosen, aggregation=aggregation, sys_attrs="sysAttrs" in opts,
-                   count=query.count or "count" in opts)
+    return replace(
+        query,
+        format=chosen,
+        aggregation=aggregation,
+        sys_attrs="sysAttrs" in opts,
+        count=query.count or "count" in opts,
+    )
 
 
 def _methods(raw) -> tuple[str, ...]:
@@ -387,8 +416,10 @@ def _refuse_unsupported(params: Mapping[str, str]) -> None:
     if params.get("csf") not in (None, ""):
         raise OperationNotSupported("csf is not supported: there are no context sources here")
     if params.get("offsetN") not in (None, ""):
-        raise OperationNotSupported("offsetN is not supported: page through instances with firstN or lastN and "
-                                    "timerel, following the Content-Range of a 206 answer")
+        raise OperationNotSupported(
+            "offsetN is not supported: page through instances with firstN or lastN and "
+            "timerel, following the Content-Range of a 206 answer"
+        )
 
 
 # --- small parsers ------------------------------------------------------------------
@@ -453,5 +484,3 @@ def _flag(raw: str | None, name: str) -> bool:
     if raw not in ("true", "false"):
         raise BadRequestData(f"{name} must be true or false, not {str(raw)[:40]!r}")
     return raw == "true"
-
-

@@ -26,9 +26,10 @@ request's @context by the caller (``Term.attr``).
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
-from typing import Any, Callable
+from typing import Any
 
 MAX_Q_LENGTH = 4096
 MAX_DEPTH = 32
@@ -127,7 +128,7 @@ def parse(text: str) -> Node:
     parser = _Parser(text)
     node = parser.query(0)
     if parser.pos != len(text):
-        raise QueryError(f"unexpected {text[parser.pos:parser.pos + 20]!r} at position {parser.pos}")
+        raise QueryError(f"unexpected {text[parser.pos : parser.pos + 20]!r} at position {parser.pos}")
     return node
 
 
@@ -197,7 +198,7 @@ class _Parser:
             self.pos += 1
         if self.pos == start:
             raise QueryError(f"expected an attribute name at position {start}")
-        return self.text[start:self.pos]
+        return self.text[start : self.pos]
 
     def value_text(self) -> str:
         """The raw value up to the next logical operator or closing parenthesis
@@ -215,7 +216,7 @@ class _Parser:
             self.pos += 1
         if quoted:
             raise QueryError(f"unterminated string at position {start}")
-        return self.text[start:self.pos]
+        return self.text[start : self.pos]
 
 
 def _value(op: str, raw: str, where: int) -> Any:

@@ -8,10 +8,11 @@ names in here are already expanded to IRIs with the request's @context.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime
 from enum import Enum
-from typing import Any, Callable
+from typing import Any
 
 from .qlang import Node
 

@@ -39,8 +39,10 @@ MEMBERS = {
     "VocabProperty": ("vocab", "vocabs"),
     "JsonProperty": ("json", "jsons"),
 }
-_OWN_MEMBERS = frozenset({"type", "observedAt", "createdAt", "modifiedAt", "deletedAt", "datasetId", "instanceId"}
-                         | {m for pair in MEMBERS.values() for m in pair})
+_OWN_MEMBERS = frozenset(
+    {"type", "observedAt", "createdAt", "modifiedAt", "deletedAt", "datasetId", "instanceId"}
+    | {m for pair in MEMBERS.values() for m in pair}
+)
 
 
 def ld_type(row) -> str:
@@ -108,8 +110,10 @@ def simplified(rows: list) -> dict | list[dict]:
     out = []
     for dataset, group in _by_dataset(rows):
         attr_type = ld_type(group[0])
-        item: dict[str, Any] = {"type": attr_type,
-                                MEMBERS[attr_type][1]: [[value_of(r, attr_type), iso(r.at)] for r in group]}
+        item: dict[str, Any] = {
+            "type": attr_type,
+            MEMBERS[attr_type][1]: [[value_of(r, attr_type), iso(r.at)] for r in group],
+        }
         if dataset is not None:
             item["datasetId"] = dataset
         out.append(item)
@@ -137,8 +141,14 @@ def _by_dataset(rows: list) -> list[tuple[str | None, list]]:
     return sorted(groups.items(), key=lambda item: (item[0] is not None, item[0] or ""))
 
 
-def entity(entity_id: str, types: list[str], attrs: dict[str, Any], pick: tuple | None, omit: tuple | None,
-           compact: Callable[[str], str]) -> dict:
+def entity(
+    entity_id: str,
+    types: list[str],
+    attrs: dict[str, Any],
+    pick: tuple | None,
+    omit: tuple | None,
+    compact: Callable[[str], str],
+) -> dict:
     """One temporal entity; ``attrs`` maps attribute IRIs to their rendering."""
     show = (lambda member: member in pick) if pick is not None else (lambda member: True)
     hidden = set(omit or ())

@@ -15,12 +15,18 @@ from __future__ import annotations
 from urllib.parse import urlencode
 
 import orjson
-from ..api import openapi as oa
 from fastapi import APIRouter, Request
 from starlette.concurrency import run_in_threadpool
 from starlette.responses import Response
 
-from .context import JSONLD_CONTEXT_REL, ContextStore, TermMap, link_context, parse_local_contexts
+from ..api import openapi as oa
+from .context import (
+    JSONLD_CONTEXT_REL,
+    ContextStore,
+    TermMap,
+    link_context,
+    parse_local_contexts,
+)
 from .errors import BadRequestData, InvalidRequest, NotAcceptable
 from .params import query_from_body, query_from_params
 from .service import TemporalResult, run
@@ -107,8 +113,11 @@ async def retrieve_entity(entity_id: str, request: Request) -> Response:
     return _respond(request, media, terms, result, query, many=False)
 
 
-@router.post("/temporal/entityOperations/query", summary="Query temporal entities with a Query body",
-             **oa.ld_read_spec(body=oa.LD_FRAGMENT_BODY))
+@router.post(
+    "/temporal/entityOperations/query",
+    summary="Query temporal entities with a Query body",
+    **oa.ld_read_spec(body=oa.LD_FRAGMENT_BODY),
+)
 async def query_post(request: Request) -> Response:
     media = accepted(request.headers.get("accept"))
     content_type = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
@@ -182,4 +191,3 @@ def _page_links(request: Request, query, total: int) -> list[str]:
         prev = max(0, offset - limit)
         out.append(f'<{path}?{urlencode([*params, ("limit", limit), ("offset", prev)])}>; rel="prev"')
     return out
-

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from datetime import datetime
 
-from ..storage.sql import InstanceWindow
+from ..query import InstanceWindow
 from .aggregate import Aggregator, iso
 from .context import TermMap
 from .errors import NonexistentTenant, ResourceNotFound
@@ -39,7 +39,7 @@ def run(querier, terms: TermMap, query: TemporalQuery, cap: int) -> TemporalResu
     if query.entity_id is not None:
         page_keys = keys
     else:
-        page_keys = keys[query.offset:query.offset + query.limit]
+        page_keys = keys[query.offset : query.offset + query.limit]
     selected = {key: fetcher.selected(query, by_entity[key], iris) for key in page_keys}
     sids = [r.sid for refs in selected.values() for r in refs]
     content_range = None

@@ -33,17 +33,16 @@ from typing import Any
 from urllib.parse import quote
 
 import orjson
-from ..api import openapi as oa
 from fastapi import APIRouter, Request
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
+from ..api import openapi as oa
 from ..errors import ParseError, PayloadTooLarge, UnsupportedMediaType
-from ..history.query import EntityFilter, Scope
 from ..model import AttrSample, EntitySample, instance_iid
 from ..ngsi.notification import parse_ld_instance
+from ..query import EntityFilter, Scope, SeriesRef
 from ..storage.base import AppendSamples, DeleteInstance, DeleteSamples, ReplaceInstance
-from ..storage.catalog import SeriesRef
 from .errors import BadRequestData, InvalidRequest, NonexistentTenant, ResourceNotFound
 from .tenancy import ld_tenant, tenant_echo
 
@@ -58,8 +57,12 @@ _JSON_TYPES = ("application/json", "application/ld+json")
 # --- routes ---------------------------------------------------------------------
 
 
-@router.post("/temporal/entities", status_code=201, summary="Create or update a temporal representation",
-             **oa.ld_spec(ok_codes={201: "Created", 204: "Updated"}, body=oa.LD_ENTITY_BODY))
+@router.post(
+    "/temporal/entities",
+    status_code=201,
+    summary="Create or update a temporal representation",
+    **oa.ld_spec(ok_codes={201: "Created", 204: "Updated"}, body=oa.LD_ENTITY_BODY),
+)
 async def upsert_temporal(request: Request) -> Response:
     tenant = ld_tenant(request)
     doc = await _body(request)
@@ -79,8 +82,12 @@ async def upsert_temporal(request: Request) -> Response:
     return Response(status_code=201, headers={**headers, "Location": f"{BASE}/{quote(entity_id, safe=':')}"})
 
 
-@router.post("/temporal/entities/{entity_id}/attrs", status_code=204, summary="Add attribute instances",
-             **oa.ld_spec(ok_codes={204: "Added"}, body=oa.LD_FRAGMENT_BODY))
+@router.post(
+    "/temporal/entities/{entity_id}/attrs",
+    status_code=204,
+    summary="Add attribute instances",
+    **oa.ld_spec(ok_codes={204: "Added"}, body=oa.LD_FRAGMENT_BODY),
+)
 async def append_temporal(entity_id: str, request: Request) -> Response:
     tenant = ld_tenant(request)
     doc = await _body(request)
@@ -98,8 +105,12 @@ async def append_temporal(entity_id: str, request: Request) -> Response:
     return Response(status_code=204, headers=tenant_echo(request))
 
 
-@router.delete("/temporal/entities/{entity_id}", status_code=204, summary="Delete a temporal representation",
-               **oa.ld_spec(ok_codes={204: "Deleted"}))
+@router.delete(
+    "/temporal/entities/{entity_id}",
+    status_code=204,
+    summary="Delete a temporal representation",
+    **oa.ld_spec(ok_codes={204: "Deleted"}),
+)
 async def delete_temporal(entity_id: str, request: Request) -> Response:
     tenant = ld_tenant(request)
     existing = await _existing(request, tenant, entity_id)
@@ -107,10 +118,15 @@ async def delete_temporal(entity_id: str, request: Request) -> Response:
     return Response(status_code=204, headers=tenant_echo(request))
 
 
-@router.delete("/temporal/entities/{entity_id}/attrs/{attr_id}", status_code=204,
-               summary="Delete an attribute's instances", **oa.ld_spec(ok_codes={204: "Deleted"}))
-async def delete_attr_temporal(entity_id: str, attr_id: str, request: Request,
-                               datasetId: str | None = None, deleteAll: str | None = None) -> Response:  # noqa: N803
+@router.delete(
+    "/temporal/entities/{entity_id}/attrs/{attr_id}",
+    status_code=204,
+    summary="Delete an attribute's instances",
+    **oa.ld_spec(ok_codes={204: "Deleted"}),
+)
+async def delete_attr_temporal(
+    entity_id: str, attr_id: str, request: Request, datasetId: str | None = None, deleteAll: str | None = None
+) -> Response:
     tenant = ld_tenant(request)
     every = _flag(deleteAll, "deleteAll")
     existing = await _existing(request, tenant, entity_id)
@@ -122,23 +138,32 @@ async def delete_attr_temporal(entity_id: str, attr_id: str, request: Request,
     return Response(status_code=204, headers=tenant_echo(request))
 
 
-@router.patch("/temporal/entities/{entity_id}/attrs/{attr_id}/{instance_id}", status_code=204,
-              summary="Modify an attribute instance",
-              **oa.ld_spec(ok_codes={204: "Modified"}, body=oa.LD_FRAGMENT_BODY))
+@router.patch(
+    "/temporal/entities/{entity_id}/attrs/{attr_id}/{instance_id}",
+    status_code=204,
+    summary="Modify an attribute instance",
+    **oa.ld_spec(ok_codes={204: "Modified"}, body=oa.LD_FRAGMENT_BODY),
+)
 async def patch_instance(entity_id: str, attr_id: str, instance_id: str, request: Request) -> Response:
     tenant = ld_tenant(request)
     doc = await _body(request)
     ref, iid = await _instance(request, tenant, entity_id, attr_id, instance_id)
     sample = _patch_sample(attr_id, doc)
     if sample.dataset_id != ref.dataset_id:
-        raise BadRequestData(f"the instance belongs to datasetId {ref.dataset_id!r}, not {sample.dataset_id!r}; "
-                             "an instance cannot move to another dataset")
+        raise BadRequestData(
+            f"the instance belongs to datasetId {ref.dataset_id!r}, not {sample.dataset_id!r}; "
+            "an instance cannot move to another dataset"
+        )
     await request.app.state.store.write(ReplaceInstance(ref.sid, iid, sample, datetime.now(UTC)))
     return Response(status_code=204, headers=tenant_echo(request))
 
 
-@router.delete("/temporal/entities/{entity_id}/attrs/{attr_id}/{instance_id}", status_code=204,
-               summary="Delete an attribute instance", **oa.ld_spec(ok_codes={204: "Deleted"}))
+@router.delete(
+    "/temporal/entities/{entity_id}/attrs/{attr_id}/{instance_id}",
+    status_code=204,
+    summary="Delete an attribute instance",
+    **oa.ld_spec(ok_codes={204: "Deleted"}),
+)
 async def delete_instance(entity_id: str, attr_id: str, instance_id: str, request: Request) -> Response:
     tenant = ld_tenant(request)
     ref, iid = await _instance(request, tenant, entity_id, attr_id, instance_id)
@@ -167,8 +192,10 @@ async def _body(request: Request) -> dict:
     if media == "application/ld+json" and "@context" not in doc:
         raise BadRequestData("an application/ld+json body must carry its @context")
     if media == "application/json" and "@context" in doc:
-        raise BadRequestData("an application/json body must not carry @context: send it in a Link header, "
-                             "or send the body as application/ld+json")
+        raise BadRequestData(
+            "an application/json body must not carry @context: send it in a Link header, "
+            "or send the body as application/ld+json"
+        )
     return doc
 
 
@@ -277,18 +304,21 @@ def _entity_type(existing: Sequence[SeriesRef], types: Sequence[str], entity_id:
     return match[0]
 
 
-async def _instance(request: Request, tenant: str, entity_id: str, attr_id: str,
-                    instance_id: str) -> tuple[SeriesRef, int]:
+async def _instance(
+    request: Request, tenant: str, entity_id: str, attr_id: str, instance_id: str
+) -> tuple[SeriesRef, int]:
     """The series and instance id an instanceId names, or 404."""
     existing = await _existing(request, tenant, entity_id)
     iid = instance_iid(instance_id)
     refs = [r for r in existing if r.ld_attr == attr_id]
     if iid is None or not refs:
-        raise ResourceNotFound(f"no instance {instance_id[:200]!r} of attribute {attr_id[:200]!r} "
-                               f"of entity {entity_id[:200]!r}")
+        raise ResourceNotFound(
+            f"no instance {instance_id[:200]!r} of attribute {attr_id[:200]!r} of entity {entity_id[:200]!r}"
+        )
     q = request.app.state.store.querier()
     sid = await run_in_threadpool(q.instance_series, [r.sid for r in refs], iid)
     if sid is None:
-        raise ResourceNotFound(f"no instance {instance_id[:200]!r} of attribute {attr_id[:200]!r} "
-                               f"of entity {entity_id[:200]!r}")
+        raise ResourceNotFound(
+            f"no instance {instance_id[:200]!r} of attribute {attr_id[:200]!r} of entity {entity_id[:200]!r}"
+        )
     return next(r for r in refs if r.sid == sid), iid

@@ -13,13 +13,28 @@ from starlette.middleware.cors import CORSMiddleware
 
 from .guard import Guard
 from .keys import KeyRing
-from .principals import ADMIN, READ, WRITE, Forbidden, Principal, Unauthorized, required_scope
+from .principals import (
+    ADMIN,
+    READ,
+    WRITE,
+    Forbidden,
+    Principal,
+    Unauthorized,
+    required_scope,
+)
 from .tokens import TokenVerifier
 
 __all__ = [
-    "ADMIN", "READ", "WRITE", "Forbidden", "Principal", "Unauthorized",
-    "protect", "redact_headers", "required_scope",
-]  # fmt: skip
+    "ADMIN",
+    "READ",
+    "WRITE",
+    "Forbidden",
+    "Principal",
+    "Unauthorized",
+    "protect",
+    "redact_headers",
+    "required_scope",
+]
 
 CREDENTIAL_HEADERS = frozenset({"authorization", "proxy-authorization", "x-auth-token", "cookie", "x-api-key"})
 REDACTED = "[redacted]"
@@ -37,8 +52,12 @@ def protect(app, settings):
     origins = [o.strip().rstrip("/") for o in settings.cors_origins.split(",") if o.strip()]
     if origins:
         app = CORSMiddleware(
-            app, allow_origins=origins, allow_methods=["GET", "HEAD", "POST", "PUT", "DELETE"],
-            allow_headers=["*"], expose_headers=["X-Request-Id", "WWW-Authenticate"], max_age=CORS_MAX_AGE_S,
+            app,
+            allow_origins=origins,
+            allow_methods=["GET", "HEAD", "POST", "PUT", "DELETE"],
+            allow_headers=["*"],
+            expose_headers=["X-Request-Id", "WWW-Authenticate"],
+            max_age=CORS_MAX_AGE_S,
         )
     return app
 

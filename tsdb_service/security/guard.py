@@ -16,7 +16,14 @@ import orjson
 from ..api.handlers import internal_error
 from ..errors import TsdbError
 from .keys import KeyRing
-from .principals import Forbidden, MissingCredential, Principal, Unauthorized, normalise_tenant, required_scope
+from .principals import (
+    Forbidden,
+    MissingCredential,
+    Principal,
+    Unauthorized,
+    normalise_tenant,
+    required_scope,
+)
 from .tokens import TokenVerifier, looks_like_jwt
 
 log = logging.getLogger(__name__)
@@ -71,8 +78,10 @@ class Guard:
             elif name == self.key_header:
                 found.append(value.decode("latin-1").strip())
         if not found:
-            raise MissingCredential("authentication required: send 'Authorization: Bearer <API key or token>' "
-                               f"or a '{self.key_header.decode()}' header")
+            raise MissingCredential(
+                "authentication required: send 'Authorization: Bearer <API key or token>' "
+                f"or a '{self.key_header.decode()}' header"
+            )
         if len(set(found)) > 1:
             raise Unauthorized("send one credential, not several")
         return found[0]
@@ -82,7 +91,7 @@ def route_path(scope) -> str:
     """The path the router matches: without the ``root_path`` a proxy mounts
     us under, so a prefix cannot dodge the rules."""
     path, root = scope["path"], scope.get("root_path", "")
-    return path[len(root):] if root and path.startswith(root) else path
+    return path[len(root) :] if root and path.startswith(root) else path
 
 
 def _authorise(principal: Principal, scope) -> None:
@@ -93,8 +102,11 @@ def _authorise(principal: Principal, scope) -> None:
     for tenant in tenants_of(scope):
         if not principal.may_touch(tenant):
             log.info("%s may not touch tenant %r", principal.name, tenant)
-            raise Forbidden(f"this credential does not grant access to tenant {tenant[:60]!r}" if tenant
-                            else "this credential does not grant access to the default tenant")
+            raise Forbidden(
+                f"this credential does not grant access to tenant {tenant[:60]!r}"
+                if tenant
+                else "this credential does not grant access to the default tenant"
+            )
 
 
 def tenants_of(scope) -> set[str]:

@@ -117,8 +117,13 @@ class TokenVerifier:
         key = self.static_key if self.jwks is None else await self.jwks.key_for(kid)
         try:
             claims = jwt.decode(
-                token, key, algorithms=self.algorithms, audience=self.audience, issuer=self.issuer,
-                leeway=LEEWAY_S, options={"require": ["exp"], "verify_aud": self.audience is not None},
+                token,
+                key,
+                algorithms=self.algorithms,
+                audience=self.audience,
+                issuer=self.issuer,
+                leeway=LEEWAY_S,
+                options={"require": ["exp"], "verify_aud": self.audience is not None},
             )
         except jwt.ExpiredSignatureError:
             raise Unauthorized("the token has expired") from None
@@ -130,8 +135,8 @@ class TokenVerifier:
         granted = set()
         for claim in self.scope_claims:
             for value in _strings(_claim(claims, claim)):
-                if value.startswith(self.scope_prefix) and value[len(self.scope_prefix):] in SCOPES:
-                    granted.add(value[len(self.scope_prefix):])
+                if value.startswith(self.scope_prefix) and value[len(self.scope_prefix) :] in SCOPES:
+                    granted.add(value[len(self.scope_prefix) :])
         tenants = None
         if self.tenants_claim is not None:
             tenants = frozenset(normalise_tenant(t) for t in _strings(_claim(claims, self.tenants_claim)))

@@ -56,11 +56,14 @@ def _open_explained(settings: Settings) -> Store:
 
 def _open(settings: Settings) -> Store:
     if settings.backend == "postgresql":
-        from .postgres_store import PostgresStore
+        from .postgres.store import PostgresStore
 
-        return PostgresStore(settings.db, writer_threads=settings.writer_threads or 3,
-                             rejected_limits=RejectedLimits.from_settings(settings))
-    from .duckdb_store import DuckDBStore
+        return PostgresStore(
+            settings.db,
+            writer_threads=settings.writer_threads or 3,
+            rejected_limits=RejectedLimits.from_settings(settings),
+        )
+    from .duckdb.store import DuckDBStore
 
     return DuckDBStore(
         settings.db,
@@ -167,8 +170,10 @@ def _explain_duckdb(exc: BaseException, db: str) -> str | None:
     if "lock" in text.lower():
         pid = re.search(r"\(PID (\d+)\)", text)
         holder = f" (PID {pid[1]})" if pid else ""
-        return (f"{db} is open in another process{holder}: DuckDB allows one process per file; stop it, "
-                "or use PostgreSQL (--db postgresql://...) to run several")  # fmt: skip
+        return (
+            f"{db} is open in another process{holder}: DuckDB allows one process per file; stop it, "
+            "or use PostgreSQL (--db postgresql://...) to run several"
+        )
     if "Permission denied" in text:
         return f"cannot write {db}: permission denied (is {Path(db).parent or '.'} writable by this user?)"
     if "not a valid DuckDB database file" in text:

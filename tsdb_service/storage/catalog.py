@@ -20,31 +20,14 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
 
 from .. import budget
-from ..history.query import EntityFilter, Scope
 from ..idpattern import compiled
-from ..model import ld_attr_name
-
-
-@dataclass(frozen=True, slots=True)
-class SeriesRef:
-    sid: int
-    service_path: str
-    entity_id: str
-    entity_type: str
-    attr: str  # the stored name: attr~datasetId for a non-default NGSI-LD datasetId
-    dataset_id: str | None = None  # NGSI-LD datasetId; None: the default instance
-
-    @property
-    def ld_attr(self) -> str:
-        """The NGSI-LD attribute name (without the datasetId suffix)."""
-        return ld_attr_name(self.attr, self.dataset_id)
+from ..query import EntityFilter, Scope, SeriesRef
 
 
 class _TenantIndex:
-    __slots__ = ("all", "by_entity", "by_type", "by_attr", "by_type_attr")
+    __slots__ = ("all", "by_attr", "by_entity", "by_type", "by_type_attr")
 
     def __init__(self) -> None:
         self.all: tuple[SeriesRef, ...] = ()
@@ -137,8 +120,11 @@ class SeriesCatalog:
             return []
         attr_set = None if attrs is None else set(attrs)
         if (
-            entities.ids is None and entities.id_pattern is None and entities.types is not None
-            and attr_set is not None and scope.whole_tenant
+            entities.ids is None
+            and entities.id_pattern is None
+            and entities.types is not None
+            and attr_set is not None
+            and scope.whole_tenant
         ):
             # "attribute A of every entity of type T": the common dashboard and
             # geo question, answered by one index look-up per (T, A).

@@ -49,21 +49,40 @@ class CopyNotVerified(CopyRefused):
 
 def register(subparsers, command) -> None:
     p = subparsers.add_parser(
-        "copy", help="copy all history from one backend to another",
+        "copy",
+        help="copy all history from one backend to another",
         description="Copy every sample, 'values' layout and rejected notification from --from into --to, "
         "then check the totals. The target must be empty unless --append is given. An interrupted copy "
         "resumes when the same command is run again.",
-    )  # fmt: skip
-    p.add_argument("--from", dest="source", required=True, metavar="PATH|URL",
-                   help="DuckDB file or postgresql:// URL to read; must exist and hold tsdb-service history")
-    p.add_argument("--to", dest="target", required=True, metavar="PATH|URL",
-                   help="DuckDB file or postgresql:// URL to write (created if it is a new DuckDB file)")
-    p.add_argument("--append", action="store_true",
-                   help="add to a target that already holds history (default: refuse a non-empty target)")
-    p.add_argument("--batch-rows", type=_positive_int, default=BATCH_ROWS, metavar="ROWS",
-                   help=f"samples committed per batch; an interruption loses at most one (default {BATCH_ROWS})")
+    )
+    p.add_argument(
+        "--from",
+        dest="source",
+        required=True,
+        metavar="PATH|URL",
+        help="DuckDB file or postgresql:// URL to read; must exist and hold tsdb-service history",
+    )
+    p.add_argument(
+        "--to",
+        dest="target",
+        required=True,
+        metavar="PATH|URL",
+        help="DuckDB file or postgresql:// URL to write (created if it is a new DuckDB file)",
+    )
+    p.add_argument(
+        "--append",
+        action="store_true",
+        help="add to a target that already holds history (default: refuse a non-empty target)",
+    )
+    p.add_argument(
+        "--batch-rows",
+        type=_positive_int,
+        default=BATCH_ROWS,
+        metavar="ROWS",
+        help=f"samples committed per batch; an interruption loses at most one (default {BATCH_ROWS})",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress line (default: progress on stderr)")
-    command("copy")(cmd_copy)  # fmt: skip
+    command("copy")(cmd_copy)
 
 
 def cmd_copy(args) -> int:
@@ -77,14 +96,19 @@ def cmd_copy(args) -> int:
     try:
         target = open_store(Settings(db=target_db))
         try:
-            report = copy_history(source, target, source_id=store_identity(source_db),
-                                  append=args.append, progress=not args.quiet, batch_rows=args.batch_rows)
+            report = copy_history(
+                source,
+                target,
+                source_id=store_identity(source_db),
+                append=args.append,
+                progress=not args.quiet,
+                batch_rows=args.batch_rows,
+            )
         except CopyNotVerified as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 1
         except KeyboardInterrupt:
-            print(f"\ninterrupted: run the same command again to resume the copy into {target_db}",
-                  file=sys.stderr)  # fmt: skip
+            print(f"\ninterrupted: run the same command again to resume the copy into {target_db}", file=sys.stderr)
             return 130
         finally:
             target.close()
@@ -94,8 +118,10 @@ def cmd_copy(args) -> int:
         print(f"tenant {tenant or '(default)'}: {src} samples in source, {dst} copied into target")
     if report.resumed_from:
         print(f"resumed an interrupted copy: {report.resumed_from} samples were already there")
-    print(f"copy verified: the target holds {report.target_total} samples, "
-          f"{report.target_rejected} rejected notifications")  # fmt: skip
+    print(
+        f"copy verified: the target holds {report.target_total} samples, "
+        f"{report.target_rejected} rejected notifications"
+    )
     return 0
 
 
@@ -142,8 +168,15 @@ class _Run:
     source_samples: int
 
 
-def copy_history(source: Store, target: Store, *, source_id: str, append: bool = False,
-                 progress: bool = False, batch_rows: int = BATCH_ROWS) -> CopyReport:  # fmt: skip
+def copy_history(
+    source: Store,
+    target: Store,
+    *,
+    source_id: str,
+    append: bool = False,
+    progress: bool = False,
+    batch_rows: int = BATCH_ROWS,
+) -> CopyReport:
     """Copy everything not yet copied, verify totals, record the run as finished."""
     src_counts = _counts(source)
     src_total = sum(src_counts.values())
@@ -153,35 +186,44 @@ def copy_history(source: Store, target: Store, *, source_id: str, append: bool =
     _copy_side_tables(source, target, resumed=already > 0 or _rejected_count(target) > run.base_rejected)
     after, rejected = _counts(target), _rejected_count(target)
     _verify(src_counts, run, after, rejected, _rejected_count(source))
-    _execute(target, "UPDATE copy_runs SET finished_at = ? WHERE source = ? AND finished_at IS NULL",
-             [_utcnow(), source_id])  # fmt: skip
-    tenants = {t: (src_counts.get(t, 0), after.get(t, 0) - run.base_counts.get(t, 0))
-               for t in set(src_counts) | set(after)}  # fmt: skip
+    _execute(
+        target, "UPDATE copy_runs SET finished_at = ? WHERE source = ? AND finished_at IS NULL", [_utcnow(), source_id]
+    )
+    tenants = {
+        t: (src_counts.get(t, 0), after.get(t, 0) - run.base_counts.get(t, 0)) for t in set(src_counts) | set(after)
+    }
     return CopyReport(tenants, sum(after.values()), rejected, already)
 
 
 def _resume_or_start(target: Store, source_id: str, src_total: int, append: bool) -> _Run:
     """The unfinished run from this source to resume, or a new one recorded now."""
     unfinished = target.querier()._fetch(
-        "SELECT source, base_counts, base_rejected, source_samples FROM copy_runs WHERE finished_at IS NULL", [])
+        "SELECT source, base_counts, base_rejected, source_samples FROM copy_runs WHERE finished_at IS NULL", []
+    )
     for source, base_counts, base_rejected, source_samples in unfinished:
         if source != source_id:
             raise CopyRefused(
                 f"the target holds an interrupted copy from {source}: resume it with `tsdb-service copy "
-                f"--from {source} --to ...`, or copy into a new, empty target")
+                f"--from {source} --to ...`, or copy into a new, empty target"
+            )
         if source_samples != src_total:
             raise CopyRefused(
                 f"the source changed since the interrupted copy began ({source_samples} samples then, "
-                f"{src_total} now): copy into a new, empty target instead")
+                f"{src_total} now): copy into a new, empty target instead"
+            )
         return _Run(json.loads(base_counts), int(base_rejected), int(source_samples))
     counts, rejected = _counts(target), _rejected_count(target)
     if (counts or rejected) and not append:
         raise CopyRefused(
             f"the target already holds {sum(counts.values())} samples and {rejected} rejected notifications: "
             "copying would add the source's history to them. Give --append to do that on purpose, "
-            "or copy into a new, empty target")
-    _execute(target, "INSERT INTO copy_runs (source, started_at, base_counts, base_rejected, source_samples) "
-             "VALUES (?, ?, ?, ?, ?)", [source_id, _utcnow(), json.dumps(counts), rejected, src_total])  # fmt: skip
+            "or copy into a new, empty target"
+        )
+    _execute(
+        target,
+        "INSERT INTO copy_runs (source, started_at, base_counts, base_rejected, source_samples) VALUES (?, ?, ?, ?, ?)",
+        [source_id, _utcnow(), json.dumps(counts), rejected, src_total],
+    )
     return _Run(counts, rejected, src_total)
 
 
@@ -189,8 +231,12 @@ def _copy_samples(source: Store, target: Store, *, skip: int, total: int, progre
     """Stream the source in row-id order, skipping the prefix already copied; one
     committed batch at a time, so the target always holds a prefix of the source."""
     reader = source.querier()
-    series = {row[0]: row[1:] for row in reader._fetch(
-        "SELECT sid, tenant, service_path, entity_id, entity_type, attr, dataset_id FROM series", [])}
+    series = {
+        row[0]: row[1:]
+        for row in reader._fetch(
+            "SELECT sid, tenant, service_path, entity_id, entity_type, attr, dataset_id FROM series", []
+        )
+    }
     copied, started = skip, time.monotonic()
     batch: list[EntitySample] = []
     rows_in_batch = 0
@@ -225,8 +271,10 @@ def _entities(source: Store, series: dict, skip: int = 0) -> Iterator[tuple[Enti
             if entity is not None:
                 yield entity, n
             elif skip and rid == last_skipped:
-                raise CopyNotVerified("the target's samples do not end on a notification of the source: "
-                                      "copy into a new, empty target instead")  # fmt: skip
+                raise CopyNotVerified(
+                    "the target's samples do not end on a notification of the source: "
+                    "copy into a new, empty target instead"
+                )
             tenant, path, eid, etype, _, _ = series[sid]
             entity = EntitySample(tenant, path, eid, etype, row[2].replace(tzinfo=UTC), [])
             current_rid, n = rid, 0
@@ -237,11 +285,44 @@ def _entities(source: Store, series: dict, skip: int = 0) -> Iterator[tuple[Enti
 
 
 def _attr(name: str, dataset_id: str | None, row: tuple) -> AttrSample:
-    (_, _, _, kind, atype, num, txt, js, geo, lon, lat, mnlon, mnlat, mxlon, mxlat, md,
-     observed, created, modified, deleted) = row
+    (
+        _,
+        _,
+        _,
+        kind,
+        atype,
+        num,
+        txt,
+        js,
+        geo,
+        lon,
+        lat,
+        mnlon,
+        mnlat,
+        mxlon,
+        mxlat,
+        md,
+        observed,
+        created,
+        modified,
+        deleted,
+    ) = row
     geometry = Geometry(geo, lon, lat, mnlon, mnlat, mxlon, mxlat) if geo is not None else None
-    return AttrSample(name, atype, Kind(kind), num, txt, js, geometry, md, _utc(observed), _utc(created),
-                      _utc(modified), _utc(deleted), dataset_id)
+    return AttrSample(
+        name,
+        atype,
+        Kind(kind),
+        num,
+        txt,
+        js,
+        geometry,
+        md,
+        _utc(observed),
+        _utc(created),
+        _utc(modified),
+        _utc(deleted),
+        dataset_id,
+    )
 
 
 def _utc(moment):
@@ -289,10 +370,12 @@ def _copy_side_tables(source: Store, target: Store, *, resumed: bool) -> None:
 def _rejected(store: Store) -> Iterator[RejectedNotification]:
     for tenant, received_at, error, description, headers, body, size, truncated in store.querier()._fetch(
         "SELECT tenant, received_at, error, description, headers, body, body_size, body_truncated "
-        "FROM rejected_notifications ORDER BY id", []
+        "FROM rejected_notifications ORDER BY id",
+        [],
     ):
-        yield RejectedNotification(tenant, received_at.replace(tzinfo=UTC), error, description, headers, bytes(body),
-                                   size, bool(truncated))
+        yield RejectedNotification(
+            tenant, received_at.replace(tzinfo=UTC), error, description, headers, bytes(body), size, bool(truncated)
+        )
 
 
 def _rejected_keys(store: Store) -> Iterator[tuple]:
@@ -305,22 +388,29 @@ def _key(r: RejectedNotification) -> tuple:
 
 def _verify(src: dict[str, int], run: _Run, after: dict[str, int], rejected: int, src_rejected: int) -> None:
     """Totals: every tenant holds what it held before plus the source's samples."""
-    wrong = {t: (run.base_counts.get(t, 0) + src.get(t, 0), after.get(t, 0))
-             for t in set(src) | set(after) | set(run.base_counts)
-             if after.get(t, 0) != run.base_counts.get(t, 0) + src.get(t, 0)}  # fmt: skip
+    wrong = {
+        t: (run.base_counts.get(t, 0) + src.get(t, 0), after.get(t, 0))
+        for t in set(src) | set(after) | set(run.base_counts)
+        if after.get(t, 0) != run.base_counts.get(t, 0) + src.get(t, 0)
+    }
     if wrong:
-        detail = ", ".join(f"{t or '(default)'}: {want} expected, {got} found"
-                           for t, (want, got) in sorted(wrong.items()))  # fmt: skip
-        raise CopyNotVerified(f"copy NOT verified, the target's samples per tenant are wrong ({detail}); "
-                          "copy into a new, empty target")  # fmt: skip
+        detail = ", ".join(
+            f"{t or '(default)'}: {want} expected, {got} found" for t, (want, got) in sorted(wrong.items())
+        )
+        raise CopyNotVerified(
+            f"copy NOT verified, the target's samples per tenant are wrong ({detail}); copy into a new, empty target"
+        )
     if rejected != run.base_rejected + src_rejected:
-        raise CopyNotVerified(f"copy NOT verified: {run.base_rejected + src_rejected} rejected notifications "
-                          f"expected in the target, {rejected} found; copy into a new, empty target")  # fmt: skip
+        raise CopyNotVerified(
+            f"copy NOT verified: {run.base_rejected + src_rejected} rejected notifications "
+            f"expected in the target, {rejected} found; copy into a new, empty target"
+        )
 
 
 def _counts(store: Store) -> dict[str, int]:
     rows = store.querier()._fetch(
-        "SELECT s.tenant, count(*) FROM samples_all x JOIN series s ON s.sid = x.sid GROUP BY s.tenant", [])
+        "SELECT s.tenant, count(*) FROM samples_all x JOIN series s ON s.sid = x.sid GROUP BY s.tenant", []
+    )
     return {tenant: int(n) for tenant, n in rows}
 
 

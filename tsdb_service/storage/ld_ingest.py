@@ -57,8 +57,7 @@ def instance_key(observed_at, kind, num, txt, js, md, deleted) -> InstanceKey:
 
 
 def sample_key(attr: AttrSample) -> InstanceKey:
-    return instance_key(attr.observed_at, attr.kind, attr.num, attr.txt, attr.js, attr.md,
-                        attr.deleted_at is not None)
+    return instance_key(attr.observed_at, attr.kind, attr.num, attr.txt, attr.js, attr.md, attr.deleted_at is not None)
 
 
 class LatestInstances:
@@ -108,8 +107,13 @@ def drop_renotified(
     ``staged`` holds this transaction's own latest keys by series key (so a
     series created in this transaction counts too) and is updated with
     every item; publish it with ``publish_staged`` after the commit."""
-    missing = sorted({sid for skey, sid, attr, _ in items if sid is not None and attr.observed_at is not None
-                      and skey not in staged and cache.get(sid) is _MISSING})
+    missing = sorted(
+        {
+            sid
+            for skey, sid, attr, _ in items
+            if sid is not None and attr.observed_at is not None and skey not in staged and cache.get(sid) is _MISSING
+        }
+    )
     loaded = load(missing) if missing else {}
     keep = []
     for skey, sid, attr, droppable in items:
@@ -151,17 +155,26 @@ def with_deletions(
         named = {a.name for a in entity.attrs}
         extra = [
             AttrSample(name, None, Kind.NULL, deleted_at=entity.deleted_at, dataset_id=dataset)
-            for name, dataset in attrs_of(entity) if name not in named
+            for name, dataset in attrs_of(entity)
+            if name not in named
         ]
-        out.append(EntitySample(entity.tenant, entity.service_path, entity.entity_id, entity.entity_type,
-                                entity.time_index, [*entity.attrs, *extra], entity.deleted_at))
+        out.append(
+            EntitySample(
+                entity.tenant,
+                entity.service_path,
+                entity.entity_id,
+                entity.entity_type,
+                entity.time_index,
+                [*entity.attrs, *extra],
+                entity.deleted_at,
+            )
+        )
     return out
 
 
 def latest_keys(rows: Iterable[tuple]) -> dict[int, InstanceKey]:
     """Keys from rows (sid, observed_at, kind, num, txt, js, md, deleted_at)."""
-    return {row[0]: instance_key(row[1], row[2], row[3], row[4], row[5], row[6], row[7] is not None)
-            for row in rows}
+    return {row[0]: instance_key(row[1], row[2], row[3], row[4], row[5], row[6], row[7] is not None) for row in rows}
 
 
 # The latest stored instance of each listed series (by row time, then

@@ -21,6 +21,7 @@ written (``Dialect``); every value is a bound parameter.
 
 from __future__ import annotations
 
+import base64
 import threading
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -30,7 +31,7 @@ from typing import Any
 import orjson
 
 REASONS = ("count", "bytes", "age")
-# What the listing shows, in rejected_row's argument order (duckdb_store.rejected_row).
+# What the listing shows, in ``rejected_row``'s argument order.
 COLUMNS = "id, tenant, received_at, error, description, headers, body, body_size, body_truncated"
 
 
@@ -42,8 +43,11 @@ class RejectedLimits:
 
     @classmethod
     def from_settings(cls, settings) -> RejectedLimits:
-        return cls(settings.rejected_max_per_tenant, settings.rejected_max_bytes_per_tenant,
-                   settings.rejected_max_age_days * 86400.0)  # fmt: skip
+        return cls(
+            settings.rejected_max_per_tenant,
+            settings.rejected_max_bytes_per_tenant,
+            settings.rejected_max_age_days * 86400.0,
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,8 +67,9 @@ POSTGRES = Dialect("%s", "octet_length")
 Execute = Callable[[str, list], list[tuple]]
 
 
-def prune(execute: Execute, dialect: Dialect, tenants: Iterable[str], limits: RejectedLimits,
-          now: datetime | None = None) -> dict[str, int]:  # fmt: skip
+def prune(
+    execute: Execute, dialect: Dialect, tenants: Iterable[str], limits: RejectedLimits, now: datetime | None = None
+) -> dict[str, int]:
     """Drop what is over the bounds, oldest first, inside the caller's
     transaction; returns rows dropped per reason. ``tenants`` are the ones
     that just got a rejection (only they can be over count or bytes)."""
@@ -79,14 +84,23 @@ def prune(execute: Execute, dialect: Dialect, tenants: Iterable[str], limits: Re
     ).format(bytes=dialect.row_bytes)
     for tenant in sorted(set(tenants)):
         for reason, condition, bound in (("count", "n", limits.max_count), ("bytes", "b", limits.max_bytes)):
-            sql = (f"DELETE FROM rejected_notifications WHERE id IN (SELECT id FROM ({ranked}) r "
-                   f"WHERE n > 1 AND {condition} > {p}) RETURNING id")  # fmt: skip
+            sql = (
+                f"DELETE FROM rejected_notifications WHERE id IN (SELECT id FROM ({ranked}) r "
+                f"WHERE n > 1 AND {condition} > {p}) RETURNING id"
+            )
             dropped[reason] += len(execute(sql, [tenant, bound]))
     return dropped
 
 
-def page(execute: Execute, dialect: Dialect, tenant: str | None, limit: int, offset: int, max_bytes: int,
-         render: Callable[..., dict[str, Any]]) -> tuple[list[dict[str, Any]], int | None]:  # fmt: skip
+def page(
+    execute: Execute,
+    dialect: Dialect,
+    tenant: str | None,
+    limit: int,
+    offset: int,
+    max_bytes: int,
+    render: Callable[..., dict[str, Any]],
+) -> tuple[list[dict[str, Any]], int | None]:
     """Rows newest first, ``limit`` at most and about ``max_bytes`` of JSON
     at most (never fewer than one row), and the offset of the next page
     (None when this is the last). Sizes are read first, so rows that would
@@ -133,3 +147,28 @@ def count_dropped(totals: dict[str, int], dropped: dict[str, int]) -> None:
     with _COUNT_LOCK:
         for reason, n in dropped.items():
             totals[reason] = totals.get(reason, 0) + n
+
+
+def rejected_row(
+    rid, tenant, received_at, error, description, headers, body, body_size, body_truncated
+) -> dict[str, Any]:
+    """One rejected notification as the listing shows it: the body as text
+    when it is UTF-8, else base64; its size as received and whether only its
+    first bytes were kept (rows from before migration 0002 have no size)."""
+    body = bytes(body)
+    try:
+        text, encoding = body.decode("utf-8"), "utf-8"
+    except UnicodeDecodeError:
+        text, encoding = base64.b64encode(body).decode(), "base64"
+    return {
+        "id": rid,
+        "tenant": tenant,
+        "receivedAt": received_at.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z",
+        "error": error,
+        "description": description,
+        "headers": orjson.loads(headers),
+        "body": text,
+        "bodyEncoding": encoding,
+        "bodySize": len(body) if body_size is None else int(body_size),
+        "bodyTruncated": bool(body_truncated),
+    }

@@ -114,7 +114,7 @@ def _entries(text: str, setting: str) -> list[tuple[str, str]]:
             if value is None:
                 value = FOREVER
             if not isinstance(value, str):
-                raise ValueError(f"{setting}: {key!r}: the duration must be a string such as \"30d\" or \"forever\"")
+                raise ValueError(f'{setting}: {key!r}: the duration must be a string such as "30d" or "forever"')
             out.append((key, value))
         return out
     out = []
@@ -248,7 +248,7 @@ class DuckDBSession:
     tables = ("samples", "samples_hot")
 
     def __init__(self, store, cur):
-        from .sql import DuckDBDialect
+        from .duckdb.dialect import DuckDBDialect
 
         self._store = store
         self._cur = cur
@@ -284,14 +284,16 @@ class DuckDBSession:
 
     def _forget(self, upto_rid: int) -> None:
         """The in-memory tails and latest locations must not show deleted rows."""
-        from .duckdb_store import LATEST_GEO_SQL
+        from .duckdb.store import LATEST_GEO_SQL
 
         store = self._store
         cur = self._cur
         sids = [r[0] for r in cur.execute("SELECT DISTINCT sid FROM retention_batch").fetchall()]
         store.tail.drop(sids)
-        geo = [r[0] for r in cur.execute(
-            f"SELECT DISTINCT sid FROM retention_batch WHERE kind = {int(Kind.GEO)}").fetchall()]  # fmt: skip
+        geo = [
+            r[0]
+            for r in cur.execute(f"SELECT DISTINCT sid FROM retention_batch WHERE kind = {int(Kind.GEO)}").fetchall()
+        ]
         if geo:
             query = LATEST_GEO_SQL.format(where="AND sid IN (SELECT unnest(?::INTEGER[]))")
             store.latest_geo.recompute(geo, upto_rid, lambda s: cur.execute(query, [s]).fetchall())
@@ -309,7 +311,7 @@ class PostgresSession:
     tables = ("samples",)
 
     def __init__(self, conn):
-        from .postgres_querier import PostgresDialect
+        from .postgres.dialect import PostgresDialect
 
         self._conn = conn
         self._d = PostgresDialect()
@@ -514,8 +516,9 @@ class RetentionWorker:
         return out
 
 
-def attach_retention(store, settings, *, start: bool = True,
-                     clock: Callable[[], datetime] | None = None) -> RetentionWorker | None:
+def attach_retention(
+    store, settings, *, start: bool = True, clock: Callable[[], datetime] | None = None
+) -> RetentionWorker | None:
     """Give ``store`` its rollup presence tracker and, when a policy deletes
     anything, its retention worker (started unless ``start`` is False)."""
     config = RetentionConfig.from_settings(settings)
@@ -525,8 +528,12 @@ def attach_retention(store, settings, *, start: bool = True,
             log.info("rollups are on but no retention rule deletes anything: nothing to roll up")
         return None
     worker = store.retention = RetentionWorker(store, config, clock)
-    log.info("retention: samples %s, rollups %s (kept %s)", config.samples.describe(),
-             "on" if config.rollups else "off", config.rollup_policy.describe())
+    log.info(
+        "retention: samples %s, rollups %s (kept %s)",
+        config.samples.describe(),
+        "on" if config.rollups else "off",
+        config.rollup_policy.describe(),
+    )
     if start:
         worker.start()
     return worker

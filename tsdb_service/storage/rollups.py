@@ -26,8 +26,8 @@ import time as _time
 from collections.abc import Sequence
 from datetime import timedelta
 
-from ..history.query import AggrMethod, AggrPeriod
 from ..model import Kind
+from ..query import AggrMethod, AggrPeriod
 
 TABLE = "rollups_hourly"
 HOUR = timedelta(hours=1)
@@ -143,8 +143,12 @@ def rollup_parts(querier, branches, time, agg) -> tuple[str, list]:
         return "", []
     d = querier.dialect
     p = d.placeholder
-    fn = {AggrMethod.SUM: "sum(num_sum)", AggrMethod.AVG: "sum(num_sum)",
-          AggrMethod.MIN: "min(num_min)", AggrMethod.MAX: "max(num_max)"}.get(agg.method, "NULL")
+    fn = {
+        AggrMethod.SUM: "sum(num_sum)",
+        AggrMethod.AVG: "sum(num_sum)",
+        AggrMethod.MIN: "min(num_min)",
+        AggrMethod.MAX: "max(num_max)",
+    }.get(agg.method, "NULL")
     period = d.date_trunc(agg.period.value, "bucket") if agg.period is not None else None
     bucket_sql = d.iso_ms(period) if period else "NULL"
     group = "sid" + (f", {period}" if period else "")

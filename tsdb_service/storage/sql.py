@@ -16,18 +16,27 @@ is what prunes them.
 
 from __future__ import annotations
 
-import bisect
 from abc import abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass
-from datetime import UTC, datetime, timedelta
-from typing import NamedTuple
+from datetime import UTC, datetime
 
 from .. import budget
-from ..history.query import Aggregation, AggrMethod, EntityFilter, Scope, TimeRange
 from ..model import Kind
+from ..query import (
+    TIME_PROPERTIES,
+    AggBranch,
+    Aggregation,
+    AggrMethod,
+    EntityFilter,
+    InstanceRow,
+    InstanceWindow,
+    RowMask,
+    Scope,
+    SeriesRef,
+    TimeRange,
+)
 from .base import Querier
-from .catalog import SeriesCatalog, SeriesRef
+from .catalog import SeriesCatalog
 from .rollups import delete_sql as rollup_delete_sql
 from .rollups import rolled_up_count, rollup_parts
 
@@ -36,17 +45,7 @@ NULL_KIND = int(Kind.NULL)
 INTEGER_KIND = int(Kind.INTEGER)
 GEO_KIND = int(Kind.GEO)
 _MAX_BIGINT = 2**62  # LIMIT/OFFSET values stay well inside int64
-_EPOCH = datetime(1970, 1, 1)
 _LOCATION_COLUMNS = "sid, rid, t, kind, geo, min_lon, min_lat, max_lon, max_lat"
-# Periods of a fixed number of microseconds (UTC has no leap seconds here);
-# floor division is truncation because times before 1970 round down too.
-_PERIOD_US = {"second": 10**6, "minute": 60 * 10**6, "hour": 3600 * 10**6, "day": 86400 * 10**6}
-_YEAR_1_US = 62_135_596_800 * 10**6  # 0001-01-01 to 1970-01-01
-
-
-def _shift(width: int) -> int:
-    """The smallest multiple of ``width`` that is at least ``_YEAR_1_US``."""
-    return -(-_YEAR_1_US // width) * width
 
 
 def quote_ident(name: str) -> str:
@@ -131,119 +130,6 @@ class Dialect:
         so both backends use one regex flavour; this is for SQL-side filters."""
 
 
-class DuckDBDialect(Dialect):
-    name = "duckdb"
-
-    def samples(self, columns: str) -> str:
-        # The sorted table and the hot one; naming only the needed columns
-        # binds faster than the 16-column ``samples_all`` view.
-        return (
-            f"(SELECT {columns} FROM samples UNION ALL SELECT {columns} FROM samples_hot) AS samples_all"
-        )
-
-    def sid_filter(self, sids: Sequence[int]) -> tuple[str, list]:
-        if len(sids) > self.many_sids:
-            return "sid IN (SELECT unnest(?::INTEGER[]))", [list(sids)]
-        return super().sid_filter(sids)
-
-    def iso_ms(self, expr: str) -> str:
-        return f"strftime({expr}, '%Y-%m-%dT%H:%M:%S.%g+00:00')"
-
-    def bucket_key(self, period: str, expr: str) -> str:
-        # Fixed-width UTC periods: an integer division per row is cheaper
-        # than date_trunc, and an integer key hashes faster than a timestamp.
-        # DuckDB's // truncates toward zero: shifted by a multiple of the
-        # width past year 1, every dividend is positive, so it floors.
-        width = _PERIOD_US.get(period)
-        if width is None:
-            return super().bucket_key(period, expr)
-        return f"((epoch_us({expr}) + {_shift(width)}) // {width})"
-
-    def bucket_time(self, period: str, key: str) -> str:
-        width = _PERIOD_US.get(period)
-        if width is None:
-            return key
-        return f"make_timestamp({key} * {width} - {_shift(width)})"
-
-    def epoch_us(self, expr: str) -> str:
-        return f"epoch_us({expr})"
-
-    def json_path(self, steps: tuple[str | int, ...]) -> object:
-        # A JSON Pointer: no wildcard or quoting rules, any key is literal.
-        return "".join("/" + str(step).replace("~", "~0").replace("/", "~1") for step in steps)
-
-    def json_number(self, col: str, path: object) -> tuple[str, list]:
-        return (
-            f"CASE WHEN json_type({col}, ?) IN ('BIGINT', 'UBIGINT', 'DOUBLE') "
-            f"THEN CAST(json_extract_string({col}, ?) AS DOUBLE) END",
-            [path, path],
-        )
-
-    def json_is_integer(self, col: str, path: object) -> tuple[str, list]:
-        return f"json_type({col}, ?) IN ('BIGINT', 'UBIGINT')", [path]
-
-    def json_present(self, col: str, path: object) -> tuple[str, list]:
-        return f"coalesce(json_type({col}, ?), 'NULL') <> 'NULL'", [path]
-
-    def regex_match(self, col: str) -> str:
-        return f"regexp_matches({col}, ?)"
-
-    def mask_relation(self) -> str:
-        # unnest() in a SELECT list zips arrays of equal length.
-        return (
-            "(SELECT unnest(?::INTEGER[]) AS m_sid, unnest(?::TIMESTAMP[]) AS m_t0, unnest(?::BIGINT[]) AS m_r0, "
-            "unnest(?::TIMESTAMP[]) AS m_t1, unnest(?::BIGINT[]) AS m_r1) AS m"
-        )
-
-
-@dataclass(frozen=True, slots=True)
-class AggBranch:
-    """One aggregated column family: plain attributes (``steps`` empty) or a
-    value path into structured values, over the given series."""
-
-    sids: tuple[int, ...]
-    steps: tuple[str | int, ...] = ()
-
-
-class RowMask:
-    """Which samples of some series a read keeps: per series, half-open
-    intervals of (time, row id), ``[(t0, r0), (t1, r1))``, an open end where
-    ``t1`` is None. Times are epoch microseconds. A geo-query becomes one:
-    the intervals in which an entity's location matched, repeated for each
-    of its series, so a sample is kept when its row's location matched. A
-    series not listed keeps nothing."""
-
-    __slots__ = ("intervals",)
-
-    def __init__(self, intervals: dict[int, list[tuple[int, int, int | None, int | None]]]):
-        self.intervals = intervals
-
-    def arrays(self) -> list[list]:
-        """The five parallel arrays ``Dialect.mask_relation`` binds."""
-        sids, t0, r0, t1, r1 = [], [], [], [], []
-        for sid, spans in self.intervals.items():
-            for a, ra, b, rb in spans:
-                sids.append(sid)
-                t0.append(_moment(a))
-                r0.append(ra)
-                t1.append(None if b is None else _moment(b))
-                r1.append(rb)
-        return [sids, t0, r0, t1, r1]
-
-    def keep(self, sid: int, rows: list[tuple]) -> list[tuple]:
-        """Those of ``rows`` (sorted by (t µs, rid, ...)) the mask keeps."""
-        out: list[tuple] = []
-        for a, ra, b, rb in self.intervals.get(sid, ()):
-            lo = bisect.bisect_left(rows, (a, ra))
-            hi = len(rows) if b is None else bisect.bisect_left(rows, (b, rb))
-            out.extend(rows[lo:hi])
-        return out
-
-
-def _moment(micros: int) -> datetime:
-    return _EPOCH + timedelta(microseconds=micros)
-
-
 def mask_filter(dialect: Dialect, mask: RowMask) -> tuple[str, list]:
     """SQL: the sample's (t, rid) lies in one of its series' mask intervals.
     ``sid``, ``t`` and ``rid`` are the enclosing query's columns."""
@@ -278,7 +164,7 @@ _TIME_PROPERTY_SQL = {
     "modifiedAt": "modified_at",
     "deletedAt": "deleted_at",
 }
-TIME_PROPERTIES = tuple(_TIME_PROPERTY_SQL)
+assert tuple(_TIME_PROPERTY_SQL) == TIME_PROPERTIES
 _INSTANCE_COLUMNS = "sid, iid, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
 _INSTANCE_SELECT = (
     "sid, iid, {at} AS at_time, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
@@ -286,42 +172,6 @@ _INSTANCE_SELECT = (
 _INSTANCE_NAMES = (
     "sid, iid, at_time, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
 )
-
-
-@dataclass(frozen=True, slots=True)
-class InstanceWindow:
-    """Which instances a temporal query selects: those whose ``timeproperty``
-    lies in [start, end) (either bound optional; NGSI-LD's ``timerel``:
-    ``after`` = start only, ``before`` = end only, ``between`` = both).
-    Times are timezone-aware."""
-
-    timeproperty: str = "observedAt"  # one of TIME_PROPERTIES
-    start: datetime | None = None
-    end: datetime | None = None
-
-    def __post_init__(self) -> None:
-        if self.timeproperty not in _TIME_PROPERTY_SQL:
-            raise ValueError(f"unknown time property {self.timeproperty!r}")
-
-
-class InstanceRow(NamedTuple):
-    """One NGSI-LD attribute instance. Times are naive UTC datetimes."""
-
-    sid: int
-    iid: int  # model.instance_urn(iid) is its instanceId
-    at: datetime  # the window's time property (observedAt: coalesce(observed_at, t))
-    t: datetime  # the NGSIv2 row time (time index)
-    observed_at: datetime | None  # as sent; None: the instance had no observedAt
-    created_at: datetime | None
-    modified_at: datetime | None
-    deleted_at: datetime | None  # set: a deletion instance (value urn:ngsi-ld:null)
-    dataset_id: str | None  # from the series; None: the default instance
-    kind: int  # model.Kind
-    atype: str | None  # Property, GeoProperty, Relationship, ... as notified
-    num: float | None
-    txt: str | None
-    js: str | None
-    md: str | None  # sub-properties as JSON text, exactly as received
 
 
 def _instance_order(row: InstanceRow) -> tuple:
@@ -480,7 +330,9 @@ class SqlQuerier(Querier):
         """One branch's grouped SELECT in the layout (branch, sid, ISO
         bucket | NULL, n_present, n_numeric, value, all_integer)."""
         d = self.dialect
-        fn = {AggrMethod.SUM: "sum", AggrMethod.AVG: "sum", AggrMethod.MIN: "min", AggrMethod.MAX: "max"}.get(agg.method)
+        fn = {AggrMethod.SUM: "sum", AggrMethod.AVG: "sum", AggrMethod.MIN: "min", AggrMethod.MAX: "max"}.get(
+            agg.method
+        )
         where, wparams = self._where(branch.sids, time, mask)
         if not branch.steps:
             columns = "sid, t, kind, num"
@@ -642,7 +494,6 @@ class SqlQuerier(Querier):
             return raw
         return rolled_up_count(self, sids, time)  # retention/rollups
 
-
     # -- NGSI-LD attribute instances ------------------------------------------------
 
     def temporal_instances(
@@ -674,8 +525,10 @@ class SqlQuerier(Querier):
         cols = _INSTANCE_SELECT.format(at=at)
         direction = "DESC" if newest_first or last_n is not None else "ASC"
         if last_n is not None:
-            inner = (f"SELECT {cols}, row_number() OVER (PARTITION BY sid ORDER BY {at} DESC, iid DESC) AS rn "
-                     f"FROM {table} WHERE {where}")
+            inner = (
+                f"SELECT {cols}, row_number() OVER (PARTITION BY sid ORDER BY {at} DESC, iid DESC) AS rn "
+                f"FROM {table} WHERE {where}"
+            )
             sql = f"SELECT {_INSTANCE_NAMES} FROM ({inner}) ranked WHERE rn <= {p}"
             params.append(min(last_n, _MAX_BIGINT))
             order = f"at_time {direction}, iid {direction}"
@@ -687,8 +540,23 @@ class SqlQuerier(Querier):
             params.append(min(limit, _MAX_BIGINT))
         refs = self.catalog.refs(sids)
         rows = [
-            InstanceRow(sid, iid, at_, t, obs, cre, mod, dele, ref.dataset_id if ref is not None else None,
-                        kind, atype, num, txt, js, md)
+            InstanceRow(
+                sid,
+                iid,
+                at_,
+                t,
+                obs,
+                cre,
+                mod,
+                dele,
+                ref.dataset_id if ref is not None else None,
+                kind,
+                atype,
+                num,
+                txt,
+                js,
+                md,
+            )
             for sid, iid, at_, t, obs, cre, mod, dele, kind, atype, num, txt, js, md in self._fetch(sql, params)
             for ref in (refs.get(sid),)
         ]
@@ -701,8 +569,9 @@ class SqlQuerier(Querier):
             return None
         d = self.dialect
         where, params = d.sid_filter(sids)
-        rows = self._fetch(f"SELECT sid FROM {d.samples('sid, iid')} WHERE {where} AND iid = {d.placeholder}",
-                           [*params, iid])
+        rows = self._fetch(
+            f"SELECT sid FROM {d.samples('sid, iid')} WHERE {where} AND iid = {d.placeholder}", [*params, iid]
+        )
         return rows[0][0] if rows else None
 
 
@@ -750,10 +619,34 @@ def instance_statements(dialect: Dialect, tables: Sequence[str], op) -> list[tup
         a = op.attr
         g = a.geo
         geo = (g.geojson, g.lon, g.lat, g.min_lon, g.min_lat, g.max_lon, g.max_lat) if g else (None,) * 7
-        columns = ("kind", "atype", "num", "txt", "js", "geo", "lon", "lat", "min_lon", "min_lat", "max_lon",
-                   "max_lat", "md", "deleted_at", "modified_at")
-        values = [int(a.kind), a.ngsi_type, a.num, a.txt, a.js, *geo, a.md, _time_or_none(dialect, a.deleted_at),
-                  dialect.time_value(op.modified_at)]
+        columns = (
+            "kind",
+            "atype",
+            "num",
+            "txt",
+            "js",
+            "geo",
+            "lon",
+            "lat",
+            "min_lon",
+            "min_lat",
+            "max_lon",
+            "max_lat",
+            "md",
+            "deleted_at",
+            "modified_at",
+        )
+        values = [
+            int(a.kind),
+            a.ngsi_type,
+            a.num,
+            a.txt,
+            a.js,
+            *geo,
+            a.md,
+            _time_or_none(dialect, a.deleted_at),
+            dialect.time_value(op.modified_at),
+        ]
         sets = ", ".join(f"{c} = {p}" for c in columns)
         sets += f", observed_at = coalesce(CAST({p} AS TIMESTAMP), observed_at)"
         values.append(_time_or_none(dialect, a.observed_at))

@@ -58,7 +58,7 @@ class CommitObserver(Protocol):
 
 
 class _Waiter:
-    __slots__ = ("op", "loop", "future")
+    __slots__ = ("future", "loop", "op")
 
     def __init__(self, op: WriteOp, loop: asyncio.AbstractEventLoop | None, future):
         self.op = op
@@ -75,9 +75,7 @@ class GroupCommitter:
         self.commits = 0
         self.ops = 0
         self.observer: CommitObserver | None = None
-        self._threads = [
-            threading.Thread(target=self._run, name=f"{name}-{i}", daemon=True) for i in range(threads)
-        ]
+        self._threads = [threading.Thread(target=self._run, name=f"{name}-{i}", daemon=True) for i in range(threads)]
         self._started = threading.Semaphore(0)
         self._count_lock = threading.Lock()
 

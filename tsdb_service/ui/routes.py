@@ -19,7 +19,7 @@ from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
 from ..api import openapi as oa
 from ..api.responses import JSON
 from ..errors import NotFound
-from ..history.query import EntityFilter, Scope
+from ..query import EntityFilter, Scope
 
 STATIC = Path(__file__).resolve().parent / "static"
 SWAGGER = "vendor/swagger-ui"
@@ -67,17 +67,21 @@ def tenants(request: Request) -> JSON:
     out = []
     for tenant in querier.tenants():
         refs = querier.series(Scope(tenant), EntityFilter())
-        out.append({
-            "tenant": tenant,
-            "servicePaths": sorted({ref.service_path for ref in refs}),
-            "types": sorted({ref.entity_type for ref in refs}),
-            "entities": len({(ref.entity_id, ref.entity_type) for ref in refs}),
-            "series": len(refs),
-        })  # fmt: skip
+        out.append(
+            {
+                "tenant": tenant,
+                "servicePaths": sorted({ref.service_path for ref in refs}),
+                "types": sorted({ref.entity_type for ref in refs}),
+                "entities": len({(ref.entity_id, ref.entity_type) for ref in refs}),
+                "series": len(refs),
+            }
+        )
     return JSON(out)
 
 
-@router.get("/ui/usecases", summary="What the explorer's use-case views show: tenancy, ids, enumerations", **oa.UI_USECASES)
+@router.get(
+    "/ui/usecases", summary="What the explorer's use-case views show: tenancy, ids, enumerations", **oa.UI_USECASES
+)
 def usecases() -> JSON:
     """From the demo's own definitions, so a renamed entity or state cannot
     drift between the simulators and the page."""

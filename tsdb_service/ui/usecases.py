@@ -17,8 +17,13 @@ def _enums(name: str) -> dict[str, dict[str, str]]:
 
 def _garden() -> list[list[float]]:
     """The garden's border wire as a closed (lat, lon) ring."""
-    corners = ((0, 0), (sites.GARDEN_WIDTH_M, 0), (sites.GARDEN_WIDTH_M, sites.GARDEN_DEPTH_M),
-               (0, sites.GARDEN_DEPTH_M), (0, 0))  # fmt: skip
+    corners = (
+        (0, 0),
+        (sites.GARDEN_WIDTH_M, 0),
+        (sites.GARDEN_WIDTH_M, sites.GARDEN_DEPTH_M),
+        (0, sites.GARDEN_DEPTH_M),
+        (0, 0),
+    )
     return [list(sites.offset(sites.GARDEN_ORIGIN, east, north)) for east, north in corners]
 
 
@@ -44,10 +49,11 @@ def describe() -> dict:
             **_tenancy(sites.DRONE),
             "entity": sites.DRONE_ID,
             "sensorType": sites.SENSOR_TYPE,
-            "sensors": [{"id": sid, "lat": lat, "lon": lon, "priority": priority}
-                        for sid, (lat, lon), priority in sites.SENSORS],
+            "sensors": [
+                {"id": sid, "lat": lat, "lon": lon, "priority": priority} for sid, (lat, lon), priority in sites.SENSORS
+            ],
             "home": list(sites.DRONE_HOME),
             "field": [list(point) for point in sites.SENSOR_FIELD],
             "enums": _enums("drone"),
         },
-    }  # fmt: skip
+    }

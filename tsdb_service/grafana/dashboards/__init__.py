@@ -11,7 +11,7 @@ Prometheus), plus ``provisioning/dashboards.yaml`` and
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import lru_cache
+from functools import cache, lru_cache
 from pathlib import Path
 
 from . import drone, drone_ld, kit, lawnmower, service, warehouse
@@ -30,7 +30,7 @@ FOLDER = "tsdb-service"
 GRAFANA_PATH = "/var/lib/grafana/dashboards/tsdb-service"
 
 
-@lru_cache(maxsize=None)
+@cache
 def _cached(name: str) -> bytes:
     import orjson
 
@@ -90,22 +90,27 @@ def datasources_yaml(service_url: str = kit.SERVICE_URL) -> str:
 
 
 def dashboards_yaml() -> str:
-    return "\n".join([
-        "# Grafana dashboard provisioning for tsdb-service (generated: tsdb-service dashboards build).",
-        f"# Mount this repository's dashboards/ folder at {GRAFANA_PATH}.",
-        "apiVersion: 1",
-        "providers:",
-        "  - name: tsdb-service",
-        "    orgId: 1",
-        f"    folder: {FOLDER}",
-        "    type: file",
-        "    disableDeletion: false",
-        "    allowUiUpdates: true",
-        "    updateIntervalSeconds: 30",
-        "    options:",
-        f"      path: {GRAFANA_PATH}",
-        "      foldersFromFilesStructure: false",
-    ]) + "\n"  # fmt: skip
+    return (
+        "\n".join(
+            [
+                "# Grafana dashboard provisioning for tsdb-service (generated: tsdb-service dashboards build).",
+                f"# Mount this repository's dashboards/ folder at {GRAFANA_PATH}.",
+                "apiVersion: 1",
+                "providers:",
+                "  - name: tsdb-service",
+                "    orgId: 1",
+                f"    folder: {FOLDER}",
+                "    type: file",
+                "    disableDeletion: false",
+                "    allowUiUpdates: true",
+                "    updateIntervalSeconds: 30",
+                "    options:",
+                f"      path: {GRAFANA_PATH}",
+                "      foldersFromFilesStructure: false",
+            ]
+        )
+        + "\n"
+    )
 
 
 def files() -> dict[str, str]:

@@ -54,9 +54,20 @@ DATASOURCES: dict[str, Datasource] = {
 # --- the Infinity query model -----------------------------------------------------------------
 
 _QUERY_KEYS = (
-    "refId", "datasource", "type", "source", "parser", "format", "url", "url_options",
-    "root_selector", "columns", "filters", "computed_columns", "hide",
-)  # fmt: skip
+    "refId",
+    "datasource",
+    "type",
+    "source",
+    "parser",
+    "format",
+    "url",
+    "url_options",
+    "root_selector",
+    "columns",
+    "filters",
+    "computed_columns",
+    "hide",
+)
 _URL_OPTION_KEYS = ("method", "data", "params", "headers")
 _COLUMN_KEYS = ("selector", "text", "type")
 
@@ -78,7 +89,9 @@ class InfinityQuery(cogvariants.Dataquery):
             fields["url_options"] = {key: options[key] for key in _URL_OPTION_KEYS if key in options}
         if isinstance(fields.get("columns"), list):
             fields["columns"] = [
-                {key: col[key] for key in _COLUMN_KEYS if key in col} for col in fields["columns"] if isinstance(col, dict)
+                {key: col[key] for key in _COLUMN_KEYS if key in col}
+                for col in fields["columns"]
+                if isinstance(col, dict)
             ]
         return cls(**fields)
 
@@ -205,10 +218,20 @@ def _place(panel, ids: Ids, title: str, w: int, h: int, ds: Datasource, query: Q
 
 
 def stat_panel(
-    ids: Ids, ds: Datasource, title: str, query: Query, field: str, *, w: int = 4, h: int = 5,
-    unit: str | None = None, mappings: list | None = None, thresholds_: db.ThresholdsConfig | None = None,
-    decimals: float | None = None, description: str | None = None,
-) -> stat.Panel:  # fmt: skip
+    ids: Ids,
+    ds: Datasource,
+    title: str,
+    query: Query,
+    field: str,
+    *,
+    w: int = 4,
+    h: int = 5,
+    unit: str | None = None,
+    mappings: list | None = None,
+    thresholds_: db.ThresholdsConfig | None = None,
+    decimals: float | None = None,
+    description: str | None = None,
+) -> stat.Panel:
     panel = _place(stat.Panel(), ids, title, w, h, ds, query, description)
     panel = (
         panel.reduce_options(cb.ReduceDataOptions().calcs(["lastNotNull"]).values(False).fields(fields_regex(field)))
@@ -229,9 +252,20 @@ def stat_panel(
 
 
 def gauge_panel(
-    ids: Ids, ds: Datasource, title: str, query: Query, field: str, *, w: int = 4, h: int = 5,
-    unit: str, low: float, high: float, thresholds_: db.ThresholdsConfig, description: str | None = None,
-) -> gauge.Panel:  # fmt: skip
+    ids: Ids,
+    ds: Datasource,
+    title: str,
+    query: Query,
+    field: str,
+    *,
+    w: int = 4,
+    h: int = 5,
+    unit: str,
+    low: float,
+    high: float,
+    thresholds_: db.ThresholdsConfig,
+    description: str | None = None,
+) -> gauge.Panel:
     panel = _place(gauge.Panel(), ids, title, w, h, ds, query, description)
     return (
         panel.reduce_options(cb.ReduceDataOptions().calcs(["lastNotNull"]).values(False).fields(fields_regex(field)))
@@ -246,11 +280,20 @@ def gauge_panel(
 
 
 def timeseries_panel(
-    ids: Ids, ds: Datasource, title: str, query: Query, *, w: int = 12, h: int = 8, unit: str | None = None,
-    thresholds_: db.ThresholdsConfig | None = None, threshold_style: common.GraphThresholdsStyleMode | None = None,
-    draw_style: common.GraphDrawStyle = common.GraphDrawStyle.LINE, description: str | None = None,
+    ids: Ids,
+    ds: Datasource,
+    title: str,
+    query: Query,
+    *,
+    w: int = 12,
+    h: int = 8,
+    unit: str | None = None,
+    thresholds_: db.ThresholdsConfig | None = None,
+    threshold_style: common.GraphThresholdsStyleMode | None = None,
+    draw_style: common.GraphDrawStyle = common.GraphDrawStyle.LINE,
+    description: str | None = None,
     max_points: int | None = None,
-) -> timeseries.Panel:  # fmt: skip
+) -> timeseries.Panel:
     panel = _place(timeseries.Panel(), ids, title, w, h, ds, query, description)
     panel = (
         panel.draw_style(draw_style)
@@ -258,10 +301,15 @@ def timeseries_panel(
         .fill_opacity(10)
         .show_points(common.VisibilityMode.NEVER)
         .span_nulls(True)
-        .legend(cb.VizLegendOptions().show_legend(True).display_mode(common.LegendDisplayMode.LIST)
-                .placement(common.LegendPlacement.BOTTOM).calcs([]))
+        .legend(
+            cb.VizLegendOptions()
+            .show_legend(True)
+            .display_mode(common.LegendDisplayMode.LIST)
+            .placement(common.LegendPlacement.BOTTOM)
+            .calcs([])
+        )
         .tooltip(cb.VizTooltipOptions().mode(common.TooltipDisplayMode.MULTI).sort(common.SortOrder.NONE))
-    )  # fmt: skip
+    )
     if unit:
         panel = panel.unit(unit)
     if thresholds_ is not None:
@@ -274,9 +322,16 @@ def timeseries_panel(
 
 
 def state_timeline_panel(
-    ids: Ids, ds: Datasource, title: str, query: Query, mappings: list, *,
-    w: int = 24, h: int = 5, description: str | None = None,
-) -> statetimeline.Panel:  # fmt: skip
+    ids: Ids,
+    ds: Datasource,
+    title: str,
+    query: Query,
+    mappings: list,
+    *,
+    w: int = 24,
+    h: int = 5,
+    description: str | None = None,
+) -> statetimeline.Panel:
     """Every field of the panel shares ``mappings``: one enumeration per panel
     (field overrides do not pass the dashboard JSON Schema)."""
     panel = _place(statetimeline.Panel(), ids, title, w, h, ds, query, description)
@@ -287,10 +342,15 @@ def state_timeline_panel(
         .line_width(0)
         .fill_opacity(80)
         .align_value("left")
-        .legend(cb.VizLegendOptions().show_legend(False).display_mode(common.LegendDisplayMode.LIST)
-                .placement(common.LegendPlacement.BOTTOM).calcs([]))
+        .legend(
+            cb.VizLegendOptions()
+            .show_legend(False)
+            .display_mode(common.LegendDisplayMode.LIST)
+            .placement(common.LegendPlacement.BOTTOM)
+            .calcs([])
+        )
         .tooltip(cb.VizTooltipOptions().mode(common.TooltipDisplayMode.SINGLE).sort(common.SortOrder.NONE))
-    )  # fmt: skip
+    )
     return panel.mappings(mappings)
 
 
@@ -314,9 +374,15 @@ def dashboard(uid: str, title: str, description: str, tags: list[str], time_from
         .tooltip(dm.DashboardCursorSync.CROSSHAIR)
         .editable()
         .timepicker(db.TimePicker().refresh_intervals(["5s", "10s", "30s", "1m", "5m"]))
-        .link(db.DashboardLink("tsdb-service dashboards").type(dm.DashboardLinkType.DASHBOARDS)
-              .tags(["tsdb-service"]).as_dropdown(True).include_vars(False).keep_time(True))
-    )  # fmt: skip
+        .link(
+            db.DashboardLink("tsdb-service dashboards")
+            .type(dm.DashboardLinkType.DASHBOARDS)
+            .tags(["tsdb-service"])
+            .as_dropdown(True)
+            .include_vars(False)
+            .keep_time(True)
+        )
+    )
 
 
 def to_json(builder: db.Dashboard) -> dict:

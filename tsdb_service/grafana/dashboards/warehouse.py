@@ -9,7 +9,12 @@ from grafana_foundation_sdk.models import common
 from grafana_foundation_sdk.models import dashboard as dm
 
 from ...demo import sites
-from ...demo.enums import DOOR_COMMAND, DOOR_STATE, WARNING_LIGHT_COMMAND, WARNING_LIGHT_STATE
+from ...demo.enums import (
+    DOOR_COMMAND,
+    DOOR_STATE,
+    WARNING_LIGHT_COMMAND,
+    WARNING_LIGHT_STATE,
+)
 from . import kit
 from .kit import Query, attrs
 
@@ -38,52 +43,132 @@ def build():
     command_map = kit.value_mappings(DOOR_COMMAND, COMMAND_COLORS)
     light_map = kit.value_mappings(WARNING_LIGHT_STATE, LIGHT_COLORS)
     dash = kit.dashboard(
-        UID, "PIAP smart warehouse",
+        UID,
+        "PIAP smart warehouse",
         "A robot passing an automated door (entity ROS2System:PiapWarehouse01, tenant warehouse): the door opens "
         f"when the laser gate measures the robot closer than {OPEN_AT * 100:.0f} cm.",
-        ["warehouse", "piap"], "now-15m", "5s",
-    )  # fmt: skip
+        ["warehouse", "piap"],
+        "now-15m",
+        "5s",
+    )
     dash = dash.with_row(kit.row(ids, "Now"))
-    dash = dash.with_panel(kit.stat_panel(
-        ids, DS, "Temperature", latest("temperature", "temperature(data)"), "temperature",
-        unit="celsius", decimals=1, thresholds_=TEMPERATURE, description="temperature → data (std_msgs/Float32)",
-    ))  # fmt: skip
-    dash = dash.with_panel(kit.gauge_panel(
-        ids, DS, "Humidity", latest("humidity", "humidity(data)"), "humidity",
-        unit="percent", low=0, high=100, thresholds_=HUMIDITY, description="humidity → data (std_msgs/Float32)",
-    ))  # fmt: skip
-    dash = dash.with_panel(kit.stat_panel(
-        ids, DS, "Door", latest("door", "doorState(data)"), "door", mappings=door_map,
-    ))  # fmt: skip
-    dash = dash.with_panel(kit.stat_panel(
-        ids, DS, "Door command", latest("command", "doorCommand(data)"), "command", mappings=command_map,
-    ))  # fmt: skip
-    dash = dash.with_panel(kit.stat_panel(
-        ids, DS, "Warning light", latest("light", "warningLight(data)"), "light", mappings=light_map,
-    ))  # fmt: skip
-    dash = dash.with_panel(kit.stat_panel(
-        ids, DS, "Robot distance to the door", latest("distance", "laserDistance(range)"), "distance",
-        unit="lengthm", decimals=2, thresholds_=LASER,
-    ))  # fmt: skip
-    laser = Query(DS, "series", [("time", "timestamp"), ("distance", "number")], interval=True, max_points=60,
-                  id=SITE, attrs=attrs(distance="laserDistance(range)"))  # fmt: skip
+    dash = dash.with_panel(
+        kit.stat_panel(
+            ids,
+            DS,
+            "Temperature",
+            latest("temperature", "temperature(data)"),
+            "temperature",
+            unit="celsius",
+            decimals=1,
+            thresholds_=TEMPERATURE,
+            description="temperature → data (std_msgs/Float32)",
+        )
+    )
+    dash = dash.with_panel(
+        kit.gauge_panel(
+            ids,
+            DS,
+            "Humidity",
+            latest("humidity", "humidity(data)"),
+            "humidity",
+            unit="percent",
+            low=0,
+            high=100,
+            thresholds_=HUMIDITY,
+            description="humidity → data (std_msgs/Float32)",
+        )
+    )
+    dash = dash.with_panel(
+        kit.stat_panel(
+            ids,
+            DS,
+            "Door",
+            latest("door", "doorState(data)"),
+            "door",
+            mappings=door_map,
+        )
+    )
+    dash = dash.with_panel(
+        kit.stat_panel(
+            ids,
+            DS,
+            "Door command",
+            latest("command", "doorCommand(data)"),
+            "command",
+            mappings=command_map,
+        )
+    )
+    dash = dash.with_panel(
+        kit.stat_panel(
+            ids,
+            DS,
+            "Warning light",
+            latest("light", "warningLight(data)"),
+            "light",
+            mappings=light_map,
+        )
+    )
+    dash = dash.with_panel(
+        kit.stat_panel(
+            ids,
+            DS,
+            "Robot distance to the door",
+            latest("distance", "laserDistance(range)"),
+            "distance",
+            unit="lengthm",
+            decimals=2,
+            thresholds_=LASER,
+        )
+    )
+    laser = Query(
+        DS,
+        "series",
+        [("time", "timestamp"), ("distance", "number")],
+        interval=True,
+        max_points=60,
+        id=SITE,
+        attrs=attrs(distance="laserDistance(range)"),
+    )
     bars = (
-        barchart.Panel().id(ids()).title(f"Laser distance, last 5 minutes (the door opens under {OPEN_AT:g} m)")
-        .span(24).height(8).datasource(DS.ref).with_target(laser)
-        .time_from("5m").max_data_points(60)
-        .x_field("time").show_value(common.VisibilityMode.NEVER).bar_width(0.9).group_width(0.7)
-        .fill_opacity(80).gradient_mode(common.GraphGradientMode.NONE).x_tick_label_rotation(0)
-        .x_tick_label_spacing(100).orientation(common.VizOrientation.AUTO)
-        .stacking(common.StackingMode.NONE).full_highlight(False)
-        .legend(cb.VizLegendOptions().show_legend(False).display_mode(common.LegendDisplayMode.LIST)
-                .placement(common.LegendPlacement.BOTTOM).calcs([]))
+        barchart.Panel()
+        .id(ids())
+        .title(f"Laser distance, last 5 minutes (the door opens under {OPEN_AT:g} m)")
+        .span(24)
+        .height(8)
+        .datasource(DS.ref)
+        .with_target(laser)
+        .time_from("5m")
+        .max_data_points(60)
+        .x_field("time")
+        .show_value(common.VisibilityMode.NEVER)
+        .bar_width(0.9)
+        .group_width(0.7)
+        .fill_opacity(80)
+        .gradient_mode(common.GraphGradientMode.NONE)
+        .x_tick_label_rotation(0)
+        .x_tick_label_spacing(100)
+        .orientation(common.VizOrientation.AUTO)
+        .stacking(common.StackingMode.NONE)
+        .full_highlight(False)
+        .legend(
+            cb.VizLegendOptions()
+            .show_legend(False)
+            .display_mode(common.LegendDisplayMode.LIST)
+            .placement(common.LegendPlacement.BOTTOM)
+            .calcs([])
+        )
         .tooltip(cb.VizTooltipOptions().mode(common.TooltipDisplayMode.SINGLE).sort(common.SortOrder.NONE))
-        .unit("lengthm").min(0).thresholds(LASER)
+        .unit("lengthm")
+        .min(0)
+        .thresholds(LASER)
         .color_scheme(db.FieldColor().mode(dm.FieldColorModeId.THRESHOLDS))
         .thresholds_style(cb.GraphThresholdsStyleConfig().mode(common.GraphThresholdsStyleMode.DASHED))
-        .description("laserDistance → range (sensor_msgs/Range): the robot's distance measured by the door's "
-                     "laser gate, averaged per bar; the dashed line is the 60 cm opening threshold")
-    )  # fmt: skip
+        .description(
+            "laserDistance → range (sensor_msgs/Range): the robot's distance measured by the door's "
+            "laser gate, averaged per bar; the dashed line is the 60 cm opening threshold"
+        )
+    )
     dash = dash.with_panel(bars)
 
     dash = dash.with_row(kit.row(ids, "History"))
@@ -91,32 +176,78 @@ def build():
         ("Temperature", "temperature", "temperature(data)", "celsius", TEMPERATURE),
         ("Humidity", "humidity", "humidity(data)", "percent", HUMIDITY),
     ):
-        env = Query(DS, "series", [("time", "timestamp"), (field, "number")], interval=True, max_points=1000,
-                    id=SITE, attrs=attrs(**{field: path}))  # fmt: skip
+        env = Query(
+            DS,
+            "series",
+            [("time", "timestamp"), (field, "number")],
+            interval=True,
+            max_points=1000,
+            id=SITE,
+            attrs=attrs(**{field: path}),
+        )
         dash = dash.with_panel(
-            kit.timeseries_panel(ids, DS, title, env, w=8, unit=unit, max_points=1000, thresholds_=steps,
-                                 threshold_style=common.GraphThresholdsStyleMode.AREA)
-            .color_scheme(db.FieldColor().mode(dm.FieldColorModeId.THRESHOLDS))
-        )  # fmt: skip
-    distance = Query(DS, "series", [("time", "timestamp"), ("distance", "number")], interval=True,
-                     max_points=1000, id=SITE, attrs=attrs(distance="laserDistance(range)"))  # fmt: skip
-    dash = dash.with_panel(kit.timeseries_panel(
-        ids, DS, "Laser distance", distance, w=8, unit="lengthm", max_points=1000, thresholds_=LASER,
-        threshold_style=common.GraphThresholdsStyleMode.DASHED_AND_AREA,
-    ))  # fmt: skip
+            kit.timeseries_panel(
+                ids,
+                DS,
+                title,
+                env,
+                w=8,
+                unit=unit,
+                max_points=1000,
+                thresholds_=steps,
+                threshold_style=common.GraphThresholdsStyleMode.AREA,
+            ).color_scheme(db.FieldColor().mode(dm.FieldColorModeId.THRESHOLDS))
+        )
+    distance = Query(
+        DS,
+        "series",
+        [("time", "timestamp"), ("distance", "number")],
+        interval=True,
+        max_points=1000,
+        id=SITE,
+        attrs=attrs(distance="laserDistance(range)"),
+    )
+    dash = dash.with_panel(
+        kit.timeseries_panel(
+            ids,
+            DS,
+            "Laser distance",
+            distance,
+            w=8,
+            unit="lengthm",
+            max_points=1000,
+            thresholds_=LASER,
+            threshold_style=common.GraphThresholdsStyleMode.DASHED_AND_AREA,
+        )
+    )
     for title, fields, mappings in (
         ("Door state", {"door": "doorState(data)"}, door_map),
         ("Door command", {"command": "doorCommand(data)"}, command_map),
-        ("Warning light and its command", {"light": "warningLight(data)",
-                                           "light_command": "warningLightCommand(data)"}, light_map),
-    ):  # fmt: skip
-        states = Query(DS, "states", [("time", "timestamp"), *((f, "number") for f in fields)], id=SITE,
-                       max_points=2000, attrs=attrs(**fields))  # fmt: skip
-        dash = dash.with_panel(kit.state_timeline_panel(ids, DS, title, states, mappings,
-                                                        h=5 if len(fields) == 1 else 6))  # fmt: skip
-    openings = Query(DS, "events", [("time", "timestamp"), ("timeEnd", "timestamp"), ("title", "string"),
-                                    ("text", "string"), ("tags", "string")],
-                     id=SITE, attrs=attrs(door_open="doorCommand(data)"), equals="1",
-                     text="The door controller opens the door")  # fmt: skip
+        (
+            "Warning light and its command",
+            {"light": "warningLight(data)", "light_command": "warningLightCommand(data)"},
+            light_map,
+        ),
+    ):
+        states = Query(
+            DS,
+            "states",
+            [("time", "timestamp"), *((f, "number") for f in fields)],
+            id=SITE,
+            max_points=2000,
+            attrs=attrs(**fields),
+        )
+        dash = dash.with_panel(
+            kit.state_timeline_panel(ids, DS, title, states, mappings, h=5 if len(fields) == 1 else 6)
+        )
+    openings = Query(
+        DS,
+        "events",
+        [("time", "timestamp"), ("timeEnd", "timestamp"), ("title", "string"), ("text", "string"), ("tags", "string")],
+        id=SITE,
+        attrs=attrs(door_open="doorCommand(data)"),
+        equals="1",
+        text="The door controller opens the door",
+    )
     dash = dash.annotation(kit.annotation("Door openings", DS, openings, "orange"))
     return dash

@@ -32,7 +32,7 @@ import math
 import threading
 from collections.abc import Callable, Iterable
 
-from ..model import Kind
+from ...model import Kind
 
 GEO = int(Kind.GEO)
 
@@ -152,8 +152,15 @@ class LatestGeo:
                     self._first[sid] = (ts[i], rids[i])
                     extents.put(sid, box)
                 elif box[0] < extent[0] or box[1] < extent[1] or box[2] > extent[2] or box[3] > extent[3]:
-                    extents.put(sid, (min(box[0], extent[0]), min(box[1], extent[1]),
-                                      max(box[2], extent[2]), max(box[3], extent[3])))
+                    extents.put(
+                        sid,
+                        (
+                            min(box[0], extent[0]),
+                            min(box[1], extent[1]),
+                            max(box[2], extent[2]),
+                            max(box[3], extent[3]),
+                        ),
+                    )
                 first = self._first.get(sid)
                 if first is not None and (ts[i], rids[i]) < first:
                     self._first[sid] = (ts[i], rids[i])

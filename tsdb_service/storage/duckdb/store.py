@@ -30,22 +30,34 @@ import duckdb
 import orjson
 import pyarrow as pa
 
-from ..errors import Unavailable
-from ..model import EntitySample, RejectedNotification
-from ..ngsi import ValuesLayout
-from . import rejected as rejected_store
-from .base import (
-    Appender, AppendSamples, DeleteInstance, DeleteSamples, PutLayout, RecordRejected, ReplaceInstance, Store,
+from ...errors import Unavailable
+from ...model import EntitySample, RejectedNotification
+from ...ngsi import ValuesLayout
+from .. import rejected as rejected_store
+from ..base import (
+    Appender,
+    AppendSamples,
+    DeleteInstance,
+    DeleteSamples,
+    PutLayout,
+    RecordRejected,
+    ReplaceInstance,
+    Store,
     WriteOp,
 )
-from .ld_ingest import (
-    LATEST_INSTANCE_SQL, LatestInstances, drop_renotified, latest_keys, publish_staged, with_deletions,
+from ..ld_ingest import (
+    LATEST_INSTANCE_SQL,
+    LatestInstances,
+    drop_renotified,
+    latest_keys,
+    publish_staged,
+    with_deletions,
 )
+from ..migrate import applied_versions, load_migrations, split_statements
+from ..rejected import RejectedLimits
+from ..writer import GroupCommitter
 from .latest_geo import LatestGeo
 from .tail_cache import TailCache
-from .migrate import applied_versions, load_migrations, split_statements
-from .rejected import RejectedLimits
-from .writer import GroupCommitter
 
 log = logging.getLogger(__name__)
 
@@ -83,8 +95,17 @@ TIME_COLUMNS = frozenset({"t", "observed_at", "created_at", "modified_at", "dele
 SeriesKey = tuple[str, str, str, str, str]  # tenant, service path, id, type, attr
 
 _SQL_TYPES = {
-    "rid": "BIGINT", "iid": "BIGINT", "sid": "INTEGER", "kind": "UTINYINT", "num": "DOUBLE", "lon": "DOUBLE",
-    "lat": "DOUBLE", "min_lon": "DOUBLE", "min_lat": "DOUBLE", "max_lon": "DOUBLE", "max_lat": "DOUBLE",
+    "rid": "BIGINT",
+    "iid": "BIGINT",
+    "sid": "INTEGER",
+    "kind": "UTINYINT",
+    "num": "DOUBLE",
+    "lon": "DOUBLE",
+    "lat": "DOUBLE",
+    "min_lon": "DOUBLE",
+    "min_lat": "DOUBLE",
+    "max_lon": "DOUBLE",
+    "max_lat": "DOUBLE",
 }
 REQUIRED = frozenset({"rid", "sid", "t", "kind", "iid"})
 
@@ -95,10 +116,13 @@ def insert_samples_sql(names: tuple[str, ...]) -> str:
     batch crosses into DuckDB in one call. Time travels as epoch microseconds;
     columns not named are NULL."""
     return "INSERT INTO samples_hot BY NAME SELECT " + ", ".join(
-        f"make_timestamp(unnest(${i + 1}::BIGINT[])) AS {name}" if name in TIME_COLUMNS
+        f"make_timestamp(unnest(${i + 1}::BIGINT[])) AS {name}"
+        if name in TIME_COLUMNS
         else f"unnest(${i + 1}::{_SQL_TYPES.get(name, 'VARCHAR')}[]) AS {name}"
         for i, name in enumerate(names)
     )
+
+
 INSERT_SERIES = (
     "INSERT INTO series BY NAME SELECT unnest($1::INTEGER[]) AS sid, unnest($2::VARCHAR[]) AS tenant, "
     "unnest($3::VARCHAR[]) AS service_path, unnest($4::VARCHAR[]) AS entity_id, "
@@ -126,12 +150,8 @@ REOPEN_MAX_DELAY_S = 10.0
 # How DuckDB says it gave up on the database instance (duckdb.FatalException).
 _INVALIDATED = "database has been invalidated"
 _COMMITTED_ANYWAY = "COMMIT succeeded"
-NOTHING_STORED = (
-    "the database is being reopened after a storage failure (disk full?); nothing was stored, retry later"
-)
-MAYBE_STORED = (
-    "the database failed while committing (disk full?); this write may or may not have been stored"
-)
+NOTHING_STORED = "the database is being reopened after a storage failure (disk full?); nothing was stored, retry later"
+MAYBE_STORED = "the database failed while committing (disk full?); this write may or may not have been stored"
 
 
 def fatal_kind(exc: BaseException) -> str | None:
@@ -257,11 +277,21 @@ class Gate:
 class DuckDBStore(Store):
     backend = "duckdb"
 
-    def __init__(self, path: str, *, compact_rows: int = 500_000, major_compact_runs: int = 8,
-                 writer_threads: int = 1, tail_series: int = 8192, tail_rows: int = 128,
-                 tail_samples: int | None = None, checkpoint_bytes: int = CHECKPOINT_BYTES,
-                 reopen_delay: float | None = None, reopen_max_delay: float | None = None,
-                 rejected_limits: RejectedLimits | None = None):
+    def __init__(
+        self,
+        path: str,
+        *,
+        compact_rows: int = 500_000,
+        major_compact_runs: int = 8,
+        writer_threads: int = 1,
+        tail_series: int = 8192,
+        tail_rows: int = 128,
+        tail_samples: int | None = None,
+        checkpoint_bytes: int = CHECKPOINT_BYTES,
+        reopen_delay: float | None = None,
+        reopen_max_delay: float | None = None,
+        rejected_limits: RejectedLimits | None = None,
+    ):
         self.path = path
         # Rejected-store bounds (storage.rejected) and what they dropped, by reason.
         self.rejected_limits = rejected_limits or RejectedLimits()
@@ -334,7 +364,7 @@ class DuckDBStore(Store):
 
     def querier(self):
         if self._querier is None:
-            from .duckdb_querier import DuckDBQuerier
+            from .querier import DuckDBQuerier
 
             self._querier = DuckDBQuerier(self)
         return self._querier
@@ -384,17 +414,28 @@ class DuckDBStore(Store):
 
     def rejected(self, tenant: str | None, limit: int, offset: int) -> list[dict[str, Any]]:
         where, params = ("", []) if tenant is None else ("WHERE tenant = ? ", [tenant])
-        rows = self.cursor().execute(
-            f"SELECT {REJECTED_COLUMNS} FROM rejected_notifications {where}ORDER BY id DESC LIMIT ? OFFSET ?",
-            [*params, limit, offset],
-        ).fetchall()
-        return [rejected_row(*row) for row in rows]
+        rows = (
+            self.cursor()
+            .execute(
+                f"SELECT {rejected_store.COLUMNS} FROM rejected_notifications {where}ORDER BY id DESC LIMIT ? OFFSET ?",
+                [*params, limit, offset],
+            )
+            .fetchall()
+        )
+        return [rejected_store.rejected_row(*row) for row in rows]
 
     def rejected_page(self, tenant: str | None, limit: int, offset: int, max_bytes: int):
         """``rejected`` paged by size too: (rows, next offset or None)."""
         cur = self.cursor()
-        return rejected_store.page(lambda sql, params: cur.execute(sql, params).fetchall(), rejected_store.DUCKDB,
-                                   tenant, limit, offset, max_bytes, rejected_row)  # fmt: skip
+        return rejected_store.page(
+            lambda sql, params: cur.execute(sql, params).fetchall(),
+            rejected_store.DUCKDB,
+            tenant,
+            limit,
+            offset,
+            max_bytes,
+            rejected_store.rejected_row,
+        )
 
     def health(self) -> dict[str, Any]:
         problem = self._broken or self._write_failure
@@ -529,36 +570,6 @@ def _first_line(exc: BaseException) -> str:
     return str(exc).strip().splitlines()[0][:300] if str(exc).strip() else type(exc).__name__
 
 
-# What the rejected listing shows, in rejected_row's argument order.
-REJECTED_COLUMNS = "id, tenant, received_at, error, description, headers, body, body_size, body_truncated"
-
-
-def rejected_row(rid, tenant, received_at, error, description, headers, body,
-                 body_size, body_truncated) -> dict[str, Any]:
-    """One rejected notification as the listing shows it: the body as text
-    when it is UTF-8, else base64; its size as received and whether only its
-    first bytes were kept (rows from before migration 0002 have no size)."""
-    body = bytes(body)
-    try:
-        text, encoding = body.decode("utf-8"), "utf-8"
-    except UnicodeDecodeError:
-        import base64
-
-        text, encoding = base64.b64encode(body).decode(), "base64"
-    return {
-        "id": rid,
-        "tenant": tenant,
-        "receivedAt": received_at.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z",
-        "error": error,
-        "description": description,
-        "headers": orjson.loads(headers),
-        "body": text,
-        "bodyEncoding": encoding,
-        "bodySize": len(body) if body_size is None else int(body_size),
-        "bodyTruncated": bool(body_truncated),
-    }
-
-
 class DuckDBAppender(Appender):
     """Turns staged ops into columnar batches; only the writer thread uses it."""
 
@@ -655,19 +666,34 @@ class DuckDBAppender(Appender):
         for e in entities:
             attrs = [a for a in e.attrs if next(keep)]
             if attrs:
-                out.append(e if len(attrs) == len(e.attrs) else EntitySample(
-                    e.tenant, e.service_path, e.entity_id, e.entity_type, e.time_index, attrs, e.deleted_at))
+                out.append(
+                    e
+                    if len(attrs) == len(e.attrs)
+                    else EntitySample(
+                        e.tenant, e.service_path, e.entity_id, e.entity_type, e.time_index, attrs, e.deleted_at
+                    )
+                )
         return out
 
     def _latest_of(self, sids: list[int]) -> dict:
-        return latest_keys(self._cur.execute(
-            LATEST_INSTANCE_SQL.format(table="samples_all", sids="sid IN (SELECT unnest(?::INTEGER[]))"), [sids]
-        ).fetchall())
+        return latest_keys(
+            self._cur.execute(
+                LATEST_INSTANCE_SQL.format(table="samples_all", sids="sid IN (SELECT unnest(?::INTEGER[]))"), [sids]
+            ).fetchall()
+        )
 
     def _stage_locked(self, entities: Sequence[EntitySample]) -> None:
         c = self._cols
         rid_, sid_, t_, kind_, atype_, num_, txt_, js_, md_ = (
-            c["rid"], c["sid"], c["t"], c["kind"], c["atype"], c["num"], c["txt"], c["js"], c["md"],
+            c["rid"],
+            c["sid"],
+            c["t"],
+            c["kind"],
+            c["atype"],
+            c["num"],
+            c["txt"],
+            c["js"],
+            c["md"],
         )
         geo_, lon_, lat_ = c["geo"], c["lon"], c["lat"]
         mnlon, mnlat, mxlon, mxlat = c["min_lon"], c["min_lat"], c["max_lon"], c["max_lat"]
@@ -691,8 +717,13 @@ class DuckDBAppender(Appender):
                 txt_.append(attr.txt)
                 js_.append(attr.js)
                 md_.append(attr.md)
-                if attr.observed_at is None and attr.created_at is None and attr.modified_at is None \
-                        and attr.deleted_at is None and attr.dataset_id is None:
+                if (
+                    attr.observed_at is None
+                    and attr.created_at is None
+                    and attr.modified_at is None
+                    and attr.deleted_at is None
+                    and attr.dataset_id is None
+                ):
                     obs_.append(None)
                     cre_.append(None)
                     mod_.append(None)
@@ -728,8 +759,17 @@ class DuckDBAppender(Appender):
             rejected_id = store._next_rejected
             store._next_rejected += 1
         self._rejected.append(
-            (rejected_id, r.tenant, r.received_at.replace(tzinfo=None), r.error, r.description, r.headers,
-             r.body, len(r.body) if r.body_size is None else r.body_size, r.body_truncated)
+            (
+                rejected_id,
+                r.tenant,
+                r.received_at.replace(tzinfo=None),
+                r.error,
+                r.description,
+                r.headers,
+                r.body,
+                len(r.body) if r.body_size is None else r.body_size,
+                r.body_truncated,
+            )
         )
 
     def commit(self) -> None:
@@ -788,9 +828,15 @@ class DuckDBAppender(Appender):
             with store._series_lock:
                 keys = [k for k in self._new_series if k not in store._series]
                 if keys:
-                    self._durable(cur, INSERT_SERIES, [[self._new_series[k] for k in keys],
-                                                       *([k[i] for k in keys] for i in range(5)),
-                                                       [self._new_datasets.get(k) for k in keys]])
+                    self._durable(
+                        cur,
+                        INSERT_SERIES,
+                        [
+                            [self._new_series[k] for k in keys],
+                            *([k[i] for k in keys] for i in range(5)),
+                            [self._new_datasets.get(k) for k in keys],
+                        ],
+                    )
                 with store._alloc_lock:
                     store._series.update(self._new_series)
                     for key in self._new_series:
@@ -800,7 +846,9 @@ class DuckDBAppender(Appender):
             if len(self._cols["rid"]) <= ARROW_MIN_ROWS:
                 # Only columns that carry a value: converting the all-NULL
                 # ones (geometry, metadata...) would hold the GIL for nothing.
-                names = tuple(n for n in SAMPLE_SCHEMA.names if n in REQUIRED or any(v is not None for v in self._cols[n]))
+                names = tuple(
+                    n for n in SAMPLE_SCHEMA.names if n in REQUIRED or any(v is not None for v in self._cols[n])
+                )
                 self._durable(cur, insert_samples_sql(names), [self._cols[n] for n in names])
             else:
                 self._insert_arrow(cur)
@@ -819,7 +867,8 @@ class DuckDBAppender(Appender):
     def _insert_arrow(self, cur: duckdb.DuckDBPyConnection) -> None:
         cols = self._cols
         arrays = [
-            pa.array(cols[f.name], pa.int64()).cast(f.type) if f.name in TIME_COLUMNS
+            pa.array(cols[f.name], pa.int64()).cast(f.type)
+            if f.name in TIME_COLUMNS
             else pa.array(cols[f.name], f.type)
             for f in SAMPLE_SCHEMA
         ]
@@ -835,24 +884,36 @@ class DuckDBAppender(Appender):
         for row in self._rejected:
             cur.execute(
                 "INSERT INTO rejected_notifications (id, tenant, received_at, error, description, headers, "
-                "body, body_size, body_truncated) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)", list(row))
+                "body, body_size, body_truncated) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                list(row),
+            )
         dropped = None
         if self._rejected:
-            dropped = rejected_store.prune(lambda sql, params: cur.execute(sql, params).fetchall(),
-                                           rejected_store.DUCKDB, [row[1] for row in self._rejected],
-                                           self._store.rejected_limits)  # fmt: skip
+            dropped = rejected_store.prune(
+                lambda sql, params: cur.execute(sql, params).fetchall(),
+                rejected_store.DUCKDB,
+                [row[1] for row in self._rejected],
+                self._store.rejected_limits,
+            )
         for put in self._layouts:
             layout = put.layout
             cur.execute(
                 "INSERT OR REPLACE INTO subscriptions VALUES (?, ?, ?, ?, ?, ?)",
-                [put.tenant, put.subscription_id, orjson.dumps(list(layout.attrs)).decode(),
-                 layout.entity_id, layout.entity_type, datetime.now(UTC).replace(tzinfo=None)],
+                [
+                    put.tenant,
+                    put.subscription_id,
+                    orjson.dumps(list(layout.attrs)).decode(),
+                    layout.entity_id,
+                    layout.entity_type,
+                    datetime.now(UTC).replace(tzinfo=None),
+                ],
             )
-        from .sql import DuckDBDialect, instance_statements
+        from ..sql import instance_statements
+        from .dialect import DuckDBDialect
 
         if self._deletes:
-            from ..history.query import TimeRange
-            from .sql import delete_statements
+            from ...query import TimeRange
+            from ..sql import delete_statements
 
             for op, upto_rid in self._deletes:
                 for sql, params in delete_statements(
@@ -914,8 +975,9 @@ class Compactor:
     conflict.
     """
 
-    def __init__(self, con: duckdb.DuckDBPyConnection, compact_rows: int, major_runs: int,
-                 interval: float = 2.0, on_error=None):
+    def __init__(
+        self, con: duckdb.DuckDBPyConnection, compact_rows: int, major_runs: int, interval: float = 2.0, on_error=None
+    ):
         self._con = con
         self._on_error = on_error  # told about each failure (the store looks for invalidation)
         self._compact_rows = compact_rows

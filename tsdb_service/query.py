@@ -1,16 +1,21 @@
-"""What a history request asks for, parsed and validated, before any SQL.
+"""The query vocabulary: what a read asks for, parsed and validated, before any SQL.
 
-Routes turn HTTP into these frozen values (``history.params``); storage
-renders them to SQL (``storage.sql``); ``history.shape`` turns the rows back
-into QuantumLeap's JSON. Nothing here knows about HTTP or a database.
+Both sides of the read seam speak it. Request parsers (``history.params``,
+``grafana.params``, ``ngsild.params``) turn HTTP into these frozen values;
+storage backends render them to SQL (``storage.sql``); ``history.shape``,
+``grafana`` and ``ngsild.render`` turn the rows back into JSON. Nothing here
+knows about HTTP or a database, so neither side imports the other.
 """
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass, field
-from datetime import datetime
+from datetime import datetime, timedelta
 from enum import Enum
-from typing import Any
+from typing import Any, NamedTuple
+
+from .model import ld_attr_name
 
 
 class AggrMethod(str, Enum):
@@ -177,3 +182,110 @@ class DeleteQuery:
     scope: Scope
     entities: EntityFilter
     time: TimeRange = field(default_factory=TimeRange)
+
+
+# -- what the read seam (``storage.base.Querier``) takes and returns ---------
+
+_EPOCH = datetime(1970, 1, 1)
+
+# NGSI-LD time properties an ``InstanceWindow`` can select on.
+TIME_PROPERTIES = ("observedAt", "createdAt", "modifiedAt", "deletedAt")
+
+
+@dataclass(frozen=True, slots=True)
+class SeriesRef:
+    sid: int
+    service_path: str
+    entity_id: str
+    entity_type: str
+    attr: str  # the stored name: attr~datasetId for a non-default NGSI-LD datasetId
+    dataset_id: str | None = None  # NGSI-LD datasetId; None: the default instance
+
+    @property
+    def ld_attr(self) -> str:
+        """The NGSI-LD attribute name (without the datasetId suffix)."""
+        return ld_attr_name(self.attr, self.dataset_id)
+
+
+@dataclass(frozen=True, slots=True)
+class AggBranch:
+    """One aggregated column family: plain attributes (``steps`` empty) or a
+    value path into structured values, over the given series."""
+
+    sids: tuple[int, ...]
+    steps: tuple[str | int, ...] = ()
+
+
+class RowMask:
+    """Which samples of some series a read keeps: per series, half-open
+    intervals of (time, row id), ``[(t0, r0), (t1, r1))``, an open end where
+    ``t1`` is None. Times are epoch microseconds. A geo-query becomes one:
+    the intervals in which an entity's location matched, repeated for each
+    of its series, so a sample is kept when its row's location matched. A
+    series not listed keeps nothing."""
+
+    __slots__ = ("intervals",)
+
+    def __init__(self, intervals: dict[int, list[tuple[int, int, int | None, int | None]]]):
+        self.intervals = intervals
+
+    def arrays(self) -> list[list]:
+        """The five parallel arrays ``Dialect.mask_relation`` binds."""
+        sids, t0, r0, t1, r1 = [], [], [], [], []
+        for sid, spans in self.intervals.items():
+            for a, ra, b, rb in spans:
+                sids.append(sid)
+                t0.append(_moment(a))
+                r0.append(ra)
+                t1.append(None if b is None else _moment(b))
+                r1.append(rb)
+        return [sids, t0, r0, t1, r1]
+
+    def keep(self, sid: int, rows: list[tuple]) -> list[tuple]:
+        """Those of ``rows`` (sorted by (t µs, rid, ...)) the mask keeps."""
+        out: list[tuple] = []
+        for a, ra, b, rb in self.intervals.get(sid, ()):
+            lo = bisect.bisect_left(rows, (a, ra))
+            hi = len(rows) if b is None else bisect.bisect_left(rows, (b, rb))
+            out.extend(rows[lo:hi])
+        return out
+
+
+def _moment(micros: int) -> datetime:
+    return _EPOCH + timedelta(microseconds=micros)
+
+
+@dataclass(frozen=True, slots=True)
+class InstanceWindow:
+    """Which instances a temporal query selects: those whose ``timeproperty``
+    lies in [start, end) (either bound optional; NGSI-LD's ``timerel``:
+    ``after`` = start only, ``before`` = end only, ``between`` = both).
+    Times are timezone-aware."""
+
+    timeproperty: str = "observedAt"  # one of TIME_PROPERTIES
+    start: datetime | None = None
+    end: datetime | None = None
+
+    def __post_init__(self) -> None:
+        if self.timeproperty not in TIME_PROPERTIES:
+            raise ValueError(f"unknown time property {self.timeproperty!r}")
+
+
+class InstanceRow(NamedTuple):
+    """One NGSI-LD attribute instance. Times are naive UTC datetimes."""
+
+    sid: int
+    iid: int  # model.instance_urn(iid) is its instanceId
+    at: datetime  # the window's time property (observedAt: coalesce(observed_at, t))
+    t: datetime  # the NGSIv2 row time (time index)
+    observed_at: datetime | None  # as sent; None: the instance had no observedAt
+    created_at: datetime | None
+    modified_at: datetime | None
+    deleted_at: datetime | None  # set: a deletion instance (value urn:ngsi-ld:null)
+    dataset_id: str | None  # from the series; None: the default instance
+    kind: int  # model.Kind
+    atype: str | None  # Property, GeoProperty, Relationship, ... as notified
+    num: float | None
+    txt: str | None
+    js: str | None
+    md: str | None  # sub-properties as JSON text, exactly as received

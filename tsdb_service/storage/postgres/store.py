@@ -25,26 +25,56 @@ import orjson
 import psycopg
 from psycopg_pool import ConnectionPool
 
-from ..errors import Unavailable
-from ..geo.extents import ExtentLedger
-from ..model import EntitySample, RejectedNotification
-from ..ngsi import ValuesLayout
-from . import rejected as rejected_store
-from .base import (
-    Appender, AppendSamples, DeleteInstance, DeleteSamples, PutLayout, RecordRejected, ReplaceInstance, Store,
+from ...errors import Unavailable
+from ...geo.extents import ExtentLedger
+from ...model import EntitySample, RejectedNotification
+from ...ngsi import ValuesLayout
+from .. import rejected as rejected_store
+from ..base import (
+    Appender,
+    AppendSamples,
+    DeleteInstance,
+    DeleteSamples,
+    PutLayout,
+    RecordRejected,
+    ReplaceInstance,
+    Store,
     WriteOp,
 )
-from .ld_ingest import LatestInstances, drop_renotified, latest_keys, publish_staged, with_deletions
-from .migrate import applied_versions, load_migrations
-from .rejected import RejectedLimits
-from .writer import GroupCommitter
+from ..ld_ingest import (
+    LatestInstances,
+    drop_renotified,
+    latest_keys,
+    publish_staged,
+    with_deletions,
+)
+from ..migrate import applied_versions, load_migrations
+from ..rejected import RejectedLimits
+from ..writer import GroupCommitter
 
 log = logging.getLogger(__name__)
 
 SAMPLE_COLUMNS = (
-    "rid", "sid", "t", "kind", "atype", "num", "txt", "js", "geo",
-    "lon", "lat", "min_lon", "min_lat", "max_lon", "max_lat", "md",
-    "observed_at", "created_at", "modified_at", "deleted_at",
+    "rid",
+    "sid",
+    "t",
+    "kind",
+    "atype",
+    "num",
+    "txt",
+    "js",
+    "geo",
+    "lon",
+    "lat",
+    "min_lon",
+    "min_lat",
+    "max_lon",
+    "max_lat",
+    "md",
+    "observed_at",
+    "created_at",
+    "modified_at",
+    "deleted_at",
 )  # iid: the column default (a sequence) allocates it
 SeriesKey = tuple[str, str, str, str, str]
 _MIGRATION_LOCK = 0x7473_6462  # "tsdb": serialises migrations across processes
@@ -52,9 +82,7 @@ WRITER_APPLICATION_NAME = "tsdb-service writer"
 # SQLSTATE classes that mean the server cannot write: insufficient resources
 # (53100 disk_full...) and system errors (58030 io_error...).
 _STORAGE_CLASSES = ("53", "58")
-MAYBE_STORED = (
-    "the connection to the database broke during the commit; this write may or may not have been stored"
-)
+MAYBE_STORED = "the connection to the database broke during the commit; this write may or may not have been stored"
 
 
 def is_storage_error(exc: BaseException) -> bool:
@@ -97,15 +125,15 @@ def _naive(moment: datetime | None) -> datetime | None:
 class PostgresStore(Store):
     backend = "postgresql"
 
-    def __init__(self, url: str, *, pool_size: int = 8, writer_threads: int = 3,
-                 rejected_limits: RejectedLimits | None = None):
+    def __init__(
+        self, url: str, *, pool_size: int = 8, writer_threads: int = 3, rejected_limits: RejectedLimits | None = None
+    ):
         self.url = url
         # Rejected-store bounds (storage.rejected) and what they dropped, by reason.
         self.rejected_limits = rejected_limits or RejectedLimits()
         self.rejected_dropped = dict.fromkeys(rejected_store.REASONS, 0)
         migrate_url(url)
-        self.pool = ConnectionPool(url, min_size=1, max_size=pool_size, open=True,
-                                   kwargs={"autocommit": True})
+        self.pool = ConnectionPool(url, min_size=1, max_size=pool_size, open=True, kwargs={"autocommit": True})
         self._series: dict[SeriesKey, int] = {}
         self.latest_instances = LatestInstances()
         self.geo_extents = ExtentLedger()  # geo.extents: where each series has ever been
@@ -114,15 +142,14 @@ class PostgresStore(Store):
         # full, I/O error); cleared by the next write that commits.
         self._write_failure: str | None = None
         self._load_layouts()
-        self._committer = GroupCommitter(lambda: PostgresAppender(self), name="tsdb-pg-writer",
-                                         threads=writer_threads)
+        self._committer = GroupCommitter(lambda: PostgresAppender(self), name="tsdb-pg-writer", threads=writer_threads)
         self._committer.start()
         self._closed = False
         self._querier = None
 
     def querier(self):
         if self._querier is None:
-            from .postgres_querier import PostgresQuerier
+            from .querier import PostgresQuerier
 
             self._querier = PostgresQuerier(self)
         return self._querier
@@ -157,23 +184,26 @@ class PostgresStore(Store):
         return {sub: layout for (t, sub), layout in self._layouts.items() if t == tenant}
 
     def rejected(self, tenant: str | None, limit: int, offset: int) -> list[dict[str, Any]]:
-        from .duckdb_store import REJECTED_COLUMNS, rejected_row
-
         where, params = ("", []) if tenant is None else ("WHERE tenant = %s ", [tenant])
         with self.connection() as conn:
             rows = conn.execute(
-                f"SELECT {REJECTED_COLUMNS} FROM rejected_notifications {where}ORDER BY id DESC LIMIT %s OFFSET %s",
+                f"SELECT {rejected_store.COLUMNS} FROM rejected_notifications {where}ORDER BY id DESC LIMIT %s OFFSET %s",
                 [*params, limit, offset],
             ).fetchall()
-        return [rejected_row(*row) for row in rows]
+        return [rejected_store.rejected_row(*row) for row in rows]
 
     def rejected_page(self, tenant: str | None, limit: int, offset: int, max_bytes: int):
         """``rejected`` paged by size too: (rows, next offset or None)."""
-        from .duckdb_store import rejected_row
-
         with self.connection() as conn:
-            return rejected_store.page(lambda sql, params: conn.execute(sql, params).fetchall(),
-                                       rejected_store.POSTGRES, tenant, limit, offset, max_bytes, rejected_row)
+            return rejected_store.page(
+                lambda sql, params: conn.execute(sql, params).fetchall(),
+                rejected_store.POSTGRES,
+                tenant,
+                limit,
+                offset,
+                max_bytes,
+                rejected_store.rejected_row,
+            )
 
     def health(self) -> dict[str, Any]:
         ok = self._committer.alive
@@ -183,8 +213,12 @@ class PostgresStore(Store):
         except Exception as exc:  # report, do not raise: this is the health probe
             log.warning("database unreachable: %s", exc)
             ok = False
-        report = {"status": "pass" if ok else "fail", "backend": self.backend,
-                  "commits": self._committer.commits, "writes": self._committer.ops}
+        report = {
+            "status": "pass" if ok else "fail",
+            "backend": self.backend,
+            "commits": self._committer.commits,
+            "writes": self._committer.ops,
+        }
         if self._write_failure is not None:
             report["status"] = "fail"
             report["output"] = "the database refuses writes: " + self._write_failure
@@ -275,13 +309,25 @@ class PostgresAppender(Appender):
                 cur.execute(
                     "INSERT INTO rejected_notifications (tenant, received_at, error, description, headers, body, "
                     "body_size, body_truncated) VALUES (%s, %s, %s, %s, %s, %s, %s, %s)",
-                    [r.tenant, naive_utc(r.received_at), r.error, r.description, r.headers, r.body,
-                     len(r.body) if r.body_size is None else r.body_size, r.body_truncated],
+                    [
+                        r.tenant,
+                        naive_utc(r.received_at),
+                        r.error,
+                        r.description,
+                        r.headers,
+                        r.body,
+                        len(r.body) if r.body_size is None else r.body_size,
+                        r.body_truncated,
+                    ],
                 )
             dropped = None
             if self._rejected:
-                dropped = rejected_store.prune(_fetch_all(cur), rejected_store.POSTGRES,
-                                               [r.tenant for r in self._rejected], self._store.rejected_limits)
+                dropped = rejected_store.prune(
+                    _fetch_all(cur),
+                    rejected_store.POSTGRES,
+                    [r.tenant for r in self._rejected],
+                    self._store.rejected_limits,
+                )
             for put in self._layouts:
                 layout = put.layout
                 cur.execute(
@@ -289,14 +335,20 @@ class PostgresAppender(Appender):
                     "ON CONFLICT (tenant, subscription_id) DO UPDATE SET attrs = EXCLUDED.attrs, "
                     "entity_id = EXCLUDED.entity_id, entity_type = EXCLUDED.entity_type, "
                     "registered_at = EXCLUDED.registered_at",
-                    [put.tenant, put.subscription_id, orjson.dumps(list(layout.attrs)).decode(),
-                     layout.entity_id, layout.entity_type, naive_utc(datetime.now(UTC))],
+                    [
+                        put.tenant,
+                        put.subscription_id,
+                        orjson.dumps(list(layout.attrs)).decode(),
+                        layout.entity_id,
+                        layout.entity_type,
+                        naive_utc(datetime.now(UTC)),
+                    ],
                 )
             if self._deletes:
                 self._delete(cur)
             if self._instance_ops:
-                from .postgres_querier import PostgresDialect
-                from .sql import instance_statements
+                from ..sql import instance_statements
+                from .dialect import PostgresDialect
 
                 for op in self._instance_ops:
                     for sql, params in instance_statements(PostgresDialect(), ("samples",), op):
@@ -317,9 +369,9 @@ class PostgresAppender(Appender):
     def _delete(self, cur: psycopg.Cursor) -> None:
         """Deletes see only committed rows, so samples acknowledged after the
         delete was asked for survive it, as on DuckDB."""
-        from ..history.query import TimeRange
-        from .postgres_querier import PostgresDialect
-        from .sql import delete_statements
+        from ...query import TimeRange
+        from ..sql import delete_statements
+        from .dialect import PostgresDialect
 
         for op in self._deletes:
             for sql, params in delete_statements(
@@ -342,13 +394,28 @@ class PostgresAppender(Appender):
                 prefix = (entity.tenant, entity.service_path, entity.entity_id, entity.entity_type)
                 for a in entity.attrs:
                     g = a.geo
-                    copy.write_row((
-                        rid, sids[(*prefix, a.name)], t, int(a.kind), a.ngsi_type, a.num, a.txt, a.js,
-                        *((g.geojson, g.lon, g.lat, g.min_lon, g.min_lat, g.max_lon, g.max_lat)
-                          if g is not None else (None,) * 7),
-                        a.md, _naive(a.observed_at), _naive(a.created_at), _naive(a.modified_at),
-                        _naive(a.deleted_at),
-                    ))
+                    copy.write_row(
+                        (
+                            rid,
+                            sids[(*prefix, a.name)],
+                            t,
+                            int(a.kind),
+                            a.ngsi_type,
+                            a.num,
+                            a.txt,
+                            a.js,
+                            *(
+                                (g.geojson, g.lon, g.lat, g.min_lon, g.min_lat, g.max_lon, g.max_lat)
+                                if g is not None
+                                else (None,) * 7
+                            ),
+                            a.md,
+                            _naive(a.observed_at),
+                            _naive(a.created_at),
+                            _naive(a.modified_at),
+                            _naive(a.deleted_at),
+                        )
+                    )
 
     def _entity_attrs(self, cur: psycopg.Cursor, entity: EntitySample) -> list[tuple[str, str | None]]:
         """Stored attributes (name, datasetId) of a deleted entity."""
@@ -371,19 +438,28 @@ class PostgresAppender(Appender):
             for a in e.attrs:
                 key = (*prefix, a.name)
                 items.append((key, sids[key], a, dedup))
+
         def load(wanted: list[int]) -> dict:
             cur.execute(
                 "SELECT l.* FROM unnest(%s::integer[]) AS s(sid) CROSS JOIN LATERAL ("
                 "SELECT x.sid, x.observed_at, x.kind, x.num, x.txt, x.js, x.md, x.deleted_at FROM samples x "
-                "WHERE x.sid = s.sid ORDER BY x.t DESC, x.iid DESC LIMIT 1) l", [wanted])
+                "WHERE x.sid = s.sid ORDER BY x.t DESC, x.iid DESC LIMIT 1) l",
+                [wanted],
+            )
             return latest_keys(cur.fetchall())
+
         keep = iter(drop_renotified(items, self._store.latest_instances, self._latest, load))
         out = []
         for e in entities:
             attrs = [a for a in e.attrs if next(keep)]
             if attrs:
-                out.append(e if len(attrs) == len(e.attrs) else EntitySample(
-                    e.tenant, e.service_path, e.entity_id, e.entity_type, e.time_index, attrs, e.deleted_at))
+                out.append(
+                    e
+                    if len(attrs) == len(e.attrs)
+                    else EntitySample(
+                        e.tenant, e.service_path, e.entity_id, e.entity_type, e.time_index, attrs, e.deleted_at
+                    )
+                )
         return out
 
     def _resolve_series(self, cur: psycopg.Cursor) -> dict[SeriesKey, int]:
@@ -391,9 +467,7 @@ class PostgresAppender(Appender):
         Keys are inserted sorted so two replicas never lock in opposite orders."""
         cache = self._store._series
         wanted = {
-            (e.tenant, e.service_path, e.entity_id, e.entity_type, a.name)
-            for e in self._entities
-            for a in e.attrs
+            (e.tenant, e.service_path, e.entity_id, e.entity_type, a.name) for e in self._entities for a in e.attrs
         }
         local = {k: sid for k in wanted if (sid := cache.get(k)) is not None}
         missing = sorted(wanted - local.keys())
@@ -401,7 +475,9 @@ class PostgresAppender(Appender):
             columns = [list(col) for col in zip(*missing, strict=True)]
             datasets = {
                 (e.tenant, e.service_path, e.entity_id, e.entity_type, a.name): a.dataset_id
-                for e in self._entities for a in e.attrs if a.dataset_id is not None
+                for e in self._entities
+                for a in e.attrs
+                if a.dataset_id is not None
             }
             cur.execute(
                 "INSERT INTO series (tenant, service_path, entity_id, entity_type, attr, dataset_id) "

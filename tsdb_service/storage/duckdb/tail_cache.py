@@ -41,7 +41,7 @@ TailRow = tuple[int, int, str, int, float | None, str | None, str | None]
 
 
 class _Entry:
-    __slots__ = ("rows", "keys", "whole")
+    __slots__ = ("keys", "rows", "whole")
 
     def __init__(self, rows: list[TailRow], whole: bool):
         self.rows = rows
@@ -171,6 +171,6 @@ def _answer(entry: _Entry, start_us, end_us, newest_first: bool, limit: int, off
         return None
     if newest_first:
         stop = hi - offset
-        return rows[max(lo, stop - limit): max(lo, stop)]
+        return rows[max(lo, stop - limit) : max(lo, stop)]
     first = lo + offset
-    return rows[first: min(hi, first + limit)]
+    return rows[first : min(hi, first + limit)]

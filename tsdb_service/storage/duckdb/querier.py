@@ -11,14 +11,16 @@ from typing import TYPE_CHECKING
 
 import duckdb
 
-from ..errors import Unavailable
-from .memory_only import check_database_allowed
-from .catalog import SeriesCatalog
-from .sql import _LOCATION_COLUMNS, GEO_KIND, DuckDBDialect, RowMask, SqlQuerier, series_time_filter
-from .duckdb_store import to_micros
+from ...errors import Unavailable
+from ...query import RowMask
+from ..catalog import SeriesCatalog
+from ..memory_only import check_database_allowed
+from ..sql import _LOCATION_COLUMNS, GEO_KIND, SqlQuerier, series_time_filter
+from .dialect import DuckDBDialect
+from .store import to_micros
 
 if TYPE_CHECKING:
-    from .duckdb_store import DuckDBStore
+    from .store import DuckDBStore
 
 # DuckDB appends committed rows in commit order, so ``rowid`` only grows for
 # an insert-only table (series ids do not: several writers allocate them).
@@ -52,9 +54,15 @@ class DuckDBQuerier(SqlQuerier):
             if rows is not None:
                 return rows
         return super().raw_rows(
-            sids, time, newest_first=newest_first, limit=limit, offset=offset,
-            one_per_row=one_per_row, attrs_per_row=attrs_per_row, mask=mask,
-        )  # fmt: skip
+            sids,
+            time,
+            newest_first=newest_first,
+            limit=limit,
+            offset=offset,
+            one_per_row=one_per_row,
+            attrs_per_row=attrs_per_row,
+            mask=mask,
+        )
 
     def _from_tails(self, sids, time, newest_first, limit, offset) -> list[tuple] | None:
         """Each series' tail holds its own newest ``offset + limit`` rows in the
@@ -144,7 +152,7 @@ class DuckDBQuerier(SqlQuerier):
         kept = mask.keep(sid, got)
         if not complete and len(kept) < wanted:
             return None
-        return kept[max(0, len(kept) - wanted):]
+        return kept[max(0, len(kept) - wanted) :]
 
     def _masked_firsts(self, sids, time, newest_first, wanted, mask) -> list[tuple]:
         """The first ``wanted`` rows (in the request's order) that ``mask``
@@ -274,7 +282,7 @@ def _window(merged: list[tuple], newest_first: bool, limit: int, offset: int) ->
     merged.sort()
     if newest_first:
         stop = len(merged) - offset
-        picked = merged[max(0, stop - limit): max(0, stop)]
+        picked = merged[max(0, stop - limit) : max(0, stop)]
     else:
-        picked = merged[offset: offset + limit]
+        picked = merged[offset : offset + limit]
     return [(sid, *row[1:]) for _, _, sid, row in picked]

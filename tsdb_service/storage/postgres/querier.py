@@ -18,19 +18,20 @@ goes to the database.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import psycopg
 
-from ..errors import Unavailable
-from .memory_only import check_database_allowed
-from ..model import Kind
-from .catalog import SeriesCatalog
-from .sql import _MAX_BIGINT, Dialect, RowMask, SqlQuerier, box_test
+from ...errors import Unavailable
+from ...model import Kind
+from ...query import RowMask
+from ..catalog import SeriesCatalog
+from ..memory_only import check_database_allowed
+from ..sql import _MAX_BIGINT, SqlQuerier, box_test
+from .dialect import PostgresDialect
 
 if TYPE_CHECKING:
-    from .postgres_store import PostgresStore
+    from .store import PostgresStore
 
 
 MANY_SIDS = 256
@@ -38,50 +39,6 @@ MANY_SIDS = 256
 _BOX = "box(point(min_lon, min_lat), point(max_lon, max_lat))"
 # At most this stale: a series created by another replica (see above).
 SERIES_CHECK_S = 1.0
-
-
-class PostgresDialect(Dialect):
-    name = "postgresql"
-    placeholder = "%s"
-    samples_table = "samples"
-
-    def samples(self, columns: str) -> str:
-        return "samples"
-
-    def sid_filter(self, sids: Sequence[int]) -> tuple[str, list]:
-        if len(sids) == 1:
-            return "sid = %s", [sids[0]]
-        # One array parameter: the index on (sid, t) serves = ANY(...).
-        return "sid = ANY(%s::integer[])", [list(sids)]
-
-    def iso_ms(self, expr: str) -> str:
-        return f"""to_char({expr}, 'YYYY-MM-DD"T"HH24:MI:SS.MS"+00:00"')"""
-
-    def epoch_us(self, expr: str) -> str:
-        return f"(extract(epoch from {expr}) * 1000000)::bigint"
-
-    def json_path(self, steps: tuple[str | int, ...]) -> object:
-        return [str(step) for step in steps]
-
-    def json_number(self, col: str, path: object) -> tuple[str, list]:
-        return (
-            f"CASE WHEN jsonb_typeof(({col})::jsonb #> %s::text[]) = 'number' "
-            f"THEN (({col})::jsonb #>> %s::text[])::double precision END",
-            [path, path],
-        )
-
-    def json_is_integer(self, col: str, path: object) -> tuple[str, list]:
-        return (
-            f"(jsonb_typeof(({col})::jsonb #> %s::text[]) = 'number' "
-            f"AND (({col})::jsonb #>> %s::text[]) ~ '^-?[0-9]+$')",
-            [path, path],
-        )
-
-    def json_present(self, col: str, path: object) -> tuple[str, list]:
-        return f"coalesce(jsonb_typeof(({col})::jsonb #> %s::text[]), 'null') <> 'null'", [path]
-
-    def regex_match(self, col: str) -> str:
-        return f"{col} ~ %s"
 
 
 class PostgresQuerier(SqlQuerier):
@@ -92,9 +49,15 @@ class PostgresQuerier(SqlQuerier):
         intervals."""
         if mask is None or not one_per_row or not sids:
             return super().raw_rows(
-                sids, time, newest_first=newest_first, limit=limit, offset=offset,
-                one_per_row=one_per_row, attrs_per_row=attrs_per_row, mask=mask,
-            )  # fmt: skip
+                sids,
+                time,
+                newest_first=newest_first,
+                limit=limit,
+                offset=offset,
+                one_per_row=one_per_row,
+                attrs_per_row=attrs_per_row,
+                mask=mask,
+            )
         d = self.dialect
         direction = "DESC" if newest_first else "ASC"
         window, params = "", []

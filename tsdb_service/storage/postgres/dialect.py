@@ -1,0 +1,51 @@
+"""How PostgreSQL spells the shared SQL renderer's pieces (``storage.sql.Dialect``)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from ..sql import Dialect
+
+
+class PostgresDialect(Dialect):
+    name = "postgresql"
+    placeholder = "%s"
+    samples_table = "samples"
+
+    def samples(self, columns: str) -> str:
+        return "samples"
+
+    def sid_filter(self, sids: Sequence[int]) -> tuple[str, list]:
+        if len(sids) == 1:
+            return "sid = %s", [sids[0]]
+        # One array parameter: the index on (sid, t) serves = ANY(...).
+        return "sid = ANY(%s::integer[])", [list(sids)]
+
+    def iso_ms(self, expr: str) -> str:
+        return f"""to_char({expr}, 'YYYY-MM-DD"T"HH24:MI:SS.MS"+00:00"')"""
+
+    def epoch_us(self, expr: str) -> str:
+        return f"(extract(epoch from {expr}) * 1000000)::bigint"
+
+    def json_path(self, steps: tuple[str | int, ...]) -> object:
+        return [str(step) for step in steps]
+
+    def json_number(self, col: str, path: object) -> tuple[str, list]:
+        return (
+            f"CASE WHEN jsonb_typeof(({col})::jsonb #> %s::text[]) = 'number' "
+            f"THEN (({col})::jsonb #>> %s::text[])::double precision END",
+            [path, path],
+        )
+
+    def json_is_integer(self, col: str, path: object) -> tuple[str, list]:
+        return (
+            f"(jsonb_typeof(({col})::jsonb #> %s::text[]) = 'number' "
+            f"AND (({col})::jsonb #>> %s::text[]) ~ '^-?[0-9]+$')",
+            [path, path],
+        )
+
+    def json_present(self, col: str, path: object) -> tuple[str, list]:
+        return f"coalesce(jsonb_typeof(({col})::jsonb #> %s::text[]), 'null') <> 'null'", [path]
+
+    def regex_match(self, col: str) -> str:
+        return f"{col} ~ %s"
