@@ -254,6 +254,8 @@ class Store(ABC):
         at once: for reads that always need the database, or whose work
         before the database access is too costly to do twice (geo matching).
         ``fn`` may also parse and render (it runs in the request's context,
-        read budget included); it must be safe to run twice.
+        read budget included); it must be safe to run twice. Opening and
+        closing the store (the app's lifespan) are not reads: the app runs
+        them in the threadpool itself.
         """
         return await read_off_loop(fn, memory_first)
