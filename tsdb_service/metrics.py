@@ -12,8 +12,8 @@ Three sources, each hooked where it costs least:
   entity id, an unbounded label set that grows until Prometheus falls over;
 * **scrape-time collectors**: the write queue depth, and the store and
   rejected-store sizes. The latter need the database, so the scrape runs in
-  the threadpool (the route is a plain ``def``) and caches them for a few
-  seconds: a burst of scrapes costs one query.
+  the threadpool (``Store.read``) and caches them for a few seconds: a
+  burst of scrapes costs one query.
 
 Each app has its own registry, so two apps in one process (tests) never mix
 counts. The time-index fallback counter is the exception: the parser reports
@@ -49,6 +49,7 @@ from prometheus_client.registry import Collector
 from starlette.responses import Response
 
 from .api import openapi
+from .api.reads import reads_store
 from .ngsi import timeindex
 from .storage.base import (
     AppendSamples,
@@ -430,7 +431,6 @@ router = APIRouter(tags=["meta"])
 
 
 @router.get("/metrics", summary="Prometheus metrics (text exposition format)", **openapi.METRICS)
+@reads_store  # in the threadpool: the store sizes may query the database
 def metrics_endpoint(request: Request) -> Response:
-    # A plain ``def``: FastAPI runs it in the threadpool, where the store
-    # sizes may query the database.
     return Response(request.app.state.metrics.render(), media_type=CONTENT_TYPE)

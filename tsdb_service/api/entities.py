@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 from fastapi import APIRouter, Request
-from starlette.concurrency import run_in_threadpool
 from starlette.responses import Response
 
 from ..history.params import delete_query, entity_list_query
@@ -12,6 +13,7 @@ from ..query import Shape
 from ..storage.base import DeleteSamples
 from . import openapi as oa
 from .history import answer_history_async
+from .reads import reads_store
 from .responses import JSON
 from .tenancy import tenant_of
 
@@ -23,6 +25,7 @@ router = APIRouter(tags=["entities"])
     summary="Entity ids with their type and latest time index",
     **oa.spec(*oa.ENTITY_LIST, ok_=oa.ok(oa.ref_array("EntityListItem")), errors_=oa.READ_ERRORS),
 )
+@reads_store
 def list_entities(request: Request) -> JSON:
     query = entity_list_query(
         request.query_params, request.headers, tenant_of(request), request.app.state.settings.default_limit
@@ -75,6 +78,6 @@ async def entity_attr_value(entity_id: str, attr_name: str, request: Request) ->
 async def delete_entity(entity_id: str, request: Request) -> Response:
     query = delete_query(request.query_params, request.headers, tenant_of(request), entity_id=entity_id)
     store = request.app.state.store
-    sids, time = await run_in_threadpool(delete_target, store.querier(), query)
+    sids, time = await store.read(partial(delete_target, store.querier(), query), memory_first=False)
     await store.write(DeleteSamples(tuple(sids), time.start, time.end))
     return Response(status_code=204)

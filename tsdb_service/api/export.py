@@ -3,21 +3,23 @@
 Everything that can fail because of the request (parameters, tenant,
 service path) or the database being away fails before the first byte, as
 an NGSI error. The body is then produced batch by batch in the threadpool
-(a database read and its encoding per step), so neither DuckDB nor the
-encoders ever run on the event loop and memory stays at about one batch.
+(``Store.read``: a database read and its encoding per step), so neither the
+database nor the encoders ever run on the event loop and memory stays at
+about one batch.
 If the client goes away the cursor is closed at once.
 """
 
 from __future__ import annotations
 
 from collections.abc import AsyncIterator
+from functools import partial
 
 import anyio
 from fastapi import APIRouter, Request
-from starlette.concurrency import run_in_threadpool
 from starlette.responses import StreamingResponse
 
 from ..export import Encoder, SampleStream, export_query, open_export
+from ..storage.base import Store
 from . import openapi as oa
 from .tenancy import tenant_of
 
@@ -38,24 +40,25 @@ router = APIRouter(tags=["export"])
 )
 async def export(request: Request) -> StreamingResponse:
     query = export_query(request.query_params, request.headers, tenant_of(request))
-    stream = await run_in_threadpool(open_export, request.app.state.store, query)
+    store = request.app.state.store
+    stream = await store.read(partial(open_export, store, query), memory_first=False)
     filename = f"tsdb-export{query.format.suffix}"
     return StreamingResponse(
-        _body(stream, Encoder(query.format)),
+        _body(store, stream, Encoder(query.format)),
         media_type=query.format.media_type,
         headers={"Content-Disposition": f'attachment; filename="{filename}"'},
     )
 
 
-async def _body(stream: SampleStream, encoder: Encoder) -> AsyncIterator[bytes]:
+async def _body(store: Store, stream: SampleStream, encoder: Encoder) -> AsyncIterator[bytes]:
     try:
-        while (piece := await run_in_threadpool(_step, stream, encoder)) is not None:
+        while (piece := await store.read(partial(_step, stream, encoder), memory_first=False)) is not None:
             if piece:
                 yield piece
-        yield await run_in_threadpool(encoder.finish)
+        yield await store.read(encoder.finish, memory_first=False)
     finally:
         with anyio.CancelScope(shield=True):  # also when the client went away
-            await run_in_threadpool(stream.close)
+            await store.read(stream.close, memory_first=False)
 
 
 def _step(stream: SampleStream, encoder: Encoder) -> bytes | None:

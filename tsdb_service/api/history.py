@@ -1,21 +1,20 @@
 """Shared plumbing of the history routes: parse, query, render.
 
-DuckDB blocks, so no read may query it on the event loop. The history routes
-first try to answer from memory (series catalog, in-memory tails) on the
-loop, where any database access raises instead of running, and otherwise
-answer in the threadpool (see ``storage.memory_only``).
+No read may query the database on the event loop: the history routes read
+through ``Store.read``, which answers from memory (series catalog, in-memory
+tails) on the loop when it can and otherwise in the threadpool.
 """
 
 from __future__ import annotations
 
+from functools import partial
+
 from fastapi import Request
-from starlette.concurrency import run_in_threadpool
 
 from ..history.params import history_query
 from ..history.service import run_history
 from ..history.shape import render
 from ..query import Shape
-from ..storage.memory_only import in_memory_or_threadpool
 from .responses import JSON
 from .tenancy import tenant_of
 
@@ -49,6 +48,5 @@ async def answer_history_async(request: Request, shape: Shape, **kwargs) -> JSON
     """``answer_history`` from memory on the event loop when it can be, else
     in the threadpool. A geo-query goes straight to the threadpool: its
     matching is work that a retry there would repeat."""
-    if "georel" in request.query_params:
-        return await run_in_threadpool(answer_history, request, shape, **kwargs)
-    return await in_memory_or_threadpool(answer_history, request, shape, **kwargs)
+    read = partial(answer_history, request, shape, **kwargs)
+    return await request.app.state.store.read(read, memory_first="georel" not in request.query_params)

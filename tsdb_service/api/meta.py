@@ -6,6 +6,7 @@ from fastapi import APIRouter, Request
 
 from .. import __version__
 from . import openapi as oa
+from .reads import reads_store
 from .responses import JSON
 
 router = APIRouter(tags=["meta"])
@@ -25,6 +26,7 @@ _HEALTH_KEYS = ("status", "output")
 
 
 @router.get("/health", **oa.HEALTH)
+@reads_store
 def health(request: Request) -> JSON:
     report = request.app.state.store.health()
     status = 200 if report["status"] == "pass" else 503

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import logging
 from datetime import UTC, datetime
+from functools import partial
 
 import orjson
 from fastapi import APIRouter, Query, Request
-from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 from starlette.responses import Response
 
@@ -26,6 +26,7 @@ from ..security import redact_headers
 from ..storage.base import AppendSamples, PutLayout, RecordRejected
 from . import openapi as oa
 from .handlers import internal_error
+from .reads import reads_store
 from .responses import JSON
 from .tenancy import tenant_header, tenant_of
 
@@ -105,13 +106,12 @@ async def _receive(request: Request) -> None:
         if type(body) is _Overflow:
             raise PayloadTooLarge(body.description(settings.max_body_bytes))
         _check_content_type(request.headers.get("content-type"))
-        layouts = store.values_layout
-        if len(body) <= _PARSE_INLINE_MAX:
-            entities = parse_notification(body, request.headers, received_at=received_at, values_layout=layouts)
-        else:
-            entities = await run_in_threadpool(
-                parse_notification, body, request.headers, received_at=received_at, values_layout=layouts
-            )
+        # A read: a 'values' layout comes from the store (memory; on
+        # PostgreSQL a miss looks in the database, off the loop).
+        parse = partial(
+            parse_notification, body, request.headers, received_at=received_at, values_layout=store.values_layout
+        )
+        entities = await store.read(parse, memory_first=len(body) <= _PARSE_INLINE_MAX)
     except TsdbError as exc:
         if exc.status < 500:
             await _keep_rejected(request, store, received_at, exc, body, settings.rejected_body_max_bytes)
@@ -245,6 +245,7 @@ def _rejected_tenant(request) -> str:
     summary="Notifications we answered with 4xx, newest first",
     **oa.REJECTED,
 )
+@reads_store
 def list_rejected(
     request: Request,
     limit: int = Query(100, ge=1, le=10_000),
@@ -291,6 +292,7 @@ async def put_layout(subscription_id: str, request: Request) -> JSON:
     summary="Registered 'values' layouts of this tenant",
     **oa.spec(oa.FIWARE_SERVICE, oa.NGSILD_TENANT, ok_=oa.ok(oa.LAYOUTS), errors_=(400, *oa.AUTH, 503)),
 )
+@reads_store
 def list_layouts(request: Request) -> JSON:
     layouts = request.app.state.store.layouts(tenant_of(request))
     return JSON({sub: layout_document(layout) for sub, layout in sorted(layouts.items())})

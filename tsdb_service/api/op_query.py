@@ -8,9 +8,10 @@ with every attribute at its latest stored value.
 
 from __future__ import annotations
 
+from functools import partial
+
 import orjson
 from fastapi import APIRouter, Request
-from starlette.concurrency import run_in_threadpool
 
 from ..errors import BadRequest, ParseError
 from ..history.params import check_id, service_paths
@@ -37,7 +38,8 @@ async def op_query(request: Request) -> JSON:
     if len(body) > _MAX_BODY:
         raise BadRequest("query body is larger than 1 MiB")
     query = last_value_query(body, tenant_of(request), request.headers.get("fiware-servicepath"))
-    entities = await run_in_threadpool(run_last_values, request.app.state.store.querier(), query)
+    store = request.app.state.store
+    entities = await store.read(partial(run_last_values, store.querier(), query), memory_first=False)
     return JSON(entities)
 
 

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 from fastapi import APIRouter, Request
-from starlette.concurrency import run_in_threadpool
 from starlette.responses import Response
 
 from ..history.params import delete_query
@@ -65,6 +66,6 @@ async def type_attr_value(entity_type: str, attr_name: str, request: Request) ->
 async def delete_type(entity_type: str, request: Request) -> Response:
     query = delete_query(request.query_params, request.headers, tenant_of(request), entity_type=entity_type)
     store = request.app.state.store
-    sids, time = await run_in_threadpool(delete_target, store.querier(), query)
+    sids, time = await store.read(partial(delete_target, store.querier(), query), memory_first=False)
     await store.write(DeleteSamples(tuple(sids), time.start, time.end))
     return Response(status_code=204)

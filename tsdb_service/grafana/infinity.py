@@ -12,7 +12,7 @@ into frames. Common query parameters:
 * time: ``from`` / ``to`` as epoch ms (Grafana's ``${__from}``) or ISO 8601.
 
 Times in rows are ISO 8601 UTC with milliseconds and a ``Z``.
-Routes are plain ``def``: the store blocks, so they run in the threadpool.
+Routes read the store through ``Store.read`` (``@reads_store``): in the threadpool.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 
 from ..api import openapi as oa
+from ..api.reads import reads_store
 from ..api.responses import JSON
 from ..geo.filter import parse_geo
 from ..history.valuepath import parse_value_path
@@ -44,6 +45,7 @@ def _common(request: Request):
 
 
 @router.get("/series", summary="Time series of columns per entity, downsampled to max_points", **oa.INFINITY["series"])
+@reads_store
 def series(request: Request) -> JSON:
     """``[{"time", "entity", col...}]``. Over ``max_points`` samples per entity
     (default 1000), samples are bucketed (width at least ``interval_ms``) and
@@ -66,6 +68,7 @@ def series(request: Request) -> JSON:
 
 
 @router.get("/latest", summary="Latest value of each column per entity (gauges, stats)", **oa.INFINITY["latest"])
+@reads_store
 def latest(request: Request) -> JSON:
     """``[{"entity", "type", "name", "time", col...}]``, one row per entity."""
     querier, scope, entities, params = _common(request)
@@ -73,6 +76,7 @@ def latest(request: Request) -> JSON:
 
 
 @router.get("/states", summary="State changes (state timelines)", **oa.INFINITY["states"])
+@reads_store
 def states(request: Request) -> JSON:
     """``[{"time", "entity", col...}]``: a row where any column changes, and
     each entity's last sample."""
@@ -89,6 +93,7 @@ def states(request: Request) -> JSON:
 
 
 @router.get("/events", summary="Events as annotations (e.g. perimeter detections)", **oa.INFINITY["events"])
+@reads_store
 def events(request: Request) -> JSON:
     """``[{"time", "timeEnd", "entity", "title", "text", "tags"}]``: one per
     run of samples where a column is truthy, or ``== equals`` (a JSON value)."""
@@ -107,6 +112,7 @@ def events(request: Request) -> JSON:
 
 
 @router.get("/positions", summary="Positions (geomap markers and heatmaps)", **oa.INFINITY["positions"])
+@reads_store
 def positions(request: Request) -> JSON:
     """``[{"time", "entity", "type", "name", "lat", "lon", col...}]``. ``location``
     names the attribute or value path holding the position (default
@@ -130,6 +136,7 @@ def positions(request: Request) -> JSON:
 
 
 @router.get("/aggregate", summary="One aggregate per entity (or per period)", **oa.INFINITY["aggregate"])
+@reads_store
 def aggregate(request: Request) -> JSON:
     """``[{"entity", "type", "name", ("time",) col...}]``; ``method`` avg
     (default), min, max, sum, count; optional ``period`` (second ... year)."""
@@ -149,6 +156,7 @@ def aggregate(request: Request) -> JSON:
 
 
 @router.get("/entities", summary="Entities of the tenant (template variables)", **oa.INFINITY["entities"])
+@reads_store
 def entities(request: Request) -> JSON:
     """``[{"entity", "type", "name", "attrs"}]``: ids, types and attribute names."""
     querier, scope, entities, _ = _common(request)

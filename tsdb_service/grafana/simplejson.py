@@ -19,8 +19,8 @@ last, min, max ...), ``alias`` and ``format`` (``timeseries``, ``table``,
 followed by ``=<JSON value>``: ``.../perimeterLeft(data)=true``.
 
 Unknown keys anywhere in a body are ignored: simPod posts Grafana's whole
-request object. Routes are plain ``def`` (the store blocks); the body is
-parsed by FastAPI before the threadpool runs them.
+request object. Routes that read the store do so through ``Store.read``
+(``@reads_store``, in the threadpool); FastAPI parses the body first.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from fastapi import APIRouter, Body, Request
 
 from .. import budget
 from ..api import openapi as oa
+from ..api.reads import reads_store
 from ..api.responses import JSON
 from ..errors import BadRequest
 from ..history.service import run_last_values
@@ -249,6 +250,7 @@ def _metric_names(request: Request, contains: str = "") -> list[str]:
 
 
 @router.post("/search", summary="Metric names, or variable values (SimpleJSON)", **oa.SIMPLEJSON["search"])
+@reads_store
 def search(request: Request, body: Any = Body(None)) -> JSON:
     """``{"target": ""}`` → every ``<entity>/<attribute>``; ``entities``,
     ``entities:<type>``, ``types``, ``attrs``, ``attrs:<entity>`` → names;
@@ -259,6 +261,7 @@ def search(request: Request, body: Any = Body(None)) -> JSON:
 
 
 @router.post("/variable", summary="Values of a query variable (simPod)", **oa.SIMPLEJSON["variable"])
+@reads_store
 def variable(request: Request, body: Any = Body(None)) -> JSON:
     """``{"payload": {"target": "entities"}}`` (or a string) → ``[{"__text", "__value"}]``."""
     payload = _obj(body).get("payload")
@@ -297,6 +300,7 @@ _PAYLOADS = [
 
 
 @router.post("/metrics", summary="Metrics with their payload options (simPod builder)", **oa.SIMPLEJSON["metrics"])
+@reads_store
 def metrics(request: Request, body: Any = Body(None)) -> JSON:
     """``[{"label", "value": "<entity>/<attribute>", "payloads": [...]}]``."""
     current = _str(_obj(body).get("metric"), "metric").strip()
@@ -315,6 +319,7 @@ def metrics(request: Request, body: Any = Body(None)) -> JSON:
     summary="Options of one payload field (simPod builder)",
     **oa.SIMPLEJSON["metric-payload-options"],
 )
+@reads_store
 def metric_payload_options(request: Request, body: Any = Body(None)) -> JSON:
     """``{"metric", "payload", "name"}`` → ``[{"label", "value"}]``. For
     ``path``: the leaf paths found in the metric's latest value."""
@@ -361,6 +366,7 @@ def _leaves(value, prefix: str, out: list[str], depth: int = 0) -> None:
 
 
 @router.post("/query", summary="Panel data: timeseries, table or data frames", **oa.SIMPLEJSON["query"])
+@reads_store
 def query(request: Request, body: Any = Body(None)) -> JSON:
     """Grafana's query request (``range``, ``intervalMs``, ``maxDataPoints``,
     ``targets``, ``adhocFilters``) → classic SimpleJSON answers
@@ -501,6 +507,7 @@ _MAX_EVENTS = 10_000
 
 
 @router.post("/annotations", summary="Annotations (classic SimpleJSON)", **oa.SIMPLEJSON["annotations"])
+@reads_store
 def annotations(request: Request, body: Any = Body(None)) -> JSON:
     """``{"range", "annotation": {"query": "<target>[=<JSON value>]", ...}}`` →
     ``[{"annotation", "time", "timeEnd", "isRegion", "title", "text", "tags"}]``
@@ -528,6 +535,7 @@ def tag_keys(request: Request, body: Any = Body(None)) -> JSON:
 
 
 @router.post("/tag-values", summary="Ad hoc filter values of one key", **oa.SIMPLEJSON["tag-values"])
+@reads_store
 def tag_values(request: Request, body: Any = Body(None)) -> JSON:
     key = _str(_obj(body).get("key"), "key").strip()
     catalog = _catalog(request)

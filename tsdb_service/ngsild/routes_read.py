@@ -16,7 +16,6 @@ from urllib.parse import urlencode
 
 import orjson
 from fastapi import APIRouter, Request
-from starlette.concurrency import run_in_threadpool
 from starlette.responses import Response
 
 from ..api import openapi as oa
@@ -93,7 +92,7 @@ async def query_entities(request: Request) -> Response:
         query = query_from_params(params, ld_tenant(request), terms, limits=_limits(request))
         return run(request.app.state.store.querier(), terms, query, _cap(request)), terms, query
 
-    result, terms, query = await run_in_threadpool(work)
+    result, terms, query = await request.app.state.store.read(work, memory_first=False)
     return _respond(request, media, terms, result, query, many=True)
 
 
@@ -109,7 +108,7 @@ async def retrieve_entity(entity_id: str, request: Request) -> Response:
         query = query_from_params(params, ld_tenant(request), terms, limits=(1, 1), entity_id=entity_id)
         return run(request.app.state.store.querier(), terms, query, _cap(request)), terms, query
 
-    result, terms, query = await run_in_threadpool(work)
+    result, terms, query = await request.app.state.store.read(work, memory_first=False)
     return _respond(request, media, terms, result, query, many=False)
 
 
@@ -148,7 +147,7 @@ async def query_post(request: Request) -> Response:
         query = query_from_body(body, params, ld_tenant(request), terms, limits=_limits(request))
         return run(request.app.state.store.querier(), terms, query, _cap(request)), terms, query
 
-    result, terms, query = await run_in_threadpool(work)
+    result, terms, query = await request.app.state.store.read(work, memory_first=False)
     return _respond(request, media, terms, result, query, many=True)
 
 

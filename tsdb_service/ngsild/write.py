@@ -29,13 +29,13 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from datetime import UTC, datetime
+from functools import partial
 from typing import Any
 from urllib.parse import quote
 
 import orjson
 from fastapi import APIRouter, Request
 from fastapi.responses import Response
-from starlette.concurrency import run_in_threadpool
 
 from ..api import openapi as oa
 from ..errors import ParseError, PayloadTooLarge, UnsupportedMediaType
@@ -69,7 +69,8 @@ async def upsert_temporal(request: Request) -> Response:
     entity_id = _entity_id(doc.get("id"))
     types = _types(doc.get("type"))
     attrs = {name: raw for name, raw in doc.items() if name not in _ENTITY_KEYS}
-    existing = await run_in_threadpool(_entity_series, request, tenant, entity_id, True)
+    look = partial(_entity_series, request, tenant, entity_id, True)
+    existing = await request.app.state.store.read(look, memory_first=False)
     entity_type = _entity_type(existing, types, entity_id)
     samples = _samples(tenant, entity_id, entity_type, attrs, datetime.now(UTC))
     if samples:
@@ -284,7 +285,7 @@ async def _existing(request: Request, tenant: str, entity_id: str) -> list[Serie
             raise NonexistentTenant(f"tenant {tenant!r} does not exist")
         return _entity_series(request, tenant, entity_id, True)
 
-    refs = await run_in_threadpool(look)
+    refs = await request.app.state.store.read(look, memory_first=False)
     if not refs:
         raise ResourceNotFound(f"entity {entity_id[:200]!r} has no temporal representation")
     return refs
@@ -315,8 +316,8 @@ async def _instance(
         raise ResourceNotFound(
             f"no instance {instance_id[:200]!r} of attribute {attr_id[:200]!r} of entity {entity_id[:200]!r}"
         )
-    q = request.app.state.store.querier()
-    sid = await run_in_threadpool(q.instance_series, [r.sid for r in refs], iid)
+    store = request.app.state.store
+    sid = await store.read(partial(store.querier().instance_series, [r.sid for r in refs], iid), memory_first=False)
     if sid is None:
         raise ResourceNotFound(
             f"no instance {instance_id[:200]!r} of attribute {attr_id[:200]!r} of entity {entity_id[:200]!r}"

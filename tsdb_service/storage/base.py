@@ -8,13 +8,14 @@ never see SQL; DuckDB and PostgreSQL each implement both halves.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
 from ..model import AttrSample, EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
+from .memory_only import T, read_off_loop
 
 
 @dataclass(frozen=True, slots=True)
@@ -212,7 +213,9 @@ class Store(ABC):
 
     @abstractmethod
     def values_layout(self, tenant: str, subscription_id: str) -> ValuesLayout | None:
-        """A registered ``values``-format layout, from memory (no I/O)."""
+        """A registered ``values``-format layout, from memory; a backend
+        whose memory may be stale (PostgreSQL: other replicas) reads the
+        database first, which ``read`` keeps off the event loop."""
 
     @abstractmethod
     def layouts(self, tenant: str) -> dict[str, ValuesLayout]: ...
@@ -237,3 +240,22 @@ class Store(ABC):
     @abstractmethod
     def close(self) -> None:
         """Drain queued writes, commit them, checkpoint, release the database."""
+
+    async def read(self, fn: Callable[[], T], *, memory_first: bool = True) -> T:
+        """``fn()``, awaited: the one way a route reads the store.
+
+        The rule: **no database call on the event loop**. A read runs first
+        on the loop with ``storage.memory_only.MEMORY_ONLY`` set, where it
+        may use only what is in memory (series catalog, tails, latest
+        locations, ``values`` layouts); its first database access raises
+        ``NeedsDatabase`` instead, and the read runs again from the start in
+        the threadpool. So a read memory answers costs no thread hop, and
+        any other costs one. ``memory_first=False`` goes to the threadpool
+        at once: for reads that always need the database, or whose work
+        before the database access is too costly to do twice (geo matching).
+        ``fn`` may also parse and render (it runs in the request's context,
+        read budget included); it must be safe to run twice. Opening and
+        closing the store (the app's lifespan) are not reads: the app runs
+        them in the threadpool itself.
+        """
+        return await read_off_loop(fn, memory_first)

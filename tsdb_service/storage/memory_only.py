@@ -1,11 +1,14 @@
-"""Answer from memory on the event loop, or go to the database in a thread.
+"""How a read leaves the event loop: the implementation of ``Store.read``.
 
-A history read that the in-memory catalog and tails can answer needs no
-database call, and handing it to the threadpool would cost more than the
-answer itself. The route first runs it with ``MEMORY_ONLY`` set: any
-database access raises ``NeedsDatabase`` before touching the database,
-and the route re-runs the read in the threadpool. So no database call ever
-runs on the event loop.
+DuckDB blocks and PostgreSQL waits on the network, so no database call may
+run on the event loop. Yet many reads (``lastN`` from the in-memory tails, a
+series lookup in the catalog, a registered ``values`` layout) need no
+database, and handing them to the threadpool would cost more than the
+answer itself. So a read first runs on the loop with ``MEMORY_ONLY`` set:
+every database access calls ``check_database_allowed`` first, which raises
+``NeedsDatabase`` before touching the database, and the read is re-run from
+the start in the threadpool. A read that always needs the database goes to
+the threadpool at once (``memory_first=False``).
 """
 
 from __future__ import annotations
@@ -28,17 +31,22 @@ class NeedsDatabase(Exception):
 
 
 def check_database_allowed() -> None:
+    """Call before any database access a read may make."""
     if MEMORY_ONLY.get():
         raise NeedsDatabase
 
 
-async def in_memory_or_threadpool(fn: Callable[..., T], *args, **kwargs) -> T:
-    token = MEMORY_ONLY.set(True)
-    charged = budget.mark()
-    try:
-        return fn(*args, **kwargs)
-    except NeedsDatabase:
-        budget.rewind(charged)  # the re-run below reads those rows again
-    finally:
-        MEMORY_ONLY.reset(token)
-    return await run_in_threadpool(fn, *args, **kwargs)
+async def read_off_loop(fn: Callable[[], T], memory_first: bool) -> T:
+    """``fn()`` from memory on the loop if it can answer so, else in the
+    threadpool. Rows the loop attempt charged to the read budget are given
+    back: the re-run reads them again."""
+    if memory_first:
+        token = MEMORY_ONLY.set(True)
+        charged = budget.mark()
+        try:
+            return fn()
+        except NeedsDatabase:
+            budget.rewind(charged)
+        finally:
+            MEMORY_ONLY.reset(token)
+    return await run_in_threadpool(fn)

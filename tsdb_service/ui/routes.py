@@ -2,8 +2,8 @@
 
 Static files are looked up in a table built once from the package's
 ``static/`` directory: a request can only name a file we ship, so there is
-no path to traverse. JSON routes are plain ``def`` (the store blocks, so
-they run in the threadpool).
+no path to traverse. Routes that read the store run through ``Store.read``
+(``@reads_store``): the store blocks, so they run in the threadpool.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
 
 from ..api import openapi as oa
+from ..api.reads import reads_store
 from ..api.responses import JSON
 from ..errors import NotFound
 from ..query import EntityFilter, Scope
@@ -60,6 +61,7 @@ def static_file(name: str) -> FileResponse:
 
 
 @router.get("/ui/tenants", summary="Tenants that have stored series, with their service paths", **oa.UI_TENANTS)
+@reads_store
 def tenants(request: Request) -> JSON:
     """``[{"tenant", "servicePaths", "types", "entities", "series"}]``. The
     tenant ``""`` is Orion's default one (no ``Fiware-Service``)."""

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import threading
+import time
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from typing import Any
@@ -48,6 +50,7 @@ from ..ld_ingest import (
     publish_staged,
     with_deletions,
 )
+from ..memory_only import check_database_allowed
 from ..migrate import applied_versions, load_migrations
 from ..rejected import RejectedLimits
 from ..writer import GroupCommitter
@@ -82,6 +85,9 @@ WRITER_APPLICATION_NAME = "tsdb-service writer"
 # SQLSTATE classes that mean the server cannot write: insufficient resources
 # (53100 disk_full...) and system errors (58030 io_error...).
 _STORAGE_CLASSES = ("53", "58")
+# 'values' layouts older than this are read again before use: another
+# replica may have registered the subscription again with other attributes.
+LAYOUTS_MAX_AGE = 10.0
 MAYBE_STORED = "the connection to the database broke during the commit; this write may or may not have been stored"
 
 
@@ -138,6 +144,8 @@ class PostgresStore(Store):
         self.latest_instances = LatestInstances()
         self.geo_extents = ExtentLedger()  # geo.extents: where each series has ever been
         self._layouts: dict[tuple[str, str], ValuesLayout] = {}
+        self._layouts_lock = threading.Lock()
+        self._layouts_read_at = float("-inf")
         # Why the last write failed when the server could not write (disk
         # full, I/O error); cleared by the next write that commits.
         self._write_failure: str | None = None
@@ -160,23 +168,48 @@ class PostgresStore(Store):
             raise Unavailable("the store is closed")
         return self.pool.connection()
 
-    def _load_layouts(self) -> None:
-        with self.pool.connection() as conn:
-            rows = conn.execute(
-                "SELECT tenant, subscription_id, attrs, entity_id, entity_type FROM subscriptions"
-            ).fetchall()
-        self._layouts = {
-            (tenant, sub): ValuesLayout(tuple(orjson.loads(attrs)), eid, etype)
-            for tenant, sub, attrs, eid, etype in rows
-        }
+    def _load_layouts(self, max_age: float = 0.0) -> None:
+        """Read every registered layout from the database (at open, and
+        off the event loop: see ``values_layout``), unless another thread
+        read them less than ``max_age`` seconds ago. Under the lock, so a
+        layout this process commits meanwhile (``layouts_committed``) is
+        never replaced by an older read."""
+        check_database_allowed()
+        with self._layouts_lock:
+            started = time.monotonic()
+            if started - self._layouts_read_at <= max_age:
+                return
+            with self.pool.connection() as conn:
+                rows = conn.execute(
+                    "SELECT tenant, subscription_id, attrs, entity_id, entity_type FROM subscriptions"
+                ).fetchall()
+            self._layouts = {
+                (tenant, sub): ValuesLayout(tuple(orjson.loads(attrs)), eid, etype)
+                for tenant, sub, attrs, eid, etype in rows
+            }
+            self._layouts_read_at = started
+
+    def layouts_committed(self, puts: Sequence[PutLayout]) -> None:
+        """This process's layouts, current as soon as they are committed."""
+        if puts:
+            with self._layouts_lock:
+                for put in puts:
+                    self._layouts[(put.tenant, put.subscription_id)] = put.layout
 
     def values_layout(self, tenant: str, subscription_id: str) -> ValuesLayout | None:
-        """From memory; on a miss, look once in the database, because another
-        replica may have registered it (rare: only for the 'values' format)."""
-        layout = self._layouts.get((tenant, subscription_id))
+        """From memory. Another replica may have registered the subscription
+        (or registered it again with other attributes), so a miss, or layouts
+        read over ``LAYOUTS_MAX_AGE`` ago, read them again first: a database
+        call, which on the event loop raises ``NeedsDatabase`` instead, and
+        ``Store.read`` re-runs the parse in the threadpool."""
+        key = (tenant, subscription_id)
+        layout = self._layouts.get(key)
         if layout is None:
             self._load_layouts()
-            layout = self._layouts.get((tenant, subscription_id))
+            layout = self._layouts.get(key)
+        elif time.monotonic() - self._layouts_read_at > LAYOUTS_MAX_AGE:
+            self._load_layouts(LAYOUTS_MAX_AGE)
+            layout = self._layouts.get(key)
         return layout
 
     def layouts(self, tenant: str) -> dict[str, ValuesLayout]:
@@ -359,8 +392,7 @@ class PostgresAppender(Appender):
         if dropped:
             rejected_store.count_dropped(self._store.rejected_dropped, dropped)
         store = self._store
-        for put in self._layouts:
-            store._layouts[(put.tenant, put.subscription_id)] = put.layout
+        store.layouts_committed(self._layouts)
         publish_staged(store.latest_instances, self._latest, self._sids.get)
         store.latest_instances.drop([sid for op in self._deletes for sid in op.sids])
         store.latest_instances.drop([op.sid for op in self._instance_ops])
