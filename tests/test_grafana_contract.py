@@ -25,11 +25,13 @@ import re
 from datetime import datetime
 from urllib.parse import urljoin
 
+import httpx
 import pytest
 import yaml
 
 from tests.grafana_fixtures import ROOT, grafana_http, grafana_server  # noqa: F401
 from tests.grafana_fixtures import panels_of as _panels
+from tests.support.golden_http import GoldenFile, GoldenHttp
 from tsdb_service.demo import enums
 from tsdb_service.grafana import dashboards
 
@@ -417,3 +419,30 @@ def test_odd_but_valid_requests_are_answered(grafana_http):  # noqa: F811
     assert _get(grafana_http, "/entities", {}, headers={"Fiware-Service": "empty"}) == []
     text = _get(grafana_http, "/aggregate", {"attrs": "odom", "method": "avg"}, status=404)
     assert text["error"] == "AggrMethod cannot be applied"
+
+
+def test_golden_answers_catch_a_changed_a_missing_and_an_extra_answer(tmp_path):
+    """The golden check itself: a different, a missing or an extra answer fails."""
+
+    class Answers:
+        def __init__(self, *answers):
+            self.answers = list(answers)
+
+        def request(self, method, url, **kwargs):
+            return httpx.Response(200, json=self.answers.pop(0))
+
+    path = tmp_path / "g.json"
+    path.write_text('{"t": [[1, 2.0000000000001], {"a": "b"}]}')
+    same = GoldenHttp(Answers([1, 2.0], {"a": "b"}), GoldenFile(path, update=False), "t")
+    same.get("/x"), same.post("/y")
+    same.finish()
+    with pytest.raises(AssertionError, match="differs"):
+        GoldenHttp(Answers([1, 3]), GoldenFile(path, update=False), "t").get("/x")
+    short = GoldenHttp(Answers([1, 2.0]), GoldenFile(path, update=False), "t")
+    short.get("/x")
+    with pytest.raises(AssertionError, match="1 answers, the golden file has 2"):
+        short.finish()
+    extra = GoldenHttp(Answers([1, 2.0], {"a": "b"}, []), GoldenFile(path, update=False), "t")
+    extra.get("/x"), extra.get("/y")
+    with pytest.raises(AssertionError, match="not in the golden file"):
+        extra.get("/z")
