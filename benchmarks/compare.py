@@ -50,11 +50,7 @@ import argparse
 import json
 import math
 import os
-import platform
 import shutil
-import signal
-import socket
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -65,21 +61,13 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import lawnmower  # noqa: E402
-import wrkrun  # noqa: E402
+import common
+import lawnmower
+import wrkrun
+from common import HERE, Server, bare_cmd, free_port, ours_cmd, spawned
 
-try:
-    import psutil
-except ImportError:  # pragma: no cover - RSS / CPU columns only
-    psutil = None
-
-HOST = "127.0.0.1"
-UVICORN_FLAGS = ["--loop", "uvloop", "--http", "httptools", "--no-access-log", "--workers", "1"]
 POOL = 1000  # ingest entities notified in turn
 
 # Issue 15's table: QuantumLeap 1.0.1, 2 gunicorn workers, PostgreSQL 15 + PostGIS, this 2-core machine.
@@ -209,119 +197,11 @@ def get_load(url: str, paths: list[str], headers: dict[str, str]):
 
 
 def summary(runs: list[dict], key: str) -> dict | None:
-    values = [r[key] for r in runs if not r.get("warmup") and r.get(key) is not None and not math.isnan(r[key])]
-    if not values:
-        return None
-    return {"median": statistics.median(values), "min": min(values), "max": max(values), "n": len(values)}
+    """Median, min, max over the measured runs (the warm-up skipped)."""
+    return common.spread(r.get(key) for r in runs if not r.get("warmup"))
 
 
 # --- targets (servers) -----------------------------------------------------------------
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind((HOST, 0))
-        return s.getsockname()[1]
-
-
-class Spawned:
-    """A server we start as a subprocess; its log in the work dir."""
-
-    def __init__(
-        self, name: str, cmd: list[str], port: int, workdir: Path, health: str, env: dict[str, str] | None = None
-    ):
-        self.name, self.cmd, self.port, self.health = name, cmd, port, health
-        self.extra_env = env or {}
-        self.url = f"http://{HOST}:{port}"
-        self.log_path = workdir / f"{name}.log"
-        self.proc: subprocess.Popen | None = None
-        self.startup_s: float | None = None
-
-    def start(self, timeout: float = 120.0) -> None:
-        env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}
-        env["PYTHONUNBUFFERED"] = "1"
-        env.update(self.extra_env)
-        t0 = time.monotonic()
-        with open(self.log_path, "wb") as log:
-            self.proc = subprocess.Popen(
-                self.cmd,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                stdin=subprocess.DEVNULL,
-                env=env,
-                start_new_session=True,
-            )
-        deadline = t0 + timeout
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"{self.name} exited ({self.proc.returncode}) during start-up; see {self.log_path}")
-            try:
-                with urllib.request.urlopen(self.url + self.health, timeout=2) as r:
-                    if r.status < 500:
-                        self.startup_s = time.monotonic() - t0
-                        return
-            except urllib.error.HTTPError as exc:
-                if exc.code < 500:
-                    self.startup_s = time.monotonic() - t0
-                    return
-            except OSError:
-                pass
-            time.sleep(0.05)
-        self.stop()
-        raise RuntimeError(f"{self.name} not ready after {timeout:.0f} s; see {self.log_path}")
-
-    def rss_bytes(self) -> int | None:
-        if psutil is None or self.proc is None:
-            return None
-        try:
-            p = psutil.Process(self.proc.pid)
-            return sum(q.memory_info().rss for q in [p, *p.children(recursive=True)])
-        except psutil.Error:
-            return None
-
-    def cpu_seconds(self) -> float:
-        if psutil is None or self.proc is None:
-            return math.nan
-        try:
-            p = psutil.Process(self.proc.pid)
-            return sum(sum(q.cpu_times()[:2]) for q in [p, *p.children(recursive=True)])
-        except psutil.Error:
-            return math.nan
-
-    def stop(self) -> int | None:
-        if self.proc is None:
-            return None
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(120)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        return self.proc.returncode
-
-
-def ours_cmd(db: str, port: int, workers: int) -> list[str]:
-    cmd = [sys.executable, "-m", "tsdb_service", "serve", "--db", db, "--host", HOST, "--port", str(port)]
-    return cmd + (["--workers", str(workers)] if workers > 1 else [])
-
-
-def bare_cmd(port: int) -> list[str]:
-    return [
-        sys.executable,
-        "-m",
-        "uvicorn",
-        "--app-dir",
-        str(HERE),
-        "bare_app:app",
-        "--host",
-        HOST,
-        "--port",
-        str(port),
-        "--log-level",
-        "warning",
-        *UVICORN_FLAGS,
-    ]
 
 
 # --- the store check ----------------------------------------------------------------------
@@ -393,7 +273,7 @@ def post_one(url: str, body: bytes) -> None:
 
 
 def measure_target(
-    result: Result, url: str, runner: Runner, only: set[str], load: bool, server: Spawned | None = None
+    result: Result, url: str, runner: Runner, only: set[str], load: bool, server: Server | None = None
 ) -> list[str]:
     """Ingest and query scenarios against ``url``; returns the run ids used."""
     run_id = f"{int(time.time()) % 10**6}{os.getpid() % 100:02d}"
@@ -435,7 +315,7 @@ def _print_runs(runs: list[dict]) -> None:
             continue
         print(
             f"    {r['rps']:9,.0f}/s  p50 {r['p50_ms']:7.2f} ms  p99 {r['p99_ms']:8.2f} ms  "
-            f"non-2xx {r['non_2xx']}  errors {r['errors']}  (load {os.getloadavg()[0]:.1f})",
+            f"non-2xx {r['non_2xx']}  errors {r['errors']}  (load {common.loadavg(None)[0]:.1f})",
             flush=True,
         )
 
@@ -457,7 +337,7 @@ def run_ours(key: str, runner: Runner, only: set[str], workdir: Path, env: dict[
         else:
             db = str(workdir / f"{key}.duckdb")
         port = free_port()
-        server = Spawned(key, ours_cmd(db, port, workers), port, workdir, "/health", env)
+        server = spawned(key, ours_cmd(db, port, workers), port, workdir, env)
         server.start()
         result.info["startup_s"] = round(server.startup_s, 2)
         print(f"- {name} on :{port}, started in {server.startup_s:.1f} s (load {_load()})", flush=True)
@@ -511,7 +391,7 @@ def run_geo(backend: str, runner: Runner, workdir: Path) -> list[dict]:
 def run_bare(runner: Runner, only: set[str], workdir: Path) -> Result:
     result = Result("bare FastAPI (ceiling)", "bare")
     port = free_port()
-    server = Spawned("bare", bare_cmd(port), port, workdir, "/health")
+    server = spawned("bare", bare_cmd(port), port, workdir)
     server.start()
     print(f"- bare FastAPI on :{port} (load {_load()})", flush=True)
     try:
@@ -529,19 +409,14 @@ def run_external(name: str, url: str, runner: Runner, only: set[str], load: bool
 
 
 def _load() -> str:
-    return " / ".join(f"{x:.1f}" for x in os.getloadavg())
+    return common.load_text()
 
 
 # --- the tables ---------------------------------------------------------------------------
 
 
 def cell(runs: list[dict] | None, key: str, digits: int = 0) -> str:
-    s = summary(runs or [], key)
-    if s is None:
-        return "-"
-    if s["n"] == 1:
-        return f"{s['median']:,.{digits}f}"
-    return f"{s['median']:,.{digits}f} [{s['min']:,.{digits}f}-{s['max']:,.{digits}f}]"
+    return common.spread_text((r.get(key) for r in runs or [] if not r.get("warmup")), digits, thousands=True)
 
 
 def ql_figures(results: list[Result]) -> tuple[dict, str]:
@@ -608,14 +483,7 @@ def print_comparison(results: list[Result]) -> None:
             for r in cols
         ]
     )
-    _print_rows(header, rows)
-
-
-def _print_rows(header: list[str], rows: list[list[str]]) -> None:
-    widths = [max(len(str(x[i])) for x in [header, *rows]) for i in range(len(header))]
-    print("  ".join(h.ljust(w) if i == 0 else h.rjust(w) for i, (h, w) in enumerate(zip(header, widths))))
-    for row in rows:
-        print("  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(row, widths))))
+    common.print_rows(header, rows)
 
 
 def targets(results: list[Result]) -> list[dict]:
@@ -667,7 +535,7 @@ def print_targets(rows: list[dict]) -> None:
     if not rows:
         return
     print("\ntargets (issue 15), on the medians:")
-    _print_rows(
+    common.print_rows(
         ["target", "who", "measured", "result"],
         [[t["target"], t["who"], t["value"], "PASS" if t["pass"] else "FAIL"] for t in rows],
     )
@@ -736,9 +604,9 @@ def main(argv: list[str] | None = None) -> int:
     failed: list[str] = []
     doc: dict = {
         "started_at": datetime.now(UTC).isoformat(timespec="seconds"),
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+        "machine": common.machine(),
         "config": {**vars(args), "json": str(args.json), "generator": "wrk" if use_wrk else "loadgen"},
-        "loadavg": {"start": os.getloadavg()},
+        "loadavg": {"start": common.loadavg(None)},
     }
     steps = []
     if only - {"growth"}:
@@ -750,10 +618,10 @@ def main(argv: list[str] | None = None) -> int:
         if not args.no_bare and only & {"ingest", "queries"}:
             steps.append(("bare", lambda: run_bare(runner, only, workdir)))
     for name, step in steps:
-        before = os.getloadavg()
+        before = common.loadavg(None)
         try:
             result = step()
-            result.info["loadavg_before"], result.info["loadavg_after"] = before, os.getloadavg()
+            result.info["loadavg_before"], result.info["loadavg_after"] = before, common.loadavg(None)
             results.append(result)
         except Exception as exc:  # report and go on with the next target
             print(f"  {name} FAILED: {exc}", flush=True)
@@ -768,11 +636,11 @@ def main(argv: list[str] | None = None) -> int:
         doc["growth"] = growth.run(args.sizes, args.growth_backends, runner, workdir)
     doc["results"] = [r.__dict__ for r in results]
     doc["failed"] = failed
-    doc["loadavg"]["end"] = os.getloadavg()
+    doc["loadavg"]["end"] = common.loadavg(None)
     print(f"\nload average at the end: {_load()}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(doc, indent=2, default=str) + "\n")
+        common.write_json(args.json, doc)
         print(f"results written to {args.json}")
     if args.keep:
         print(f"kept {workdir}")

@@ -43,33 +43,18 @@ import random
 import shutil
 import sys
 import tempfile
-import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import psutil  # noqa: E402
-from loadgen import build_request  # noqa: E402
-from pgutil import BenchCluster  # noqa: E402
-from pyproj import Geod  # noqa: E402
+import common
+from common import HOST, bulk_load, finish_load, free_port, get, is_pg
+from loadgen import build_request
+from pgutil import BenchCluster
+from pyproj import Geod
 
-from queries import (  # noqa: E402
-    HOST,
-    finish_load,
-    free_port,
-    get,
-    is_pg,
-    measure,
-    open_store,
-    start_server,
-    stop_server,
-    tree_cpu,
-    tree_rss,
-)
+from queries import measure, start_server
 
 ENTITIES = 10_000
 SAMPLES = 100
@@ -126,42 +111,26 @@ def load(db: Path | str, every: bool, batch_notifications: int = 50_000, cluster
 
     from tsdb_service.geo.encodings import from_geojson
     from tsdb_service.model import AttrSample, EntitySample, Kind
-    from tsdb_service.storage.base import AppendSamples
 
-    t0 = time.perf_counter()
-    paths = positions(every)
-    store = open_store(db)
     ids = [entity_id(e) for e in range(ENTITIES)]
-    batch: list[EntitySample] = []
-    written = 0
-    try:
+
+    def steps():
+        paths = positions(every)  # timed as part of the load, as it always was
         for i in range(SAMPLES):
             moment = START + i * STEP
+            step = []
             for e in range(ENTITIES):
                 attrs = [AttrSample("temperature", "Number", Kind.NUMBER, num=temperature(e, i))]
                 if every or i == 0:
                     lon, lat = paths[e][i if every else 0]
                     value = {"type": "Point", "coordinates": [lon, lat]}
-                    attrs.append(
-                        AttrSample(
-                            "location", "geo:json", Kind.GEO, js=orjson.dumps(value).decode(), geo=from_geojson(value)
-                        )
-                    )
-                batch.append(EntitySample("", "/", ids[e], ENTITY_TYPE, moment, attrs))
-                written += len(attrs)
-                if len(batch) >= batch_notifications:
-                    store.write_sync([AppendSamples(batch)])
-                    batch = []
-            if i % 20 == 19:
-                print(f"  loaded {written:,} samples ({time.perf_counter() - t0:.0f} s)", flush=True)
-        if batch:
-            store.write_sync([AppendSamples(batch)])
-        t_load = time.perf_counter() - t0
-        loaded, store = store, None
-    finally:
-        if store is not None:
-            store.close()
-    finished = finish_load(loaded, db, cluster)
+                    geo = from_geojson(value)
+                    attrs.append(AttrSample("location", "geo:json", Kind.GEO, js=orjson.dumps(value).decode(), geo=geo))
+                step.append(EntitySample("", "/", ids[e], ENTITY_TYPE, moment, attrs))
+            yield step
+
+    store, written, t_load = bulk_load(db, steps(), batch_notifications, progress_every=20)
+    finished = finish_load(store, db, cluster)
     return {"samples": written, "load_s": round(t_load, 1), **finished}
 
 
@@ -288,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.db and is_pg(args.db):
         args.backend = "postgresql"
     every = args.location == "every"
-    load_start = os.getloadavg()
+    load_start = common.loadavg(None)
     where = "every sample" if every else "the first sample only"
     print(
         f"geo benchmark on {args.backend}: {ENTITIES:,} entities x {SAMPLES} samples, location in {where}", flush=True
@@ -320,12 +289,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {loaded}", flush=True)
 
         port = free_port()
-        proc = start_server(db, port, tmp / "server.log")
+        server = start_server(db, port, tmp / "server.log")
         try:
             print("checking answers against pyproj ...", flush=True)
             checked = check_answers(port, every)
             print(f"  {checked}", flush=True)
-            server = psutil.Process(proc.pid)
             geo_reqs, by_id = requests(port, every)
             label = f"near;maxDistance:{MAX_DISTANCE} + lastN={LAST_N}"
             plan = [
@@ -335,10 +303,10 @@ def main(argv: list[str] | None = None) -> int:
             ]
             for key, text, reqs, conns in plan:
                 print(f"measuring {text} ({conns} connections, {args.duration:g} s) ...", flush=True)
-                cpu0 = tree_cpu(server)
+                cpu0 = server.cpu_seconds()
                 db_cpu0 = cluster.cpu_seconds() if cluster else math.nan
                 stats = measure(port, reqs, conns, args.duration, args.warmup)
-                cpu_ms = (tree_cpu(server) - cpu0) / max(stats.total_ok, 1) * 1e3
+                cpu_ms = (server.cpu_seconds() - cpu0) / max(stats.total_ok, 1) * 1e3
                 db_cpu_ms = ((cluster.cpu_seconds() - db_cpu0) / max(stats.total_ok, 1) * 1e3) if cluster else None
                 results[key] = {
                     "label": text,
@@ -347,9 +315,9 @@ def main(argv: list[str] | None = None) -> int:
                     "db_cpu_ms_per_req": db_cpu_ms,
                     **stats.to_dict(),
                 }
-            rss = tree_rss(server)
+            rss = server.rss_bytes()
         finally:
-            stop_server(proc)
+            server.stop(60.0)
     finally:
         if cluster is not None:
             cluster.stop()
@@ -372,21 +340,10 @@ def main(argv: list[str] | None = None) -> int:
         f"{ENTITIES:,} entities x {SAMPLES} samples, location in {where}, "
         f"{checked['matched_mean']} entities within {MAX_DISTANCE} m on average"
     )
-    print(
-        f"{'scenario':<40} {'conns':>5} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu ms/req':>10}"
-        + (f" {'db ms/req':>9}" if db_col else "")
-        + f" {'errors':>6}"
-    )
-    for r in results.values():
-        print(
-            f"{r['label']:<40} {r['connections']:>5} {r['rps']:>8.1f} {_fmt(r['p50_ms'])} {_fmt(r['p99_ms'])} "
-            f"{r['server_cpu_ms_per_req']:>10.2f}"
-            + (f" {r['db_cpu_ms_per_req']:>9.2f}" if db_col else "")
-            + f" {r['errors'] + r['non_2xx']:>6}"
-        )
+    common.print_scenarios(results, db_col, label_width=40, rps_digits=1)
     print(f"server RSS: {rss / 2**20:.0f} MiB")
     print(
-        f"load average (1/5/15 min) at start {_load(load_start)}, at end {_load(os.getloadavg())} "
+        f"load average (1/5/15 min) at start {common.load_text(load_start, 2)}, at end {common.load_text(digits=2)} "
         f"on {os.cpu_count()} CPUs: other processes' load inflates every latency"
     )
     print()
@@ -394,27 +351,25 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{'PASS' if ok else 'FAIL'}  {name}")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(
-            json.dumps(
-                {
-                    "benchmark": "geo",
-                    "backend": args.backend,
-                    "entities": ENTITIES,
-                    "samples_per_entity": SAMPLES,
-                    "load": loaded,
-                    "location": args.location,
-                    "check": checked,
-                    "results": results,
-                    "checks": checks,
-                    "rss_bytes": rss,
-                    "machine": {
-                        "cpus": os.cpu_count(),
-                        "load_average_start": load_start,
-                        "load_average_end": os.getloadavg(),
-                    },
+        common.write_json(
+            args.json,
+            {
+                "benchmark": "geo",
+                "backend": args.backend,
+                "entities": ENTITIES,
+                "samples_per_entity": SAMPLES,
+                "load": loaded,
+                "location": args.location,
+                "check": checked,
+                "results": results,
+                "checks": checks,
+                "rss_bytes": rss,
+                "machine": {
+                    "cpus": os.cpu_count(),
+                    "load_average_start": load_start,
+                    "load_average_end": common.loadavg(None),
                 },
-                indent=2,
-            )
+            },
         )
     if args.keep and isinstance(db, Path) and tmp in db.parents:
         print(f"kept {db}")
@@ -423,16 +378,8 @@ def main(argv: list[str] | None = None) -> int:
     return 0 if all(checks.values()) else 1
 
 
-def _load(triple) -> str:
-    return " / ".join(f"{x:.2f}" for x in triple)
-
-
 def _le(value, limit: float) -> bool:
     return value is not None and value <= limit
-
-
-def _fmt(value) -> str:
-    return f"{value:>8.2f}" if value is not None else f"{'-':>8}"
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ For each backend and size, on a fresh database:
    advanced past the loaded ids, then ``VACUUM (ANALYZE)``;
 2. checks the layout: one notification for the same entity, parsed by the
    service's own parser and written through the store's own write path, must
-   produce rows equal to the bulk-loaded ones in every column but rid, t and
+   produce rows equal to the bulk-loaded ones in every column but rid, iid, t and
    num (else the run stops: the figures would not be the service's);
 3. starts the server and measures: start-up time (spawn to /health 200),
    RSS after start, lastN=100 on one series (1 connection), the hourly
@@ -43,13 +43,11 @@ import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import compare  # noqa: E402
-import lawnmower  # noqa: E402
+import common
+import compare
+import lawnmower
 
 TENANT = "benchgrowth"
 ENTITIES = 200
@@ -81,7 +79,9 @@ def _series_rows() -> list[list]:
     rows = [[], [], [], [], [], []]
     for e in range(ENTITIES):
         for a, name in enumerate(ATTRS):
-            for col, v in zip(rows, (e * len(ATTRS) + a + 1, TENANT, "/", entity_id(e), lawnmower.ENTITY_TYPE, name)):
+            for col, v in zip(
+                rows, (e * len(ATTRS) + a + 1, TENANT, "/", entity_id(e), lawnmower.ENTITY_TYPE, name), strict=False
+            ):
                 col.append(v)
     return rows
 
@@ -108,6 +108,7 @@ def load_duckdb(path: str, size: int) -> dict:
             con.execute(
                 f"""INSERT INTO samples BY NAME
                 SELECT (kk * {ENTITIES} + e + 1)::BIGINT AS rid, (e * {len(ATTRS)} + a + 1)::INTEGER AS sid,
+                       ((kk * {ENTITIES} + e) * {len(ATTRS)} + a + 1)::BIGINT AS iid,
                        TIMESTAMP '2024-05-01' + to_minutes(kk) AS t, 1::UTINYINT AS kind, 'Number' AS atype,
                        (e + a + (kk % 1440) / 100.0)::DOUBLE AS num
                 FROM range(?, ?) r1(e), range({len(ATTRS)}) r2(a), range(?) r3(kk)
@@ -201,9 +202,9 @@ def check_layout(db: str, size: int) -> dict:
             con.close()
     if len(rows) != 2 * len(ATTRS):
         raise RuntimeError(f"layout check: expected {2 * len(ATTRS)} rows, found {len(rows)}")
-    keep = [i for i, n in enumerate(names) if n not in ("rid", "t", "num")]
+    keep = [i for i, n in enumerate(names) if n not in ("rid", "iid", "t", "num")]  # ids: counters, unique
     bulk, service = rows[: len(ATTRS)], rows[len(ATTRS) :]
-    for b, s in zip(bulk, service):
+    for b, s in zip(bulk, service, strict=False):
         if [b[i] for i in keep] != [s[i] for i in keep]:
             raise RuntimeError(f"layout check: bulk row {b} differs from the service's {s} (columns {names})")
     if len({s[names.index("rid")] for s in service}) != 1:
@@ -225,8 +226,8 @@ def compare_store(db: str):
 
 
 def measure(db: str, size: int, runner: compare.Runner, workdir: Path, tag: str) -> dict:
-    port = compare.free_port()
-    server = compare.Spawned(f"growth-{tag}", compare.ours_cmd(db, port, 1), port, workdir, "/health")
+    port = common.free_port()
+    server = common.spawned(f"growth-{tag}", common.ours_cmd(db, port, 1), port, workdir)
     server.start(timeout=600)
     out = {"startup_s": round(server.startup_s, 2), "rss_start_mib": round((server.rss_bytes() or 0) / 2**20)}
     try:
@@ -331,7 +332,7 @@ def print_curve(curve: dict, sizes: list[int]) -> None:
             ]
             for p in points
         ]
-        compare._print_rows(header, [[str(c) for c in r] for r in rows])
+        common.print_rows(header, rows)
         first, last = points[0], points[-1]
         if len(points) > 1:
             for key, label in (("lastN1", "lastN=100"), ("hourly1", "hourly avg")):

@@ -25,13 +25,10 @@ other, never together: the machine has two cores, and the load generator
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
-import platform
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -41,20 +38,14 @@ import urllib.request
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from loadgen import LoadStats, run_load  # noqa: E402
-from pgutil import BenchCluster  # noqa: E402
+import common
+from common import HOST, UVICORN_FLAGS, Server, bare_cmd, fmt, free_port, ours_cmd
+from loadgen import LoadStats, run_load
+from pgutil import BenchCluster
 
-try:
-    import psutil
-except ImportError:  # pragma: no cover - only for the CPU columns
-    psutil = None
-
-HOST = "127.0.0.1"
 TENANT = "bench"
-UVICORN_FLAGS = ["--loop", "uvloop", "--http", "httptools", "--no-access-log", "--workers", "1"]
 
 TARGET_RPS = 5000.0
 TARGET_RATIO = 0.6
@@ -118,132 +109,33 @@ class NotificationFactory:
 # the servers
 
 
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((HOST, 0))
-        return s.getsockname()[1]
-
-
-class Target:
-    """A server under test as a subprocess, its output in a log file."""
-
-    def __init__(self, name: str, cmd: list[str], port: int, log_path: Path, env: dict[str, str], health: str | None):
-        self.name, self.cmd, self.port = name, cmd, port
-        self.log_path, self.env, self.health = log_path, env, health
-        self.proc: subprocess.Popen | None = None
-        self._log = None
-
-    def start(self, timeout: float) -> None:
-        self._log = open(self.log_path, "wb")
-        self.proc = subprocess.Popen(
-            self.cmd, stdout=self._log, stderr=subprocess.STDOUT, env=self.env, start_new_session=True
-        )
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise RuntimeError(
-                    f"{self.name} exited with code {self.proc.returncode} during start-up\n{self.log_tail()}"
-                )
-            if self._ready():
-                return
-            time.sleep(0.1)
-        self.kill()
-        raise RuntimeError(f"{self.name} not ready after {timeout:.0f} s\n{self.log_tail()}")
-
-    def _ready(self) -> bool:
-        # ours: GET /health must answer 200. bare: any HTTP answer will do.
-        path = self.health or "/v2/notify"
-        try:
-            with urllib.request.urlopen(f"http://{HOST}:{self.port}{path}", timeout=1) as resp:
-                return resp.status == 200 or self.health is None
-        except urllib.error.HTTPError as exc:
-            return self.health is None and exc.code < 500
-        except (OSError, ValueError):
-            return False
-
-    def post(self, body: bytes) -> tuple[int, bytes]:
-        req = urllib.request.Request(
-            f"http://{HOST}:{self.port}/v2/notify",
-            data=body,
-            method="POST",
-            headers={
-                "Content-Type": "application/json",
-                "Fiware-Service": TENANT,
-                "Fiware-ServicePath": "/",
-                "Ngsiv2-AttrsFormat": "normalized",
-            },
-        )
-        try:
-            with urllib.request.urlopen(req, timeout=10) as resp:
-                return resp.status, resp.read()
-        except urllib.error.HTTPError as exc:
-            return exc.code, exc.read()
-
-    def cpu_seconds(self) -> float:
-        if psutil is None or self.proc is None:
-            return math.nan
-        try:
-            p = psutil.Process(self.proc.pid)
-            total = sum(p.cpu_times()[:2])
-            for child in p.children(recursive=True):
-                try:
-                    total += sum(child.cpu_times()[:2])
-                except psutil.Error:
-                    pass
-            return total
-        except psutil.Error:
-            return math.nan
-
-    def terminate(self, timeout: float = 60.0) -> tuple[int | None, float]:
-        """SIGTERM and wait; returns (exit code, seconds it took)."""
-        if self.proc is None:
-            return None, 0.0
-        t = time.monotonic()
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.kill()
-                raise RuntimeError(f"{self.name} did not exit within {timeout:.0f} s of SIGTERM\n{self.log_tail()}")
-        self._close_log()
-        return self.proc.returncode, time.monotonic() - t
-
-    def kill(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
-        self._close_log()
-
-    def _close_log(self) -> None:
-        if self._log is not None:
-            self._log.close()
-            self._log = None
-
-    def log_tail(self, n: int = 40) -> str:
-        try:
-            lines = self.log_path.read_text(errors="replace").splitlines()
-        except OSError:
-            return "(no log)"
-        return "\n".join(f"  | {line}" for line in lines[-n:]) or "  | (empty log)"
-
-
-def server_env(extra: list[str]) -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONUNBUFFERED"] = "1"
-    for item in extra:
-        key, _, value = item.partition("=")
-        env[key] = value
-    return env
+def post_notification(port: int, body: bytes) -> tuple[int, bytes]:
+    """One notification to the server on ``port``: (status, body)."""
+    req = urllib.request.Request(
+        f"http://{HOST}:{port}/v2/notify",
+        data=body,
+        method="POST",
+        headers={
+            "Content-Type": "application/json",
+            "Fiware-Service": TENANT,
+            "Fiware-ServicePath": "/",
+            "Ngsiv2-AttrsFormat": "normalized",
+        },
+    )
+    try:
+        with urllib.request.urlopen(req, timeout=10) as resp:
+            return resp.status, resp.read()
+    except urllib.error.HTTPError as exc:
+        return exc.code, exc.read()
 
 
 # --------------------------------------------------------------------------
 # one run
 
 
-def measure(target: Target, factory: NotificationFactory, args) -> tuple[LoadStats, dict]:
+def measure(target: Server, factory: NotificationFactory, args) -> tuple[LoadStats, dict]:
     """Sanity request, then the load; returns loadgen stats and extras."""
-    status, body = target.post(factory.body(SANITY_SEQ))
+    status, body = post_notification(target.port, factory.body(SANITY_SEQ))
     if not 200 <= status < 300:
         raise RuntimeError(f"{target.name}: sanity notification answered {status}: {body[:500]!r}\n{target.log_tail()}")
     cpu0, t0 = target.cpu_seconds(), time.monotonic()
@@ -339,12 +231,6 @@ def verify_store(db: Path | str, factory: NotificationFactory, acked: int, unack
 # report
 
 
-def fmt(v: float | None, digits: int = 1) -> str:
-    if v is None or (isinstance(v, float) and math.isnan(v)):
-        return "-"
-    return f"{v:,.{digits}f}"
-
-
 def print_table(rows: dict[str, dict]) -> None:
     cols = [
         "target",
@@ -359,24 +245,25 @@ def print_table(rows: dict[str, dict]) -> None:
         "srv CPU%",
         "gen CPU%",
     ]
-    widths = [max(22, *(len(name) for name in rows)), 9, 8, 7, 9, 8, 8, 8, 8, 9, 9]
-    print("  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(cols, widths))))
+    table = []
     for name, r in rows.items():
         s = r["load"]
-        vals = [
-            name,
-            f"{s['requests']:,}",
-            f"{s['non_2xx']:,}",
-            f"{s['errors']:,}",
-            fmt(s["rps"], 0),
-            fmt(s["p50_ms"], 2),
-            fmt(s["p90_ms"], 2),
-            fmt(s["p99_ms"], 2),
-            fmt(s["max_ms"], 1),
-            fmt(r.get("server_cpu_pct"), 0),
-            fmt(s["generator_cpu_pct"], 0),
-        ]
-        print("  ".join(v.rjust(w) if i else v.ljust(w) for i, (v, w) in enumerate(zip(vals, widths))))
+        table.append(
+            [
+                name,
+                f"{s['requests']:,}",
+                f"{s['non_2xx']:,}",
+                f"{s['errors']:,}",
+                fmt(s["rps"], 0),
+                fmt(s["p50_ms"], 2),
+                fmt(s["p90_ms"], 2),
+                fmt(s["p99_ms"], 2),
+                fmt(s["max_ms"], 1),
+                fmt(r.get("server_cpu_pct"), 0),
+                fmt(s["generator_cpu_pct"], 0),
+            ]
+        )
+    common.print_rows(cols, table, widths=[22, 9, 8, 7, 9, 8, 8, 8, 8, 9, 9])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -432,7 +319,7 @@ def main(argv: list[str] | None = None) -> int:
             "uvicorn_flags": UVICORN_FLAGS,
             "notification": "1 entity, normalized, temperature + humidity + TimeInstant",
         },
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+        "machine": common.machine(),
         "targets": {},
     }
     rows: dict[str, dict] = {}
@@ -455,10 +342,8 @@ def main(argv: list[str] | None = None) -> int:
                 cluster = BenchCluster("ingest").start()
                 db = cluster.url
                 results["config"]["postgresql_version"] = cluster.version
-            cmd = [sys.executable, "-m", "tsdb_service", "serve", "--db", str(db), "--host", HOST, "--port", str(port)]
-            if args.workers > 1:
-                cmd += ["--workers", str(args.workers)]
-            ours = Target(ours_name, cmd, port, workdir / "tsdb-service.log", server_env(args.server_env), "/health")
+            env = common.server_env(args.server_env, keep_tsdb=True)
+            ours = Server(ours_name, ours_cmd(db, port, args.workers), port, workdir / "tsdb-service.log", env)
             print(f"- {ours_name} on :{port} ({db_path.name if cluster is None else db}) ...", flush=True)
             try:
                 ours.start(args.start_timeout)
@@ -466,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
                 db_cpu0, t0 = (cluster.cpu_seconds() if cluster else math.nan), time.monotonic()
                 stats, extras = measure(ours, factory, args)
                 db_cpu1, t1 = (cluster.cpu_seconds() if cluster else math.nan), time.monotonic()
-                code, stop_s = ours.terminate()
+                code, stop_s = ours.terminate(60.0)
             finally:
                 ours.kill()
             acked = stats.total_ok + extras["sanity_acked"]
@@ -494,27 +379,15 @@ def main(argv: list[str] | None = None) -> int:
                 print(ours.log_tail(), flush=True)
         if "bare" in targets:
             port = free_port()
-            cmd = [
-                sys.executable,
-                "-m",
-                "uvicorn",
-                "--app-dir",
-                str(HERE),
-                "bare_app:app",
-                "--host",
-                HOST,
-                "--port",
-                str(port),
-                "--log-level",
-                "warning",
-                *UVICORN_FLAGS,
-            ]
-            bare = Target("bare FastAPI", cmd, port, workdir / "bare.log", server_env([]), None)
+            env = common.server_env(keep_tsdb=True)
+            bare = Server(
+                "bare FastAPI", bare_cmd(port), port, workdir / "bare.log", env, "/v2/notify", common.accept_any_answer
+            )
             print(f"- bare FastAPI on :{port} ...", flush=True)
             try:
                 bare.start(args.start_timeout)
                 stats, extras = measure(bare, NotificationFactory(port, run_id, pool=args.entities), args)
-                code, stop_s = bare.terminate()
+                code, stop_s = bare.terminate(60.0)
             finally:
                 bare.kill()
             row = {"load": stats.to_dict(), "server_cpu_pct": extras["server_cpu_pct"], "exit_code": code}
@@ -543,9 +416,8 @@ def main(argv: list[str] | None = None) -> int:
     if ours_row and bare_row and bare_row["load"]["rps"]:
         ratio = ours_row["load"]["rps"] / bare_row["load"]["rps"]
         results["ratio"] = ratio
-        print(
-            f"\nratio = ours / bare ceiling = {ours_row['load']['rps']:,.0f} / {bare_row['load']['rps']:,.0f} = {ratio:.2f}"
-        )
+        ours_rps, bare_rps = ours_row["load"]["rps"], bare_row["load"]["rps"]
+        print(f"\nratio = ours / bare ceiling = {ours_rps:,.0f} / {bare_rps:,.0f} = {ratio:.2f}")
     if ours_row:
         s, v = ours_row["load"], ours_row["verification"]
         checks.append(("throughput (notif/s)", f">= {TARGET_RPS:,.0f}", fmt(s["rps"], 0), s["rps"] >= TARGET_RPS))
@@ -584,7 +456,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(results, indent=2, default=str) + "\n")
+        common.write_json(args.json, results)
         print(f"results written to {args.json}")
     if args.keep:
         print(f"kept {workdir}")

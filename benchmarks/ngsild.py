@@ -35,9 +35,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import random
-import socket
 import statistics
 import sys
 import tempfile
@@ -46,7 +44,10 @@ import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import common
+from common import free_port
 
 START = datetime(2024, 5, 1, tzinfo=UTC)
 STEP = timedelta(minutes=15)
@@ -124,12 +125,6 @@ def load(settings, entities: int) -> dict:
         with psycopg.connect(settings.db, autocommit=True) as conn:
             conn.execute("VACUUM (ANALYZE)")
     return {"instances": written, "load_s": round(load_s, 1), "total_s": round(time.perf_counter() - t0, 1)}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def serve(settings, port: int):
@@ -269,7 +264,7 @@ def main(argv: list[str] | None = None) -> int:
                 flush=True,
             )
         results["rss_mb"] = rss_mb()
-        results["load_average"] = [round(x, 1) for x in os.getloadavg()]
+        results["load_average"] = common.loadavg(1)
         print(f"  RSS {results['rss_mb']} MB, load average {results['load_average']}", flush=True)
         server.should_exit = True
         thread.join(timeout=30)
@@ -277,7 +272,7 @@ def main(argv: list[str] | None = None) -> int:
         if cluster is not None:
             cluster.stop()
     if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=2))
+        common.write_json(args.json, results)
     return 0 if ok else 1
 
 

@@ -24,12 +24,12 @@ import tempfile
 import threading
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import compare  # noqa: E402
-import lawnmower  # noqa: E402
-import wrkrun  # noqa: E402
+import common
+import compare
+import lawnmower
+import wrkrun
 
 
 def top_frames(raw: Path, n: int) -> dict:
@@ -85,8 +85,8 @@ def main(argv=None) -> int:
             db = cluster.url
         else:
             db = str(workdir / "profile.duckdb")
-        port = compare.free_port()
-        server = compare.Spawned("ours", compare.ours_cmd(db, port, args.workers), port, workdir, "/health")
+        port = common.free_port()
+        server = common.spawned("ours", common.ours_cmd(db, port, args.workers), port, workdir)
         server.start()
         try:
             prelude, expr = lawnmower.ingest_lua("prof", compare.POOL)

@@ -33,25 +33,19 @@ import math
 import os
 import random
 import shutil
-import signal
-import subprocess
 import sys
 import tempfile
 import time
-import urllib.request
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import psutil  # noqa: E402
-from loadgen import build_request, run_load  # noqa: E402
-from pgutil import BenchCluster  # noqa: E402
+import common
+from common import HOST, Server, bulk_load, finish_load, free_port, get, is_pg, open_store, ours_cmd
+from loadgen import build_request, run_load
+from pgutil import BenchCluster
 
-HOST = "127.0.0.1"
 ENTITIES = 1_000
 ATTRS = 10
 SAMPLES = 1_000
@@ -69,40 +63,7 @@ def attr_name(n: int) -> str:
 
 
 def samples_per_series(scale: float) -> int:
-    return int(round(SAMPLES * scale))
-
-
-def is_pg(db: Path | str) -> bool:
-    return str(db).startswith(("postgresql://", "postgres://"))
-
-
-def finish_load(store, db, cluster) -> dict:
-    """Make a freshly loaded store query-ready and close it: a full sort on
-    DuckDB, VACUUM ANALYZE on PostgreSQL. Returns how long that took."""
-    t0 = time.perf_counter()
-    try:
-        if is_pg(db):
-            store.close()
-            store = None
-            if cluster is not None:
-                cluster.vacuum_analyze()
-        else:
-            store.compact(full=True)
-    finally:
-        if store is not None:
-            store.close()
-    return {("vacuum_analyze_s" if is_pg(db) else "compact_s"): round(time.perf_counter() - t0, 1)}
-
-
-def open_store(db: Path | str):
-    """The store the server would open for ``--db``, opened in-process."""
-    if is_pg(db):
-        from tsdb_service.storage.postgres.store import PostgresStore
-
-        return PostgresStore(str(db))
-    from tsdb_service.storage.duckdb.store import DuckDBStore
-
-    return DuckDBStore(str(db))
+    return round(SAMPLES * scale)
 
 
 # --- 1. load ---------------------------------------------------------------------------
@@ -112,37 +73,31 @@ def load(
     db: Path | str, per_series: int = SAMPLES, batch_notifications: int = 20_000, cluster: BenchCluster | None = None
 ) -> dict:
     from tsdb_service.model import AttrSample, EntitySample, Kind
-    from tsdb_service.storage.base import AppendSamples
 
-    t0 = time.perf_counter()
-    store = open_store(db)
     names = [attr_name(a) for a in range(ATTRS)]
     ids = [entity_id(e) for e in range(ENTITIES)]
     rng = random.Random(42)
-    batch: list[EntitySample] = []
-    written = 0
-    try:
+
+    def steps():
         for i in range(per_series):
             moment = START + i * STEP
-            for e in range(ENTITIES):
-                base = e + i * 0.01
-                attrs = [AttrSample(names[a], "Number", Kind.NUMBER, num=base + a + rng.random()) for a in range(ATTRS)]
-                batch.append(EntitySample("", "/", ids[e], ENTITY_TYPE, moment, attrs))
-                if len(batch) >= batch_notifications:
-                    store.write_sync([AppendSamples(batch)])
-                    written += len(batch) * ATTRS
-                    batch = []
-            if i % 100 == 99:
-                print(f"  loaded {written:,} samples ({time.perf_counter() - t0:.0f} s)", flush=True)
-        if batch:
-            store.write_sync([AppendSamples(batch)])
-            written += len(batch) * ATTRS
-        t_load = time.perf_counter() - t0
-        loaded, store = store, None
-    finally:
-        if store is not None:
-            store.close()
-    finished = finish_load(loaded, db, cluster)
+            yield [
+                EntitySample(
+                    "",
+                    "/",
+                    ids[e],
+                    ENTITY_TYPE,
+                    moment,
+                    [
+                        AttrSample(names[a], "Number", Kind.NUMBER, num=e + i * 0.01 + a + rng.random())
+                        for a in range(ATTRS)
+                    ],
+                )
+                for e in range(ENTITIES)
+            ]
+
+    store, written, t_load = bulk_load(db, steps(), batch_notifications, progress_every=100)
+    finished = finish_load(store, db, cluster)
     return {"samples": written, "load_s": round(t_load, 1), **finished, "samples_per_s": round(written / t_load)}
 
 
@@ -198,87 +153,12 @@ def engine_ceiling(db: Path | str, seconds: float = 4.0, threads: int = 2) -> di
 # --- 2. server ---------------------------------------------------------------------------
 
 
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind((HOST, 0))
-        return s.getsockname()[1]
-
-
-def start_server(db: Path | str, port: int, log_path: Path, workers: int = 1) -> subprocess.Popen:
-    exe = ROOT / ".venv" / "bin" / "tsdb-service"
-    cmd = [str(exe), "serve", "--db", str(db), "--host", HOST, "--port", str(port)]
-    if workers > 1:
-        cmd += ["--workers", str(workers)]
-    env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}
-    log = open(log_path, "wb")
-    proc = subprocess.Popen(
-        cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env, start_new_session=True
-    )
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"server exited ({proc.returncode}); see {log_path}")
-        try:
-            with urllib.request.urlopen(f"http://{HOST}:{port}/health", timeout=2) as r:
-                if r.status == 200:
-                    return proc
-        except OSError:
-            pass
-        time.sleep(0.1)
-    proc.kill()
-    raise RuntimeError(f"server not healthy in time; see {log_path}")
-
-
-def stop_server(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
-def get(port: int, path: str) -> tuple[int, bytes]:
-    try:
-        with urllib.request.urlopen(f"http://{HOST}:{port}{path}", timeout=30) as r:
-            return r.status, r.read()
-    except urllib.error.HTTPError as exc:
-        return exc.code, exc.read()
+def start_server(db: Path | str, port: int, log_path: Path, workers: int = 1) -> Server:
+    """``tsdb-service serve`` on the loaded database, healthy; ``TSDB_*`` of this shell are not passed."""
+    return Server("server", ours_cmd(db, port, workers), port, log_path).start()
 
 
 # --- 3. load generation ---------------------------------------------------------------------
-
-
-def tree(proc: psutil.Process) -> list[psutil.Process]:
-    """The server process and its children (uvicorn workers when --workers > 1)."""
-    try:
-        return [proc, *proc.children(recursive=True)]
-    except psutil.Error:
-        return [proc]
-
-
-def tree_cpu(proc: psutil.Process) -> float:
-    total = 0.0
-    for p in tree(proc):
-        try:
-            c = p.cpu_times()
-            total += c.user + c.system
-        except psutil.Error:
-            pass
-    return total
-
-
-def tree_rss(proc: psutil.Process) -> int:
-    total = 0
-    for p in tree(proc):
-        try:
-            total += p.memory_info().rss
-        except psutil.Error:
-            pass
-    return total
 
 
 def scenarios(port: int) -> dict[str, list[bytes]]:
@@ -429,11 +309,10 @@ def main(argv: list[str] | None = None) -> int:
 
         port = free_port()
         log_path = (tmp if isinstance(db, str) or tmp in db.parents else db.parent) / "server.log"
-        proc = start_server(db, port, log_path, args.workers)
+        server = start_server(db, port, log_path, args.workers)
         results: dict[str, dict] = {}
         try:
             check_answers(port, per_series)
-            server = psutil.Process(proc.pid)
             reqs = scenarios(port)
             plan = [
                 ("lastN", "lastN", "lastN=100, one entity attribute", args.connections),
@@ -442,17 +321,17 @@ def main(argv: list[str] | None = None) -> int:
                 ("lastN_1conn", "lastN", "lastN=100, unloaded (1 connection)", 1),
                 ("hourly_avg_1conn", "hourly_avg", "avg per hour, unloaded (1 connection)", 1),
             ]
-            rss_peak = tree_rss(server)
+            rss_peak = server.rss_bytes()
             db_mem_peak = cluster.memory_bytes() if cluster else None
             for key, scenario, label, conns in plan:
                 duration = args.duration if key != "type_lastN" else max(min(5.0, args.duration), args.duration / 2)
                 print(f"measuring {label} ({conns} connections, {duration:g} s) ...", flush=True)
-                cpu0 = tree_cpu(server)
+                cpu0 = server.cpu_seconds()
                 db_cpu0 = cluster.cpu_seconds() if cluster else math.nan
                 stats = measure(port, reqs[scenario], conns, duration, args.warmup)
-                cpu1 = tree_cpu(server)
+                cpu1 = server.cpu_seconds()
                 db_cpu1 = cluster.cpu_seconds() if cluster else math.nan
-                rss_peak = max(rss_peak, tree_rss(server))
+                rss_peak = max(rss_peak, server.rss_bytes())
                 if cluster is not None:
                     db_mem_peak = max(db_mem_peak or 0, cluster.memory_bytes() or 0)
                 cpu_ms = (cpu1 - cpu0) / max(stats.total_ok, 1) * 1e3
@@ -464,15 +343,15 @@ def main(argv: list[str] | None = None) -> int:
                     **({"db_cpu_ms_per_req": db_cpu_ms} if cluster else {}),
                     **stats.to_dict(),
                 }
-            rss_end = tree_rss(server)
+            rss_end = server.rss_bytes()
             db_mem_end = cluster.memory_bytes() if cluster else None
         finally:
-            stop_server(proc)
+            server.stop(60.0)
     finally:
         if cluster is not None:
             cluster.stop()
 
-    a, b, c = results["lastN"], results["hourly_avg"], results["type_lastN"]
+    a, b = results["lastN"], results["hourly_avg"]
     checks = {
         "lastN p50 <= 5 ms": a["p50_ms"] is not None and a["p50_ms"] <= 5.0,
         "lastN >= 2000 req/s": a["rps"] >= 2000,
@@ -483,18 +362,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"backend: {args.backend}" + (f", {args.workers} workers" if args.workers > 1 else ", 1 server process"))
     print(f"data set: {dataset}")
     db_col = cluster is not None
-    print(
-        f"{'scenario':<48} {'conns':>5} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu ms/req':>10}"
-        + (f" {'db ms/req':>9}" if db_col else "")
-        + f" {'errors':>6}"
-    )
-    for r in results.values():
-        print(
-            f"{r['label']:<48} {r['connections']:>5} {r['rps']:>8.0f} {r['p50_ms']:>8.2f} {r['p99_ms']:>8.2f} "
-            f"{r['server_cpu_ms_per_req']:>10.2f}"
-            + (f" {r['db_cpu_ms_per_req']:>9.2f}" if db_col else "")
-            + f" {r['errors'] + r['non_2xx']:>6}"
-        )
+    common.print_scenarios(results, db_col, label_width=48, rps_digits=0)
     print(
         f"{'engine alone: lastN=100 in-process, 2 threads':<48} {'-':>5} {ceiling['queries_per_s']:>8.0f} "
         f"{'-':>8} {'-':>8} {ceiling['cpu_ms_per_query']:>10.2f}"
@@ -540,7 +408,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(report, indent=2))
+        common.write_json(args.json, report)
     if not args.keep or isinstance(db, str) or tmp not in db.parents:
         shutil.rmtree(tmp, ignore_errors=True)
     else:

@@ -22,23 +22,22 @@ from __future__ import annotations
 
 import argparse
 import http.client
-import json
 import statistics
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import lawnmower  # noqa: E402
-from compare import Spawned, free_port, ours_cmd  # noqa: E402
+import common
+import lawnmower
+from common import Server, free_port, ours_cmd, spawned
 
 QUERIES = ("lastN", "hourly_avg", "type_lastN")
 
 
-def run_queries(server: Spawned, cluster, requests: int, reps: int) -> dict[str, list[dict]]:
+def run_queries(server: Server, cluster, requests: int, reps: int) -> dict[str, list[dict]]:
     """Sequential GETs per query; CPU of the server (and database) per request."""
     paths = lawnmower.query_paths()
     conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=60)
@@ -75,10 +74,10 @@ def _get(conn: http.client.HTTPConnection, path: str, headers: dict) -> None:
 
 
 def _cell(runs: list[dict], key: str) -> str:
-    vals = [r[key] for r in runs if r.get(key) is not None]
-    if not vals:
+    s = common.spread(r.get(key) for r in runs)
+    if s is None:
         return "-"
-    return f"{statistics.median(vals):.2f} [{min(vals):.2f}-{max(vals):.2f}]"
+    return f"{s['median']:.2f} [{s['min']:.2f}-{s['max']:.2f}]"
 
 
 def _cells(runs: list[dict]) -> str:
@@ -99,7 +98,7 @@ def run_backend(backend: str, workdir: Path, requests: int, reps: int, vacuum: b
         else:
             db = str(workdir / "reads.duckdb")
         port = free_port()
-        server = Spawned(backend, ours_cmd(db, port, 1), port, workdir, "/health")
+        server = spawned(backend, ours_cmd(db, port, 1), port, workdir)
         server.start()
         try:
             print(f"- {backend}: loading the data set ...", flush=True)
@@ -132,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         for backend in args.backends.split(","):
             results[backend] = run_backend(backend, Path(tmp), args.requests, args.reps, not args.no_vacuum)
     if args.json:
-        args.json.write_text(json.dumps(results, indent=1))
+        common.write_json(args.json, results, indent=1)
     return 0
 
 

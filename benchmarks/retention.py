@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import random
-import statistics
 import sys
 import tempfile
 import threading
@@ -32,14 +31,12 @@ import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from pgutil import BenchCluster  # noqa: E402
-
-from queries import finish_load, is_pg, open_store  # noqa: E402
+import common
+from common import bulk_load, finish_load, is_pg, open_store
+from common import percentiles as pct
+from pgutil import BenchCluster
 
 ENTITIES = 1_000
 ATTRS = 10
@@ -51,33 +48,28 @@ KEEP = timedelta(days=1)
 
 def load(db, per_series: int, cluster, batch_notifications: int = 20_000) -> dict:
     from tsdb_service.model import AttrSample, EntitySample, Kind
-    from tsdb_service.storage.base import AppendSamples
 
-    t0 = time.perf_counter()
-    store = open_store(db)
     step = SPAN / per_series
     rng = random.Random(7)
-    batch, written = [], 0
-    try:
+
+    def steps():
         for i in range(per_series):
             moment = START + i * step
-            for e in range(ENTITIES):
-                attrs = [AttrSample(f"attr{a}", "Number", Kind.NUMBER, num=e + a + rng.random()) for a in range(ATTRS)]
-                batch.append(EntitySample("", "/", f"urn:ngsi-ld:Robot:{e:04d}", "Robot", moment, attrs))
-                if len(batch) >= batch_notifications:
-                    store.write_sync([AppendSamples(batch)])
-                    written += len(batch) * ATTRS
-                    batch = []
-        if batch:
-            store.write_sync([AppendSamples(batch)])
-            written += len(batch) * ATTRS
-        load_s = time.perf_counter() - t0
-        loaded, store = store, None
-    finally:
-        if store is not None:
-            store.close()
+            yield [
+                EntitySample(
+                    "",
+                    "/",
+                    f"urn:ngsi-ld:Robot:{e:04d}",
+                    "Robot",
+                    moment,
+                    [AttrSample(f"attr{a}", "Number", Kind.NUMBER, num=e + a + rng.random()) for a in range(ATTRS)],
+                )
+                for e in range(ENTITIES)
+            ]
+
+    store, written, load_s = bulk_load(db, steps(), batch_notifications)
     print(f"loaded {written:,} samples in {load_s:.0f} s", flush=True)
-    return {"samples": written, "load_s": round(load_s, 1), **finish_load(loaded, db, cluster)}
+    return {"samples": written, "load_s": round(load_s, 1), **finish_load(store, db, cluster)}
 
 
 class Batches:
@@ -151,18 +143,6 @@ class Probe:
         return {"result": result, "commit_ms": pct(self.commit_ms), "query_ms": pct(self.query_ms)}
 
 
-def pct(values: list[float]) -> dict:
-    if not values:
-        return {}
-    ordered = sorted(values)
-    return {
-        "n": len(ordered),
-        "p50": round(statistics.median(ordered), 2),
-        "p99": round(ordered[min(len(ordered) - 1, int(len(ordered) * 0.99))], 2),
-        "max": round(ordered[-1], 2),
-    }
-
-
 def one_pass(store, settings_kw: dict, clock_at: datetime, batch_rows: int) -> dict:
     from tsdb_service.config import Settings
     from tsdb_service.storage.retention import attach_retention
@@ -203,7 +183,7 @@ def rolled_up_query_ms(store, probe) -> dict:
 
 
 def run(db, cluster, args) -> dict:
-    per_series = max(1, int(round(SAMPLES * args.scale)))
+    per_series = max(1, round(SAMPLES * args.scale))
     out = {"backend": "postgresql" if is_pg(db) else "duckdb", "scale": args.scale, "batch_rows": args.batch_rows}
     out["load"] = load(db, per_series, cluster)
     store = open_store(db)
@@ -241,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     print(json.dumps(result, indent=2))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2))
+        common.write_json(args.json, result)
     return 0
 
 

@@ -40,8 +40,11 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import common
+from common import HERE, ROOT, loadavg
+
 RESULTS = HERE / "results"
 LOGS = RESULTS / "logs"
 BACKENDS = ("duckdb", "postgresql")
@@ -53,13 +56,6 @@ QL_LASTN_RPS = 311.0
 QL_LASTN_P50_MS = 24.0
 QL_MINUTE_AGGR_RPS = 73.0
 BARE_FASTAPI_REF = 7000.0  # issue 2: "a bare FastAPI JSON endpoint about 7,000/s"
-
-
-def loadavg() -> list[float]:
-    try:
-        return [round(x, 2) for x in os.getloadavg()]
-    except OSError:
-        return []
 
 
 def geo_capabilities(python: str) -> dict:
@@ -446,13 +442,13 @@ def print_table(rows: list[Row], backends: list[str]) -> list[dict]:
                 r.ratio_text(backends),
             ]
         )
-    widths = [max(len(str(x)) for x in col) for col in zip(header, *table)]
+    widths = [max(len(str(x)) for x in col) for col in zip(header, *table, strict=False)]
     line = "  ".join("-" * w for w in widths)
 
     def fmt(cells):
         return "  ".join(
             str(c).ljust(w) if i < 2 else str(c).rjust(w) if 2 <= i < 2 + len(backends) else str(c).ljust(w)
-            for i, (c, w) in enumerate(zip(cells, widths))
+            for i, (c, w) in enumerate(zip(cells, widths, strict=False))
         )
 
     print(fmt(header))
@@ -492,10 +488,8 @@ def report(path: Path) -> int:
         step.result, step.rc, step.error = data["result"], data["exit_code"], data["error"]
         steps[(key, backend)] = step
     quick = combined.get("quick")
-    print(
-        f"RESULTS of {combined['started_at']} ({'QUICK smoke run, queries at scale ' + format(combined['queries_scale'], 'g') if quick else 'full run'}"
-        f"; {combined['machine']['cpus']} CPUs)"
-    )
+    kind = f"QUICK smoke run, queries at scale {combined['queries_scale']:g}" if quick else "full run"
+    print(f"RESULTS of {combined['started_at']} ({kind}; {combined['machine']['cpus']} CPUs)")
     rows, notes = build_rows(steps, backends)
     print_table(rows, backends)
     print()
@@ -667,10 +661,8 @@ def main(argv: list[str] | None = None) -> int:
     load_end = loadavg()
 
     print()
-    print(
-        f"RESULTS ({'QUICK smoke run: short windows, queries at scale ' + format(scale, 'g') if args.quick else 'full run'}"
-        f"; {os.cpu_count()} CPUs, {platform.machine()}; one server process unless stated)"
-    )
+    kind = f"QUICK smoke run: short windows, queries at scale {scale:g}" if args.quick else "full run"
+    print(f"RESULTS ({kind}; {os.cpu_count()} CPUs, {platform.machine()}; one server process unless stated)")
     rows, notes = build_rows(steps, backends)
     table = print_table(rows, backends)
     print()
@@ -680,9 +672,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"geo: skipped -- {geo_caps['why']}")
     elif any(b != "duckdb" for b in backends) and not geo_caps.get("--backend"):
         print("geo: DuckDB only -- benchmarks/geo.py has no --backend option yet")
+    where = args.out.relative_to(ROOT) if args.out.is_relative_to(ROOT) else args.out
     print(
         f"load average (1/5/15 min): {' '.join(map(str, load_start))} at start, "
-        f"{' '.join(map(str, load_end))} at end; per step in {args.out.relative_to(ROOT) if args.out.is_relative_to(ROOT) else args.out}"
+        f"{' '.join(map(str, load_end))} at end; per step in {where}"
     )
 
     crashed = [f"{s.key} on {LABEL[s.backend]}: {s.error}" for s in steps.values() if s.error]
@@ -694,9 +687,7 @@ def main(argv: list[str] | None = None) -> int:
         "queries_scale": scale,
         "backends": backends,
         "machine": {
-            "cpus": os.cpu_count(),
-            "platform": platform.platform(),
-            "python": platform.python_version(),
+            **common.machine(),
             "loadavg_start": load_start,
             "loadavg_end": load_end,
         },
@@ -715,7 +706,7 @@ def main(argv: list[str] | None = None) -> int:
         "failed_targets": failed_targets,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(combined, indent=2, default=str) + "\n")
+    common.write_json(args.out, combined)
     print(f"combined results written to {args.out}")
     if crashed:
         print("\nSTEPS THAT DID NOT COMPLETE:\n  " + "\n  ".join(crashed), file=sys.stderr)

@@ -1,14 +1,22 @@
 """Fixtures for the Grafana tests: one real HTTP server loaded with use-case data.
 
 ``grafana_server`` serves ``app_factory(store_url)`` (so the backend is the
-suite's: a temporary DuckDB file today, PostgreSQL when the lead parametrizes
-``store_url_factory``) with uvicorn on a free localhost port, in a thread of
-the test process, and feeds it a short seeded burst of each demo simulator
-through the demo's own runner: real Orion notifications over real HTTP.
+suite's: a temporary DuckDB file, or a database of the private PostgreSQL
+cluster) with uvicorn on a free localhost port, in a thread of the test
+process, and feeds it recorded notifications: a seeded burst of each demo
+simulator, as the demo's runner sends them, recorded once with ``python -m
+tests.grafana_fixtures`` into ``tests/golden/notifications/grafana/`` (one
+gzipped JSON line ``{"headers", "body"}`` per notification). The data is
+fixed: every simulated span ends at ``RECORDED_END``, whatever the wall
+clock says, so the answers can be compared with golden files.
 
-Each burst is bounded in *simulated* time (``speedup x duration``), so the
-data depends only on the seed. The simulated spans end at the moment the
-feed starts; ``LoadedService.range_ms`` covers them all.
+``grafana_http`` is an HTTP client that compares every 200 JSON answer a
+test gets, in order, with ``tests/golden/grafana/<module>.json`` (the same
+file for both backends); ``UPDATE_GOLDEN=1`` rewrites those files (review
+the diff by hand: they are the specification).
+
+``feed_live`` sends the same bursts live, ending at a given wall-clock
+moment, for the browser tests whose dashboards look at "now".
 
 Import with ``from tests.grafana_fixtures import grafana_http, grafana_server  # noqa: F401``.
 """
@@ -16,6 +24,9 @@ Import with ``from tests.grafana_fixtures import grafana_http, grafana_server  #
 from __future__ import annotations
 
 import asyncio
+import gzip
+import json
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -26,13 +37,19 @@ import httpx
 import pytest
 import uvicorn
 
+from tests.support.golden_http import GoldenFile, GoldenHttp, golden_key
 from tests.support.server import free_port
-from tsdb_service.demo.runner import RunConfig, run
+from tsdb_service.demo import orion
+from tsdb_service.demo.runner import RunConfig, rng_for, run
 from tsdb_service.demo.usecases import SIMULATORS
 
 ROOT = Path(__file__).resolve().parents[1]
+GOLDEN = ROOT / "tests" / "golden"
+RECORDED = GOLDEN / "notifications" / "grafana"
+UPDATE = os.environ.get("UPDATE_GOLDEN") == "1"
 SEED = 5_2024
 CONCURRENCY = 16  # per simulator: bigger commit groups, a faster feed
+RECORDED_END = datetime(2024, 6, 1, 12, 0, tzinfo=UTC)  # every recorded burst ends here
 # name -> (speedup, wall duration): simulated seconds = speedup x duration.
 BURSTS = {
     "lawnmower": (20_000.0, 0.06),  # 20 simulated minutes: a mowing cycle or two
@@ -46,6 +63,7 @@ class LoadedService:
     url: str
     stats: dict
     fed_at_ms: int
+    client: httpx.Client  # keep-alive, shared by the tests of the session
 
     @property
     def range_ms(self) -> tuple[int, int]:
@@ -59,8 +77,70 @@ class _ThreadedServer(uvicorn.Server):
         pass
 
 
-async def _feed(url: str, end_ms: int) -> dict:
-    """Every burst's simulated span ends at ``end_ms``."""
+def record() -> dict[str, int]:
+    """Write each burst's notifications, exactly as the demo's runner would send
+    them for a run ending at ``RECORDED_END``, to ``RECORDED``. Which emissions a
+    run sends depends only on the seed, the speedup and the duration
+    (``tsdb_service.demo.runner``), so no clock is needed."""
+    RECORDED.mkdir(parents=True, exist_ok=True)
+    counts = {}
+    for name, (speedup, seconds) in BURSTS.items():
+        sim = SIMULATORS[name]
+        start = RECORDED_END - timedelta(seconds=speedup * seconds)
+        physics, wire = rng_for(SEED, sim.name), rng_for(SEED, sim.name, "orion")
+        subscription = orion.subscription_id(wire)
+        lines = []
+        for emission in sim.emissions(start, physics):
+            if (emission.at - start).total_seconds() / speedup > seconds:
+                break
+            headers = orion.notification_headers(sim.tenancy.service, sim.tenancy.service_path, orion.correlator(wire))
+            body = orion.notification_body(subscription, emission.entity).decode()
+            lines.append(json.dumps({"headers": headers, "body": body}, separators=(",", ":")))
+        (RECORDED / f"{name}.jsonl.gz").write_bytes(gzip.compress(("\n".join(lines) + "\n").encode(), mtime=0))
+        counts[name] = len(lines)
+    return counts
+
+
+def recorded() -> dict[str, list[tuple[dict, bytes]]]:
+    """The recorded notifications per burst, in sending order."""
+    out = {}
+    for name in BURSTS:
+        text = gzip.decompress((RECORDED / f"{name}.jsonl.gz").read_bytes()).decode()
+        notes = [json.loads(line) for line in text.splitlines()]
+        out[name] = [(note["headers"], note["body"].encode()) for note in notes]
+    return out
+
+
+async def _post_all(url: str, notes: list[tuple[dict, bytes]]) -> int:
+    """POST every notification over CONCURRENCY keep-alive connections; returns
+    how many were acknowledged. Each (entity, time index) occurs once, so the
+    stored data does not depend on the order in which they arrive."""
+    queue: asyncio.Queue = asyncio.Queue()
+    for note in notes:
+        queue.put_nowait(note)
+    acked = 0
+
+    async def sender() -> None:
+        nonlocal acked
+        async with httpx.AsyncClient(base_url=url, timeout=30.0) as client:
+            while not queue.empty():
+                headers, body = queue.get_nowait()
+                response = await client.post("/v2/notify", content=body, headers=headers)
+                assert response.status_code == 200, response.text
+                acked += 1
+
+    await asyncio.gather(*(sender() for _ in range(CONCURRENCY)))
+    return acked
+
+
+async def _feed_recorded(url: str) -> dict[str, int]:
+    notes = recorded()
+    counts = await asyncio.gather(*(_post_all(url, notes[name]) for name in BURSTS))
+    return dict(zip(BURSTS, counts, strict=True))
+
+
+async def feed_live(url: str, end_ms: int) -> dict:
+    """Every burst, live through the demo's runner; each simulated span ends at ``end_ms``."""
     end = datetime.fromtimestamp(end_ms / 1000, tz=UTC)
     runs = [
         run(
@@ -110,14 +190,13 @@ def _start(app_factory, store_url_factory) -> _Running:
                 raise RuntimeError("the test server did not start")
             time.sleep(0.02)
         url = f"http://127.0.0.1:{port}"
-        fed_at = int(time.time() * 1000)
-        stats = asyncio.run(_feed(url, fed_at))
-        for name, row in stats.items():
-            assert row.sent > 100 and row.failed == 0, f"{name}: {row}"
+        stats = asyncio.run(_feed_recorded(url))
+        assert all(count > 1000 for count in stats.values()), stats
     except BaseException:
         _stop(server, thread)
         raise
-    return _Running(LoadedService(url, stats, fed_at), server, thread)
+    client = httpx.Client(base_url=url, timeout=30.0)
+    return _Running(LoadedService(url, stats, int(RECORDED_END.timestamp() * 1000), client), server, thread)
 
 
 def _stop(server: _ThreadedServer, thread: threading.Thread) -> None:
@@ -138,13 +217,23 @@ def grafana_server(app_factory, store_url_factory):
         running.users -= 1
         if running.users == 0:
             del _RUNNING[key]
+            running.service.client.close()
             _stop(running.server, running.thread)
 
 
-@pytest.fixture(scope="session")
-def grafana_http(grafana_server):
-    with httpx.Client(base_url=grafana_server.url, timeout=30.0) as client:
-        yield client
+_GOLDEN_FILES: dict[str, GoldenFile] = {}
+
+
+@pytest.fixture
+def grafana_http(grafana_server, request):
+    """The loaded server's client, checking each 200 JSON answer against the golden file."""
+    module = Path(request.node.path).stem.removeprefix("test_")
+    if module not in _GOLDEN_FILES:
+        _GOLDEN_FILES[module] = GoldenFile(GOLDEN / "grafana" / f"{module}.json", UPDATE)
+    http = GoldenHttp(grafana_server.client, _GOLDEN_FILES[module], golden_key(request.node.name))
+    yield http
+    http.finish()
+    _GOLDEN_FILES[module].save()  # update mode only
 
 
 def panels_of(doc: dict) -> list[dict]:
@@ -154,3 +243,7 @@ def panels_of(doc: dict) -> list[dict]:
         out.append(panel)
         out.extend(panel.get("panels", []))
     return out
+
+
+if __name__ == "__main__":
+    print(record())

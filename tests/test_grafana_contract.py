@@ -21,15 +21,18 @@ parameters. For every target (and every annotation query):
 
 from __future__ import annotations
 
+import itertools
 import re
 from datetime import datetime
 from urllib.parse import urljoin
 
+import httpx
 import pytest
 import yaml
 
 from tests.grafana_fixtures import ROOT, grafana_http, grafana_server  # noqa: F401
 from tests.grafana_fixtures import panels_of as _panels
+from tests.support.golden_http import GoldenFile, GoldenHttp
 from tsdb_service.demo import enums
 from tsdb_service.grafana import dashboards
 
@@ -220,7 +223,7 @@ def test_every_panel_query_returns_the_fields_it_reads(use_case, views, grafana_
 
 
 def test_the_drone_map_shows_the_drone_and_the_8_sensors_with_readings(views, grafana_server, grafana_http):  # noqa: F811
-    where, panel, target, time_range, max_points = next(
+    where, _panel, target, time_range, max_points = next(
         v for v in views if v[1] and v[1]["type"] == "geomap" and v[1]["options"]["layers"][0]["type"] == "markers"
     )
     rows = _run(grafana_http, grafana_server, target, time_range, max_points)
@@ -232,7 +235,7 @@ def test_the_drone_map_shows_the_drone_and_the_8_sensors_with_readings(views, gr
 
 
 def test_the_heatmap_has_many_drone_positions(views, grafana_server, grafana_http):  # noqa: F811
-    where, panel, target, time_range, max_points = next(
+    where, _panel, target, time_range, max_points = next(
         v for v in views if v[1] and v[1]["type"] == "geomap" and v[1]["options"]["layers"][0]["type"] == "heatmap"
     )
     rows = _run(grafana_http, grafana_server, target, time_range, max_points)
@@ -241,7 +244,7 @@ def test_the_heatmap_has_many_drone_positions(views, grafana_server, grafana_htt
 
 def test_the_contract_catches_a_panel_without_data(views, grafana_server, grafana_http):  # noqa: F811
     """A typo in a value path, or the wrong tenant, leaves a panel empty: the check fails."""
-    where, panel, target, time_range, max_points = next(v for v in views if v[1] and v[1]["type"] == "stat")
+    where, _panel, target, time_range, max_points = next(v for v in views if v[1] and v[1]["type"] == "stat")
     broken = dict(
         target,
         url_options=dict(
@@ -252,7 +255,7 @@ def test_the_contract_catches_a_panel_without_data(views, grafana_server, grafan
             ],
         ),
     )
-    with pytest.raises(AssertionError, match="No data|missing or always null"):
+    with pytest.raises(AssertionError, match=r"No data|missing or always null"):
         _check_columns(where, broken, _run(grafana_http, grafana_server, broken, time_range, max_points))
     other_tenant = dict(target, datasource={**target["datasource"], "uid": "tsdb-drone"})
     if target["datasource"]["uid"] != "tsdb-drone":
@@ -319,7 +322,7 @@ def test_states_are_changes_only(grafana_server, grafana_http):  # noqa: F811
     start, end = grafana_server.range_ms
     rows = _get(grafana_http, "/states", {"id": MOWER, "attrs": "s=navigationState(data)", "from": start, "to": end})
     codes = [r["s"] for r in rows]
-    assert all(a != b for a, b in zip(codes[:-2], codes[1:-1], strict=True)), "consecutive rows differ"
+    assert all(a != b for a, b in itertools.pairwise(codes[:-1])), "consecutive rows differ"
     assert len(rows) < 200
 
 
@@ -417,3 +420,30 @@ def test_odd_but_valid_requests_are_answered(grafana_http):  # noqa: F811
     assert _get(grafana_http, "/entities", {}, headers={"Fiware-Service": "empty"}) == []
     text = _get(grafana_http, "/aggregate", {"attrs": "odom", "method": "avg"}, status=404)
     assert text["error"] == "AggrMethod cannot be applied"
+
+
+def test_golden_answers_catch_a_changed_a_missing_and_an_extra_answer(tmp_path):
+    """The golden check itself: a different, a missing or an extra answer fails."""
+
+    class Answers:
+        def __init__(self, *answers):
+            self.answers = list(answers)
+
+        def request(self, method, url, **kwargs):
+            return httpx.Response(200, json=self.answers.pop(0))
+
+    path = tmp_path / "g.json"
+    path.write_text('{"t": [[1, 2.0000000000001], {"a": "b"}]}')
+    same = GoldenHttp(Answers([1, 2.0], {"a": "b"}), GoldenFile(path, update=False), "t")
+    same.get("/x"), same.post("/y")
+    same.finish()
+    with pytest.raises(AssertionError, match="differs"):
+        GoldenHttp(Answers([1, 3]), GoldenFile(path, update=False), "t").get("/x")
+    short = GoldenHttp(Answers([1, 2.0]), GoldenFile(path, update=False), "t")
+    short.get("/x")
+    with pytest.raises(AssertionError, match="1 answers, the golden file has 2"):
+        short.finish()
+    extra = GoldenHttp(Answers([1, 2.0], {"a": "b"}, []), GoldenFile(path, update=False), "t")
+    extra.get("/x"), extra.get("/y")
+    with pytest.raises(AssertionError, match="not in the golden file"):
+        extra.get("/z")

@@ -127,7 +127,8 @@ def test_late_samples_are_counted_before_and_after_they_are_folded(loaded, notif
 def test_minute_buckets_value_paths_and_cut_hours_see_raw_samples_only(loaded):
     loaded.app.state.store.retention.run_once()
     minute = loaded.get("/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&aggrPeriod=minute", headers=H).json()
-    assert len(minute["index"]) == 30 and all(i >= iso(NEW)[:13] for i in minute["index"])
+    raw_minutes = [iso(NEW + timedelta(hours=h, minutes=m)) for h in range(10) for m in (0, 20, 40)]
+    assert (minute["index"], minute["values"]) == (raw_minutes, [1] * 30)  # one raw sample a bucket, to the ms
     path = loaded.get("/v2/entities/Robot:1/attrs/odom(x)?aggrMethod=count", headers=H).json()
     assert path["values"] == [30]  # only the raw window
     # A range starting mid-hour leaves that hour's rolled-up part out.

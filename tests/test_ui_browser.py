@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.grafana_fixtures import _feed
+from tests.grafana_fixtures import feed_live
 from tests.support.server import ServerProcess
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -81,7 +81,7 @@ def demo_server(tmp_path_factory):
     """A real server on a DuckDB file with all three use cases' data."""
     server = ServerProcess(tmp_path_factory.mktemp("ui") / "demo.duckdb").start()
     try:
-        stats = asyncio.run(_feed(server.url, int(time.time() * 1000)))
+        stats = asyncio.run(feed_live(server.url, int(time.time() * 1000)))
         for name, row in stats.items():
             assert row.sent > 100 and row.failed == 0, f"{name}: {row}"
         yield server
