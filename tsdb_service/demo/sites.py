@@ -38,7 +38,6 @@ GARDEN_DEPTH_M = 10.0
 WAREHOUSE = Tenancy("warehouse", "/piap")
 WAREHOUSE_ID = "urn:ngsiv2:ROS2System:PiapWarehouse01"
 WAREHOUSE_ROBOT_ID = "urn:ngsiv2:ROS2System:PiapRobot01"
-WAREHOUSE_SITE = (52.195540, 20.930120)
 DOOR_OPEN_DISTANCE_M = 0.6
 
 # -- eProsima drone: fields north-east of Tres Cantos, Madrid ---------------------

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import orjson
 
 from .. import budget
-from ..errors import Conflict, NotFound, TsdbError
+from ..errors import AggrNotApplicable, Conflict, NotFound
 from ..model import Kind
 from ..query import (
     AggBranch,
@@ -35,16 +35,6 @@ from ..storage.base import Querier
 from .valuepath import extract
 
 _SINGLE_ENTITY = (Shape.ENTITY_ATTR, Shape.ENTITY)
-
-
-class AggrNotApplicable(TsdbError):
-    """QuantumLeap's answer to sum/avg/min/max on text or boolean values."""
-
-    status = 404
-    error = "AggrMethod cannot be applied"
-
-    def __init__(self) -> None:
-        super().__init__("AggrMethod cannot be applied on type TEXT and BOOLEAN.")
 
 
 def not_found() -> NotFound:
@@ -330,16 +320,15 @@ def _aggregated(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> lis
             cell[3] = _and(cell[3], all_int)
 
     if method is not AggrMethod.COUNT:
-        for column, (present, numeric) in totals.items():
-            if present and not numeric:
-                if explicit:
-                    raise AggrNotApplicable()
+        for present, numeric in totals.values():
+            if explicit and present and not numeric:
+                raise AggrNotApplicable()
         if not explicit:  # every attribute: the non-numeric ones are left out
             cells = {k: v for k, v in cells.items() if totals[k[1]][1] > 0}
 
     results: dict[tuple, EntityResult] = {}
     buckets: dict[tuple, set] = {}
-    for (group, column, bucket), cell in cells.items():
+    for group, _column, bucket in cells:
         if group not in results:
             results[group] = EntityResult(group[0], group[1])
             buckets[group] = set()

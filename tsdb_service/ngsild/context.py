@@ -39,7 +39,6 @@ CORE_CONTEXT_URLS = frozenset(
     | {f"https://uri.etsi.org/ngsi-ld/v1/ngsi-ld-core-context-v1.{n}.jsonld" for n in range(3, 10)}
 )
 JSONLD_CONTEXT_REL = "http://www.w3.org/ns/json-ld#context"
-NGSI_LD = "https://uri.etsi.org/ngsi-ld/"
 DEFAULT_VOCAB = "https://uri.etsi.org/ngsi-ld/default-context/"
 CACHE_SECONDS = 3600.0
 MAX_CONTEXT_BYTES = 1 << 20

@@ -27,7 +27,6 @@ from ...demo import sites
 
 INFINITY = "yesoreyeram-infinity-datasource"
 SERVICE_URL = "http://tsdb-service:8668"  # the service's name in a compose file
-SCHEMA_VERSION = 42
 API = "/grafana/infinity"
 
 
