@@ -81,7 +81,8 @@ def _series_rows() -> list[list]:
     rows = [[], [], [], [], [], []]
     for e in range(ENTITIES):
         for a, name in enumerate(ATTRS):
-            for col, v in zip(rows, (e * len(ATTRS) + a + 1, TENANT, "/", entity_id(e), lawnmower.ENTITY_TYPE, name)):
+            values = (e * len(ATTRS) + a + 1, TENANT, "/", entity_id(e), lawnmower.ENTITY_TYPE, name)
+            for col, v in zip(rows, values, strict=True):
                 col.append(v)
     return rows
 
@@ -203,7 +204,7 @@ def check_layout(db: str, size: int) -> dict:
         raise RuntimeError(f"layout check: expected {2 * len(ATTRS)} rows, found {len(rows)}")
     keep = [i for i, n in enumerate(names) if n not in ("rid", "t", "num")]
     bulk, service = rows[: len(ATTRS)], rows[len(ATTRS) :]
-    for b, s in zip(bulk, service):
+    for b, s in zip(bulk, service, strict=True):
         if [b[i] for i in keep] != [s[i] for i in keep]:
             raise RuntimeError(f"layout check: bulk row {b} differs from the service's {s} (columns {names})")
     if len({s[names.index("rid")] for s in service}) != 1:

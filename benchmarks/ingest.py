@@ -25,6 +25,7 @@ other, never together: the machine has two cores, and the load generator
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -134,7 +135,8 @@ class Target:
         self._log = None
 
     def start(self, timeout: float) -> None:
-        self._log = open(self.log_path, "wb")
+        # Open for the server's whole life: _close_log() closes it.
+        self._log = open(self.log_path, "wb")  # noqa: SIM115
         self.proc = subprocess.Popen(
             self.cmd, stdout=self._log, stderr=subprocess.STDOUT, env=self.env, start_new_session=True
         )
@@ -186,10 +188,8 @@ class Target:
             p = psutil.Process(self.proc.pid)
             total = sum(p.cpu_times()[:2])
             for child in p.children(recursive=True):
-                try:
+                with contextlib.suppress(psutil.Error):
                     total += sum(child.cpu_times()[:2])
-                except psutil.Error:
-                    pass
             return total
         except psutil.Error:
             return math.nan
@@ -205,7 +205,9 @@ class Target:
                 self.proc.wait(timeout)
             except subprocess.TimeoutExpired:
                 self.kill()
-                raise RuntimeError(f"{self.name} did not exit within {timeout:.0f} s of SIGTERM\n{self.log_tail()}")
+                raise RuntimeError(
+                    f"{self.name} did not exit within {timeout:.0f} s of SIGTERM\n{self.log_tail()}"
+                ) from None
         self._close_log()
         return self.proc.returncode, time.monotonic() - t
 
@@ -360,7 +362,7 @@ def print_table(rows: dict[str, dict]) -> None:
         "gen CPU%",
     ]
     widths = [max(22, *(len(name) for name in rows)), 9, 8, 7, 9, 8, 8, 8, 8, 9, 9]
-    print("  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(cols, widths))))
+    print("  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(cols, widths, strict=True))))
     for name, r in rows.items():
         s = r["load"]
         vals = [
@@ -376,7 +378,7 @@ def print_table(rows: dict[str, dict]) -> None:
             fmt(r.get("server_cpu_pct"), 0),
             fmt(s["generator_cpu_pct"], 0),
         ]
-        print("  ".join(v.rjust(w) if i else v.ljust(w) for i, (v, w) in enumerate(zip(vals, widths))))
+        print("  ".join(v.rjust(w) if i else v.ljust(w) for i, (v, w) in enumerate(zip(vals, widths, strict=True))))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -544,7 +546,8 @@ def main(argv: list[str] | None = None) -> int:
         ratio = ours_row["load"]["rps"] / bare_row["load"]["rps"]
         results["ratio"] = ratio
         print(
-            f"\nratio = ours / bare ceiling = {ours_row['load']['rps']:,.0f} / {bare_row['load']['rps']:,.0f} = {ratio:.2f}"
+            f"\nratio = ours / bare ceiling = {ours_row['load']['rps']:,.0f} / {bare_row['load']['rps']:,.0f}"
+            f" = {ratio:.2f}"
         )
     if ours_row:
         s, v = ours_row["load"], ours_row["verification"]

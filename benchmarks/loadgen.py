@@ -406,10 +406,7 @@ def _worker(args: tuple, conn) -> None:
     gc.disable()  # a gen-2 pass on a big latency list is a latency spike
     try:
         coro = _run_part(*args)
-        if uvloop is not None:
-            loop = uvloop.new_event_loop()
-        else:  # pragma: no cover
-            loop = asyncio.new_event_loop()
+        loop = uvloop.new_event_loop() if uvloop is not None else asyncio.new_event_loop()
         try:
             result = loop.run_until_complete(coro)
         finally:
@@ -500,10 +497,7 @@ def run_load(
     """
     _check_args(host, connections, duration, warmup)
     if processes <= 0:
-        if uvloop is not None:
-            loop = uvloop.new_event_loop()
-        else:  # pragma: no cover
-            loop = asyncio.new_event_loop()
+        loop = uvloop.new_event_loop() if uvloop is not None else asyncio.new_event_loop()
         try:
             return loop.run_until_complete(
                 run_load_async(host, port, request_factory, connections, duration, warmup, drain_timeout)

@@ -9,6 +9,7 @@ memory of its processes, and the size of a database on disk.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
 from pathlib import Path
@@ -79,10 +80,8 @@ class BenchCluster:
             return math.nan
         total = 0.0
         for p in procs:
-            try:
+            with contextlib.suppress(psutil.Error):
                 total += sum(p.cpu_times()[:2])
-            except psutil.Error:
-                pass
         return total
 
     def memory_bytes(self) -> int | None:

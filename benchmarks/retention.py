@@ -203,7 +203,7 @@ def rolled_up_query_ms(store, probe) -> dict:
 
 
 def run(db, cluster, args) -> dict:
-    per_series = max(1, int(round(SAMPLES * args.scale)))
+    per_series = max(1, round(SAMPLES * args.scale))
     out = {"backend": "postgresql" if is_pg(db) else "duckdb", "scale": args.scale, "batch_rows": args.batch_rows}
     out["load"] = load(db, per_series, cluster)
     store = open_store(db)

@@ -446,13 +446,13 @@ def print_table(rows: list[Row], backends: list[str]) -> list[dict]:
                 r.ratio_text(backends),
             ]
         )
-    widths = [max(len(str(x)) for x in col) for col in zip(header, *table)]
+    widths = [max(len(str(x)) for x in col) for col in zip(header, *table, strict=False)]
     line = "  ".join("-" * w for w in widths)
 
     def fmt(cells):
         return "  ".join(
             str(c).ljust(w) if i < 2 else str(c).rjust(w) if 2 <= i < 2 + len(backends) else str(c).ljust(w)
-            for i, (c, w) in enumerate(zip(cells, widths))
+            for i, (c, w) in enumerate(zip(cells, widths, strict=False))
         )
 
     print(fmt(header))
@@ -492,10 +492,8 @@ def report(path: Path) -> int:
         step.result, step.rc, step.error = data["result"], data["exit_code"], data["error"]
         steps[(key, backend)] = step
     quick = combined.get("quick")
-    print(
-        f"RESULTS of {combined['started_at']} ({'QUICK smoke run, queries at scale ' + format(combined['queries_scale'], 'g') if quick else 'full run'}"
-        f"; {combined['machine']['cpus']} CPUs)"
-    )
+    mode = "QUICK smoke run, queries at scale " + format(combined["queries_scale"], "g") if quick else "full run"
+    print(f"RESULTS of {combined['started_at']} ({mode}; {combined['machine']['cpus']} CPUs)")
     rows, notes = build_rows(steps, backends)
     print_table(rows, backends)
     print()
@@ -667,10 +665,8 @@ def main(argv: list[str] | None = None) -> int:
     load_end = loadavg()
 
     print()
-    print(
-        f"RESULTS ({'QUICK smoke run: short windows, queries at scale ' + format(scale, 'g') if args.quick else 'full run'}"
-        f"; {os.cpu_count()} CPUs, {platform.machine()}; one server process unless stated)"
-    )
+    mode = "QUICK smoke run: short windows, queries at scale " + format(scale, "g") if args.quick else "full run"
+    print(f"RESULTS ({mode}; {os.cpu_count()} CPUs, {platform.machine()}; one server process unless stated)")
     rows, notes = build_rows(steps, backends)
     table = print_table(rows, backends)
     print()
@@ -680,9 +676,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"geo: skipped -- {geo_caps['why']}")
     elif any(b != "duckdb" for b in backends) and not geo_caps.get("--backend"):
         print("geo: DuckDB only -- benchmarks/geo.py has no --backend option yet")
+    out_dir = args.out.relative_to(ROOT) if args.out.is_relative_to(ROOT) else args.out
     print(
         f"load average (1/5/15 min): {' '.join(map(str, load_start))} at start, "
-        f"{' '.join(map(str, load_end))} at end; per step in {args.out.relative_to(ROOT) if args.out.is_relative_to(ROOT) else args.out}"
+        f"{' '.join(map(str, load_end))} at end; per step in {out_dir}"
     )
 
     crashed = [f"{s.key} on {LABEL[s.backend]}: {s.error}" for s in steps.values() if s.error]

@@ -28,8 +28,9 @@ import threading
 import time
 from collections import Counter
 from datetime import UTC, datetime, timedelta
-from itertools import islice
+from itertools import islice, pairwise
 from pathlib import Path
+from typing import ClassVar
 
 import httpx
 import pytest
@@ -76,7 +77,7 @@ def test_a_seed_reproduces_a_run(name):
     first, again, other = _emissions(name, 300), _emissions(name, 300), _emissions(name, 300, seed=2)
     assert [e.entity for e in first] == [e.entity for e in again]
     assert [e.entity for e in first] != [e.entity for e in other]
-    assert all(a.at <= b.at for a, b in zip(first, first[1:], strict=False)), "time must not go back"
+    assert all(a.at <= b.at for a, b in pairwise(first)), "time must not go back"
 
 
 def test_headers_are_the_ones_orion_sends():
@@ -176,7 +177,7 @@ class _Broker(http.server.BaseHTTPRequestHandler):
     """Records one POST and answers like Orion (201 + Location), or 400 for a
     bad tenant; lists no subscriptions (``subscribe`` looks there first)."""
 
-    received: list = []
+    received: ClassVar[list] = []  # shared by the handler instances (one per request)
 
     def do_GET(self):
         self.send_response(200)
@@ -319,7 +320,7 @@ def test_lawnmower_publishes_its_topics_once_a_second(demo):
     index, speeds = _series(client, sites.LAWNMOWER, sites.LAWNMOWER_ID, "odom(twist.twist.linear.x)")
     speedup, seconds = PHASES["lawnmower"]
     assert len(index) == pytest.approx(speedup * seconds, abs=2)
-    steps = {round((_ts(b) - _ts(a)), 3) for a, b in zip(index, index[1:], strict=False)}
+    steps = {round((_ts(b) - _ts(a)), 3) for a, b in pairwise(index)}
     assert steps == {1.0}, "simulated time, not wall time, is the time index"
     assert statistics.median(v for v in speeds if v > 0.05) == pytest.approx(0.4, abs=0.02), "mowing speed"
     assert max(speeds) < 0.55 and min(speeds) < 0, "remote control at most 0.5 m/s; backing out of the dock"
@@ -349,7 +350,7 @@ def test_the_door_opens_only_when_the_robot_is_closer_than_60_cm(demo):
     rows = _wide(client, sites.WAREHOUSE, sites.WAREHOUSE_ID, attrs)
     state, command = enums.DOOR_STATE, enums.DOOR_COMMAND
     openings = 0
-    for before, row in zip(rows, rows[1:], strict=False):
+    for before, row in pairwise(rows):
         near = row["laserDistance(range)"] < sites.DOOR_OPEN_DISTANCE_M
         door, cmd = state[row["doorState(data)"]], command[row["doorCommand(data)"]]
         assert (cmd == "open") == near, f"command {cmd!r} at {row}"

@@ -41,7 +41,7 @@ except ImportError:  # tests/ imported as a package
     )
     from tests.support.tmpfs import fill, small_tmpfs
 
-from tsdb_service.storage import duckdb_store
+from tsdb_service.storage.duckdb import store as duckdb_store
 
 CHECKPOINT_BYTES = 64 * 1024  # the WAL is folded into the file every ~60 notifications
 LEAVE_BYTES = 160 * 1024  # room for the WAL to reach that size, not for the checkpoint
@@ -120,21 +120,23 @@ def test_a_disk_that_stays_full_is_retried_until_space_is_back(tmp_path, client_
     """Reopening works on a full disk (DuckDB replays the WAL in memory), and
     the next checkpoint fails again: the store goes round that loop, never
     losing or duplicating a write, until there is space."""
-    with small_tmpfs(tmp_path / "disk", "24m") as disk:
-        with client_factory(str(disk / "tsdb.duckdb"), wal_checkpoint_bytes=CHECKPOINT_BYTES) as client:
-            store = client.app.state.store
-            post = poster(client)
-            outcomes = Outcomes()
-            filler = fill(disk, leave=LEAVE_BYTES)
-            break_store(post, outcomes)
-            deadline = time.monotonic() + 3.0
-            while time.monotonic() < deadline:
-                outcomes.send(post)
-                status, body = post("GET", f"/v2/entities/{ENTITY}/attrs/seq?lastN=5", None)
-                assert status in (200, 503), body
-            filler.unlink()
-            wait_healthy(post, outcomes)
-            for _ in range(100):
-                assert outcomes.send(post) == 200
-            check_exactly_once(outcomes, stored_seqs(post))
-            assert store.reopens >= 1, store.reopens
+    with (
+        small_tmpfs(tmp_path / "disk", "24m") as disk,
+        client_factory(str(disk / "tsdb.duckdb"), wal_checkpoint_bytes=CHECKPOINT_BYTES) as client,
+    ):
+        store = client.app.state.store
+        post = poster(client)
+        outcomes = Outcomes()
+        filler = fill(disk, leave=LEAVE_BYTES)
+        break_store(post, outcomes)
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            outcomes.send(post)
+            status, body = post("GET", f"/v2/entities/{ENTITY}/attrs/seq?lastN=5", None)
+            assert status in (200, 503), body
+        filler.unlink()
+        wait_healthy(post, outcomes)
+        for _ in range(100):
+            assert outcomes.send(post) == 200
+        check_exactly_once(outcomes, stored_seqs(post))
+        assert store.reopens >= 1, store.reopens

@@ -21,6 +21,7 @@ parameters. For every target (and every annotation query):
 
 from __future__ import annotations
 
+import itertools
 import re
 from datetime import datetime
 from urllib.parse import urljoin
@@ -220,7 +221,7 @@ def test_every_panel_query_returns_the_fields_it_reads(use_case, views, grafana_
 
 
 def test_the_drone_map_shows_the_drone_and_the_8_sensors_with_readings(views, grafana_server, grafana_http):  # noqa: F811
-    where, panel, target, time_range, max_points = next(
+    where, _panel, target, time_range, max_points = next(
         v for v in views if v[1] and v[1]["type"] == "geomap" and v[1]["options"]["layers"][0]["type"] == "markers"
     )
     rows = _run(grafana_http, grafana_server, target, time_range, max_points)
@@ -232,7 +233,7 @@ def test_the_drone_map_shows_the_drone_and_the_8_sensors_with_readings(views, gr
 
 
 def test_the_heatmap_has_many_drone_positions(views, grafana_server, grafana_http):  # noqa: F811
-    where, panel, target, time_range, max_points = next(
+    where, _panel, target, time_range, max_points = next(
         v for v in views if v[1] and v[1]["type"] == "geomap" and v[1]["options"]["layers"][0]["type"] == "heatmap"
     )
     rows = _run(grafana_http, grafana_server, target, time_range, max_points)
@@ -241,7 +242,7 @@ def test_the_heatmap_has_many_drone_positions(views, grafana_server, grafana_htt
 
 def test_the_contract_catches_a_panel_without_data(views, grafana_server, grafana_http):  # noqa: F811
     """A typo in a value path, or the wrong tenant, leaves a panel empty: the check fails."""
-    where, panel, target, time_range, max_points = next(v for v in views if v[1] and v[1]["type"] == "stat")
+    where, _panel, target, time_range, max_points = next(v for v in views if v[1] and v[1]["type"] == "stat")
     broken = dict(
         target,
         url_options=dict(
@@ -252,7 +253,7 @@ def test_the_contract_catches_a_panel_without_data(views, grafana_server, grafan
             ],
         ),
     )
-    with pytest.raises(AssertionError, match="No data|missing or always null"):
+    with pytest.raises(AssertionError, match=r"No data|missing or always null"):
         _check_columns(where, broken, _run(grafana_http, grafana_server, broken, time_range, max_points))
     other_tenant = dict(target, datasource={**target["datasource"], "uid": "tsdb-drone"})
     if target["datasource"]["uid"] != "tsdb-drone":
@@ -319,7 +320,7 @@ def test_states_are_changes_only(grafana_server, grafana_http):  # noqa: F811
     start, end = grafana_server.range_ms
     rows = _get(grafana_http, "/states", {"id": MOWER, "attrs": "s=navigationState(data)", "from": start, "to": end})
     codes = [r["s"] for r in rows]
-    assert all(a != b for a, b in zip(codes[:-2], codes[1:-1], strict=True)), "consecutive rows differ"
+    assert all(a != b for a, b in itertools.pairwise(codes[:-1])), "consecutive rows differ"
     assert len(rows) < 200
 
 

@@ -98,7 +98,7 @@ INFINITY = [
 def test_grafana_infinity_integers(loaded, endpoint, name):
     url = f"/grafana/infinity/{endpoint}"
     params = {"attrs": "x", "service": "ints"}
-    for value in TOO_BIG + ["1e400", "nan", "inf"] + NEGATIVE + ["0", "abc"]:
+    for value in [*TOO_BIG, "1e400", "nan", "inf", *NEGATIVE, "0", "abc"]:
         _assert_400(loaded.get(url, params={**params, name: value}), name)
     for value in ("1", "1500.0", str(MAX_INT_PARAM)):
         response = loaded.get(url, params={**params, name: value})

@@ -229,7 +229,7 @@ def test_values_detected_without_header():
 
 @pytest.mark.parametrize("lookup", [None, lambda t, s: None])
 def test_values_without_layout(lookup):
-    with pytest.raises(ParseError, match="attribute list.*PUT /v2/notify/subscriptions"):
+    with pytest.raises(ParseError, match=r"attribute list.*PUT /v2/notify/subscriptions"):
         parse(values_body([1]), {"Ngsiv2-AttrsFormat": "values"}, values_layout=lookup)
 
 

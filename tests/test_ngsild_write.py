@@ -279,8 +279,8 @@ def test_patch_and_delete_one_instance(client):
 
 def test_instance_errors(client):
     assert create(client).status_code == 201
-    speed = [r for name, r in stored(client) if name == "speed"][0]
-    fuel = [r for name, r in stored(client) if name == "fuelLevel"][0]
+    speed = next(r for name, r in stored(client) if name == "speed")
+    fuel = next(r for name, r in stored(client) if name == "fuelLevel")
     body = {"type": "Property", "value": 1}
     problem(client.delete(f"{BASE}/{VEHICLE}/attrs/speed/urn:x:1"), 404, "ResourceNotFound")
     # An instance of another attribute is not this attribute's.

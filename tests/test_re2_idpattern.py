@@ -96,36 +96,35 @@ def test_unsupported_syntax_is_a_400_naming_re2(client, pattern):
 def test_hostile_pattern_does_not_block_other_clients(store_url, tmp_path):
     """A real server: while clients hammer it with the hostile pattern,
     /health and notifications keep answering promptly."""
-    with ServerProcess(store_url, log_dir=tmp_path) as server:
-        with httpx.Client(base_url=server.url, timeout=10) as http:
-            _load(http.post)
-            stop = threading.Event()
-            errors: list[str] = []
+    with ServerProcess(store_url, log_dir=tmp_path) as server, httpx.Client(base_url=server.url, timeout=10) as http:
+        _load(http.post)
+        stop = threading.Event()
+        errors: list[str] = []
 
-            def hammer() -> None:
-                with httpx.Client(base_url=server.url, timeout=30) as own:
-                    while not stop.is_set():
-                        r = own.get("/v2/types/Room", params={"idPattern": HOSTILE})
-                        if r.status_code != 200:
-                            errors.append(r.text)
+        def hammer() -> None:
+            with httpx.Client(base_url=server.url, timeout=30) as own:
+                while not stop.is_set():
+                    r = own.get("/v2/types/Room", params={"idPattern": HOSTILE})
+                    if r.status_code != 200:
+                        errors.append(r.text)
 
-            threads = [threading.Thread(target=hammer) for _ in range(2)]
+        threads = [threading.Thread(target=hammer) for _ in range(2)]
+        for t in threads:
+            t.start()
+        try:
+            time.sleep(0.2)
+            for n in range(5):
+                start = time.monotonic()
+                assert http.get("/health").status_code == 200
+                r = http.post(
+                    "/v2/notify",
+                    json={"subscriptionId": "s", "data": [_entity(IDS[0], 100 + n)]},
+                    headers={"Content-Type": "application/json"},
+                )
+                assert r.status_code == 200, r.text
+                assert time.monotonic() - start < 2.0
+        finally:
+            stop.set()
             for t in threads:
-                t.start()
-            try:
-                time.sleep(0.2)
-                for n in range(5):
-                    start = time.monotonic()
-                    assert http.get("/health").status_code == 200
-                    r = http.post(
-                        "/v2/notify",
-                        json={"subscriptionId": "s", "data": [_entity(IDS[0], 100 + n)]},
-                        headers={"Content-Type": "application/json"},
-                    )
-                    assert r.status_code == 200, r.text
-                    assert time.monotonic() - start < 2.0
-            finally:
-                stop.set()
-                for t in threads:
-                    t.join()
-            assert not errors
+                t.join()
+        assert not errors

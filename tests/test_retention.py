@@ -199,13 +199,16 @@ def test_latest_location_recomputed_when_an_old_one_goes(store_url, geo_kind):
     """A series whose newest position is old loses it; a newer one stays."""
     store = open_with(store_url, retention="*=30d")
     try:
-        geo = lambda lon: AttrSample(
-            "location",
-            "geo:json",
-            geo_kind,
-            js="{}",
-            geo=Geometry(f'{{"type":"Point","coordinates":[{lon},0]}}', lon, 0, lon, 0, lon, 0),
-        )
+
+        def geo(lon):
+            return AttrSample(
+                "location",
+                "geo:json",
+                geo_kind,
+                js="{}",
+                geo=Geometry(f'{{"type":"Point","coordinates":[{lon},0]}}', lon, 0, lon, 0, lon, 0),
+            )
+
         store.write_sync(
             [
                 AppendSamples(

@@ -111,7 +111,7 @@ def _mower(t: str, x: float, state: int) -> dict:
 
 @pytest.fixture
 def mower(client, notify):
-    for i, (t, x, s) in enumerate(
+    for _i, (t, x, s) in enumerate(
         [("2024-05-01T10:00:00Z", 0.5, 1), ("2024-05-01T10:00:30Z", 1.5, 3), ("2024-05-01T10:01:10Z", 1.0, 3)]
     ):
         notify(client, _mower(t, x, s))

@@ -108,7 +108,7 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
 
 
 def _peer(client) -> str:
-    return "%s:%d" % client if client else "a client"
+    return f"{client[0]}:{client[1]:d}" if client else "a client"
 
 
 def raise_fd_limit() -> tuple[int, int] | None:

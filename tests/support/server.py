@@ -18,6 +18,7 @@ developer's shell cannot change what a test runs against), plus
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -196,10 +197,8 @@ class ServerProcess:
 
     def __exit__(self, *exc_info) -> None:
         if self.running():
-            try:
+            with contextlib.suppress(ServerError):  # already killed; do not mask the test's own exception
                 self.terminate()
-            except ServerError:
-                pass  # already killed; do not mask the test's own exception
         self._close_log()
 
     # -- output

@@ -10,6 +10,7 @@ GeoJSON values are built with :func:`geo_point` (lon, lat order).
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -102,7 +103,7 @@ def inside(ring: tuple[tuple[float, float], ...], point: tuple[float, float]) ->
     """
     lat, lon = point
     result = False
-    for (lat1, lon1), (lat2, lon2) in zip(ring, ring[1:], strict=False):
+    for (lat1, lon1), (lat2, lon2) in itertools.pairwise(ring):
         if (lat1 > lat) != (lat2 > lat):
             crossing = lon1 + (lat - lat1) * (lon2 - lon1) / (lat2 - lat1)
             if lon < crossing:

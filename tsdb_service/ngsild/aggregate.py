@@ -40,7 +40,7 @@ import math
 from collections.abc import Sequence
 from datetime import UTC, datetime, timedelta
 from functools import lru_cache
-from itertools import groupby
+from itertools import groupby, pairwise
 from operator import itemgetter
 from typing import NamedTuple
 
@@ -162,7 +162,7 @@ class Aggregator:
             end = end or us_to_datetime(bounds[1] + 1)
         edges = boundaries(start, end, period)
         rows = self._calendar_query(sids, window, agg.methods, edges)
-        following = dict(zip(edges, edges[1:]))
+        following = dict(pairwise(edges))
         return self._combine(rows, agg.methods, lambda lo: (lo, following[lo]))
 
     # -- SQL -------------------------------------------------------------------------

@@ -74,7 +74,7 @@ class Fetcher:
             if selector.types is not None:
                 types = {r.entity_type for r in found}
                 iris = dict(zip(types, self.terms.expand_all(types), strict=True))
-                ok = {t for t in types if type_matches(selector.types, lambda n, t=t: iris[t] == n.iri)}
+                ok = {t for t in types if type_matches(selector.types, lambda n, t=t, iris=iris: iris[t] == n.iri)}
                 if ok != types:
                     found = [r for r in found if r.entity_type in ok]
             refs.extend(found)

@@ -36,10 +36,7 @@ def run(querier, terms: TermMap, query: TemporalQuery, cap: int) -> TemporalResu
     all_refs = [r for refs in by_entity.values() for r in refs]
     iris = fetcher.attr_iris(all_refs)
     keys = _matching(fetcher, query, by_entity, iris)
-    if query.entity_id is not None:
-        page_keys = keys
-    else:
-        page_keys = keys[query.offset : query.offset + query.limit]
+    page_keys = keys if query.entity_id is not None else keys[query.offset : query.offset + query.limit]
     selected = {key: fetcher.selected(query, by_entity[key], iris) for key in page_keys}
     sids = [r.sid for refs in selected.values() for r in refs]
     content_range = None
