@@ -177,7 +177,9 @@ def serve_app():
 
         await lifespan(scope, receive, send_short)
 
-    app.router.lifespan = one_line_lifespan
+    # Replaced on this router only, so requests pass no wrapper; Starlette types
+    # ``Router.lifespan`` as a method, not as the ASGI callable it is used as.
+    app.router.lifespan = one_line_lifespan  # type: ignore[method-assign]
     return app
 
 

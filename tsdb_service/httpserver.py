@@ -57,7 +57,7 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         self._header_timeout, self._body_timeout, self._max_connections = _limits()
         self._deadline: TimerHandle | None = None
 
-    def connection_made(self, transport) -> None:  # type: ignore[override]
+    def connection_made(self, transport) -> None:
         super().connection_made(transport)
         if len(self.connections) > self._max_connections:
             log.warning(

@@ -274,13 +274,14 @@ _GLOBAL = ("", "")
 
 def _aggregated(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> list[EntityResult]:
     agg = q.aggregation
+    assert agg is not None, "run_history sends only aggregated queries here"
     method = agg.method
     by_sid = {r.sid: r for r in refs}
     # Columns: plain attributes share one branch; each value path has its own.
     plain_attrs: dict[str, str] = {}  # attr -> column name
     path_columns: list[ValuePath] = []
     explicit = q.attrs is not None
-    if explicit:
+    if q.attrs is not None:
         for vp in q.attrs:
             if vp.steps:
                 path_columns.append(vp)
@@ -469,7 +470,7 @@ def run_last_values(querier: Querier, q: LastValueQuery) -> list[dict]:
             refs[ref.sid] = ref
     if not refs:
         return []
-    wanted = None
+    wanted: dict[str, list[ValuePath]] | None = None
     if q.attrs is not None:
         wanted = {}
         for vp in q.attrs:

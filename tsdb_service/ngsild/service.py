@@ -41,8 +41,10 @@ def run(querier, terms: TermMap, query: TemporalQuery, cap: int) -> TemporalResu
     sids = [r.sid for refs in selected.values() for r in refs]
     content_range = None
     if query.format is Format.AGGREGATED:
-        periods = Aggregator(fetcher).run(sids, query.window, query.aggregation)
-        rendered = _aggregated(query, selected, iris, periods)
+        agg = query.aggregation
+        assert agg is not None, "the parser gives format=aggregated its aggregation"
+        periods = Aggregator(fetcher).run(sids, query.window, agg)
+        rendered = _aggregated(agg.methods, selected, iris, periods)
     else:
         rows, content_range = _instances(querier, query, sids, cap)
         rendered = _instances_rendered(query, selected, iris, rows)
@@ -120,7 +122,7 @@ def _instances_rendered(query: TemporalQuery, selected, iris, rows) -> dict[Enti
     return out
 
 
-def _aggregated(query: TemporalQuery, selected, iris, periods) -> dict[EntityKey, dict[str, object]]:
+def _aggregated(methods: tuple[str, ...], selected, iris, periods) -> dict[EntityKey, dict[str, object]]:
     out: dict[EntityKey, dict[str, object]] = {}
     for key, refs in selected.items():
         attrs: dict[str, list] = {}
@@ -128,7 +130,7 @@ def _aggregated(query: TemporalQuery, selected, iris, periods) -> dict[EntityKey
             series = periods.get(ref.sid)
             if series is not None:
                 attrs.setdefault(iris[ref.sid], []).append((ref.dataset_id, series.attr_type, series.periods))
-        out[key] = {iri: aggregated(series, query.aggregation.methods) for iri, series in attrs.items()}
+        out[key] = {iri: aggregated(series, methods) for iri, series in attrs.items()}
     return out
 
 
