@@ -177,7 +177,7 @@ class _Broker(http.server.BaseHTTPRequestHandler):
     """Records one POST and answers like Orion (201 + Location), or 400 for a
     bad tenant; lists no subscriptions (``subscribe`` looks there first)."""
 
-    received: ClassVar[list] = []
+    received: ClassVar[list] = []  # shared by the handler instances (one per request)
 
     def do_GET(self):
         self.send_response(200)

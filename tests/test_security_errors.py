@@ -68,6 +68,24 @@ def test_notification_500_is_the_same_neutral_body(client, monkeypatch, caplog):
     assert any(rid in r.getMessage() and r.exc_info for r in caplog.records)
 
 
+def test_notification_500_answers_as_the_framework_does(app_factory, embedded_db, monkeypatch):
+    """The notify fast path runs in front of the framework, so it renders its
+    own 500: the same body (shape and text), content type and request id
+    header as the framework's handler gives any other route."""
+    monkeypatch.setattr(notify_module, "parse_notification", _explode)
+    app = app_factory(embedded_db)
+    app.add_api_route("/boom", _boom, methods=["GET"])
+    with TestClient(app, raise_server_exceptions=False) as client:
+        responses = [client.get("/boom"), client.post("/v2/notify", json={"data": []})]
+    answers = []
+    for response in responses:
+        rid = _assert_neutral(response)
+        assert response.headers["x-request-id"] == rid
+        body = {key: text.replace(rid, "<id>") for key, text in response.json().items()}
+        answers.append((response.headers["content-type"], body))
+    assert answers[0] == answers[1]
+
+
 def test_request_ids_differ(app_factory, embedded_db):
     app = app_factory(embedded_db)
     app.add_api_route("/boom", _boom, methods=["GET"])

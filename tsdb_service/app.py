@@ -10,6 +10,7 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
+from starlette.types import ASGIApp
 
 from . import __version__, grafana, rawpath, ui
 from . import metrics as metrics_
@@ -36,7 +37,7 @@ class TsdbApp(FastAPI):
     request timed (refusals included)."""
 
     request_metrics: metrics_.RequestMetrics
-    front = None  # the guarded ASGI entry point; create_app sets it
+    front: ASGIApp  # the guarded ASGI entry point; create_app sets it
 
     async def __call__(self, scope, receive, send) -> None:
         if scope["type"] != "http":

@@ -6,6 +6,7 @@ import argparse
 import os
 import sys
 from collections.abc import Callable, Sequence
+from types import ModuleType
 
 from . import __version__
 from .config import LOG_LEVELS, Settings, SettingsError, load_settings
@@ -99,28 +100,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-# Feature packages add their own subcommands: each module named here has
-# ``register(subparsers, command)``; it is imported only when it exists, so a
-# feature can land without touching this file again.
-FEATURE_COMMANDS = (
-    "tsdb_service.demo.commands",
-    "tsdb_service.grafana.commands",
-    "tsdb_service.storage.copy",
-    "tsdb_service.export.commands",
-)
+def _feature_modules() -> tuple[ModuleType, ...]:
+    """The packages that add their own subcommands, each through
+    ``register(subparsers, command)``; imported when the parser is built, so
+    ``import tsdb_service.cli`` stays light."""
+    from .demo import commands as demo_commands
+    from .export import commands as export_commands
+    from .grafana import commands as grafana_commands
+    from .storage import copy
 
-
-def _feature_modules():
-    import importlib
-
-    for name in FEATURE_COMMANDS:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name and name.startswith(exc.name):
-                continue  # that feature is not installed in this tree
-            raise
-        yield module
+    return (demo_commands, grafana_commands, copy, export_commands)
 
 
 @command("serve")
@@ -188,7 +177,9 @@ def serve_app():
 
         await lifespan(scope, receive, send_short)
 
-    app.router.lifespan = one_line_lifespan
+    # Replaced on this router only, so requests pass no wrapper; Starlette types
+    # ``Router.lifespan`` as a method, not as the ASGI callable it is used as.
+    app.router.lifespan = one_line_lifespan  # type: ignore[method-assign]
     return app
 
 

@@ -38,7 +38,7 @@ import tempfile
 from collections.abc import Iterable, Mapping
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 from urllib.parse import quote
 
 import httpx
@@ -46,7 +46,7 @@ import pandas as pd
 
 __all__ = ["Client", "TsdbClientError"]
 
-TimeBound = str | datetime | pd.Timestamp | None
+TimeBound: TypeAlias = str | datetime | pd.Timestamp | None
 
 
 class TsdbClientError(RuntimeError):

@@ -52,6 +52,16 @@ class NotFound(TsdbError):
     ld_type = "ResourceNotFound"
 
 
+class AggrNotApplicable(TsdbError):
+    """QuantumLeap's answer to sum/avg/min/max on text or boolean values."""
+
+    status = 404
+    error = "AggrMethod cannot be applied"
+
+    def __init__(self) -> None:
+        super().__init__("AggrMethod cannot be applied on type TEXT and BOOLEAN.")
+
+
 class Conflict(TsdbError):
     status = 409
     error = "Conflict"

@@ -57,7 +57,7 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         self._header_timeout, self._body_timeout, self._max_connections = _limits()
         self._deadline: TimerHandle | None = None
 
-    def connection_made(self, transport) -> None:  # type: ignore[override]
+    def connection_made(self, transport) -> None:
         super().connection_made(transport)
         if len(self.connections) > self._max_connections:
             log.warning(
@@ -108,7 +108,7 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
 
 
 def _peer(client) -> str:
-    return "%s:%d" % client if client else "a client"
+    return f"{client[0]}:{client[1]:d}" if client else "a client"
 
 
 def raise_fd_limit() -> tuple[int, int] | None:

@@ -197,7 +197,8 @@ class WriterMetrics:
             self._count(self.accepted, ops)
         elif kind == "rejected":
             for op in ops:
-                self._child(self.rejected, self._tenants(op.rejected.tenant), op.rejected.error).inc()
+                if isinstance(op, RecordRejected):  # every op of this kind is
+                    self._child(self.rejected, self._tenants(op.rejected.tenant), op.rejected.error).inc()
 
     def failed_ops(self, ops: Sequence[WriteOp]) -> None:
         self._count(self.failed, ops)
@@ -353,6 +354,9 @@ class StoreCollector(Collector):
 
 def _measure(store: Store) -> tuple[int, int, int]:
     if store.backend == "postgresql":
+        from .storage.postgres.store import PostgresStore  # imported only where it is in use
+
+        assert isinstance(store, PostgresStore)
         with store.connection() as conn:
             size = conn.execute("SELECT pg_database_size(current_database())").fetchone()[0]
             rows, nbytes = conn.execute(
@@ -360,6 +364,9 @@ def _measure(store: Store) -> tuple[int, int, int]:
                 "FROM rejected_notifications"
             ).fetchone()
         return int(size), int(rows), int(nbytes)
+    from .storage.duckdb.store import DuckDBStore
+
+    assert isinstance(store, DuckDBStore)
     # fetchall, not fetchone: an unread result keeps this thread's cursor in
     # an open transaction, and a later UPDATE or DELETE committed elsewhere
     # (retention, in the background) then makes the CHECKPOINT at close fail.

@@ -19,6 +19,7 @@ from .responses import JSON
 
 log = logging.getLogger("tsdb_service")
 
+REQUEST_ID_HEADER = "X-Request-Id"  # on every 500: the id its log record is filed under
 _HTTP_NAMES = {404: "NotFound", 405: "MethodNotAllowed", 413: "PayloadTooLarge", 415: "UnsupportedMediaType"}
 
 
@@ -107,4 +108,6 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(Exception)
     async def unexpected(request: Request, exc: Exception) -> JSON:
         request_id, body = internal_error(f"unhandled error in {request.method} {request.url.path}", exc)
-        return _error(request, body["error"], body["description"], 500, "InternalError", {"X-Request-Id": request_id})
+        return _error(
+            request, body["error"], body["description"], 500, "InternalError", {REQUEST_ID_HEADER: request_id}
+        )

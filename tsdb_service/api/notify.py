@@ -25,7 +25,7 @@ from ..ngsi.names import ID_RULE, RULE, id_problem, name_problem
 from ..security import redact_headers
 from ..storage.base import AppendSamples, PutLayout, RecordRejected
 from . import openapi as oa
-from .handlers import internal_error
+from .handlers import REQUEST_ID_HEADER, internal_error
 from .reads import reads_store
 from .responses import JSON
 from .tenancy import tenant_header, tenant_of
@@ -47,14 +47,14 @@ _JSON_HEADERS = [(b"content-type", b"application/json")]
 
 @router.post("/v2/notify", summary="Receive an NGSIv2 or NGSI-LD notification", **oa.NOTIFY)
 async def notify(request: Request) -> Response:
-    status, payload = await receive_notification(request)
-    return Response(payload, status_code=status, media_type="application/json")
+    status, payload, headers = await receive_notification(request)
+    return Response(payload, status_code=status, headers=headers, media_type="application/json")
 
 
 @router.post("/ngsi-ld/v1/notify", summary="Receive an NGSI-LD notification", **oa.NOTIFY)
 async def notify_ld(request: Request) -> Response:
-    status, payload = await receive_notification(request)
-    return Response(payload, status_code=status, media_type="application/json")
+    status, payload, headers = await receive_notification(request)
+    return Response(payload, status_code=status, headers=headers, media_type="application/json")
 
 
 def is_notification(scope) -> bool:
@@ -66,23 +66,20 @@ async def serve_notification(app, scope, receive, send) -> None:
     stack, which costs more per request than parsing a notification. The
     behaviour is the routes' above (same function); only the overhead goes."""
     scope["app"] = app
-    status, payload = await receive_notification(Request(scope, receive))
-    await send(
-        {
-            "type": "http.response.start",
-            "status": status,
-            "headers": [*_JSON_HEADERS, (b"content-length", str(len(payload)).encode())],
-        }
-    )
+    status, payload, extra = await receive_notification(Request(scope, receive))
+    headers = [*_JSON_HEADERS, (b"content-length", str(len(payload)).encode())]
+    if extra:
+        headers += [(name.lower().encode(), value.encode()) for name, value in extra.items()]
+    await send({"type": "http.response.start", "status": status, "headers": headers})
     await send({"type": "http.response.body", "body": payload})
 
 
-async def receive_notification(request: Request) -> tuple[int, bytes]:
-    """Parse, store, then answer: ``(status, JSON body)``, errors in the NGSI shape."""
+async def receive_notification(request: Request) -> tuple[int, bytes, dict[str, str] | None]:
+    """Parse, store, then answer: ``(status, JSON body, extra headers)``, errors in the NGSI shape."""
     try:
         await _receive(request)
     except TsdbError as exc:
-        return exc.status, orjson.dumps(exc.body())
+        return exc.status, orjson.dumps(exc.body()), None
     except ClientDisconnect:  # nothing was stored and nobody is left to answer: one line, no traceback
         log.warning(
             "notification from %s abandoned: the client disconnected before sending the whole body "
@@ -90,10 +87,11 @@ async def receive_notification(request: Request) -> tuple[int, bytes]:
             _peer(request),
             request.headers.get("content-length"),
         )
-        return 400, _DISCONNECTED
-    except Exception:  # a bug: still answer in the NGSI shape
-        return 500, orjson.dumps(internal_error("notification failed")[1])
-    return 200, _OK_BODY
+        return 400, _DISCONNECTED, None
+    except Exception:  # a bug: answered as api.handlers answers any other 500 (body and request id header)
+        request_id, body = internal_error("notification failed")
+        return 500, orjson.dumps(body), {REQUEST_ID_HEADER: request_id}
+    return 200, _OK_BODY, None
 
 
 async def _receive(request: Request) -> None:

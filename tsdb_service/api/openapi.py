@@ -306,7 +306,6 @@ SERVICE_PATH_QUERY = header(
 TENANCY = [FIWARE_SERVICE, NGSILD_TENANT, SERVICE_PATH_QUERY]
 
 _INT_MAX = 10**18 - 1  # history.params: at most 18 digits
-MAX_OFFSET = _INT_MAX  # what SQL's 64-bit OFFSET takes, with room to spare
 _POSITIVE = {"type": "integer", "minimum": 1, "maximum": _INT_MAX}
 _TIME = {"type": "string", "format": "date-time"}
 
@@ -432,7 +431,6 @@ def grafana_params(*extra: dict, attrs: bool | None = True, time: bool = True) -
 
 MAX_POINTS = query("max_points", "Samples per entity before downsampling (capped at 100000).", _POINTS)
 GRAFANA_LIMIT = query("limit", "At most this many rows (capped at 100000).", _POINTS)
-GRAFANA_GEO = GEO
 
 SUBSCRIBE = [
     FIWARE_SERVICE,

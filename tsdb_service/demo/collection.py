@@ -21,7 +21,7 @@ from __future__ import annotations
 import json
 import time
 import urllib.parse
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -142,7 +142,7 @@ def _ascending_failure(found):
     return f"out of order at position {bad[0]}: {found[bad[0] - 1]!r} > {found[bad[0]]!r}" if bad else None
 
 
-_FAILURES = {
+_FAILURES: dict[str, Callable[..., str | None]] = {
     "count": _count_failure,
     "each_in": _each_in_failure,
     "between": _between_failure,

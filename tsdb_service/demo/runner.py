@@ -171,7 +171,7 @@ async def run(
         for _ in senders:
             await outbox.put(None)
         await asyncio.gather(*senders, return_exceptions=True)
-        if reporter:
+        if progress is not None and reporter is not None:
             reporter.cancel()
             await asyncio.gather(reporter, return_exceptions=True)
             progress.final(stats, clock)
@@ -285,7 +285,7 @@ class Progress:
         text = f"  elapsed {elapsed:7.1f} s   speedup x{clock.speedup:.3g}"
         lag = max((clock.lag(row) for row in stats.values()), default=0.0)
         end = clock.expected_end(list(stats.values()))
-        if lag < BEHIND_NOTE_S or end is None:
+        if lag < BEHIND_NOTE_S or end is None or clock.duration is None:
             return text
         finish = datetime.now().astimezone() + timedelta(seconds=max(0.0, end - elapsed))
         return (

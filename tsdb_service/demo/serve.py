@@ -82,10 +82,12 @@ class LocalService:
                 ) from None
 
     def _wait_healthy(self, timeout: float) -> None:
+        proc = self.proc
+        assert proc is not None, "start() launches the service first"
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"the service exited with code {self.proc.returncode}:\n{self.log_tail()}")
+            if proc.poll() is not None:
+                raise RuntimeError(f"the service exited with code {proc.returncode}:\n{self.log_tail()}")
             try:
                 if httpx.get(self.url + "/health", timeout=2.0).status_code == 200:
                     return

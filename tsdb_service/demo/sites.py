@@ -10,6 +10,7 @@ GeoJSON values are built with :func:`geo_point` (lon, lat order).
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -38,7 +39,6 @@ GARDEN_DEPTH_M = 10.0
 WAREHOUSE = Tenancy("warehouse", "/piap")
 WAREHOUSE_ID = "urn:ngsiv2:ROS2System:PiapWarehouse01"
 WAREHOUSE_ROBOT_ID = "urn:ngsiv2:ROS2System:PiapRobot01"
-WAREHOUSE_SITE = (52.195540, 20.930120)
 DOOR_OPEN_DISTANCE_M = 0.6
 
 # -- eProsima drone: fields north-east of Tres Cantos, Madrid ---------------------
@@ -103,7 +103,7 @@ def inside(ring: tuple[tuple[float, float], ...], point: tuple[float, float]) ->
     """
     lat, lon = point
     result = False
-    for (lat1, lon1), (lat2, lon2) in zip(ring, ring[1:], strict=False):
+    for (lat1, lon1), (lat2, lon2) in itertools.pairwise(ring):
         if (lat1 > lat) != (lat2 > lat):
             crossing = lon1 + (lat - lat1) * (lon2 - lon1) / (lat2 - lat1)
             if lon < crossing:

@@ -125,7 +125,7 @@ def list_subscriptions(broker: str, headers: dict[str, str], timeout: float = 10
     tenancy = {k: v for k, v in headers.items() if k.lower().startswith("fiware-")}
     found: list[dict] = []
     for _ in range(_MAX_PAGES):
-        params = {"limit": _PAGE, "offset": len(found), "options": "count"}
+        params: dict[str, str | int] = {"limit": _PAGE, "offset": len(found), "options": "count"}
         try:
             response = httpx.get(url, params=params, headers=tenancy, timeout=timeout)
         except httpx.HTTPError as exc:

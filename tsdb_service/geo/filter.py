@@ -44,7 +44,6 @@ class BBox:
 @dataclass(frozen=True)
 class GeoFilter:
     georel: str
-    geometry_kind: str
     shape: BaseGeometry  # lon/lat order
     max_distance: float | None = None  # metres, for near
     min_distance: float | None = None
@@ -255,7 +254,7 @@ def parse_geo(
     geom = _build_geometry(geometry, points)
     if relation == "near" and geometry != "point":
         raise BadRequest("georel=near needs geometry=point")
-    return GeoFilter(relation, geometry, geom, max_d, min_d, scope or SAMPLE)
+    return GeoFilter(relation, geom, max_d, min_d, scope or SAMPLE)
 
 
 def _parse_georel(text: str) -> tuple[str, float | None, float | None]:

@@ -70,11 +70,11 @@ def location_spans(rows: list[tuple], geo: GeoFilter) -> dict[int, list[Span]]:
     ``rows`` are ``location_samples`` rows, ordered by (sid, t, rid)."""
     if not rows:
         return {}
-    sid, t_us, rid, ok, point, lon, lat, geojson = zip(*rows, strict=True)
-    sid = np.fromiter(sid, np.int64, len(rows))
-    t_us = np.fromiter(t_us, np.int64, len(rows))
-    rid = np.fromiter(rid, np.int64, len(rows))
-    ok = np.fromiter(ok, bool, len(rows))
+    sid_col, t_col, rid_col, ok_col, point, lon, lat, geojson = zip(*rows, strict=True)
+    sid = np.fromiter(sid_col, np.int64, len(rows))
+    t_us = np.fromiter(t_col, np.int64, len(rows))
+    rid = np.fromiter(rid_col, np.int64, len(rows))
+    ok = np.fromiter(ok_col, bool, len(rows))
     match = np.zeros(len(rows), dtype=bool)
     test = np.flatnonzero(ok)
     if len(test):
@@ -100,6 +100,7 @@ def _runs(sid: np.ndarray, t_us: np.ndarray, rid: np.ndarray, match: np.ndarray)
     lasts = np.flatnonzero(match & ~(same_next & next_match))
     out: dict[int, list[Span]] = {}
     for first, last in zip(firsts.tolist(), lasts.tolist(), strict=True):
+        span: Span
         if same_next[last]:
             span = (int(t_us[first]), int(rid[first]), int(t_us[last + 1]), int(rid[last + 1]))
         else:

@@ -52,7 +52,7 @@ def apply_geo(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesRe
         locations = {**locations, **_fallback_locations(querier, scope, entities, time, sel.without)}
     if geo.scope == ENTITY:
         matched = matching_entities(querier, locations, geo, time)
-        return [r for r, key in zip(refs, map(entity_key, refs)) if key in matched], querier
+        return [r for r, key in zip(refs, map(entity_key, refs), strict=True) if key in matched], querier
     from ..query import RowMask
     from .masks import MaskedQuerier, sample_spans
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import orjson
 
 from .. import budget
-from ..errors import Conflict, NotFound, TsdbError
+from ..errors import AggrNotApplicable, Conflict, NotFound
 from ..model import Kind
 from ..query import (
     AggBranch,
@@ -35,16 +35,6 @@ from ..storage.base import Querier
 from .valuepath import extract
 
 _SINGLE_ENTITY = (Shape.ENTITY_ATTR, Shape.ENTITY)
-
-
-class AggrNotApplicable(TsdbError):
-    """QuantumLeap's answer to sum/avg/min/max on text or boolean values."""
-
-    status = 404
-    error = "AggrMethod cannot be applied"
-
-    def __init__(self) -> None:
-        super().__init__("AggrMethod cannot be applied on type TEXT and BOOLEAN.")
 
 
 def not_found() -> NotFound:
@@ -284,13 +274,14 @@ _GLOBAL = ("", "")
 
 def _aggregated(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> list[EntityResult]:
     agg = q.aggregation
+    assert agg is not None, "run_history sends only aggregated queries here"
     method = agg.method
     by_sid = {r.sid: r for r in refs}
     # Columns: plain attributes share one branch; each value path has its own.
     plain_attrs: dict[str, str] = {}  # attr -> column name
     path_columns: list[ValuePath] = []
     explicit = q.attrs is not None
-    if explicit:
+    if q.attrs is not None:
         for vp in q.attrs:
             if vp.steps:
                 path_columns.append(vp)
@@ -330,16 +321,15 @@ def _aggregated(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> lis
             cell[3] = _and(cell[3], all_int)
 
     if method is not AggrMethod.COUNT:
-        for column, (present, numeric) in totals.items():
-            if present and not numeric:
-                if explicit:
-                    raise AggrNotApplicable()
+        for present, numeric in totals.values():
+            if explicit and present and not numeric:
+                raise AggrNotApplicable()
         if not explicit:  # every attribute: the non-numeric ones are left out
             cells = {k: v for k, v in cells.items() if totals[k[1]][1] > 0}
 
     results: dict[tuple, EntityResult] = {}
     buckets: dict[tuple, set] = {}
-    for (group, column, bucket), cell in cells.items():
+    for group, _column, bucket in cells:
         if group not in results:
             results[group] = EntityResult(group[0], group[1])
             buckets[group] = set()
@@ -480,7 +470,7 @@ def run_last_values(querier: Querier, q: LastValueQuery) -> list[dict]:
             refs[ref.sid] = ref
     if not refs:
         return []
-    wanted = None
+    wanted: dict[str, list[ValuePath]] | None = None
     if q.attrs is not None:
         wanted = {}
         for vp in q.attrs:

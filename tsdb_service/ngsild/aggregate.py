@@ -37,10 +37,10 @@ from __future__ import annotations
 
 import calendar
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from datetime import UTC, datetime, timedelta
 from functools import lru_cache
-from itertools import groupby
+from itertools import groupby, pairwise
 from operator import itemgetter
 from typing import NamedTuple
 
@@ -162,7 +162,7 @@ class Aggregator:
             end = end or us_to_datetime(bounds[1] + 1)
         edges = boundaries(start, end, period)
         rows = self._calendar_query(sids, window, agg.methods, edges)
-        following = dict(zip(edges, edges[1:]))
+        following = dict(pairwise(edges))
         return self._combine(rows, agg.methods, lambda lo: (lo, following[lo]))
 
     # -- SQL -------------------------------------------------------------------------
@@ -258,7 +258,7 @@ class Aggregator:
         end = datetime_to_us(window.end) if window.end is not None else max(r[R_MAX_US] for r in rows)
         return self._combine(rows, methods, lambda _b: (start, end))
 
-    def _combine(self, rows, methods, span) -> dict[int, SeriesAggregate]:
+    def _combine(self, rows, methods, span: Callable[[int], tuple[int, int]]) -> dict[int, SeriesAggregate]:
         rows.sort(key=_SID_BUCKET)
         out: dict[int, SeriesAggregate] = {}
         for sid, group in groupby(rows, key=_SID):
@@ -268,7 +268,7 @@ class Aggregator:
             periods = []
             for bucket, parts in groupby(series, key=_BUCKET):
                 lo, hi = span(bucket)
-                periods.append((iso_us(lo), iso_us(hi), _values(list(parts), family, methods)))
+                periods.append((_iso_us(lo), _iso_us(hi), _values(list(parts), family, methods)))
             out[sid] = SeriesAggregate(type_name(newest[R_ATYPE], newest[R_KIND]), periods)
         return out
 
@@ -397,9 +397,5 @@ def iso(moment: datetime) -> str:
 
 @lru_cache(maxsize=65_536)
 def _iso_us(us: int) -> str:
-    return iso(us_to_datetime(us))
-
-
-def iso_us(us: int | None) -> str | None:
     """Cached: the periods of every series of a response share their bounds."""
-    return None if us is None else _iso_us(us)
+    return iso(us_to_datetime(us))

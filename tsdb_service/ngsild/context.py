@@ -39,7 +39,6 @@ CORE_CONTEXT_URLS = frozenset(
     | {f"https://uri.etsi.org/ngsi-ld/v1/ngsi-ld-core-context-v1.{n}.jsonld" for n in range(3, 10)}
 )
 JSONLD_CONTEXT_REL = "http://www.w3.org/ns/json-ld#context"
-NGSI_LD = "https://uri.etsi.org/ngsi-ld/"
 DEFAULT_VOCAB = "https://uri.etsi.org/ngsi-ld/default-context/"
 CACHE_SECONDS = 3600.0
 MAX_CONTEXT_BYTES = 1 << 20
@@ -246,11 +245,12 @@ def _expand_one(context: list, term: str, options: dict) -> str:
 
 
 def _describe(exc: Exception) -> str:
-    parts = []
-    while exc is not None and len(parts) < 4:
-        code = getattr(exc, "code", None)
-        parts.append(f"{exc.args[0] if exc.args else exc}" + (f" ({code})" if code else ""))
-        exc = getattr(exc, "cause", None)
+    parts: list[str] = []
+    cause: BaseException | None = exc
+    while cause is not None and len(parts) < 4:
+        code = getattr(cause, "code", None)
+        parts.append(f"{cause.args[0] if cause.args else cause}" + (f" ({code})" if code else ""))
+        cause = getattr(cause, "cause", None)
     return "; ".join(str(p)[:200] for p in parts)
 
 

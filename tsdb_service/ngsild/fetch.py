@@ -26,6 +26,7 @@ Steps:
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import partial
 
 import orjson
 
@@ -33,7 +34,7 @@ from ..model import Kind
 from ..query import EntityFilter, Scope, SeriesRef
 from . import qlang
 from .context import TermMap
-from .query import DEFAULT_DATASET, TemporalQuery, TimeProperty, Window, type_matches
+from .query import DEFAULT_DATASET, TemporalQuery, TimeProperty, TypeName, Window, type_matches
 
 EntityKey = tuple[str, str]  # (entity id, stored entity type)
 
@@ -74,7 +75,7 @@ class Fetcher:
             if selector.types is not None:
                 types = {r.entity_type for r in found}
                 iris = dict(zip(types, self.terms.expand_all(types), strict=True))
-                ok = {t for t in types if type_matches(selector.types, lambda n, t=t: iris[t] == n.iri)}
+                ok = {t for t in types if type_matches(selector.types, partial(_is_type, iris[t]))}
                 if ok != types:
                     found = [r for r in found if r.entity_type in ok]
             refs.extend(found)
@@ -139,7 +140,7 @@ class Fetcher:
         for term in dict.fromkeys(qlang.terms(node)):
             sids = sids_of.get(term.attr, [])
             holding[term] = {owner[s] for s in self._term_sids(term, sids, window)} if sids else set()
-        return {key for key in by_entity if qlang.evaluate(node, lambda t, k=key: k in holding[t])}
+        return {key for key in by_entity if qlang.evaluate(node, partial(_holds, holding, key))}
 
     def _term_sids(self, term: qlang.Term, sids: list[int], window: Window) -> set[int]:
         _, where_t, params_t = self.time_filter(window)
@@ -291,3 +292,13 @@ def term_value(term: qlang.Term, kind, num, txt, js, md):
             return None
         value = value[step]
     return value
+
+
+def _is_type(iri: str, name: TypeName) -> bool:
+    """``type_matches``'s test for an entity of type ``iri``."""
+    return name.iri == iri
+
+
+def _holds(holding: dict[qlang.Term, set[EntityKey]], key: EntityKey, term: qlang.Term) -> bool:
+    """``qlang.evaluate``'s test: does entity ``key`` satisfy ``term``?"""
+    return key in holding[term]

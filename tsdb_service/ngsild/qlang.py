@@ -243,7 +243,9 @@ def _value(op: str, raw: str, where: int) -> Any:
 
 
 def _split_list(raw: str) -> list[str]:
-    items, current, quoted = [], [], False
+    items: list[str] = []
+    current: list[str] = []
+    quoted = False
     for ch in raw:
         if ch == '"':
             quoted = not quoted
@@ -306,14 +308,7 @@ def _equal(value: Any, wanted: Any) -> bool:
 
 def _compare(value: Any, wanted: Any, op: str) -> bool:
     value = _coerce(value, wanted)
-    numeric = (int, float)
-    if isinstance(value, bool) or isinstance(wanted, bool):
-        return False
-    if not (
-        (isinstance(value, numeric) and isinstance(wanted, numeric))
-        or (isinstance(value, str) and isinstance(wanted, str))
-        or (isinstance(value, datetime) and isinstance(wanted, datetime))
-    ):
+    if not _comparable(value, wanted):
         return False
     if op == ">":
         return value > wanted
@@ -322,3 +317,16 @@ def _compare(value: Any, wanted: Any, op: str) -> bool:
     if op == "<":
         return value < wanted
     return value <= wanted
+
+
+def _comparable(value: Any, wanted: Any) -> bool:
+    """Only numbers with numbers, text with text and times with times have an
+    order (a boolean has none)."""
+    if isinstance(value, bool) or isinstance(wanted, bool):
+        return False
+    numeric = (int, float)
+    return (
+        (isinstance(value, numeric) and isinstance(wanted, numeric))
+        or (isinstance(value, str) and isinstance(wanted, str))
+        or (isinstance(value, datetime) and isinstance(wanted, datetime))
+    )

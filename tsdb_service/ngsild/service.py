@@ -36,16 +36,15 @@ def run(querier, terms: TermMap, query: TemporalQuery, cap: int) -> TemporalResu
     all_refs = [r for refs in by_entity.values() for r in refs]
     iris = fetcher.attr_iris(all_refs)
     keys = _matching(fetcher, query, by_entity, iris)
-    if query.entity_id is not None:
-        page_keys = keys
-    else:
-        page_keys = keys[query.offset : query.offset + query.limit]
+    page_keys = keys if query.entity_id is not None else keys[query.offset : query.offset + query.limit]
     selected = {key: fetcher.selected(query, by_entity[key], iris) for key in page_keys}
     sids = [r.sid for refs in selected.values() for r in refs]
     content_range = None
     if query.format is Format.AGGREGATED:
-        periods = Aggregator(fetcher).run(sids, query.window, query.aggregation)
-        rendered = _aggregated(query, selected, iris, periods)
+        agg = query.aggregation
+        assert agg is not None, "the parser gives format=aggregated its aggregation"
+        periods = Aggregator(fetcher).run(sids, query.window, agg)
+        rendered = _aggregated(agg.methods, selected, iris, periods)
     else:
         rows, content_range = _instances(querier, query, sids, cap)
         rendered = _instances_rendered(query, selected, iris, rows)
@@ -123,7 +122,7 @@ def _instances_rendered(query: TemporalQuery, selected, iris, rows) -> dict[Enti
     return out
 
 
-def _aggregated(query: TemporalQuery, selected, iris, periods) -> dict[EntityKey, dict[str, object]]:
+def _aggregated(methods: tuple[str, ...], selected, iris, periods) -> dict[EntityKey, dict[str, object]]:
     out: dict[EntityKey, dict[str, object]] = {}
     for key, refs in selected.items():
         attrs: dict[str, list] = {}
@@ -131,7 +130,7 @@ def _aggregated(query: TemporalQuery, selected, iris, periods) -> dict[EntityKey
             series = periods.get(ref.sid)
             if series is not None:
                 attrs.setdefault(iris[ref.sid], []).append((ref.dataset_id, series.attr_type, series.periods))
-        out[key] = {iri: aggregated(series, query.aggregation.methods) for iri, series in attrs.items()}
+        out[key] = {iri: aggregated(series, methods) for iri, series in attrs.items()}
     return out
 
 

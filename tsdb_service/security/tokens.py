@@ -114,7 +114,11 @@ class TokenVerifier:
             kid = jwt.get_unverified_header(token).get("kid")
         except jwt.PyJWTError:
             raise Unauthorized("the bearer token is not a well-formed JWT") from None
-        key = self.static_key if self.jwks is None else await self.jwks.key_for(kid)
+        if self.jwks is not None:
+            key = await self.jwks.key_for(kid)
+        else:
+            assert self.static_key is not None, "a verifier has a JWKS URL or a key (from_settings)"
+            key = self.static_key
         try:
             claims = jwt.decode(
                 token,

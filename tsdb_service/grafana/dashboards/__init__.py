@@ -11,7 +11,7 @@ Prometheus), plus ``provisioning/dashboards.yaml`` and
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import cache, lru_cache
+from functools import cache
 from pathlib import Path
 
 from . import drone, drone_ld, kit, lawnmower, service, warehouse
@@ -60,7 +60,7 @@ def datasources_yaml(service_url: str = kit.SERVICE_URL) -> str:
         "apiVersion: 1",
         "datasources:",
     ]
-    for name, ds in kit.DATASOURCES.items():
+    for ds in kit.DATASOURCES.values():
         lines += [
             f"  - name: {ds.name}",
             f"    uid: {ds.uid}",

@@ -25,7 +25,7 @@ MISSION_COLORS = {
     "returning home": "light-blue",
     "landing": "purple",
 }
-TYPE_COLORS = [
+TYPE_COLORS: list[dm.ValueMapping] = [
     dm.ValueMap(
         options={
             "ROS2System": dm.ValueMappingResult(text="drone", color="red", index=0),
@@ -37,7 +37,10 @@ COORDS = cb.FrameGeometrySource().mode(common.FrameGeometrySourceMode.COORDS).la
 
 
 def _view(zoom: int) -> geomap.MapViewConfig:
-    return geomap.MapViewConfig().id("coords").lat(CENTRE[0]).lon(CENTRE[1]).zoom(zoom).all_layers(True)
+    view = geomap.MapViewConfig().id("coords")
+    # The SDK types lat/lon as int (from Grafana's panel schema); the map takes degrees, fractions included.
+    view = view.lat(CENTRE[0]).lon(CENTRE[1])  # type: ignore[arg-type]
+    return view.zoom(zoom).all_layers(True)
 
 
 def _controls() -> geomap.ControlsOptions:

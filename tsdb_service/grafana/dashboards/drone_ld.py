@@ -85,6 +85,7 @@ def values(entity: str, attr: str, name: str, member: str = "0.data", **params: 
         attrs=attr,
         options="temporalValues",
         lastN=str(LAST_N),
+        window=True,
         **params,
     )
 

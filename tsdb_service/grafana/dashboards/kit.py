@@ -27,7 +27,6 @@ from ...demo import sites
 
 INFINITY = "yesoreyeram-infinity-datasource"
 SERVICE_URL = "http://tsdb-service:8668"  # the service's name in a compose file
-SCHEMA_VERSION = 42
 API = "/grafana/infinity"
 
 
@@ -200,6 +199,16 @@ def fields_regex(*names: str) -> str:
 # --- panels -------------------------------------------------------------------------------------------
 
 
+# What a panel takes: any datasource with a ``ref`` (Infinity, Prometheus) and
+# any query builder (Infinity, Prometheus, the NGSI-LD drone's).
+Target = cogbuilder.Builder[cogvariants.Dataquery]
+
+
+class SourceRef(typing.Protocol):
+    @property
+    def ref(self) -> common.DataSourceRef: ...
+
+
 class Ids:
     """Panel ids in order of creation, unique per dashboard."""
 
@@ -212,16 +221,16 @@ class Ids:
         return value
 
 
-def _place(panel, ids: Ids, title: str, w: int, h: int, ds: Datasource, query: Query, description: str | None):
+def _place(panel, ids: Ids, title: str, w: int, h: int, ds: SourceRef, query: Target, description: str | None):
     panel = panel.id(ids()).title(title).span(w).height(h).datasource(ds.ref).with_target(query)
     return panel.description(description) if description else panel
 
 
 def stat_panel(
     ids: Ids,
-    ds: Datasource,
+    ds: SourceRef,
     title: str,
-    query: Query,
+    query: Target,
     field: str,
     *,
     w: int = 4,
@@ -253,9 +262,9 @@ def stat_panel(
 
 def gauge_panel(
     ids: Ids,
-    ds: Datasource,
+    ds: SourceRef,
     title: str,
-    query: Query,
+    query: Target,
     field: str,
     *,
     w: int = 4,
@@ -281,9 +290,9 @@ def gauge_panel(
 
 def timeseries_panel(
     ids: Ids,
-    ds: Datasource,
+    ds: SourceRef,
     title: str,
-    query: Query,
+    query: Target,
     *,
     w: int = 12,
     h: int = 8,
@@ -323,9 +332,9 @@ def timeseries_panel(
 
 def state_timeline_panel(
     ids: Ids,
-    ds: Datasource,
+    ds: SourceRef,
     title: str,
-    query: Query,
+    query: Target,
     mappings: list,
     *,
     w: int = 24,
@@ -358,7 +367,7 @@ def row(ids: Ids, title: str) -> db.Row:
     return db.Row(title).id(ids()).collapsed(False)
 
 
-def annotation(name: str, ds: Datasource, query: Query, color: str) -> db.AnnotationQuery:
+def annotation(name: str, ds: SourceRef, query: Target, color: str) -> db.AnnotationQuery:
     return db.AnnotationQuery().name(name).datasource(ds.ref).enable(True).icon_color(color).target(query)
 
 

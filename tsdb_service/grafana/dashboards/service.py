@@ -178,7 +178,8 @@ def build():
             "Group size",
             [
                 (
-                    f"{rate('tsdb_commit_group_size_sum', where=samples)} / {rate('tsdb_commit_group_size_count', where=samples)}",
+                    f"{rate('tsdb_commit_group_size_sum', where=samples)} / "
+                    f"{rate('tsdb_commit_group_size_count', where=samples)}",
                     "mean",
                 ),
                 (quantile(0.99, "tsdb_commit_group_size", where=samples), "p99"),
