@@ -41,8 +41,8 @@ from schemathesis.checks import (
 from schemathesis.python import asgi
 
 from tsdb_service.history.service import decode
-from tsdb_service.history.shape import iso_ms
 from tsdb_service.ngsi import parse_notification
+from tsdb_service.timefmt import iso_ms
 
 EXAMPLES = int(os.environ.get("TSDB_FUZZ_EXAMPLES", "10"))
 CHECKS = [

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from tsdb_service.errors import BadRequest
-from tsdb_service.history.params import service_paths
+from tsdb_service.ngsi.request_context import service_paths
 from tsdb_service.query import Scope
 
 

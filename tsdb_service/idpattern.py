@@ -10,10 +10,11 @@ more than a scan of the ids. The price is RE2's syntax: no backreferences
 (``\\1``) and no lookaround (``(?=``, ``(?!``, ``(?<=``, ``(?<!``); a pattern
 using them is refused with a 400 that says so.
 
-Every place that compiles or matches an ``idPattern`` goes through
-``compile_pattern`` (validated at parse time, answers 400) or ``compiled``
-(matching, on an already validated pattern), so there is one engine and one
-rule everywhere.
+Every ``idPattern`` a request carries (history, export, op/query, Grafana,
+NGSI-LD) is validated by ``ngsi.request_context.id_pattern``, which calls
+``compile_pattern`` (answers 400); matching uses ``compiled`` on an already
+validated pattern (Grafana's ad hoc ``=~`` filters call both directly), so
+there is one engine and one rule everywhere.
 """
 
 from __future__ import annotations

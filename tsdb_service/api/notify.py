@@ -18,10 +18,10 @@ from starlette.requests import ClientDisconnect
 from starlette.responses import Response
 
 from ..errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaType
-from ..history.params import MAX_INT_PARAM
 from ..model import RejectedNotification
 from ..ngsi import ValuesLayout, parse_notification
 from ..ngsi.names import ID_RULE, RULE, id_problem, name_problem
+from ..ngsi.request_context import MAX_INT_PARAM
 from ..security import redact_headers
 from ..storage.base import AppendSamples, PutLayout, RecordRejected
 from . import openapi as oa

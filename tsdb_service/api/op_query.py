@@ -14,10 +14,9 @@ import orjson
 from fastapi import APIRouter, Request
 
 from ..errors import BadRequest, ParseError
-from ..history.params import check_id, service_paths
 from ..history.service import run_last_values
 from ..history.valuepath import parse_value_path
-from ..idpattern import compile_pattern
+from ..ngsi.request_context import MAX_IDS, check_id, id_pattern, service_paths
 from ..query import EntityFilter, LastValueQuery, Scope
 from . import openapi as oa
 from .responses import JSON
@@ -44,6 +43,8 @@ async def op_query(request: Request) -> JSON:
 
 
 def last_value_query(body: bytes, tenant: str, service_path: str | None) -> LastValueQuery:
+    """The body, checked by the request-context rules every API shares
+    (``ngsi.request_context``: ids, types, idPattern, service paths)."""
     try:
         doc = orjson.loads(body)
     except orjson.JSONDecodeError as exc:
@@ -56,6 +57,8 @@ def last_value_query(body: bytes, tenant: str, service_path: str | None) -> Last
     entities = doc.get("entities")
     if not isinstance(entities, list) or not entities:
         raise BadRequest('\'entities\' must be a non-empty array of {"id" or "idPattern", "type"}')
+    if len(entities) > MAX_IDS:
+        raise BadRequest(f"'entities' lists at most {MAX_IDS} entities")
     selectors = []
     for i, item in enumerate(entities):
         if not isinstance(item, dict):
@@ -68,8 +71,7 @@ def last_value_query(body: bytes, tenant: str, service_path: str | None) -> Last
                 raise BadRequest(f"entities[{i}].{name} must be a non-empty string")
             if value is not None and name != "idPattern":
                 check_id(value, f"entities[{i}].{name}")  # the ingest's rule for ids and types
-        if pattern is not None:
-            compile_pattern(pattern, f"entities[{i}].idPattern")  # RE2: see tsdb_service.idpattern
+        id_pattern(pattern, f"entities[{i}].idPattern")
         selectors.append(
             EntityFilter(
                 ids=(eid,) if eid is not None else None,

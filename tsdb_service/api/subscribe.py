@@ -37,7 +37,7 @@ import orjson
 from fastapi import APIRouter, Request
 
 from ..errors import BadRequest, TsdbError
-from ..history.params import service_paths
+from ..ngsi.request_context import service_paths
 from . import openapi as oa
 from .responses import JSON
 from .tenancy import tenant_of

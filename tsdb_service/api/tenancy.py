@@ -1,19 +1,19 @@
-"""Tenant and service-path headers, read the way Orion writes them.
+"""The tenant of a /v2 request, read the way Orion writes it.
 
 The rule itself (which selectors count, when they conflict, what a valid
-tenant is) lives in ``ngsi.tenancy``, shared with the notification parser,
-so a notification is always stored under the tenant a query with the same
-headers reads.
+tenant is) lives in ``ngsi.request_context``, shared with the notification
+parser, Grafana and NGSI-LD, so a notification is always stored under the
+tenant a query with the same headers reads. This module only takes the
+headers off a ``Request``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 
 from fastapi import Request
 
-from ..errors import BadRequest
-from ..ngsi.tenancy import TenantProblem, raw_tenant, select_tenant, selectors
+from ..ngsi.request_context import raw_tenant, selectors, tenant
 
 
 def tenant_header(request: Request) -> str:
@@ -22,22 +22,12 @@ def tenant_header(request: Request) -> str:
     return raw_tenant(selectors(request.headers.items()))
 
 
-def tenant_of(request: Request, extra: Iterable[tuple[str, str]] = ()) -> str:
-    """``Fiware-Service`` / ``NGSILD-Tenant`` (and ``extra`` selectors, such
-    as Grafana's ``service`` parameter) lower-cased, as Orion stores them;
-    "" is the default tenant. Conflicting selectors are a 400."""
-    return tenant_from(request.headers.items(), extra)
+def tenant_of(request: Request) -> str:
+    """``Fiware-Service`` / ``NGSILD-Tenant`` lower-cased, as Orion stores
+    them; "" is the default tenant. Conflicting selectors are a 400."""
+    return tenant(request.headers.items())
 
 
 def tenant_from_headers(headers: Mapping[str, str]) -> str:
     """``tenant_of`` for header mappings that do not come with a request."""
-    return tenant_from(headers.items())
-
-
-def tenant_from(headers: Iterable[tuple[str, str]], extra: Iterable[tuple[str, str]] = ()) -> str:
-    """The tenant of ``(name, value)`` header pairs plus ``extra`` selectors."""
-    chosen = selectors(headers) + [(name, value) for name, value in extra if value.strip()]
-    try:
-        return select_tenant(chosen)
-    except TenantProblem as exc:
-        raise BadRequest(f"bad tenant: {exc}", error="BadRequest") from None
+    return tenant(headers.items())

@@ -1,11 +1,11 @@
 """What an export asks for: parameters and headers → a frozen ``ExportQuery``.
 
-The same parameters as the history API, parsed by the same pieces of
-``history.params`` (service paths, ids, id pattern, types, time bounds), so
-an export selects exactly the samples a history query with those
-parameters would. Unlike the history routes, unknown parameters are
-refused: a mistyped ``fromdate`` would otherwise silently export the whole
-tenant.
+The same parameters as the history API, parsed by the same request-context
+parser (``ngsi.request_context``: service paths, ids, id pattern, types,
+time bounds), so an export selects exactly the samples a history query
+with those parameters would. Unlike the history routes, unknown parameters
+are refused: a mistyped ``fromdate`` would otherwise silently export the
+whole tenant.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from dataclasses import dataclass
 from enum import Enum
 
 from ..errors import BadRequest
-from ..history.params import _ids, _pattern, _types, service_paths, time_range
 from ..history.valuepath import parse_attr_list
+from ..ngsi.request_context import entity_filter, scope, time_range
 from ..query import EntityFilter, Scope, TimeRange
 
 
@@ -65,8 +65,8 @@ def export_query(params: Mapping[str, str], headers: Mapping[str, str], tenant: 
         raise BadRequest(f"unknown parameter {unknown[0][:40]!r}; export takes {', '.join(PARAMETERS)}")
     get = params.get
     return ExportQuery(
-        scope=Scope(tenant, service_paths(headers.get("fiware-servicepath"))),
-        entities=EntityFilter(ids=_ids(get("id")), id_pattern=_pattern(get("idPattern")), types=_types(get("type"))),
+        scope=scope(headers, tenant),
+        entities=entity_filter(params),
         attrs=_attr_names(get("attrs")),
         time=time_range(get("fromDate"), get("toDate")),
         format=export_format(get("format")),

@@ -20,11 +20,9 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 
 import orjson
 
-from ..errors import BadRequest
 from ..geo.encodings import from_geojson, parse_lat_lon
 from ..history.service import run_history, run_last_values
 from ..query import (
@@ -41,6 +39,7 @@ from ..query import (
     ValuePath,
 )
 from ..storage.base import Querier
+from ..timefmt import epoch_ms, iso_z, ms_of, z_of
 from .params import Column
 
 # Raw samples read for one request at most (newest kept): bounds memory and
@@ -57,24 +56,6 @@ class EntitySeries:
     entity_type: str
     times: list[int] = field(default_factory=list)  # epoch ms
     columns: dict[str, list] = field(default_factory=dict)
-
-
-# --- time helpers -------------------------------------------------------------------
-
-
-def iso_z(ms: int) -> str:
-    """Epoch ms → ``2024-05-01T10:00:00.123Z``."""
-    moment = datetime.fromtimestamp(ms / 1000.0, tz=UTC)
-    return moment.strftime("%Y-%m-%dT%H:%M:%S.") + f"{ms % 1000:03d}Z"
-
-
-def epoch_ms(iso: str) -> int:
-    """A stored ``...+00:00`` time index → epoch ms."""
-    return round(datetime.fromisoformat(iso).timestamp() * 1000)
-
-
-def ms_of(moment: datetime | None) -> int | None:
-    return None if moment is None else round(moment.timestamp() * 1000)
 
 
 def short_name(entity_id: str) -> str:
@@ -488,7 +469,7 @@ def latest_rows(querier: Querier, scope: Scope, entities: EntityFilter, cols: Se
             "entity": ent["id"],
             "type": ent["type"],
             "name": short_name(ent["id"]),
-            "time": _z(ent["dateModified"]["value"]),
+            "time": z_of(ent["dateModified"]["value"]),
         }
         for col in cols:
             cell = ent.get(col.path.text)
@@ -498,14 +479,6 @@ def latest_rows(querier: Querier, scope: Scope, entities: EntityFilter, cols: Se
     return rows
 
 
-def _z(iso: str) -> str:
-    return iso[:-6] + "Z" if iso.endswith("+00:00") else iso
-
-
-_METHODS = {m.value: m for m in AggrMethod}
-_PERIODS = {p.value: p for p in AggrPeriod}
-
-
 def aggregate_rows(
     querier: Querier,
     scope: Scope,
@@ -513,16 +486,13 @@ def aggregate_rows(
     cols: Sequence[Column],
     time: TimeRange,
     *,
-    method: str,
-    period: str | None,
+    method: AggrMethod,
+    period: AggrPeriod | None,
     limit: int,
 ) -> list[dict]:
     """One row per entity (and period): ``[{"entity", "type", "name",
     ("time",) col...}]``, aggregated in SQL by the history layer."""
-    try:
-        aggregation = Aggregation(_METHODS[method], _PERIODS[period] if period else None, AggrScope.ENTITY)
-    except KeyError:
-        raise BadRequest(f"unknown aggregation {method!r} / {period!r}") from None
+    aggregation = Aggregation(method, period, AggrScope.ENTITY)
     paths = tuple(dict.fromkeys(col.path for col in cols))
     query = HistoryQuery(
         shape=Shape.ATTRS, scope=scope, entities=entities, attrs=paths, time=time, limit=limit, aggregation=aggregation
@@ -532,9 +502,9 @@ def aggregate_rows(
         head = {"entity": ent.entity_id, "type": ent.entity_type, "name": short_name(ent.entity_id)}
         count = max((len(v) for v in ent.columns.values()), default=0)
         for i in range(count):
-            row = dict(head)
+            row: dict[str, object] = dict(head)
             if period:
-                row["time"] = _z(ent.index[i]) if i < len(ent.index) else None
+                row["time"] = z_of(ent.index[i]) if i < len(ent.index) else None
             for col in cols:
                 values = ent.columns.get(col.path.text) or []
                 row[col.name] = values[i] if i < len(values) else None

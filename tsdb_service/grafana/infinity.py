@@ -27,6 +27,8 @@ from ..history.valuepath import parse_value_path
 from . import frames
 from .params import (
     MAX_POINTS_LIMIT,
+    aggregate_method,
+    aggregate_period,
     choice,
     columns,
     entity_filter,
@@ -147,9 +149,8 @@ def aggregate(request: Request) -> JSON:
         entities,
         columns(params.get("attrs")),
         time_range(params),
-        method=choice(params.get("method"), "method", ("avg", "min", "max", "sum", "count"), "avg"),
-        period=choice(params.get("period"), "period", ("", "second", "minute", "hour", "day", "month", "year"), "")
-        or None,
+        method=aggregate_method(params.get("method")),
+        period=aggregate_period(params.get("period")),
         limit=positive_int(params.get("limit"), "limit", 10_000, MAX_POINTS_LIMIT),
     )
     return JSON(rows)

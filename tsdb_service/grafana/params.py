@@ -2,31 +2,48 @@
 
 Grafana datasources speak in query parameters (Infinity) or JSON bodies
 (SimpleJSON); both end up here, so every endpoint validates the same way and
-no input can reach the history layer unchecked. Errors are ``BadRequest``s,
-rendered in the NGSI shape by the app's one error handler.
+no input can reach the history layer unchecked. Tenant, service path,
+entity filter, counts, aggregation and time range follow the rules every API
+shares (``ngsi.request_context``, where their precedence is written down);
+this module adds what only Grafana has: columns (aliased value paths) and
+its lenient flags and choices. Errors are ``BadRequest``s, rendered in the
+NGSI shape by the app's one error handler.
 """
 
 from __future__ import annotations
 
-import math
 import re
-from collections.abc import Mapping
 from dataclasses import dataclass
-from datetime import UTC, datetime
 
-from ..api.tenancy import tenant_from
 from ..errors import BadRequest
-from ..history.params import MAX_INT_PARAM, check_id, parse_time, service_paths
 from ..history.valuepath import parse_value_path
-from ..idpattern import compile_pattern
-from ..query import EntityFilter, Scope, TimeRange, ValuePath
+from ..ngsi.request_context import aggr_method, aggr_period, entity_filter, moment
+from ..ngsi.request_context import grafana_scope as scope_of
+from ..ngsi.request_context import grafana_time_range as time_range
+from ..ngsi.request_context import lenient_count as positive_int
+from ..query import AggrMethod, AggrPeriod, ValuePath
+
+__all__ = [
+    "MAX_POINTS_LIMIT",
+    "Column",
+    "aggregate_method",
+    "aggregate_period",
+    "choice",
+    "columns",
+    "entity_filter",
+    "flag",
+    "moment",
+    "positive_int",
+    "scope_of",
+    "time_range",
+]
 
 _ALIAS = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,63}$")
-_NUMBER = re.compile(r"^-?\d{1,16}(\.\d{1,9})?$")
 _MAX_COLUMNS = 64
-_MAX_IDS = 1000
 MAX_POINTS_LIMIT = 100_000
 RESERVED = frozenset({"time", "entity", "type", "name", "lat", "lon", "timeEnd", "title", "text", "tags"})
+# The order Grafana's ``method`` lists them in (avg, the default, first).
+_METHODS = (AggrMethod.AVG, AggrMethod.MIN, AggrMethod.MAX, AggrMethod.SUM, AggrMethod.COUNT)
 
 
 @dataclass(frozen=True, slots=True)
@@ -35,42 +52,6 @@ class Column:
 
     name: str
     path: ValuePath
-
-
-def scope_of(params: Mapping[str, str], headers: Mapping[str, str]) -> Scope:
-    """Tenant and service paths. The tenant follows the one rule of every
-    endpoint (``ngsi.tenancy``), with the ``service`` query parameter as one
-    more selector: header and parameter must agree (Infinity datasources
-    may send either). ``servicepath`` wins over ``Fiware-ServicePath``."""
-    services = params.getlist("service") if hasattr(params, "getlist") else [params.get("service") or ""]
-    tenant = tenant_from(headers.items(), [("service", value) for value in services])
-    path = params.get("servicepath")
-    if path is None:
-        path = headers.get("fiware-servicepath")
-    return Scope(tenant, service_paths(path))
-
-
-def entity_filter(params: Mapping[str, str]) -> EntityFilter:
-    """``id`` (comma list), ``idPattern`` (regex), ``type`` (comma list)."""
-    ids = _names(params.get("id"), "id", _MAX_IDS)
-    types = _names(params.get("type"), "type", 100)
-    pattern = params.get("idPattern") or None
-    if pattern is not None:
-        compile_pattern(pattern)  # RE2, linear time: see tsdb_service.idpattern
-    return EntityFilter(ids=ids, id_pattern=pattern, types=types)
-
-
-def _names(raw: str | None, what: str, most: int) -> tuple[str, ...] | None:
-    if raw is None:
-        return None
-    items = tuple(dict.fromkeys(part.strip() for part in raw.split(",") if part.strip()))
-    if not items:
-        return None
-    if len(items) > most:
-        raise BadRequest(f"{what} lists at most {most} names")
-    for item in items:
-        check_id(item, what)  # the ingest's rule for ids and types
-    return items
 
 
 def columns(raw: str | None, *, required: bool = True, what: str = "attrs") -> tuple[Column, ...]:
@@ -107,43 +88,15 @@ def columns(raw: str | None, *, required: bool = True, what: str = "attrs") -> t
     return tuple(out.values())
 
 
-def moment(raw: str | None, name: str) -> datetime | None:
-    """Grafana's ``${__from}`` (epoch milliseconds) or an ISO 8601 date-time."""
-    if raw is None or not raw.strip():
-        return None
-    text = raw.strip()
-    if _NUMBER.match(text):
-        try:
-            return datetime.fromtimestamp(float(text) / 1000.0, tz=UTC)
-        except (OverflowError, OSError, ValueError):
-            raise BadRequest(f"{name} {text[:40]!r} is out of range") from None
-    try:
-        return parse_time(text, name)
-    except BadRequest:
-        raise BadRequest(f"{name} must be epoch milliseconds or ISO 8601, not {text[:60]!r}") from None
+def aggregate_method(raw: str | None) -> AggrMethod:
+    """``method`` of ``/aggregate``: the history API's vocabulary, avg by
+    default; surrounding blanks are forgiven (dashboard variables add them)."""
+    return AggrMethod.AVG if raw is None or not raw.strip() else aggr_method(raw.strip(), "method", _METHODS)
 
 
-def time_range(params: Mapping[str, str]) -> TimeRange:
-    start = moment(params.get("from"), "from")
-    end = moment(params.get("to"), "to")
-    if start is not None and end is not None and start > end:
-        raise BadRequest("from must not be after to")
-    return TimeRange(start, end)
-
-
-def positive_int(raw: str | None, name: str, default: int | None, most: int) -> int | None:
-    """A positive integer up to ``MAX_INT_PARAM`` (the rule of every
-    endpoint), then capped at ``most``; Grafana sometimes sends ``1500.0``."""
-    if raw is None or not str(raw).strip():
-        return default
-    text = str(raw).strip()
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not math.isfinite(value) or not 1 <= value <= MAX_INT_PARAM:
-        raise BadRequest(f"{name} must be a number from 1 to {MAX_INT_PARAM}, not {text[:40]!r}")
-    return min(int(value), most)
+def aggregate_period(raw: str | None) -> AggrPeriod | None:
+    """``period`` of ``/aggregate``: none (one value per entity) or second ... year."""
+    return None if raw is None else aggr_period(raw.strip(), "period")
 
 
 def flag(raw: str | None, name: str) -> bool:

@@ -12,7 +12,8 @@ themselves, so inside either part ``%2F`` stands for ``/`` and ``%25`` for
 ``urn:a/b``, ``urn:a/b%2Fv`` attribute ``b/v`` of ``urn:a``. ``/search``,
 ``/metrics`` and the ``entities`` / ``attrs`` variables list names in that
 form, so whatever they list is a valid target. ``*`` instead of an id means
-every entity (narrowed by the payload's ``type`` or ``idPattern``). simPod's payload (or SimpleJSON's ``data``) may add ``path``
+every entity (narrowed by the payload's ``type`` or ``idPattern``). simPod's
+payload (or SimpleJSON's ``data``) may add ``path``
 (steps inside the value, appended to a plain attribute), ``agg`` (auto, avg,
 last, min, max ...), ``alias`` and ``format`` (``timeseries``, ``table``,
 ``dataframe``, ``annotations``). An annotation query is a target optionally
@@ -38,8 +39,10 @@ from ..errors import BadRequest
 from ..history.service import run_last_values
 from ..history.valuepath import parse_value_path
 from ..idpattern import compile_pattern, compiled
+from ..ngsi.request_context import id_pattern
 from ..query import EntityFilter, LastValueQuery, TimeRange, ValuePath
 from ..rawpath import escape_segment, unescape_segment
+from ..timefmt import ms_of
 from . import frames
 from .params import MAX_POINTS_LIMIT, Column, moment, positive_int, scope_of
 
@@ -128,9 +131,7 @@ class Target:
         if extra and not path.steps:
             path = parse_value_path(f"{path.attr}({extra})")
         types = _str(payload.get("type"), "payload.type").strip() or None
-        pattern = _str(payload.get("idPattern"), "payload.idPattern").strip() or None
-        if pattern is not None:
-            compile_pattern(pattern, "payload.idPattern")  # RE2: see tsdb_service.idpattern
+        pattern = id_pattern(_str(payload.get("idPattern"), "payload.idPattern").strip(), "payload.idPattern")
         ids = None if entity == "*" else (entity,)
         self.entities = EntityFilter(ids=ids, id_pattern=pattern, types=(types,) if types else None)
         self.alias = _str(payload.get("alias"), "payload.alias").strip() or None
@@ -395,7 +396,7 @@ def query(request: Request, body: Any = Body(None)) -> JSON:
         fetched = [
             s for s in frames.fetch(querier, scope, target.entities, (target.column,), time) if _keep(s, filters)
         ]
-        span = (frames.ms_of(time.start), frames.ms_of(time.end))
+        span = (ms_of(time.start), ms_of(time.end))
         sampled = [frames.downsample(s, max_points, interval_ms, target.agg, frames._fill(span, s)) for s in fetched]
         out.extend(_render(target, sampled, several=len(sampled) > 1))
     return JSON(out)

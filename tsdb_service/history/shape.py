@@ -12,14 +12,13 @@ carries ``ids`` (and, on ``/v2/attrs``, ``types``) instead of ``id``/``type``.
 
 from __future__ import annotations
 
-from datetime import datetime
+from typing import TypeVar
 
 from ..query import AggrScope, HistoryQuery, Shape
+from ..timefmt import iso_ms
 from .service import EntityResult, HistoryResult
 
-
-def iso_ms(moment: datetime) -> str:
-    return moment.strftime("%Y-%m-%dT%H:%M:%S.") + f"{moment.microsecond // 1000:03d}+00:00"
+T = TypeVar("T")
 
 
 def render(result: HistoryResult):
@@ -60,7 +59,16 @@ def _attributes(ent: EntityResult) -> list[dict]:
 
 
 def _attr_name(q: HistoryQuery) -> str:
-    return q.attrs[0].text
+    """The attribute of a one-attribute route (its path names it)."""
+    return _first(q.attrs).text
+
+
+def _first(items: tuple[T, ...] | None) -> T:
+    """The path segment a one-entity-type or one-attribute route was given:
+    always there on those routes, so a missing one is a bug, not a 400."""
+    if not items:
+        raise AssertionError("a route with a path segment built a query without it")
+    return items[0]
 
 
 def _entity_attr(q: HistoryQuery, entities: list[EntityResult]):
@@ -106,7 +114,7 @@ def _type_attr(q: HistoryQuery, entities: list[EntityResult]):
         items.append(item)
     if q.values_only:
         return {"values": items}
-    return {"type": q.entities.types[0], "attrName": name, "entities": items}
+    return {"type": _first(q.entities.types), "attrName": name, "entities": items}
 
 
 def _type(q: HistoryQuery, entities: list[EntityResult]):
@@ -118,7 +126,7 @@ def _type(q: HistoryQuery, entities: list[EntityResult]):
         items.append(item)
     if q.values_only:
         return {"values": items}
-    return {"type": q.entities.types[0], "entities": items}
+    return {"type": _first(q.entities.types), "entities": items}
 
 
 def _types_of(q: HistoryQuery, entities: list[EntityResult], column: str) -> list[dict]:

@@ -33,13 +33,10 @@ from tsdb_service.model import AttrSample, EntitySample, ld_series_name
 from tsdb_service.ngsi.names import (
     ID_RULE,
     RULE,
-    SERVICE_PATH_RULE,
     id_problem,
     name_problem,
-    normalize_service_path,
-    service_path_problem,
 )
-from tsdb_service.ngsi.tenancy import TenantProblem, select_tenant, selectors
+from tsdb_service.ngsi.request_context import notification_service_paths, notification_tenant
 from tsdb_service.ngsi.timeindex import (
     FALLBACK_METADATA,
     TimeClues,
@@ -145,11 +142,11 @@ def parse_notification(
     doc = _load(body)
     format_header = hdrs.get("ngsiv2-attrsformat")
     layout = _layout(doc, format_header, hdrs.get("ngsild-attribute-format"))
-    tenant = _tenant(headers)
+    tenant = notification_tenant((str(k), _header_text(v)) for k, v in headers.items())
     header_attr = hdrs.get("fiware-timeindex-attribute", "").strip() or None
     ctx = _Context(watched_attributes(header_attr), header_attr, to_utc(received_at))
     layout, entities = _entities(doc, layout, tenant, values_layout)
-    paths = _service_paths(hdrs.get("fiware-servicepath"), len(entities))
+    paths = notification_service_paths(hdrs.get("fiware-servicepath"), len(entities))
     parse = _ENTITY_PARSERS[layout]
     label = _ENTITY_LABELS.get(layout, "data")
     return [_entity_sample(parse, raw, _where(label, i), tenant, paths[i], ctx) for i, raw in enumerate(entities)]
@@ -245,36 +242,6 @@ def _data(doc: dict) -> list:
     if type(data) is not list:
         raise ParseError(f"notification 'data' must be an array, got {_json_kind(data)}")
     return data
-
-
-def _tenant(headers: Mapping[str, str]) -> str:
-    """The one tenant rule of ``ngsi.tenancy`` (the queries apply it too)."""
-    try:
-        return select_tenant(selectors((str(k), _header_text(v)) for k, v in headers.items()))
-    except TenantProblem as exc:
-        raise ParseError(str(exc)) from None
-
-
-def _service_paths(header: str | None, count: int) -> list[str]:
-    """Orion sends one path per entity, comma-separated, or one for all."""
-    if header is None or not header.strip():
-        return ["/"] * count
-    paths = [_service_path(part.strip()) for part in header.split(",")]
-    if len(paths) == 1:
-        return paths * count
-    if len(paths) == count:
-        return paths
-    raise ParseError(f"Fiware-ServicePath lists {len(paths)} paths for {count} entities")
-
-
-def _service_path(path: str) -> str:
-    path = normalize_service_path(path)
-    problem = service_path_problem(path)
-    if problem is not None:
-        raise ParseError(
-            f"service path {path[:60]!r} {problem}; we store only paths every query can name: {SERVICE_PATH_RULE}"
-        )
-    return path
 
 
 def _where(label: str, index: int) -> str:

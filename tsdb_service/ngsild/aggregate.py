@@ -39,12 +39,13 @@ import calendar
 import math
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime, timedelta
-from functools import lru_cache
 from itertools import groupby, pairwise
 from operator import itemgetter
 from typing import NamedTuple
 
 from ..model import Kind
+from ..timefmt import ld_iso as iso
+from ..timefmt import ld_iso_us as iso_us
 from .errors import BadRequestData
 from .query import Aggregation, Duration, Window
 
@@ -268,7 +269,7 @@ class Aggregator:
             periods = []
             for bucket, parts in groupby(series, key=_BUCKET):
                 lo, hi = span(bucket)
-                periods.append((_iso_us(lo), _iso_us(hi), _values(list(parts), family, methods)))
+                periods.append((iso_us(lo), iso_us(hi), _values(list(parts), family, methods)))
             out[sid] = SeriesAggregate(type_name(newest[R_ATYPE], newest[R_KIND]), periods)
         return out
 
@@ -386,16 +387,3 @@ def _value(method: str, family: str | None, integral: bool, nx: int, sx, sxx, mn
 def _iso_seconds(seconds: float) -> str:
     moment = _EPOCH + timedelta(microseconds=round(seconds * 1_000_000))
     return iso(moment)
-
-
-def iso(moment: datetime) -> str:
-    """UTC ``YYYY-MM-DDTHH:MM:SS.sssZ``, microseconds when they are not whole milliseconds."""
-    text = moment.strftime("%Y-%m-%dT%H:%M:%S")
-    micro = moment.microsecond
-    return f"{text}.{micro // 1000:03d}Z" if micro % 1000 == 0 else f"{text}.{micro:06d}Z"
-
-
-@lru_cache(maxsize=65_536)
-def _iso_us(us: int) -> str:
-    """Cached: the periods of every series of a response share their bounds."""
-    return iso(us_to_datetime(us))

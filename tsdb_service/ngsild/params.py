@@ -2,6 +2,10 @@
 and ``GET /temporal/entities/{id}``, or a ``Query`` body of ``POST
 /temporal/entityOperations/query``. Every name is expanded with the
 request's @context (a ``TermMap``); every bad value is a BadRequestData.
+The pieces every API shares (tenant, ``idPattern``, integer ranges, date-time
+parsing, ``MAX_IDS``) come from ``ngsi.request_context``; what is NGSI-LD's
+own (type expressions, ``timerel``, ``aggrMethods``, ISO 8601 durations,
+paging with ``count``) is here.
 """
 
 from __future__ import annotations
@@ -13,8 +17,7 @@ from decimal import Decimal, InvalidOperation
 from typing import Any
 
 from ..errors import BadRequest
-from ..history.params import _pattern as validate_id_pattern
-from ..history.params import parse_time
+from ..ngsi.request_context import MAX_IDS, id_pattern, int_param, parse_time
 from . import qlang
 from .context import TermMap
 from .errors import BadRequestData, OperationNotSupported, TooManyResults
@@ -37,7 +40,6 @@ from .query import (
 
 MAX_LIST = 1000
 MAX_ID_LENGTH = 2048
-_INT = re.compile(r"^\s*\d{1,18}\s*$")
 _DURATION = re.compile(
     r"^P(?:(\d+)Y)?(?:(\d+)M)?(?:(\d+)W)?(?:(\d+)D)?(?:T(?:(\d+)H)?(?:(\d+)M)?(?:(\d+(?:[.,]\d+)?)S)?)?$"
 )
@@ -54,8 +56,8 @@ def query_from_params(
     if entity_id is None:
         selectors = (
             Selector(
-                ids=_list(get("id"), "id"),
-                id_pattern=_id_pattern(get("idPattern")),
+                ids=_list(get("id"), "id", MAX_IDS),
+                id_pattern=_ld(id_pattern, get("idPattern")),
                 types=parse_types(get("type"), terms),
             ),
         )
@@ -269,18 +271,11 @@ def _selectors(raw: Any, terms: TermMap) -> tuple[Selector, ...]:
         out.append(
             Selector(
                 ids=(ident,) if ident else None,
-                id_pattern=_id_pattern(_string(item.get("idPattern"), "idPattern")),
+                id_pattern=_ld(id_pattern, _string(item.get("idPattern"), "idPattern")),
                 types=parse_types(_string(item.get("type"), "type"), terms),
             )
         )
     return tuple(out)
-
-
-def _id_pattern(raw: str | None) -> str | None:
-    try:
-        return validate_id_pattern(raw)
-    except BadRequest as exc:
-        raise BadRequestData(exc.description) from None
 
 
 # --- attributes, q, geo -------------------------------------------------------------
@@ -425,14 +420,14 @@ def _refuse_unsupported(params: Mapping[str, str]) -> None:
 # --- small parsers ------------------------------------------------------------------
 
 
-def _list(raw: str | None, name: str) -> tuple[str, ...] | None:
+def _list(raw: str | None, name: str, most: int = MAX_LIST) -> tuple[str, ...] | None:
     if raw is None:
         return None
     items = tuple(dict.fromkeys(part.strip() for part in str(raw).split(",") if part.strip()))
     if not items:
         raise BadRequestData(f"{name} is empty")
-    if len(items) > MAX_LIST:
-        raise BadRequestData(f"{name} lists more than {MAX_LIST} items")
+    if len(items) > most:
+        raise BadRequestData(f"{name} lists more than {most} items")
     if any(len(i) > MAX_ID_LENGTH for i in items):
         raise BadRequestData(f"{name} has an item longer than {MAX_ID_LENGTH} characters")
     return items
@@ -464,18 +459,21 @@ def _text(raw: Any) -> str | None:
 
 
 def _positive(raw: str | None, name: str) -> int | None:
-    value = _non_negative(raw, name)
-    if value is not None and value < 1:
-        raise BadRequestData(f"{name} must be a positive integer, not {raw!r}")
-    return value
+    return _ld(int_param, raw, name, 1)
 
 
 def _non_negative(raw: str | None, name: str) -> int | None:
-    if raw in (None, ""):
-        return None
-    if not _INT.match(str(raw)):
-        raise BadRequestData(f"{name} must be a non-negative integer, not {str(raw)[:40]!r}")
-    return int(raw)
+    return _ld(int_param, raw, name, 0)
+
+
+def _ld(parse, *args):
+    """A shared parser's (``ngsi.request_context``) 400 as this API's
+    BadRequestData: the same ProblemDetails, and the class NGSI-LD callers
+    expect."""
+    try:
+        return parse(*args)
+    except BadRequest as exc:
+        raise BadRequestData(exc.description) from None
 
 
 def _flag(raw: str | None, name: str) -> bool:

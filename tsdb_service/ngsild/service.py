@@ -8,10 +8,10 @@ Runs in the threadpool (database calls, maybe a context fetch).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from datetime import datetime
 
 from ..query import InstanceWindow
-from .aggregate import Aggregator, iso
+from ..timefmt import ld_iso as iso
+from .aggregate import Aggregator
 from .context import TermMap
 from .errors import NonexistentTenant, ResourceNotFound
 from .fetch import EntityKey, Fetcher
@@ -86,7 +86,7 @@ def _instances(querier, query: TemporalQuery, sids, cap: int):
     else:
         start = w.start if w.start is not None else min(r.at for r in kept)
         size = "*"
-    content_range = f"date-time {_iso(start)}-{_iso(edge)}/{size}"
+    content_range = f"date-time {iso(start)}-{iso(edge)}/{size}"
     return kept, content_range
 
 
@@ -99,10 +99,6 @@ def _first_n(rows, n: int) -> list:
         if seen[row.sid] <= n:
             out.append(row)
     return out
-
-
-def _iso(moment: datetime) -> str:
-    return iso(moment.replace(tzinfo=None) if moment.tzinfo is not None else moment)
 
 
 def _instances_rendered(query: TemporalQuery, selected, iris, rows) -> dict[EntityKey, dict[str, object]]:

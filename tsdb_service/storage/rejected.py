@@ -30,6 +30,8 @@ from typing import Any
 
 import orjson
 
+from ..timefmt import received_at_z
+
 REASONS = ("count", "bytes", "age")
 # What the listing shows, in ``rejected_row``'s argument order.
 COLUMNS = "id, tenant, received_at, error, description, headers, body, body_size, body_truncated"
@@ -163,7 +165,7 @@ def rejected_row(
     return {
         "id": rid,
         "tenant": tenant,
-        "receivedAt": received_at.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z",
+        "receivedAt": received_at_z(received_at),
         "error": error,
         "description": description,
         "headers": orjson.loads(headers),

@@ -32,9 +32,8 @@ import bisect
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
-from datetime import datetime, timedelta
 
-_EPOCH = datetime(1970, 1, 1)
+from ...timefmt import iso_ms_us as iso_ms
 
 # (t in epoch µs, rid, ISO time, kind, num, txt, js); sorted by (t, rid)
 TailRow = tuple[int, int, str, int, float | None, str | None, str | None]
@@ -47,15 +46,6 @@ class _Entry:
         self.rows = rows
         self.keys = [(r[0], r[1]) for r in rows]
         self.whole = whole  # holds every sample of the series
-
-
-def iso_ms(micros: int) -> str:
-    """The API's time format, as the SQL renderer writes it."""
-    moment = _EPOCH + timedelta(microseconds=micros)
-    return (
-        f"{moment.year:04d}-{moment.month:02d}-{moment.day:02d}T{moment.hour:02d}:"
-        f"{moment.minute:02d}:{moment.second:02d}.{moment.microsecond // 1000:03d}+00:00"
-    )
 
 
 class TailCache:
