@@ -132,7 +132,9 @@ _MEDIA_OK: dict[str, bool] = {}  # header value as received → accepted (a brok
 
 
 def _check_content_type(raw: str | None) -> None:
-    ok = _MEDIA_OK.get(raw) if raw is not None else False
+    if raw is None:
+        raise UnsupportedMediaType(_media_advice(raw))
+    ok = _MEDIA_OK.get(raw)
     if ok is None:
         media = raw.split(";", 1)[0].strip().lower()
         ok = media in _JSON_MEDIA or (media.startswith("application/") and media.endswith("+json"))

@@ -117,7 +117,8 @@ class Target:
         text = _str(raw.get("target"), "target").strip()
         payload = raw.get("payload")
         if not isinstance(payload, dict):
-            payload = raw.get("data") if isinstance(raw.get("data"), dict) else {}
+            data = raw.get("data")
+            payload = data if isinstance(data, dict) else {}
         self.ref_id = _str(raw.get("refId"), "refId", "A")
         parts = split_target(text)
         if parts is None:
@@ -310,7 +311,10 @@ def metrics(request: Request, body: Any = Body(None)) -> JSON:
         names = [current] + [n for n in names if n != current]
     out = []
     for name in names:
-        eid, attr = split_target(name)
+        parts = split_target(name)
+        if parts is None:  # every metric name is a target we built: <id>/<attr>
+            continue
+        eid, attr = parts
         out.append({"label": f"{frames.short_name(eid)} {attr}", "value": name, "payloads": _PAYLOADS})
     return JSON(out)
 
@@ -483,7 +487,7 @@ def _events(querier, scope, target: Target, time: TimeRange, filters, equals) ->
     matches = frames.condition(None if equals is None else equals if isinstance(equals, str) else frames._text(equals))
     name = target.column.name
     kept = [f for f in filters if f[0] != "type"]
-    out = []
+    out: list[dict[str, Any]] = []
     for series in frames.fetch(querier, scope, target.entities, (target.column,), time):
         if kept and not _keep(frames.EntitySeries(series.entity_id, ""), kept):
             continue
@@ -507,9 +511,11 @@ def _events(querier, scope, target: Target, time: TimeRange, filters, equals) ->
 _MAX_EVENTS = 10_000
 
 
-@router.post("/annotations", summary="Annotations (classic SimpleJSON)", **oa.SIMPLEJSON["annotations"])
+@router.post(
+    "/annotations", name="annotations", summary="Annotations (classic SimpleJSON)", **oa.SIMPLEJSON["annotations"]
+)
 @reads_store
-def annotations(request: Request, body: Any = Body(None)) -> JSON:
+def annotation_events(request: Request, body: Any = Body(None)) -> JSON:
     """``{"range", "annotation": {"query": "<target>[=<JSON value>]", ...}}`` →
     ``[{"annotation", "time", "timeEnd", "isRegion", "title", "text", "tags"}]``
     (times in epoch ms): one per run of samples meeting the condition."""

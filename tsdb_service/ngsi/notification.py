@@ -401,7 +401,7 @@ def _ld_attr(name: str, raw: Any, clues: TimeClues) -> AttrSample:
     if type(raw) is not dict:
         clues.note_value(name, raw)
         return attr_sample(name, "Property", raw, None)
-    ld_type = raw.get("type")
+    ld_type: Any = raw.get("type")  # JSON: any type until checked below
     key = _LD_VALUE_KEY.get(ld_type) if type(ld_type) is str else None
     if key is None:
         if type(ld_type) is str and ld_type in GEOMETRY_TYPES:

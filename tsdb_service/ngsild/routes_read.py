@@ -178,7 +178,7 @@ def _page_links(request: Request, query, total: int) -> list[str]:
     """``Link`` rel next/prev for ``limit``/``offset`` paging (GET only: a
     POST's body cannot travel in a link, so there the links name only the
     changed query string)."""
-    out = []
+    out: list[str] = []
     limit, offset = query.limit, query.offset
     if limit == 0:
         return out
