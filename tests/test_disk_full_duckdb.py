@@ -41,7 +41,7 @@ except ImportError:  # tests/ imported as a package
     )
     from tests.support.tmpfs import fill, small_tmpfs
 
-from tsdb_service.storage import duckdb_store
+from tsdb_service.storage.duckdb import store as duckdb_store
 
 CHECKPOINT_BYTES = 64 * 1024  # the WAL is folded into the file every ~60 notifications
 LEAVE_BYTES = 160 * 1024  # room for the WAL to reach that size, not for the checkpoint
