@@ -232,6 +232,7 @@ class PostgresAppender(StagingAppender):
     def __init__(self, store: PostgresStore):
         self._store = store
         self._conn = self._connect()
+        self._found: dict[SeriesKey, int] = {}  # series the transaction being committed created
         self._reset()
 
     def _connect(self) -> psycopg.Connection:
@@ -256,7 +257,6 @@ class PostgresAppender(StagingAppender):
         self._layouts: list[PutLayout] = []
         self._deletes: list[DeleteSamples] = []
         self._instance_ops: list[DeleteInstance | ReplaceInstance] = []
-        self._found: dict[SeriesKey, int] = {}  # series this transaction created
 
     def _stage_samples(self, entities: Sequence[EntitySample], dedup: bool) -> None:
         self._entities.extend(entities)
