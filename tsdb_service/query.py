@@ -94,7 +94,7 @@ class Scope:
     def matches(self, service_path: str) -> bool:
         if "/" in self.service_paths:
             return True
-        for path in self.service_paths:
+        for path in self.service_paths:  # noqa: SIM110 - a plain loop beats any() on this per-series path
             if service_path == path or service_path.startswith(path + "/"):
                 return True
         return False
@@ -293,23 +293,20 @@ class InstanceRow(NamedTuple):
 
 # -- rows the read seam returns ----------------------------------------------
 #
-# NamedTuples: still tuples (callers unpack them positionally, and the SQL
-# backends build them from the driver's tuples with one C-level call per row,
-# ``tuple.__new__(Row, row)``), with names for everyone else. Times are ISO
-# 8601 text (``YYYY-MM-DDTHH:MM:SS.mmm+00:00``) where a route renders them as
-# they are, epoch microseconds (``_us``) where code compares them.
+# NamedTuples: still tuples (callers unpack them positionally; the SQL
+# backends build them from the driver's tuples with one C-level call per
+# row, ``tuple.__new__(Row, row)``), with names for everyone else. The two
+# bulk reads, ``raw_rows`` (lastN=1000: a thousand rows) and
+# ``location_samples`` (every position in a window), return the driver's
+# tuples as they are, typed by layout: a NamedTuple costs ~0.1 µs a row to
+# build, 7 % of a type-level lastN=1000 (benchmarks/reads_cpu.py). Times are
+# ISO 8601 text (``YYYY-MM-DDTHH:MM:SS.mmm+00:00``) where a route renders
+# them as they are, epoch microseconds (``_us``) where code compares them.
 
-
-class RawRow(NamedTuple):
-    """One sample of a history read (``Querier.raw_rows``)."""
-
-    sid: int
-    rid: int  # the row: one entity in one notification
-    time: str  # ISO 8601, milliseconds, +00:00
-    kind: int  # model.Kind: which of num / txt / js holds the value
-    num: float | None
-    txt: str | None
-    js: str | None
+# One sample of a history read (``Querier.raw_rows``): (sid, rid (the row:
+# one entity in one notification), ISO time, kind (``model.Kind``: which of
+# num / txt / js holds the value), num, txt, js).
+RawRow = tuple[int, int, str, int, float | None, str | None, str | None]
 
 
 class AggregateRow(NamedTuple):
@@ -350,17 +347,11 @@ class GeometryRow(NamedTuple):
     geojson: str  # normalised GeoJSON text
 
 
-class LocationRow(NamedTuple):
-    """One geo sample over time (``Querier.location_samples``)."""
-
-    sid: int
-    t_us: int
-    rid: int
-    passes: bool  # its bounding box passes the prefilter
-    point: bool  # a point: ``lon``/``lat`` are the position
-    lon: float  # its box's min_lon (a point's longitude)
-    lat: float  # its box's min_lat (a point's latitude)
-    geojson: str | None  # only for a shape (not a point) whose box passes
+# One geo sample over time (``Querier.location_samples``): (sid, t µs, rid,
+# its box passes the prefilter, it is a point, lon and lat (its box's
+# min_lon/min_lat: a point's position), GeoJSON (only for a shape, not a
+# point, whose box passes; else None)).
+LocationRow = tuple[int, int, int, bool, bool, float, float, str | None]
 
 
 class ExtentRow(NamedTuple):

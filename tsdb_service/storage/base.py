@@ -133,9 +133,11 @@ class Querier(ABC):
     command), never on the event loop. Each call is its own snapshot of
     committed data (a write acknowledged before the call is in it, one
     committed meanwhile may or may not be). Returned lists and rows belong
-    to the caller: plain immutable values (NamedTuples of ``query``), tied
-    to no cursor or connection, valid forever, never updated by later
-    writes. An unreadable database raises ``errors.Unavailable`` (503).
+    to the caller: plain immutable values (the NamedTuples of ``query``;
+    for the bulk reads ``raw_rows`` and ``location_samples`` tuples in the
+    layout ``query.RawRow`` / ``query.LocationRow`` names), tied to no
+    cursor or connection, valid forever, never updated by later writes.
+    An unreadable database raises ``errors.Unavailable`` (503).
 
     Series ids come from ``series``; the sample reads take them. Times in
     ``TimeRange`` are inclusive; a ``RowMask`` (a geo-query's) keeps only

@@ -167,12 +167,10 @@ def rows_as(row_type: type[T]) -> Callable[[Iterable[tuple]], list[T]]:
     return lambda rows: list(map(new, rows))
 
 
-as_raw = rows_as(RawRow)
 as_aggregate = rows_as(AggregateRow)
 as_latest = rows_as(LatestRow)
 as_last_values = rows_as(LastValueRow)
 as_geometries = rows_as(GeometryRow)
-as_locations = rows_as(LocationRow)
 as_first_locations = rows_as(FirstLocationRow)
 as_stored = rows_as(StoredSample)
 _STORED_COLUMNS = ", ".join(SAMPLE_COLUMNS)
@@ -302,7 +300,7 @@ class SqlQuerier(Querier):
                 f"SELECT {cols} FROM {table} WHERE {where_thr} "
                 f"ORDER BY t {direction}, rid {direction} LIMIT {p} OFFSET {p}"
             )
-            rows = as_raw(self._fetch(sql, [*params_thr, limit, min(offset, _MAX_BIGINT)]))
+            rows = self._fetch(sql, [*params_thr, limit, min(offset, _MAX_BIGINT)])
             if newest_first:
                 rows.reverse()
             return rows
@@ -313,7 +311,7 @@ class SqlQuerier(Querier):
             f"ORDER BY {pick}(t) {direction}, rid {direction} LIMIT {p} OFFSET {p}) "
             f"ORDER BY t, rid"
         )
-        return as_raw(self._fetch(sql, [*params_thr, *params_thr, limit, min(offset, _MAX_BIGINT)]))
+        return self._fetch(sql, [*params_thr, *params_thr, limit, min(offset, _MAX_BIGINT)])
 
     def aggregate(
         self, branches: Sequence[AggBranch], time: TimeRange, agg: Aggregation, mask: RowMask | None = None
@@ -452,7 +450,7 @@ class SqlQuerier(Querier):
             f"SELECT sid, {d.epoch_us('t')} AS t_us, rid, geo, min_lon, min_lat, {test} AS ok, "
             f"(min_lon = max_lon AND min_lat = max_lat) AS pt FROM ({parts}) u) x ORDER BY sid, t_us, rid"
         )
-        return as_locations(self._fetch(sql, [*test_params, *params]))
+        return self._fetch(sql, [*test_params, *params])
 
     def _location_rows(self, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
         """SQL and parameters: the rows ``location_samples`` reads."""

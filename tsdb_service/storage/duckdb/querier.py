@@ -56,9 +56,6 @@ _LOAD_SERIES = (
 )
 
 
-_new = tuple.__new__
-
-
 class DuckDBQuerier(SqlQuerier):
     def __init__(self, store: DuckDBSource):
         self._store = store
@@ -110,8 +107,10 @@ class DuckDBQuerier(SqlQuerier):
         tail = self._store.tail
         if len(sids) == 1:
             got = tail.rows(sids[0], self._load_tail, start, end, newest_first, limit, offset)
+            if got is None:
+                return None
             sid = sids[0]
-            return None if got is None else [_new(RawRow, (sid, *row[1:])) for row in got]
+            return [(sid, *row[1:]) for row in got]
         if offset + limit > tail.capacity:
             return self._from_deep_tails(sids, tail, start, end, limit, offset)
         merged: list[tuple] = []
@@ -361,4 +360,4 @@ def _window(merged: list[tuple], newest_first: bool, limit: int, offset: int) ->
         picked = merged[max(0, stop - limit) : max(0, stop)]
     else:
         picked = merged[offset : offset + limit]
-    return [_new(RawRow, (sid, *row[1:])) for _, _, sid, row in picked]
+    return [(sid, *row[1:]) for _, _, sid, row in picked]

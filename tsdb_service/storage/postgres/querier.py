@@ -42,7 +42,7 @@ from ...query import (
 from ..catalog import SeriesCatalog
 from ..common import extent_prefilter
 from ..memory_only import check_database_allowed
-from ..sql import _MAX_BIGINT, SqlQuerier, as_first_locations, as_geometries, as_raw, box_test
+from ..sql import _MAX_BIGINT, SqlQuerier, as_first_locations, as_geometries, box_test
 from .dialect import PostgresDialect
 
 
@@ -113,7 +113,7 @@ class PostgresQuerier(SqlQuerier):
             "AND (x.t > m.m_t0 OR x.rid >= m.m_r0) AND (m.m_t1 IS NULL OR x.t < m.m_t1 OR x.rid < m.m_r1)"
             f"{window} ORDER BY x.t {direction}, x.rid {direction} LIMIT %s) l) kept {order} LIMIT %s OFFSET %s"
         )
-        rows = as_raw(self._fetch(sql, [*subset.arrays(), *params, wanted, limit, min(offset, _MAX_BIGINT)]))
+        rows = self._fetch(sql, [*subset.arrays(), *params, wanted, limit, min(offset, _MAX_BIGINT)])
         if newest_first:
             rows.reverse()
         return rows
