@@ -19,7 +19,6 @@ import pytest
 
 from tsdb_service.ngsi import parse_notification
 from tsdb_service.ngsi.timeindex import FALLBACK_METADATA, parse_time
-from tsdb_service.storage.copy import _stream
 
 UTC = UTC
 RECEIVED = datetime(2030, 1, 1, 12, 0, tzinfo=UTC)
@@ -188,12 +187,10 @@ def test_stored_with_the_flag_and_counted(client):
     assert client.post("/v2/notify", json=body).status_code == 200
     assert _fallbacks(client) == before + 1
     store = client.app.state.store
-    rows = list(
-        _stream(
-            store,
-            "SELECT s.entity_id, s.attr, x.md FROM samples_all x JOIN series s ON s.sid = x.sid "
-            "ORDER BY s.entity_id, s.attr",
-        )
+    rows = store.querier()._fetch(
+        "SELECT s.entity_id, s.attr, x.md FROM samples_all x JOIN series s ON s.sid = x.sid "
+        "ORDER BY s.entity_id, s.attr",
+        [],
     )
     got = {(eid, attr): (orjson.loads(md) if md else {}).get(FALLBACK_METADATA) for eid, attr, md in rows}
     flag = {"type": "StructuredValue", "value": ["TimeInstant"]}

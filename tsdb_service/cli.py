@@ -220,15 +220,12 @@ def cmd_compact(args: argparse.Namespace) -> int:
 
     settings = _settings(args)
     require_history(settings.db)  # a mistyped path must not become a new, empty database
-    if settings.backend == "postgresql":
-        print("nothing to compact: PostgreSQL keeps samples in place (only DuckDB files are compacted)")
-        return 0
     store = open_store(settings)
     try:
-        store.compact(full=True)
+        done = store.compact(full=True)
     finally:
         store.close()
-    print("compacted")
+    print(done)
     return 0
 
 

@@ -28,7 +28,6 @@ process has its own counters (see the README's *Metrics*).
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
 from collections.abc import Iterable, Sequence
@@ -344,45 +343,12 @@ class StoreCollector(Collector):
         with self._lock:
             if time.monotonic() - self._at >= self._ttl:
                 try:
-                    self._sizes = _measure(self._store)
+                    self._sizes = self._store.sizes()
                 except Exception as exc:  # a scrape must not fail because the database did
                     log.warning("store size unavailable: %s", exc)
                     self._sizes = None
                 self._at = time.monotonic()
             return self._sizes
-
-
-def _measure(store: Store) -> tuple[int, int, int]:
-    if store.backend == "postgresql":
-        from .storage.postgres.store import PostgresStore  # imported only where it is in use
-
-        assert isinstance(store, PostgresStore)
-        with store.connection() as conn:
-            size = conn.execute("SELECT pg_database_size(current_database())").fetchone()[0]
-            rows, nbytes = conn.execute(
-                "SELECT count(*), coalesce(sum(octet_length(body) + octet_length(headers)), 0) "
-                "FROM rejected_notifications"
-            ).fetchone()
-        return int(size), int(rows), int(nbytes)
-    from .storage.duckdb.store import DuckDBStore
-
-    assert isinstance(store, DuckDBStore)
-    # fetchall, not fetchone: an unread result keeps this thread's cursor in
-    # an open transaction, and a later UPDATE or DELETE committed elsewhere
-    # (retention, in the background) then makes the CHECKPOINT at close fail.
-    [(rows, nbytes)] = (
-        store.cursor()
-        .execute("SELECT count(*), coalesce(sum(octet_length(body) + strlen(headers)), 0) FROM rejected_notifications")
-        .fetchall()
-    )
-    return _file_bytes(store.path) + _file_bytes(store.path + ".wal"), int(rows), int(nbytes)
-
-
-def _file_bytes(path: str) -> int:
-    try:
-        return os.stat(path).st_size
-    except FileNotFoundError:
-        return 0
 
 
 def _committer(store: Store):

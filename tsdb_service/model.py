@@ -57,7 +57,7 @@ class AttrSample:
     dataclass's ``__init__`` costs several times more. Treat it as a value."""
 
     name: str
-    ngsi_type: str  # as declared, or inferred for keyValues
+    ngsi_type: str | None  # as declared, or inferred for keyValues
     kind: Kind
     num: float | None = None
     txt: str | None = None

@@ -13,7 +13,7 @@ import bisect
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from enum import Enum
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 from .model import ld_attr_name
 
@@ -94,7 +94,7 @@ class Scope:
     def matches(self, service_path: str) -> bool:
         if "/" in self.service_paths:
             return True
-        for path in self.service_paths:
+        for path in self.service_paths:  # noqa: SIM110 - a plain loop beats any() on this per-series path
             if service_path == path or service_path.startswith(path + "/"):
                 return True
         return False
@@ -289,3 +289,132 @@ class InstanceRow(NamedTuple):
     txt: str | None
     js: str | None
     md: str | None  # sub-properties as JSON text, exactly as received
+
+
+# -- rows the read seam returns ----------------------------------------------
+#
+# NamedTuples: still tuples (callers unpack them positionally; the SQL
+# backends build them from the driver's tuples with one C-level call per
+# row, ``tuple.__new__(Row, row)``), with names for everyone else. The two
+# bulk reads, ``raw_rows`` (lastN=1000: a thousand rows) and
+# ``location_samples`` (every position in a window), return the driver's
+# tuples as they are, typed by layout: a NamedTuple costs ~0.1 µs a row to
+# build, 7 % of a type-level lastN=1000 (benchmarks/reads_cpu.py). Times are
+# ISO 8601 text (``YYYY-MM-DDTHH:MM:SS.mmm+00:00``) where a route renders
+# them as they are, epoch microseconds (``_us``) where code compares them.
+
+# One sample of a history read (``Querier.raw_rows``): (sid, rid (the row:
+# one entity in one notification), ISO time, kind (``model.Kind``: which of
+# num / txt / js holds the value), num, txt, js).
+RawRow = tuple[int, int, str, int, float | None, str | None, str | None]
+
+
+class AggregateRow(NamedTuple):
+    """One series' (and period's) partial aggregate (``Querier.aggregate``)."""
+
+    branch: int  # index into the request's AggBranch list
+    sid: int
+    bucket: str | None  # the period's start (ISO 8601); None without a period
+    n_present: int  # samples with a value (not NULL)
+    n_numeric: int  # of those, numbers
+    value: float | None  # sum (sum, avg), min or max of the numbers; None for count
+    all_integer: bool | None  # every number an integer; None when there is none
+
+
+class LatestRow(NamedTuple):
+    """A series' newest sample time (``Querier.latest_index``)."""
+
+    sid: int
+    time: str  # ISO 8601
+
+
+class LastValueRow(NamedTuple):
+    """A series' newest sample (``Querier.last_values``)."""
+
+    sid: int
+    time: str  # ISO 8601
+    kind: int
+    atype: str | None  # the NGSI type as notified
+    num: float | None
+    txt: str | None
+    js: str | None
+
+
+class GeometryRow(NamedTuple):
+    """A series' latest location (``Querier.latest_geometries``)."""
+
+    sid: int
+    geojson: str  # normalised GeoJSON text
+
+
+# One geo sample over time (``Querier.location_samples``): (sid, t µs, rid,
+# its box passes the prefilter, it is a point, lon and lat (its box's
+# min_lon/min_lat: a point's position), GeoJSON (only for a shape, not a
+# point, whose box passes; else None)).
+LocationRow = tuple[int, int, int, bool, bool, float, float, str | None]
+
+
+class ExtentRow(NamedTuple):
+    """Where a series has ever been (``Querier.location_extents``)."""
+
+    sid: int
+    min_lon: float
+    min_lat: float
+    max_lon: float
+    max_lat: float
+    first_t_us: int | None  # its first geo sample, where the backend keeps it
+    first_rid: int | None
+
+
+class FirstLocationRow(NamedTuple):
+    """A series' first geo sample by (time, row) (``Querier.first_locations``)."""
+
+    sid: int
+    t_us: int
+    rid: int
+
+
+class StoredSample(NamedTuple):
+    """One stored sample with everything a copy needs (``Querier.stored_samples``);
+    times are naive UTC datetimes. Instance ids stay behind: an instanceId
+    names an instance in one store."""
+
+    rid: int
+    sid: int
+    t: datetime
+    kind: int
+    atype: str | None
+    num: float | None
+    txt: str | None
+    js: str | None
+    geo: str | None
+    lon: float | None
+    lat: float | None
+    min_lon: float | None
+    min_lat: float | None
+    max_lon: float | None
+    max_lat: float | None
+    md: str | None
+    observed_at: datetime | None
+    created_at: datetime | None
+    modified_at: datetime | None
+    deleted_at: datetime | None
+
+
+class Bounds(Protocol):
+    """A lon/lat box (``geo.filter.BBox`` is one)."""
+
+    @property
+    def min_lon(self) -> float: ...
+    @property
+    def min_lat(self) -> float: ...
+    @property
+    def max_lon(self) -> float: ...
+    @property
+    def max_lat(self) -> float: ...
+
+
+# What a stored bounding box must do to possibly match a geo-query
+# (``geo.filter.box_prefilter``): ("intersects", box), overlap ``box``;
+# ("within", box), lie inside it. None: no prefilter.
+Prefilter = tuple[str, Bounds]

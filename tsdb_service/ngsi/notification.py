@@ -600,7 +600,7 @@ def _values_row(row: Any, index: int, names: tuple[str, ...], layout: ValuesLayo
     if len(row) != len(names):
         raise ParseError(f"data[{index}] has {len(row)} values but the subscription lists {len(names)} attributes")
     entity = {"id": layout.entity_id, "type": layout.entity_type}
-    entity.update(zip(names, row))
+    entity.update(zip(names, row, strict=True))
     return entity
 
 

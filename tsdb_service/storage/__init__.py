@@ -122,9 +122,10 @@ def require_history(db: str) -> None:
     except Exception as exc:
         raise StoreUnavailable(explain(exc, db) or str(exc)) from exc
     try:
-        found = con.execute(
+        row = con.execute(
             "SELECT count(*) FROM information_schema.tables WHERE table_name = 'schema_migrations'"
-        ).fetchone()[0]
+        ).fetchone()
+        found = row is not None and row[0]
     finally:
         con.close()
     if not found:
@@ -136,7 +137,8 @@ def _require_pg_schema(url: str) -> None:
 
     try:
         with psycopg.connect(url, connect_timeout=PG_CONNECT_TIMEOUT_S) as conn:
-            found = conn.execute("SELECT to_regclass('schema_migrations') IS NOT NULL").fetchone()[0]
+            row = conn.execute("SELECT to_regclass('schema_migrations') IS NOT NULL").fetchone()
+            found = row is not None and row[0]
     except Exception as exc:
         raise StoreUnavailable(explain(exc, url) or str(exc)) from exc
     if not found:

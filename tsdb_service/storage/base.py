@@ -2,19 +2,45 @@
 
 Modelled on Prometheus' storage interface: writes go through an *appender*
 (stage a batch, then commit it atomically), reads through a *querier*. Routes
-never see SQL; DuckDB and PostgreSQL each implement both halves.
+never see SQL; DuckDB and PostgreSQL each implement both halves, in their
+packages (``storage.duckdb``, ``storage.postgres``), on the shared pieces
+of ``storage.common`` and ``storage.sql``. The seam speaks the query
+vocabulary of ``tsdb_service.query``: what a read asks for and the named
+rows it returns.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
 from ..model import AttrSample, EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
+from ..query import (
+    AggBranch,
+    AggregateRow,
+    Aggregation,
+    EntityFilter,
+    ExtentRow,
+    FirstLocationRow,
+    GeometryRow,
+    InstanceRow,
+    InstanceWindow,
+    LastValueRow,
+    LatestRow,
+    LocationRow,
+    Prefilter,
+    RawRow,
+    RowMask,
+    Scope,
+    SeriesRef,
+    StoredSample,
+    TimeRange,
+)
 from .memory_only import T, read_off_loop
 
 
@@ -98,104 +124,188 @@ class Appender(ABC):
 class Querier(ABC):
     """The read half of the seam: history reads by series id.
 
-    ``storage.sql.SqlQuerier`` implements it for SQL backends; row layouts
-    are documented there. Thread-safe: routes call it from the threadpool
-    (every method may query the database: never call one on the event loop).
+    ``storage.sql.SqlQuerier`` implements it for both SQL backends. One per
+    store (``Store.querier()``), shared by every thread.
 
-    **NGSI-LD temporal reads** (issue 13) use three calls:
+    **Threads and lifetimes** (as Prometheus' ``storage.Querier`` states
+    them). Every method is safe to call from any number of threads at once.
+    Unless its docstring says *memory only*, a method may query the
+    database: call it from a worker thread (the threadpool, a writer, a
+    command), never on the event loop. Each call is its own snapshot of
+    committed data (a write acknowledged before the call is in it, one
+    committed meanwhile may or may not be). Returned lists and rows belong
+    to the caller: plain immutable values (the NamedTuples of ``query``;
+    for the bulk reads ``raw_rows`` and ``location_samples`` tuples in the
+    layout ``query.RawRow`` / ``query.LocationRow`` names), tied to no
+    cursor or connection, valid forever, never updated by later writes.
+    An unreadable database raises ``errors.Unavailable`` (503).
 
-    1. ``series(scope, EntityFilter(...), attrs=None)`` → ``SeriesRef``s. An
-       NGSI-LD attribute instance lives in a series: the default instance
-       (no datasetId) in the series named after the attribute, each other
-       datasetId in its own series named ``attr~datasetId`` (how NGSIv2 sees
-       it), with ``ref.dataset_id`` set and ``ref.ld_attr`` the NGSI-LD name.
-       Select by ``ref.ld_attr`` (and ``ref.dataset_id`` for a ``datasetId``
-       filter) rather than with ``attrs=``, which matches stored names.
-       Names are stored as notified or written (no JSON-LD expansion).
-       NGSI-LD has no service paths: use the whole tenant (``Scope(tenant)``).
-    2. ``temporal_instances(sids, InstanceWindow(timeproperty, start, end),
-       last_n=None, limit=None, newest_first=False)`` → ``InstanceRow``s
-       (``storage.sql``), sorted by (sid, time property, instance id):
-       ``sid, iid, at, t, observed_at, created_at, modified_at, deleted_at,
-       dataset_id, kind, atype, num, txt, js, md``.
-       * window: ``start`` inclusive, ``end`` exclusive (``timerel`` after /
-         before / between); ``timeproperty`` ``observedAt`` (default; reads
-         ``coalesce(observed_at, t)`` so instances without observedAt, and
-         all NGSIv2 data, have one), ``createdAt``, ``modifiedAt``,
-         ``deletedAt`` (those three: only instances that have it).
-       * ``last_n``: the N newest in the window per series (per attribute
-         and datasetId of an entity). ``limit``: at most that many rows in
-         all, the oldest (or with ``newest_first``/``last_n`` the newest)
-         by the time property; ask for one more than the cap to detect a
-         partial answer.
-       * value: ``kind`` (``model.Kind``) says which of ``num``/``txt``/
-         ``js`` holds it, as in the NGSIv2 reads (INTEGER: ``num`` holds an
-         int-valued float; BOOLEAN: ``js`` is ``true``/``false``; GEO: ``js``
-         is the GeoJSON as received; RELATIONSHIP: ``txt`` is the object;
-         STRUCTURED: ``js``; NULL: null). ``atype`` is the NGSI-LD type as
-         notified (``Property``, ``Relationship``, ``GeoProperty``,
-         ``LanguageProperty``...; None for an entity-deletion instance and
-         for simplified-format data). ``md`` is every other member of the
-         instance as received (JSON text: ``observedAt``, ``unitCode``,
-         ``datasetId``, nested properties, ``createdAt``...): render
-         sub-properties from it, times from the columns.
-       * ``deleted_at`` set: a deletion instance; its value is
-         ``urn:ngsi-ld:null`` (stored as kind NULL).
-       * ``model.instance_urn(iid)`` is the ``instanceId``; it never changes
-         (compaction and restarts keep ``iid``); ``model.instance_iid``
-         reads it back.
-    3. ``instance_series(sids, iid)``: which of ``sids`` holds that instance.
+    Series ids come from ``series``; the sample reads take them. Times in
+    ``TimeRange`` are inclusive; a ``RowMask`` (a geo-query's) keeps only
+    the samples it lists, everything else (ordering, lastN, limit, offset,
+    aggregation) then happens as without it. A ``Prefilter`` is a geo-query's
+    test on stored bounding boxes (``geo.filter.box_prefilter``).
     """
 
     @abstractmethod
-    def series(self, scope, entities, attrs=None) -> list:
-        """``SeriesRef``s of ``scope`` matching an ``EntityFilter`` and attribute names."""
+    def series(self, scope: Scope, entities: EntityFilter, attrs: Iterable[str] | None = None) -> list[SeriesRef]:
+        """``SeriesRef``s of ``scope`` matching ``entities`` and stored attribute
+        names (None: all), from the in-memory catalog; may query the database
+        to catch up with series created since (another replica's too).
+
+        NGSI-LD: an attribute instance lives in a series. The default
+        instance (no datasetId) in the series named after the attribute,
+        each other datasetId in its own series named ``attr~datasetId`` (how
+        NGSIv2 sees it), with ``ref.dataset_id`` set and ``ref.ld_attr`` the
+        NGSI-LD name. Select by ``ref.ld_attr`` (and ``ref.dataset_id`` for
+        a ``datasetId`` filter) rather than with ``attrs``, which matches
+        stored names. Names are stored as notified or written (no JSON-LD
+        expansion). NGSI-LD has no service paths: use ``Scope(tenant)``."""
 
     @abstractmethod
     def tenants(self) -> list[str]:
-        """Every tenant with at least one series, sorted."""
+        """Every tenant with at least one series, sorted (catalog, as ``series``)."""
 
     @abstractmethod
-    def sids_with_samples(self, sids) -> set[int]: ...
+    def sids_with_samples(self, sids: Sequence[int]) -> set[int]:
+        """Those of ``sids`` that hold at least one sample."""
 
     @abstractmethod
     def raw_rows(
-        self, sids, time, *, newest_first: bool, limit: int, offset: int, one_per_row: bool, attrs_per_row: int = 1
-    ) -> list[tuple]: ...
+        self,
+        sids: Sequence[int],
+        time: TimeRange,
+        *,
+        newest_first: bool,
+        limit: int,
+        offset: int,
+        one_per_row: bool,
+        attrs_per_row: int = 1,
+        mask: RowMask | None = None,
+    ) -> list[RawRow]:
+        """Samples of the selected rows (one row: one entity notification,
+        ``rid``), oldest first. Rows are ordered by time (newest first for
+        ``lastN``: ``newest_first``), then ``offset``/``limit`` pick rows of
+        the whole result, as QuantumLeap does. ``one_per_row``: each row has
+        exactly one selected sample (one attribute); otherwise a row has at
+        most ``attrs_per_row``. DuckDB may answer from memory (its tails)."""
 
     @abstractmethod
-    def aggregate(self, branches, time, agg) -> list[tuple]: ...
+    def aggregate(
+        self, branches: Sequence[AggBranch], time: TimeRange, agg: Aggregation, mask: RowMask | None = None
+    ) -> list[AggregateRow]:
+        """Per-series (and per period when ``agg.period``) partial aggregates
+        of each branch, including hours retention folded into rollups (never
+        under a mask). The caller combines them across series. One statement."""
 
     @abstractmethod
-    def latest_index(self, sids, time) -> list[tuple]: ...
+    def latest_index(self, sids: Sequence[int], time: TimeRange, mask: RowMask | None = None) -> list[LatestRow]:
+        """Each series' newest sample time in ``time`` (series without one: no row)."""
 
     @abstractmethod
-    def last_values(self, sids) -> list[tuple]: ...
+    def last_values(self, sids: Sequence[int]) -> list[LastValueRow]:
+        """Each series' newest sample (by time, then row)."""
 
     @abstractmethod
-    def count(self, sids, time) -> int: ...
+    def count(self, sids: Sequence[int], time: TimeRange, mask: RowMask | None = None) -> int:
+        """Samples of ``sids`` in ``time``; when there are none (and no mask),
+        the rolled-up hours a delete would remove: non-zero whenever a delete
+        has something to remove."""
 
     @abstractmethod
-    def latest_geometries(self, sids, time, prefilter) -> list[tuple]:
-        """(sid, GeoJSON) of each series' latest geo sample, box-prefiltered."""
+    def latest_geometries(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[GeometryRow]:
+        """Each series' latest geo sample in ``time`` whose box passes
+        ``prefilter``. The latest is chosen first and filtered after, so an
+        older position never stands in. DuckDB answers from memory when
+        ``time`` is open."""
 
     @abstractmethod
-    def temporal_instances(self, sids, window=None, *, last_n=None, limit=None, newest_first=False) -> list:
-        """NGSI-LD attribute instances of ``sids``: see the class docstring."""
+    def location_extents(self, sids: Sequence[int], prefilter: Prefilter | None) -> list[ExtentRow]:
+        """Per located series of ``sids`` whose extent (the box of every geo
+        sample it ever had) may pass ``prefilter``: the extent and, where the
+        backend keeps it, its first position (else None: ``first_locations``).
+        Memory only on DuckDB; a table (one query) on PostgreSQL. After a
+        delete an extent may be larger than the remaining samples."""
 
     @abstractmethod
-    def instance_series(self, sids, iid: int) -> int | None:
+    def first_locations(self, sids: Sequence[int]) -> list[FirstLocationRow]:
+        """Each series' first geo sample by (time, row)."""
+
+    @abstractmethod
+    def location_samples(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[LocationRow]:
+        """Every geo sample of ``sids`` in ``time``, plus each series' latest
+        one before ``time.start`` (the location its first samples in the
+        window had), ordered by (sid, t, rid). Points come as (lon, lat);
+        other shapes as GeoJSON, and only where the box passes ``prefilter``
+        (the others cannot match, so they are not parsed)."""
+
+    @abstractmethod
+    def temporal_instances(
+        self,
+        sids: Sequence[int],
+        window: InstanceWindow | None = None,
+        *,
+        last_n: int | None = None,
+        limit: int | None = None,
+        newest_first: bool = False,
+    ) -> list[InstanceRow]:
+        """NGSI-LD attribute instances of ``sids``, sorted by (sid, time
+        property, instance id).
+
+        * ``window``: ``start`` inclusive, ``end`` exclusive (``timerel``
+          after / before / between); ``timeproperty`` ``observedAt``
+          (default; reads ``coalesce(observed_at, t)`` so instances without
+          observedAt, and all NGSIv2 data, have one), ``createdAt``,
+          ``modifiedAt``, ``deletedAt`` (those three: only instances that
+          have it).
+        * ``last_n``: the N newest in the window per series (per attribute
+          and datasetId of an entity). ``limit``: at most that many rows in
+          all, the oldest (or with ``newest_first``/``last_n`` the newest)
+          by the time property; ask for one more than the cap to detect a
+          partial answer.
+        * value: ``kind`` (``model.Kind``) says which of ``num``/``txt``/
+          ``js`` holds it, as in the NGSIv2 reads (INTEGER: ``num`` holds an
+          int-valued float; BOOLEAN: ``js`` is ``true``/``false``; GEO:
+          ``js`` is the GeoJSON as received; RELATIONSHIP: ``txt`` is the
+          object; STRUCTURED: ``js``; NULL: null). ``atype`` is the NGSI-LD
+          type as notified (None for an entity-deletion instance and for
+          simplified-format data). ``md`` is every other member of the
+          instance as received (JSON text): render sub-properties from it,
+          times from the columns.
+        * ``deleted_at`` set: a deletion instance; its value is
+          ``urn:ngsi-ld:null`` (stored as kind NULL).
+        * ``model.instance_urn(iid)`` is the ``instanceId``; it never changes
+          (compaction and restarts keep ``iid``); ``model.instance_iid``
+          reads it back."""
+
+    @abstractmethod
+    def instance_series(self, sids: Sequence[int], iid: int) -> int | None:
         """The one of ``sids`` that holds instance ``iid``, or None."""
+
+    @abstractmethod
+    def sample_counts(self) -> dict[str, int]:
+        """Stored samples per tenant (a full scan: for commands, not routes)."""
+
+    @abstractmethod
+    def stored_samples(self, batch_rows: int) -> Iterator[list[StoredSample]]:
+        """Every stored sample in (row, instance) order, in lists of at most
+        ``batch_rows``: what a copy reads. The iterator holds a cursor of its
+        own (PostgreSQL: a pooled connection and one transaction, so the
+        whole stream is one snapshot) until it is exhausted or closed; use
+        it from one thread."""
 
 
 class Store(ABC):
-    """A database with one writer and many readers."""
+    """A database with one writer and many readers.
+
+    Every method but ``write`` and the memory-only ones is blocking: call it
+    from a worker thread, never on the event loop."""
 
     backend: str
     # Retention and rollups (storage/retention.py): the background worker,
     # when a policy is set, and whether rollup rows may exist.
-    retention = None
-    rollup_presence = None
+    retention: Any = None
+    rollup_presence: Any = None
 
     def stop_retention(self) -> None:
         """Stop the retention worker (its batch in progress finishes first);
@@ -205,7 +315,8 @@ class Store(ABC):
 
     @abstractmethod
     async def write(self, op: WriteOp) -> None:
-        """Queue ``op`` for the group committer; return once it is committed."""
+        """Queue ``op`` for the group committer; return once it is committed.
+        The one method to await on the event loop."""
 
     @abstractmethod
     def write_sync(self, ops: Sequence[WriteOp]) -> None:
@@ -218,24 +329,74 @@ class Store(ABC):
         database first, which ``read`` keeps off the event loop."""
 
     @abstractmethod
-    def layouts(self, tenant: str) -> dict[str, ValuesLayout]: ...
+    def layouts(self, tenant: str) -> dict[str, ValuesLayout]:
+        """The tenant's registered layouts by subscription id."""
+
+    @abstractmethod
+    def all_layouts(self) -> dict[tuple[str, str], ValuesLayout]:
+        """Every registered layout by (tenant, subscription id), from the database."""
 
     @abstractmethod
     def rejected(self, tenant: str | None, limit: int, offset: int) -> list[dict[str, Any]]:
         """Rejected notifications of one tenant, newest first; ``None``: every
         tenant (the operator's listing)."""
 
-    def rejected_page(self, tenant: str | None, limit: int, offset: int, max_bytes: int):
+    @abstractmethod
+    def rejected_page(
+        self, tenant: str | None, limit: int, offset: int, max_bytes: int
+    ) -> tuple[list[dict[str, Any]], int | None]:
         """``rejected`` paged by rendered size too: ``(rows, next offset or
         None)``; at least one row, however big (``storage.rejected.page``)."""
-        raise NotImplementedError
 
     @abstractmethod
-    def health(self) -> dict[str, Any]: ...
+    def rejected_notifications(self) -> list[RejectedNotification]:
+        """Every rejected notification as stored, oldest first (for copies)."""
 
+    @abstractmethod
+    def rejected_count(self) -> int:
+        """How many rejected notifications are stored, in every tenant."""
+
+    @abstractmethod
+    def health(self) -> dict[str, Any]:
+        """The ``/health`` report: ``status`` pass/fail, ``backend``, counters."""
+
+    @abstractmethod
+    def sizes(self) -> tuple[int, int, int]:
+        """``(bytes on disk, rejected notifications kept, their body and
+        header bytes)`` for ``/metrics``. Queries the database: off the loop."""
+
+    @abstractmethod
     def querier(self) -> Querier:
-        """The history reader (one per store, thread-safe)."""
-        raise NotImplementedError(f"{type(self).__name__} has no history querier yet")
+        """The history reader (one per store, thread-safe; memory only)."""
+
+    @abstractmethod
+    def compact(self, full: bool = True) -> str:
+        """Reorganise stored samples for reads now (offline maintenance);
+        returns what was done, in words for an operator. DuckDB moves the hot
+        rows into the sorted table (and with ``full`` rewrites it as one
+        sorted run); PostgreSQL keeps samples in place in its (sid, t) index
+        and has nothing to do."""
+
+    @abstractmethod
+    def copy_runs_open(self) -> list[CopyRun]:
+        """The unfinished copies into this store (``copy_runs``)."""
+
+    @abstractmethod
+    def copy_run_start(self, run: CopyRun) -> None:
+        """Record a copy into this store as begun."""
+
+    @abstractmethod
+    def copy_run_finish(self, source: str) -> None:
+        """Record the unfinished copy from ``source`` as finished."""
+
+    @abstractmethod
+    def retention_session(self) -> AbstractContextManager[Any]:
+        """A retention pass's own database access (``storage.retention.Session``),
+        or None inside when another replica is running its pass."""
+
+    @abstractmethod
+    def retention_watermarks(self) -> dict[tuple[str, str], datetime]:
+        """Saved retention watermarks by (table, rule), timezone-aware."""
 
     @abstractmethod
     def close(self) -> None:
@@ -259,3 +420,13 @@ class Store(ABC):
         them in the threadpool itself.
         """
         return await read_off_loop(fn, memory_first)
+
+
+@dataclass(frozen=True, slots=True)
+class CopyRun:
+    """A copy into a store, as its ``copy_runs`` table records it."""
+
+    source: str
+    base_counts: dict[str, int]  # the target's samples per tenant before the copy
+    base_rejected: int
+    source_samples: int

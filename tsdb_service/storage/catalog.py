@@ -61,12 +61,12 @@ SeriesRow = tuple
 
 
 class SeriesCatalog:
-    def __init__(self, load_since: Callable[[int], Iterable[SeriesRow]], generation: Callable[[], int]):
+    def __init__(self, load_since: Callable[[int], Iterable[SeriesRow]], generation: Callable[[], object]):
         self._load_since = load_since
         self._generation = generation
         self._lock = threading.Lock()
         self._tenants: dict[str, _TenantIndex] = {}
-        self._loaded_gen = -1
+        self._loaded_gen: object = -1
         self._position = -1
         self._known: set[int] = set()
         self._refs: dict[int, SeriesRef] = {}  # every loaded series by id (swapped, never mutated)
@@ -136,13 +136,13 @@ class SeriesCatalog:
         elif attr_set is not None and len(attr_set) <= 4:
             candidates = [r for a in attr_set for r in index.by_attr.get(a, ())]
             if entities.types is not None:
-                types = set(entities.types)
-                candidates = [r for r in candidates if r.entity_type in types]
+                wanted_types = set(entities.types)
+                candidates = [r for r in candidates if r.entity_type in wanted_types]
         elif entities.types is not None:
             candidates = [r for t in entities.types for r in index.by_type.get(t, ())]
         else:
             candidates = index.all
-        types = set(entities.types) if entities.types is not None else None
+        types: set[str] | None = set(entities.types) if entities.types is not None else None
         pattern = compiled(entities.id_pattern) if entities.id_pattern else None
         whole = scope.whole_tenant
         out = []

@@ -19,22 +19,22 @@ Safe to run again, by design:
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
-from datetime import UTC, datetime
+from datetime import UTC
 from pathlib import Path
 
 from ..config import Settings, check_db
 from ..model import AttrSample, EntitySample, Geometry, Kind, RejectedNotification
-from .base import AppendSamples, PutLayout, RecordRejected, Store
+from ..query import EntityFilter, Scope, StoredSample
+from .base import AppendSamples, CopyRun, PutLayout, RecordRejected, Store
 
-SAMPLE_COLUMNS = (
-    "rid, sid, t, kind, atype, num, txt, js, geo, lon, lat, min_lon, min_lat, max_lon, max_lat, md, "
-    "observed_at, created_at, modified_at, deleted_at"
-)  # instance ids are the target's own: an instanceId names an instance in one store
+# Everything goes through the seam (``Store``, ``Querier``): the source's
+# samples come from ``Querier.stored_samples`` (instance ids stay behind:
+# an instanceId names an instance in one store), the bookkeeping from
+# ``Store.copy_runs_open`` / ``copy_run_start`` / ``copy_run_finish``.
 BATCH_ROWS = 50_000
 REJECTED_BATCH = 500
 
@@ -159,15 +159,6 @@ class CopyReport:
     resumed_from: int = 0  # samples already copied by an interrupted run
 
 
-@dataclass(frozen=True)
-class _Run:
-    """A copy into the target, as recorded in its ``copy_runs``."""
-
-    base_counts: dict[str, int]
-    base_rejected: int
-    source_samples: int
-
-
 def copy_history(
     source: Store,
     target: Store,
@@ -186,21 +177,17 @@ def copy_history(
     _copy_side_tables(source, target, resumed=already > 0 or _rejected_count(target) > run.base_rejected)
     after, rejected = _counts(target), _rejected_count(target)
     _verify(src_counts, run, after, rejected, _rejected_count(source))
-    _execute(
-        target, "UPDATE copy_runs SET finished_at = ? WHERE source = ? AND finished_at IS NULL", [_utcnow(), source_id]
-    )
+    target.copy_run_finish(source_id)
     tenants = {
         t: (src_counts.get(t, 0), after.get(t, 0) - run.base_counts.get(t, 0)) for t in set(src_counts) | set(after)
     }
     return CopyReport(tenants, sum(after.values()), rejected, already)
 
 
-def _resume_or_start(target: Store, source_id: str, src_total: int, append: bool) -> _Run:
+def _resume_or_start(target: Store, source_id: str, src_total: int, append: bool) -> CopyRun:
     """The unfinished run from this source to resume, or a new one recorded now."""
-    unfinished = target.querier()._fetch(
-        "SELECT source, base_counts, base_rejected, source_samples FROM copy_runs WHERE finished_at IS NULL", []
-    )
-    for source, base_counts, base_rejected, source_samples in unfinished:
+    for run in target.copy_runs_open():
+        source, source_samples = run.source, run.source_samples
         if source != source_id:
             raise CopyRefused(
                 f"the target holds an interrupted copy from {source}: resume it with `tsdb-service copy "
@@ -211,7 +198,7 @@ def _resume_or_start(target: Store, source_id: str, src_total: int, append: bool
                 f"the source changed since the interrupted copy began ({source_samples} samples then, "
                 f"{src_total} now): copy into a new, empty target instead"
             )
-        return _Run(json.loads(base_counts), int(base_rejected), int(source_samples))
+        return run
     counts, rejected = _counts(target), _rejected_count(target)
     if (counts or rejected) and not append:
         raise CopyRefused(
@@ -219,24 +206,15 @@ def _resume_or_start(target: Store, source_id: str, src_total: int, append: bool
             "copying would add the source's history to them. Give --append to do that on purpose, "
             "or copy into a new, empty target"
         )
-    _execute(
-        target,
-        "INSERT INTO copy_runs (source, started_at, base_counts, base_rejected, source_samples) VALUES (?, ?, ?, ?, ?)",
-        [source_id, _utcnow(), json.dumps(counts), rejected, src_total],
-    )
-    return _Run(counts, rejected, src_total)
+    run = CopyRun(source_id, counts, rejected, src_total)
+    target.copy_run_start(run)
+    return run
 
 
 def _copy_samples(source: Store, target: Store, *, skip: int, total: int, progress: bool, batch_rows: int) -> None:
     """Stream the source in row-id order, skipping the prefix already copied; one
     committed batch at a time, so the target always holds a prefix of the source."""
-    reader = source.querier()
-    series = {
-        row[0]: row[1:]
-        for row in reader._fetch(
-            "SELECT sid, tenant, service_path, entity_id, entity_type, attr, dataset_id FROM series", []
-        )
-    }
+    series = _series(source)
     copied, started = skip, time.monotonic()
     batch: list[EntitySample] = []
     rows_in_batch = 0
@@ -257,11 +235,26 @@ def _copy_samples(source: Store, target: Store, *, skip: int, total: int, progre
         print(file=sys.stderr)
 
 
+def _series(store: Store) -> dict[int, tuple[str, str, str, str, str, str | None]]:
+    """Every series by id: (tenant, service path, entity id, type, attr, datasetId)."""
+    reader = store.querier()
+    return {
+        ref.sid: (tenant, ref.service_path, ref.entity_id, ref.entity_type, ref.attr, ref.dataset_id)
+        for tenant in reader.tenants()
+        for ref in reader.series(Scope(tenant), EntityFilter())
+    }
+
+
+def _samples(store: Store) -> Iterator[StoredSample]:
+    for batch in store.querier().stored_samples(BATCH_ROWS):
+        yield from batch
+
+
 def _entities(source: Store, series: dict, skip: int = 0) -> Iterator[tuple[EntitySample, int]]:
     """Rows regrouped by ``rid`` into the entity notifications they came from,
     after the first ``skip`` rows (which must end on a notification)."""
     current_rid, entity, n, seen, last_skipped = None, None, 0, 0, None
-    for row in _stream(source, f"SELECT {SAMPLE_COLUMNS} FROM samples_all ORDER BY rid, iid"):
+    for row in _samples(source):
         if seen < skip:
             seen += 1
             last_skipped = row[0]
@@ -276,51 +269,33 @@ def _entities(source: Store, series: dict, skip: int = 0) -> Iterator[tuple[Enti
                     "copy into a new, empty target instead"
                 )
             tenant, path, eid, etype, _, _ = series[sid]
-            entity = EntitySample(tenant, path, eid, etype, row[2].replace(tzinfo=UTC), [])
+            attrs: list[AttrSample] = []
+            entity = EntitySample(tenant, path, eid, etype, row.t.replace(tzinfo=UTC), attrs)
             current_rid, n = rid, 0
-        entity.attrs.append(_attr(series[sid][4], series[sid][5], row))
+        attrs.append(_attr(series[sid][4], series[sid][5], row))
         n += 1
     if entity is not None:
         yield entity, n
 
 
-def _attr(name: str, dataset_id: str | None, row: tuple) -> AttrSample:
-    (
-        _,
-        _,
-        _,
-        kind,
-        atype,
-        num,
-        txt,
-        js,
-        geo,
-        lon,
-        lat,
-        mnlon,
-        mnlat,
-        mxlon,
-        mxlat,
-        md,
-        observed,
-        created,
-        modified,
-        deleted,
-    ) = row
-    geometry = Geometry(geo, lon, lat, mnlon, mnlat, mxlon, mxlat) if geo is not None else None
+def _attr(name: str, dataset_id: str | None, row: StoredSample) -> AttrSample:
+    geometry = None
+    if row.geo is not None:  # then its position and box are stored too
+        box = (row.lon, row.lat, row.min_lon, row.min_lat, row.max_lon, row.max_lat)
+        geometry = Geometry(row.geo, *(float(v) for v in box if v is not None))
     return AttrSample(
         name,
-        atype,
-        Kind(kind),
-        num,
-        txt,
-        js,
+        row.atype,
+        Kind(row.kind),
+        row.num,
+        row.txt,
+        row.js,
         geometry,
-        md,
-        _utc(observed),
-        _utc(created),
-        _utc(modified),
-        _utc(deleted),
+        row.md,
+        _utc(row.observed_at),
+        _utc(row.created_at),
+        _utc(row.modified_at),
+        _utc(row.deleted_at),
         dataset_id,
     )
 
@@ -329,29 +304,10 @@ def _utc(moment):
     return None if moment is None else moment.replace(tzinfo=UTC)
 
 
-def _stream(store: Store, sql: str) -> Iterator[tuple]:
-    """All rows of ``sql`` without holding them in memory at once."""
-    if store.backend == "postgresql":
-        with store.connection() as conn, conn.transaction(), conn.cursor(name="tsdb_copy") as cur:
-            cur.execute(sql)
-            while rows := cur.fetchmany(BATCH_ROWS):
-                yield from rows
-        return
-    cur = store.cursor().cursor()  # a private cursor: the thread's one may be in use
-    try:
-        cur.execute(sql)
-        while rows := cur.fetchmany(BATCH_ROWS):
-            yield from rows
-    finally:
-        cur.close()
-
-
 def _copy_side_tables(source: Store, target: Store, *, resumed: bool) -> None:
     """Layouts (a put is idempotent) and rejected notifications; after an
     interruption, a rejected notification already in the target is not added again."""
-    reader = source.querier()
-    tenants = [row[0] for row in reader._fetch("SELECT DISTINCT tenant FROM subscriptions", [])]
-    layouts = [PutLayout(t, sub, layout) for t in tenants for sub, layout in source.layouts(t).items()]
+    layouts = [PutLayout(t, sub, layout) for (t, sub), layout in sorted(source.all_layouts().items())]
     if layouts:
         target.write_sync(layouts)
     present = set(_rejected_keys(target)) if resumed else set()
@@ -368,14 +324,7 @@ def _copy_side_tables(source: Store, target: Store, *, resumed: bool) -> None:
 
 
 def _rejected(store: Store) -> Iterator[RejectedNotification]:
-    for tenant, received_at, error, description, headers, body, size, truncated in store.querier()._fetch(
-        "SELECT tenant, received_at, error, description, headers, body, body_size, body_truncated "
-        "FROM rejected_notifications ORDER BY id",
-        [],
-    ):
-        yield RejectedNotification(
-            tenant, received_at.replace(tzinfo=UTC), error, description, headers, bytes(body), size, bool(truncated)
-        )
+    return iter(store.rejected_notifications())
 
 
 def _rejected_keys(store: Store) -> Iterator[tuple]:
@@ -386,7 +335,7 @@ def _key(r: RejectedNotification) -> tuple:
     return (r.tenant, r.received_at, r.error, r.body)
 
 
-def _verify(src: dict[str, int], run: _Run, after: dict[str, int], rejected: int, src_rejected: int) -> None:
+def _verify(src: dict[str, int], run: CopyRun, after: dict[str, int], rejected: int, src_rejected: int) -> None:
     """Totals: every tenant holds what it held before plus the source's samples."""
     wrong = {
         t: (run.base_counts.get(t, 0) + src.get(t, 0), after.get(t, 0))
@@ -408,27 +357,11 @@ def _verify(src: dict[str, int], run: _Run, after: dict[str, int], rejected: int
 
 
 def _counts(store: Store) -> dict[str, int]:
-    rows = store.querier()._fetch(
-        "SELECT s.tenant, count(*) FROM samples_all x JOIN series s ON s.sid = x.sid GROUP BY s.tenant", []
-    )
-    return {tenant: int(n) for tenant, n in rows}
+    return store.querier().sample_counts()
 
 
 def _rejected_count(store: Store) -> int:
-    return int(store.querier()._fetch("SELECT count(*) FROM rejected_notifications", [])[0][0])
-
-
-def _execute(store: Store, sql: str, params: list) -> None:
-    """A statement outside the writer (``copy_runs`` is ours alone); ``?`` placeholders."""
-    if store.backend == "postgresql":
-        with store.connection() as conn:
-            conn.execute(sql.replace("?", "%s"), params)
-        return
-    store.cursor().execute(sql, params)
-
-
-def _utcnow() -> datetime:
-    return datetime.now(UTC).replace(tzinfo=None)
+    return store.rejected_count()
 
 
 def _show(done: int, skipped: int, total: int, started: float) -> None:

@@ -119,10 +119,7 @@ def drop_renotified(
     for skey, sid, attr, droppable in items:
         key = sample_key(attr)
         if droppable and key is not None:
-            if skey in staged:
-                latest = staged[skey]
-            else:
-                latest = _MISSING if sid is None else loaded.get(sid, cache.get(sid))
+            latest = staged[skey] if skey in staged else _MISSING if sid is None else loaded.get(sid, cache.get(sid))
             if latest is not _MISSING and latest == key:
                 staged[skey] = latest  # what the database holds (or will, at commit)
                 keep.append(False)

@@ -12,7 +12,7 @@ import re
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 _NAME = re.compile(r"^(\d{4})_([A-Za-z0-9_]+)(?:\.(duckdb|postgresql))?\.sql$")
 
@@ -25,7 +25,7 @@ class Migration:
 
 
 class SqlConnection(Protocol):
-    def execute(self, sql: str, params: object = ...) -> object: ...
+    def execute(self, sql: str, params: Any = ..., /) -> Any: ...
 
 
 def migrations_dir() -> Path:
@@ -63,7 +63,7 @@ CREATE TABLE IF NOT EXISTS schema_migrations (
 
 def applied_versions(conn: SqlConnection) -> set[int]:
     conn.execute(SCHEMA_TABLE)
-    rows = conn.execute("SELECT version FROM schema_migrations").fetchall()  # type: ignore[attr-defined]
+    rows = conn.execute("SELECT version FROM schema_migrations").fetchall()
     return {int(r[0]) for r in rows}
 
 
@@ -77,6 +77,6 @@ def split_statements(sql: str) -> list[str]:
             parts.append("\n".join(current))
             current = []
     tail = "\n".join(current).strip()
-    if tail and not all(l.strip().startswith("--") or not l.strip() for l in current):
+    if tail and not all(line.strip().startswith("--") or not line.strip() for line in current):
         parts.append(tail)
     return [p for p in parts if p.strip()]

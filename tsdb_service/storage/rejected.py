@@ -130,7 +130,8 @@ def page(
         f"SELECT {COLUMNS} FROM rejected_notifications {where}{and_or_where} id <= {p} ORDER BY id DESC LIMIT {p}",
         [*params, first, take],
     )
-    out, used = [], 0
+    out: list[dict[str, Any]] = []
+    used = 0
     for row in rows:
         item = render(*row)
         used += len(orjson.dumps(item))

@@ -13,13 +13,14 @@ rollups in the same transaction (``storage.rollups``), and aggregation
 queries keep answering for that time. ``TSDB_ROLLUP_RETENTION`` limits how
 long rollup rows are kept, with the same syntax.
 
-Each backend batches its own way:
+Each backend batches its own way (a ``Session``, from
+``Store.retention_session``):
 
-* **DuckDB**: a batch holds the compactor's lock (as a user's delete does),
+* **DuckDB** (``storage.duckdb.retention``): a batch holds the compactor's lock (as a user's delete does),
   so it never races the compactor moving or rewriting the same rows; it
   picks at most N expired rows by ``rowid``, folds them, deletes them, and
   drops the touched series from the in-memory tails and latest locations.
-* **PostgreSQL**: one statement per batch picks at most N expired rows by
+* **PostgreSQL** (``storage.postgres.retention``): one statement per batch picks at most N expired rows by
   (``tableoid``, ``ctid``), deletes them and folds exactly the rows it
   deleted (``RETURNING``). A session advisory lock lets one replica run a
   pass at a time; the others skip theirs.
@@ -37,16 +38,14 @@ import logging
 import re
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from typing import Protocol
 
-from ..model import Kind
 from .rollups import TABLE as ROLLUP_TABLE
-from .rollups import RollupPresence, fold_sql
-from .sql import quote_ident
+from .rollups import RollupPresence
+from .sql import Dialect
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +53,6 @@ FOREVER = "forever"
 _DURATION = re.compile(r"^(\d+)([smhdwy])$")
 _UNIT_SECONDS = {"s": 1, "m": 60, "h": 3600, "d": 86_400, "w": 7 * 86_400, "y": 365 * 86_400}
 _TENANT = re.compile(r"^[a-z0-9_]{0,50}$")  # Fiware-Service, lower-cased; "" = default tenant
-_PG_LOCK = 0x7473_6472  # "tsdr": one retention pass at a time across replicas
 SAMPLES, ROLLUPS = "samples", "rollups"  # the two things retention trims
 
 Keep = timedelta | None  # None: forever
@@ -223,7 +221,7 @@ class Session(Protocol):
     def save_watermark(self, kind: str, rule: str, horizon: datetime) -> None: ...
 
 
-def _rollup_delete(dialect, sids: Sequence[int], cutoff: datetime, limit: int) -> tuple[str, list]:
+def rollup_delete_sql(dialect: Dialect, sids: Sequence[int], cutoff: datetime, limit: int) -> tuple[str, list]:
     """At most ``limit`` rollup rows of ``sids`` older than ``cutoff`` (by key: the primary key finds them)."""
     where, params = dialect.sid_filter(sids)
     p = dialect.placeholder
@@ -234,154 +232,10 @@ def _rollup_delete(dialect, sids: Sequence[int], cutoff: datetime, limit: int) -
     return sql, [*params, dialect.time_value(cutoff), limit]
 
 
-_SAVE_WATERMARK = (
+SAVE_WATERMARK = (
     "INSERT INTO retention_state (tbl, rule, horizon, updated_at) VALUES ({p}, {p}, {p}, {p}) "
     "ON CONFLICT (tbl, rule) DO UPDATE SET horizon = EXCLUDED.horizon, updated_at = EXCLUDED.updated_at"
 )
-
-
-def _naive(moment: datetime) -> datetime:
-    return moment.astimezone(UTC).replace(tzinfo=None)
-
-
-class DuckDBSession:
-    tables = ("samples", "samples_hot")
-
-    def __init__(self, store, cur):
-        from .duckdb.dialect import DuckDBDialect
-
-        self._store = store
-        self._cur = cur
-        self._d = DuckDBDialect()
-
-    def series(self) -> list[tuple[int, str, str]]:
-        return self._cur.execute("SELECT sid, tenant, entity_type FROM series").fetchall()
-
-    def delete_samples(self, table: str, sids: Sequence[int], cutoff: datetime, limit: int, fold: bool) -> int:
-        """One batch, under the compactor's lock: pick, fold, delete, commit."""
-        cur = self._cur
-        where, params = self._d.sid_filter(sids)
-        with self._store._compactor._lock:
-            cur.execute("BEGIN")
-            try:
-                cur.execute(
-                    "CREATE OR REPLACE TEMP TABLE retention_batch AS SELECT rowid AS r, rid, sid, t, kind, num "
-                    f"FROM {quote_ident(table)} WHERE {where} AND t < ? LIMIT ?",
-                    [*params, _naive(cutoff), limit],
-                )
-                n, upto = cur.execute("SELECT count(*), max(rid) FROM retention_batch").fetchone()
-                if n:
-                    if fold:
-                        cur.execute(fold_sql("retention_batch"))
-                    cur.execute(f"DELETE FROM {quote_ident(table)} WHERE rowid IN (SELECT r FROM retention_batch)")
-                cur.execute("COMMIT")
-            except BaseException:
-                _rollback(cur)
-                raise
-        if n:
-            self._forget(upto)
-        return int(n)
-
-    def _forget(self, upto_rid: int) -> None:
-        """The in-memory tails and latest locations must not show deleted rows."""
-        from .duckdb.store import LATEST_GEO_SQL
-
-        store = self._store
-        cur = self._cur
-        sids = [r[0] for r in cur.execute("SELECT DISTINCT sid FROM retention_batch").fetchall()]
-        store.tail.drop(sids)
-        geo = [
-            r[0]
-            for r in cur.execute(f"SELECT DISTINCT sid FROM retention_batch WHERE kind = {int(Kind.GEO)}").fetchall()
-        ]
-        if geo:
-            query = LATEST_GEO_SQL.format(where="AND sid IN (SELECT unnest(?::INTEGER[]))")
-            store.latest_geo.recompute(geo, upto_rid, lambda s: cur.execute(query, [s]).fetchall())
-
-    def delete_rollups(self, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
-        sql, params = _rollup_delete(self._d, sids, cutoff, limit)
-        with self._store._compactor._lock:  # user deletes touch rollups under it too
-            return int(self._cur.execute(sql, params).fetchone()[0])
-
-    def save_watermark(self, kind: str, rule: str, horizon: datetime) -> None:
-        self._cur.execute(_SAVE_WATERMARK.format(p="?"), [kind, rule, _naive(horizon), _naive(datetime.now(UTC))])
-
-
-class PostgresSession:
-    tables = ("samples",)
-
-    def __init__(self, conn):
-        from .postgres.dialect import PostgresDialect
-
-        self._conn = conn
-        self._d = PostgresDialect()
-
-    def series(self) -> list[tuple[int, str, str]]:
-        return self._conn.execute("SELECT sid, tenant, entity_type FROM series").fetchall()
-
-    def delete_samples(self, table: str, sids: Sequence[int], cutoff: datetime, limit: int, fold: bool) -> int:
-        """One statement: pick by (tableoid, ctid), which stays right on a
-        TimescaleDB hypertable's chunks, delete, and fold what was deleted."""
-        folded = f", folded AS ({fold_sql('batch')})" if fold else ""
-        sql = (
-            f"WITH pick AS MATERIALIZED (SELECT tableoid AS tab, ctid AS tid FROM {quote_ident(table)} "
-            "WHERE sid = ANY(%s::integer[]) AND t < %s LIMIT %s), "
-            f"batch AS (DELETE FROM {quote_ident(table)} s USING pick WHERE s.tableoid = pick.tab "
-            "AND s.ctid = pick.tid RETURNING s.sid, s.t, s.kind, s.num)"
-            f"{folded} SELECT count(*) FROM batch"
-        )
-        with self._conn.transaction():
-            return int(self._conn.execute(sql, [list(sids), _naive(cutoff), limit]).fetchone()[0])
-
-    def delete_rollups(self, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
-        sql, params = _rollup_delete(self._d, sids, cutoff, limit)
-        with self._conn.transaction():
-            return self._conn.execute(sql, params).rowcount
-
-    def save_watermark(self, kind: str, rule: str, horizon: datetime) -> None:
-        self._conn.execute(_SAVE_WATERMARK.format(p="%s"), [kind, rule, _naive(horizon), _naive(datetime.now(UTC))])
-
-
-def _rollback(cur) -> None:
-    try:
-        cur.execute("ROLLBACK")
-    except Exception:  # no transaction open
-        pass
-
-
-@contextmanager
-def duckdb_session(store) -> Iterator[DuckDBSession]:
-    cur = store._con.cursor()
-    try:
-        yield DuckDBSession(store, cur)
-    finally:
-        cur.close()
-
-
-@contextmanager
-def postgres_session(store) -> Iterator[PostgresSession | None]:
-    """A connection of its own holding the pass lock; None when another
-    replica is running its pass."""
-    import psycopg
-
-    with psycopg.connect(store.url, autocommit=True) as conn:
-        if not conn.execute("SELECT pg_try_advisory_lock(%s)", [_PG_LOCK]).fetchone()[0]:
-            yield None
-            return
-        try:
-            yield PostgresSession(conn)
-        finally:
-            conn.execute("SELECT pg_advisory_unlock(%s)", [_PG_LOCK])
-
-
-def load_watermarks(store) -> dict[tuple[str, str], datetime]:
-    sql = "SELECT tbl, rule, horizon FROM retention_state"
-    if store.backend == "postgresql":
-        with store.connection() as conn:
-            rows = conn.execute(sql).fetchall()
-    else:
-        rows = store.cursor().execute(sql).fetchall()
-    return {(tbl, rule): horizon.replace(tzinfo=UTC) for tbl, rule, horizon in rows}
 
 
 # --- the worker ----------------------------------------------------------------------
@@ -400,12 +254,12 @@ class RetentionWorker:
         self._store = store
         self.config = config
         self._clock = clock or (lambda: datetime.now(UTC))
-        self._session = postgres_session if store.backend == "postgresql" else duckdb_session
+        self._session = store.retention_session
         self._stop = threading.Event()
         self._run_lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self.observer: RetentionObserver | None = None
-        self.watermarks = load_watermarks(store)
+        self.watermarks = store.retention_watermarks()
         self.passes = 0
         self.batches = 0
 
@@ -429,7 +283,7 @@ class RetentionWorker:
     def run_once(self) -> dict[str, int]:
         """One pass over every rule; returns the rows deleted per table."""
         deleted: dict[str, int] = {}
-        with self._run_lock, self._session(self._store) as session:
+        with self._run_lock, self._session() as session:
             if session is None:
                 return deleted
             now = self._clock()

@@ -17,26 +17,39 @@ is what prunes them.
 from __future__ import annotations
 
 from abc import abstractmethod
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from datetime import UTC, datetime
+from functools import partial
+from typing import TypeVar
 
 from .. import budget
 from ..model import Kind
 from ..query import (
     TIME_PROPERTIES,
     AggBranch,
+    AggregateRow,
     Aggregation,
     AggrMethod,
     EntityFilter,
+    ExtentRow,
+    FirstLocationRow,
+    GeometryRow,
     InstanceRow,
     InstanceWindow,
+    LastValueRow,
+    LatestRow,
+    LocationRow,
+    Prefilter,
+    RawRow,
     RowMask,
     Scope,
     SeriesRef,
+    StoredSample,
     TimeRange,
 )
-from .base import Querier
+from .base import DeleteInstance, Querier, ReplaceInstance
 from .catalog import SeriesCatalog
+from .common import SAMPLE_COLUMNS, VALUE_COLUMNS, box_sql, content_values
 from .rollups import delete_sql as rollup_delete_sql
 from .rollups import rolled_up_count, rollup_parts
 
@@ -46,6 +59,7 @@ INTEGER_KIND = int(Kind.INTEGER)
 GEO_KIND = int(Kind.GEO)
 _MAX_BIGINT = 2**62  # LIMIT/OFFSET values stay well inside int64
 _LOCATION_COLUMNS = "sid, rid, t, kind, geo, min_lon, min_lat, max_lon, max_lat"
+T = TypeVar("T", bound=tuple)
 
 
 def quote_ident(name: str) -> str:
@@ -141,18 +155,37 @@ def mask_filter(dialect: Dialect, mask: RowMask) -> tuple[str, list]:
     )
 
 
-def box_test(dialect: Dialect, prefilter) -> tuple[str, list]:
-    """SQL: a sample's stored bounding box passes ``prefilter``
-    (``("intersects" | "within", BBox)``; None passes everything)."""
-    if prefilter is None:
-        return "TRUE", []
-    how, box = prefilter
-    p = dialect.placeholder
-    if how == "within":
-        sql = f"(min_lon >= {p} AND max_lon <= {p} AND min_lat >= {p} AND max_lat <= {p})"
-    else:
-        sql = f"(max_lon >= {p} AND min_lon <= {p} AND max_lat >= {p} AND min_lat <= {p})"
-    return sql, [box.min_lon, box.max_lon, box.min_lat, box.max_lat]
+def box_test(dialect: Dialect, prefilter: Prefilter | None) -> tuple[str, list]:
+    """SQL: a sample's stored bounding box passes ``prefilter`` (``common.box_sql``)."""
+    return box_sql(dialect.placeholder, prefilter)
+
+
+def rows_as(row_type: type[T]) -> Callable[[Iterable[tuple]], list[T]]:
+    """Driver rows as ``row_type`` (a NamedTuple): one C-level
+    ``tuple.__new__`` per row, no Python frame."""
+    new = partial(tuple.__new__, row_type)
+    return lambda rows: list(map(new, rows))
+
+
+as_aggregate = rows_as(AggregateRow)
+as_latest = rows_as(LatestRow)
+as_last_values = rows_as(LastValueRow)
+as_geometries = rows_as(GeometryRow)
+as_first_locations = rows_as(FirstLocationRow)
+as_stored = rows_as(StoredSample)
+_STORED_COLUMNS = ", ".join(SAMPLE_COLUMNS)
+
+
+def latest_per_series(
+    columns: str, source: str, where: str, *, inner: str | None = None, order: str = "t DESC, rid DESC"
+) -> str:
+    """SQL: ``columns`` (expressions over ``inner``, the columns read; by
+    default the same) of each series' first row of ``source`` by ``order``
+    (the newest by default), among those matching ``where``."""
+    return (
+        f"SELECT {columns} FROM (SELECT {inner or columns}, row_number() OVER (PARTITION BY sid ORDER BY {order}) "
+        f"AS rn FROM {source} WHERE {where}) ranked WHERE rn = 1"
+    )
 
 
 # NGSI-LD time properties → the SQL that reads them. observedAt falls back
@@ -178,30 +211,24 @@ def _instance_order(row: InstanceRow) -> tuple:
     return row.sid, row.at, row.iid
 
 
-# Row layouts returned by SqlQuerier (tuples, for speed):
-#   raw_rows:    (sid, rid, iso_time, kind, num, txt, js)
-#   aggregate:   (branch, sid, iso_bucket | None, n_present, n_numeric, value, all_integer)
-#   latest:      (sid, iso_time)
-#   last_values: (sid, iso_time, kind, atype, num, txt, js)
-#   location_samples: (sid, t µs, rid, box passes, is a point, lon, lat, GeoJSON or None)
-#
-# ``mask`` (a RowMask, optional) on raw_rows, aggregate, latest_index and
-# count keeps only the samples it lists: everything else (ordering, lastN,
-# limit, offset, aggregation) then happens in the database as without it.
-
-
 class SqlQuerier(Querier):
-    """The read queries, rendered once for every SQL backend."""
+    """The read queries, rendered once for every SQL backend; the rows are
+    the seam's named rows (``query``), documented on ``base.Querier``."""
 
     dialect: Dialect
     catalog: SeriesCatalog
 
     @abstractmethod
-    def _fetch(self, sql: str, params: list) -> list[tuple]: ...
+    def _fetch(self, sql: str, params: list) -> list[tuple]:
+        """Run one read on the calling thread's connection; all its rows."""
+
+    @abstractmethod
+    def _batches(self, sql: str, params: list, size: int) -> Iterator[list[tuple]]:
+        """Run one read on a cursor of its own; its rows ``size`` at a time."""
 
     # -- series ------------------------------------------------------------------
 
-    def series(self, scope: Scope, entities: EntityFilter, attrs=None) -> list[SeriesRef]:
+    def series(self, scope: Scope, entities: EntityFilter, attrs: Iterable[str] | None = None) -> list[SeriesRef]:
         return self.catalog.select(scope, entities, attrs)
 
     def tenants(self) -> list[str]:
@@ -241,14 +268,8 @@ class SqlQuerier(Querier):
         one_per_row: bool,
         attrs_per_row: int = 1,
         mask: RowMask | None = None,
-    ) -> list[tuple]:
-        """Samples of the selected rows, oldest first.
-
-        A row is one entity notification (``rid``). Rows are ordered by time
-        (newest first for ``lastN``), then ``offset``/``limit`` pick rows of
-        the whole result, as QuantumLeap does. ``one_per_row`` says each row
-        has exactly one selected sample (one attribute), which needs no
-        row grouping; otherwise a row has at most ``attrs_per_row`` samples.
+    ) -> list[RawRow]:
+        """See ``Querier``. One attribute per row needs no row grouping.
 
         Over many series a time threshold is computed first: the M-th newest
         sample time, M = (limit + offset) x attrs_per_row, can never be newer
@@ -294,10 +315,8 @@ class SqlQuerier(Querier):
 
     def aggregate(
         self, branches: Sequence[AggBranch], time: TimeRange, agg: Aggregation, mask: RowMask | None = None
-    ) -> list[tuple]:
-        """Per-series (and per period) partial aggregates of each branch.
-
-        One statement: a grouped SELECT per branch (and the rolled-up hours),
+    ) -> list[AggregateRow]:
+        """See ``Querier``. One statement: a grouped SELECT per branch (and the rolled-up hours),
         UNION ALL. Per sample it only tests ``kind`` and reads ``num`` (the
         columns PostgreSQL's covering index holds): "all integers" is counted
         (integers = numbers), not ``bool_and``-ed, and the bucket is a cheap
@@ -322,7 +341,7 @@ class SqlQuerier(Querier):
         if budget.current() is not None:  # one row past the request's budget detects an overflow
             sql = f"SELECT * FROM ({sql}) AS parts LIMIT {self.dialect.placeholder}"
             params.append(budget.row_cap(_MAX_BIGINT))
-        return self._fetch(sql, params)
+        return as_aggregate(self._fetch(sql, params))
 
     def _aggregate_branch(
         self, number: int, branch: AggBranch, time: TimeRange, agg: Aggregation, mask: RowMask | None
@@ -370,76 +389,57 @@ class SqlQuerier(Querier):
         )
         return sql, [*sel_params, *wparams]
 
-    def latest_index(self, sids: Sequence[int], time: TimeRange, mask: RowMask | None = None) -> list[tuple]:
+    def latest_index(self, sids: Sequence[int], time: TimeRange, mask: RowMask | None = None) -> list[LatestRow]:
         if not sids:
             return []
         where, params = self._where(sids, time, mask)
         d = self.dialect
         sql = f"SELECT sid, {d.iso_ms('max(t)')} FROM {self._samples('sid, t', mask)} WHERE {where} GROUP BY sid"
-        return self._fetch(sql, params)
+        return as_latest(self._fetch(sql, params))
 
-    def last_values(self, sids: Sequence[int]) -> list[tuple]:
+    def last_values(self, sids: Sequence[int]) -> list[LastValueRow]:
         if not sids:
             return []
         d = self.dialect
         where, params = d.sid_filter(sids)
-        sql = (
-            f"SELECT sid, {d.iso_ms('t')}, kind, atype, num, txt, js FROM ("
-            f"SELECT sid, t, kind, atype, num, txt, js, "
-            f"row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn "
-            f"FROM {d.samples('sid, rid, t, kind, atype, num, txt, js')} WHERE {where}) latest WHERE rn = 1"
-        )
-        return self._fetch(sql, params)
+        source = d.samples("sid, rid, t, kind, atype, num, txt, js")
+        columns = "kind, atype, num, txt, js"
+        sql = latest_per_series(f"sid, {d.iso_ms('t')}, {columns}", source, where, inner=f"sid, t, {columns}")
+        return as_last_values(self._fetch(sql, params))
 
-    def latest_geometries(self, sids: Sequence[int], time: TimeRange, prefilter) -> list[tuple]:
-        """(sid, normalised GeoJSON) of each series' latest geo sample in
-        ``time``, keeping only those whose bounding box passes ``prefilter``
-        (``("intersects" | "within", box)`` or None). The latest is chosen
-        first and filtered after, so an older position can never stand in."""
+    def latest_geometries(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[GeometryRow]:
+        """See ``Querier``: the latest first, then the box test."""
         if not sids:
             return []
         d = self.dialect
         where, params = self._where(sids, time)
         test, test_params = box_test(d, prefilter)
-        sql = (
-            "SELECT sid, geo FROM (SELECT sid, geo, min_lon, min_lat, max_lon, max_lat, "
-            "row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn "
-            f"FROM {d.samples('sid, rid, t, kind, geo, min_lon, min_lat, max_lon, max_lat')} "
-            f"WHERE {where} AND kind = {GEO_KIND}) latest WHERE rn = 1 AND {test}"
+        source = d.samples("sid, rid, t, kind, geo, min_lon, min_lat, max_lon, max_lat")
+        latest = latest_per_series(
+            "sid, geo, min_lon, min_lat, max_lon, max_lat", source, f"{where} AND kind = {GEO_KIND}"
         )
-        return self._fetch(sql, [*params, *test_params])
+        sql = f"SELECT sid, geo FROM ({latest}) latest WHERE {test}"
+        return as_geometries(self._fetch(sql, [*params, *test_params]))
 
     # -- locations over time (geo-queries on samples) ------------------------------
 
     @abstractmethod
-    def location_extents(self, sids: Sequence[int], prefilter) -> list[tuple]:
-        """(sid, min_lon, min_lat, max_lon, max_lat, first t µs, first rid) per
-        located series of ``sids`` whose extent (the bounding box of every
-        geo sample it ever had) may pass ``prefilter``; the first position
-        is None where the backend does not keep it (``first_locations``).
-        Kept by each backend (in memory on DuckDB, a table on PostgreSQL):
+    def location_extents(self, sids: Sequence[int], prefilter: Prefilter | None) -> list[ExtentRow]:
+        """Kept by each backend (in memory on DuckDB, a table on PostgreSQL):
         from the samples it would cost a scan of every stored position."""
 
-    def first_locations(self, sids: Sequence[int]) -> list[tuple]:
-        """(sid, t µs, rid) of each series' first geo sample, by (t, rid)."""
+    def first_locations(self, sids: Sequence[int]) -> list[FirstLocationRow]:
         if not sids:
             return []
         d = self.dialect
         where, params = d.sid_filter(sids)
-        sql = (
-            f"SELECT sid, {d.epoch_us('t')}, rid FROM (SELECT sid, t, rid, "
-            "row_number() OVER (PARTITION BY sid ORDER BY t, rid) AS rn "
-            f"FROM {d.samples('sid, rid, t, kind, geo')} WHERE {where} AND kind = {GEO_KIND} "
-            "AND geo IS NOT NULL) f WHERE rn = 1"
-        )
-        return self._fetch(sql, params)
+        located = f"{where} AND kind = {GEO_KIND} AND geo IS NOT NULL"
+        source = d.samples("sid, rid, t, kind, geo")
+        sql = latest_per_series(f"sid, {d.epoch_us('t')}, rid", source, located, inner="sid, t, rid", order="t, rid")
+        return as_first_locations(self._fetch(sql, params))
 
-    def location_samples(self, sids: Sequence[int], time: TimeRange, prefilter) -> list[tuple]:
-        """Every geo sample of ``sids`` in ``time``, plus each series' latest
-        one before ``time.start`` (the location its first samples in the
-        window had), ordered by (sid, t, rid). Points come as (lon, lat);
-        other shapes as GeoJSON, and only where the box passes ``prefilter``
-        (the others cannot match, so they are not parsed)."""
+    def location_samples(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[LocationRow]:
+        """See ``Querier``."""
         if not sids:
             return []
         d = self.dialect
@@ -473,13 +473,8 @@ class SqlQuerier(Querier):
         columns = _LOCATION_COLUMNS
         where, params = d.sid_filter(sids)
         params.append(d.time_value(before))
-        return (
-            f"SELECT {columns} FROM (SELECT {columns}, "
-            "row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn "
-            f"FROM {d.samples(columns)} WHERE {where} AND t < {d.placeholder} AND kind = {GEO_KIND} "
-            "AND geo IS NOT NULL) seed WHERE rn = 1",
-            params,
-        )
+        located = f"{where} AND t < {d.placeholder} AND kind = {GEO_KIND} AND geo IS NOT NULL"
+        return latest_per_series(columns, d.samples(columns), located), params
 
     def count(self, sids: Sequence[int], time: TimeRange, mask: RowMask | None = None) -> int:
         """Samples of ``sids`` in ``time``; when there are none (and no geo
@@ -499,13 +494,13 @@ class SqlQuerier(Querier):
     def temporal_instances(
         self,
         sids: Sequence[int],
-        window: InstanceWindow = None,
+        window: InstanceWindow | None = None,
         *,
         last_n: int | None = None,
         limit: int | None = None,
         newest_first: bool = False,
     ) -> list[InstanceRow]:
-        """NGSI-LD attribute instances of ``sids`` (see ``Querier``)."""
+        """See ``Querier``."""
         if not sids:
             return []
         window = window or InstanceWindow()
@@ -574,6 +569,22 @@ class SqlQuerier(Querier):
         )
         return rows[0][0] if rows else None
 
+    # -- whole-store reads, for commands ---------------------------------------------
+
+    def sample_counts(self) -> dict[str, int]:
+        rows = self._fetch(
+            f"SELECT s.tenant, count(*) FROM (SELECT sid FROM {self.dialect.samples('sid')}) x "
+            "JOIN series s ON s.sid = x.sid "
+            "GROUP BY s.tenant",
+            [],
+        )
+        return {tenant: int(n) for tenant, n in rows}
+
+    def stored_samples(self, batch_rows: int) -> Iterator[list[StoredSample]]:
+        sql = f"SELECT {_STORED_COLUMNS} FROM {self.dialect.samples(_STORED_COLUMNS + ', iid')} ORDER BY rid, iid"
+        for rows in self._batches(sql, [], batch_rows):
+            yield as_stored(rows)
+
 
 def series_time_filter(dialect: Dialect, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
     """WHERE text and parameters: the series ids, then the inclusive time bounds."""
@@ -604,7 +615,9 @@ def delete_statements(
     return out
 
 
-def instance_statements(dialect: Dialect, tables: Sequence[str], op) -> list[tuple[str, list]]:
+def instance_statements(
+    dialect: Dialect, tables: Sequence[str], op: DeleteInstance | ReplaceInstance
+) -> list[tuple[str, list]]:
     """The statements of a ``DeleteInstance`` or ``ReplaceInstance`` op
     (``storage.base``): one per sample table, each touching the one sample
     (``sid``, ``iid``). A replacement keeps the instance id, series and row
@@ -613,43 +626,18 @@ def instance_statements(dialect: Dialect, tables: Sequence[str], op) -> list[tup
     where = f"sid = {p} AND iid = {p}"
     out = []
     for table in tables:
-        if not hasattr(op, "attr"):
+        if isinstance(op, DeleteInstance):
             out.append((f"DELETE FROM {quote_ident(table)} WHERE {where}", [op.sid, op.iid]))
             continue
         a = op.attr
-        g = a.geo
-        geo = (g.geojson, g.lon, g.lat, g.min_lon, g.min_lat, g.max_lon, g.max_lat) if g else (None,) * 7
-        columns = (
-            "kind",
-            "atype",
-            "num",
-            "txt",
-            "js",
-            "geo",
-            "lon",
-            "lat",
-            "min_lon",
-            "min_lat",
-            "max_lon",
-            "max_lat",
-            "md",
-            "deleted_at",
-            "modified_at",
-        )
         values = [
-            int(a.kind),
-            a.ngsi_type,
-            a.num,
-            a.txt,
-            a.js,
-            *geo,
-            a.md,
+            *content_values(a),
             _time_or_none(dialect, a.deleted_at),
             dialect.time_value(op.modified_at),
+            _time_or_none(dialect, a.observed_at),
         ]
-        sets = ", ".join(f"{c} = {p}" for c in columns)
+        sets = ", ".join(f"{c} = {p}" for c in (*VALUE_COLUMNS, "deleted_at", "modified_at"))
         sets += f", observed_at = coalesce(CAST({p} AS TIMESTAMP), observed_at)"
-        values.append(_time_or_none(dialect, a.observed_at))
         out.append((f"UPDATE {quote_ident(table)} SET {sets} WHERE {where}", [*values, op.sid, op.iid]))
     return out
 

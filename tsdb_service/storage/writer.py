@@ -25,6 +25,7 @@ counting costs the request path nothing.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import queue
 import threading
@@ -230,10 +231,8 @@ def _resolve(group: list[_Waiter], error: BaseException | None) -> None:
         else:
             by_loop.setdefault(waiter.loop, []).append(waiter.future)
     for loop, futures in by_loop.items():
-        try:
+        with contextlib.suppress(RuntimeError):  # loop already closed: nobody is waiting any more
             loop.call_soon_threadsafe(_settle, futures, error)
-        except RuntimeError:  # loop already closed: nobody is waiting any more
-            pass
 
 
 def _settle(futures: list[asyncio.Future], error: BaseException | None) -> None:

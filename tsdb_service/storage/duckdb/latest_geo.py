@@ -33,12 +33,27 @@ import threading
 from collections.abc import Callable, Iterable
 
 from ...model import Kind
+from ...query import Bounds, ExtentRow, GeometryRow, Prefilter
+from ..common import Box, box_passes, extent_prefilter
 
 GEO = int(Kind.GEO)
 
+# Each series' newest geo sample, its extent and its first geo sample; with
+# ``where`` ("AND sid IN ...") only some series'.
+LATEST_GEO_SQL = (
+    "SELECT sid, epoch_us(t), rid, geo, min_lon, min_lat, max_lon, max_lat, e_min_lon, e_min_lat, e_max_lon, "
+    "e_max_lat, epoch_us(f_t), f_rid FROM (SELECT sid, t, rid, geo, min_lon, min_lat, max_lon, max_lat, "
+    "row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn, "
+    "min(min_lon) OVER (PARTITION BY sid) AS e_min_lon, min(min_lat) OVER (PARTITION BY sid) AS e_min_lat, "
+    "max(max_lon) OVER (PARTITION BY sid) AS e_max_lon, max(max_lat) OVER (PARTITION BY sid) AS e_max_lat, "
+    "first_value(t) OVER (PARTITION BY sid ORDER BY t, rid) AS f_t, "
+    "first_value(rid) OVER (PARTITION BY sid ORDER BY t, rid) AS f_rid "
+    f"FROM samples_all WHERE kind = {GEO} AND geo IS NOT NULL {{where}}) latest WHERE rn = 1"
+)
+
 # sid -> (t µs, rid, geojson, min_lon, min_lat, max_lon, max_lat)
 Entry = tuple[int, int, str, float, float, float, float]
-Box = tuple[float, float, float, float]  # min_lon, min_lat, max_lon, max_lat
+_new = tuple.__new__
 
 
 CELL_DEG = 0.05  # grid cell edge (~5 km): a near-1 km query reads a few cells
@@ -87,7 +102,7 @@ class _Grid:
             for cell in cells:
                 self._cells.setdefault(cell, set()).add(sid)
 
-    def near(self, sids: Iterable[int], box) -> list[int] | None:
+    def near(self, sids: Iterable[int], box: Bounds) -> list[int] | None:
         """Those of ``sids`` in the cells ``box`` overlaps (a superset of the
         overlapping ones), or None when the box is too large for the grid."""
         cells = _cells(box.min_lon, box.min_lat, box.max_lon, box.max_lat)
@@ -98,14 +113,6 @@ class _Grid:
             near |= self._cells.get(cell, set())
         wanted = sids if isinstance(sids, (set, frozenset, dict)) else set(sids)
         return [sid for sid in near if sid in wanted]
-
-
-def _overlaps(b: Box, box) -> bool:
-    return b[2] >= box.min_lon and b[0] <= box.max_lon and b[3] >= box.min_lat and b[1] <= box.max_lat
-
-
-def _within(b: Box, box) -> bool:
-    return b[0] >= box.min_lon and b[2] <= box.max_lon and b[1] >= box.min_lat and b[3] <= box.max_lat
 
 
 class LatestGeo:
@@ -177,44 +184,43 @@ class LatestGeo:
                     continue  # published after the delete: still the latest
                 self._put(sid, fresh.get(sid))
 
-    def matching(self, sids: Iterable[int], prefilter) -> list[tuple[int, str]]:
-        """(sid, geojson) of the latest locations whose box passes ``prefilter``."""
+    def matching(self, sids: Iterable[int], prefilter: Prefilter | None) -> list[GeometryRow]:
+        """The latest locations whose box passes ``prefilter``."""
         latest = self._latest
         out = []
         if prefilter is None:
             for sid in sids:
                 entry = latest.get(sid)
                 if entry is not None:
-                    out.append((sid, entry[2]))
+                    out.append(_new(GeometryRow, (sid, entry[2])))
             return out
         how, box = prefilter
-        passes = _within if how == "within" else _overlaps
         with self._lock:
             near = self._grid.near(sids, box)
         for sid in sids if near is None else near:
             entry = latest.get(sid)
-            if entry is not None and passes(entry[3:7], box):
-                out.append((sid, entry[2]))
+            if entry is not None and box_passes(how, entry[3:7], box):
+                out.append(_new(GeometryRow, (sid, entry[2])))
         return out
 
-    def ever_near(self, sids: Iterable[int], prefilter) -> list[int]:
+    def ever_near(self, sids: Iterable[int], prefilter: Prefilter | None) -> list[int]:
         """Those of ``sids`` with a geo sample whose box may pass ``prefilter``
-        (their extent overlaps its box; a box inside the query box is in
-        particular overlapping it). Without a prefilter: every located one."""
+        (``common.extent_prefilter``). Without a prefilter: every located one."""
         extents = self._extents.boxes
-        if prefilter is None:
+        test = extent_prefilter(prefilter)
+        if test is None:
             return [sid for sid in sids if sid in extents]
-        _, box = prefilter
+        how, box = test
         with self._lock:
             near = self._extents.near(sids, box)
         out = []
         for sid in sids if near is None else near:
             extent = extents.get(sid)
-            if extent is not None and _overlaps(extent, box):
+            if extent is not None and box_passes(how, extent, box):
                 out.append(sid)
         return out
 
-    def extents(self, sids: Iterable[int], prefilter) -> list[tuple]:
+    def extents(self, sids: Iterable[int], prefilter: Prefilter | None) -> list[ExtentRow]:
         """(sid, min_lon, min_lat, max_lon, max_lat, first t µs | None, first
         rid | None) of those of ``sids`` that ``ever_near`` keeps."""
         near = self.ever_near(sids, prefilter)
@@ -224,5 +230,5 @@ class LatestGeo:
             box = boxes.get(sid)
             if box is not None:
                 start = first.get(sid) or (None, None)
-                out.append((sid, *box, *start))
+                out.append(_new(ExtentRow, (sid, *box, *start)))
         return out

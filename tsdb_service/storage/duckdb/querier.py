@@ -1,26 +1,47 @@
 """History reads on the embedded DuckDB store.
 
-All SQL comes from ``storage.sql`` (``DuckDBDialect``); this module only
-supplies a connection (the store's per-thread cursor) and the series
-catalog's loader.
+All SQL comes from ``storage.sql`` (``DuckDBDialect``); this module supplies
+a connection (the store's per-thread cursor), the series catalog's loader,
+and the answers memory gives (tails, latest locations, extents).
+
+It never imports the store: the store hands itself in as a ``DuckDBSource``
+(what a reader needs of it), so the dependency runs one way, store → querier.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import contextlib
+from collections.abc import Iterator, Sequence
+from typing import Protocol
 
 import duckdb
 
 from ...errors import Unavailable
-from ...query import RowMask
+from ...query import ExtentRow, FirstLocationRow, GeometryRow, Prefilter, RawRow, RowMask, TimeRange
 from ..catalog import SeriesCatalog
+from ..common import to_micros
 from ..memory_only import check_database_allowed
-from ..sql import _LOCATION_COLUMNS, GEO_KIND, SqlQuerier, series_time_filter
+from ..sql import _LOCATION_COLUMNS, GEO_KIND, SqlQuerier, as_first_locations, series_time_filter
 from .dialect import DuckDBDialect
-from .store import to_micros
+from .latest_geo import LatestGeo
+from .tail_cache import TailCache, TailRow
 
-if TYPE_CHECKING:
-    from .store import DuckDBStore
+
+class DuckDBSource(Protocol):
+    """What the querier reads through (``DuckDBStore`` is one). ``tail`` and
+    ``latest_geo`` are read at each use: a reopen replaces them."""
+
+    tail: TailCache
+    latest_geo: LatestGeo
+
+    def cursor(self) -> duckdb.DuckDBPyConnection: ...
+
+    def reading(self) -> contextlib.AbstractContextManager[None]: ...
+
+    def notice(self, exc: BaseException) -> str | None: ...
+
+    def series_generation(self) -> int: ...
+
 
 # DuckDB appends committed rows in commit order, so ``rowid`` only grows for
 # an insert-only table (series ids do not: several writers allocate them).
@@ -36,7 +57,7 @@ _LOAD_SERIES = (
 
 
 class DuckDBQuerier(SqlQuerier):
-    def __init__(self, store: DuckDBStore):
+    def __init__(self, store: DuckDBSource):
         self._store = store
         self.dialect = DuckDBDialect()
         self.catalog = SeriesCatalog(self._load_series, store.series_generation)
@@ -44,7 +65,18 @@ class DuckDBQuerier(SqlQuerier):
     def _load_series(self, after: int) -> list[tuple]:
         return self._fetch(_LOAD_SERIES, [after])
 
-    def raw_rows(self, sids, time, *, newest_first, limit, offset, one_per_row, attrs_per_row=1, mask=None):
+    def raw_rows(
+        self,
+        sids: Sequence[int],
+        time: TimeRange,
+        *,
+        newest_first: bool,
+        limit: int,
+        offset: int,
+        one_per_row: bool,
+        attrs_per_row: int = 1,
+        mask: RowMask | None = None,
+    ) -> list[RawRow]:
         """One attribute per row: try the in-memory tails first; under a geo
         mask, tails where they provably answer and one statement for the rest."""
         if one_per_row and mask is not None and len(sids) <= TAIL_MAX_SERIES:
@@ -64,7 +96,9 @@ class DuckDBQuerier(SqlQuerier):
             mask=mask,
         )
 
-    def _from_tails(self, sids, time, newest_first, limit, offset) -> list[tuple] | None:
+    def _from_tails(
+        self, sids: Sequence[int], time: TimeRange, newest_first: bool, limit: int, offset: int
+    ) -> list[RawRow] | None:
         """Each series' tail holds its own newest ``offset + limit`` rows in the
         window, so the newest ``offset + limit`` of all of them are among those;
         rows order by (time, rid) as in SQL (rid is global)."""
@@ -73,10 +107,13 @@ class DuckDBQuerier(SqlQuerier):
         tail = self._store.tail
         if len(sids) == 1:
             got = tail.rows(sids[0], self._load_tail, start, end, newest_first, limit, offset)
-            return None if got is None else [(sids[0], *row[1:]) for row in got]
+            if got is None:
+                return None
+            sid = sids[0]
+            return [(sid, *row[1:]) for row in got]
         if offset + limit > tail.capacity:
             return self._from_deep_tails(sids, tail, start, end, limit, offset)
-        merged = []
+        merged: list[tuple] = []
         for sid in sids:
             got = tail.rows(sid, self._load_tail, start, end, True, offset + limit, 0)
             if got is None:
@@ -84,7 +121,9 @@ class DuckDBQuerier(SqlQuerier):
             merged.extend((row[0], row[1], sid, row) for row in got)
         return _window(merged, True, limit, offset)
 
-    def _from_deep_tails(self, sids, tail, start, end, limit, offset) -> list[tuple] | None:
+    def _from_deep_tails(
+        self, sids: Sequence[int], tail: TailCache, start: int | None, end: int | None, limit: int, offset: int
+    ) -> list[RawRow] | None:
         """The newest ``offset + limit`` rows over many series, more than one
         tail holds: every series gives its whole cached window. A series
         whose window the tail holds only in part (``capacity`` rows, all in
@@ -92,7 +131,7 @@ class DuckDBQuerier(SqlQuerier):
         that one is older than the ``offset + limit``-th newest cached row of
         all series, so is everything it hides, and the cached rows answer."""
         capacity = tail.capacity
-        merged = []
+        merged: list[tuple] = []
         cut = []  # per partly cached series: its oldest cached row's key
         for sid in sids:
             got = tail.rows(sid, self._load_tail, start, end, True, capacity, 0)
@@ -111,7 +150,9 @@ class DuckDBQuerier(SqlQuerier):
                 return None
         return _window(merged, True, limit, offset)
 
-    def _masked_rows(self, sids, time, newest_first, limit, offset, mask) -> list[tuple]:
+    def _masked_rows(
+        self, sids: Sequence[int], time: TimeRange, newest_first: bool, limit: int, offset: int, mask: RowMask
+    ) -> list[RawRow]:
         """The rows a geo mask keeps, ``offset``/``limit`` over all series.
         Each series contributes at most its own first ``offset + limit`` kept
         rows in the wanted order: from its cached tail when that provably
@@ -134,7 +175,7 @@ class DuckDBQuerier(SqlQuerier):
                 merged.append((row[0], row[1], row[7], row[:7]))
         return _window(merged, newest_first, limit, offset)
 
-    def _kept_from_tail(self, sid, time, wanted, mask) -> list[tuple] | None:
+    def _kept_from_tail(self, sid: int, time: TimeRange, wanted: int, mask: RowMask) -> list[tuple] | None:
         """The newest ``wanted`` rows ``mask`` keeps of a cached tail, when the
         tail provably holds them: all of the series' rows in the window, or
         at least ``wanted`` kept ones (every uncached row is older than all
@@ -154,7 +195,9 @@ class DuckDBQuerier(SqlQuerier):
             return None
         return kept[max(0, len(kept) - wanted) :]
 
-    def _masked_firsts(self, sids, time, newest_first, wanted, mask) -> list[tuple]:
+    def _masked_firsts(
+        self, sids: Sequence[int], time: TimeRange, newest_first: bool, wanted: int, mask: RowMask
+    ) -> list[tuple]:
         """The first ``wanted`` rows (in the request's order) that ``mask``
         keeps of ``sids``, as (t µs, rid, ISO time, kind, num, txt, js, sid).
         One ``sid = ?`` scan per series on the sorted table (each prunes it
@@ -180,11 +223,11 @@ class DuckDBQuerier(SqlQuerier):
         )
         return self._fetch(sql, [*params, *RowMask({sid: mask.intervals[sid] for sid in sids}).arrays(), wanted])
 
-    def location_extents(self, sids, prefilter) -> list[tuple]:
-        """From memory: where each series has ever been."""
+    def location_extents(self, sids: Sequence[int], prefilter: Prefilter | None) -> list[ExtentRow]:
+        """Memory only: where each series has ever been."""
         return self._store.latest_geo.extents(sids, prefilter)
 
-    def _location_rows(self, sids, time) -> tuple[str, list]:
+    def _location_rows(self, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
         """One ``sid = ?`` branch per series on the sorted table (each prunes
         it to the series' row groups) and one over the hot table, where an
         IN list of scattered ids would scan the whole sorted table. With a
@@ -195,7 +238,8 @@ class DuckDBQuerier(SqlQuerier):
             return super()._location_rows(sids, time)
         d = self.dialect
         located = f"kind = {GEO_KIND} AND geo IS NOT NULL"
-        parts, params = [], []
+        parts: list[str] = []
+        params: list = []
         for sid in sids:
             where, more = series_time_filter(d, [sid], time)
             parts.append(f"SELECT {_LOCATION_COLUMNS} FROM {SORTED} WHERE {where} AND {located}")
@@ -219,28 +263,25 @@ class DuckDBQuerier(SqlQuerier):
             params += [*more, before]
         return " UNION ALL ".join(parts), params
 
-    def first_locations(self, sids) -> list[tuple]:
+    def first_locations(self, sids: Sequence[int]) -> list[FirstLocationRow]:
         """Only asked after a delete made a first position unknown: one
         branch per series (see ``_location_rows``)."""
         if not sids or len(sids) > TAIL_MAX_SERIES:
             return super().first_locations(sids)
         d = self.dialect
-        parts, params = [], []
-        for sid in sids:
-            parts.append(
-                f"(SELECT sid, {d.epoch_us('t')}, rid FROM {d.samples('sid, rid, t, kind, geo')} WHERE sid = ? "
-                f"AND kind = {GEO_KIND} AND geo IS NOT NULL ORDER BY t, rid LIMIT 1)"
-            )
-            params.append(sid)
-        return self._fetch(" UNION ALL ".join(parts), params)
+        parts = [
+            f"(SELECT sid, {d.epoch_us('t')}, rid FROM {d.samples('sid, rid, t, kind, geo')} WHERE sid = ? "
+            f"AND kind = {GEO_KIND} AND geo IS NOT NULL ORDER BY t, rid LIMIT 1)"
+        ] * len(sids)
+        return as_first_locations(self._fetch(" UNION ALL ".join(parts), list(sids)))
 
-    def latest_geometries(self, sids, time, prefilter) -> list[tuple]:
+    def latest_geometries(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[GeometryRow]:
         """The latest locations come from memory unless bounded by ``toDate``."""
         if time.start is None and time.end is None:
             return self._store.latest_geo.matching(sids, prefilter)
         return super().latest_geometries(sids, time, prefilter)
 
-    def _load_tail(self, sid: int, n: int) -> list[tuple]:
+    def _load_tail(self, sid: int, n: int) -> list[TailRow]:
         d = self.dialect
         return self._fetch(
             f"SELECT {d.epoch_us('t')}, rid, {d.iso_ms('t')}, kind, num, txt, js "
@@ -257,19 +298,53 @@ class DuckDBQuerier(SqlQuerier):
         try:
             with store.reading():
                 return store.cursor().execute(sql, params).fetchall()
-        except duckdb.ConnectionException:
-            raise Unavailable("the database is not available; retry later") from None
         except duckdb.Error as exc:
-            if store.notice(exc) is not None:
-                raise Unavailable("the database is being reopened after a storage failure; retry later") from None
-            raise
+            unavailable = self._unavailable(exc)
+            if unavailable is None:
+                raise
+            raise unavailable from None
+
+    def _batches(self, sql: str, params: list, size: int) -> Iterator[list[tuple]]:
+        """On a private cursor (the thread's own may be in use meanwhile)."""
+        check_database_allowed()
+        with self._errors():
+            cur = self._store.cursor().cursor()
+        try:
+            with self._errors():
+                cur.execute(sql, params)
+            while True:
+                with self._errors():
+                    rows = cur.fetchmany(size)
+                if not rows:
+                    return
+                yield rows
+        finally:
+            cur.close()
+
+    def _unavailable(self, exc: duckdb.Error) -> Unavailable | None:
+        """The 503 a DuckDB failure means, or None (then it is re-raised)."""
+        if isinstance(exc, duckdb.ConnectionException):
+            return Unavailable("the database is not available; retry later")
+        if self._store.notice(exc) is not None:
+            return Unavailable("the database is being reopened after a storage failure; retry later")
+        return None
+
+    @contextlib.contextmanager
+    def _errors(self) -> Iterator[None]:
+        try:
+            yield
+        except duckdb.Error as exc:
+            unavailable = self._unavailable(exc)
+            if unavailable is None:
+                raise
+            raise unavailable from None
 
 
 class _NotCached(Exception):
     """A tail read that would have to load the tail."""
 
 
-def _only_cached(sid: int, n: int) -> list[tuple]:
+def _only_cached(sid: int, n: int) -> list[TailRow]:
     raise _NotCached
 
 
@@ -277,7 +352,7 @@ def _only_cached(sid: int, n: int) -> list[tuple]:
 _IN_SPAN = "(t > m_t0 OR (t = m_t0 AND rid >= m_r0)) AND (m_t1 IS NULL OR t < m_t1 OR (t = m_t1 AND rid < m_r1))"
 
 
-def _window(merged: list[tuple], newest_first: bool, limit: int, offset: int) -> list[tuple]:
+def _window(merged: list[tuple], newest_first: bool, limit: int, offset: int) -> list[RawRow]:
     """``offset``/``limit`` over (t, rid, sid, row) tuples, oldest first out."""
     merged.sort()
     if newest_first:

@@ -20,30 +20,36 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
+import os
 import threading
 from collections.abc import Iterator, Sequence
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import duckdb
-import orjson
 import pyarrow as pa
 
 from ...errors import Unavailable
 from ...model import EntitySample, RejectedNotification
 from ...ngsi import ValuesLayout
+from ...query import TimeRange
 from .. import rejected as rejected_store
-from ..base import (
-    Appender,
-    AppendSamples,
-    DeleteInstance,
-    DeleteSamples,
-    PutLayout,
-    RecordRejected,
-    ReplaceInstance,
-    Store,
-    WriteOp,
+from ..base import DeleteInstance, DeleteSamples, PutLayout, ReplaceInstance
+from ..common import (
+    LD_TIME_COLUMNS,
+    LOAD_LAYOUTS_SQL,
+    REJECTED_INSERT_COLUMNS,
+    SAMPLE_COLUMNS,
+    CommittingStore,
+    StagingAppender,
+    first_line,
+    layout_values,
+    layouts_from_rows,
+    rejected_values,
+    to_micros,
+    upsert_layout_sql,
+    without_dropped,
 )
 from ..ld_ingest import (
     LATEST_INSTANCE_SQL,
@@ -55,42 +61,38 @@ from ..ld_ingest import (
 )
 from ..migrate import applied_versions, load_migrations, split_statements
 from ..rejected import RejectedLimits
+from ..sql import delete_statements, instance_statements
 from ..writer import GroupCommitter
-from .latest_geo import LatestGeo
+from .dialect import DuckDBDialect
+from .latest_geo import LATEST_GEO_SQL, LatestGeo
+from .querier import DuckDBQuerier
+from .retention import DuckDBSession
 from .tail_cache import TailCache
 
 log = logging.getLogger(__name__)
 
-EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
-ONE_US = timedelta(microseconds=1)
-
+# Time columns travel as epoch microseconds (exact, and cheap to convert).
+TIME_COLUMNS = frozenset({"t", *LD_TIME_COLUMNS})
+_ARROW_TYPES = {
+    "rid": pa.int64(),
+    "iid": pa.int64(),
+    "sid": pa.int32(),
+    "kind": pa.uint8(),
+    "num": pa.float64(),
+    "lon": pa.float64(),
+    "lat": pa.float64(),
+    "min_lon": pa.float64(),
+    "min_lat": pa.float64(),
+    "max_lon": pa.float64(),
+    "max_lat": pa.float64(),
+}
+# The shared columns plus the instance id, which this store allocates.
 SAMPLE_SCHEMA = pa.schema(
     [
-        ("rid", pa.int64()),
-        ("sid", pa.int32()),
-        ("t", pa.timestamp("us")),
-        ("kind", pa.uint8()),
-        ("atype", pa.string()),
-        ("num", pa.float64()),
-        ("txt", pa.string()),
-        ("js", pa.string()),
-        ("geo", pa.string()),
-        ("lon", pa.float64()),
-        ("lat", pa.float64()),
-        ("min_lon", pa.float64()),
-        ("min_lat", pa.float64()),
-        ("max_lon", pa.float64()),
-        ("max_lat", pa.float64()),
-        ("md", pa.string()),
-        ("iid", pa.int64()),
-        ("observed_at", pa.timestamp("us")),
-        ("created_at", pa.timestamp("us")),
-        ("modified_at", pa.timestamp("us")),
-        ("deleted_at", pa.timestamp("us")),
+        (name, pa.timestamp("us") if name in TIME_COLUMNS else _ARROW_TYPES.get(name, pa.string()))
+        for name in (*SAMPLE_COLUMNS, "iid")
     ]
 )
-# Time columns travel as epoch microseconds (exact, and cheap to convert).
-TIME_COLUMNS = frozenset({"t", "observed_at", "created_at", "modified_at", "deleted_at"})
 
 SeriesKey = tuple[str, str, str, str, str]  # tenant, service path, id, type, attr
 
@@ -128,17 +130,8 @@ INSERT_SERIES = (
     "unnest($3::VARCHAR[]) AS service_path, unnest($4::VARCHAR[]) AS entity_id, "
     "unnest($5::VARCHAR[]) AS entity_type, unnest($6::VARCHAR[]) AS attr, unnest($7::VARCHAR[]) AS dataset_id"
 )
-# Each series' newest geo sample, for the in-memory latest-location index.
-LATEST_GEO_SQL = (
-    "SELECT sid, epoch_us(t), rid, geo, min_lon, min_lat, max_lon, max_lat, e_min_lon, e_min_lat, e_max_lon, "
-    "e_max_lat, epoch_us(f_t), f_rid FROM (SELECT sid, t, rid, geo, min_lon, min_lat, max_lon, max_lat, "
-    "row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) AS rn, "
-    "min(min_lon) OVER (PARTITION BY sid) AS e_min_lon, min(min_lat) OVER (PARTITION BY sid) AS e_min_lat, "
-    "max(max_lon) OVER (PARTITION BY sid) AS e_max_lon, max(max_lat) OVER (PARTITION BY sid) AS e_max_lat, "
-    "first_value(t) OVER (PARTITION BY sid ORDER BY t, rid) AS f_t, "
-    "first_value(rid) OVER (PARTITION BY sid ORDER BY t, rid) AS f_rid "
-    "FROM samples_all WHERE kind = 7 AND geo IS NOT NULL {where}) latest WHERE rn = 1"
-)
+_DIALECT = DuckDBDialect()
+_SAMPLE_TABLES = ("samples", "samples_hot")
 # Above this many rows a batch goes through Arrow (bulk loads, copies).
 ARROW_MIN_ROWS = 2048
 # DuckDB's default: fold the WAL into the file once it is this big.
@@ -182,11 +175,6 @@ def is_storage_error(exc: BaseException) -> bool:
     return isinstance(exc, duckdb.IOException) or "No space left" in text or "Could not write" in text
 
 
-def to_micros(moment: datetime) -> int:
-    """Exact microseconds since the epoch (float timestamps lose precision)."""
-    return (moment - EPOCH) // ONE_US
-
-
 def _micros_or_none(moment: datetime | None) -> int | None:
     return None if moment is None else to_micros(moment)
 
@@ -219,7 +207,7 @@ def connect(path: str, read_only: bool = False, checkpoint_bytes: int | None = N
         Path(path).parent.mkdir(parents=True, exist_ok=True)
     # Only a non-default threshold is configured: DuckDB refuses a second
     # in-process connection to the file whose configuration differs.
-    config = {}
+    config: dict[str, str | bool | int | float | list[str]] = {}
     if checkpoint_bytes is not None and checkpoint_bytes != CHECKPOINT_BYTES:
         config["wal_autocheckpoint"] = f"{int(checkpoint_bytes)}B"
     try:
@@ -274,7 +262,7 @@ class Gate:
                 self._shut = False
 
 
-class DuckDBStore(Store):
+class DuckDBStore(CommittingStore):
     backend = "duckdb"
 
     def __init__(
@@ -304,8 +292,6 @@ class DuckDBStore(Store):
         self._gate = Gate()
         # Set while the database instance is invalid (why), cleared by a reopen.
         self._broken: str | None = None
-        # Set while the last commit failed to write the file (why), cleared by a success.
-        self._write_failure: str | None = None
         self._lifecycle = threading.Lock()
         self._reopening = False
         self._reopener: threading.Thread | None = None
@@ -330,7 +316,7 @@ class DuckDBStore(Store):
         self._committer.start()
         self._compactor.start()
         self._closed = False
-        self._querier = None
+        self._querier: DuckDBQuerier | None = None
 
     def _load_state(self, con: duckdb.DuckDBPyConnection) -> None:
         """What the store keeps in memory, from the file: the series ids, the
@@ -342,14 +328,10 @@ class DuckDBStore(Store):
                 "SELECT sid, tenant, service_path, entity_id, entity_type, attr FROM series"
             ).fetchall()
         }
-        max_rid = con.execute("SELECT max(rid) FROM samples_all").fetchone()[0] or 0
-        max_iid = con.execute("SELECT max(iid) FROM samples_all").fetchone()[0] or 0
-        max_rejected = con.execute("SELECT max(id) FROM rejected_notifications").fetchone()[0] or 0
-        layouts = {}
-        for tenant, sub_id, attrs, eid, etype in con.execute(
-            "SELECT tenant, subscription_id, attrs, entity_id, entity_type FROM subscriptions"
-        ).fetchall():
-            layouts[(tenant, sub_id)] = ValuesLayout(tuple(orjson.loads(attrs)), eid, etype)
+        max_rid = _scalar(con, "SELECT max(rid) FROM samples_all") or 0
+        max_iid = _scalar(con, "SELECT max(iid) FROM samples_all") or 0
+        max_rejected = _scalar(con, "SELECT max(id) FROM rejected_notifications") or 0
+        layouts = layouts_from_rows(con.execute(LOAD_LAYOUTS_SQL).fetchall())
         latest_geo = LatestGeo(con.execute(LATEST_GEO_SQL.format(where="")).fetchall())
         with self._alloc_lock:
             self._series = series
@@ -360,12 +342,10 @@ class DuckDBStore(Store):
         self._layouts = layouts
         self.latest_geo = latest_geo
 
-    # -- history reads (tsdb_service.storage.duckdb_querier) -------------------
+    # -- history reads (storage.duckdb.querier) ------------------------------------
 
-    def querier(self):
+    def querier(self) -> DuckDBQuerier:
         if self._querier is None:
-            from .querier import DuckDBQuerier
-
             self._querier = DuckDBQuerier(self)
         return self._querier
 
@@ -409,9 +389,6 @@ class DuckDBStore(Store):
     def values_layout(self, tenant: str, subscription_id: str) -> ValuesLayout | None:
         return self._layouts.get((tenant, subscription_id))
 
-    def layouts(self, tenant: str) -> dict[str, ValuesLayout]:
-        return {sub: layout for (t, sub), layout in list(self._layouts.items()) if t == tenant}
-
     def rejected(self, tenant: str | None, limit: int, offset: int) -> list[dict[str, Any]]:
         where, params = ("", []) if tenant is None else ("WHERE tenant = ? ", [tenant])
         rows = (
@@ -424,7 +401,9 @@ class DuckDBStore(Store):
         )
         return [rejected_store.rejected_row(*row) for row in rows]
 
-    def rejected_page(self, tenant: str | None, limit: int, offset: int, max_bytes: int):
+    def rejected_page(
+        self, tenant: str | None, limit: int, offset: int, max_bytes: int
+    ) -> tuple[list[dict[str, Any]], int | None]:
         """``rejected`` paged by size too: (rows, next offset or None)."""
         cur = self.cursor()
         return rejected_store.page(
@@ -437,20 +416,25 @@ class DuckDBStore(Store):
             rejected_store.rejected_row,
         )
 
-    def health(self) -> dict[str, Any]:
-        problem = self._broken or self._write_failure
-        ok = self._committer.alive and problem is None
-        report = {
-            "status": "pass" if ok else "fail",
-            "backend": self.backend,
-            "commits": self._committer.commits,
-            "writes": self._committer.ops,
-        }
+    def _health_problem(self) -> str | None:
         if self._broken is not None:
-            report["output"] = "database invalidated by a storage failure, reopening: " + self._broken
-        elif self._write_failure is not None:
-            report["output"] = "the database refuses writes: " + self._write_failure
-        return report
+            return "database invalidated by a storage failure, reopening: " + self._broken
+        return None
+
+    _is_storage_error = staticmethod(is_storage_error)
+
+    def _rows(self, sql: str, params: Sequence = ()) -> list[tuple]:
+        with self.reading():
+            return self.cursor().execute(sql, list(params)).fetchall()
+
+    @contextlib.contextmanager
+    def retention_session(self) -> Iterator[DuckDBSession]:
+        """A cursor of its own; batches hold the compactor's lock."""
+        cur = self._con.cursor()
+        try:
+            yield DuckDBSession(self, cur)
+        finally:
+            cur.close()
 
     # -- lifecycle: invalidation and reopen ------------------------------------
 
@@ -520,22 +504,9 @@ class DuckDBStore(Store):
                 self._broken = None
         log.warning("reopened %s after a storage failure", self.path)
 
-    def _note_write(self, exc: BaseException | None) -> None:
-        """Remember whether the file takes writes, for /health."""
-        if exc is None:
-            self._write_failure = None
-        elif is_storage_error(exc):
-            self._write_failure = _first_line(exc)
+    # -- maintenance ----------------------------------------------------------
 
-    # -- writes --------------------------------------------------------------
-
-    async def write(self, op: WriteOp) -> None:
-        await self._committer.submit(op)
-
-    def write_sync(self, ops: Sequence[WriteOp]) -> None:
-        self._committer.submit_sync(ops)
-
-    def compact(self, full: bool = True) -> None:
+    def compact(self, full: bool = True) -> str:
         """Move hot rows into the sorted table now (and rewrite it if ``full``)."""
         with self.reading():
             try:
@@ -544,6 +515,25 @@ class DuckDBStore(Store):
                 if self.notice(exc) is not None:
                     raise Unavailable(self._unavailable_reason()) from None
                 raise
+        return "compacted"
+
+    def compactor_lock(self) -> contextlib.AbstractContextManager[Any]:
+        """Hold while deleting rows (deletes, retention): the compactor must
+        not move or rewrite them meanwhile (its copy could resurrect them)."""
+        return self._compactor._lock
+
+    def sizes(self) -> tuple[int, int, int]:
+        # fetchall, not fetchone: an unread result keeps this thread's cursor in
+        # an open transaction, and a later UPDATE or DELETE committed elsewhere
+        # (retention, in the background) then makes the CHECKPOINT at close fail.
+        [(rows, nbytes)] = (
+            self.cursor()
+            .execute(
+                "SELECT count(*), coalesce(sum(octet_length(body) + strlen(headers)), 0) FROM rejected_notifications"
+            )
+            .fetchall()
+        )
+        return _file_bytes(self.path) + _file_bytes(self.path + ".wal"), int(rows), int(nbytes)
 
     def close(self) -> None:
         if self._closed:
@@ -566,11 +556,16 @@ class DuckDBStore(Store):
                 self._con.close()
 
 
-def _first_line(exc: BaseException) -> str:
-    return str(exc).strip().splitlines()[0][:300] if str(exc).strip() else type(exc).__name__
+_first_line = first_line
 
 
-class DuckDBAppender(Appender):
+def _scalar(cur: duckdb.DuckDBPyConnection, sql: str) -> Any:
+    """The one value of an aggregate query."""
+    row = cur.execute(sql).fetchone()
+    return None if row is None else row[0]
+
+
+class DuckDBAppender(StagingAppender):
     """Turns staged ops into columnar batches; only the writer thread uses it."""
 
     def __init__(self, store: DuckDBStore):
@@ -598,20 +593,9 @@ class DuckDBAppender(Appender):
         self._deletes: list[tuple[DeleteSamples, int]] = []
         self._instance_ops: list[DeleteInstance | ReplaceInstance] = []
 
-    def stage(self, op: WriteOp) -> None:
-        if isinstance(op, AppendSamples):
-            self._stage_entities(op.entities, op.dedup)
-        elif isinstance(op, RecordRejected):
-            self._stage_rejected(op.rejected)
-        elif isinstance(op, PutLayout):
-            self._layouts.append(op)
-        elif isinstance(op, DeleteSamples):
-            # Rows allocated after this op was staged (by any writer) survive it.
-            self._deletes.append((op, self._store._next_rid - 1))
-        elif isinstance(op, (DeleteInstance, ReplaceInstance)):
-            self._instance_ops.append(op)
-        else:  # pragma: no cover - programming error
-            raise TypeError(f"unknown write op {op!r}")
+    def _stage_delete(self, op: DeleteSamples) -> None:
+        # Rows allocated after this op was staged (by any writer) survive it.
+        self._deletes.append((op, self._store._next_rid - 1))
 
     def _sid(self, key: SeriesKey) -> int:
         """The series id for ``key``; caller holds the store's allocation lock.
@@ -634,7 +618,7 @@ class DuckDBAppender(Appender):
             self._new_series[key] = sid
         return sid
 
-    def _stage_entities(self, entities: Sequence[EntitySample], dedup: bool) -> None:
+    def _stage_samples(self, entities: Sequence[EntitySample], dedup: bool) -> None:
         store = self._store
         entities = with_deletions(entities, self._entity_attrs)
         with store._alloc_lock:
@@ -661,19 +645,9 @@ class DuckDBAppender(Appender):
             for a in e.attrs:
                 key = (*prefix, a.name)
                 items.append((key, series.get(key) or self._new_series.get(key), a, dedup))
-        keep = iter(drop_renotified(items, self._store.latest_instances, self._latest, self._latest_of))
-        out = []
-        for e in entities:
-            attrs = [a for a in e.attrs if next(keep)]
-            if attrs:
-                out.append(
-                    e
-                    if len(attrs) == len(e.attrs)
-                    else EntitySample(
-                        e.tenant, e.service_path, e.entity_id, e.entity_type, e.time_index, attrs, e.deleted_at
-                    )
-                )
-        return out
+        return without_dropped(
+            entities, drop_renotified(items, self._store.latest_instances, self._latest, self._latest_of)
+        )
 
     def _latest_of(self, sids: list[int]) -> dict:
         return latest_keys(
@@ -758,19 +732,7 @@ class DuckDBAppender(Appender):
         with store._alloc_lock:
             rejected_id = store._next_rejected
             store._next_rejected += 1
-        self._rejected.append(
-            (
-                rejected_id,
-                r.tenant,
-                r.received_at.replace(tzinfo=None),
-                r.error,
-                r.description,
-                r.headers,
-                r.body,
-                len(r.body) if r.body_size is None else r.body_size,
-                r.body_truncated,
-            )
-        )
+        self._rejected.append((rejected_id, *rejected_values(r)))
 
     def commit(self) -> None:
         """Commit the staged ops, or raise ``Unavailable`` saying whether
@@ -858,7 +820,7 @@ class DuckDBAppender(Appender):
             # A delete must not race the compactor moving or rewriting the
             # same rows (its copy could resurrect them): hold its lock.
             changes = self._deletes or self._instance_ops
-            guard = self._store._compactor._lock if changes else contextlib.nullcontext()
+            guard = self._store.compactor_lock() if changes else contextlib.nullcontext()
             with guard:
                 self._commit_other(cur)
         publish_staged(self._store.latest_instances, self._latest, self._store._series.get)
@@ -883,8 +845,8 @@ class DuckDBAppender(Appender):
         cur.execute("BEGIN")
         for row in self._rejected:
             cur.execute(
-                "INSERT INTO rejected_notifications (id, tenant, received_at, error, description, headers, "
-                "body, body_size, body_truncated) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                f"INSERT INTO rejected_notifications (id, {REJECTED_INSERT_COLUMNS}) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 list(row),
             )
         dropped = None
@@ -896,32 +858,14 @@ class DuckDBAppender(Appender):
                 self._store.rejected_limits,
             )
         for put in self._layouts:
-            layout = put.layout
-            cur.execute(
-                "INSERT OR REPLACE INTO subscriptions VALUES (?, ?, ?, ?, ?, ?)",
-                [
-                    put.tenant,
-                    put.subscription_id,
-                    orjson.dumps(list(layout.attrs)).decode(),
-                    layout.entity_id,
-                    layout.entity_type,
-                    datetime.now(UTC).replace(tzinfo=None),
-                ],
-            )
-        from ..sql import instance_statements
-        from .dialect import DuckDBDialect
-
-        if self._deletes:
-            from ...query import TimeRange
-            from ..sql import delete_statements
-
-            for op, upto_rid in self._deletes:
-                for sql, params in delete_statements(
-                    DuckDBDialect(), ("samples", "samples_hot"), op.sids, TimeRange(op.start, op.end), upto_rid
-                ):
-                    cur.execute(sql, params)
-        for op in self._instance_ops:
-            for sql, params in instance_statements(DuckDBDialect(), ("samples", "samples_hot"), op):
+            cur.execute(upsert_layout_sql("?"), layout_values(put, datetime.now(UTC)))
+        for op, upto_rid in self._deletes:
+            for sql, params in delete_statements(
+                _DIALECT, _SAMPLE_TABLES, op.sids, TimeRange(op.start, op.end), upto_rid
+            ):
+                cur.execute(sql, params)
+        for instance_op in self._instance_ops:
+            for sql, params in instance_statements(_DIALECT, _SAMPLE_TABLES, instance_op):
                 cur.execute(sql, params)
         self._durable(cur, "COMMIT")
         if dropped:
@@ -932,11 +876,11 @@ class DuckDBAppender(Appender):
             store.latest_instances.drop(op.sids)
             if store._broken is None:  # else the reopen rebuilds every location
                 store.latest_geo.recompute(op.sids, upto_rid, self._latest_geo_of)
-        for op in self._instance_ops:
-            store.tail.drop([op.sid])
-            store.latest_instances.drop([op.sid])
+        for instance_op in self._instance_ops:
+            store.tail.drop([instance_op.sid])
+            store.latest_instances.drop([instance_op.sid])
             if store._broken is None:
-                store.latest_geo.recompute([op.sid], store._next_rid, self._latest_geo_of)
+                store.latest_geo.recompute([instance_op.sid], store._next_rid, self._latest_geo_of)
 
     def _latest_geo_of(self, sids: list[int]) -> list[tuple]:
         return self._cur.execute(
@@ -1003,7 +947,7 @@ class Compactor:
         try:
             while not self._stop.wait(self._interval):
                 try:
-                    hot = cur.execute("SELECT count(*) FROM samples_hot").fetchone()[0]
+                    hot = _scalar(cur, "SELECT count(*) FROM samples_hot")
                     if hot >= self._compact_rows:
                         self._move(cur)
                         if self._runs >= self._major_runs:
@@ -1030,7 +974,7 @@ class Compactor:
         with self._lock:
             cur.execute("BEGIN")
             try:
-                upto = cur.execute("SELECT max(rid) FROM samples_hot").fetchone()[0]
+                upto = _scalar(cur, "SELECT max(rid) FROM samples_hot")
                 if upto is None:
                     cur.execute("COMMIT")
                     return
@@ -1062,7 +1006,12 @@ class Compactor:
 
 
 def _rollback_quietly(cur: duckdb.DuckDBPyConnection) -> None:
-    try:
+    with contextlib.suppress(duckdb.Error):
         cur.execute("ROLLBACK")
-    except duckdb.Error:
-        pass
+
+
+def _file_bytes(path: str) -> int:
+    try:
+        return os.stat(path).st_size
+    except FileNotFoundError:
+        return 0

@@ -17,21 +17,43 @@ goes to the database.
 
 from __future__ import annotations
 
+import contextlib
 import time
-from typing import TYPE_CHECKING
+from collections.abc import Iterable, Iterator, Sequence
+from datetime import datetime
+from typing import Protocol
 
 import psycopg
 
 from ...errors import Unavailable
 from ...model import Kind
-from ...query import RowMask
+from ...query import (
+    EntityFilter,
+    ExtentRow,
+    FirstLocationRow,
+    GeometryRow,
+    Prefilter,
+    RawRow,
+    RowMask,
+    Scope,
+    SeriesRef,
+    TimeRange,
+)
 from ..catalog import SeriesCatalog
+from ..common import extent_prefilter
 from ..memory_only import check_database_allowed
-from ..sql import _MAX_BIGINT, SqlQuerier, box_test
+from ..sql import _MAX_BIGINT, SqlQuerier, as_first_locations, as_geometries, box_test
 from .dialect import PostgresDialect
 
-if TYPE_CHECKING:
-    from .store import PostgresStore
+
+class PostgresSource(Protocol):
+    """What the querier reads through (``PostgresStore`` is one)."""
+
+    def connection(self) -> contextlib.AbstractContextManager[psycopg.Connection]:
+        """A pooled connection for reads."""
+
+    def series_created(self) -> int:
+        """How many series this process's writers have created and committed."""
 
 
 MANY_SIDS = 256
@@ -41,8 +63,22 @@ _BOX = "box(point(min_lon, min_lat), point(max_lon, max_lat))"
 SERIES_CHECK_S = 1.0
 
 
+_new = tuple.__new__
+
+
 class PostgresQuerier(SqlQuerier):
-    def raw_rows(self, sids, time, *, newest_first, limit, offset, one_per_row, attrs_per_row=1, mask=None):
+    def raw_rows(
+        self,
+        sids: Sequence[int],
+        time: TimeRange,
+        *,
+        newest_first: bool,
+        limit: int,
+        offset: int,
+        one_per_row: bool,
+        attrs_per_row: int = 1,
+        mask: RowMask | None = None,
+    ) -> list[RawRow]:
         """Under a geo mask, one attribute per row: an index range scan per
         mask interval (``(sid, t)`` index, at most ``offset + limit`` rows
         each) instead of testing every sample of the series against all
@@ -82,7 +118,7 @@ class PostgresQuerier(SqlQuerier):
             rows.reverse()
         return rows
 
-    def latest_geometries(self, sids, time, prefilter) -> list[tuple]:
+    def latest_geometries(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[GeometryRow]:
         """One index probe per series (``(sid, t)`` index, newest first)
         instead of ranking every location sample."""
         if not sids:
@@ -98,9 +134,9 @@ class PostgresQuerier(SqlQuerier):
             f"WHERE x.sid = s.sid AND x.kind = {int(Kind.GEO)}{where} ORDER BY x.t DESC, x.rid DESC LIMIT 1) l) latest"
             f" WHERE {test}"
         )
-        return self._fetch(sql, [list(sids), *params, *test_params])
+        return as_geometries(self._fetch(sql, [list(sids), *params, *test_params]))
 
-    def location_extents(self, sids, prefilter) -> list[tuple]:
+    def location_extents(self, sids: Sequence[int], prefilter: Prefilter | None) -> list[ExtentRow]:
         """From ``geo_extents`` (kept by the writers, see geo.extents): the
         candidates' boxes without reading a single position. Over many
         series the table is searched by box (GiST) and intersected here:
@@ -108,13 +144,10 @@ class PostgresQuerier(SqlQuerier):
         if not sids:
             return []
         cols = "sid, min_lon, min_lat, max_lon, max_lat"
-        # A sample's box passes either test only if it overlaps the box, and
-        # an extent holds every sample's box: overlap is the extent's test.
-        overlap = None if prefilter is None else ("intersects", prefilter[1])
-        test, params = box_test(self.dialect, overlap)
+        test, params = box_test(self.dialect, extent_prefilter(prefilter))
         if len(sids) <= MANY_SIDS:
             sql = f"SELECT {cols} FROM geo_extents WHERE sid = ANY(%s::integer[]) AND {test}"
-            return [(*row, None, None) for row in self._fetch(sql, [list(sids), *params])]
+            return [_new(ExtentRow, (*row, None, None)) for row in self._fetch(sql, [list(sids), *params])]
         if prefilter is None:
             rows = self._fetch(f"SELECT {cols} FROM geo_extents", [])
         else:
@@ -124,20 +157,22 @@ class PostgresQuerier(SqlQuerier):
                 [box.min_lon, box.min_lat, box.max_lon, box.max_lat, *params],
             )
         wanted = sids if isinstance(sids, (set, frozenset, dict)) else set(sids)
-        return [(*row, None, None) for row in rows if row[0] in wanted]
+        return [_new(ExtentRow, (*row, None, None)) for row in rows if row[0] in wanted]
 
-    def first_locations(self, sids) -> list[tuple]:
+    def first_locations(self, sids: Sequence[int]) -> list[FirstLocationRow]:
         """One index probe per series (``(sid, t)`` index, oldest first)."""
         if not sids:
             return []
-        return self._fetch(
-            f"SELECT s.sid, {self.dialect.epoch_us('l.t')}, l.rid FROM unnest(%s::integer[]) AS s(sid) "
-            "CROSS JOIN LATERAL (SELECT t, rid FROM samples x WHERE x.sid = s.sid "
-            f"AND x.kind = {int(Kind.GEO)} AND x.geo IS NOT NULL ORDER BY x.t, x.rid LIMIT 1) l",
-            [list(sids)],
+        return as_first_locations(
+            self._fetch(
+                f"SELECT s.sid, {self.dialect.epoch_us('l.t')}, l.rid FROM unnest(%s::integer[]) AS s(sid) "
+                "CROSS JOIN LATERAL (SELECT t, rid FROM samples x WHERE x.sid = s.sid "
+                f"AND x.kind = {int(Kind.GEO)} AND x.geo IS NOT NULL ORDER BY x.t, x.rid LIMIT 1) l",
+                [list(sids)],
+            )
         )
 
-    def _location_seeds(self, sids, before) -> tuple[str, list]:
+    def _location_seeds(self, sids: Sequence[int], before: datetime) -> tuple[str, list]:
         """The latest geo sample before ``before``: one index probe per series."""
         return (
             "SELECT l.sid, l.rid, l.t, l.kind, l.geo, l.min_lon, l.min_lat, l.max_lon, l.max_lat "
@@ -148,14 +183,14 @@ class PostgresQuerier(SqlQuerier):
             [list(sids), self.dialect.time_value(before)],
         )
 
-    def __init__(self, store: PostgresStore):
+    def __init__(self, store: PostgresSource):
         self._store = store
         self.dialect = PostgresDialect()
         self.catalog = SeriesCatalog(self._load_series, self._series_generation)
         self._generation: tuple[int, int] = (-1, -1)  # (own writer's series, rows in ``series``)
         self._checked = float("-inf")
 
-    def series(self, scope, entities, attrs=None):
+    def series(self, scope: Scope, entities: EntityFilter, attrs: Iterable[str] | None = None) -> list[SeriesRef]:
         refs = self.catalog.select(scope, entities, attrs)
         if not refs:
             self._checked = float("-inf")  # maybe created by another replica: count now
@@ -165,7 +200,7 @@ class PostgresQuerier(SqlQuerier):
     def _series_generation(self) -> tuple[int, int]:
         """Changes when series were added; counts them only every
         ``SERIES_CHECK_S`` seconds unless this process created some."""
-        own = len(self._store._series)  # grows after the writer's commits
+        own = self._store.series_created()  # grows after the writer's commits
         now = time.monotonic()
         if own == self._generation[0] and now - self._checked < SERIES_CHECK_S:
             return self._generation
@@ -186,5 +221,16 @@ class PostgresQuerier(SqlQuerier):
         try:
             with self._store.connection() as conn:
                 return conn.execute(sql, params, prepare=True).fetchall()
+        except psycopg.OperationalError as exc:
+            raise Unavailable(f"the database is not available: {exc}") from None
+
+    def _batches(self, sql: str, params: list, size: int) -> Iterator[list[tuple]]:
+        """A server-side cursor in one transaction: one snapshot, bounded memory."""
+        check_database_allowed()
+        try:
+            with self._store.connection() as conn, conn.transaction(), conn.cursor(name="tsdb_batches") as cur:
+                cur.execute(sql, params)
+                while rows := cur.fetchmany(size):
+                    yield rows
         except psycopg.OperationalError as exc:
             raise Unavailable(f"the database is not available: {exc}") from None

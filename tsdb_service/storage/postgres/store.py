@@ -23,7 +23,6 @@ from collections.abc import Sequence
 from datetime import UTC, datetime
 from typing import Any
 
-import orjson
 import psycopg
 from psycopg_pool import ConnectionPool
 
@@ -31,17 +30,22 @@ from ...errors import Unavailable
 from ...geo.extents import ExtentLedger
 from ...model import EntitySample, RejectedNotification
 from ...ngsi import ValuesLayout
+from ...query import TimeRange
 from .. import rejected as rejected_store
-from ..base import (
-    Appender,
-    AppendSamples,
-    DeleteInstance,
-    DeleteSamples,
-    PutLayout,
-    RecordRejected,
-    ReplaceInstance,
-    Store,
-    WriteOp,
+from ..base import DeleteInstance, DeleteSamples, PutLayout, ReplaceInstance
+from ..common import (
+    LOAD_LAYOUTS_SQL,
+    REJECTED_INSERT_COLUMNS,
+    SAMPLE_COLUMNS,
+    CommittingStore,
+    StagingAppender,
+    content_values,
+    layout_values,
+    layouts_from_rows,
+    naive_utc,
+    rejected_values,
+    upsert_layout_sql,
+    without_dropped,
 )
 from ..ld_ingest import (
     LatestInstances,
@@ -53,32 +57,17 @@ from ..ld_ingest import (
 from ..memory_only import check_database_allowed
 from ..migrate import applied_versions, load_migrations
 from ..rejected import RejectedLimits
+from ..sql import delete_statements, instance_statements
 from ..writer import GroupCommitter
+from .dialect import PostgresDialect
+from .querier import PostgresQuerier
+from .retention import PostgresSession, postgres_session
 
 log = logging.getLogger(__name__)
 
-SAMPLE_COLUMNS = (
-    "rid",
-    "sid",
-    "t",
-    "kind",
-    "atype",
-    "num",
-    "txt",
-    "js",
-    "geo",
-    "lon",
-    "lat",
-    "min_lon",
-    "min_lat",
-    "max_lon",
-    "max_lat",
-    "md",
-    "observed_at",
-    "created_at",
-    "modified_at",
-    "deleted_at",
-)  # iid: the column default (a sequence) allocates it
+# SAMPLE_COLUMNS (common): iid is the column default's (a sequence).
+_COPY_SAMPLES = f"COPY samples ({', '.join(SAMPLE_COLUMNS)}) FROM STDIN"
+_DIALECT = PostgresDialect()
 SeriesKey = tuple[str, str, str, str, str]
 _MIGRATION_LOCK = 0x7473_6462  # "tsdb": serialises migrations across processes
 WRITER_APPLICATION_NAME = "tsdb-service writer"
@@ -120,15 +109,11 @@ def migrate_postgres(conn: psycopg.Connection) -> list[int]:
     return applied
 
 
-def naive_utc(moment: datetime) -> datetime:
-    return moment.astimezone(UTC).replace(tzinfo=None)
-
-
 def _naive(moment: datetime | None) -> datetime | None:
     return None if moment is None else naive_utc(moment)
 
 
-class PostgresStore(Store):
+class PostgresStore(CommittingStore):
     backend = "postgresql"
 
     def __init__(
@@ -146,23 +131,20 @@ class PostgresStore(Store):
         self._layouts: dict[tuple[str, str], ValuesLayout] = {}
         self._layouts_lock = threading.Lock()
         self._layouts_read_at = float("-inf")
-        # Why the last write failed when the server could not write (disk
-        # full, I/O error); cleared by the next write that commits.
-        self._write_failure: str | None = None
         self._load_layouts()
         self._committer = GroupCommitter(lambda: PostgresAppender(self), name="tsdb-pg-writer", threads=writer_threads)
         self._committer.start()
         self._closed = False
-        self._querier = None
+        self._querier = PostgresQuerier(self)
 
-    def querier(self):
-        if self._querier is None:
-            from .querier import PostgresQuerier
-
-            self._querier = PostgresQuerier(self)
+    def querier(self) -> PostgresQuerier:
         return self._querier
 
-    def connection(self):
+    def series_created(self) -> int:
+        """Series this process's writers created and committed (grows only)."""
+        return len(self._series)
+
+    def connection(self) -> contextlib.AbstractContextManager[psycopg.Connection]:
         """A pooled connection (context manager) for reads."""
         if self._closed:
             raise Unavailable("the store is closed")
@@ -180,13 +162,8 @@ class PostgresStore(Store):
             if started - self._layouts_read_at <= max_age:
                 return
             with self.pool.connection() as conn:
-                rows = conn.execute(
-                    "SELECT tenant, subscription_id, attrs, entity_id, entity_type FROM subscriptions"
-                ).fetchall()
-            self._layouts = {
-                (tenant, sub): ValuesLayout(tuple(orjson.loads(attrs)), eid, etype)
-                for tenant, sub, attrs, eid, etype in rows
-            }
+                rows = conn.execute(LOAD_LAYOUTS_SQL).fetchall()
+            self._layouts = layouts_from_rows(rows)
             self._layouts_read_at = started
 
     def layouts_committed(self, puts: Sequence[PutLayout]) -> None:
@@ -213,19 +190,23 @@ class PostgresStore(Store):
         return layout
 
     def layouts(self, tenant: str) -> dict[str, ValuesLayout]:
+        """Read again first: another replica may have registered some."""
         self._load_layouts()
-        return {sub: layout for (t, sub), layout in self._layouts.items() if t == tenant}
+        return super().layouts(tenant)
 
     def rejected(self, tenant: str | None, limit: int, offset: int) -> list[dict[str, Any]]:
         where, params = ("", []) if tenant is None else ("WHERE tenant = %s ", [tenant])
         with self.connection() as conn:
             rows = conn.execute(
-                f"SELECT {rejected_store.COLUMNS} FROM rejected_notifications {where}ORDER BY id DESC LIMIT %s OFFSET %s",
+                f"SELECT {rejected_store.COLUMNS} FROM rejected_notifications {where}"
+                "ORDER BY id DESC LIMIT %s OFFSET %s",
                 [*params, limit, offset],
             ).fetchall()
         return [rejected_store.rejected_row(*row) for row in rows]
 
-    def rejected_page(self, tenant: str | None, limit: int, offset: int, max_bytes: int):
+    def rejected_page(
+        self, tenant: str | None, limit: int, offset: int, max_bytes: int
+    ) -> tuple[list[dict[str, Any]], int | None]:
         """``rejected`` paged by size too: (rows, next offset or None)."""
         with self.connection() as conn:
             return rejected_store.page(
@@ -238,37 +219,40 @@ class PostgresStore(Store):
                 rejected_store.rejected_row,
             )
 
-    def health(self) -> dict[str, Any]:
-        ok = self._committer.alive
+    def _reachable(self) -> bool:
         try:
             with self.pool.connection(timeout=2) as conn:
                 conn.execute("SELECT 1")
         except Exception as exc:  # report, do not raise: this is the health probe
             log.warning("database unreachable: %s", exc)
-            ok = False
-        report = {
-            "status": "pass" if ok else "fail",
-            "backend": self.backend,
-            "commits": self._committer.commits,
-            "writes": self._committer.ops,
-        }
-        if self._write_failure is not None:
-            report["status"] = "fail"
-            report["output"] = "the database refuses writes: " + self._write_failure
-        return report
+            return False
+        return True
 
-    def _note_write(self, exc: BaseException | None) -> None:
-        """Remember whether the server takes writes, for /health."""
-        if exc is None:
-            self._write_failure = None
-        elif is_storage_error(exc):
-            self._write_failure = str(exc).strip().splitlines()[0][:300]
+    _is_storage_error = staticmethod(is_storage_error)
 
-    async def write(self, op: WriteOp) -> None:
-        await self._committer.submit(op)
+    def _rows(self, sql: str, params: Sequence = ()) -> list[tuple]:
+        with self.connection() as conn:
+            cur = conn.execute(sql.replace("?", "%s"), list(params))
+            return cur.fetchall() if cur.description is not None else []
 
-    def write_sync(self, ops: Sequence[WriteOp]) -> None:
-        self._committer.submit_sync(ops)
+    def compact(self, full: bool = True) -> str:
+        """Nothing to do: samples stay where they were written, and the
+        (sid, t) index already serves every read in order."""
+        return "nothing to compact: PostgreSQL keeps samples in place (only DuckDB files are compacted)"
+
+    def retention_session(self) -> contextlib.AbstractContextManager[PostgresSession | None]:
+        """A connection of its own holding the cluster-wide pass lock."""
+        return postgres_session(self.url)
+
+    def sizes(self) -> tuple[int, int, int]:
+        with self.connection() as conn:
+            size = conn.execute("SELECT pg_database_size(current_database())").fetchone()
+            counted = conn.execute(
+                "SELECT count(*), coalesce(sum(octet_length(body) + octet_length(headers)), 0) "
+                "FROM rejected_notifications"
+            ).fetchone()
+        assert size is not None and counted is not None  # aggregates always return one row
+        return int(size[0]), int(counted[0]), int(counted[1])
 
     def close(self) -> None:
         if self._closed:
@@ -287,10 +271,11 @@ def _fetch_all(cur: psycopg.Cursor):
     return execute
 
 
-class PostgresAppender(Appender):
+class PostgresAppender(StagingAppender):
     def __init__(self, store: PostgresStore):
         self._store = store
         self._conn = self._connect()
+        self._found: dict[SeriesKey, int] = {}  # series the transaction being committed created
         self._reset()
 
     def _connect(self) -> psycopg.Connection:
@@ -316,20 +301,15 @@ class PostgresAppender(Appender):
         self._deletes: list[DeleteSamples] = []
         self._instance_ops: list[DeleteInstance | ReplaceInstance] = []
 
-    def stage(self, op: WriteOp) -> None:
-        if isinstance(op, AppendSamples):
-            self._entities.extend(op.entities)
-            self._dedup.extend([op.dedup] * len(op.entities))
-        elif isinstance(op, RecordRejected):
-            self._rejected.append(op.rejected)
-        elif isinstance(op, PutLayout):
-            self._layouts.append(op)
-        elif isinstance(op, DeleteSamples):
-            self._deletes.append(op)
-        elif isinstance(op, (DeleteInstance, ReplaceInstance)):
-            self._instance_ops.append(op)
-        else:  # pragma: no cover - programming error
-            raise TypeError(f"unknown write op {op!r}")
+    def _stage_samples(self, entities: Sequence[EntitySample], dedup: bool) -> None:
+        self._entities.extend(entities)
+        self._dedup.extend([dedup] * len(entities))
+
+    def _stage_rejected(self, r: RejectedNotification) -> None:
+        self._rejected.append(r)
+
+    def _stage_delete(self, op: DeleteSamples) -> None:
+        self._deletes.append(op)
 
     def _commit(self) -> None:
         conn = self._connection()
@@ -340,18 +320,9 @@ class PostgresAppender(Appender):
                 extents_stored = self._store.geo_extents.record(cur, self._entities)
             for r in self._rejected:
                 cur.execute(
-                    "INSERT INTO rejected_notifications (tenant, received_at, error, description, headers, body, "
-                    "body_size, body_truncated) VALUES (%s, %s, %s, %s, %s, %s, %s, %s)",
-                    [
-                        r.tenant,
-                        naive_utc(r.received_at),
-                        r.error,
-                        r.description,
-                        r.headers,
-                        r.body,
-                        len(r.body) if r.body_size is None else r.body_size,
-                        r.body_truncated,
-                    ],
+                    f"INSERT INTO rejected_notifications ({REJECTED_INSERT_COLUMNS}) "
+                    "VALUES (%s, %s, %s, %s, %s, %s, %s, %s)",
+                    rejected_values(r),
                 )
             dropped = None
             if self._rejected:
@@ -362,30 +333,12 @@ class PostgresAppender(Appender):
                     self._store.rejected_limits,
                 )
             for put in self._layouts:
-                layout = put.layout
-                cur.execute(
-                    "INSERT INTO subscriptions VALUES (%s, %s, %s, %s, %s, %s) "
-                    "ON CONFLICT (tenant, subscription_id) DO UPDATE SET attrs = EXCLUDED.attrs, "
-                    "entity_id = EXCLUDED.entity_id, entity_type = EXCLUDED.entity_type, "
-                    "registered_at = EXCLUDED.registered_at",
-                    [
-                        put.tenant,
-                        put.subscription_id,
-                        orjson.dumps(list(layout.attrs)).decode(),
-                        layout.entity_id,
-                        layout.entity_type,
-                        naive_utc(datetime.now(UTC)),
-                    ],
-                )
+                cur.execute(upsert_layout_sql("%s"), layout_values(put, datetime.now(UTC)))
             if self._deletes:
                 self._delete(cur)
-            if self._instance_ops:
-                from ..sql import instance_statements
-                from .dialect import PostgresDialect
-
-                for op in self._instance_ops:
-                    for sql, params in instance_statements(PostgresDialect(), ("samples",), op):
-                        cur.execute(sql, params)
+            for op in self._instance_ops:
+                for sql, params in instance_statements(_DIALECT, ("samples",), op):
+                    cur.execute(sql, params)
         self._send_commit(conn)
         if extents_stored is not None:
             extents_stored()
@@ -401,14 +354,8 @@ class PostgresAppender(Appender):
     def _delete(self, cur: psycopg.Cursor) -> None:
         """Deletes see only committed rows, so samples acknowledged after the
         delete was asked for survive it, as on DuckDB."""
-        from ...query import TimeRange
-        from ..sql import delete_statements
-        from .dialect import PostgresDialect
-
         for op in self._deletes:
-            for sql, params in delete_statements(
-                PostgresDialect(), ("samples",), op.sids, TimeRange(op.start, op.end), 2**62
-            ):
+            for sql, params in delete_statements(_DIALECT, ("samples",), op.sids, TimeRange(op.start, op.end), 2**62):
                 cur.execute(sql, params)
 
     def _copy_samples(self, cur: psycopg.Cursor) -> None:
@@ -419,29 +366,17 @@ class PostgresAppender(Appender):
             return
         cur.execute("SELECT nextval('sample_rid_seq') FROM generate_series(1, %s)", [len(entities)])
         rids = [row[0] for row in cur.fetchall()]
-        columns = ", ".join(SAMPLE_COLUMNS)
-        with cur.copy(f"COPY samples ({columns}) FROM STDIN") as copy:
+        with cur.copy(_COPY_SAMPLES) as copy:
             for rid, entity in zip(rids, entities, strict=True):
                 t = naive_utc(entity.time_index)
                 prefix = (entity.tenant, entity.service_path, entity.entity_id, entity.entity_type)
                 for a in entity.attrs:
-                    g = a.geo
                     copy.write_row(
                         (
                             rid,
                             sids[(*prefix, a.name)],
                             t,
-                            int(a.kind),
-                            a.ngsi_type,
-                            a.num,
-                            a.txt,
-                            a.js,
-                            *(
-                                (g.geojson, g.lon, g.lat, g.min_lon, g.min_lat, g.max_lon, g.max_lat)
-                                if g is not None
-                                else (None,) * 7
-                            ),
-                            a.md,
+                            *content_values(a),
                             _naive(a.observed_at),
                             _naive(a.created_at),
                             _naive(a.modified_at),
@@ -480,19 +415,7 @@ class PostgresAppender(Appender):
             )
             return latest_keys(cur.fetchall())
 
-        keep = iter(drop_renotified(items, self._store.latest_instances, self._latest, load))
-        out = []
-        for e in entities:
-            attrs = [a for a in e.attrs if next(keep)]
-            if attrs:
-                out.append(
-                    e
-                    if len(attrs) == len(e.attrs)
-                    else EntitySample(
-                        e.tenant, e.service_path, e.entity_id, e.entity_type, e.time_index, attrs, e.deleted_at
-                    )
-                )
-        return out
+        return without_dropped(entities, drop_renotified(items, self._store.latest_instances, self._latest, load))
 
     def _resolve_series(self, cur: psycopg.Cursor) -> dict[SeriesKey, int]:
         """Series ids for every key in the batch, creating missing ones.
@@ -544,7 +467,7 @@ class PostgresAppender(Appender):
             raise
 
     def commit(self) -> None:
-        self._found: dict[SeriesKey, int] = {}
+        self._found = {}
         try:
             self._commit()
         except psycopg.Error as exc:
@@ -556,10 +479,8 @@ class PostgresAppender(Appender):
         self._store._series.update(self._found)
 
     def rollback(self) -> None:
-        try:
+        with contextlib.suppress(psycopg.Error):
             self._conn.rollback()
-        except psycopg.Error:
-            pass
         self._reset()
 
     def close(self) -> None:

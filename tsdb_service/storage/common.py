@@ -1,0 +1,312 @@
+"""What both backends' stores and appenders share, written once.
+
+The sample columns and how an attribute fills them, the bounding-box
+prefilter (in SQL and in memory), the ``values``-layout rows, the write
+delegation to the group committer, ``/health``, and the appender's dispatch
+over ``WriteOp`` types. The backend packages (``storage.duckdb``,
+``storage.postgres``) import this module; it imports neither of them.
+"""
+
+from __future__ import annotations
+
+import json
+from abc import abstractmethod
+from collections.abc import Iterable, Sequence
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import orjson
+
+from ..model import AttrSample, EntitySample, Geometry, RejectedNotification
+from ..ngsi import ValuesLayout
+from ..query import Bounds, Prefilter
+from .base import (
+    Appender,
+    AppendSamples,
+    CopyRun,
+    DeleteInstance,
+    DeleteSamples,
+    PutLayout,
+    RecordRejected,
+    ReplaceInstance,
+    Store,
+    WriteOp,
+)
+from .writer import GroupCommitter
+
+# -- sample columns ----------------------------------------------------------------
+
+GEO_COLUMNS = ("geo", "lon", "lat", "min_lon", "min_lat", "max_lon", "max_lat")
+# What an attribute instance's content fills (a replacement rewrites these).
+VALUE_COLUMNS = ("kind", "atype", "num", "txt", "js", *GEO_COLUMNS, "md")
+LD_TIME_COLUMNS = ("observed_at", "created_at", "modified_at", "deleted_at")
+# Every stored column but the instance id, which each store allocates itself.
+SAMPLE_COLUMNS = ("rid", "sid", "t", *VALUE_COLUMNS, *LD_TIME_COLUMNS)
+_NO_GEO = (None,) * len(GEO_COLUMNS)
+
+EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+ONE_US = timedelta(microseconds=1)
+
+
+def geo_values(g: Geometry | None) -> tuple:
+    """``GEO_COLUMNS`` of a geometry (all None without one)."""
+    if g is None:
+        return _NO_GEO
+    return (g.geojson, g.lon, g.lat, g.min_lon, g.min_lat, g.max_lon, g.max_lat)
+
+
+def content_values(a: AttrSample) -> tuple:
+    """``VALUE_COLUMNS`` of an attribute sample."""
+    return (int(a.kind), a.ngsi_type, a.num, a.txt, a.js, *geo_values(a.geo), a.md)
+
+
+def to_micros(moment: datetime) -> int:
+    """Exact microseconds since the epoch (float timestamps lose precision)."""
+    return (moment - EPOCH) // ONE_US
+
+
+def naive_utc(moment: datetime) -> datetime:
+    """A timezone-aware moment as the naive UTC timestamp the columns hold."""
+    return moment.astimezone(UTC).replace(tzinfo=None)
+
+
+# -- the bounding-box prefilter ------------------------------------------------------
+#
+# A stored sample keeps its geometry's box (min_lon, min_lat, max_lon,
+# max_lat). A geo-query's ``Prefilter`` says what that box must do to
+# possibly match: "within" lie inside the query box, "intersects" overlap
+# it. The same two tests run in SQL (``box_sql``) and in memory
+# (``box_passes``, DuckDB's latest locations and extents).
+
+WITHIN = "within"
+Box = tuple[float, float, float, float]  # min_lon, min_lat, max_lon, max_lat
+
+
+def box_passes(how: str, b: Box, box: Bounds) -> bool:
+    if how == WITHIN:
+        return b[0] >= box.min_lon and b[2] <= box.max_lon and b[1] >= box.min_lat and b[3] <= box.max_lat
+    return b[2] >= box.min_lon and b[0] <= box.max_lon and b[3] >= box.min_lat and b[1] <= box.max_lat
+
+
+def box_sql(placeholder: str, prefilter: Prefilter | None) -> tuple[str, list]:
+    """SQL over the columns min_lon... : the stored box passes ``prefilter``
+    (None passes everything)."""
+    if prefilter is None:
+        return "TRUE", []
+    how, box = prefilter
+    p = placeholder
+    if how == WITHIN:
+        sql = f"(min_lon >= {p} AND max_lon <= {p} AND min_lat >= {p} AND max_lat <= {p})"
+    else:
+        sql = f"(max_lon >= {p} AND min_lon <= {p} AND max_lat >= {p} AND min_lat <= {p})"
+    return sql, [box.min_lon, box.max_lon, box.min_lat, box.max_lat]
+
+
+def extent_prefilter(prefilter: Prefilter | None) -> Prefilter | None:
+    """The test on a series' extent (the box of all its samples' boxes): a
+    sample's box passes either test only if it overlaps the query box, and
+    the extent holds every sample's box, so overlap is the extent's test."""
+    return None if prefilter is None else ("intersects", prefilter[1])
+
+
+# -- values layouts --------------------------------------------------------------------
+
+LOAD_LAYOUTS_SQL = "SELECT tenant, subscription_id, attrs, entity_id, entity_type FROM subscriptions"
+
+
+def layouts_from_rows(rows: Iterable[tuple]) -> dict[tuple[str, str], ValuesLayout]:
+    """``LOAD_LAYOUTS_SQL`` rows by (tenant, subscription id)."""
+    return {
+        (tenant, sub): ValuesLayout(tuple(orjson.loads(attrs)), eid, etype) for tenant, sub, attrs, eid, etype in rows
+    }
+
+
+def layout_values(put: PutLayout, now: datetime) -> list:
+    """A ``subscriptions`` row, in column order."""
+    layout = put.layout
+    return [
+        put.tenant,
+        put.subscription_id,
+        orjson.dumps(list(layout.attrs)).decode(),
+        layout.entity_id,
+        layout.entity_type,
+        naive_utc(now),
+    ]
+
+
+def upsert_layout_sql(p: str) -> str:
+    return (
+        f"INSERT INTO subscriptions VALUES ({p}, {p}, {p}, {p}, {p}, {p}) "
+        "ON CONFLICT (tenant, subscription_id) DO UPDATE SET attrs = EXCLUDED.attrs, "
+        "entity_id = EXCLUDED.entity_id, entity_type = EXCLUDED.entity_type, "
+        "registered_at = EXCLUDED.registered_at"
+    )
+
+
+REJECTED_INSERT_COLUMNS = "tenant, received_at, error, description, headers, body, body_size, body_truncated"
+
+
+def rejected_values(r: RejectedNotification) -> tuple:
+    """A ``rejected_notifications`` row (``REJECTED_INSERT_COLUMNS``)."""
+    size = len(r.body) if r.body_size is None else r.body_size
+    return (r.tenant, naive_utc(r.received_at), r.error, r.description, r.headers, r.body, size, r.body_truncated)
+
+
+def without_dropped(entities: Sequence[EntitySample], keep: Iterable[bool]) -> list[EntitySample]:
+    """``entities`` without the attributes ``keep`` (one flag per attribute,
+    in order) drops; an entity left without attributes goes too."""
+    flags = iter(keep)
+    out = []
+    for e in entities:
+        attrs = [a for a in e.attrs if next(flags)]
+        if attrs:
+            out.append(
+                e
+                if len(attrs) == len(e.attrs)
+                else EntitySample(
+                    e.tenant, e.service_path, e.entity_id, e.entity_type, e.time_index, attrs, e.deleted_at
+                )
+            )
+    return out
+
+
+# -- the store and appender halves both backends share ----------------------------------
+
+
+class CommittingStore(Store):
+    """A store whose writes go through one ``GroupCommitter``."""
+
+    _committer: GroupCommitter
+    _layouts: dict[tuple[str, str], ValuesLayout]
+    # Why the last write failed when the database could not write (disk
+    # full, I/O error); cleared by the next write that commits.
+    _write_failure: str | None = None
+
+    async def write(self, op: WriteOp) -> None:
+        await self._committer.submit(op)
+
+    def write_sync(self, ops: Sequence[WriteOp]) -> None:
+        self._committer.submit_sync(ops)
+
+    def layouts(self, tenant: str) -> dict[str, ValuesLayout]:
+        return {sub: layout for (t, sub), layout in list(self._layouts.items()) if t == tenant}
+
+    def health(self) -> dict[str, Any]:
+        """``pass`` while the writers run and the database takes writes (and
+        whatever ``_health_problem`` checks)."""
+        problem = self._health_problem()
+        if problem is None and self._write_failure is not None:
+            problem = "the database refuses writes: " + self._write_failure
+        ok = self._committer.alive and problem is None and self._reachable()
+        report: dict[str, Any] = {
+            "status": "pass" if ok else "fail",
+            "backend": self.backend,
+            "commits": self._committer.commits,
+            "writes": self._committer.ops,
+        }
+        if problem is not None:
+            report["output"] = problem
+        return report
+
+    def _health_problem(self) -> str | None:
+        """A backend's own reason to fail ``/health``, worded for an operator."""
+        return None
+
+    def _reachable(self) -> bool:
+        """Whether the database answers (a backend probes it if it can be away)."""
+        return True
+
+    def _note_write(self, exc: BaseException | None) -> None:
+        """Remember whether the database takes writes, for /health."""
+        if exc is None:
+            self._write_failure = None
+        elif self._is_storage_error(exc):
+            self._write_failure = first_line(exc)
+
+    @staticmethod
+    @abstractmethod
+    def _is_storage_error(exc: BaseException) -> bool:
+        """A failure to write (full disk, I/O error), not a bad statement."""
+
+    # -- bookkeeping statements outside the writer --------------------------------
+
+    @abstractmethod
+    def _rows(self, sql: str, params: Sequence = ()) -> list[tuple]:
+        """Run one statement (``?`` placeholders) on a connection of the
+        store's own, outside the writer, in autocommit; its rows, if any.
+        Only for tables the writer never touches (``copy_runs``) and reads."""
+
+    def all_layouts(self) -> dict[tuple[str, str], ValuesLayout]:
+        return layouts_from_rows(self._rows(LOAD_LAYOUTS_SQL))
+
+    def rejected_notifications(self) -> list[RejectedNotification]:
+        return [
+            RejectedNotification(
+                tenant, received_at.replace(tzinfo=UTC), error, description, headers, bytes(body), size, bool(cut)
+            )
+            for tenant, received_at, error, description, headers, body, size, cut in self._rows(
+                f"SELECT {REJECTED_INSERT_COLUMNS} FROM rejected_notifications ORDER BY id"
+            )
+        ]
+
+    def rejected_count(self) -> int:
+        rows = self._rows("SELECT count(*) FROM rejected_notifications")
+        return int(rows[0][0])
+
+    def copy_runs_open(self) -> list[CopyRun]:
+        rows = self._rows(
+            "SELECT source, base_counts, base_rejected, source_samples FROM copy_runs WHERE finished_at IS NULL"
+        )
+        return [CopyRun(source, json.loads(counts), int(rejected), int(n)) for source, counts, rejected, n in rows]
+
+    def copy_run_start(self, run: CopyRun) -> None:
+        self._rows(
+            "INSERT INTO copy_runs (source, started_at, base_counts, base_rejected, source_samples) "
+            "VALUES (?, ?, ?, ?, ?)",
+            [run.source, _utcnow(), json.dumps(run.base_counts), run.base_rejected, run.source_samples],
+        )
+
+    def copy_run_finish(self, source: str) -> None:
+        self._rows("UPDATE copy_runs SET finished_at = ? WHERE source = ? AND finished_at IS NULL", [_utcnow(), source])
+
+    def retention_watermarks(self) -> dict[tuple[str, str], datetime]:
+        rows = self._rows("SELECT tbl, rule, horizon FROM retention_state")
+        return {(tbl, rule): horizon.replace(tzinfo=UTC) for tbl, rule, horizon in rows}
+
+
+def _utcnow() -> datetime:
+    return naive_utc(datetime.now(UTC))
+
+
+def first_line(exc: BaseException) -> str:
+    return str(exc).strip().splitlines()[0][:300] if str(exc).strip() else type(exc).__name__
+
+
+class StagingAppender(Appender):
+    """The dispatch over ``WriteOp`` types; a backend stages each kind."""
+
+    _layouts: list[PutLayout]
+    _instance_ops: list[DeleteInstance | ReplaceInstance]
+
+    def stage(self, op: WriteOp) -> None:
+        if isinstance(op, AppendSamples):
+            self._stage_samples(op.entities, op.dedup)
+        elif isinstance(op, RecordRejected):
+            self._stage_rejected(op.rejected)
+        elif isinstance(op, PutLayout):
+            self._layouts.append(op)
+        elif isinstance(op, DeleteSamples):
+            self._stage_delete(op)
+        elif isinstance(op, (DeleteInstance, ReplaceInstance)):
+            self._instance_ops.append(op)
+        else:  # pragma: no cover - programming error
+            raise TypeError(f"unknown write op {op!r}")
+
+    @abstractmethod
+    def _stage_samples(self, entities: Sequence[EntitySample], dedup: bool) -> None: ...
+
+    @abstractmethod
+    def _stage_rejected(self, r: RejectedNotification) -> None: ...
+
+    @abstractmethod
+    def _stage_delete(self, op: DeleteSamples) -> None: ...

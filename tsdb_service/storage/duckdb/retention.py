@@ -1,0 +1,103 @@
+"""Retention batches on DuckDB (``storage.retention`` drives them).
+
+A batch holds the compactor's lock (as a user's delete does), so it never
+races the compactor moving or rewriting the same rows; it picks at most N
+expired rows by ``rowid``, folds them into rollups, deletes them, and drops
+the touched series from the in-memory tails and latest locations.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from typing import Any, Protocol
+
+import duckdb
+
+from ...model import Kind
+from ..common import naive_utc
+from ..retention import SAVE_WATERMARK, rollup_delete_sql
+from ..rollups import fold_sql
+from ..sql import quote_ident
+from .dialect import DuckDBDialect
+from .latest_geo import LATEST_GEO_SQL, LatestGeo
+from .tail_cache import TailCache
+
+
+def _one(cur: duckdb.DuckDBPyConnection, sql: str, params: object = None) -> tuple:
+    """The one row ``sql`` returns (an aggregate, a DELETE's count)."""
+    row = cur.execute(sql, params).fetchone()
+    assert row is not None, sql
+    return row
+
+
+class RetainedStore(Protocol):
+    """What a batch needs of the store (``DuckDBStore`` is one)."""
+
+    tail: TailCache
+    latest_geo: LatestGeo
+
+    def compactor_lock(self) -> contextlib.AbstractContextManager[Any]: ...
+
+
+class DuckDBSession:
+    """One retention pass's access, on a cursor of its own."""
+
+    tables = ("samples", "samples_hot")
+
+    def __init__(self, store: RetainedStore, cur: duckdb.DuckDBPyConnection):
+        self._store = store
+        self._cur = cur
+        self._d = DuckDBDialect()
+
+    def series(self) -> list[tuple[int, str, str]]:
+        return self._cur.execute("SELECT sid, tenant, entity_type FROM series").fetchall()
+
+    def delete_samples(self, table: str, sids: Sequence[int], cutoff: datetime, limit: int, fold: bool) -> int:
+        """One batch, under the compactor's lock: pick, fold, delete, commit."""
+        cur = self._cur
+        where, params = self._d.sid_filter(sids)
+        with self._store.compactor_lock():
+            cur.execute("BEGIN")
+            try:
+                cur.execute(
+                    "CREATE OR REPLACE TEMP TABLE retention_batch AS SELECT rowid AS r, rid, sid, t, kind, num "
+                    f"FROM {quote_ident(table)} WHERE {where} AND t < ? LIMIT ?",
+                    [*params, naive_utc(cutoff), limit],
+                )
+                n, upto = _one(cur, "SELECT count(*), max(rid) FROM retention_batch")
+                if n:
+                    if fold:
+                        cur.execute(fold_sql("retention_batch"))
+                    cur.execute(f"DELETE FROM {quote_ident(table)} WHERE rowid IN (SELECT r FROM retention_batch)")
+                cur.execute("COMMIT")
+            except BaseException:
+                with contextlib.suppress(duckdb.Error):  # no transaction open
+                    cur.execute("ROLLBACK")
+                raise
+        if n:
+            self._forget(upto)
+        return int(n)
+
+    def _forget(self, upto_rid: int) -> None:
+        """The in-memory tails and latest locations must not show deleted rows."""
+        store = self._store
+        cur = self._cur
+        sids = [r[0] for r in cur.execute("SELECT DISTINCT sid FROM retention_batch").fetchall()]
+        store.tail.drop(sids)
+        geo = [
+            r[0]
+            for r in cur.execute(f"SELECT DISTINCT sid FROM retention_batch WHERE kind = {int(Kind.GEO)}").fetchall()
+        ]
+        if geo:
+            query = LATEST_GEO_SQL.format(where="AND sid IN (SELECT unnest(?::INTEGER[]))")
+            store.latest_geo.recompute(geo, upto_rid, lambda s: cur.execute(query, [s]).fetchall())
+
+    def delete_rollups(self, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
+        sql, params = rollup_delete_sql(self._d, sids, cutoff, limit)
+        with self._store.compactor_lock():  # user deletes touch rollups under it too
+            return int(_one(self._cur, sql, params)[0])
+
+    def save_watermark(self, kind: str, rule: str, horizon: datetime) -> None:
+        self._cur.execute(SAVE_WATERMARK.format(p="?"), [kind, rule, naive_utc(horizon), naive_utc(datetime.now(UTC))])

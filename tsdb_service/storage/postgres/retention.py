@@ -1,0 +1,76 @@
+"""Retention batches on PostgreSQL (``storage.retention`` drives them).
+
+One statement per batch picks at most N expired rows by (``tableoid``,
+``ctid``), deletes them and folds exactly the rows it deleted
+(``RETURNING``). A session advisory lock lets one replica run a pass at a
+time; the others skip theirs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from datetime import UTC, datetime
+
+import psycopg
+
+from ..common import naive_utc
+from ..retention import SAVE_WATERMARK, rollup_delete_sql
+from ..rollups import fold_sql
+from ..sql import quote_ident
+from .dialect import PostgresDialect
+
+PG_LOCK = 0x7473_6472  # "tsdr": one retention pass at a time across replicas
+
+
+class PostgresSession:
+    """One retention pass's access, on a connection of its own."""
+
+    tables = ("samples",)
+
+    def __init__(self, conn: psycopg.Connection):
+        self._conn = conn
+        self._d = PostgresDialect()
+
+    def series(self) -> list[tuple[int, str, str]]:
+        return self._conn.execute("SELECT sid, tenant, entity_type FROM series").fetchall()
+
+    def delete_samples(self, table: str, sids: Sequence[int], cutoff: datetime, limit: int, fold: bool) -> int:
+        """One statement: pick by (tableoid, ctid), which stays right on a
+        TimescaleDB hypertable's chunks, delete, and fold what was deleted."""
+        folded = f", folded AS ({fold_sql('batch')})" if fold else ""
+        sql = (
+            f"WITH pick AS MATERIALIZED (SELECT tableoid AS tab, ctid AS tid FROM {quote_ident(table)} "
+            "WHERE sid = ANY(%s::integer[]) AND t < %s LIMIT %s), "
+            f"batch AS (DELETE FROM {quote_ident(table)} s USING pick WHERE s.tableoid = pick.tab "
+            "AND s.ctid = pick.tid RETURNING s.sid, s.t, s.kind, s.num)"
+            f"{folded} SELECT count(*) FROM batch"
+        )
+        with self._conn.transaction():
+            row = self._conn.execute(sql, [list(sids), naive_utc(cutoff), limit]).fetchone()
+            return int(row[0]) if row else 0
+
+    def delete_rollups(self, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
+        sql, params = rollup_delete_sql(self._d, sids, cutoff, limit)
+        with self._conn.transaction():
+            return self._conn.execute(sql, params).rowcount
+
+    def save_watermark(self, kind: str, rule: str, horizon: datetime) -> None:
+        self._conn.execute(
+            SAVE_WATERMARK.format(p="%s"), [kind, rule, naive_utc(horizon), naive_utc(datetime.now(UTC))]
+        )
+
+
+@contextmanager
+def postgres_session(url: str) -> Iterator[PostgresSession | None]:
+    """A connection of its own holding the pass lock; None when another
+    replica is running its pass."""
+    with psycopg.connect(url, autocommit=True) as conn:
+        locked = conn.execute("SELECT pg_try_advisory_lock(%s)", [PG_LOCK]).fetchone()
+        if not locked or not locked[0]:
+            yield None
+            return
+        try:
+            yield PostgresSession(conn)
+        finally:
+            conn.execute("SELECT pg_advisory_unlock(%s)", [PG_LOCK])
