@@ -201,17 +201,9 @@ def cmd_migrate(args: argparse.Namespace) -> int:
 
 
 def _migrate(settings: Settings) -> list[int]:
-    if settings.backend == "postgresql":
-        from .storage.postgres.store import migrate_url
+    from .storage import migrate
 
-        return migrate_url(settings.db)
-    from .storage.duckdb.store import connect, migrate_duckdb
-
-    con = connect(settings.db)
-    try:
-        return migrate_duckdb(con)
-    finally:
-        con.close()
+    return migrate(settings)
 
 
 @command("compact")

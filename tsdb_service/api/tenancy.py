@@ -9,8 +9,6 @@ headers off a ``Request``.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 from fastapi import Request
 
 from ..ngsi.request_context import raw_tenant, selectors, tenant
@@ -26,8 +24,3 @@ def tenant_of(request: Request) -> str:
     """``Fiware-Service`` / ``NGSILD-Tenant`` lower-cased, as Orion stores
     them; "" is the default tenant. Conflicting selectors are a 400."""
     return tenant(request.headers.items())
-
-
-def tenant_from_headers(headers: Mapping[str, str]) -> str:
-    """``tenant_of`` for header mappings that do not come with a request."""
-    return tenant(headers.items())

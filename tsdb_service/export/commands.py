@@ -42,9 +42,9 @@ def register(subparsers, command) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from ..api.tenancy import tenant_from_headers
     from ..config import Settings
     from ..errors import TsdbError
+    from ..ngsi.request_context import tenant
     from ..storage import open_store
     from . import export_query, open_export, write_file
 
@@ -57,7 +57,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     params["format"] = args.format or _format_of(args.out)
     headers = {"fiware-service": args.service, "fiware-servicepath": args.service_path}
     try:
-        query = export_query(params, headers, tenant_from_headers(headers))
+        query = export_query(params, headers, tenant(headers.items()))
     except TsdbError as exc:
         print(f"error: {exc.description}", file=sys.stderr)
         return 2

@@ -24,6 +24,22 @@ class StoreUnavailable(RuntimeError):
     """The store cannot be opened; the message is one line for an operator."""
 
 
+def migrate(settings: Settings) -> list[int]:
+    """Apply pending schema migrations to ``settings.db`` without opening a
+    store (``tsdb-service migrate``); the versions applied."""
+    if settings.backend == "postgresql":
+        from .postgres.store import migrate_url
+
+        return migrate_url(settings.db)
+    from .duckdb.store import connect, migrate_duckdb
+
+    con = connect(settings.db)
+    try:
+        return migrate_duckdb(con)
+    finally:
+        con.close()
+
+
 def open_store(settings: Settings, *, background: bool = False) -> Store:
     """Open the backend named by ``settings.db``; migrations run on open.
 
