@@ -10,7 +10,8 @@ import pytest
 from pydantic import ValidationError
 
 from tsdb_service.config import Settings
-from tsdb_service.storage.retention import RetentionConfig, RetentionPolicy
+from tsdb_service.retention_policy import RetentionPolicy
+from tsdb_service.storage.retention import RetentionConfig
 
 DAY = timedelta(days=1)
 

@@ -193,7 +193,8 @@ class Settings(BaseSettings):
         "", description="Origins browsers may call us from, comma list ('*': any); none by default."
     )
 
-    # --- Retention and rollups (storage/retention.py, storage/rollups.py; README "Retention and rollups") ---
+    # --- Retention and rollups (retention_policy.py, storage/retention.py, storage/rollups.py;
+    # README "Retention and rollups") ---
     retention: str = Field(
         "",
         description="How long raw samples are kept, per tenant and entity type: "
@@ -219,7 +220,7 @@ class Settings(BaseSettings):
     @field_validator("retention", "rollup_retention")
     @classmethod
     def _retention_spec(cls, value: str, info) -> str:
-        from .storage.retention import RetentionPolicy
+        from .retention_policy import RetentionPolicy
 
         RetentionPolicy.parse(value, setting="TSDB_" + info.field_name.upper())  # raises ValueError
         return value

@@ -1,0 +1,107 @@
+"""The import graph is the one README's "How it is built" draws: vocabulary,
+parsing, storage, reading, HTTP, each importing only the layers below it.
+
+Read from the source with ``ast`` (no import side effects), so a new import
+that goes back up fails here with the module and the name it imported.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parent.parent / "tsdb_service"
+
+# Layer 1: what both sides of the seams speak; imports only itself.
+VOCABULARY = {"model", "query", "errors", "timefmt", "config", "retention_policy"}
+# What the read side and the HTTP layer are made of.
+READING = ("history", "grafana", "ngsild", "export", "ui")
+HTTP = ("api", "app", "cli", "httpserver", "security", "demo", "metrics")
+# Geometry primitives (parsing GeoJSON, extents, geodesic distance) sit
+# beside the vocabulary; geo-*queries* are on the read side.
+GEO_QUERIES = ("geo.filter", "geo.matching", "geo.masks")
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _imports() -> dict[str, set[str]]:
+    """Every module of the package → the package modules (and names) it imports."""
+    graph: dict[str, set[str]] = {}
+    for path in PACKAGE.rglob("*.py"):
+        module = _module_name(path)
+        package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
+        targets = graph.setdefault(module, set())
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    target = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    target = node.module or ""
+                if target.startswith("tsdb_service"):
+                    targets.add(target)
+                    targets.update(f"{target}.{alias.name}" for alias in node.names)
+            elif isinstance(node, ast.Import):
+                targets.update(a.name for a in node.names if a.name.startswith("tsdb_service"))
+    return graph
+
+
+GRAPH = _imports()
+
+
+def _under(name: str, prefixes) -> bool:
+    short = name.removeprefix("tsdb_service.")
+    return any(short == p or short.startswith(p + ".") for p in prefixes)
+
+
+def _offenders(sources, forbidden, allowed=()) -> list[str]:
+    return sorted(
+        f"{module} -> {target}"
+        for module, targets in GRAPH.items()
+        if _under(module, sources) and not _under(module, allowed)
+        for target in targets
+        if _under(target, forbidden)
+    )
+
+
+def test_the_graph_was_read():
+    assert {"tsdb_service.query", "tsdb_service.storage.base", "tsdb_service.ngsi.request_context"} <= set(GRAPH)
+
+
+def test_the_vocabulary_imports_only_itself():
+    offenders = sorted(
+        f"{module} -> {target}"
+        for module, targets in GRAPH.items()
+        if _under(module, VOCABULARY)
+        for target in targets
+        if target != "tsdb_service" and not _under(target, VOCABULARY)
+    )
+    assert offenders == []
+
+
+@pytest.mark.parametrize(
+    ("layer", "above"),
+    [
+        (("ngsi",), ("storage", *READING, *HTTP, *GEO_QUERIES)),
+        (("storage",), (*READING, *HTTP, *GEO_QUERIES)),
+        (("history", "geo", "export"), HTTP),
+    ],
+    ids=["parsing", "storage", "reading"],
+)
+def test_no_import_goes_back_up(layer, above):
+    # export.commands is the `tsdb-service export` command: part of the CLI.
+    assert _offenders(layer, above, allowed=("export.commands",)) == []
+
+
+def test_only_the_storage_factory_names_a_backend_or_renders_sql():
+    backends = ("storage.duckdb", "storage.postgres", "storage.sql")
+    outside = [m for m in GRAPH if not _under(m, ("storage",))]
+    offenders = sorted(f"{m} -> {t}" for m in outside for t in GRAPH[m] if _under(t, backends))
+    assert offenders == []
