@@ -98,10 +98,3 @@ def test_the_vocabulary_imports_only_itself():
 def test_no_import_goes_back_up(layer, above):
     # export.commands is the `tsdb-service export` command: part of the CLI.
     assert _offenders(layer, above, allowed=("export.commands",)) == []
-
-
-def test_only_the_storage_factory_names_a_backend_or_renders_sql():
-    backends = ("storage.duckdb", "storage.postgres", "storage.sql")
-    outside = [m for m in GRAPH if not _under(m, ("storage",))]
-    offenders = sorted(f"{m} -> {t}" for m in outside for t in GRAPH[m] if _under(t, backends))
-    assert offenders == []

@@ -418,3 +418,63 @@ class Bounds(Protocol):
 # (``geo.filter.box_prefilter``): ("intersects", box), overlap ``box``;
 # ("within", box), lie inside it. None: no prefilter.
 Prefilter = tuple[str, Bounds]
+
+
+# -- NGSI-LD temporal reads: what ``ngsild`` asks beyond whole instances ----------
+
+
+@dataclass(frozen=True, slots=True)
+class ValueTest:
+    """A test on an instance's plain value that the database can make (a
+    ``q`` term without sub-property or value path, ``ngsild.fetch``).
+    ``op`` None: the instance has a value (it is no deletion or null);
+    otherwise ``value`` compared by ``op`` (``==``, ``>``, ``>=``, ``<``,
+    ``<=``): a float against number instances (Number, Integer), a str
+    (``==`` only) against text and relationship instances."""
+
+    op: str | None = None
+    value: float | str | None = None
+
+    def __post_init__(self) -> None:
+        if self.op is None:
+            return
+        if isinstance(self.value, str) and self.op != "==":
+            raise ValueError("a text test compares with == only")
+        if self.op not in VALUE_TEST_OPS or not isinstance(self.value, (float, str)):
+            raise ValueError(f"not a value test: {self.op!r} {self.value!r}")
+
+
+VALUE_TEST_OPS = ("==", ">", ">=", "<", "<=")
+
+# An instance's value as ``Querier.instance_values`` reads it: (sid, kind,
+# num, txt, js, md), distinct; the columns as in ``InstanceRow``.
+InstanceValueRow = tuple[int, int, float | None, str | None, str | None, str | None]
+
+
+@dataclass(frozen=True, slots=True)
+class InstancePeriods:
+    """How ``Querier.instance_aggregate`` groups instances into periods
+    (bounds as epoch microseconds, a period is [start, end)):
+
+    * nothing set: one period (bucket 0);
+    * ``step_us``: periods of that length from ``origin_us``, or, when it is
+      None, from the first instance in the window (found by the same statement);
+    * ``edges``: the consecutive periods [edges[i], edges[i + 1]) (calendar
+      periods, laid out by the caller); a bucket is its period's start."""
+
+    step_us: int | None = None
+    origin_us: int | None = None
+    edges: tuple[int, ...] = ()
+
+
+# A row of ``Querier.instance_aggregate`` (driver tuples, indexed by
+# position: ``ngsild.aggregate`` merges them; few rows, so no names): one
+# per (series, period, kind, is-array, notified type): (sid, bucket (the
+# period's start in epoch µs, 0 for one period), kind, is_array (1: a JSON
+# array, its size is x), atype, n (instances with a value), n_distinct,
+# nx (instances with a number x), sum(x), sum(x * x), min(x), max(x),
+# min(txt), max(txt), the first and last instance times (epoch µs)). A
+# column no asked method needs is None.
+InstanceAggregateRow = tuple[
+    int, int, int, int, str | None, int, int | None, int | None, Any, Any, Any, Any, Any, Any, int, int
+]

@@ -3,7 +3,7 @@
 An entity's location is a step function of time: each location sample holds
 from its (time, row id) until the next one. A geo-query is resolved once per
 request into the intervals in which that location matched, then every read
-keeps only the samples inside them (``storage.sql.RowMask``, a join against
+keeps only the samples inside them (``query.RowMask``, a join against
 bound arrays), so ordering, ``lastN``, ``limit``, ``offset`` and
 aggregations run in the database on the matching samples only.
 

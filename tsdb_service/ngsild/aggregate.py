@@ -1,5 +1,6 @@
 """The aggregated temporal representation (``format=aggregatedValues``),
-computed in the database by one grouped SQL statement per request (the
+computed in the database by one grouped SQL statement per request
+(``Querier.instance_aggregate``, rendered by ``storage.temporal``; the
 start of the periods, when the window has none, is found by that same
 statement; only calendar periods over a window missing an end take a first
 statement that finds its span).
@@ -44,9 +45,11 @@ from operator import itemgetter
 from typing import NamedTuple
 
 from ..model import Kind
+from ..query import InstancePeriods
 from ..timefmt import ld_iso as iso
 from ..timefmt import ld_iso_us as iso_us
 from .errors import BadRequestData
+from .fetch import Fetcher, instance_window
 from .query import Aggregation, Duration, Window
 
 MAX_PERIODS = 100_000
@@ -69,7 +72,8 @@ LD_TYPES = frozenset(
     }
 )
 
-# Aggregate rows: one per (series, period, kind, is-array, notified type).
+# Aggregate rows (``query.InstanceAggregateRow``): one per (series, period,
+# kind, is-array, notified type).
 (
     R_SID,
     R_BUCKET,
@@ -126,13 +130,13 @@ def boundaries(start: datetime, end: datetime, period: Duration) -> list[int]:
 
 
 class Aggregator:
-    """One grouped SQL statement per request: the database filters, buckets
-    and aggregates; Python only merges the few (kind, type) groups of a
-    period and applies the spec's type rules."""
+    """One grouped SQL statement per request (``Querier.instance_aggregate``):
+    the database filters, buckets and aggregates; Python lays out the
+    periods, merges the few (kind, type) groups of a period and applies the
+    spec's type rules."""
 
-    def __init__(self, fetcher):
-        self.f = fetcher
-        self.d = fetcher.d
+    def __init__(self, fetcher: Fetcher):
+        self.q = fetcher.q
 
     def run(self, sids: Sequence[int], window: Window, agg: Aggregation) -> dict[int, SeriesAggregate]:
         """sid → its NGSI-LD attribute type and periods, in order, bounds
@@ -140,115 +144,26 @@ class Aggregator:
         if not sids:
             return {}
         period, methods = agg.period, agg.methods
+        where = instance_window(window)
         if period.zero:
-            rows = self._query(sids, window, methods, "0", [])
+            rows = self.q.instance_aggregate(sids, where, methods, InstancePeriods())
             return self._whole(rows, window, methods)
         if not period.calendar:
             step = period.fixed_micros
-            p, div = self.d.placeholder, self._int_div()
-            if window.start is not None:
-                start_us = datetime_to_us(window.start)
-                bucket = f"{p} + {p} * ((tp - {p}) {div} {p})"
-                rows = self._query(sids, window, methods, bucket, [start_us, step, start_us, step])
-            else:  # from the first instance in the window, found by the same statement
-                bucket = f"o.origin + {p} * ((tp - o.origin) {div} {p})"
-                rows = self._query(sids, window, methods, bucket, [step, step], origin=True)
+            origin = datetime_to_us(window.start) if window.start is not None else None
+            rows = self.q.instance_aggregate(sids, where, methods, InstancePeriods(step, origin))
             return self._combine(rows, methods, lambda lo: (lo, lo + step))
         start, end = window.start, window.end
         if start is None or end is None:  # calendar periods need both ends to lay out the months
-            bounds = self._span(sids, window)
+            bounds = self.q.instance_span(sids, where)
             if bounds is None:
                 return {}
             start = start or us_to_datetime(bounds[0])
             end = end or us_to_datetime(bounds[1] + 1)
         edges = boundaries(start, end, period)
-        rows = self._calendar_query(sids, window, agg.methods, edges)
+        rows = self.q.instance_aggregate(sids, where, methods, InstancePeriods(edges=tuple(edges)))
         following = dict(pairwise(edges))
-        return self._combine(rows, agg.methods, lambda lo: (lo, following[lo]))
-
-    # -- SQL -------------------------------------------------------------------------
-
-    def _inner(self, sids: Sequence[int], window: Window, methods) -> tuple[str, list]:
-        """The instances in the window: time (epoch µs), kind, type, text, the
-        number a method works on (``x``), whether the value is an array and,
-        for ``distinctCount``, the value as text."""
-        d = self.d
-        expr, where_t, params_t = self.f.time_filter(window)
-        where_s, params_s = d.sid_filter(sids)
-        is_array = f"(kind = {int(_K.STRUCTURED)} AND substr(js, 1, 1) = '[')"
-        x = (
-            f"CASE WHEN kind IN ({int(_K.NUMBER)}, {int(_K.INTEGER)}, {int(_K.BOOLEAN)}, {int(_K.DATETIME)}) "
-            f"THEN num WHEN {is_array} THEN CAST({self._array_length('js')} AS DOUBLE PRECISION) END"
-        )
-        dv = ", coalesce(txt, js, CAST(num AS VARCHAR)) AS dv" if "distinctCount" in methods else ""
-        table = d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js")
-        sql = (
-            f"SELECT sid, {d.epoch_us(expr)} AS tp, kind, atype, txt{dv}, "
-            f"CASE WHEN {is_array} THEN 1 ELSE 0 END AS is_array, {x} AS x "
-            f"FROM {table} WHERE {where_s} AND {where_t} AND kind <> {int(_K.NULL)}"
-        )
-        return sql, [*params_s, *params_t]
-
-    def _int_div(self) -> str:
-        """Integer division of BIGINTs (``/`` is exact division in DuckDB)."""
-        return "/" if self.d.name == "postgresql" else "//"
-
-    def _array_length(self, col: str) -> str:
-        if self.d.name == "postgresql":
-            return f"jsonb_array_length(({col})::jsonb)"
-        return f"json_array_length({col})"
-
-    @staticmethod
-    def _select(methods) -> str:
-        """Aggregate columns (see ``R_*``), each only when a method needs it:
-        every aggregate costs, ``count(DISTINCT)`` most (it cannot stream)."""
-        wanted = set(methods)
-
-        def col(sql: str, needed) -> str:
-            return sql if needed else "NULL"
-
-        return (
-            "SELECT sid, bucket, kind, is_array, atype, count(*), "
-            f"{col('count(DISTINCT dv)', 'distinctCount' in wanted)}, {col('count(x)', wanted - set(_COUNTS))}, "
-            f"{col('sum(x)', wanted & {'sum', 'avg', 'stddev'})}, {col('sum(x * x)', wanted & {'stddev', 'sumsq'})}, "
-            f"{col('min(x)', 'min' in wanted)}, {col('max(x)', 'max' in wanted)}, "
-            f"{col('min(txt)', 'min' in wanted)}, {col('max(txt)', 'max' in wanted)}, min(tp), max(tp)"
-        )
-
-    def _query(self, sids, window, methods, bucket_sql: str, bucket_params: list, origin: bool = False):
-        """One grouped statement; with ``origin`` the periods start at the
-        first instance, which the statement finds itself."""
-        inner, params = self._inner(sids, window, methods)
-        ctes = f"WITH s AS ({inner})"
-        source = "s"
-        if origin:
-            ctes += ", o AS (SELECT min(tp) AS origin FROM s)"
-            source = "s, o"
-        sql = (
-            f"{ctes} {self._select(methods)} FROM (SELECT s.*, {bucket_sql} AS bucket FROM {source}) b "
-            "GROUP BY sid, bucket, kind, is_array, atype"
-        )
-        return self.f.q._fetch(sql, [*params, *bucket_params])
-
-    def _calendar_query(self, sids, window, methods, edges: list[int]) -> list[tuple]:
-        inner, params = self._inner(sids, window, methods)
-        p = self.d.placeholder
-        if self.d.name == "postgresql":
-            periods = f"unnest({p}::bigint[], {p}::bigint[]) AS per(lo, hi)"
-        else:
-            periods = f"(SELECT unnest({p}::BIGINT[]) AS lo, unnest({p}::BIGINT[]) AS hi) per"
-        sql = (
-            f"{self._select(methods)} FROM (SELECT s.*, per.lo AS bucket FROM ({inner}) s "
-            f"JOIN {periods} ON s.tp >= per.lo AND s.tp < per.hi) b GROUP BY sid, bucket, kind, is_array, atype"
-        )
-        return self.f.q._fetch(sql, [*params, edges[:-1], edges[1:]])
-
-    def _span(self, sids, window) -> tuple[int, int] | None:
-        inner, params = self._inner(sids, window, ())
-        rows = self.f.q._fetch(f"SELECT min(tp), max(tp) FROM ({inner}) s", params)
-        if not rows or rows[0][0] is None:
-            return None
-        return int(rows[0][0]), int(rows[0][1])
+        return self._combine(rows, methods, lambda lo: (lo, following[lo]))
 
     # -- combining ---------------------------------------------------------------------
 

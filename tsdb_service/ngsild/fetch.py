@@ -12,15 +12,18 @@ Steps:
 1. Series from the in-memory catalog: entity ids / idPattern, types (type
    expressions), attributes, datasetIds. No sample is read.
 2. ``q`` and the geo-query, when given, each need a look at the instances
-   in the window: a comparison on numbers or text runs in SQL (``SELECT
-   DISTINCT sid``), anything else reads the candidate values; a geo-query
-   prefilters by bounding box in SQL and applies the exact, geodesic
+   in the window: a comparison on numbers or text is decided by the
+   database (``Querier.instances_matching``), anything else reads the
+   candidate values (``Querier.instance_values``); a geo-query reads the
+   locations whose stored box passes its prefilter
+   (``Querier.location_instances``) and applies the exact, geodesic
    predicate in Python.
 3. The matching entities are sorted by id (then type) and paged.
 4. Only the page's series are read (``ngsild.service``): instances in the
    window through ``Querier.temporal_instances`` (``lastN`` per series, at
    most ``cap + 1`` so a cut is detected: 206), or one grouped aggregation
-   statement (``ngsild.aggregate``).
+   statement (``ngsild.aggregate``, ``Querier.instance_aggregate``). The
+   SQL of each is rendered in storage (``storage.temporal``).
 """
 
 from __future__ import annotations
@@ -30,35 +33,20 @@ from functools import partial
 
 import orjson
 
-from ..model import Kind
-from ..query import EntityFilter, Scope, SeriesRef
+from ..query import VALUE_TEST_OPS, EntityFilter, InstanceWindow, Scope, SeriesRef, ValueTest
+from ..storage.base import Querier
 from . import qlang
 from .context import TermMap
-from .query import DEFAULT_DATASET, TemporalQuery, TimeProperty, TypeName, Window, type_matches
+from .query import DEFAULT_DATASET, TemporalQuery, TypeName, Window, type_matches
 
 EntityKey = tuple[str, str]  # (entity id, stored entity type)
 
-# Column expression of each time property; observedAt falls back to the row
-# time, which is what NGSIv2 samples (and LD ones without observedAt) have.
-TIME_COLUMNS = {
-    TimeProperty.OBSERVED_AT: "coalesce(observed_at, t)",
-    TimeProperty.CREATED_AT: "created_at",
-    TimeProperty.MODIFIED_AT: "modified_at",
-    TimeProperty.DELETED_AT: "deleted_at",
-}
-_NUMERIC = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
-_TEXT = f"{int(Kind.TEXT)}, {int(Kind.RELATIONSHIP)}"
-_GEO = int(Kind.GEO)
-_NULL = int(Kind.NULL)
-PER_SERIES_BRANCHES = 64  # most series read as one UNION ALL branch each (DuckDB)
-
 
 class Fetcher:
-    """Runs one query's SQL through a ``SqlQuerier`` (its dialect and ``_fetch``)."""
+    """Answers one query's questions through the read seam (``storage.base.Querier``)."""
 
-    def __init__(self, querier, terms: TermMap):
+    def __init__(self, querier: Querier, terms: TermMap):
         self.q = querier
-        self.d = querier.dialect
         self.terms = terms
 
     # -- 1. series ---------------------------------------------------------------
@@ -114,19 +102,6 @@ class Fetcher:
 
     # -- 2. q and geo over the window ---------------------------------------------
 
-    def time_filter(self, window: Window) -> tuple[str, str, list]:
-        """(time expression, WHERE fragment, params) for ``window`` (half-open)."""
-        expr = TIME_COLUMNS[window.timeproperty]
-        p = self.d.placeholder
-        where, params = f"{expr} IS NOT NULL", []
-        if window.start is not None:
-            where += f" AND {expr} >= {p}"
-            params.append(self.d.time_value(window.start))
-        if window.end is not None:
-            where += f" AND {expr} < {p}"
-            params.append(self.d.time_value(window.end))
-        return expr, where, params
-
     def q_matches(
         self, node: qlang.Node, window: Window, by_entity: dict[EntityKey, list[SeriesRef]], iris: dict[int, str]
     ) -> set[EntityKey]:
@@ -143,40 +118,16 @@ class Fetcher:
         return {key for key in by_entity if qlang.evaluate(node, partial(_holds, holding, key))}
 
     def _term_sids(self, term: qlang.Term, sids: list[int], window: Window) -> set[int]:
-        _, where_t, params_t = self.time_filter(window)
-        pushed = _pushdown(term, self.d.placeholder)
-        table = self.d.samples("sid, t, observed_at, created_at, modified_at, deleted_at, kind, num, txt, js, md")
-        if pushed is not None:
-            cond, cparams = pushed
-            rows = self._per_series(
-                f"SELECT DISTINCT sid FROM {table}", f"{where_t} AND {cond}", [*params_t, *cparams], sids
-            )
-            return {row[0] for row in rows}
-        rows = self._per_series(
-            f"SELECT DISTINCT sid, kind, num, txt, js, md FROM {table}",
-            f"{where_t} AND kind <> {_NULL}",
-            params_t,
-            sids,
-        )
+        """The series with an instance satisfying ``term``: decided by the
+        database when it can (``value_test``), else on the read values."""
+        test = value_test(term)
+        if test is not None:
+            return self.q.instances_matching(sids, instance_window(window), test)
         out = set()
-        for sid, kind, num, txt, js, md in rows:
+        for sid, kind, num, txt, js, md in self.q.instance_values(sids, instance_window(window)):
             if sid not in out and term.matches(term_value(term, kind, num, txt, js, md)):
                 out.add(sid)
         return out
-
-    def _per_series(self, head: str, where: str, params: list, sids: list[int]) -> list[tuple]:
-        """``{head} WHERE <sid in sids> AND {where}``. On DuckDB a few
-        scattered series become one ``sid = ?`` branch each (UNION ALL):
-        the table is sorted by series, so each branch reads its own row
-        groups, where one IN list over far-apart ids scans all between."""
-        p = self.d.placeholder
-        if self.d.name == "duckdb" and 1 < len(sids) <= PER_SERIES_BRANCHES and _scattered(sids):
-            branch = f"{head} WHERE sid = {p} AND {where}"
-            return self.q._fetch(
-                " UNION ALL ".join([branch] * len(sids)), [value for sid in sids for value in (sid, *params)]
-            )
-        where_s, params_s = self.d.sid_filter(sids)
-        return self.q._fetch(f"{head} WHERE {where_s} AND {where}", [*params_s, *params])
 
     def geo_matches(
         self, geo, window: Window, by_entity: dict[EntityKey, list[SeriesRef]], iris: dict[int, str]
@@ -189,20 +140,9 @@ class Fetcher:
             sids = self._ever_near(sids, prefilter)
         if not sids:
             return set()
-        _, where_t, params_t = self.time_filter(window)
-        box_sql, box_params = _box_filter(prefilter, self.d.placeholder)
-        table = self.d.samples(
-            "sid, t, observed_at, created_at, modified_at, deleted_at, kind, geo, min_lon, min_lat, max_lon, max_lat"
-        )
-        rows = self._per_series(
-            f"SELECT DISTINCT sid, geo FROM {table}",
-            f"{where_t} AND kind = {_GEO} AND geo IS NOT NULL{box_sql}",
-            [*params_t, *box_params],
-            sids,
-        )
         matched: set[EntityKey] = set()
         verdicts: dict[str, bool] = {}
-        for sid, geojson in rows:
+        for sid, geojson in self.q.location_instances(sids, instance_window(window), prefilter):
             key = owner[sid]
             if key in matched:
                 continue
@@ -225,44 +165,27 @@ class Fetcher:
         return [sid for sid in sids if sid in near]
 
 
-def _scattered(sids: list[int]) -> bool:
-    """Far enough apart that the ids' span holds mostly other series."""
-    return max(sids) - min(sids) + 1 > 4 * len(sids)
+def instance_window(window: Window) -> InstanceWindow:
+    """The seam's spelling of a temporal query's window."""
+    return InstanceWindow(window.timeproperty.value, window.start, window.end)
 
 
-def _pushdown(term: qlang.Term, p: str) -> tuple[str, list] | None:
-    """SQL for a term on a plain value (no sub-property or value path): a
-    numeric comparison, text equality or existence. Else None (Python)."""
+def value_test(term: qlang.Term) -> ValueTest | None:
+    """The test the database can make for a term on a plain value (no
+    sub-property or value path): a numeric comparison, text equality or
+    existence. Else None (Python decides on the values)."""
     if term.sub or term.inner:
         return None
     if term.op is None:
-        return f"kind <> {_NULL}", []
+        return ValueTest()
     value = term.value
-    sql_op = {"==": "=", "!=": "<>", ">": ">", ">=": ">=", "<": "<", "<=": "<="}.get(term.op)
-    if sql_op is None or isinstance(value, bool):
-        return None
+    if term.op not in VALUE_TEST_OPS or isinstance(value, bool):
+        return None  # != also holds for non-numbers, lists, ranges, regexes: Python decides
     if isinstance(value, (int, float)):
-        if term.op == "!=":
-            return None  # != also holds for non-numbers; Python decides
-        return f"kind IN ({_NUMERIC}) AND num {sql_op} {p}", [float(value)]
+        return ValueTest(term.op, float(value))
     if isinstance(value, str) and term.op == "==":
-        return f"kind IN ({_TEXT}) AND txt = {p}", [value]
+        return ValueTest(term.op, value)
     return None
-
-
-def _box_filter(prefilter, p: str) -> tuple[str, list]:
-    if prefilter is None:
-        return "", []
-    how, box = prefilter
-    if how == "within":
-        return (
-            f" AND min_lon >= {p} AND max_lon <= {p} AND min_lat >= {p} AND max_lat <= {p}",
-            [box.min_lon, box.max_lon, box.min_lat, box.max_lat],
-        )
-    return (
-        f" AND max_lon >= {p} AND min_lon <= {p} AND max_lat >= {p} AND min_lat <= {p}",
-        [box.min_lon, box.max_lon, box.min_lat, box.max_lat],
-    )
 
 
 _VALUE_KEYS = ("value", "object", "languageMap", "valueList", "objectList", "vocab", "json")

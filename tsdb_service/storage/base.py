@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..model import AttrSample, EntitySample, RejectedNotification
 from ..ngsi import ValuesLayout
@@ -28,7 +28,10 @@ from ..query import (
     ExtentRow,
     FirstLocationRow,
     GeometryRow,
+    InstanceAggregateRow,
+    InstancePeriods,
     InstanceRow,
+    InstanceValueRow,
     InstanceWindow,
     LastValueRow,
     LatestRow,
@@ -40,8 +43,12 @@ from ..query import (
     SeriesRef,
     StoredSample,
     TimeRange,
+    ValueTest,
 )
 from .memory_only import T, read_off_loop
+
+if TYPE_CHECKING:
+    from .export import SampleBatches
 
 
 @dataclass(frozen=True, slots=True)
@@ -279,8 +286,60 @@ class Querier(ABC):
           reads it back."""
 
     @abstractmethod
+    def instances_matching(self, sids: Sequence[int], window: InstanceWindow, test: ValueTest) -> set[int]:
+        """Those of ``sids`` with an instance in ``window`` (its time property
+        set and inside; as ``temporal_instances``) that passes ``test``: a
+        ``q`` term the database can decide. One statement."""
+
+    @abstractmethod
+    def instance_values(self, sids: Sequence[int], window: InstanceWindow) -> list[InstanceValueRow]:
+        """The distinct (sid, kind, num, txt, js, md) of the instances in
+        ``window`` that have a value (no deletion or null): what a ``q``
+        term the database cannot decide is tested on. One statement."""
+
+    @abstractmethod
+    def location_instances(
+        self, sids: Sequence[int], window: InstanceWindow, prefilter: Prefilter | None
+    ) -> list[tuple[int, str]]:
+        """The distinct (sid, GeoJSON) of the location instances in
+        ``window`` whose stored box passes ``prefilter``: an NGSI-LD
+        geo-query's candidates (the caller applies the exact predicate).
+        One statement."""
+
+    @abstractmethod
+    def instance_aggregate(
+        self, sids: Sequence[int], window: InstanceWindow, methods: Sequence[str], periods: InstancePeriods
+    ) -> list[InstanceAggregateRow]:
+        """Partial aggregates of the instances in ``window`` that have a
+        value, per series, period (``periods``), kind, array-ness and
+        notified type, in the layout of ``query.InstanceAggregateRow``
+        (driver tuples, a fresh list the caller may sort). Only the columns
+        ``methods`` (NGSI-LD ``aggrMethods`` names) need are computed.
+        One statement."""
+
+    @abstractmethod
+    def instance_span(self, sids: Sequence[int], window: InstanceWindow) -> tuple[int, int] | None:
+        """The first and last instance times in ``window`` (epoch µs, of
+        instances with a value), or None when there is none."""
+
+    @abstractmethod
     def instance_series(self, sids: Sequence[int], iid: int) -> int | None:
         """The one of ``sids`` that holds instance ``iid``, or None."""
+
+    @abstractmethod
+    def export_batches(self, sids: Sequence[int], time: TimeRange, batch_rows: int, sort_rows: int) -> SampleBatches:
+        """The samples of ``sids`` in ``time`` (inclusive) joined with their
+        series' names, oldest first (time, then row, then series), as
+        ``storage.export.SampleBatches`` of at most ``batch_rows`` samples in
+        the columns ``storage.export.EXPORT_COLUMNS``: what an export writes.
+
+        Memory stays bounded: DuckDB sorts consecutive time windows of about
+        ``sort_rows`` samples (memory follows the window), PostgreSQL streams
+        a server-side cursor. The query starts here (a failure to start is
+        raised here, before any batch); the stream holds a cursor of its own
+        (PostgreSQL: a pooled connection and one transaction, one snapshot)
+        until ``close()``, which the caller must call (a context manager).
+        Use it from one thread at a time, never on the event loop."""
 
     @abstractmethod
     def sample_counts(self) -> dict[str, int]:

@@ -34,7 +34,10 @@ from ..query import (
     ExtentRow,
     FirstLocationRow,
     GeometryRow,
+    InstanceAggregateRow,
+    InstancePeriods,
     InstanceRow,
+    InstanceValueRow,
     InstanceWindow,
     LastValueRow,
     LatestRow,
@@ -46,7 +49,9 @@ from ..query import (
     SeriesRef,
     StoredSample,
     TimeRange,
+    ValueTest,
 )
+from . import temporal
 from .base import DeleteInstance, Querier, ReplaceInstance
 from .catalog import SeriesCatalog
 from .common import SAMPLE_COLUMNS, VALUE_COLUMNS, box_sql, content_values
@@ -136,6 +141,18 @@ class Dialect:
             "AS m(m_sid, m_t0, m_r0, m_t1, m_r1)"
         )
 
+    # Integer division of BIGINTs (DuckDB's ``/`` divides exactly).
+    int_div = "/"
+
+    @abstractmethod
+    def json_array_length(self, col: str) -> str:
+        """SQL: the length of the JSON array in text column ``col``."""
+
+    @abstractmethod
+    def periods_relation(self) -> str:
+        """A FROM item of two bound BIGINT arrays zipped into rows
+        ``per(lo, hi)`` (consecutive periods, epoch µs)."""
+
     @abstractmethod
     def regex_match(self, col: str) -> str:
         """SQL: ``col`` matches a regex (one placeholder), unanchored.
@@ -188,15 +205,8 @@ def latest_per_series(
     )
 
 
-# NGSI-LD time properties → the SQL that reads them. observedAt falls back
-# to the row time for samples that had none (NGSIv2 data, or NGSI-LD without
-# observedAt), so every sample is an instance in observedAt order.
-_TIME_PROPERTY_SQL = {
-    "observedAt": "coalesce(observed_at, t)",
-    "createdAt": "created_at",
-    "modifiedAt": "modified_at",
-    "deletedAt": "deleted_at",
-}
+# NGSI-LD time properties → the SQL that reads them (``storage.temporal``).
+_TIME_PROPERTY_SQL = temporal.TIME_PROPERTY_SQL
 assert tuple(_TIME_PROPERTY_SQL) == TIME_PROPERTIES
 _INSTANCE_COLUMNS = "sid, iid, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
 _INSTANCE_SELECT = (
@@ -568,6 +578,54 @@ class SqlQuerier(Querier):
             f"SELECT sid FROM {d.samples('sid, iid')} WHERE {where} AND iid = {d.placeholder}", [*params, iid]
         )
         return rows[0][0] if rows else None
+
+    # -- NGSI-LD temporal matching and aggregation (storage.temporal) -----------------
+
+    def instances_matching(self, sids: Sequence[int], window: InstanceWindow, test: ValueTest) -> set[int]:
+        """See ``Querier``."""
+        if not sids:
+            return set()
+        head, where, params = temporal.matching_parts(self.dialect, window, test)
+        return {row[0] for row in self._per_series(head, where, params, sids)}
+
+    def instance_values(self, sids: Sequence[int], window: InstanceWindow) -> list[InstanceValueRow]:
+        """See ``Querier``."""
+        if not sids:
+            return []
+        head, where, params = temporal.values_parts(self.dialect, window)
+        return self._per_series(head, where, params, sids)
+
+    def location_instances(
+        self, sids: Sequence[int], window: InstanceWindow, prefilter: Prefilter | None
+    ) -> list[tuple[int, str]]:
+        """See ``Querier``."""
+        if not sids:
+            return []
+        head, where, params = temporal.locations_parts(self.dialect, window, prefilter)
+        return self._per_series(head, where, params, sids)
+
+    def instance_aggregate(
+        self, sids: Sequence[int], window: InstanceWindow, methods: Sequence[str], periods: InstancePeriods
+    ) -> list[InstanceAggregateRow]:
+        """See ``Querier``."""
+        if not sids:
+            return []
+        sql, params = temporal.aggregate_sql(self.dialect, sids, window, methods, periods)
+        return self._fetch(sql, params)
+
+    def instance_span(self, sids: Sequence[int], window: InstanceWindow) -> tuple[int, int] | None:
+        """See ``Querier``."""
+        if not sids:
+            return None
+        rows = self._fetch(*temporal.span_sql(self.dialect, sids, window))
+        if not rows or rows[0][0] is None:
+            return None
+        return int(rows[0][0]), int(rows[0][1])
+
+    def _per_series(self, head: str, where: str, params: list, sids: Sequence[int]) -> list:
+        """``{head} WHERE <sid in sids> AND {where}``, all rows."""
+        where_s, params_s = self.dialect.sid_filter(sids)
+        return self._fetch(f"{head} WHERE {where_s} AND {where}", [*params_s, *params])
 
     # -- whole-store reads, for commands ---------------------------------------------
 

@@ -69,6 +69,15 @@ class DuckDBDialect(Dialect):
     def json_present(self, col: str, path: object) -> tuple[str, list]:
         return f"coalesce(json_type({col}, ?), 'NULL') <> 'NULL'", [path]
 
+    int_div = "//"
+
+    def json_array_length(self, col: str) -> str:
+        return f"json_array_length({col})"
+
+    def periods_relation(self) -> str:
+        # unnest() in a SELECT list zips arrays of equal length.
+        return "(SELECT unnest(?::BIGINT[]) AS lo, unnest(?::BIGINT[]) AS hi) per"
+
     def regex_match(self, col: str) -> str:
         return f"regexp_matches({col}, ?)"
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator, Sequence
+from datetime import UTC, datetime, timedelta
 from typing import Protocol
 
 import duckdb
@@ -20,6 +21,7 @@ from ...errors import Unavailable
 from ...query import ExtentRow, FirstLocationRow, GeometryRow, Prefilter, RawRow, RowMask, TimeRange
 from ..catalog import SeriesCatalog
 from ..common import to_micros
+from ..export import Columns, SampleBatches, export_sql
 from ..memory_only import check_database_allowed
 from ..sql import _LOCATION_COLUMNS, GEO_KIND, SqlQuerier, as_first_locations, series_time_filter
 from .dialect import DuckDBDialect
@@ -47,9 +49,11 @@ class DuckDBSource(Protocol):
 # an insert-only table (series ids do not: several writers allocate them).
 # lastN over more series than this goes to the database in one query.
 TAIL_MAX_SERIES = 64
+PER_SERIES_BRANCHES = 64  # NGSI-LD matching: most series read as one UNION ALL branch each
 # The two halves of ``samples_all``: the sorted table and the recent commits.
 SORTED, HOT = "samples", "samples_hot"
 
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _LOAD_SERIES = (
     "SELECT rowid, sid, tenant, service_path, entity_id, entity_type, attr, dataset_id FROM series "
     "WHERE rowid > ? ORDER BY rowid"
@@ -281,6 +285,76 @@ class DuckDBQuerier(SqlQuerier):
             return self._store.latest_geo.matching(sids, prefilter)
         return super().latest_geometries(sids, time, prefilter)
 
+    def _per_series(self, head: str, where: str, params: list, sids: Sequence[int]) -> list:
+        """A few scattered series become one ``sid = ?`` branch each (UNION
+        ALL): the table is sorted by series, so each branch reads its own
+        row groups, where one IN list over far-apart ids scans all between."""
+        if 1 < len(sids) <= PER_SERIES_BRANCHES and _scattered(sids):
+            branch = f"{head} WHERE sid = ? AND {where}"
+            return self._fetch(
+                " UNION ALL ".join([branch] * len(sids)), [value for sid in sids for value in (sid, *params)]
+            )
+        return super()._per_series(head, where, params, sids)
+
+    def export_batches(self, sids: Sequence[int], time: TimeRange, batch_rows: int, sort_rows: int) -> SampleBatches:
+        """See ``Querier``. DuckDB sorts a result in memory up to its
+        (machine-wide) memory limit, so the selection is read as consecutive
+        time windows of about ``sort_rows`` samples each (split evenly over
+        its time span), each sorted on its own: memory follows the window,
+        not the export. Its result comes over as Arrow batches
+        (``to_arrow_reader``) on a private cursor (the thread's own may be
+        in use meanwhile)."""
+        check_database_allowed()
+        batches = SampleBatches()
+        try:
+            cursor = self._store.cursor().cursor()
+        except duckdb.ConnectionException as exc:
+            raise Unavailable(f"the database is not available: {exc}") from None
+        batches.resources.callback(cursor.close)
+        try:
+            windows = iter(self._export_windows(cursor, sids, time, sort_rows))
+        except BaseException:
+            batches.close()
+            raise
+        reader = None
+
+        def read() -> Columns | None:
+            nonlocal reader
+            while True:
+                if reader is None:
+                    window = next(windows, None)
+                    if window is None:
+                        return None
+                    sql, params = export_sql(self.dialect, sids, window, "x.t")
+                    reader = cursor.execute(sql, params).to_arrow_reader(batch_rows)
+                try:
+                    return reader.read_next_batch().columns
+                except StopIteration:
+                    reader = None
+
+        batches.read = read
+        return batches
+
+    def _export_windows(
+        self, cursor: duckdb.DuckDBPyConnection, sids: Sequence[int], time: TimeRange, sort_rows: int
+    ) -> list[TimeRange]:
+        """Inclusive windows covering the selection's samples, one per
+        ``sort_rows`` of them (times are whole microseconds, so a window
+        ending 1 µs before the next one starts leaves no gap)."""
+        d = self.dialect
+        where, params = series_time_filter(d, sids, time)
+        row = cursor.execute(
+            f"SELECT {d.epoch_us('min(t)')}, {d.epoch_us('max(t)')}, count(*) FROM {d.samples('sid, t')} WHERE {where}",
+            params,
+        ).fetchone()
+        assert row is not None, "an aggregate without GROUP BY has one row"
+        first, last, count = row
+        if not count:
+            return []
+        pieces = max(1, -(-count // sort_rows))
+        step = -(-(last - first + 1) // pieces)
+        return [TimeRange(_utc(start), _utc(min(start + step - 1, last))) for start in range(first, last + 1, step)]
+
     def _load_tail(self, sid: int, n: int) -> list[TailRow]:
         d = self.dialect
         return self._fetch(
@@ -361,3 +435,12 @@ def _window(merged: list[tuple], newest_first: bool, limit: int, offset: int) ->
     else:
         picked = merged[offset : offset + limit]
     return [(sid, *row[1:]) for _, _, sid, row in picked]
+
+
+def _scattered(sids: Sequence[int]) -> bool:
+    """Far enough apart that the ids' span holds mostly other series."""
+    return max(sids) - min(sids) + 1 > 4 * len(sids)
+
+
+def _utc(micros: int) -> datetime:
+    return _EPOCH + timedelta(microseconds=micros)

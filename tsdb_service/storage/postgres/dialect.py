@@ -47,5 +47,11 @@ class PostgresDialect(Dialect):
     def json_present(self, col: str, path: object) -> tuple[str, list]:
         return f"coalesce(jsonb_typeof(({col})::jsonb #> %s::text[]), 'null') <> 'null'", [path]
 
+    def json_array_length(self, col: str) -> str:
+        return f"jsonb_array_length(({col})::jsonb)"
+
+    def periods_relation(self) -> str:
+        return "unnest(%s::bigint[], %s::bigint[]) AS per(lo, hi)"
+
     def regex_match(self, col: str) -> str:
         return f"{col} ~ %s"

@@ -1,0 +1,182 @@
+"""NGSI-LD temporal reads rendered to SQL, for any backend with a ``Dialect``.
+
+``ngsild`` decides what to ask (which series, which window, which test a
+``q`` term makes, how aggregation periods are laid out); this module spells
+it as SQL over the ``samples`` columns, and ``storage.sql.SqlQuerier`` runs
+it (``instances_matching``, ``instance_values``, ``location_instances``,
+``instance_aggregate``, ``instance_span`` on ``base.Querier``). Values are
+bound parameters; the only text put into SQL is our own.
+
+Each function returns SQL text and its parameters; the ``*_parts`` ones a
+``(head, where, params)`` triple that the querier's ``_per_series`` prefixes
+with the series filter (on DuckDB one ``sid = ?`` branch per scattered
+series, see ``storage.duckdb.querier``).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from ..model import Kind
+from ..query import InstancePeriods, InstanceWindow, Prefilter, ValueTest
+from .common import box_sql
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from .sql import Dialect
+
+# NGSI-LD time properties → the SQL that reads them. observedAt falls back
+# to the row time for samples that had none (NGSIv2 data, or NGSI-LD without
+# observedAt), so every sample is an instance in observedAt order.
+TIME_PROPERTY_SQL = {
+    "observedAt": "coalesce(observed_at, t)",
+    "createdAt": "created_at",
+    "modifiedAt": "modified_at",
+    "deletedAt": "deleted_at",
+}
+_NUMERIC = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
+_TEXT = f"{int(Kind.TEXT)}, {int(Kind.RELATIONSHIP)}"
+_NULL = int(Kind.NULL)
+_GEO = int(Kind.GEO)
+_SQL_OPS = {"==": "=", ">": ">", ">=": ">=", "<": "<", "<=": "<="}
+_TIME_COLUMNS = "sid, t, observed_at, created_at, modified_at, deleted_at"
+_COUNTS = ("totalCount", "distinctCount")
+
+
+def window_filter(d: Dialect, window: InstanceWindow) -> tuple[str, str, list]:
+    """(time expression, WHERE fragment, params): instances whose time
+    property is set and lies in the half-open ``window``."""
+    expr = TIME_PROPERTY_SQL[window.timeproperty]
+    p = d.placeholder
+    where, params = f"{expr} IS NOT NULL", []
+    if window.start is not None:
+        where += f" AND {expr} >= {p}"
+        params.append(d.time_value(window.start))
+    if window.end is not None:
+        where += f" AND {expr} < {p}"
+        params.append(d.time_value(window.end))
+    return expr, where, params
+
+
+def value_test_sql(d: Dialect, test: ValueTest) -> tuple[str, list]:
+    """SQL: one instance passes ``test`` (see ``query.ValueTest``)."""
+    if test.op is None:
+        return f"kind <> {_NULL}", []
+    op = _SQL_OPS[test.op]
+    if isinstance(test.value, str):
+        return f"kind IN ({_TEXT}) AND txt {op} {d.placeholder}", [test.value]
+    return f"kind IN ({_NUMERIC}) AND num {op} {d.placeholder}", [test.value]
+
+
+def matching_parts(d: Dialect, window: InstanceWindow, test: ValueTest) -> tuple[str, str, list]:
+    """The series with an instance in ``window`` that passes ``test``."""
+    _, where_t, params_t = window_filter(d, window)
+    cond, params_c = value_test_sql(d, test)
+    table = d.samples(f"{_TIME_COLUMNS}, kind, num, txt")
+    return f"SELECT DISTINCT sid FROM {table}", f"{where_t} AND {cond}", [*params_t, *params_c]
+
+
+def values_parts(d: Dialect, window: InstanceWindow) -> tuple[str, str, list]:
+    """The distinct values (and sub-properties) of the instances in ``window``."""
+    _, where_t, params_t = window_filter(d, window)
+    table = d.samples(f"{_TIME_COLUMNS}, kind, num, txt, js, md")
+    return f"SELECT DISTINCT sid, kind, num, txt, js, md FROM {table}", f"{where_t} AND kind <> {_NULL}", params_t
+
+
+def locations_parts(d: Dialect, window: InstanceWindow, prefilter: Prefilter | None) -> tuple[str, str, list]:
+    """The distinct locations in ``window`` whose stored box passes ``prefilter``."""
+    _, where_t, params_t = window_filter(d, window)
+    where = f"{where_t} AND kind = {_GEO} AND geo IS NOT NULL"
+    params = params_t
+    if prefilter is not None:
+        box, box_params = box_sql(d.placeholder, prefilter)
+        where += f" AND {box}"
+        params = [*params_t, *box_params]
+    table = d.samples(f"{_TIME_COLUMNS}, kind, geo, min_lon, min_lat, max_lon, max_lat")
+    return f"SELECT DISTINCT sid, geo FROM {table}", where, params
+
+
+# -- aggregation (ngsild.aggregate) ---------------------------------------------------
+
+
+def _instances(d: Dialect, sids: Sequence[int], window: InstanceWindow, methods: Sequence[str]) -> tuple[str, list]:
+    """The instances in the window: time (epoch µs), kind, type, text, the
+    number a method works on (``x``), whether the value is an array and,
+    for ``distinctCount``, the value as text."""
+    expr, where_t, params_t = window_filter(d, window)
+    where_s, params_s = d.sid_filter(sids)
+    is_array = f"(kind = {int(Kind.STRUCTURED)} AND substr(js, 1, 1) = '[')"
+    x = (
+        f"CASE WHEN kind IN ({int(Kind.NUMBER)}, {int(Kind.INTEGER)}, {int(Kind.BOOLEAN)}, {int(Kind.DATETIME)}) "
+        f"THEN num WHEN {is_array} THEN CAST({d.json_array_length('js')} AS DOUBLE PRECISION) END"
+    )
+    dv = ", coalesce(txt, js, CAST(num AS VARCHAR)) AS dv" if "distinctCount" in methods else ""
+    table = d.samples(f"{_TIME_COLUMNS}, kind, atype, num, txt, js")
+    sql = (
+        f"SELECT sid, {d.epoch_us(expr)} AS tp, kind, atype, txt{dv}, "
+        f"CASE WHEN {is_array} THEN 1 ELSE 0 END AS is_array, {x} AS x "
+        f"FROM {table} WHERE {where_s} AND {where_t} AND kind <> {_NULL}"
+    )
+    return sql, [*params_s, *params_t]
+
+
+def _select(methods: Sequence[str]) -> str:
+    """Aggregate columns (``query.InstanceAggregateRow``), each only when a
+    method needs it: every aggregate costs, ``count(DISTINCT)`` most (it
+    cannot stream)."""
+    wanted = set(methods)
+
+    def col(sql: str, needed) -> str:
+        return sql if needed else "NULL"
+
+    return (
+        "SELECT sid, bucket, kind, is_array, atype, count(*), "
+        f"{col('count(DISTINCT dv)', 'distinctCount' in wanted)}, {col('count(x)', wanted - set(_COUNTS))}, "
+        f"{col('sum(x)', wanted & {'sum', 'avg', 'stddev'})}, {col('sum(x * x)', wanted & {'stddev', 'sumsq'})}, "
+        f"{col('min(x)', 'min' in wanted)}, {col('max(x)', 'max' in wanted)}, "
+        f"{col('min(txt)', 'min' in wanted)}, {col('max(txt)', 'max' in wanted)}, min(tp), max(tp)"
+    )
+
+
+def aggregate_sql(
+    d: Dialect, sids: Sequence[int], window: InstanceWindow, methods: Sequence[str], periods: InstancePeriods
+) -> tuple[str, list]:
+    """One grouped statement (see ``Querier.instance_aggregate``)."""
+    inner, params = _instances(d, sids, window, methods)
+    if periods.edges:
+        return _calendar_sql(d, inner, params, methods, periods.edges)
+    p, div = d.placeholder, d.int_div
+    ctes, source, bucket_params = f"WITH s AS ({inner})", "s", []
+    if periods.step_us is None:
+        bucket = "0"
+    elif periods.origin_us is not None:
+        bucket = f"{p} + {p} * ((tp - {p}) {div} {p})"
+        bucket_params = [periods.origin_us, periods.step_us, periods.origin_us, periods.step_us]
+    else:  # from the first instance in the window, found by the same statement
+        ctes += ", o AS (SELECT min(tp) AS origin FROM s)"
+        source = "s, o"
+        bucket = f"o.origin + {p} * ((tp - o.origin) {div} {p})"
+        bucket_params = [periods.step_us, periods.step_us]
+    sql = (
+        f"{ctes} {_select(methods)} FROM (SELECT s.*, {bucket} AS bucket FROM {source}) b "
+        "GROUP BY sid, bucket, kind, is_array, atype"
+    )
+    return sql, [*params, *bucket_params]
+
+
+def _calendar_sql(
+    d: Dialect, inner: str, params: list, methods: Sequence[str], edges: Sequence[int]
+) -> tuple[str, list]:
+    sql = (
+        f"{_select(methods)} FROM (SELECT s.*, per.lo AS bucket FROM ({inner}) s "
+        f"JOIN {d.periods_relation()} ON s.tp >= per.lo AND s.tp < per.hi) b "
+        "GROUP BY sid, bucket, kind, is_array, atype"
+    )
+    return sql, [*params, list(edges[:-1]), list(edges[1:])]
+
+
+def span_sql(d: Dialect, sids: Sequence[int], window: InstanceWindow) -> tuple[str, list]:
+    """The first and last instance times in the window (epoch µs)."""
+    inner, params = _instances(d, sids, window, ())
+    return f"SELECT min(tp), max(tp) FROM ({inner}) s", params
