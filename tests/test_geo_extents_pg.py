@@ -1,4 +1,4 @@
-"""PostgreSQL's ``geo_extents`` (migration 0006, tsdb_service/geo/extents.py).
+"""PostgreSQL's ``geo_extents`` (migration 0006, tsdb_service/storage/postgres/extents.py).
 
 Geo-queries find their candidate entities in this table, so a position
 missing from it would silently drop matching samples. Pinned here: a

@@ -138,7 +138,7 @@ class PostgresQuerier(SqlQuerier):
         return as_geometries(self._fetch(sql, [list(sids), *params, *test_params]))
 
     def location_extents(self, sids: Sequence[int], prefilter: Prefilter | None) -> list[ExtentRow]:
-        """From ``geo_extents`` (kept by the writers, see geo.extents): the
+        """From ``geo_extents`` (kept by the writers, see storage.postgres.extents): the
         candidates' boxes without reading a single position. Over many
         series the table is searched by box (GiST) and intersected here:
         ``sid = ANY`` of thousands of ids would be tested on every row."""

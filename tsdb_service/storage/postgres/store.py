@@ -27,7 +27,6 @@ import psycopg
 from psycopg_pool import ConnectionPool
 
 from ...errors import Unavailable
-from ...geo.extents import ExtentLedger
 from ...model import EntitySample, RejectedNotification
 from ...ngsi import ValuesLayout
 from ...query import TimeRange
@@ -60,6 +59,7 @@ from ..rejected import RejectedLimits
 from ..sql import delete_statements, instance_statements
 from ..writer import GroupCommitter
 from .dialect import PostgresDialect
+from .extents import ExtentLedger
 from .querier import PostgresQuerier
 from .retention import PostgresSession, postgres_session
 
@@ -127,7 +127,7 @@ class PostgresStore(CommittingStore):
         self.pool = ConnectionPool(url, min_size=1, max_size=pool_size, open=True, kwargs={"autocommit": True})
         self._series: dict[SeriesKey, int] = {}
         self.latest_instances = LatestInstances()
-        self.geo_extents = ExtentLedger()  # geo.extents: where each series has ever been
+        self.geo_extents = ExtentLedger()  # .extents: where each series has ever been
         self._layouts: dict[tuple[str, str], ValuesLayout] = {}
         self._layouts_lock = threading.Lock()
         self._layouts_read_at = float("-inf")
