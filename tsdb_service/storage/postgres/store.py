@@ -33,12 +33,12 @@ from ...query import TimeRange
 from .. import rejected as rejected_store
 from ..base import DeleteInstance, DeleteSamples, PutLayout, ReplaceInstance
 from ..common import (
+    GEO_COLUMNS,
     LOAD_LAYOUTS_SQL,
     REJECTED_INSERT_COLUMNS,
     SAMPLE_COLUMNS,
     CommittingStore,
     StagingAppender,
-    content_values,
     layout_values,
     layouts_from_rows,
     naive_utc,
@@ -66,6 +66,7 @@ from .retention import PostgresSession, postgres_session
 log = logging.getLogger(__name__)
 
 # SAMPLE_COLUMNS (common): iid is the column default's (a sequence).
+_NO_GEO = (None,) * len(GEO_COLUMNS)
 _COPY_SAMPLES = f"COPY samples ({', '.join(SAMPLE_COLUMNS)}) FROM STDIN"
 _DIALECT = PostgresDialect()
 SeriesKey = tuple[str, str, str, str, str]
@@ -371,12 +372,25 @@ class PostgresAppender(StagingAppender):
                 t = naive_utc(entity.time_index)
                 prefix = (entity.tenant, entity.service_path, entity.entity_id, entity.entity_type)
                 for a in entity.attrs:
+                    # SAMPLE_COLUMNS order, written out: ``common.content_values``'
+                    # two calls per attribute cost ~10% of PostgreSQL ingest.
+                    g = a.geo
                     copy.write_row(
                         (
                             rid,
                             sids[(*prefix, a.name)],
                             t,
-                            *content_values(a),
+                            int(a.kind),
+                            a.ngsi_type,
+                            a.num,
+                            a.txt,
+                            a.js,
+                            *(
+                                (g.geojson, g.lon, g.lat, g.min_lon, g.min_lat, g.max_lon, g.max_lat)
+                                if g is not None
+                                else _NO_GEO
+                            ),
+                            a.md,
                             _naive(a.observed_at),
                             _naive(a.created_at),
                             _naive(a.modified_at),
