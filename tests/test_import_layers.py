@@ -7,12 +7,12 @@ that goes back up fails here with the module and the name it imported.
 
 from __future__ import annotations
 
-import ast
-from pathlib import Path
-
 import pytest
 
-PACKAGE = Path(__file__).resolve().parent.parent / "tsdb_service"
+try:
+    from support.imports import import_graph
+except ImportError:  # run from the repository root as a package
+    from tests.support.imports import import_graph
 
 # Layer 1: what both sides of the seams speak; imports only itself.
 VOCABULARY = {"model", "query", "errors", "timefmt", "config", "retention_policy"}
@@ -24,36 +24,7 @@ HTTP = ("api", "app", "cli", "httpserver", "security", "demo", "metrics")
 GEO_QUERIES = ("geo.filter", "geo.matching", "geo.masks")
 
 
-def _module_name(path: Path) -> str:
-    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
-    if parts[-1] == "__init__":
-        parts.pop()
-    return ".".join(parts)
-
-
-def _imports() -> dict[str, set[str]]:
-    """Every module of the package → the package modules (and names) it imports."""
-    graph: dict[str, set[str]] = {}
-    for path in PACKAGE.rglob("*.py"):
-        module = _module_name(path)
-        package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
-        targets = graph.setdefault(module, set())
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.ImportFrom):
-                if node.level:
-                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
-                    target = ".".join(base + ([node.module] if node.module else []))
-                else:
-                    target = node.module or ""
-                if target.startswith("tsdb_service"):
-                    targets.add(target)
-                    targets.update(f"{target}.{alias.name}" for alias in node.names)
-            elif isinstance(node, ast.Import):
-                targets.update(a.name for a in node.names if a.name.startswith("tsdb_service"))
-    return graph
-
-
-GRAPH = _imports()
+GRAPH = import_graph()
 
 
 def _under(name: str, prefixes) -> bool:

@@ -13,7 +13,11 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parent.parent / "tsdb_service"
+try:
+    from support.imports import PACKAGE, module_imports
+except ImportError:  # run from the repository root as a package
+    from tests.support.imports import PACKAGE, module_imports
+
 RENDERERS = ("tsdb_service.storage.sql", "tsdb_service.storage.temporal")
 BACKENDS = ("tsdb_service.storage.duckdb", "tsdb_service.storage.postgres")
 PRIVATE_READS = ("_fetch", "_batches")
@@ -21,25 +25,6 @@ PRIVATE_READS = ("_fetch", "_batches")
 
 def _outside_storage() -> list[Path]:
     return [p for p in sorted(PACKAGE.rglob("*.py")) if "storage" not in p.relative_to(PACKAGE).parts[:1]]
-
-
-def _module_imports(path: Path) -> set[str]:
-    """Absolute tsdb_service modules ``path`` imports (any depth, lazy ones too)."""
-    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
-    package = parts[:-1]  # a module and an __init__ both resolve relative imports in their folder
-    out = set()
-    for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = list(package[: len(package) - node.level + 1])
-                target = ".".join([*base, node.module] if node.module else base)
-            else:
-                target = node.module or ""
-            out.add(target)
-            out.update(f"{target}.{alias.name}" for alias in node.names)
-        elif isinstance(node, ast.Import):
-            out.update(alias.name for alias in node.names)
-    return {name for name in out if name.startswith("tsdb_service")}
 
 
 def _within(name: str, modules) -> bool:
@@ -50,7 +35,7 @@ def _within(name: str, modules) -> bool:
 def test_only_storage_imports_the_sql_renderers_and_backends():
     found = {}
     for path in _outside_storage():
-        bad = {n for n in _module_imports(path) if _within(n, (*RENDERERS, *BACKENDS))}
+        bad = {n for n in module_imports(path) if _within(n, (*RENDERERS, *BACKENDS))}
         if bad:
             found[str(path.relative_to(PACKAGE))] = sorted(bad)
     assert found == {}
@@ -58,9 +43,9 @@ def test_only_storage_imports_the_sql_renderers_and_backends():
 
 def test_the_checks_see_imports_of_every_shape():
     """The helper itself: relative, absolute and lazy imports all count."""
-    seen = _module_imports(PACKAGE / "storage" / "__init__.py")
+    seen = module_imports(PACKAGE / "storage" / "__init__.py")
     assert "tsdb_service.storage.duckdb.store" in seen  # a lazy ``from .duckdb.store import``
-    assert _module_imports(PACKAGE / "storage" / "duckdb" / "querier.py") >= {"tsdb_service.storage.sql"}
+    assert module_imports(PACKAGE / "storage" / "duckdb" / "querier.py") >= {"tsdb_service.storage.sql"}
 
 
 def test_nothing_outside_storage_reaches_into_a_querier():

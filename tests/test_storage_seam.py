@@ -10,7 +10,6 @@ other way round, and never on each other.
 
 from __future__ import annotations
 
-import ast
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -39,6 +38,11 @@ from tsdb_service.query import (
 )
 from tsdb_service.storage import open_store
 from tsdb_service.storage.base import AppendSamples, Querier, Store
+
+try:
+    from support.imports import module_imports
+except ImportError:  # run from the repository root as a package
+    from tests.support.imports import module_imports
 from tsdb_service.storage.copy import copy_history
 
 T0 = datetime(2024, 5, 1, tzinfo=UTC)
@@ -162,26 +166,6 @@ def test_copy_goes_through_the_seam(store, store_url_factory):
 # -- the import graph ---------------------------------------------------------------
 
 
-def _imports(path: Path) -> set[str]:
-    """Absolute names of the tsdb_service modules ``path`` imports (any depth, lazy ones too)."""
-    module = ".".join(path.relative_to(STORAGE.parent.parent).with_suffix("").parts)
-    package = module.rsplit(".", 1)[0] if path.name != "__init__.py" else module.removesuffix(".__init__")
-    out = set()
-    for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package.split(".")
-                base = base[: len(base) - node.level + 1]
-                target = ".".join([*base, node.module] if node.module else base)
-            else:
-                target = node.module or ""
-            out.add(target)
-            out.update(f"{target}.{alias.name}" for alias in node.names)
-        elif isinstance(node, ast.Import):
-            out.update(alias.name for alias in node.names)
-    return {name for name in out if name.startswith("tsdb_service")}
-
-
 def _backend_of(name: str) -> str | None:
     for backend in BACKENDS:
         if name == f"tsdb_service.storage.{backend}" or name.startswith(f"tsdb_service.storage.{backend}."):
@@ -193,17 +177,17 @@ def test_shared_storage_code_imports_no_backend():
     for path in sorted(STORAGE.glob("*.py")):
         if path.name == "__init__.py":
             continue  # open_store: the one place that picks a backend
-        backends = {b for b in map(_backend_of, _imports(path)) if b is not None}
+        backends = {b for b in map(_backend_of, module_imports(path)) if b is not None}
         assert not backends, f"{path.name} imports storage.{backends}"
 
 
 def test_backend_packages_never_import_each_other():
     for backend in BACKENDS:
         for path in sorted((STORAGE / backend).glob("*.py")):
-            others = {b for b in map(_backend_of, _imports(path)) if b not in (None, backend)}
+            others = {b for b in map(_backend_of, module_imports(path)) if b not in (None, backend)}
             assert not others, f"{backend}/{path.name} imports storage.{others}"
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_querier_never_imports_its_store(backend):
-    assert f"tsdb_service.storage.{backend}.store" not in _imports(STORAGE / backend / "querier.py")
+    assert f"tsdb_service.storage.{backend}.store" not in module_imports(STORAGE / backend / "querier.py")
