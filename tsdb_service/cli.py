@@ -185,25 +185,13 @@ def serve_app():
 
 @command("migrate")
 def cmd_migrate(args: argparse.Namespace) -> int:
-    from .storage import StoreUnavailable, check_store, explain
+    from .storage import check_store, migrate
 
     settings = _settings(args)
     check_store(settings)
-    try:
-        applied = _migrate(settings)
-    except Exception as exc:
-        message = explain(exc, settings.db)
-        if message is None:
-            raise
-        raise StoreUnavailable(message) from exc
+    applied = migrate(settings)
     print(f"applied migrations: {applied}" if applied else "schema is up to date")
     return 0
-
-
-def _migrate(settings: Settings) -> list[int]:
-    from .storage import migrate
-
-    return migrate(settings)
 
 
 @command("compact")

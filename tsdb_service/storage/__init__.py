@@ -11,6 +11,8 @@ instead of a driver's traceback.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from ..config import Settings
@@ -26,18 +28,20 @@ class StoreUnavailable(RuntimeError):
 
 def migrate(settings: Settings) -> list[int]:
     """Apply pending schema migrations to ``settings.db`` without opening a
-    store (``tsdb-service migrate``); the versions applied."""
-    if settings.backend == "postgresql":
-        from .postgres.store import migrate_url
+    store (``tsdb-service migrate``); the versions applied. An operator's
+    mistake is a one-line ``StoreUnavailable``, as for ``open_store``."""
+    with explained(settings.db):
+        if settings.backend == "postgresql":
+            from .postgres.store import migrate_url
 
-        return migrate_url(settings.db)
-    from .duckdb.store import connect, migrate_duckdb
+            return migrate_url(settings.db)
+        from .duckdb.store import connect, migrate_duckdb
 
-    con = connect(settings.db)
-    try:
-        return migrate_duckdb(con)
-    finally:
-        con.close()
+        con = connect(settings.db)
+        try:
+            return migrate_duckdb(con)
+        finally:
+            con.close()
 
 
 def open_store(settings: Settings, *, background: bool = False) -> Store:
@@ -57,17 +61,25 @@ def open_store(settings: Settings, *, background: bool = False) -> Store:
     return store
 
 
-def _open_explained(settings: Settings) -> Store:
-    """``_open``, with an operator's mistakes as one-line ``StoreUnavailable``s."""
+@contextmanager
+def explained(db: str) -> Iterator[None]:
+    """Let an operator's mistakes with ``db`` (see ``explain``) out as
+    one-line ``StoreUnavailable``s; anything else as it is."""
     try:
-        return _open(settings)
+        yield
     except StoreUnavailable:
         raise
     except Exception as exc:
-        message = explain(exc, settings.db)
+        message = explain(exc, db)
         if message is None:
             raise
         raise StoreUnavailable(message) from exc
+
+
+def _open_explained(settings: Settings) -> Store:
+    """``_open``, with an operator's mistakes as one-line ``StoreUnavailable``s."""
+    with explained(settings.db):
+        return _open(settings)
 
 
 def _open(settings: Settings) -> Store:
@@ -101,7 +113,7 @@ def check_store(settings: Settings) -> None:
     web server, so a wrong ``--db`` is one line and exit status 2 rather than
     a failed application start-up inside uvicorn.
     """
-    try:
+    with explained(settings.db):
         if settings.backend == "postgresql":
             import psycopg
 
@@ -112,11 +124,6 @@ def check_store(settings: Settings) -> None:
         if settings.db != ":memory:":
             Path(settings.db).parent.mkdir(parents=True, exist_ok=True)
         duckdb.connect(settings.db).close()
-    except Exception as exc:
-        message = explain(exc, settings.db)
-        if message is None:
-            raise
-        raise StoreUnavailable(message) from exc
 
 
 def require_history(db: str) -> None:

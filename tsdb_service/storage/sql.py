@@ -153,13 +153,6 @@ class Dialect:
         """A FROM item of two bound BIGINT arrays zipped into rows
         ``per(lo, hi)`` (consecutive periods, epoch µs)."""
 
-    @abstractmethod
-    def regex_match(self, col: str) -> str:
-        """SQL: ``col`` matches a regex (one placeholder), unanchored.
-
-        The history queries match entity ids in Python on the series catalog,
-        so both backends use one regex flavour; this is for SQL-side filters."""
-
 
 def mask_filter(dialect: Dialect, mask: RowMask) -> tuple[str, list]:
     """SQL: the sample's (t, rid) lies in one of its series' mask intervals.

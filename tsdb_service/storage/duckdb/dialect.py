@@ -78,9 +78,6 @@ class DuckDBDialect(Dialect):
         # unnest() in a SELECT list zips arrays of equal length.
         return "(SELECT unnest(?::BIGINT[]) AS lo, unnest(?::BIGINT[]) AS hi) per"
 
-    def regex_match(self, col: str) -> str:
-        return f"regexp_matches({col}, ?)"
-
     def mask_relation(self) -> str:
         # unnest() in a SELECT list zips arrays of equal length.
         return (

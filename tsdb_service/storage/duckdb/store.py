@@ -931,8 +931,6 @@ class Compactor:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="tsdb-compactor", daemon=True)
-        self.moves = 0
-        self.rewrites = 0
 
     def start(self) -> None:
         self._thread.start()
@@ -988,7 +986,6 @@ class Compactor:
                 _rollback_quietly(cur)
                 raise
             self._runs += 1
-            self.moves += 1
 
     def _rewrite(self, cur: duckdb.DuckDBPyConnection) -> None:
         with self._lock:
@@ -1002,7 +999,6 @@ class Compactor:
                 _rollback_quietly(cur)
                 raise
             self._runs = 0
-            self.rewrites += 1
 
 
 def _rollback_quietly(cur: duckdb.DuckDBPyConnection) -> None:

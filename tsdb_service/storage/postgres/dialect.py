@@ -52,6 +52,3 @@ class PostgresDialect(Dialect):
 
     def periods_relation(self) -> str:
         return "unnest(%s::bigint[], %s::bigint[]) AS per(lo, hi)"
-
-    def regex_match(self, col: str) -> str:
-        return f"{col} ~ %s"
