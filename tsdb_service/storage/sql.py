@@ -199,8 +199,7 @@ def latest_per_series(
 
 
 # NGSI-LD time properties → the SQL that reads them (``storage.temporal``).
-_TIME_PROPERTY_SQL = temporal.TIME_PROPERTY_SQL
-assert tuple(_TIME_PROPERTY_SQL) == TIME_PROPERTIES
+assert tuple(temporal.TIME_PROPERTY_SQL) == TIME_PROPERTIES
 _INSTANCE_COLUMNS = "sid, iid, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
 _INSTANCE_SELECT = (
     "sid, iid, {at} AS at_time, t, observed_at, created_at, modified_at, deleted_at, kind, atype, num, txt, js, md"
@@ -509,16 +508,10 @@ class SqlQuerier(Querier):
         window = window or InstanceWindow()
         d = self.dialect
         p = d.placeholder
-        at = _TIME_PROPERTY_SQL[window.timeproperty]
+        at, in_window, window_params = temporal.window_filter(d, window)
         where, params = d.sid_filter(sids)
-        if window.timeproperty != "observedAt":
-            where += f" AND {at} IS NOT NULL"
-        if window.start is not None:
-            where += f" AND {at} >= {p}"
-            params.append(d.time_value(window.start))
-        if window.end is not None:
-            where += f" AND {at} < {p}"
-            params.append(d.time_value(window.end))
+        where += f" AND {in_window}"
+        params += window_params
         table = d.samples(_INSTANCE_COLUMNS)
         cols = _INSTANCE_SELECT.format(at=at)
         direction = "DESC" if newest_first or last_n is not None else "ASC"

@@ -49,7 +49,8 @@ def window_filter(d: Dialect, window: InstanceWindow) -> tuple[str, str, list]:
     property is set and lies in the half-open ``window``."""
     expr = TIME_PROPERTY_SQL[window.timeproperty]
     p = d.placeholder
-    where, params = f"{expr} IS NOT NULL", []
+    # observedAt falls back to the row time, which is never NULL.
+    where, params = ("TRUE" if window.timeproperty == "observedAt" else f"{expr} IS NOT NULL"), []
     if window.start is not None:
         where += f" AND {expr} >= {p}"
         params.append(d.time_value(window.start))
