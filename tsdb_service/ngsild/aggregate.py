@@ -177,14 +177,18 @@ class Aggregator:
     def _combine(self, rows, methods, span: Callable[[int], tuple[int, int]]) -> dict[int, SeriesAggregate]:
         rows.sort(key=_SID_BUCKET)
         out: dict[int, SeriesAggregate] = {}
+        bounds: dict[int, tuple[str, str]] = {}  # the series of a response share their periods: format each once
         for sid, group in groupby(rows, key=_SID):
             series = list(group)
             family = _family(series, methods)
             newest = max(series, key=_MAX_US)
             periods = []
             for bucket, parts in groupby(series, key=_BUCKET):
-                lo, hi = span(bucket)
-                periods.append((iso_us(lo), iso_us(hi), _values(list(parts), family, methods)))
+                text = bounds.get(bucket)
+                if text is None:
+                    lo, hi = span(bucket)
+                    text = bounds[bucket] = (iso_us(lo), iso_us(hi))
+                periods.append((*text, _values(list(parts), family, methods)))
             out[sid] = SeriesAggregate(type_name(newest[R_ATYPE], newest[R_KIND]), periods)
         return out
 

@@ -170,6 +170,15 @@ class Querier(ABC):
         expansion). NGSI-LD has no service paths: use ``Scope(tenant)``."""
 
     @abstractmethod
+    def series_names(self, scope: Scope) -> dict[str, dict[str, tuple[str, ...]]]:
+        """Entity type → {NGSI-LD attribute name (``ref.ld_attr``): the stored
+        names of its series} in ``scope``'s tenant, from the catalog (as
+        ``series``). The result is shared: do not change it. Lets a query over
+        whole types pick the (type, attribute) series it needs with
+        ``series(scope, EntityFilter(types=...), attrs=...)`` instead of
+        listing every series of the types."""
+
+    @abstractmethod
     def tenants(self) -> list[str]:
         """Every tenant with at least one series, sorted (catalog, as ``series``)."""
 

@@ -233,6 +233,9 @@ class SqlQuerier(Querier):
     def series(self, scope: Scope, entities: EntityFilter, attrs: Iterable[str] | None = None) -> list[SeriesRef]:
         return self.catalog.select(scope, entities, attrs)
 
+    def series_names(self, scope: Scope) -> dict[str, dict[str, tuple[str, ...]]]:
+        return self.catalog.names(scope.tenant)
+
     def tenants(self) -> list[str]:
         return self.catalog.tenants()
 
