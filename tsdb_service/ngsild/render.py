@@ -127,7 +127,8 @@ def aggregated(series: list[tuple[str | None, str, list[tuple[str, str, tuple]]]
     for dataset, attr_type, periods in sorted(series, key=lambda s: (s[0] is not None, s[0] or "")):
         item: dict[str, Any] = {"type": attr_type}
         for i, method in enumerate(methods):
-            item[method] = [[values[i], lo, hi] for lo, hi, values in periods]
+            # tuples (JSON arrays too): the collector skips them, and a response holds thousands
+            item[method] = [(values[i], lo, hi) for lo, hi, values in periods]
         if dataset is not None:
             item["datasetId"] = dataset
         out.append(item)
