@@ -156,8 +156,9 @@ class Fetcher:
         stored = {a for t in types for name, attrs in names[t].items() if iri[name] == geo.geoproperty for a in attrs}
         if not stored:
             return {}
-        refs = {r.sid: r for r in self.q.series(scope, EntityFilter(types=tuple(types)), stored)}
-        keys = {(refs[sid].entity_id, refs[sid].entity_type) for sid in self._geo_sids(geo, query.window, list(refs))}
+        refs = self.q.series(scope, EntityFilter(types=tuple(types)), stored)
+        near = self._geo_sids(geo, query.window, [r.sid for r in refs])
+        keys = {(r.entity_id, r.entity_type) for r in refs if r.sid in near}
         if not keys:
             return {}
         grouped: dict[EntityKey, list[SeriesRef]] = {}
