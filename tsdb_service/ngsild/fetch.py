@@ -30,6 +30,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from functools import partial
+from itertools import compress
+from operator import attrgetter
 
 import orjson
 
@@ -40,6 +42,7 @@ from .context import TermMap
 from .query import DEFAULT_DATASET, TemporalQuery, TypeName, Window, type_matches
 
 EntityKey = tuple[str, str]  # (entity id, stored entity type)
+_SID = attrgetter("sid")
 
 
 class Fetcher:
@@ -157,8 +160,9 @@ class Fetcher:
         if not stored:
             return {}
         refs = self.q.series(scope, EntityFilter(types=tuple(types)), stored)
-        near = self._geo_sids(geo, query.window, [r.sid for r in refs])
-        keys = {(r.entity_id, r.entity_type) for r in refs if r.sid in near}
+        sids = list(map(_SID, refs))  # C loops: one per location series of the types
+        near = self._geo_sids(geo, query.window, sids)
+        keys = {(r.entity_id, r.entity_type) for r in compress(refs, map(near.__contains__, sids))}
         if not keys:
             return {}
         grouped: dict[EntityKey, list[SeriesRef]] = {}
