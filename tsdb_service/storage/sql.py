@@ -16,9 +16,11 @@ is what prunes them.
 
 from __future__ import annotations
 
+import bisect
+import math
 from abc import abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from functools import partial
 from typing import TypeVar
 
@@ -30,6 +32,7 @@ from ..query import (
     AggregateRow,
     Aggregation,
     AggrMethod,
+    AggrPeriod,
     EntityFilter,
     ExtentRow,
     FirstLocationRow,
@@ -54,9 +57,11 @@ from ..query import (
 from . import temporal
 from .base import DeleteInstance, Querier, ReplaceInstance
 from .catalog import SeriesCatalog
-from .common import SAMPLE_COLUMNS, VALUE_COLUMNS, box_sql, content_values
+from .common import SAMPLE_COLUMNS, VALUE_COLUMNS, box_sql, content_values, to_micros
+from .partials import HOUR_US, T_MAX, T_MIN, Accumulator, HourlyPartials, bucket_of
+from .partials import PERIODS as PARTIAL_PERIODS
 from .rollups import delete_sql as rollup_delete_sql
-from .rollups import rolled_up_count, rollup_parts
+from .rollups import presence_of, rolled_up_count, rollup_parts
 
 NUMERIC_KINDS = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
 NULL_KIND = int(Kind.NULL)
@@ -318,7 +323,125 @@ class SqlQuerier(Querier):
     def aggregate(
         self, branches: Sequence[AggBranch], time: TimeRange, agg: Aggregation, mask: RowMask | None = None
     ) -> list[AggregateRow]:
-        """See ``Querier``. One statement: a grouped SELECT per branch (and the rolled-up hours),
+        """See ``Querier``. Plain attributes from the hourly partials in memory
+        where the backend keeps them and they give SQL's answer
+        (``storage.partials``: hour-aligned periods, no geo mask, no rolled-up
+        hours); everything else in one statement (``_aggregate_sql``)."""
+        partials = self._partials() if mask is None else None
+        if (
+            partials is None
+            or (agg.period is not None and agg.period not in PARTIAL_PERIODS)
+            or not any(b.sids and not b.steps for b in branches)
+            or self._rollups_present()
+        ):
+            return self._aggregate_sql(branches, time, agg, mask)
+        rows: list[AggregateRow] = []
+        rest = list(branches)
+        for number, branch in enumerate(branches):
+            if branch.sids and not branch.steps:
+                rows += self._from_partials(partials, number, branch, time, agg)
+                rest[number] = AggBranch(())
+        if any(b.sids for b in rest):
+            rows += self._aggregate_sql(rest, time, agg, None)
+        return rows
+
+    def _partials(self) -> HourlyPartials | None:
+        """The backend's hourly partials, when it keeps them (it must see
+        every commit: a single writer in a single process)."""
+        return None
+
+    def _rollups_present(self) -> bool:
+        """Rolled-up hours may exist (``storage.rollups``): partials hold raw
+        samples only, so aggregations then go to SQL."""
+        store = getattr(self, "_store", None)
+        return store is not None and presence_of(store)(self._fetch)
+
+    def _from_partials(
+        self, partials: HourlyPartials, number: int, branch: AggBranch, time: TimeRange, agg: Aggregation
+    ) -> list[AggregateRow]:
+        """One plain branch's rows from the partials; an hour cut by the window
+        whose samples are not all inside it is computed from its raw rows in
+        the window (one statement for all such hours)."""
+        start = None if time.start is None else to_micros(time.start)
+        end = None if time.end is None else to_micros(time.end)
+        lo = None if start is None else start - start % HOUR_US
+        entries = partials.series(branch.sids, lo, self._load_partials)
+        method, period = agg.method, agg.period
+        cut: dict[tuple[int, int], list[int]] = {}  # (from, to) µs -> series to read there
+        used: list[tuple[int, int, list]] = []  # (sid, hour, cell)
+        for sid in branch.sids:
+            entry = entries[sid]
+            hours, cells = entry.hours, entry.cells
+            i = 0 if lo is None else bisect.bisect_left(hours, lo)
+            j = len(hours) if end is None else bisect.bisect_right(hours, end)
+            for k in range(i, j):
+                hour, cell = hours[k], cells[k]
+                inside_from = start is None or hour >= start or cell[T_MIN] >= start
+                inside_to = end is None or hour + HOUR_US - 1 <= end or cell[T_MAX] <= end
+                if inside_from and inside_to:
+                    used.append((sid, hour, cell))
+                    continue
+                piece = (
+                    hour if start is None else max(hour, start),
+                    hour + HOUR_US - 1 if end is None else min(hour + HOUR_US - 1, end),
+                )
+                cut.setdefault(piece, []).append(sid)
+        edges = self._cut_hours(number, cut, agg)
+        if period is AggrPeriod.HOUR:
+            return [*(_hour_row(number, sid, hour, cell, method) for sid, hour, cell in used), *edges]
+        acc: dict[tuple[int, str | None], Accumulator] = {}
+        for sid, hour, cell in used:
+            bucket = bucket_of(period, hour)[1]
+            a = acc.get((sid, bucket))
+            if a is None:
+                a = acc[(sid, bucket)] = Accumulator()
+            a.add_cell(cell)
+        for row in edges:
+            a = acc.get((row.sid, row.bucket))
+            if a is None:
+                a = acc[(row.sid, row.bucket)] = Accumulator()
+            a.add_row(row.n_present, row.n_numeric, row.value, row.all_integer, method)
+        return [
+            AggregateRow(number, sid, bucket, a.present, a.numeric, a.value(method), a.all_int)
+            for (sid, bucket), a in acc.items()
+        ]
+
+    def _cut_hours(self, number: int, cut: dict[tuple[int, int], list[int]], agg: Aggregation) -> list[AggregateRow]:
+        """SQL's rows for the in-window parts of cut hours: one statement."""
+        if not cut:
+            return []
+        parts, params = [], []
+        for (t0, t1), sids in cut.items():
+            sql, more = self._aggregate_branch(number, AggBranch(tuple(sids)), _micros_range(t0, t1), agg, None)
+            parts.append(sql)
+            params += more
+        return as_aggregate(self._fetch(" UNION ALL ".join(parts), params))
+
+    def _load_partials(self, sids: list[int], lo: int | None) -> list[tuple]:
+        """``storage.partials`` load rows: per series and hour from ``lo`` on,
+        the raw aggregation's partials, the numbers themselves (for an exact
+        sum), the first and last sample times and the largest row id."""
+        d = self.dialect
+        where, params = d.sid_filter(sids)
+        if lo is not None:
+            where += f" AND t >= {d.placeholder}"
+            params.append(d.time_value(_utc_micros(lo)))
+        numeric = f"kind IN ({NUMERIC_KINDS}) AND num IS NOT NULL"
+        sql = (
+            f"SELECT sid, {d.epoch_us(d.bucket_time('hour', 'b'))}, "
+            f"count(*) FILTER (WHERE kind <> {NULL_KIND}), count(num) FILTER (WHERE {numeric}), "
+            f"count(num) FILTER (WHERE kind = {INTEGER_KIND}), array_agg(num) FILTER (WHERE {numeric}), "
+            f"min(num) FILTER (WHERE {numeric}), max(num) FILTER (WHERE {numeric}), "
+            f"{d.epoch_us('min(t)')}, {d.epoch_us('max(t)')}, max(rid) "
+            f"FROM (SELECT sid, rid, t, kind, num, {d.bucket_key('hour', 't')} AS b "
+            f"FROM {d.samples('sid, rid, t, kind, num')} WHERE {where}) AS s GROUP BY sid, b ORDER BY sid, b"
+        )
+        return self._fetch(sql, params)
+
+    def _aggregate_sql(
+        self, branches: Sequence[AggBranch], time: TimeRange, agg: Aggregation, mask: RowMask | None = None
+    ) -> list[AggregateRow]:
+        """One statement: a grouped SELECT per branch (and the rolled-up hours),
         UNION ALL. Per sample it only tests ``kind`` and reads ``num`` (the
         columns PostgreSQL's covering index holds): "all integers" is counted
         (integers = numbers), not ``bool_and``-ed, and the bucket is a cheap
@@ -628,6 +751,27 @@ class SqlQuerier(Querier):
         sql = f"SELECT {_STORED_COLUMNS} FROM {self.dialect.samples(_STORED_COLUMNS + ', iid')} ORDER BY rid, iid"
         for rows in self._batches(sql, [], batch_rows):
             yield as_stored(rows)
+
+
+def _hour_row(number: int, sid: int, hour: int, cell: list, method: AggrMethod) -> AggregateRow:
+    """One hour's cell as the row SQL gives for that series and hour."""
+    present, numeric, integers, parts, mn, mx = cell[0], cell[1], cell[2], cell[3], cell[4], cell[5]
+    if not numeric:
+        return AggregateRow(number, sid, bucket_of(AggrPeriod.HOUR, hour)[1], present, 0, None, None)
+    value: float | None
+    if method is AggrMethod.SUM or method is AggrMethod.AVG:
+        value = math.fsum(parts)
+    else:
+        value = mn if method is AggrMethod.MIN else mx if method is AggrMethod.MAX else None
+    return AggregateRow(number, sid, bucket_of(AggrPeriod.HOUR, hour)[1], present, numeric, value, integers == numeric)
+
+
+def _utc_micros(micros: int) -> datetime:
+    return datetime(1970, 1, 1, tzinfo=UTC) + timedelta(microseconds=micros)
+
+
+def _micros_range(t0: int, t1: int) -> TimeRange:
+    return TimeRange(_utc_micros(t0), _utc_micros(t1))
 
 
 def series_time_filter(dialect: Dialect, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
