@@ -64,7 +64,7 @@ class Settings(BaseSettings):
         100_000,
         ge=0,
         description="DuckDB: series-hours of aggregate partials kept in memory for aggregated series "
-        "(~300 bytes each, least recently aggregated out first; 0: off).",
+        "(~400 bytes each, least recently aggregated out first; 0: off).",
     )
     wal_checkpoint_bytes: int = Field(
         16 * MIB,

@@ -51,8 +51,43 @@ _NULL, _NUMBER, _INTEGER = int(Kind.NULL), int(Kind.NUMBER), int(Kind.INTEGER)
 PERIODS = frozenset({AggrPeriod.HOUR, AggrPeriod.DAY, AggrPeriod.MONTH, AggrPeriod.YEAR})
 _MAX_PARTS = 8  # an hour's sum list is compressed back to its exact minimum beyond this
 
-# A cell: one series' hour.
-PRESENT, NUMERIC, INTEGERS, PARTS, MIN, MAX, T_MIN, T_MAX = range(8)
+# A cell: one series' hour. SUM, ALL_INT and ISO are derived (kept so that
+# answering an hourly aggregation is a slice of ready values), NOTHING is None.
+PRESENT, NUMERIC, INTEGERS, PARTS, MIN, MAX, T_MIN, T_MAX, SUM, ALL_INT, ISO, NOTHING = range(12)
+# The cell slot holding SQL's ``value`` for each method.
+VALUE_SLOT = {
+    AggrMethod.SUM: SUM,
+    AggrMethod.AVG: SUM,
+    AggrMethod.MIN: MIN,
+    AggrMethod.MAX: MAX,
+    AggrMethod.COUNT: NOTHING,
+}
+_ISO: dict[int, str] = {}  # hour µs -> its ISO text, shared by every series' cells
+
+
+def hour_iso(hour: int) -> str:
+    """``hour`` as SQL formats a bucket, one string per hour for all series."""
+    text = _ISO.get(hour)
+    if text is None:
+        if len(_ISO) > 100_000:
+            _ISO.clear()
+        text = _ISO[hour] = iso_ms_us(hour)
+    return text
+
+
+def new_cell(hour: int, present: int, numeric: int, integers: int, parts: list[float], mn, mx, t0: int, t1: int):
+    """A cell and its derived slots."""
+    cell = [present, numeric, integers, parts, mn, mx, t0, t1, None, None, hour_iso(hour), None]
+    _derive(cell)
+    return cell
+
+
+def _derive(cell: list) -> None:
+    numeric = cell[NUMERIC]
+    cell[SUM] = math.fsum(cell[PARTS]) if numeric else None
+    cell[ALL_INT] = cell[INTEGERS] == numeric if numeric else None
+
+
 # Load rows: (sid, hour µs, n_present, n_numeric, n_integer, [numbers], min, max, t_min µs, t_max µs, max rid)
 LoadRow = tuple
 
@@ -88,7 +123,7 @@ class _Series:
             at = bisect.bisect_left(hours, hour)
             if at == len(hours) or hours[at] != hour:
                 hours.insert(at, hour)
-                self.cells.insert(at, [0, 0, 0, [], None, None, t, t])
+                self.cells.insert(at, new_cell(hour, 0, 0, 0, [], None, None, t, t))
         else:
             at -= 1
         cell = self.cells[at]
@@ -104,6 +139,7 @@ class _Series:
                 cell[PARTS] = exact_parts(parts)
             cell[MIN] = num if cell[MIN] is None or num < cell[MIN] else cell[MIN]
             cell[MAX] = num if cell[MAX] is None or num > cell[MAX] else cell[MAX]
+            _derive(cell)
         if t < cell[T_MIN]:
             cell[T_MIN] = t
         if t > cell[T_MAX]:
@@ -123,7 +159,7 @@ class _Load:
 
 class HourlyPartials:
     def __init__(self, max_hours: int = 100_000):
-        """At most ``max_hours`` series-hours in all (about 300 bytes each);
+        """At most ``max_hours`` series-hours in all (about 400 bytes each);
         0 turns partials off."""
         self.max_hours = max_hours
         self._entries: OrderedDict[int, _Series] = OrderedDict()
@@ -242,7 +278,7 @@ def _build(sids: Sequence[int], rows: list[LoadRow], lo: int | None) -> dict[int
     for sid, hour, present, numeric, integers, numbers, mn, mx, t_min, t_max, max_rid in rows:
         entry = entries[sid]
         entry.hours.append(hour)
-        entry.cells.append([present, numeric, integers, exact_parts(numbers or []), mn, mx, t_min, t_max])
+        entry.cells.append(new_cell(hour, present, numeric, integers, exact_parts(numbers or []), mn, mx, t_min, t_max))
         if max_rid > entry.seen_rid:
             entry.seen_rid = max_rid
     return entries

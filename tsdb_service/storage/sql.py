@@ -17,7 +17,6 @@ is what prunes them.
 from __future__ import annotations
 
 import bisect
-import math
 from abc import abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from datetime import UTC, datetime, timedelta
@@ -58,7 +57,19 @@ from . import temporal
 from .base import DeleteInstance, Querier, ReplaceInstance
 from .catalog import SeriesCatalog
 from .common import SAMPLE_COLUMNS, VALUE_COLUMNS, box_sql, content_values, to_micros
-from .partials import HOUR_US, T_MAX, T_MIN, Accumulator, HourlyPartials, bucket_of
+from .partials import (
+    ALL_INT,
+    HOUR_US,
+    ISO,
+    NUMERIC,
+    PRESENT,
+    T_MAX,
+    T_MIN,
+    VALUE_SLOT,
+    Accumulator,
+    HourlyPartials,
+    bucket_of,
+)
 from .partials import PERIODS as PARTIAL_PERIODS
 from .rollups import delete_sql as rollup_delete_sql
 from .rollups import presence_of, rolled_up_count, rollup_parts
@@ -183,6 +194,7 @@ def rows_as(row_type: type[T]) -> Callable[[Iterable[tuple]], list[T]]:
 
 
 as_aggregate = rows_as(AggregateRow)
+_new_aggregate = partial(tuple.__new__, AggregateRow)
 as_latest = rows_as(LatestRow)
 as_last_values = rows_as(LastValueRow)
 as_geometries = rows_as(GeometryRow)
@@ -368,34 +380,39 @@ class SqlQuerier(Querier):
         entries = partials.series(branch.sids, lo, self._load_partials)
         method, period = agg.method, agg.period
         cut: dict[tuple[int, int], list[int]] = {}  # (from, to) µs -> series to read there
-        used: list[tuple[int, int, list]] = []  # (sid, hour, cell)
+        used: list[tuple[int, list[int], list[list]]] = []  # (sid, hours, cells) in the window
         for sid in branch.sids:
             entry = entries[sid]
             hours, cells = entry.hours, entry.cells
             i = 0 if lo is None else bisect.bisect_left(hours, lo)
             j = len(hours) if end is None else bisect.bisect_right(hours, end)
-            for k in range(i, j):
-                hour, cell = hours[k], cells[k]
-                inside_from = start is None or hour >= start or cell[T_MIN] >= start
-                inside_to = end is None or hour + HOUR_US - 1 <= end or cell[T_MAX] <= end
-                if inside_from and inside_to:
-                    used.append((sid, hour, cell))
-                    continue
-                piece = (
-                    hour if start is None else max(hour, start),
-                    hour + HOUR_US - 1 if end is None else min(hour + HOUR_US - 1, end),
-                )
-                cut.setdefault(piece, []).append(sid)
+            if i < j and not _inside(hours[i], cells[i], start, end):
+                cut.setdefault(_piece(hours[i], start, end), []).append(sid)
+                i += 1
+            if i < j and not _inside(hours[j - 1], cells[j - 1], start, end):
+                cut.setdefault(_piece(hours[j - 1], start, end), []).append(sid)
+                j -= 1
+            if i < j:
+                used.append((sid, hours[i:j], cells[i:j]))
         edges = self._cut_hours(number, cut, agg)
         if period is AggrPeriod.HOUR:
-            return [*(_hour_row(number, sid, hour, cell, method) for sid, hour, cell in used), *edges]
+            # The common dashboard query: one ready row per cell.
+            slot = VALUE_SLOT[method]
+            rows = [
+                _new_aggregate((number, sid, c[ISO], c[PRESENT], c[NUMERIC], c[slot], c[ALL_INT]))
+                for sid, _, cells in used
+                for c in cells
+            ]
+            rows += edges
+            return rows
         acc: dict[tuple[int, str | None], Accumulator] = {}
-        for sid, hour, cell in used:
-            bucket = bucket_of(period, hour)[1]
-            a = acc.get((sid, bucket))
-            if a is None:
-                a = acc[(sid, bucket)] = Accumulator()
-            a.add_cell(cell)
+        for sid, hours, cells in used:
+            for hour, cell in zip(hours, cells, strict=True):
+                key = (sid, bucket_of(period, hour)[1])
+                a = acc.get(key)
+                if a is None:
+                    a = acc[key] = Accumulator()
+                a.add_cell(cell)
         for row in edges:
             a = acc.get((row.sid, row.bucket))
             if a is None:
@@ -753,17 +770,18 @@ class SqlQuerier(Querier):
             yield as_stored(rows)
 
 
-def _hour_row(number: int, sid: int, hour: int, cell: list, method: AggrMethod) -> AggregateRow:
-    """One hour's cell as the row SQL gives for that series and hour."""
-    present, numeric, integers, parts, mn, mx = cell[0], cell[1], cell[2], cell[3], cell[4], cell[5]
-    if not numeric:
-        return AggregateRow(number, sid, bucket_of(AggrPeriod.HOUR, hour)[1], present, 0, None, None)
-    value: float | None
-    if method is AggrMethod.SUM or method is AggrMethod.AVG:
-        value = math.fsum(parts)
-    else:
-        value = mn if method is AggrMethod.MIN else mx if method is AggrMethod.MAX else None
-    return AggregateRow(number, sid, bucket_of(AggrPeriod.HOUR, hour)[1], present, numeric, value, integers == numeric)
+def _inside(hour: int, cell: list, start: int | None, end: int | None) -> bool:
+    """All of an hour's samples lie in the window [start, end] (µs): the hour
+    does, or its first and last samples do."""
+    return (start is None or hour >= start or cell[T_MIN] >= start) and (
+        end is None or hour + HOUR_US - 1 <= end or cell[T_MAX] <= end
+    )
+
+
+def _piece(hour: int, start: int | None, end: int | None) -> tuple[int, int]:
+    """The part of ``hour`` inside the window, inclusive µs bounds."""
+    last = hour + HOUR_US - 1
+    return (hour if start is None else max(hour, start), last if end is None else min(last, end))
 
 
 def _utc_micros(micros: int) -> datetime:
