@@ -253,3 +253,16 @@ def test_exact_parts_keep_the_exact_sum():
         assert math.fsum([*parts, *(-v for v in values)]) == 0.0
     assert exact_parts([1e16, 1.0, -1e16, 1.0]) == [2.0]
     assert exact_parts([1e300, 1e-300]) == [1e300, 1e-300]
+
+
+def test_a_load_too_big_is_left_to_sql(store, monkeypatch):
+    """Loading brings each hour's numbers into memory once: above
+    ``MAX_LOAD_SAMPLES`` the window is aggregated by SQL and nothing is kept."""
+    rng = random.Random(23)
+    partials = with_partials(store)
+    store.write_sync([AppendSamples(random_samples(rng, 300))])
+    monkeypatch.setattr("tsdb_service.storage.sql.MAX_LOAD_SAMPLES", 50)
+    assert_same(store, TimeRange(), Aggregation(AggrMethod.AVG, AggrPeriod.DAY))
+    assert partials.hours == 0
+    for time in windows(rng, 4):  # narrow windows load (and keep) their few samples
+        assert_same(store, time, Aggregation(AggrMethod.AVG, AggrPeriod.DAY))

@@ -50,6 +50,9 @@ _NULL, _NUMBER, _INTEGER = int(Kind.NULL), int(Kind.NUMBER), int(Kind.INTEGER)
 # Periods made of whole hours, the only ones partials can answer.
 PERIODS = frozenset({AggrPeriod.HOUR, AggrPeriod.DAY, AggrPeriod.MONTH, AggrPeriod.YEAR})
 _MAX_PARTS = 8  # an hour's sum list is compressed back to its exact minimum beyond this
+# A load brings each hour's numbers into Python once (for the exact sum):
+# above this many samples the window is aggregated by SQL instead.
+MAX_LOAD_SAMPLES = 1_000_000
 
 # A cell: one series' hour. SUM, ALL_INT and ISO are derived (kept so that
 # answering an hourly aggregation is a slice of ready values), NOTHING is None.
@@ -220,10 +223,11 @@ class HourlyPartials:
     # -- readers -------------------------------------------------------------------
 
     def series(
-        self, sids: Sequence[int], lo: int | None, load: Callable[[list[int], int | None], list[LoadRow]]
-    ) -> dict[int, _Series]:
+        self, sids: Sequence[int], lo: int | None, load: Callable[[list[int], int | None], list[LoadRow] | None]
+    ) -> dict[int, _Series] | None:
         """Each series' entry covering every hour from ``lo`` on, loading the
-        missing ones with one ``load(sids, lo)`` call."""
+        missing ones with one ``load(sids, lo)`` call; None when the load
+        declines (too many samples: ``MAX_LOAD_SAMPLES``)."""
         out: dict[int, _Series] = {}
         missing: list[int] = []
         with self._lock:
@@ -245,6 +249,8 @@ class HourlyPartials:
         finally:
             with self._lock:
                 self._loads.remove(pending)
+        if rows is None:
+            return None
         loaded = _build(missing, rows, lo)
         with self._lock:
             for sid, rid, t, kind, num in pending.buffer:

@@ -61,6 +61,7 @@ from .partials import (
     ALL_INT,
     HOUR_US,
     ISO,
+    MAX_LOAD_SAMPLES,
     NUMERIC,
     PRESENT,
     T_MAX,
@@ -378,6 +379,8 @@ class SqlQuerier(Querier):
         end = None if time.end is None else to_micros(time.end)
         lo = None if start is None else start - start % HOUR_US
         entries = partials.series(branch.sids, lo, self._load_partials)
+        if entries is None:  # too many samples to load: SQL as without partials
+            return self._aggregate_sql([AggBranch(()) for _ in range(number)] + [branch], time, agg)
         method, period = agg.method, agg.period
         cut: dict[tuple[int, int], list[int]] = {}  # (from, to) µs -> series to read there
         used: list[tuple[int, list[int], list[list]]] = []  # (sid, hours, cells) in the window
@@ -434,15 +437,19 @@ class SqlQuerier(Querier):
             params += more
         return as_aggregate(self._fetch(" UNION ALL ".join(parts), params))
 
-    def _load_partials(self, sids: list[int], lo: int | None) -> list[tuple]:
+    def _load_partials(self, sids: list[int], lo: int | None) -> list[tuple] | None:
         """``storage.partials`` load rows: per series and hour from ``lo`` on,
         the raw aggregation's partials, the numbers themselves (for an exact
-        sum), the first and last sample times and the largest row id."""
+        sum), the first and last sample times and the largest row id. None
+        above ``MAX_LOAD_SAMPLES`` samples (counted first: a cheap scan)."""
         d = self.dialect
         where, params = d.sid_filter(sids)
         if lo is not None:
             where += f" AND t >= {d.placeholder}"
             params.append(d.time_value(_utc_micros(lo)))
+        counted = self._fetch(f"SELECT count(*) FROM {d.samples('sid, t')} WHERE {where}", params)
+        if counted and counted[0][0] > MAX_LOAD_SAMPLES:
+            return None
         numeric = f"kind IN ({NUMERIC_KINDS}) AND num IS NOT NULL"
         sql = (
             f"SELECT sid, {d.epoch_us(d.bucket_time('hour', 'b'))}, "
