@@ -118,7 +118,8 @@ class _Series:
         self.cells: list[list] = []
 
     def add(self, t: int, kind: int, num: float | None) -> None:
-        """One committed sample (at or after ``lo``)."""
+        """One committed sample (at or after ``lo``). Copy on write: a reader
+        holding a cell (``HourlyPartials.window``) never sees it half updated."""
         hour = t - t % HOUR_US
         hours = self.hours
         at = len(hours)
@@ -129,17 +130,20 @@ class _Series:
                 self.cells.insert(at, new_cell(hour, 0, 0, 0, [], None, None, t, t))
         else:
             at -= 1
-        cell = self.cells[at]
+        cell = list(self.cells[at])
+        self._count(cell, t, kind, num)
+        self.cells[at] = cell
+
+    @staticmethod
+    def _count(cell: list, t: int, kind: int, num: float | None) -> None:
         if kind != _NULL:
             cell[PRESENT] += 1
         if num is not None and kind in (_NUMBER, _INTEGER):
             cell[NUMERIC] += 1
             if kind == _INTEGER:
                 cell[INTEGERS] += 1
-            parts = cell[PARTS]
-            parts.append(num)
-            if len(parts) > _MAX_PARTS:
-                cell[PARTS] = exact_parts(parts)
+            parts = [*cell[PARTS], num]
+            cell[PARTS] = exact_parts(parts) if len(parts) > _MAX_PARTS else parts
             cell[MIN] = num if cell[MIN] is None or num < cell[MIN] else cell[MIN]
             cell[MAX] = num if cell[MAX] is None or num > cell[MAX] else cell[MAX]
             _derive(cell)
@@ -263,6 +267,16 @@ class HourlyPartials:
             self._evict()
         out.update(loaded)
         return out
+
+    def window(self, entry: _Series, lo: int | None, end: int | None) -> tuple[list[int], list[list]]:
+        """The hours of ``entry`` from ``lo`` to ``end`` (µs, None: open) and
+        their cells, taken together under the lock (a publish may insert
+        hours meanwhile; cells are replaced, never changed in place)."""
+        with self._lock:
+            hours = entry.hours
+            i = 0 if lo is None else bisect.bisect_left(hours, lo)
+            j = len(hours) if end is None else bisect.bisect_right(hours, end)
+            return hours[i:j], entry.cells[i:j]
 
     def _install(self, sid: int, entry: _Series) -> None:
         old = self._entries.pop(sid, None)

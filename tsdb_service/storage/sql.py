@@ -16,7 +16,6 @@ is what prunes them.
 
 from __future__ import annotations
 
-import bisect
 from abc import abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from datetime import UTC, datetime, timedelta
@@ -385,10 +384,8 @@ class SqlQuerier(Querier):
         cut: dict[tuple[int, int], list[int]] = {}  # (from, to) µs -> series to read there
         used: list[tuple[int, list[int], list[list]]] = []  # (sid, hours, cells) in the window
         for sid in branch.sids:
-            entry = entries[sid]
-            hours, cells = entry.hours, entry.cells
-            i = 0 if lo is None else bisect.bisect_left(hours, lo)
-            j = len(hours) if end is None else bisect.bisect_right(hours, end)
+            hours, cells = partials.window(entries[sid], lo, end)
+            i, j = 0, len(hours)
             if i < j and not _inside(hours[i], cells[i], start, end):
                 cut.setdefault(_piece(hours[i], start, end), []).append(sid)
                 i += 1
