@@ -11,7 +11,9 @@ period names from the ``AggrPeriod`` enum.
 method, ``_fetch(sql, params)``; a backend subclasses it and adds a
 connection. Every query filters samples by series id first (``sid = ?`` or
 ``sid IN (...)``): the sample tables are sorted by (sid, t), so that filter
-is what prunes them.
+is what prunes them. Aggregations of plain attributes by hour-aligned
+periods are answered from a backend's in-memory hourly partials where it
+keeps them (``storage.partials``; DuckDB), loaded by one grouped statement.
 """
 
 from __future__ import annotations
