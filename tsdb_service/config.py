@@ -60,6 +60,12 @@ class Settings(BaseSettings):
     tail_cache_samples: int = Field(
         1_000_000, ge=0, description="DuckDB: samples kept in all tails (~200 bytes each), oldest-read out first."
     )
+    agg_partials_hours: int = Field(
+        100_000,
+        ge=0,
+        description="DuckDB: series-hours of aggregate partials kept in memory for aggregated series "
+        "(~400 bytes each, least recently aggregated out first; 0: off).",
+    )
     wal_checkpoint_bytes: int = Field(
         16 * MIB,
         ge=64 * 1024,

@@ -295,30 +295,8 @@ def _aggregated(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> lis
         branches.append(AggBranch(tuple(r.sid for r in refs if r.attr == vp.attr), vp.steps))
     rows = querier.aggregate(branches, q.time, agg)
     budget.charge_rows(len(rows))
-
     global_scope = agg.scope is AggrScope.GLOBAL
-    # (group, column, bucket) -> [n_present, n_numeric, value, all_integer]
-    cells: dict[tuple, list] = {}
-    members: dict[tuple, set] = {}
-    totals: dict[str, list[int]] = {}  # column -> [present, numeric]
-    for branch, sid, bucket, n_present, n_numeric, value, all_int in rows:
-        ref = by_sid[sid]
-        column = plain_attrs[ref.attr] if branch == 0 else path_columns[branch - 1].text
-        group = _GLOBAL if global_scope else (ref.entity_type, ref.entity_id)
-        if global_scope:
-            members.setdefault(group, set()).add((ref.entity_type, ref.entity_id))
-            members.setdefault((group, column), set()).add((ref.entity_type, ref.entity_id))
-        total = totals.setdefault(column, [0, 0])
-        total[0] += n_present
-        total[1] += n_numeric
-        cell = cells.get((group, column, bucket))
-        if cell is None:
-            cells[(group, column, bucket)] = [n_present, n_numeric, value, all_int]
-        else:
-            cell[0] += n_present
-            cell[1] += n_numeric
-            cell[2] = _combine(method, cell[2], value)
-            cell[3] = _and(cell[3], all_int)
+    cells, totals, members = _cells(rows, by_sid, plain_attrs, path_columns, method, global_scope)
 
     if method is not AggrMethod.COUNT:
         for present, numeric in totals.values():
@@ -327,39 +305,35 @@ def _aggregated(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> lis
         if not explicit:  # every attribute: the non-numeric ones are left out
             cells = {k: v for k, v in cells.items() if totals[k[1]][1] > 0}
 
-    results: dict[tuple, EntityResult] = {}
-    buckets: dict[tuple, set] = {}
-    for group, _column, bucket in cells:
-        if group not in results:
-            results[group] = EntityResult(group[0], group[1])
-            buckets[group] = set()
-        buckets[group].add(bucket)
+    group_buckets: dict[tuple, set] = {}
+    group_columns: dict[tuple, list[str]] = {}
+    for group, column in cells:
+        group_buckets.setdefault(group, set()).update(cells[(group, column)])
+        group_columns.setdefault(group, []).append(column)
     # QuantumLeap's windowing of aggregated rows: ordered by entity, then
     # period (newest first for lastN); offset and limit apply to those rows
     # (of one type: run_history calls this type after type).
-    ordered = sorted(results, key=lambda g: (g[0], g[1]))
-    row_keys = []
-    for group in ordered:
-        for bucket in sorted(buckets[group], key=lambda b: b or "", reverse=q.last_n is not None):
-            row_keys.append((group, bucket))
-    n = min(q.last_n, q.limit) if q.last_n else q.limit
-    row_keys = row_keys[q.offset : q.offset + n]
-    kept: dict[tuple, list] = {}
-    for group, bucket in row_keys:
-        kept.setdefault(group, []).append(bucket)
-    columns_by_group: dict[tuple, set[str]] = {}
-    for group, column, _bucket in cells:
-        columns_by_group.setdefault(group, set()).add(column)
+    newest_first = q.last_n is not None
+    skip = q.offset
+    room = min(q.last_n, q.limit) if q.last_n else q.limit
     out = []
-    for group in ordered:
-        if group not in kept:
+    for group in sorted(group_buckets):
+        if room <= 0:
+            break
+        buckets = group_buckets[group]
+        if skip >= len(buckets):
+            skip -= len(buckets)
             continue
-        ent = results[group]
-        kept_buckets = sorted(kept[group], key=lambda b: b or "")
+        # With a period every bucket is an ISO text (sorts as itself); without, there is one (None).
+        ordered = sorted(buckets, reverse=newest_first) if len(buckets) > 1 else list(buckets)
+        taken = ordered[skip : skip + room]
+        skip, room = 0, room - len(taken)
+        kept = taken[::-1] if newest_first else taken  # oldest first
+        ent = EntityResult(group[0], group[1])
         if agg.period is not None:
-            ent.index = kept_buckets
-        for column in sorted(columns_by_group[group]):
-            ent.columns[column] = [_final(method, cells.get((group, column, b))) for b in kept_buckets]
+            ent.index = kept
+        for column in sorted(group_columns[group]):
+            ent.columns[column] = _finals(method, cells[(group, column)], kept)
         if global_scope:
             ent.ids = sorted({eid for _t, eid in members.get(group, ())})
             ent.types = sorted({t for t, _eid in members.get(group, ())})
@@ -372,6 +346,48 @@ def _aggregated(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> lis
             }
         out.append(ent)
     return out
+
+
+def _cells(rows, by_sid, plain_attrs, path_columns, method, global_scope):
+    """The aggregate rows combined per (group, column) and bucket:
+    ``({(group, column): {bucket: [n_present, n_numeric, value, all_integer]}},
+    {column: [present, numeric]}, members)``. A series' rows usually come
+    together: its group and column are looked up once per run of them."""
+    cells: dict[tuple, dict] = {}
+    members: dict[tuple, set] = {}
+    totals: dict[str, list[int]] = {}
+    last_branch = last_sid = None
+    by_bucket: dict = {}
+    total = [0, 0]
+    for branch, sid, bucket, n_present, n_numeric, value, all_int in rows:
+        if sid != last_sid or branch != last_branch:
+            last_branch, last_sid = branch, sid
+            ref = by_sid[sid]
+            column = plain_attrs[ref.attr] if branch == 0 else path_columns[branch - 1].text
+            group = _GLOBAL if global_scope else (ref.entity_type, ref.entity_id)
+            if global_scope:
+                members.setdefault(group, set()).add((ref.entity_type, ref.entity_id))
+                members.setdefault((group, column), set()).add((ref.entity_type, ref.entity_id))
+            total = totals.setdefault(column, [0, 0])
+            by_bucket = cells.setdefault((group, column), {})
+        total[0] += n_present
+        total[1] += n_numeric
+        cell = by_bucket.get(bucket)
+        if cell is None:
+            by_bucket[bucket] = [n_present, n_numeric, value, all_int]
+        else:
+            cell[0] += n_present
+            cell[1] += n_numeric
+            cell[2] = _combine(method, cell[2], value)
+            cell[3] = _and(cell[3], all_int)
+    return cells, totals, members
+
+
+def _finals(method: AggrMethod, by_bucket: dict, buckets: list) -> list:
+    """``_final`` of each bucket's cell; the average inline (the common case)."""
+    if method is AggrMethod.AVG:
+        return [None if c is None or not c[1] or c[2] is None else c[2] / c[1] for c in map(by_bucket.get, buckets)]
+    return [_final(method, by_bucket.get(b)) for b in buckets]
 
 
 def _combine(method: AggrMethod, a, b):

@@ -101,6 +101,7 @@ def _open(settings: Settings) -> Store:
         tail_series=settings.tail_cache_series,
         tail_rows=settings.tail_cache_rows,
         tail_samples=settings.tail_cache_samples,
+        agg_partials_hours=settings.agg_partials_hours,
         checkpoint_bytes=settings.wal_checkpoint_bytes,
         rejected_limits=RejectedLimits.from_settings(settings),
     )

@@ -2,7 +2,8 @@
 
 All SQL comes from ``storage.sql`` (``DuckDBDialect``); this module supplies
 a connection (the store's per-thread cursor), the series catalog's loader,
-and the answers memory gives (tails, latest locations, extents).
+and the answers memory gives (tails, latest locations, extents, hourly
+aggregate partials).
 
 It never imports the store: the store hands itself in as a ``DuckDBSource``
 (what a reader needs of it), so the dependency runs one way, store → querier.
@@ -23,6 +24,7 @@ from ..catalog import SeriesCatalog
 from ..common import to_micros
 from ..export import Columns, SampleBatches, export_sql
 from ..memory_only import check_database_allowed
+from ..partials import HourlyPartials
 from ..sql import _LOCATION_COLUMNS, GEO_KIND, SqlQuerier, as_first_locations, series_time_filter
 from .dialect import DuckDBDialect
 from .latest_geo import LatestGeo
@@ -35,6 +37,7 @@ class DuckDBSource(Protocol):
 
     tail: TailCache
     latest_geo: LatestGeo
+    partials: HourlyPartials
 
     def cursor(self) -> duckdb.DuckDBPyConnection: ...
 
@@ -354,6 +357,13 @@ class DuckDBQuerier(SqlQuerier):
         pieces = max(1, -(-count // sort_rows))
         step = -(-(last - first + 1) // pieces)
         return [TimeRange(_utc(start), _utc(min(start + step - 1, last))) for start in range(first, last + 1, step)]
+
+    def _partials(self) -> HourlyPartials | None:
+        """The store's hourly partials (``storage.partials``), kept current by
+        its writer; off with several writer threads (row ids then do not grow
+        in commit order, which a load's race check relies on)."""
+        partials = self._store.partials
+        return partials if partials.enabled else None
 
     def _load_tail(self, sid: int, n: int) -> list[TailRow]:
         d = self.dialect

@@ -17,6 +17,7 @@ import duckdb
 
 from ...model import Kind
 from ..common import naive_utc
+from ..partials import HourlyPartials
 from ..retention import SAVE_WATERMARK, rollup_delete_sql
 from ..rollups import fold_sql
 from ..sql import quote_ident
@@ -37,6 +38,7 @@ class RetainedStore(Protocol):
 
     tail: TailCache
     latest_geo: LatestGeo
+    partials: HourlyPartials
 
     def compactor_lock(self) -> contextlib.AbstractContextManager[Any]: ...
 
@@ -81,11 +83,13 @@ class DuckDBSession:
         return int(n)
 
     def _forget(self, upto_rid: int) -> None:
-        """The in-memory tails and latest locations must not show deleted rows."""
+        """The in-memory tails, aggregate partials and latest locations must
+        not show deleted rows."""
         store = self._store
         cur = self._cur
         sids = [r[0] for r in cur.execute("SELECT DISTINCT sid FROM retention_batch").fetchall()]
         store.tail.drop(sids)
+        store.partials.drop(sids)
         geo = [
             r[0]
             for r in cur.execute(f"SELECT DISTINCT sid FROM retention_batch WHERE kind = {int(Kind.GEO)}").fetchall()

@@ -60,6 +60,7 @@ from ..ld_ingest import (
     with_deletions,
 )
 from ..migrate import applied_versions, load_migrations, split_statements
+from ..partials import HourlyPartials
 from ..rejected import RejectedLimits
 from ..sql import delete_statements, instance_statements
 from ..writer import GroupCommitter
@@ -275,6 +276,7 @@ class DuckDBStore(CommittingStore):
         tail_series: int = 8192,
         tail_rows: int = 128,
         tail_samples: int | None = None,
+        agg_partials_hours: int = 100_000,
         checkpoint_bytes: int = CHECKPOINT_BYTES,
         reopen_delay: float | None = None,
         reopen_max_delay: float | None = None,
@@ -306,6 +308,8 @@ class DuckDBStore(CommittingStore):
         self._alloc_lock = threading.Lock()
         self._series_lock = threading.Lock()
         self.tail = TailCache(*self._tail_args)
+        # Aggregate partials (storage.partials) need row ids growing in commit order: one writer.
+        self.partials = HourlyPartials(agg_partials_hours if writer_threads == 1 else 0)
         self.latest_instances = LatestInstances()
         self._next_iid = 1
         self._con = connect(path, checkpoint_bytes=checkpoint_bytes)
@@ -495,6 +499,7 @@ class DuckDBStore(CommittingStore):
             self._con = con
             self._generation += 1
             self.tail = TailCache(*self._tail_args)
+            self.partials = HourlyPartials(self.partials.max_hours)
             self.latest_instances = LatestInstances()
             self._querier = None
             self._compactor = Compactor(con, *self._compact_args, on_error=self.notice)
@@ -816,6 +821,7 @@ class DuckDBAppender(StagingAppender):
                 self._insert_arrow(cur)
             self._store.tail.publish(self._cols)
             self._store.latest_geo.publish(self._cols)
+            self._store.partials.publish(self._cols)
         if self._rejected or self._layouts or self._deletes or self._instance_ops:
             # A delete must not race the compactor moving or rewriting the
             # same rows (its copy could resurrect them): hold its lock.
@@ -873,11 +879,13 @@ class DuckDBAppender(StagingAppender):
         store = self._store
         for op, upto_rid in self._deletes:
             store.tail.drop(op.sids)
+            store.partials.drop(op.sids)
             store.latest_instances.drop(op.sids)
             if store._broken is None:  # else the reopen rebuilds every location
                 store.latest_geo.recompute(op.sids, upto_rid, self._latest_geo_of)
         for instance_op in self._instance_ops:
             store.tail.drop([instance_op.sid])
+            store.partials.drop([instance_op.sid])
             store.latest_instances.drop([instance_op.sid])
             if store._broken is None:
                 store.latest_geo.recompute([instance_op.sid], store._next_rid, self._latest_geo_of)
