@@ -19,6 +19,7 @@ import duckdb
 
 from ...errors import Unavailable
 from ...query import ExtentRow, FirstLocationRow, GeometryRow, Prefilter, RawRow, RowMask, TimeRange
+from ...timefmt import iso_ms_us as iso_ms
 from ..catalog import SeriesCatalog
 from ..common import to_micros
 from ..export import Columns, SampleBatches, export_sql
@@ -221,11 +222,14 @@ class DuckDBQuerier(SqlQuerier):
         parts.append(f"SELECT {cols} FROM {HOT} WHERE {where}")
         params += more
         sql = (
-            f"SELECT {d.epoch_us('t')}, rid, {d.iso_ms('t')}, kind, num, txt, js, sid "
+            f"SELECT {d.epoch_us('t')}, rid, kind, num, txt, js, sid "
             f"FROM ({' UNION ALL '.join(parts)}) u JOIN {d.mask_relation()} ON m_sid = sid "
             f"WHERE {_IN_SPAN} ORDER BY t {direction}, rid {direction} LIMIT ?"
         )
-        return self._fetch(sql, [*params, *RowMask({sid: mask.intervals[sid] for sid in sids}).arrays(), wanted])
+        rows = self._fetch(sql, [*params, *RowMask({sid: mask.intervals[sid] for sid in sids}).arrays(), wanted])
+        # The ISO text of the few rows kept, here: DuckDB would format every
+        # sample of every series before the limit.
+        return [(t, rid, iso_ms(t), kind, num, txt, js, sid) for t, rid, kind, num, txt, js, sid in rows]
 
     def location_extents(self, sids: Sequence[int], prefilter: Prefilter | None) -> list[ExtentRow]:
         """Memory only: where each series has ever been."""
