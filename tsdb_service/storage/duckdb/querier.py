@@ -160,10 +160,12 @@ class DuckDBQuerier(SqlQuerier):
     ) -> list[RawRow]:
         """The rows a geo mask keeps, ``offset``/``limit`` over all series.
         Each series contributes at most its own first ``offset + limit`` kept
-        rows in the wanted order: from its cached tail when that provably
-        holds them (newest first only, never loading one: a geo-query's
-        entities are scattered, one load each would cost more than the
-        statement), the others' from one SQL statement."""
+        rows in the wanted order. Newest first, from its tail when that
+        provably holds them: the tails not cached are loaded together, with
+        one statement (a geo-query's entities are scattered: one load each
+        would cost more), so a repeated query near the same place reads
+        nothing. The others' (oldest first, or deeper than a tail) from one
+        SQL statement."""
         wanted = offset + limit
         merged: list[tuple] = []
         ask = []
@@ -175,6 +177,8 @@ class DuckDBQuerier(SqlQuerier):
                 ask.append(sid)
             else:
                 merged.extend((row[0], row[1], sid, row) for row in kept)
+        if ask and newest_first and wanted <= self._store.tail.capacity:
+            ask = self._kept_from_new_tails(ask, time, wanted, mask, merged)
         if ask:
             for row in self._masked_firsts(ask, time, newest_first, wanted, mask):
                 merged.append((row[0], row[1], row[7], row[:7]))
@@ -182,9 +186,7 @@ class DuckDBQuerier(SqlQuerier):
 
     def _kept_from_tail(self, sid: int, time: TimeRange, wanted: int, mask: RowMask) -> list[tuple] | None:
         """The newest ``wanted`` rows ``mask`` keeps of a cached tail, when the
-        tail provably holds them: all of the series' rows in the window, or
-        at least ``wanted`` kept ones (every uncached row is older than all
-        cached ones). None when not cached or not provable."""
+        tail provably holds them. None when not cached or not provable."""
         tail = self._store.tail
         start = None if time.start is None else to_micros(time.start)
         end = None if time.end is None else to_micros(time.end)
@@ -192,13 +194,46 @@ class DuckDBQuerier(SqlQuerier):
             got = tail.rows(sid, _only_cached, start, end, True, tail.capacity, 0)
         except _NotCached:
             return None
-        if got is None:
-            return None
-        complete = len(got) < tail.capacity  # fewer: the tail holds the whole window
-        kept = mask.keep(sid, got)
-        if not complete and len(kept) < wanted:
-            return None
-        return kept[max(0, len(kept) - wanted) :]
+        return _kept(sid, got, tail.capacity, wanted, mask)
+
+    def _kept_from_new_tails(
+        self, sids: list[int], time: TimeRange, wanted: int, mask: RowMask, merged: list[tuple]
+    ) -> list[int]:
+        """Load the tails of ``sids`` at once; the newest ``wanted`` kept rows
+        of those that provably answer go to ``merged``. Returns the others."""
+        tail = self._store.tail
+        start = None if time.start is None else to_micros(time.start)
+        end = None if time.end is None else to_micros(time.end)
+        rest = []
+        for sid, got in tail.newest_many(sids, self._load_tails, start, end).items():
+            kept = _kept(sid, got, tail.capacity, wanted, mask)
+            if kept is None:
+                rest.append(sid)
+            else:
+                merged.extend((row[0], row[1], sid, row) for row in kept)
+        return rest
+
+    def _load_tails(self, sids: list[int], n: int) -> dict[int, list[TailRow]]:
+        """``_load_tail`` for many series in one statement: a ``sid = ?``
+        branch per series on the sorted table (each prunes it to the
+        series' row groups) and one pass over the small hot table."""
+        d = self.dialect
+        cols = "sid, t, rid, kind, num, txt, js"
+        order = "ORDER BY t DESC, rid DESC"
+        parts = [f"(SELECT {cols} FROM {SORTED} WHERE sid = ? {order} LIMIT ?)"] * len(sids)
+        params: list = [value for sid in sids for value in (sid, n)]
+        where, more = d.sid_filter(sids)
+        parts.append(f"SELECT {cols} FROM {HOT} WHERE {where}")
+        params += more
+        sql = (
+            f"SELECT sid, {d.epoch_us('t')}, rid, {d.iso_ms('t')}, kind, num, txt, js FROM "
+            f"({' UNION ALL '.join(parts)}) u QUALIFY row_number() OVER (PARTITION BY sid {order}) <= ? "
+            f"ORDER BY sid, t DESC, rid DESC"
+        )
+        out: dict[int, list[TailRow]] = {}
+        for sid, *row in self._fetch(sql, [*params, n]):
+            out.setdefault(sid, []).append(tuple(row))
+        return out
 
     def _masked_firsts(
         self, sids: Sequence[int], time: TimeRange, newest_first: bool, wanted: int, mask: RowMask
@@ -428,6 +463,20 @@ def _only_cached(sid: int, n: int) -> list[TailRow]:
 
 # A joined mask row's interval holds the sample's (t, rid).
 _IN_SPAN = "(t > m_t0 OR (t = m_t0 AND rid >= m_r0)) AND (m_t1 IS NULL OR t < m_t1 OR (t = m_t1 AND rid < m_r1))"
+
+
+def _kept(sid: int, got: list[TailRow] | None, capacity: int, wanted: int, mask: RowMask) -> list[tuple] | None:
+    """The newest ``wanted`` rows ``mask`` keeps of a tail's window ``got``
+    (at most ``capacity`` rows, oldest first), when it provably holds them:
+    all of the series' rows in the window, or at least ``wanted`` kept ones
+    (every row not in the tail is older than all of those in it)."""
+    if got is None:
+        return None
+    complete = len(got) < capacity  # fewer: the tail holds the whole window
+    kept = mask.keep(sid, got)
+    if not complete and len(kept) < wanted:
+        return None
+    return kept[max(0, len(kept) - wanted) :]
 
 
 def _window(merged: list[tuple], newest_first: bool, limit: int, offset: int) -> list[RawRow]:
