@@ -33,3 +33,62 @@ def test_a_repeated_query_answers_the_same(client_factory, store_url_factory):
         for geo, _ in QUERIES.values():
             for params in ({"lastN": 3}, {"lastN": 8}, {"lastN": 9}, {"limit": 4, "offset": 2}):
                 assert _got(client, geo, params) == _got(client, geo, params), (geo, params)
+
+
+BOX = "georel=coveredBy&geometry=box&coords=40.40,-3.72;40.43,-3.69"
+NEAR = "georel=near;maxDistance:1500&geometry=point&coords=40.4168,-3.7038"
+FLEET = {"Content-Type": "application/json", "Fiware-Service": "fleet"}
+
+
+def _move(client, robot: int, step: int, t: int, rnd: random.Random) -> None:
+    lon, lat = -3.74 + rnd.random() * 0.08, 40.38 + rnd.random() * 0.08
+    where = {"type": "geo:json", "value": {"type": "Point", "coordinates": [lon, lat]}}
+    if rnd.random() < 0.2:  # an area now and then: its text is kept, not only its box
+        where = {"type": "geo:box", "value": [f"{lat}, {lon}", f"{lat + 0.002}, {lon + 0.003}"]}
+    entity = {
+        "id": f"Bot{robot}",
+        "type": "Robot",
+        "battery": {"type": "Number", "value": step},
+        "TimeInstant": {"type": "DateTime", "value": f"2024-05-01T10:{t // 60:02d}:{t % 60:02d}Z"},
+    }
+    if rnd.random() < 0.8:  # some readings keep the previous location
+        entity["location"] = where
+    assert client.post("/v2/notify", json={"data": [entity]}, headers=FLEET).status_code == 200
+
+
+def _history(client, query: str) -> object:
+    response = client.get(f"/v2/types/Robot/attrs/battery?{query}", headers=FLEET)
+    assert response.status_code == 200, response.text
+    return response.json()
+
+
+def test_positions_from_memory_agree_with_the_database(client_factory, store_url_factory, monkeypatch):
+    """Without a time window DuckDB reads positions from memory (tiny tracks
+    here, so series outgrow them); ``toDate`` far ahead asks the database.
+    Moves, late samples and deletes interleave; both answers always agree."""
+    monkeypatch.setattr("tsdb_service.storage.duckdb.latest_geo.TRACK_ROWS", 15)
+    monkeypatch.setattr("tsdb_service.storage.duckdb.latest_geo.TRACK_TOTAL", 40)
+    rnd = random.Random(31)
+    with client_factory(store_url_factory("geo_positions"), tail_cache_rows=4) as client:
+        for step in range(240):
+            roll = rnd.random()
+            if roll < 0.65:
+                t = step if rnd.random() < 0.85 else rnd.randint(0, step)
+                _move(client, rnd.randint(0, 5), step, t, rnd)
+            elif roll < 0.7:
+                start = rnd.randint(0, step)
+                client.delete(
+                    f"/v2/entities/Bot{rnd.randint(0, 5)}",
+                    headers=FLEET,
+                    params={
+                        "type": "Robot",
+                        "fromDate": f"2024-05-01T10:{start // 60:02d}:{start % 60:02d}Z",
+                        "toDate": "2024-05-01T10:59:59Z",
+                    },
+                )
+            else:
+                geo = rnd.choice((BOX, NEAR))
+                page = rnd.choice(("lastN=3", "lastN=20", "limit=5&offset=2"))
+                memory = _history(client, f"{geo}&{page}")
+                database = _history(client, f"{geo}&{page}&toDate=2099-01-01T00:00:00Z")
+                assert memory == database, (step, geo, page)

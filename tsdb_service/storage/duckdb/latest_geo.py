@@ -24,12 +24,21 @@ is forgotten, so its samples are always read.
 
 Queries bounded by ``toDate`` need the latest location *before* a time and
 go to the database.
+
+A third, bounded, cache serves sample semantics' second step, "where was it
+at each sample?": the positions (every geo sample) of recently read
+location series, whole series of up to ``TRACK_ROWS`` positions only,
+least recently read out first beyond ``TRACK_TOTAL`` positions. Loaded
+together for the series a query misses (one statement), kept current by
+the same publish, dropped for series touched by a delete. A load that
+raced a publish or a delete answers its own query and is not kept.
 """
 
 from __future__ import annotations
 
 import math
 import threading
+from collections import OrderedDict
 from collections.abc import Callable, Iterable
 
 from ...model import Kind
@@ -54,6 +63,12 @@ LATEST_GEO_SQL = (
 # sid -> (t µs, rid, geojson, min_lon, min_lat, max_lon, max_lat)
 Entry = tuple[int, int, str, float, float, float, float]
 _new = tuple.__new__
+
+
+# A position: (t µs, rid, GeoJSON or None for a point, min_lon, min_lat, max_lon, max_lat).
+Position = tuple[int, int, str | None, float, float, float, float]
+TRACK_ROWS = 128  # positions per cached series (longer ones are read from the database)
+TRACK_TOTAL = 262_144  # positions cached in all (~200 bytes each)
 
 
 CELL_DEG = 0.05  # grid cell edge (~5 km): a near-1 km query reads a few cells
@@ -126,6 +141,9 @@ class LatestGeo:
         self._grid = _Grid()
         self._extents = _Grid()
         self._first: dict[int, tuple[int, int] | None] = {}  # None: unknown (deleted)
+        self._tracks: OrderedDict[int, list[Position]] = OrderedDict()  # whole series, by (t, rid)
+        self._track_total = 0
+        self._seq = 0  # moves with every publish of geo samples and every delete
         for row in rows:
             self._put(row[0], tuple(row[1:8]))
             self._extents.put(row[0], tuple(row[8:12]))
@@ -145,12 +163,15 @@ class LatestGeo:
         sids, ts, rids, geos = cols["sid"], cols["t"], cols["rid"], cols["geo"]
         mnlons, mnlats, mxlons, mxlats = cols["min_lon"], cols["min_lat"], cols["max_lon"], cols["max_lat"]
         with self._lock:
+            self._seq += 1
             latest, extents = self._latest, self._extents
             for i, kind in enumerate(kinds):
                 if kind != GEO or geos[i] is None:
                     continue
                 sid = sids[i]
                 box = (mnlons[i], mnlats[i], mxlons[i], mxlats[i])
+                if sid in self._tracks:
+                    self._track_insert(sid, position(ts[i], rids[i], geos[i], box))
                 current = latest.get(sid)
                 if current is None or (ts[i], rids[i]) > current[:2]:
                     self._put(sid, (ts[i], rids[i], geos[i], *box))
@@ -176,7 +197,9 @@ class LatestGeo:
         """After a delete of rows up to ``upto_rid`` in ``sids`` (extents stay)."""
         fresh = {row[0]: tuple(row[1:8]) for row in load(list(sids))}
         with self._lock:
+            self._seq += 1
             for sid in sids:
+                self._track_drop(sid)
                 if sid in self._first:
                     self._first[sid] = None
                 current = self._latest.get(sid)
@@ -232,3 +255,68 @@ class LatestGeo:
                 start = first.get(sid) or (None, None)
                 out.append(_new(ExtentRow, (sid, *box, *start)))
         return out
+
+    # -- positions of recently read series -----------------------------------------------
+
+    def positions(
+        self, sids: list[int], load: Callable[[list[int], int], dict[int, list[Position]]]
+    ) -> dict[int, list[Position]] | None:
+        """Every position of each of ``sids`` by (t, rid): the cached ones,
+        the others from one ``load(missing, n)`` (per series its oldest
+        ``n`` positions). None when one of them has more than ``TRACK_ROWS``
+        (the caller then reads them all from the database)."""
+        out: dict[int, list[Position]] = {}
+        missing = []
+        with self._lock:
+            for sid in sids:
+                track = self._tracks.get(sid)
+                if track is None:
+                    missing.append(sid)
+                else:
+                    self._tracks.move_to_end(sid)
+                    out[sid] = list(track)
+            seq = self._seq
+        if not missing:
+            return out
+        loaded = load(missing, TRACK_ROWS + 1)
+        if any(len(rows) > TRACK_ROWS for rows in loaded.values()):
+            return None
+        with self._lock:
+            keep = self._seq == seq
+            for sid in missing:
+                track = loaded.get(sid, [])
+                out[sid] = track
+                if keep and track and sid not in self._tracks:
+                    self._tracks[sid] = list(track)
+                    self._track_total += len(track)
+            while self._track_total > TRACK_TOTAL and self._tracks:
+                _, evicted = self._tracks.popitem(last=False)
+                self._track_total -= len(evicted)
+        return out
+
+    def _track_insert(self, sid: int, position: Position) -> None:
+        """A published position into its cached series (callers hold the
+        lock); one already there (loaded with it) is skipped; a series
+        growing past ``TRACK_ROWS`` is no longer whole: dropped."""
+        track = self._tracks[sid]
+        key = position[:2]
+        at = len(track)
+        while at and track[at - 1][:2] > key:
+            at -= 1
+        if at and track[at - 1][:2] == key:
+            return
+        track.insert(at, position)
+        self._track_total += 1
+        if len(track) > TRACK_ROWS:
+            self._track_drop(sid)
+
+    def _track_drop(self, sid: int) -> None:
+        track = self._tracks.pop(sid, None)
+        if track is not None:
+            self._track_total -= len(track)
+
+
+def position(t_us: int, rid: int, geojson: str, box: tuple) -> Position:
+    """A point keeps no text: its box is the point."""
+    point = box[0] == box[2] and box[1] == box[3]
+    return (t_us, rid, None if point else geojson, *box)

@@ -18,15 +18,24 @@ from typing import Protocol
 import duckdb
 
 from ...errors import Unavailable
-from ...query import ExtentRow, FirstLocationRow, GeometryRow, Prefilter, RawRow, RowMask, TimeRange
+from ...query import (
+    ExtentRow,
+    FirstLocationRow,
+    GeometryRow,
+    LocationRow,
+    Prefilter,
+    RawRow,
+    RowMask,
+    TimeRange,
+)
 from ...timefmt import iso_ms_us as iso_ms
 from ..catalog import SeriesCatalog
-from ..common import to_micros
+from ..common import box_passes, to_micros
 from ..export import Columns, SampleBatches, export_sql
 from ..memory_only import check_database_allowed
 from ..sql import _LOCATION_COLUMNS, GEO_KIND, SqlQuerier, as_first_locations, series_time_filter
 from .dialect import DuckDBDialect
-from .latest_geo import LatestGeo
+from .latest_geo import LatestGeo, Position, position
 from .tail_cache import TailCache, TailRow
 
 
@@ -269,6 +278,50 @@ class DuckDBQuerier(SqlQuerier):
     def location_extents(self, sids: Sequence[int], prefilter: Prefilter | None) -> list[ExtentRow]:
         """Memory only: where each series has ever been."""
         return self._store.latest_geo.extents(sids, prefilter)
+
+    def location_samples(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[LocationRow]:
+        """Without a time window, from the positions memory holds
+        (``LatestGeo.positions``: the series it misses are loaded together
+        and kept), so a repeated geo-query reads no positions; the rows are
+        those of the SQL (see ``SqlQuerier.location_samples``)."""
+        if not sids or time.start is not None or time.end is not None or len(sids) > TAIL_MAX_SERIES:
+            return super().location_samples(sids, time, prefilter)
+        tracks = self._store.latest_geo.positions(sorted(sids), self._load_positions)
+        if tracks is None:
+            return super().location_samples(sids, time, prefilter)
+        out: list[LocationRow] = []
+        for sid in sorted(tracks):
+            for t_us, rid, geojson, *corners in tracks[sid]:
+                box = (corners[0], corners[1], corners[2], corners[3])
+                if None in box:  # no box: SQL's tests are NULL, neither holds
+                    ok = point = False
+                else:
+                    ok = prefilter is None or box_passes(prefilter[0], box, prefilter[1])
+                    point = box[0] == box[2] and box[1] == box[3]
+                out.append((sid, t_us, rid, ok, point, box[0], box[1], geojson if ok and not point else None))
+        return out
+
+    def _load_positions(self, sids: list[int], n: int) -> dict[int, list[Position]]:
+        """The oldest ``n`` positions of each of ``sids``, by (t, rid), in
+        one statement (branches as in ``_location_rows``)."""
+        d = self.dialect
+        cols = "sid, t, rid, geo, min_lon, min_lat, max_lon, max_lat"
+        located = f"kind = {GEO_KIND} AND geo IS NOT NULL"
+        order = "ORDER BY t, rid"
+        parts = [f"(SELECT {cols} FROM {SORTED} WHERE sid = ? AND {located} {order} LIMIT ?)"] * len(sids)
+        params: list = [value for sid in sids for value in (sid, n)]
+        where, more = d.sid_filter(sids)
+        parts.append(f"SELECT {cols} FROM {HOT} WHERE {where} AND {located}")
+        params += more
+        sql = (
+            f"SELECT sid, {d.epoch_us('t')}, rid, geo, min_lon, min_lat, max_lon, max_lat FROM "
+            f"({' UNION ALL '.join(parts)}) u QUALIFY row_number() OVER (PARTITION BY sid {order}) <= ? "
+            f"ORDER BY sid, t, rid"
+        )
+        out: dict[int, list[Position]] = {}
+        for sid, t_us, rid, geojson, *box in self._fetch(sql, [*params, n]):
+            out.setdefault(sid, []).append(position(t_us, rid, geojson, tuple(box)))
+        return out
 
     def _location_rows(self, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
         """One ``sid = ?`` branch per series on the sorted table (each prunes
