@@ -21,7 +21,9 @@ from tests.test_geo_samples import QUERIES, _drive, _got
 
 
 @pytest.mark.parametrize("rows", [3, 64])
-def test_repeated_geo_lastn_equals_the_model(client_factory, store_url_factory, rows):
+def test_repeated_geo_lastn_equals_the_model(client_factory, store_url_factory, monkeypatch, rows):
+    # Tracks of positions as small as the tails: windows they can and cannot answer.
+    monkeypatch.setattr("tsdb_service.storage.duckdb.latest_geo.TRACK_ROWS", rows)
     with client_factory(store_url_factory(f"geo_tails_{rows}"), tail_cache_rows=rows) as client:
         _drive(client, random.Random(1500 + rows), 260)
 
@@ -63,9 +65,12 @@ def _history(client, query: str) -> object:
 
 
 def test_positions_from_memory_agree_with_the_database(client_factory, store_url_factory, monkeypatch):
-    """Without a time window DuckDB reads positions from memory (tiny tracks
-    here, so series outgrow them); ``toDate`` far ahead asks the database.
-    Moves, late samples and deletes interleave; both answers always agree."""
+    """DuckDB reads positions from the tracks memory keeps (tiny ones here,
+    so series outgrow them) where they answer; with them switched off it
+    asks the database. Moves, late samples and deletes interleave, windows
+    start before, inside and after the tracks; both answers always agree."""
+    from tsdb_service.storage.duckdb.latest_geo import LatestGeo
+
     monkeypatch.setattr("tsdb_service.storage.duckdb.latest_geo.TRACK_ROWS", 15)
     monkeypatch.setattr("tsdb_service.storage.duckdb.latest_geo.TRACK_TOTAL", 40)
     rnd = random.Random(31)
@@ -89,6 +94,14 @@ def test_positions_from_memory_agree_with_the_database(client_factory, store_url
             else:
                 geo = rnd.choice((BOX, NEAR))
                 page = rnd.choice(("lastN=3", "lastN=20", "limit=5&offset=2"))
+                if rnd.random() < 0.5:
+                    since = rnd.randint(0, step)
+                    page += f"&fromDate=2024-05-01T10:{since // 60:02d}:{since % 60:02d}Z"
+                if rnd.random() < 0.3:
+                    until = rnd.randint(0, step + 5)
+                    page += f"&toDate=2024-05-01T10:{until // 60:02d}:{until % 60:02d}Z"
                 memory = _history(client, f"{geo}&{page}")
-                database = _history(client, f"{geo}&{page}&toDate=2099-01-01T00:00:00Z")
+                with monkeypatch.context() as off:
+                    off.setattr(LatestGeo, "positions", lambda self, sids, start, load: None)
+                    database = _history(client, f"{geo}&{page}")
                 assert memory == database, (step, geo, page)

@@ -26,12 +26,16 @@ Queries bounded by ``toDate`` need the latest location *before* a time and
 go to the database.
 
 A third, bounded, cache serves sample semantics' second step, "where was it
-at each sample?": the positions (every geo sample) of recently read
-location series, whole series of up to ``TRACK_ROWS`` positions only,
-least recently read out first beyond ``TRACK_TOTAL`` positions. Loaded
-together for the series a query misses (one statement), kept current by
-the same publish, dropped for series touched by a delete. A load that
-raced a publish or a delete answers its own query and is not kept.
+at each sample?": the newest ``TRACK_ROWS`` positions (geo samples) of
+recently read location series (their *tracks*), least recently read out
+first beyond ``TRACK_TOTAL`` positions. A track answers a query when it
+provably holds what the database would return: every position of the
+series, or, for a window starting after its oldest position, every one
+in the window and the last before it (a position not in a track is older
+than all in it). Loaded together for the series a query misses (one
+statement), kept current by the same publish, dropped for series touched
+by a delete. A load that raced a publish or a delete answers its own
+query and is not kept.
 """
 
 from __future__ import annotations
@@ -67,7 +71,7 @@ _new = tuple.__new__
 
 # A position: (t µs, rid, GeoJSON or None for a point, min_lon, min_lat, max_lon, max_lat).
 Position = tuple[int, int, str | None, float, float, float, float]
-TRACK_ROWS = 128  # positions per cached series (longer ones are read from the database)
+TRACK_ROWS = 128  # newest positions kept per series
 TRACK_TOTAL = 262_144  # positions cached in all (~200 bytes each)
 
 
@@ -141,7 +145,7 @@ class LatestGeo:
         self._grid = _Grid()
         self._extents = _Grid()
         self._first: dict[int, tuple[int, int] | None] = {}  # None: unknown (deleted)
-        self._tracks: OrderedDict[int, list[Position]] = OrderedDict()  # whole series, by (t, rid)
+        self._tracks: OrderedDict[int, _Track] = OrderedDict()
         self._track_total = 0
         self._seq = 0  # moves with every publish of geo samples and every delete
         for row in rows:
@@ -259,13 +263,13 @@ class LatestGeo:
     # -- positions of recently read series -----------------------------------------------
 
     def positions(
-        self, sids: list[int], load: Callable[[list[int], int], dict[int, list[Position]]]
+        self, sids: list[int], start_us: int | None, load: Callable[[list[int], int], dict[int, list[Position]]]
     ) -> dict[int, list[Position]] | None:
-        """Every position of each of ``sids`` by (t, rid): the cached ones,
-        the others from one ``load(missing, n)`` (per series its oldest
-        ``n`` positions). None when one of them has more than ``TRACK_ROWS``
-        (the caller then reads them all from the database)."""
-        out: dict[int, list[Position]] = {}
+        """Per series of ``sids``, its cached positions by (t, rid), the
+        missing ones from one ``load(missing, n)`` (per series its newest
+        ``n`` positions, newest first). None when one of them cannot answer
+        a window starting at ``start_us`` (None: all time; see the module)."""
+        tracks: dict[int, _Track] = {}
         missing = []
         with self._lock:
             for sid in sids:
@@ -274,46 +278,65 @@ class LatestGeo:
                     missing.append(sid)
                 else:
                     self._tracks.move_to_end(sid)
-                    out[sid] = list(track)
+                    tracks[sid] = _Track(list(track.rows), track.whole)
             seq = self._seq
-        if not missing:
-            return out
-        loaded = load(missing, TRACK_ROWS + 1)
-        if any(len(rows) > TRACK_ROWS for rows in loaded.values()):
+        if missing:
+            loaded = load(missing, TRACK_ROWS + 1)
+            with self._lock:
+                keep = self._seq == seq
+                for sid in missing:
+                    newest = loaded.get(sid, [])
+                    track = _Track(newest[:TRACK_ROWS][::-1], len(newest) <= TRACK_ROWS)
+                    tracks[sid] = track
+                    if keep and track.rows and sid not in self._tracks:
+                        self._tracks[sid] = _Track(list(track.rows), track.whole)
+                        self._track_total += len(track.rows)
+                while self._track_total > TRACK_TOTAL and self._tracks:
+                    _, evicted = self._tracks.popitem(last=False)
+                    self._track_total -= len(evicted.rows)
+        if not all(track.answers(start_us) for track in tracks.values()):
             return None
-        with self._lock:
-            keep = self._seq == seq
-            for sid in missing:
-                track = loaded.get(sid, [])
-                out[sid] = track
-                if keep and track and sid not in self._tracks:
-                    self._tracks[sid] = list(track)
-                    self._track_total += len(track)
-            while self._track_total > TRACK_TOTAL and self._tracks:
-                _, evicted = self._tracks.popitem(last=False)
-                self._track_total -= len(evicted)
-        return out
+        return {sid: track.rows for sid, track in tracks.items()}
 
     def _track_insert(self, sid: int, position: Position) -> None:
-        """A published position into its cached series (callers hold the
-        lock); one already there (loaded with it) is skipped; a series
-        growing past ``TRACK_ROWS`` is no longer whole: dropped."""
+        """A published position into its cached track (callers hold the
+        lock). One older than a partial track is not part of it; one
+        already there (loaded with it) is skipped; beyond ``TRACK_ROWS``
+        the oldest goes and the track is no longer the whole series."""
         track = self._tracks[sid]
-        key = position[:2]
-        at = len(track)
-        while at and track[at - 1][:2] > key:
-            at -= 1
-        if at and track[at - 1][:2] == key:
+        rows, key = track.rows, position[:2]
+        if not track.whole and rows and key < rows[0][:2]:
             return
-        track.insert(at, position)
+        at = len(rows)
+        while at and rows[at - 1][:2] > key:
+            at -= 1
+        if at and rows[at - 1][:2] == key:
+            return
+        rows.insert(at, position)
         self._track_total += 1
-        if len(track) > TRACK_ROWS:
-            self._track_drop(sid)
+        if len(rows) > TRACK_ROWS:
+            del rows[0]
+            track.whole = False
+            self._track_total -= 1
 
     def _track_drop(self, sid: int) -> None:
         track = self._tracks.pop(sid, None)
         if track is not None:
-            self._track_total -= len(track)
+            self._track_total -= len(track.rows)
+
+
+class _Track:
+    """A series' newest positions by (t, rid); ``whole``: all of them."""
+
+    __slots__ = ("rows", "whole")
+
+    def __init__(self, rows: list[Position], whole: bool):
+        self.rows = rows
+        self.whole = whole
+
+    def answers(self, start_us: int | None) -> bool:
+        """Holds every position from ``start_us`` on and the last before it."""
+        return self.whole or (start_us is not None and bool(self.rows) and self.rows[0][0] < start_us)
 
 
 def position(t_us: int, rid: int, geojson: str, box: tuple) -> Position:

@@ -10,6 +10,7 @@ It never imports the store: the store hands itself in as a ``DuckDBSource``
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 from collections.abc import Iterator, Sequence
 from datetime import UTC, datetime, timedelta
@@ -280,18 +281,20 @@ class DuckDBQuerier(SqlQuerier):
         return self._store.latest_geo.extents(sids, prefilter)
 
     def location_samples(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[LocationRow]:
-        """Without a time window, from the positions memory holds
-        (``LatestGeo.positions``: the series it misses are loaded together
-        and kept), so a repeated geo-query reads no positions; the rows are
-        those of the SQL (see ``SqlQuerier.location_samples``)."""
-        if not sids or time.start is not None or time.end is not None or len(sids) > TAIL_MAX_SERIES:
+        """From the tracks memory holds where they answer (``LatestGeo.
+        positions``: the series it misses are loaded together and kept), so
+        a repeated geo-query reads no positions: the samples in the window
+        and the last one before it, as the SQL (``SqlQuerier``) returns them."""
+        if not sids or len(sids) > TAIL_MAX_SERIES:
             return super().location_samples(sids, time, prefilter)
-        tracks = self._store.latest_geo.positions(sorted(sids), self._load_positions)
+        start = None if time.start is None else to_micros(time.start)
+        end = None if time.end is None else to_micros(time.end)
+        tracks = self._store.latest_geo.positions(sorted(sids), start, self._load_positions)
         if tracks is None:
             return super().location_samples(sids, time, prefilter)
         out: list[LocationRow] = []
         for sid in sorted(tracks):
-            for t_us, rid, geojson, *corners in tracks[sid]:
+            for t_us, rid, geojson, *corners in _in_window(tracks[sid], start, end):
                 box = (corners[0], corners[1], corners[2], corners[3])
                 if None in box:  # no box: SQL's tests are NULL, neither holds
                     ok = point = False
@@ -302,12 +305,12 @@ class DuckDBQuerier(SqlQuerier):
         return out
 
     def _load_positions(self, sids: list[int], n: int) -> dict[int, list[Position]]:
-        """The oldest ``n`` positions of each of ``sids``, by (t, rid), in
+        """The newest ``n`` positions of each of ``sids``, newest first, in
         one statement (branches as in ``_location_rows``)."""
         d = self.dialect
         cols = "sid, t, rid, geo, min_lon, min_lat, max_lon, max_lat"
         located = f"kind = {GEO_KIND} AND geo IS NOT NULL"
-        order = "ORDER BY t, rid"
+        order = "ORDER BY t DESC, rid DESC"
         parts = [f"(SELECT {cols} FROM {SORTED} WHERE sid = ? AND {located} {order} LIMIT ?)"] * len(sids)
         params: list = [value for sid in sids for value in (sid, n)]
         where, more = d.sid_filter(sids)
@@ -316,7 +319,7 @@ class DuckDBQuerier(SqlQuerier):
         sql = (
             f"SELECT sid, {d.epoch_us('t')}, rid, geo, min_lon, min_lat, max_lon, max_lat FROM "
             f"({' UNION ALL '.join(parts)}) u QUALIFY row_number() OVER (PARTITION BY sid {order}) <= ? "
-            f"ORDER BY sid, t, rid"
+            f"ORDER BY sid, t DESC, rid DESC"
         )
         out: dict[int, list[Position]] = {}
         for sid, t_us, rid, geojson, *box in self._fetch(sql, [*params, n]):
@@ -514,8 +517,17 @@ def _only_cached(sid: int, n: int) -> list[TailRow]:
     raise _NotCached
 
 
+_MAX_RID = 2**63
 # A joined mask row's interval holds the sample's (t, rid).
 _IN_SPAN = "(t > m_t0 OR (t = m_t0 AND rid >= m_r0)) AND (m_t1 IS NULL OR t < m_t1 OR (t = m_t1 AND rid < m_r1))"
+
+
+def _in_window(track: list[Position], start: int | None, end: int | None) -> list[Position]:
+    """The positions of ``track`` (by (t, rid)) from ``start`` to ``end``
+    (µs, inclusive), and the last one before ``start``."""
+    lo = 0 if start is None else max(0, bisect.bisect_left(track, (start,)) - 1)
+    hi = len(track) if end is None else bisect.bisect_right(track, (end, _MAX_RID))
+    return track[lo:hi]
 
 
 def _kept(sid: int, got: list[TailRow] | None, capacity: int, wanted: int, mask: RowMask) -> list[tuple] | None:
