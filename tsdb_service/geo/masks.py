@@ -16,8 +16,8 @@ Resolving costs little because most entities are never near the query:
    matched from its first position on (kept in memory on DuckDB, one index
    probe otherwise), one wholly outside never did;
 2. the others' location samples in the window, plus the last one before it
-   (SQL, which also tests each sample's box, so only those that pass are
-   parsed);
+   (SQL, or on DuckDB the positions memory keeps where they answer; each
+   sample's box is tested first, so only those that pass are parsed);
 3. the exact predicate for all of them at once (shapely 2 / pyproj arrays);
 4. runs of consecutive matching samples become intervals.
 """

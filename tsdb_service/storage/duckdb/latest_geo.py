@@ -24,12 +24,25 @@ is forgotten, so its samples are always read.
 
 Queries bounded by ``toDate`` need the latest location *before* a time and
 go to the database.
+
+A third, bounded, cache serves sample semantics' second step, "where was it
+at each sample?": the newest ``TRACK_ROWS`` positions (geo samples) of
+recently read location series (their *tracks*), least recently read out
+first beyond ``TRACK_TOTAL`` positions. A track answers a query when it
+provably holds what the database would return: every position of the
+series, or, for a window starting after its oldest position, every one
+in the window and the last before it (a position not in a track is older
+than all in it). Loaded together for the series a query misses (one
+statement), kept current by the same publish, dropped for series touched
+by a delete. A load that raced a publish or a delete answers its own
+query and is not kept.
 """
 
 from __future__ import annotations
 
 import math
 import threading
+from collections import OrderedDict
 from collections.abc import Callable, Iterable
 
 from ...model import Kind
@@ -54,6 +67,12 @@ LATEST_GEO_SQL = (
 # sid -> (t µs, rid, geojson, min_lon, min_lat, max_lon, max_lat)
 Entry = tuple[int, int, str, float, float, float, float]
 _new = tuple.__new__
+
+
+# A position: (t µs, rid, GeoJSON or None for a point, min_lon, min_lat, max_lon, max_lat).
+Position = tuple[int, int, str | None, float, float, float, float]
+TRACK_ROWS = 128  # newest positions kept per series
+TRACK_TOTAL = 262_144  # positions cached in all (~200 bytes each)
 
 
 CELL_DEG = 0.05  # grid cell edge (~5 km): a near-1 km query reads a few cells
@@ -126,6 +145,9 @@ class LatestGeo:
         self._grid = _Grid()
         self._extents = _Grid()
         self._first: dict[int, tuple[int, int] | None] = {}  # None: unknown (deleted)
+        self._tracks: OrderedDict[int, _Track] = OrderedDict()
+        self._track_total = 0
+        self._seq = 0  # moves with every publish of geo samples and every delete
         for row in rows:
             self._put(row[0], tuple(row[1:8]))
             self._extents.put(row[0], tuple(row[8:12]))
@@ -145,12 +167,15 @@ class LatestGeo:
         sids, ts, rids, geos = cols["sid"], cols["t"], cols["rid"], cols["geo"]
         mnlons, mnlats, mxlons, mxlats = cols["min_lon"], cols["min_lat"], cols["max_lon"], cols["max_lat"]
         with self._lock:
+            self._seq += 1
             latest, extents = self._latest, self._extents
             for i, kind in enumerate(kinds):
                 if kind != GEO or geos[i] is None:
                     continue
                 sid = sids[i]
                 box = (mnlons[i], mnlats[i], mxlons[i], mxlats[i])
+                if sid in self._tracks:
+                    self._track_insert(sid, position(ts[i], rids[i], geos[i], box))
                 current = latest.get(sid)
                 if current is None or (ts[i], rids[i]) > current[:2]:
                     self._put(sid, (ts[i], rids[i], geos[i], *box))
@@ -176,7 +201,9 @@ class LatestGeo:
         """After a delete of rows up to ``upto_rid`` in ``sids`` (extents stay)."""
         fresh = {row[0]: tuple(row[1:8]) for row in load(list(sids))}
         with self._lock:
+            self._seq += 1
             for sid in sids:
+                self._track_drop(sid)
                 if sid in self._first:
                     self._first[sid] = None
                 current = self._latest.get(sid)
@@ -232,3 +259,87 @@ class LatestGeo:
                 start = first.get(sid) or (None, None)
                 out.append(_new(ExtentRow, (sid, *box, *start)))
         return out
+
+    # -- positions of recently read series -----------------------------------------------
+
+    def positions(
+        self, sids: list[int], start_us: int | None, load: Callable[[list[int], int], dict[int, list[Position]]]
+    ) -> dict[int, list[Position]] | None:
+        """Per series of ``sids``, its cached positions by (t, rid), the
+        missing ones from one ``load(missing, n)`` (per series its newest
+        ``n`` positions, newest first). None when one of them cannot answer
+        a window starting at ``start_us`` (None: all time; see the module)."""
+        tracks: dict[int, _Track] = {}
+        missing = []
+        with self._lock:
+            for sid in sids:
+                track = self._tracks.get(sid)
+                if track is None:
+                    missing.append(sid)
+                else:
+                    self._tracks.move_to_end(sid)
+                    tracks[sid] = _Track(list(track.rows), track.whole)
+            seq = self._seq
+        if missing:
+            loaded = load(missing, TRACK_ROWS + 1)
+            with self._lock:
+                keep = self._seq == seq
+                for sid in missing:
+                    newest = loaded.get(sid, [])
+                    track = _Track(newest[:TRACK_ROWS][::-1], len(newest) <= TRACK_ROWS)
+                    tracks[sid] = track
+                    if keep and track.rows and sid not in self._tracks:
+                        self._tracks[sid] = _Track(list(track.rows), track.whole)
+                        self._track_total += len(track.rows)
+                while self._track_total > TRACK_TOTAL and self._tracks:
+                    _, evicted = self._tracks.popitem(last=False)
+                    self._track_total -= len(evicted.rows)
+        if not all(track.answers(start_us) for track in tracks.values()):
+            return None
+        return {sid: track.rows for sid, track in tracks.items()}
+
+    def _track_insert(self, sid: int, position: Position) -> None:
+        """A published position into its cached track (callers hold the
+        lock). One older than a partial track is not part of it; one
+        already there (loaded with it) is skipped; beyond ``TRACK_ROWS``
+        the oldest goes and the track is no longer the whole series."""
+        track = self._tracks[sid]
+        rows, key = track.rows, position[:2]
+        if not track.whole and rows and key < rows[0][:2]:
+            return
+        at = len(rows)
+        while at and rows[at - 1][:2] > key:
+            at -= 1
+        if at and rows[at - 1][:2] == key:
+            return
+        rows.insert(at, position)
+        self._track_total += 1
+        if len(rows) > TRACK_ROWS:
+            del rows[0]
+            track.whole = False
+            self._track_total -= 1
+
+    def _track_drop(self, sid: int) -> None:
+        track = self._tracks.pop(sid, None)
+        if track is not None:
+            self._track_total -= len(track.rows)
+
+
+class _Track:
+    """A series' newest positions by (t, rid); ``whole``: all of them."""
+
+    __slots__ = ("rows", "whole")
+
+    def __init__(self, rows: list[Position], whole: bool):
+        self.rows = rows
+        self.whole = whole
+
+    def answers(self, start_us: int | None) -> bool:
+        """Holds every position from ``start_us`` on and the last before it."""
+        return self.whole or (start_us is not None and bool(self.rows) and self.rows[0][0] < start_us)
+
+
+def position(t_us: int, rid: int, geojson: str, box: tuple) -> Position:
+    """A point keeps no text: its box is the point."""
+    point = box[0] == box[2] and box[1] == box[3]
+    return (t_us, rid, None if point else geojson, *box)

@@ -11,6 +11,7 @@ It never imports the store: the store hands itself in as a ``DuckDBSource``
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 from collections.abc import Iterator, Sequence
 from datetime import UTC, datetime, timedelta
@@ -19,15 +20,25 @@ from typing import Protocol
 import duckdb
 
 from ...errors import Unavailable
-from ...query import ExtentRow, FirstLocationRow, GeometryRow, Prefilter, RawRow, RowMask, TimeRange
+from ...query import (
+    ExtentRow,
+    FirstLocationRow,
+    GeometryRow,
+    LocationRow,
+    Prefilter,
+    RawRow,
+    RowMask,
+    TimeRange,
+)
+from ...timefmt import iso_ms_us as iso_ms
 from ..catalog import SeriesCatalog
-from ..common import to_micros
+from ..common import box_passes, to_micros
 from ..export import Columns, SampleBatches, export_sql
 from ..memory_only import check_database_allowed
 from ..partials import HourlyPartials
 from ..sql import _LOCATION_COLUMNS, GEO_KIND, SqlQuerier, as_first_locations, series_time_filter
 from .dialect import DuckDBDialect
-from .latest_geo import LatestGeo
+from .latest_geo import LatestGeo, Position, position
 from .tail_cache import TailCache, TailRow
 
 
@@ -162,10 +173,12 @@ class DuckDBQuerier(SqlQuerier):
     ) -> list[RawRow]:
         """The rows a geo mask keeps, ``offset``/``limit`` over all series.
         Each series contributes at most its own first ``offset + limit`` kept
-        rows in the wanted order: from its cached tail when that provably
-        holds them (newest first only, never loading one: a geo-query's
-        entities are scattered, one load each would cost more than the
-        statement), the others' from one SQL statement."""
+        rows in the wanted order. Newest first, from its tail when that
+        provably holds them: the tails not cached are loaded together, with
+        one statement (a geo-query's entities are scattered: one load each
+        would cost more), so a repeated query near the same place reads
+        nothing. The others' (oldest first, or deeper than a tail) from one
+        SQL statement."""
         wanted = offset + limit
         merged: list[tuple] = []
         ask = []
@@ -177,6 +190,8 @@ class DuckDBQuerier(SqlQuerier):
                 ask.append(sid)
             else:
                 merged.extend((row[0], row[1], sid, row) for row in kept)
+        if ask and newest_first and wanted <= self._store.tail.capacity:
+            ask = self._kept_from_new_tails(ask, time, wanted, mask, merged)
         if ask:
             for row in self._masked_firsts(ask, time, newest_first, wanted, mask):
                 merged.append((row[0], row[1], row[7], row[:7]))
@@ -184,9 +199,7 @@ class DuckDBQuerier(SqlQuerier):
 
     def _kept_from_tail(self, sid: int, time: TimeRange, wanted: int, mask: RowMask) -> list[tuple] | None:
         """The newest ``wanted`` rows ``mask`` keeps of a cached tail, when the
-        tail provably holds them: all of the series' rows in the window, or
-        at least ``wanted`` kept ones (every uncached row is older than all
-        cached ones). None when not cached or not provable."""
+        tail provably holds them. None when not cached or not provable."""
         tail = self._store.tail
         start = None if time.start is None else to_micros(time.start)
         end = None if time.end is None else to_micros(time.end)
@@ -194,13 +207,46 @@ class DuckDBQuerier(SqlQuerier):
             got = tail.rows(sid, _only_cached, start, end, True, tail.capacity, 0)
         except _NotCached:
             return None
-        if got is None:
-            return None
-        complete = len(got) < tail.capacity  # fewer: the tail holds the whole window
-        kept = mask.keep(sid, got)
-        if not complete and len(kept) < wanted:
-            return None
-        return kept[max(0, len(kept) - wanted) :]
+        return _kept(sid, got, tail.capacity, wanted, mask)
+
+    def _kept_from_new_tails(
+        self, sids: list[int], time: TimeRange, wanted: int, mask: RowMask, merged: list[tuple]
+    ) -> list[int]:
+        """Load the tails of ``sids`` at once; the newest ``wanted`` kept rows
+        of those that provably answer go to ``merged``. Returns the others."""
+        tail = self._store.tail
+        start = None if time.start is None else to_micros(time.start)
+        end = None if time.end is None else to_micros(time.end)
+        rest = []
+        for sid, got in tail.newest_many(sids, self._load_tails, start, end).items():
+            kept = _kept(sid, got, tail.capacity, wanted, mask)
+            if kept is None:
+                rest.append(sid)
+            else:
+                merged.extend((row[0], row[1], sid, row) for row in kept)
+        return rest
+
+    def _load_tails(self, sids: list[int], n: int) -> dict[int, list[TailRow]]:
+        """``_load_tail`` for many series in one statement: a ``sid = ?``
+        branch per series on the sorted table (each prunes it to the
+        series' row groups) and one pass over the small hot table."""
+        d = self.dialect
+        cols = "sid, t, rid, kind, num, txt, js"
+        order = "ORDER BY t DESC, rid DESC"
+        parts = [f"(SELECT {cols} FROM {SORTED} WHERE sid = ? {order} LIMIT ?)"] * len(sids)
+        params: list = [value for sid in sids for value in (sid, n)]
+        where, more = d.sid_filter(sids)
+        parts.append(f"SELECT {cols} FROM {HOT} WHERE {where}")
+        params += more
+        sql = (
+            f"SELECT sid, {d.epoch_us('t')}, rid, {d.iso_ms('t')}, kind, num, txt, js FROM "
+            f"({' UNION ALL '.join(parts)}) u QUALIFY row_number() OVER (PARTITION BY sid {order}) <= ? "
+            f"ORDER BY sid, t DESC, rid DESC"
+        )
+        out: dict[int, list[TailRow]] = {}
+        for sid, *row in self._fetch(sql, [*params, n]):
+            out.setdefault(sid, []).append(tuple(row))
+        return out
 
     def _masked_firsts(
         self, sids: Sequence[int], time: TimeRange, newest_first: bool, wanted: int, mask: RowMask
@@ -224,15 +270,64 @@ class DuckDBQuerier(SqlQuerier):
         parts.append(f"SELECT {cols} FROM {HOT} WHERE {where}")
         params += more
         sql = (
-            f"SELECT {d.epoch_us('t')}, rid, {d.iso_ms('t')}, kind, num, txt, js, sid "
+            f"SELECT {d.epoch_us('t')}, rid, kind, num, txt, js, sid "
             f"FROM ({' UNION ALL '.join(parts)}) u JOIN {d.mask_relation()} ON m_sid = sid "
             f"WHERE {_IN_SPAN} ORDER BY t {direction}, rid {direction} LIMIT ?"
         )
-        return self._fetch(sql, [*params, *RowMask({sid: mask.intervals[sid] for sid in sids}).arrays(), wanted])
+        rows = self._fetch(sql, [*params, *RowMask({sid: mask.intervals[sid] for sid in sids}).arrays(), wanted])
+        # The ISO text of the few rows kept, here: DuckDB would format every
+        # sample of every series before the limit.
+        return [(t, rid, iso_ms(t), kind, num, txt, js, sid) for t, rid, kind, num, txt, js, sid in rows]
 
     def location_extents(self, sids: Sequence[int], prefilter: Prefilter | None) -> list[ExtentRow]:
         """Memory only: where each series has ever been."""
         return self._store.latest_geo.extents(sids, prefilter)
+
+    def location_samples(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[LocationRow]:
+        """From the tracks memory holds where they answer (``LatestGeo.
+        positions``: the series it misses are loaded together and kept), so
+        a repeated geo-query reads no positions: the samples in the window
+        and the last one before it, as the SQL (``SqlQuerier``) returns them."""
+        if not sids or len(sids) > TAIL_MAX_SERIES:
+            return super().location_samples(sids, time, prefilter)
+        start = None if time.start is None else to_micros(time.start)
+        end = None if time.end is None else to_micros(time.end)
+        tracks = self._store.latest_geo.positions(sorted(sids), start, self._load_positions)
+        if tracks is None:
+            return super().location_samples(sids, time, prefilter)
+        out: list[LocationRow] = []
+        for sid in sorted(tracks):
+            for t_us, rid, geojson, *corners in _in_window(tracks[sid], start, end):
+                box = (corners[0], corners[1], corners[2], corners[3])
+                if None in box:  # no box: SQL's tests are NULL, neither holds
+                    ok = point = False
+                else:
+                    ok = prefilter is None or box_passes(prefilter[0], box, prefilter[1])
+                    point = box[0] == box[2] and box[1] == box[3]
+                out.append((sid, t_us, rid, ok, point, box[0], box[1], geojson if ok and not point else None))
+        return out
+
+    def _load_positions(self, sids: list[int], n: int) -> dict[int, list[Position]]:
+        """The newest ``n`` positions of each of ``sids``, newest first, in
+        one statement (branches as in ``_location_rows``)."""
+        d = self.dialect
+        cols = "sid, t, rid, geo, min_lon, min_lat, max_lon, max_lat"
+        located = f"kind = {GEO_KIND} AND geo IS NOT NULL"
+        order = "ORDER BY t DESC, rid DESC"
+        parts = [f"(SELECT {cols} FROM {SORTED} WHERE sid = ? AND {located} {order} LIMIT ?)"] * len(sids)
+        params: list = [value for sid in sids for value in (sid, n)]
+        where, more = d.sid_filter(sids)
+        parts.append(f"SELECT {cols} FROM {HOT} WHERE {where} AND {located}")
+        params += more
+        sql = (
+            f"SELECT sid, {d.epoch_us('t')}, rid, geo, min_lon, min_lat, max_lon, max_lat FROM "
+            f"({' UNION ALL '.join(parts)}) u QUALIFY row_number() OVER (PARTITION BY sid {order}) <= ? "
+            f"ORDER BY sid, t DESC, rid DESC"
+        )
+        out: dict[int, list[Position]] = {}
+        for sid, t_us, rid, geojson, *box in self._fetch(sql, [*params, n]):
+            out.setdefault(sid, []).append(position(t_us, rid, geojson, tuple(box)))
+        return out
 
     def _location_rows(self, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
         """One ``sid = ?`` branch per series on the sorted table (each prunes
@@ -432,8 +527,31 @@ def _only_cached(sid: int, n: int) -> list[TailRow]:
     raise _NotCached
 
 
+_MAX_RID = 2**63
 # A joined mask row's interval holds the sample's (t, rid).
 _IN_SPAN = "(t > m_t0 OR (t = m_t0 AND rid >= m_r0)) AND (m_t1 IS NULL OR t < m_t1 OR (t = m_t1 AND rid < m_r1))"
+
+
+def _in_window(track: list[Position], start: int | None, end: int | None) -> list[Position]:
+    """The positions of ``track`` (by (t, rid)) from ``start`` to ``end``
+    (µs, inclusive), and the last one before ``start``."""
+    lo = 0 if start is None else max(0, bisect.bisect_left(track, (start,)) - 1)
+    hi = len(track) if end is None else bisect.bisect_right(track, (end, _MAX_RID))
+    return track[lo:hi]
+
+
+def _kept(sid: int, got: list[TailRow] | None, capacity: int, wanted: int, mask: RowMask) -> list[tuple] | None:
+    """The newest ``wanted`` rows ``mask`` keeps of a tail's window ``got``
+    (at most ``capacity`` rows, oldest first), when it provably holds them:
+    all of the series' rows in the window, or at least ``wanted`` kept ones
+    (every row not in the tail is older than all of those in it)."""
+    if got is None:
+        return None
+    complete = len(got) < capacity  # fewer: the tail holds the whole window
+    kept = mask.keep(sid, got)
+    if not complete and len(kept) < wanted:
+        return None
+    return kept[max(0, len(kept) - wanted) :]
 
 
 def _window(merged: list[tuple], newest_first: bool, limit: int, offset: int) -> list[RawRow]:

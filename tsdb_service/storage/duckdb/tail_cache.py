@@ -151,6 +151,35 @@ class TailCache:
                     self._total -= len(evicted.rows)
         return entry
 
+    def newest_many(
+        self, sids: list[int], load: Callable[[list[int], int], dict[int, list[TailRow]]], start_us, end_us
+    ) -> dict[int, list[TailRow] | None]:
+        """For series not cached, what ``rows(sid, ..., newest_first=True,
+        limit=capacity, offset=0)`` returns, from one ``load(sids, n)``
+        (per series its newest ``n`` rows, newest first) instead of one load
+        each. The tails are installed as ``rows`` would (not when a publish
+        raced the load); either way the loaded rows answer."""
+        if not self.enabled or not sids:
+            return {}
+        with self._lock:
+            seq = self._seq
+        newest = load(sids, self.capacity + 1)
+        entries = {}
+        for sid in sids:
+            rows = newest.get(sid, [])
+            entries[sid] = _Entry(rows[: self.capacity][::-1], len(rows) <= self.capacity)
+        self.misses += len(sids)
+        with self._lock:
+            if self._seq == seq:
+                for sid, entry in entries.items():
+                    if sid not in self._entries:
+                        self._entries[sid] = entry
+                        self._total += len(entry.rows)
+                while self._total > self.max_rows and len(self._entries) > 1:
+                    _, evicted = self._entries.popitem(last=False)
+                    self._total -= len(evicted.rows)
+            return {sid: _answer(entry, start_us, end_us, True, self.capacity, 0) for sid, entry in entries.items()}
+
 
 def _answer(entry: _Entry, start_us, end_us, newest_first: bool, limit: int, offset: int):
     rows = entry.rows
