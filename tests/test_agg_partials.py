@@ -46,6 +46,17 @@ def kept_current(store) -> None:
         pytest.skip("only DuckDB keeps partials current: PostgreSQL replicas do not see each other's commits")
 
 
+def cached(store, seed: int, samples: int, rounds: int) -> random.Random:
+    """Random samples written and aggregated (so cached) ``rounds`` times,
+    checked against SQL; the generator, to go on with."""
+    kept_current(store)
+    rng = random.Random(seed)
+    with_partials(store)
+    store.write_sync([AppendSamples(random_samples(rng, samples))])
+    assert_all_same(store, rng, rounds)
+    return rng
+
+
 def with_partials(store, max_hours: int = 100_000) -> HourlyPartials:
     """The querier's partials; a fresh set on PostgreSQL, which keeps none."""
     q = store.querier()
@@ -124,11 +135,7 @@ def test_partials_answer_as_sql_does(store):
 
 
 def test_commits_after_caching_are_counted(store):
-    kept_current(store)
-    rng = random.Random(16)
-    with_partials(store)
-    store.write_sync([AppendSamples(random_samples(rng, 300))])
-    assert_all_same(store, rng, 4)  # every series cached from before T0 on
+    rng = cached(store, 16, 300, 4)  # every series cached from before T0 on
     for _ in range(3):
         # New hours, late samples into cached hours, new series.
         more = [*random_samples(rng, 80, span_hours=40), sample("d", T0 + 3 * HOUR, 1.5)]
@@ -137,11 +144,7 @@ def test_commits_after_caching_are_counted(store):
 
 
 def test_deletes_drop_what_they_touch(store):
-    kept_current(store)
-    rng = random.Random(17)
-    with_partials(store)
-    store.write_sync([AppendSamples(random_samples(rng, 300))])
-    assert_all_same(store, rng, 3)
+    rng = cached(store, 17, 300, 3)
     all_sids = sids(store)
     store.write_sync([DeleteSamples(all_sids[:1], T0 + 3 * HOUR, T0 + 7 * HOUR + timedelta(minutes=20))])
     assert_all_same(store, rng, 3)
@@ -150,11 +153,7 @@ def test_deletes_drop_what_they_touch(store):
 
 
 def test_instance_deletes_and_replacements_drop_the_series(store):
-    kept_current(store)
-    rng = random.Random(18)
-    with_partials(store)
-    store.write_sync([AppendSamples(random_samples(rng, 200))])
-    assert_all_same(store, rng, 2)
+    rng = cached(store, 18, 200, 2)
     q = store.querier()
     rows = [r for r in q.temporal_instances(sids(store)) if r.kind == int(Kind.NUMBER)]
     replaced, deleted = rows[0], rows[1]

@@ -227,26 +227,31 @@ class DuckDBQuerier(SqlQuerier):
         return rest
 
     def _load_tails(self, sids: list[int], n: int) -> dict[int, list[TailRow]]:
-        """``_load_tail`` for many series in one statement: a ``sid = ?``
-        branch per series on the sorted table (each prunes it to the
-        series' row groups) and one pass over the small hot table."""
+        """``_load_tail`` for many series in one statement (``_newest_rows``)."""
         d = self.dialect
-        cols = "sid, t, rid, kind, num, txt, js"
-        order = "ORDER BY t DESC, rid DESC"
-        parts = [f"(SELECT {cols} FROM {SORTED} WHERE sid = ? {order} LIMIT ?)"] * len(sids)
-        params: list = [value for sid in sids for value in (sid, n)]
-        where, more = d.sid_filter(sids)
-        parts.append(f"SELECT {cols} FROM {HOT} WHERE {where}")
-        params += more
-        sql = (
-            f"SELECT sid, {d.epoch_us('t')}, rid, {d.iso_ms('t')}, kind, num, txt, js FROM "
-            f"({' UNION ALL '.join(parts)}) u QUALIFY row_number() OVER (PARTITION BY sid {order}) <= ? "
-            f"ORDER BY sid, t DESC, rid DESC"
-        )
+        select = f"sid, {d.epoch_us('t')}, rid, {d.iso_ms('t')}, kind, num, txt, js"
         out: dict[int, list[TailRow]] = {}
-        for sid, *row in self._fetch(sql, [*params, n]):
+        for sid, *row in self._newest_rows(sids, n, "sid, t, rid, kind, num, txt, js", select):
             out.setdefault(sid, []).append(tuple(row))
         return out
+
+    def _newest_rows(self, sids: list[int], n: int, cols: str, select: str, where: str = "TRUE") -> list[tuple]:
+        """The newest ``n`` rows passing ``where`` of each of ``sids`` (read
+        as ``cols``, returned as ``select``), by series then newest first, in
+        one statement: a ``sid = ?`` branch per series on the sorted table
+        (each prunes it to the series' row groups) and one pass over the
+        small hot table."""
+        order = "ORDER BY t DESC, rid DESC"
+        parts = [f"(SELECT {cols} FROM {SORTED} WHERE sid = ? AND {where} {order} LIMIT ?)"] * len(sids)
+        params: list = [value for sid in sids for value in (sid, n)]
+        in_hot, more = self.dialect.sid_filter(sids)
+        parts.append(f"SELECT {cols} FROM {HOT} WHERE {in_hot} AND {where}")
+        params += more
+        sql = (
+            f"SELECT {select} FROM ({' UNION ALL '.join(parts)}) u "
+            f"QUALIFY row_number() OVER (PARTITION BY sid {order}) <= ? ORDER BY sid, t DESC, rid DESC"
+        )
+        return self._fetch(sql, [*params, n])
 
     def _masked_firsts(
         self, sids: Sequence[int], time: TimeRange, newest_first: bool, wanted: int, mask: RowMask
@@ -309,23 +314,12 @@ class DuckDBQuerier(SqlQuerier):
 
     def _load_positions(self, sids: list[int], n: int) -> dict[int, list[Position]]:
         """The newest ``n`` positions of each of ``sids``, newest first, in
-        one statement (branches as in ``_location_rows``)."""
-        d = self.dialect
+        one statement (``_newest_rows``)."""
         cols = "sid, t, rid, geo, min_lon, min_lat, max_lon, max_lat"
+        select = f"sid, {self.dialect.epoch_us('t')}, rid, geo, min_lon, min_lat, max_lon, max_lat"
         located = f"kind = {GEO_KIND} AND geo IS NOT NULL"
-        order = "ORDER BY t DESC, rid DESC"
-        parts = [f"(SELECT {cols} FROM {SORTED} WHERE sid = ? AND {located} {order} LIMIT ?)"] * len(sids)
-        params: list = [value for sid in sids for value in (sid, n)]
-        where, more = d.sid_filter(sids)
-        parts.append(f"SELECT {cols} FROM {HOT} WHERE {where} AND {located}")
-        params += more
-        sql = (
-            f"SELECT sid, {d.epoch_us('t')}, rid, geo, min_lon, min_lat, max_lon, max_lat FROM "
-            f"({' UNION ALL '.join(parts)}) u QUALIFY row_number() OVER (PARTITION BY sid {order}) <= ? "
-            f"ORDER BY sid, t DESC, rid DESC"
-        )
         out: dict[int, list[Position]] = {}
-        for sid, t_us, rid, geojson, *box in self._fetch(sql, [*params, n]):
+        for sid, t_us, rid, geojson, *box in self._newest_rows(sids, n, cols, select, located):
             out.setdefault(sid, []).append(position(t_us, rid, geojson, tuple(box)))
         return out
 
