@@ -437,12 +437,24 @@ class PostgresAppender(StagingAppender):
             self._copy_rows(cur, self._entities, sids.__getitem__, autocommit=True)
 
     def _commit_transaction(self, conn: psycopg.Connection) -> None:
+        """One transaction. Its opening statements go in one pipeline (one
+        round trip): BEGIN, the batch's new series (insert, then read their
+        ids: the SELECT starts after the INSERT waited out any concurrent
+        writer of the same keys, so it sees them all) and the extents the
+        batch grows. Reading a deleted entity's attributes comes before BEGIN:
+        under READ COMMITTED every statement reads what was committed when it
+        started, inside a transaction or not."""
         extents_stored = None
-        with conn.cursor() as cur:
-            cur.execute("BEGIN")
+        with conn.cursor() as cur, conn.cursor() as series_cur:
             if self._entities:
-                self._copy_samples(cur)
-                extents_stored = self._store.geo_extents.record(cur, self._entities)
+                self._entities = with_deletions(self._entities, lambda e: self._entity_attrs(cur, e))
+            with conn.pipeline():
+                cur.execute("BEGIN")
+                if self._entities:
+                    missing = self._send_series(series_cur)
+                    extents_stored = self._store.geo_extents.record(cur, self._entities)
+            if self._entities:
+                self._copy_samples(cur, self._series_ids(series_cur, missing))
             for r in self._rejected:
                 cur.execute(
                     f"INSERT INTO rejected_notifications ({REJECTED_INSERT_COLUMNS}) "
@@ -477,9 +489,7 @@ class PostgresAppender(StagingAppender):
             for sql, params in delete_statements(_DIALECT, ("samples",), op.sids, TimeRange(op.start, op.end), 2**62):
                 cur.execute(sql, params)
 
-    def _copy_samples(self, cur: psycopg.Cursor) -> None:
-        self._entities = with_deletions(self._entities, lambda e: self._entity_attrs(cur, e))
-        sids = self._resolve_series(cur)
+    def _copy_samples(self, cur: psycopg.Cursor, sids: dict[SeriesKey, int]) -> None:
         entities = self._without_renotified(cur, sids)
         if not entities:
             return
@@ -544,15 +554,16 @@ class PostgresAppender(StagingAppender):
 
         return without_dropped(entities, drop_renotified(items, self._store.latest_instances, self._latest, load))
 
-    def _resolve_series(self, cur: psycopg.Cursor) -> dict[SeriesKey, int]:
-        """Series ids for every key in the batch, creating missing ones.
-        Keys are inserted sorted so two replicas never lock in opposite orders."""
+    def _send_series(self, cur: psycopg.Cursor) -> list[SeriesKey]:
+        """Send (in the caller's pipeline) the insert-if-absent of the batch's
+        series this process does not know, and the read of their ids.
+        Keys are inserted sorted so two replicas never lock in opposite
+        orders. Returns the keys sent (``_series_ids`` reads the answer)."""
         cache = self._store._series
         wanted = {
             (e.tenant, e.service_path, e.entity_id, e.entity_type, a.name) for e in self._entities for a in e.attrs
         }
-        local = {k: sid for k in wanted if (sid := cache.get(k)) is not None}
-        missing = sorted(wanted - local.keys())
+        missing = sorted(k for k in wanted if k not in cache)
         if missing:
             columns = [list(col) for col in zip(*missing, strict=True)]
             datasets = {
@@ -574,6 +585,20 @@ class PostgresAppender(StagingAppender):
                 "(tenant, service_path, entity_id, entity_type, attr)",
                 columns,
             )
+        return missing
+
+    def _series_ids(self, cur: psycopg.Cursor, missing: list[SeriesKey]) -> dict[SeriesKey, int]:
+        """Series ids for every key in the batch: known ones from memory,
+        ``missing`` ones from the SELECT ``_send_series`` sent."""
+        cache = self._store._series
+        local = {
+            k: cache[k]
+            for k in {
+                (e.tenant, e.service_path, e.entity_id, e.entity_type, a.name) for e in self._entities for a in e.attrs
+            }
+            if k in cache
+        }
+        if missing:
             found = {tuple(row[1:]): row[0] for row in cur.fetchall()}
             local.update(found)
             self._found = found
