@@ -1,14 +1,18 @@
 """The PostgreSQL backend, for several service processes on one database.
 
 The write path is the DuckDB one: a group committer per process, one
-transaction per group, samples sent with ``COPY``. Series ids are shared
+transaction per group, samples sent with binary ``COPY``. A group of plain
+samples of known series is a single autocommit ``COPY`` (two round trips);
+others open a transaction whose first statements share one pipeline round
+trip. Row ids come from blocks reserved from the sequence. Series ids are shared
 through the ``series`` table (insert-if-absent, in key order so concurrent
 writers cannot deadlock). Reads use a connection pool.
 
 A failed write is answered "nothing was stored" only when the transaction
 certainly did not commit: an error before COMMIT, or one the server raised
 for the COMMIT itself on a live connection (the server rolled back). When the
-connection breaks during COMMIT nobody can say, and the answer says so.
+connection breaks during COMMIT (or once an autocommit COPY's end was sent)
+nobody can say, and the answer says so.
 ``/health`` fails while the database refuses writes for lack of space or an
 I/O error, until a write succeeds again.
 """
