@@ -28,7 +28,7 @@ Steps:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from functools import partial
 from itertools import compress
 from operator import attrgetter
@@ -39,7 +39,7 @@ from ..query import VALUE_TEST_OPS, EntityFilter, InstanceWindow, Scope, SeriesR
 from ..storage.base import Querier
 from . import qlang
 from .context import TermMap
-from .query import DEFAULT_DATASET, TemporalQuery, TypeName, Window, type_matches
+from .query import DEFAULT_DATASET, TemporalQuery, TypeExpr, TypeName, Window, type_matches
 
 EntityKey = tuple[str, str]  # (entity id, stored entity type)
 _SID = attrgetter("sid")
@@ -65,17 +65,21 @@ class Fetcher:
             found = self.q.series(scope, EntityFilter(ids=ids, id_pattern=selector.id_pattern))
             if selector.types is not None:
                 types = {r.entity_type for r in found}
-                iris = dict(zip(types, self.terms.expand_all(types), strict=True))
-                ok = {t for t in types if type_matches(selector.types, partial(_is_type, iris[t]))}
+                ok = self._types_taken(selector.types, types)
                 if ok != types:
                     found = [r for r in found if r.entity_type in ok]
             refs.extend(found)
         if len(query.selectors) > 1:  # alternatives may select a series twice
             refs = list({ref.sid: ref for ref in refs}.values())
-        grouped: dict[EntityKey, list[SeriesRef]] = {}
-        for ref in refs:
-            grouped.setdefault((ref.entity_id, ref.entity_type), []).append(ref)
-        return grouped
+        return _by_entity(refs)
+
+    def _types_taken(self, expr: TypeExpr | None, stored_types: Iterable[str]) -> set[str]:
+        """Those of ``stored_types`` whose entities a type expression selects (None: all)."""
+        types = list(stored_types)
+        if expr is None:
+            return set(types)
+        iris = self.terms.expand_all(types)
+        return {t for t, iri in zip(types, iris, strict=True) if type_matches(expr, partial(_is_type, iri))}
 
     def attr_iris(self, refs: Sequence[SeriesRef]) -> dict[int, str]:
         """sid → the expanded IRI of its NGSI-LD attribute name (each
@@ -153,29 +157,20 @@ class Fetcher:
             return None
         scope = Scope(query.tenant)
         names = self.q.series_names(scope)
-        types = [t for t in names if self._type_selected(query, t)]
+        types = set().union(*(self._types_taken(s.types, names) for s in query.selectors))
         ld_names = list({name for t in types for name in names[t]})
         iri = dict(zip(ld_names, self.terms.expand_all(ld_names), strict=True))
         stored = {a for t in types for name, attrs in names[t].items() if iri[name] == geo.geoproperty for a in attrs}
         if not stored:
             return {}
-        refs = self.q.series(scope, EntityFilter(types=tuple(types)), stored)
+        refs = self.q.series(scope, EntityFilter(types=tuple(sorted(types))), stored)
         sids = list(map(_SID, refs))  # C loops: one per location series of the types
         near = self._geo_sids(geo, query.window, sids)
         keys = {(r.entity_id, r.entity_type) for r in compress(refs, map(near.__contains__, sids))}
         if not keys:
             return {}
-        grouped: dict[EntityKey, list[SeriesRef]] = {}
-        for ref in self.q.series(scope, EntityFilter(ids=tuple(sorted({k[0] for k in keys})))):
-            key = (ref.entity_id, ref.entity_type)
-            if key in keys:
-                grouped.setdefault(key, []).append(ref)
-        return grouped
-
-    def _type_selected(self, query: TemporalQuery, stored_type: str) -> bool:
-        """Does some selector of ``query`` take the entities of ``stored_type``?"""
-        iri = self.terms.expand(stored_type)
-        return any(s.types is None or type_matches(s.types, partial(_is_type, iri)) for s in query.selectors)
+        found = self.q.series(scope, EntityFilter(ids=tuple(sorted({k[0] for k in keys}))))
+        return _by_entity(r for r in found if (r.entity_id, r.entity_type) in keys)
 
     def _geo_sids(self, geo, window: Window, sids: list[int]) -> set[int]:
         """Those location series of ``sids`` with an instance in the window that satisfies the geo-query."""
@@ -258,6 +253,13 @@ def term_value(term: qlang.Term, kind, num, txt, js, md):
             return None
         value = value[step]
     return value
+
+
+def _by_entity(refs: Iterable[SeriesRef]) -> dict[EntityKey, list[SeriesRef]]:
+    grouped: dict[EntityKey, list[SeriesRef]] = {}
+    for ref in refs:
+        grouped.setdefault((ref.entity_id, ref.entity_type), []).append(ref)
+    return grouped
 
 
 def _is_type(iri: str, name: TypeName) -> bool:

@@ -46,41 +46,35 @@ _COUNTS = ("totalCount", "distinctCount")
 
 def window_filter(d: Dialect, window: InstanceWindow) -> tuple[str, str, list]:
     """(time expression, WHERE fragment, params): instances whose time
-    property is set and lies in the half-open ``window``."""
+    property is set and lies in the half-open ``window``.
+
+    observedAt falls back to the row time (never NULL), and is tested as
+    two ranges an index can serve, not as the ``coalesce``: on PostgreSQL
+    ``(sid, observed_at)`` (migration 0008) for instances with an
+    observedAt, ``(sid, t)`` for the others. A test on the coalesce reads
+    every instance of the selected series."""
     expr = TIME_PROPERTY_SQL[window.timeproperty]
-    p = d.placeholder
-    if window.timeproperty == "observedAt" and (window.start is not None or window.end is not None):
-        return expr, *_observed_window(d, window)
-    # observedAt falls back to the row time, which is never NULL.
-    where, params = ("TRUE" if window.timeproperty == "observedAt" else f"{expr} IS NOT NULL"), []
+    if window.timeproperty != "observedAt":
+        in_window, params = _in_window(d, expr, window)
+        return expr, f"{expr} IS NOT NULL AND {in_window}", params
+    if window.start is None and window.end is None:
+        return expr, "TRUE", []
+    observed, params_o = _in_window(d, "observed_at", window)
+    row_time, params_t = _in_window(d, "t", window)
+    where = f"((observed_at IS NOT NULL AND {observed}) OR (observed_at IS NULL AND {row_time}))"
+    return expr, where, [*params_o, *params_t]
+
+
+def _in_window(d: Dialect, column: str, window: InstanceWindow) -> tuple[str, list]:
+    """``column`` within the half-open window's given bounds (TRUE for none)."""
+    tests, params = [], []
     if window.start is not None:
-        where += f" AND {expr} >= {p}"
+        tests.append(f"{column} >= {d.placeholder}")
         params.append(d.time_value(window.start))
     if window.end is not None:
-        where += f" AND {expr} < {p}"
+        tests.append(f"{column} < {d.placeholder}")
         params.append(d.time_value(window.end))
-    return expr, where, params
-
-
-def _observed_window(d: Dialect, window: InstanceWindow) -> tuple[str, list]:
-    """``coalesce(observed_at, t)`` in the window, spelt as two tests that
-    an index can serve: on PostgreSQL ``(sid, observed_at)`` (migration
-    0008) for instances with an observedAt, ``(sid, t)`` for the others. A
-    test on the coalesce reads every instance of the selected series."""
-    p = d.placeholder
-    observed, row_time, params = "observed_at IS NOT NULL", "observed_at IS NULL", []
-    bounds = []
-    if window.start is not None:
-        bounds.append((">=", d.time_value(window.start)))
-    if window.end is not None:
-        bounds.append(("<", d.time_value(window.end)))
-    for op, value in bounds:
-        observed += f" AND observed_at {op} {p}"
-        params.append(value)
-    for op, value in bounds:
-        row_time += f" AND t {op} {p}"
-        params.append(value)
-    return f"(({observed}) OR ({row_time}))", params
+    return " AND ".join(tests) or "TRUE", params
 
 
 def value_test_sql(d: Dialect, test: ValueTest) -> tuple[str, list]:
