@@ -3,7 +3,8 @@
 A batch holds the compactor's lock (as a user's delete does), so it never
 races the compactor moving or rewriting the same rows; it picks at most N
 expired rows by ``rowid``, folds them into rollups, deletes them, and drops
-the touched series from the in-memory tails and latest locations.
+the touched series from the in-memory per-series memories (``forget``) and
+recomputes their latest locations.
 """
 
 from __future__ import annotations
@@ -17,13 +18,11 @@ import duckdb
 
 from ...model import Kind
 from ..common import naive_utc
-from ..partials import HourlyPartials
 from ..retention import SAVE_WATERMARK, rollup_delete_sql
 from ..rollups import fold_sql
 from ..sql import quote_ident
 from .dialect import DuckDBDialect
 from .latest_geo import LATEST_GEO_SQL, LatestGeo
-from .tail_cache import TailCache
 
 
 def _one(cur: duckdb.DuckDBPyConnection, sql: str, params: object = None) -> tuple:
@@ -36,9 +35,9 @@ def _one(cur: duckdb.DuckDBPyConnection, sql: str, params: object = None) -> tup
 class RetainedStore(Protocol):
     """What a batch needs of the store (``DuckDBStore`` is one)."""
 
-    tail: TailCache
     latest_geo: LatestGeo
-    partials: HourlyPartials
+
+    def forget(self, sids) -> None: ...
 
     def compactor_lock(self) -> contextlib.AbstractContextManager[Any]: ...
 
@@ -83,13 +82,12 @@ class DuckDBSession:
         return int(n)
 
     def _forget(self, upto_rid: int) -> None:
-        """The in-memory tails, aggregate partials and latest locations must
-        not show deleted rows."""
+        """The in-memory per-series memories and latest locations must not
+        show deleted rows."""
         store = self._store
         cur = self._cur
         sids = [r[0] for r in cur.execute("SELECT DISTINCT sid FROM retention_batch").fetchall()]
-        store.tail.drop(sids)
-        store.partials.drop(sids)
+        store.forget(sids)
         geo = [
             r[0]
             for r in cur.execute(f"SELECT DISTINCT sid FROM retention_batch WHERE kind = {int(Kind.GEO)}").fetchall()

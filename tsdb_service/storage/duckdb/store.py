@@ -455,6 +455,15 @@ class DuckDBStore(CommittingStore):
             self._reopener = threading.Thread(target=self._reopen_loop, name="tsdb-reopen", daemon=True)
             self._reopener.start()
 
+    def forget(self, sids) -> None:
+        """Series whose stored samples were deleted or changed: every
+        per-series memory (tails, hourly partials, latest NGSI-LD instance)
+        lets go of them and reloads them from the database when next asked.
+        Latest locations are recomputed by the callers, which know the rows."""
+        self.tail.drop(sids)
+        self.partials.drop(sids)
+        self.latest_instances.drop(sids)
+
     def _reopen_loop(self) -> None:
         """Try to reopen, doubling the wait after each failure, until the
         store is healthy again (or closed)."""
@@ -878,15 +887,11 @@ class DuckDBAppender(StagingAppender):
             rejected_store.count_dropped(self._store.rejected_dropped, dropped)
         store = self._store
         for op, upto_rid in self._deletes:
-            store.tail.drop(op.sids)
-            store.partials.drop(op.sids)
-            store.latest_instances.drop(op.sids)
+            store.forget(op.sids)
             if store._broken is None:  # else the reopen rebuilds every location
                 store.latest_geo.recompute(op.sids, upto_rid, self._latest_geo_of)
         for instance_op in self._instance_ops:
-            store.tail.drop([instance_op.sid])
-            store.partials.drop([instance_op.sid])
-            store.latest_instances.drop([instance_op.sid])
+            store.forget([instance_op.sid])
             if store._broken is None:
                 store.latest_geo.recompute([instance_op.sid], store._next_rid, self._latest_geo_of)
 

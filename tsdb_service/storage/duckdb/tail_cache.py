@@ -139,17 +139,27 @@ class TailCache:
             return _answer(entry, start_us, end_us, newest_first, limit, offset)
 
     def _load(self, sid: int, load, seq: int) -> _Entry:
-        newest = load(sid, self.capacity + 1)  # newest first
-        whole = len(newest) <= self.capacity
-        entry = _Entry(newest[: self.capacity][::-1], whole)
+        entry = self._entry(load(sid, self.capacity + 1))
         with self._lock:
-            if self._seq == seq and sid not in self._entries:
+            self._install_locked({sid: entry}, seq)
+        return entry
+
+    def _entry(self, newest: list[TailRow]) -> _Entry:
+        """A tail from a series' newest ``capacity + 1`` rows, newest first."""
+        return _Entry(newest[: self.capacity][::-1], len(newest) <= self.capacity)
+
+    def _install_locked(self, entries: dict[int, _Entry], seq: int) -> None:
+        """Keep loaded tails unless a publish or drop raced the load (``seq``
+        moved), oldest used out first past ``max_rows``. Caller holds the lock."""
+        if self._seq != seq:
+            return
+        for sid, entry in entries.items():
+            if sid not in self._entries:
                 self._entries[sid] = entry
                 self._total += len(entry.rows)
-                while self._total > self.max_rows and len(self._entries) > 1:
-                    _, evicted = self._entries.popitem(last=False)
-                    self._total -= len(evicted.rows)
-        return entry
+        while self._total > self.max_rows and len(self._entries) > 1:
+            _, evicted = self._entries.popitem(last=False)
+            self._total -= len(evicted.rows)
 
     def newest_many(
         self, sids: list[int], load: Callable[[list[int], int], dict[int, list[TailRow]]], start_us, end_us
@@ -164,20 +174,10 @@ class TailCache:
         with self._lock:
             seq = self._seq
         newest = load(sids, self.capacity + 1)
-        entries = {}
-        for sid in sids:
-            rows = newest.get(sid, [])
-            entries[sid] = _Entry(rows[: self.capacity][::-1], len(rows) <= self.capacity)
+        entries = {sid: self._entry(newest.get(sid, [])) for sid in sids}
         self.misses += len(sids)
         with self._lock:
-            if self._seq == seq:
-                for sid, entry in entries.items():
-                    if sid not in self._entries:
-                        self._entries[sid] = entry
-                        self._total += len(entry.rows)
-                while self._total > self.max_rows and len(self._entries) > 1:
-                    _, evicted = self._entries.popitem(last=False)
-                    self._total -= len(evicted.rows)
+            self._install_locked(entries, seq)
             return {sid: _answer(entry, start_us, end_us, True, self.capacity, 0) for sid, entry in entries.items()}
 
 
