@@ -229,3 +229,27 @@ def test_latest_location_recomputed_when_an_old_one_goes(store_url, geo_kind):
         assert "[3.0,0]" in by_entity["B"]
     finally:
         store.close()
+
+
+def test_a_renotified_instance_is_stored_again_after_retention_deleted_it(store_url):
+    """An NGSI-LD instance identical to its series' latest stored one is
+    stored once (Orion-LD re-notifies unchanged attributes). Once retention
+    deleted that instance, the same instance notified again is new: it must
+    be stored, not dropped as a repeat of what is gone."""
+    store = open_with(store_url, retention="*=30d")
+    try:
+        observed = NOW - 40 * DAY
+
+        def instance() -> list[EntitySample]:
+            temp = AttrSample("temperature", "Property", Kind.NUMBER, num=21.5, observed_at=observed)
+            return [EntitySample("", "/", "urn:ngsi-ld:Sensor:1", "Sensor", observed, [temp])]
+
+        store.write_sync([AppendSamples(instance())])
+        store.write_sync([AppendSamples(instance())])  # a re-notification: stored once
+        assert count(store, "", "urn:ngsi-ld:Sensor:1") == 1
+        store.retention.run_once()
+        assert count(store, "", "urn:ngsi-ld:Sensor:1") == 0
+        store.write_sync([AppendSamples(instance())])
+        assert count(store, "", "urn:ngsi-ld:Sensor:1") == 1
+    finally:
+        store.close()

@@ -8,7 +8,7 @@ time; the others skip theirs.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from datetime import UTC, datetime
 
@@ -28,9 +28,10 @@ class PostgresSession:
 
     tables = ("samples",)
 
-    def __init__(self, conn: psycopg.Connection):
+    def __init__(self, conn: psycopg.Connection, forget: Callable[[Sequence[int]], None]):
         self._conn = conn
         self._d = PostgresDialect()
+        self._forget = forget
 
     def series(self) -> list[tuple[int, str, str]]:
         return self._conn.execute("SELECT sid, tenant, entity_type FROM series").fetchall()
@@ -48,7 +49,10 @@ class PostgresSession:
         )
         with self._conn.transaction():
             row = self._conn.execute(sql, [list(sids), naive_utc(cutoff), limit]).fetchone()
-            return int(row[0]) if row else 0
+        deleted = int(row[0]) if row else 0
+        if deleted:
+            self._forget(sids)
+        return deleted
 
     def delete_rollups(self, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
         sql, params = rollup_delete_sql(self._d, sids, cutoff, limit)
@@ -62,15 +66,16 @@ class PostgresSession:
 
 
 @contextmanager
-def postgres_session(url: str) -> Iterator[PostgresSession | None]:
+def postgres_session(url: str, forget: Callable[[Sequence[int]], None]) -> Iterator[PostgresSession | None]:
     """A connection of its own holding the pass lock; None when another
-    replica is running its pass."""
+    replica is running its pass. ``forget(sids)`` after a batch deleted
+    samples of those series: this process's per-series memory lets go."""
     with psycopg.connect(url, autocommit=True) as conn:
         locked = conn.execute("SELECT pg_try_advisory_lock(%s)", [PG_LOCK]).fetchone()
         if not locked or not locked[0]:
             yield None
             return
         try:
-            yield PostgresSession(conn)
+            yield PostgresSession(conn, forget)
         finally:
             conn.execute("SELECT pg_advisory_unlock(%s)", [PG_LOCK])

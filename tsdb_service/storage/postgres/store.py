@@ -258,7 +258,7 @@ class PostgresStore(CommittingStore):
 
     def retention_session(self) -> contextlib.AbstractContextManager[PostgresSession | None]:
         """A connection of its own holding the cluster-wide pass lock."""
-        return postgres_session(self.url)
+        return postgres_session(self.url, lambda sids: self.latest_instances.drop(sids))
 
     def sizes(self) -> tuple[int, int, int]:
         with self.connection() as conn:
