@@ -177,19 +177,12 @@ class Fetcher:
         prefilter = geo.filter.prefilter
         if sids and prefilter is not None:
             sids = self._ever_near(sids, prefilter)
-        matched: set[int] = set()
         if not sids:
-            return matched
-        verdicts: dict[str, bool] = {}
-        for sid, geojson in self.q.location_instances(sids, instance_window(window), prefilter):
-            if sid in matched:
-                continue
-            ok = verdicts.get(geojson)
-            if ok is None:
-                ok = verdicts[geojson] = geo.filter.matches(geojson)
-            if ok:
-                matched.add(sid)
-        return matched
+            return set()
+        rows = self.q.location_instances(sids, instance_window(window), prefilter)
+        distinct = list({geojson for _, geojson in rows})
+        passed = set(compress(distinct, geo.filter.matching(distinct)))
+        return {sid for sid, geojson in rows if geojson in passed}
 
     def _ever_near(self, sids: list[int], prefilter) -> list[int]:
         """Those of ``sids`` whose locations were ever inside the box, where
@@ -199,8 +192,7 @@ class Fetcher:
         extents = self.q.location_extents(sids, prefilter)
         if extents is None:
             return sids
-        near = {row[0] for row in extents}
-        return [sid for sid in sids if sid in near]
+        return [row[0] for row in extents]  # of ``sids`` only (the seam's contract)
 
 
 def instance_window(window: Window) -> InstanceWindow:

@@ -10,14 +10,16 @@ predicate, with distances geodesic on the WGS84 ellipsoid.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
 import orjson
 import shapely
 from shapely.geometry import shape
 from shapely.geometry.base import BaseGeometry
 
-from ..geo.filter import BBox, box_prefilter, relation_holds
+from ..geo.filter import BBox, box_prefilter, geometries, relation_holds, relations_hold
 from .errors import BadRequestData
 
 GEORELS = ("near", "within", "contains", "intersects", "equals", "disjoint", "overlaps")
@@ -39,6 +41,10 @@ class LdGeoFilter:
 
     def matches(self, geojson: str | dict) -> bool:
         return relation_holds(self.georel, self.shape, geojson, self.max_distance, self.min_distance)
+
+    def matching(self, geojson: Sequence[str]) -> np.ndarray:
+        """``matches`` of each stored GeoJSON text, as one boolean array."""
+        return relations_hold(self.georel, self.shape, geometries(geojson), self.max_distance, self.min_distance)
 
 
 def parse_ld_geo(georel: str | None, geometry: str | None, coordinates) -> LdGeoFilter | None:

@@ -44,7 +44,7 @@ from ..common import extent_prefilter
 from ..export import Columns, SampleBatches, export_sql, rows_to_columns
 from ..memory_only import check_database_allowed
 from ..sql import _MAX_BIGINT, SqlQuerier, as_first_locations, as_geometries, box_test
-from .dialect import PostgresDialect
+from .dialect import PostgresDialect, int_array
 
 
 class PostgresSource(Protocol):
@@ -140,7 +140,7 @@ class PostgresQuerier(SqlQuerier):
             f"WHERE x.sid = s.sid AND x.kind = {int(Kind.GEO)}{where} ORDER BY x.t DESC, x.rid DESC LIMIT 1) l) latest"
             f" WHERE {test}"
         )
-        return as_geometries(self._fetch(sql, [list(sids), *params, *test_params]))
+        return as_geometries(self._fetch(sql, [int_array(sids), *params, *test_params]))
 
     def location_extents(self, sids: Sequence[int], prefilter: Prefilter | None) -> list[ExtentRow]:
         """From ``geo_extents`` (kept by the writers, see storage.postgres.extents): the
@@ -153,7 +153,7 @@ class PostgresQuerier(SqlQuerier):
         test, params = box_test(self.dialect, extent_prefilter(prefilter))
         if len(sids) <= MANY_SIDS:
             sql = f"SELECT {cols} FROM geo_extents WHERE sid = ANY(%s::integer[]) AND {test}"
-            return [_new(ExtentRow, (*row, None, None)) for row in self._fetch(sql, [list(sids), *params])]
+            return [_new(ExtentRow, (*row, None, None)) for row in self._fetch(sql, [int_array(sids), *params])]
         if prefilter is None:
             rows = self._fetch(f"SELECT {cols} FROM geo_extents", [])
         else:
@@ -174,7 +174,7 @@ class PostgresQuerier(SqlQuerier):
                 f"SELECT s.sid, {self.dialect.epoch_us('l.t')}, l.rid FROM unnest(%s::integer[]) AS s(sid) "
                 "CROSS JOIN LATERAL (SELECT t, rid FROM samples x WHERE x.sid = s.sid "
                 f"AND x.kind = {int(Kind.GEO)} AND x.geo IS NOT NULL ORDER BY x.t, x.rid LIMIT 1) l",
-                [list(sids)],
+                [int_array(sids)],
             )
         )
 
@@ -186,7 +186,7 @@ class PostgresQuerier(SqlQuerier):
             "SELECT sid, rid, t, kind, geo, min_lon, min_lat, max_lon, max_lat FROM samples "
             f"WHERE sid = s.s_sid AND t < %s AND kind = {int(Kind.GEO)} AND geo IS NOT NULL "
             "ORDER BY t DESC, rid DESC LIMIT 1) l",
-            [list(sids), self.dialect.time_value(before)],
+            [int_array(sids), self.dialect.time_value(before)],
         )
 
     def __init__(self, store: PostgresSource):
