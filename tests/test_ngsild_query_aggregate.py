@@ -50,6 +50,24 @@ def test_numbers_hourly_from_time_at(client):
     assert [v for v, _, _ in got["distinctCount"]] == [2, 1, 1]
 
 
+def test_a_period_mixing_integers_and_decimals_is_one_period(client):
+    """Integers and decimals are separate groups in the statement; a period
+    holding both is merged into one, and only an all-integer period keeps
+    integer min/max."""
+    times = ["2024-01-01T00:10:00Z", "2024-01-01T00:20:00Z", "2024-01-01T00:30:00Z"]
+    store(client, "speed", [2, 2.5, 3, 1, 5], [*times, "2024-01-01T01:10:00Z", "2024-01-01T01:20:00Z"])
+    got = agg(client, "speed", aggrPeriodDuration="PT1H", timerel="after", timeAt="2024-01-01T00:00:00Z")["speed"]
+    assert [v for v, _, _ in got["totalCount"]] == [3, 2]
+    assert [v for v, _, _ in got["distinctCount"]] == [3, 2]
+    assert [v for v, _, _ in got["sum"]] == [7.5, 6]
+    assert [v for v, _, _ in got["avg"]] == [2.5, 3.0]
+    assert [v for v, _, _ in got["sumsq"]] == [19.25, 26]
+    (mixed_min, _, _), (int_min, _, _) = got["min"]
+    (mixed_max, _, _), (int_max, _, _) = got["max"]
+    assert (mixed_min, mixed_max, int_min, int_max) == (2, 3, 1, 5)
+    assert isinstance(mixed_max, float) and isinstance(int_min, int) and isinstance(int_max, int)
+
+
 def test_whole_range_and_first_instance_start(client):
     store(client, "speed", [1, 3, 4, 4], HOURS)
     whole = agg(client, "speed", "avg,distinctCount", aggrPeriodDuration="PT0S")["speed"]

@@ -80,12 +80,7 @@ class GeoFilter:
             if geoms is not None:
                 usable = ~shapely.is_missing(geoms) & ~shapely.is_empty(geoms)
                 distance[shapes[usable]] = geodesic_distances_m(self.shape, geoms[usable])
-            out = np.isfinite(distance)
-            if self.max_distance is not None:
-                out &= distance <= self.max_distance
-            if self.min_distance is not None:
-                out &= distance >= self.min_distance
-            return out
+            return np.isfinite(distance) & within_distance(distance, self.max_distance, self.min_distance)
         every = np.empty(len(point), dtype=object)
         every[point] = shapely.points(lon[point], lat[point])
         if geoms is not None:
@@ -206,17 +201,21 @@ def relations_hold(
     if not len(usable):
         return out
     if georel == "near":
-        distance = geodesic_distances_m(query, geoms[usable])
-        ok = np.ones(len(usable), dtype=bool)
-        if max_distance is not None:
-            ok &= distance <= max_distance
-        if min_distance is not None:
-            ok &= distance >= min_distance
-        out[usable] = ok
+        out[usable] = within_distance(geodesic_distances_m(query, geoms[usable]), max_distance, min_distance)
         return out
     shapely.prepare(query)
     out[usable] = _RELATIONS[georel](query, geoms[usable])
     return out
+
+
+def within_distance(distance: np.ndarray, max_distance: float | None, min_distance: float | None) -> np.ndarray:
+    """``near``'s bounds on an array of distances (metres), both inclusive."""
+    ok = np.ones(len(distance), dtype=bool)
+    if max_distance is not None:
+        ok &= distance <= max_distance
+    if min_distance is not None:
+        ok &= distance >= min_distance
+    return ok
 
 
 def geometries(geojson: Sequence[str]) -> np.ndarray:

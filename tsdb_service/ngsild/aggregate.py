@@ -183,7 +183,7 @@ class Aggregator:
             series = list(group)
             family = _family(series, methods)
             newest = max(series, key=_MAX_US)
-            one = _one_group(family, tuple(methods))
+            values_of = _period_values(family, tuple(methods))
             periods = []
             for bucket, parts in groupby(series, key=_BUCKET):
                 text = bounds.get(bucket)
@@ -191,8 +191,8 @@ class Aggregator:
                     lo, hi = span(bucket)
                     text = bounds[bucket] = (iso_us(lo), iso_us(hi))
                 group_rows = list(parts)
-                values = one(group_rows[0]) if len(group_rows) == 1 else _values(group_rows, family, methods)
-                periods.append((*text, values))
+                row = group_rows[0] if len(group_rows) == 1 else _merged(group_rows)
+                periods.append((*text, values_of(row)))
             out[sid] = SeriesAggregate(type_name(newest[R_ATYPE], newest[R_KIND]), periods)
         return out
 
@@ -253,44 +253,30 @@ def _family(rows: list[tuple], methods) -> str | None:
     return family
 
 
-def _values(rows: list[tuple], family: str | None, methods) -> tuple:
-    """One period's methods from its groups (usually one: one kind, one type)."""
-    if len(rows) == 1:
-        ((_, _, kind, _, _, n, distinct, nx, sx, sxx, mn, mx, mint, maxt, _, _),) = rows
-        integral = kind in _INTEGRAL
-    else:
-        n = sum(r[R_N] for r in rows)
-        distinct = sum(r[R_DISTINCT] or 0 for r in rows)
-        xs = [r for r in rows if r[R_NX]]
-        nx = sum(r[R_NX] for r in xs)
-        sx = sum(r[R_SX] or 0 for r in xs)
-        sxx = sum(r[R_SXX] or 0 for r in xs)
-        mn = min((r[R_MIN] for r in xs if r[R_MIN] is not None), default=None)
-        mx = max((r[R_MAX] for r in xs if r[R_MAX] is not None), default=None)
-        mint = min((r[R_MIN_TXT] for r in rows if r[R_MIN_TXT] is not None), default=None)
-        maxt = max((r[R_MAX_TXT] for r in rows if r[R_MAX_TXT] is not None), default=None)
-        integral = all(r[R_KIND] in _INTEGRAL for r in rows)
-    integral = integral and family == "number"
-    out = []
-    for method in methods:
-        if method == "totalCount":
-            out.append(n)
-        elif method == "distinctCount":
-            out.append(distinct)
-        elif family == "text":
-            out.append(mint if method == "min" else maxt)
-        elif not nx:
-            out.append(None)
-        else:
-            out.append(_value(method, family, integral, nx, sx, sxx, mn, mx))
-    return tuple(out)
+def _merged(rows: list[tuple]) -> tuple:
+    """A period's groups (several kinds or notified types) as one row of the
+    same layout, so that one set of pickers computes every period; its kind
+    says only whether all the values were integral."""
+    xs = [r for r in rows if r[R_NX]]
+    row = list(rows[0])
+    row[R_KIND] = int(_K.INTEGER) if all(r[R_KIND] in _INTEGRAL for r in rows) else int(_K.NUMBER)
+    row[R_N] = sum(r[R_N] for r in rows)
+    row[R_DISTINCT] = sum(r[R_DISTINCT] or 0 for r in rows)
+    row[R_NX] = sum(r[R_NX] for r in xs)
+    row[R_SX] = sum(r[R_SX] or 0 for r in xs)
+    row[R_SXX] = sum(r[R_SXX] or 0 for r in xs)
+    row[R_MIN] = min((r[R_MIN] for r in xs if r[R_MIN] is not None), default=None)
+    row[R_MAX] = max((r[R_MAX] for r in xs if r[R_MAX] is not None), default=None)
+    row[R_MIN_TXT] = min((r[R_MIN_TXT] for r in rows if r[R_MIN_TXT] is not None), default=None)
+    row[R_MAX_TXT] = max((r[R_MAX_TXT] for r in rows if r[R_MAX_TXT] is not None), default=None)
+    return tuple(row)
 
 
 @lru_cache(maxsize=64)
-def _one_group(family: str | None, methods: tuple[str, ...]) -> Callable[[tuple], tuple]:
-    """``_values`` of a period with one group (one kind, one type: nearly
-    every period), as one function per (family, methods) with the method
-    dispatch done once: a response holds thousands of periods."""
+def _period_values(family: str | None, methods: tuple[str, ...]) -> Callable[[tuple], tuple]:
+    """The methods' values of one period's row, as one function per (family,
+    methods) with the method dispatch done once: a response holds thousands
+    of periods."""
     pickers = tuple(_picker(method, family) for method in methods)
     return lambda row: tuple([pick(row) for pick in pickers])
 

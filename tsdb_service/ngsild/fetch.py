@@ -176,23 +176,15 @@ class Fetcher:
         """Those location series of ``sids`` with an instance in the window that satisfies the geo-query."""
         prefilter = geo.filter.prefilter
         if sids and prefilter is not None:
-            sids = self._ever_near(sids, prefilter)
+            # Only those whose locations were ever inside the box (the
+            # backends keep each series' extent: memory, or a small table).
+            sids = [row[0] for row in self.q.location_extents(sids, prefilter)]
         if not sids:
             return set()
         rows = self.q.location_instances(sids, instance_window(window), prefilter)
         distinct = list({geojson for _, geojson in rows})
         passed = set(compress(distinct, geo.filter.matching(distinct)))
         return {sid for sid, geojson in rows if geojson in passed}
-
-    def _ever_near(self, sids: list[int], prefilter) -> list[int]:
-        """Those of ``sids`` whose locations were ever inside the box, where
-        the store keeps each series' extent in memory (DuckDB): the SQL then
-        reads only them. Elsewhere all of ``sids`` (finding out would cost
-        the scan the SQL makes anyway)."""
-        extents = self.q.location_extents(sids, prefilter)
-        if extents is None:
-            return sids
-        return [row[0] for row in extents]  # of ``sids`` only (the seam's contract)
 
 
 def instance_window(window: Window) -> InstanceWindow:
