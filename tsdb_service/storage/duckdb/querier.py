@@ -418,7 +418,9 @@ class DuckDBQuerier(SqlQuerier):
                     if window is None:
                         return None
                     sql, params = export_sql(self.dialect, sids, window, "x.t")
-                    reader = cursor.execute(sql, params).to_arrow_reader(batch_rows)
+                    # a relation, not execute(): DuckDB 2 copies a DB-API result
+                    # once more to hand it over as Arrow
+                    reader = cursor.sql(sql, params=params).to_arrow_reader(batch_rows)
                 try:
                     return reader.read_next_batch().columns
                 except StopIteration:
@@ -435,12 +437,12 @@ class DuckDBQuerier(SqlQuerier):
         ending 1 µs before the next one starts leaves no gap)."""
         d = self.dialect
         where, params = series_time_filter(d, sids, time)
-        row = cursor.execute(
+        # fetchall, not fetchone: the batches' relation runs on this cursor
+        # next, and DuckDB refuses it while a result is left unfinished.
+        [(first, last, count)] = cursor.execute(
             f"SELECT {d.epoch_us('min(t)')}, {d.epoch_us('max(t)')}, count(*) FROM {d.samples('sid, t')} WHERE {where}",
             params,
-        ).fetchone()
-        assert row is not None, "an aggregate without GROUP BY has one row"
-        first, last, count = row
+        ).fetchall()
         if not count:
             return []
         pieces = max(1, -(-count // sort_rows))
