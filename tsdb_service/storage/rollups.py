@@ -88,8 +88,7 @@ def delete_sql(dialect, sids: Sequence[int], start, end) -> tuple[str, list]:
 def rolled_up_count(querier, sids: Sequence[int], time) -> int:
     """How many rolled-up hours a delete of ``sids`` in ``time`` removes, so
     that deleting history only rollups hold still finds something to delete."""
-    store = getattr(querier, "_store", None)
-    if store is None or not presence_of(store)(querier._fetch):
+    if not querier.rollups_present():
         return 0
     where, params = _overlapping(querier.dialect, sids, time.start, time.end)
     rows = querier._fetch(f"SELECT count(*) FROM {TABLE} WHERE {where}", params)
@@ -125,7 +124,7 @@ class RollupPresence:
 
 def presence_of(store) -> RollupPresence:
     """The store's presence tracker (created on first use)."""
-    presence = getattr(store, "rollup_presence", None)
+    presence = store.rollup_presence
     if presence is None:
         presence = store.rollup_presence = RollupPresence()
     return presence
@@ -138,8 +137,7 @@ def rollup_parts(querier, branches, time, agg) -> tuple[str, list]:
     if agg.period is not None and agg.period not in ROLLUP_PERIODS:
         return "", []
     plain = [(number, b) for number, b in enumerate(branches) if b.sids and not b.steps]
-    store = getattr(querier, "_store", None)
-    if not plain or store is None or not presence_of(store)(querier._fetch):
+    if not plain or not querier.rollups_present():
         return "", []
     d = querier.dialect
     p = d.placeholder

@@ -22,7 +22,7 @@ from abc import abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from datetime import UTC, datetime, timedelta
 from functools import partial
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from .. import budget
 from ..model import Kind
@@ -238,6 +238,7 @@ class SqlQuerier(Querier):
 
     dialect: Dialect
     catalog: SeriesCatalog
+    _store: Any  # the backend's store: its rollup presence tracker (``storage.rollups``)
 
     @abstractmethod
     def _fetch(self, sql: str, params: list) -> list[tuple]:
@@ -349,7 +350,7 @@ class SqlQuerier(Querier):
             partials is None
             or (agg.period is not None and agg.period not in PARTIAL_PERIODS)
             or not any(b.sids and not b.steps for b in branches)
-            or self._rollups_present()
+            or self.rollups_present()
         ):
             return self._aggregate_sql(branches, time, agg, mask)
         rows: list[AggregateRow] = []
@@ -367,11 +368,11 @@ class SqlQuerier(Querier):
         every commit: a single writer in a single process)."""
         return None
 
-    def _rollups_present(self) -> bool:
+    def rollups_present(self) -> bool:
         """Rolled-up hours may exist (``storage.rollups``): partials hold raw
-        samples only, so aggregations then go to SQL."""
-        store = getattr(self, "_store", None)
-        return store is not None and presence_of(store)(self._fetch)
+        samples only, so aggregations then go to SQL, and a delete must look
+        at the rollup rows too."""
+        return presence_of(self._store)(self._fetch)
 
     def _from_partials(
         self, partials: HourlyPartials, number: int, branch: AggBranch, time: TimeRange, agg: Aggregation
