@@ -119,7 +119,7 @@ class PostgresQuerier(SqlQuerier):
             f"ORDER BY x.t {direction}, x.rid {direction} LIMIT %s) l) kept {order} LIMIT %s OFFSET %s"
         )
         series = sorted(subset.intervals)
-        rows = self._fetch(sql, [*subset.arrays(), series, *params, wanted, limit, min(offset, _MAX_BIGINT)])
+        rows = self._fetch(sql, [*subset.arrays(), int_array(series), *params, wanted, limit, min(offset, _MAX_BIGINT)])
         if newest_first:
             rows.reverse()
         return rows

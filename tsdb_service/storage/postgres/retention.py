@@ -18,7 +18,7 @@ from ..common import naive_utc
 from ..retention import SAVE_WATERMARK, rollup_delete_sql
 from ..rollups import fold_sql
 from ..sql import quote_ident
-from .dialect import PostgresDialect
+from .dialect import PostgresDialect, int_array
 
 PG_LOCK = 0x7473_6472  # "tsdr": one retention pass at a time across replicas
 
@@ -48,7 +48,7 @@ class PostgresSession:
             f"{folded} SELECT count(*) FROM batch"
         )
         with self._conn.transaction():
-            row = self._conn.execute(sql, [list(sids), naive_utc(cutoff), limit]).fetchone()
+            row = self._conn.execute(sql, [int_array(sids), naive_utc(cutoff), limit]).fetchone()
         deleted = int(row[0]) if row else 0
         if deleted:
             self._forget(sids)

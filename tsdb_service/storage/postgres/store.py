@@ -63,7 +63,7 @@ from ..migrate import applied_versions, load_migrations
 from ..rejected import RejectedLimits
 from ..sql import delete_statements, instance_statements
 from ..writer import GroupCommitter
-from .dialect import PostgresDialect
+from .dialect import PostgresDialect, int_array
 from .extents import ExtentLedger
 from .querier import PostgresQuerier
 from .retention import PostgresSession, postgres_session
@@ -552,7 +552,7 @@ class PostgresAppender(StagingAppender):
                 "SELECT l.* FROM unnest(%s::integer[]) AS s(sid) CROSS JOIN LATERAL ("
                 "SELECT x.sid, x.observed_at, x.kind, x.num, x.txt, x.js, x.md, x.deleted_at FROM samples x "
                 "WHERE x.sid = s.sid ORDER BY x.t DESC, x.iid DESC LIMIT 1) l",
-                [wanted],
+                [int_array(wanted)],
             )
             return latest_keys(cur.fetchall())
 
