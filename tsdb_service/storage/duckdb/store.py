@@ -332,8 +332,8 @@ class DuckDBStore(CommittingStore):
                 "SELECT sid, tenant, service_path, entity_id, entity_type, attr FROM series"
             ).fetchall()
         }
-        max_rid = _scalar(con, "SELECT max(rid) FROM samples_all") or 0
-        max_iid = _scalar(con, "SELECT max(iid) FROM samples_all") or 0
+        max_rid = _tables_max(con, "rid")
+        max_iid = _tables_max(con, "iid")
         max_rejected = _scalar(con, "SELECT max(id) FROM rejected_notifications") or 0
         layouts = layouts_from_rows(con.execute(LOAD_LAYOUTS_SQL).fetchall())
         latest_geo = LatestGeo(con.execute(LATEST_GEO_SQL.format(where="")).fetchall())
@@ -571,6 +571,15 @@ class DuckDBStore(CommittingStore):
 
 
 _first_line = first_line
+
+
+def _tables_max(cur: duckdb.DuckDBPyConnection, column: str) -> int:
+    """The largest ``column`` over both sample tables, each asked alone:
+    DuckDB answers a base table's max from its row groups' statistics
+    (reading only the row groups that can hold it), but the max over the
+    ``samples_all`` view reads the whole column, and the blocks it read
+    stayed in memory: 140 MiB more RSS at start-up with 100M samples."""
+    return max((_scalar(cur, f"SELECT max({column}) FROM {table}") or 0) for table in _SAMPLE_TABLES)
 
 
 def _scalar(cur: duckdb.DuckDBPyConnection, sql: str) -> Any:
