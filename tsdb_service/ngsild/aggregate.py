@@ -278,6 +278,12 @@ def _period_values(family: str | None, methods: tuple[str, ...]) -> Callable[[tu
     methods) with the method dispatch done once: a response holds thousands
     of periods."""
     pickers = tuple(_picker(method, family) for method in methods)
+    if len(pickers) == 1:  # one or two methods are the usual asks: no loop per period
+        (first,) = pickers
+        return lambda row: (first(row),)
+    if len(pickers) == 2:
+        first, second = pickers
+        return lambda row: (first(row), second(row))
     return lambda row: tuple([pick(row) for pick in pickers])
 
 
