@@ -244,7 +244,9 @@ def relation_holds(
     min_distance: float | None = None,
 ) -> bool:
     """The exact predicate between the query shape and one stored GeoJSON
-    geometry; an unreadable or empty stored geometry never matches."""
+    geometry (the relations of ``relations_hold``, without its array
+    set-up: 7-8 µs a call); an unreadable or empty stored geometry never
+    matches."""
     try:
         candidate = shape(orjson.loads(geojson) if isinstance(geojson, str) else geojson)
     except (ValueError, TypeError, AttributeError, KeyError, shapely.errors.GEOSException):
@@ -253,20 +255,8 @@ def relation_holds(
         return False
     if georel == "near":
         distance = geodesic_distance_m(query, candidate)
-        if max_distance is not None and distance > max_distance:
-            return False
-        return min_distance is None or distance >= min_distance
-    if georel in ("coveredBy", "within"):
-        return query.covers(candidate)
-    if georel == "contains":
-        return candidate.covers(query)
-    if georel == "intersects":
-        return query.intersects(candidate)
-    if georel == "disjoint":
-        return query.disjoint(candidate)
-    if georel == "overlaps":
-        return query.overlaps(candidate)
-    return query.equals(candidate)  # equals
+        return (max_distance is None or distance <= max_distance) and (min_distance is None or distance >= min_distance)
+    return bool(_RELATIONS[georel](query, candidate))
 
 
 def parse_geo(

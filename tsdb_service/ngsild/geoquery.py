@@ -19,7 +19,7 @@ import shapely
 from shapely.geometry import shape
 from shapely.geometry.base import BaseGeometry
 
-from ..geo.filter import BBox, box_prefilter, geometries, relation_holds, relations_hold
+from ..geo.filter import BBox, box_prefilter, geometries, relations_hold
 from .errors import BadRequestData
 
 GEORELS = ("near", "within", "contains", "intersects", "equals", "disjoint", "overlaps")
@@ -39,11 +39,9 @@ class LdGeoFilter:
         """("intersects" | "within", box) a stored bounding box must satisfy, or None."""
         return box_prefilter(self.georel, self.shape, self.max_distance)
 
-    def matches(self, geojson: str | dict) -> bool:
-        return relation_holds(self.georel, self.shape, geojson, self.max_distance, self.min_distance)
-
     def matching(self, geojson: Sequence[str]) -> np.ndarray:
-        """``matches`` of each stored GeoJSON text, as one boolean array."""
+        """Whether each stored GeoJSON text satisfies the geo-query, as one
+        boolean array (unreadable or empty: no)."""
         return relations_hold(self.georel, self.shape, geometries(geojson), self.max_distance, self.min_distance)
 
 
