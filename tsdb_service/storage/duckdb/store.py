@@ -62,7 +62,7 @@ from ..ld_ingest import (
 from ..migrate import applied_versions, load_migrations, split_statements
 from ..partials import HourlyPartials
 from ..rejected import RejectedLimits
-from ..sql import delete_statements, instance_statements
+from ..sql import delete_statements, instance_statements, quote_ident
 from ..writer import GroupCommitter
 from .dialect import DuckDBDialect
 from .latest_geo import LATEST_GEO_SQL, LatestGeo
@@ -579,7 +579,9 @@ def _tables_max(cur: duckdb.DuckDBPyConnection, column: str) -> int:
     (reading only the row groups that can hold it), but the max over the
     ``samples_all`` view reads the whole column, and the blocks it read
     stayed in memory: about 160 MiB more RSS at start-up with 100M samples."""
-    return max((_scalar(cur, f"SELECT max({column}) FROM {table}") or 0) for table in _SAMPLE_TABLES)
+    return max(
+        (_scalar(cur, f"SELECT max({quote_ident(column)}) FROM {quote_ident(table)}") or 0) for table in _SAMPLE_TABLES
+    )
 
 
 def _scalar(cur: duckdb.DuckDBPyConnection, sql: str) -> Any:
