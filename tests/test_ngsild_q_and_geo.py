@@ -6,6 +6,8 @@ window, whatever each alone would select. On both backends."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 from ngsild_fixtures import get, ids, ld_notify
 
@@ -84,3 +86,56 @@ def test_together_is_the_intersection_of_each_alone(robots, geo, q, window):
 def test_a_bad_q_is_refused_before_anything_runs_beside_it(robots):
     response = get(robots, {"type": "Robot", "q": "(speed>5", **NEAR}, status=400)
     assert response.json()["type"].endswith("BadRequestData")
+
+
+# -- a crowd: enough series that DuckDB answers the geo-query and q in one scan ---------
+#
+# Over more than a few dozen series (``duckdb.querier.PER_SERIES_BRANCHES``)
+# DuckDB reads the locations and each ``q`` term the database decides in one
+# statement (``Querier.window_scan``); the answer must stay the intersection.
+
+CROWD = 60
+
+
+def crowd_robot(n: int, side: int) -> dict:
+    """Robot ``n`` at ``side`` 0 (early) or 1 (late): a spiral around the
+    centre, every fifth one moving, speeds and names that vary with ``n``."""
+    moves = n % 5 == 0
+    radius = 0.0005 * (n + (40 * side if moves else 0))
+    angle = n * 2.4
+    at = [CENTRE[0] + radius * math.cos(angle), CENTRE[1] + radius * math.sin(angle)]
+    return {
+        "id": robot_id(f"crowd-{n:03d}"),
+        "type": "Robot",
+        "speed": {"type": "Property", "value": (n * 7 + side * 3) % 10, "observedAt": (EARLY, LATE)[side]},
+        "name": {"type": "Property", "value": f"r{n % 4}", "observedAt": (EARLY, LATE)[side]},
+        "location": {
+            "type": "GeoProperty",
+            "observedAt": (EARLY, LATE)[side],
+            "value": {"type": "Point", "coordinates": at},
+        },
+    }
+
+
+@pytest.fixture
+def crowd(client):
+    for side in (0, 1):
+        ld_notify(client, [crowd_robot(n, side) for n in range(CROWD)])
+    return client
+
+
+@pytest.mark.parametrize("geo", [NEAR, AWAY, WITHIN, DISJOINT], ids=["near", "min-distance", "within", "disjoint"])
+@pytest.mark.parametrize(
+    "q",
+    ["speed>=5", "speed>=5;speed<8", 'speed<3|name=="r1"', 'speed>=4;name~="r[02]"', "speed>100"],
+    ids=["one-term", "two-terms", "or-text", "regex-in-python", "none"],
+)
+@pytest.mark.parametrize("window", [{}, EARLY_ONLY], ids=["all", "early"])
+def test_a_crowd_is_still_the_intersection(crowd, geo, q, window):
+    base = {"type": "Robot", "attrs": "speed", "limit": "100", **window}
+    by_q = set(ids(get(crowd, {**base, "q": q})))
+    by_geo = set(ids(get(crowd, {**base, **geo})))
+    both = get(crowd, {**base, "q": q, **geo, "count": "true"})
+    assert ids(both) == sorted(by_q & by_geo)
+    assert both.headers["NGSILD-Results-Count"] == str(len(by_q & by_geo))
+    assert 0 < len(by_geo) < CROWD or geo is DISJOINT  # the geo-query does split the crowd

@@ -12,12 +12,12 @@ Steps:
 1. Series from the in-memory catalog: entity ids / idPattern, types (type
    expressions), attributes, datasetIds. No sample is read.
 2. ``q`` and the geo-query, when given, each need a look at the instances
-   in the window: a comparison on numbers or text is decided by the
-   database (``Querier.instances_matching``), anything else reads the
-   candidate values (``Querier.instance_values``); a geo-query reads the
-   locations whose stored box passes its prefilter
-   (``Querier.location_instances``) and applies the exact, geodesic
-   predicate in Python.
+   in the window, taken together in one ``Querier.window_scan``: a
+   comparison on numbers or text is decided by the database, and a
+   geo-query reads the locations whose stored box passes its prefilter
+   and applies the exact, geodesic predicate in Python. Any other ``q``
+   term reads the candidate values (``Querier.instance_values``) of the
+   entities the geo-query left.
 3. The matching entities are sorted by id (then type) and paged.
 4. Only the page's series are read (``ngsild.service``): instances in the
    window through ``Querier.temporal_instances`` (``lastN`` per series, at
@@ -31,7 +31,6 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from functools import partial
 from itertools import compress
-from operator import attrgetter
 
 import orjson
 
@@ -42,7 +41,6 @@ from .context import TermMap
 from .query import DEFAULT_DATASET, TemporalQuery, TypeExpr, TypeName, Window, type_matches
 
 EntityKey = tuple[str, str]  # (entity id, stored entity type)
-_SID = attrgetter("sid")
 
 
 class Fetcher:
@@ -109,47 +107,79 @@ class Fetcher:
 
     # -- 2. q and geo over the window ---------------------------------------------
 
-    def q_matches(
-        self, node: qlang.Node, window: Window, by_entity: dict[EntityKey, list[SeriesRef]], iris: dict[int, str]
+    def matching(
+        self,
+        query: TemporalQuery,
+        by_entity: dict[EntityKey, list[SeriesRef]],
+        iris: dict[int, str],
+        located: Sequence[int] | None = None,
     ) -> set[EntityKey]:
-        """Entities for which ``q`` holds: a term holds when some instance of
-        its attribute in the window satisfies it."""
-        owner = {r.sid: key for key, refs in by_entity.items() for r in refs}
-        sids_of: dict[str, list[int]] = {}
-        for sid in owner:
-            sids_of.setdefault(iris[sid], []).append(sid)
-        holding: dict[qlang.Term, set[EntityKey]] = {}
-        for term in dict.fromkeys(qlang.terms(node)):
-            sids = sids_of.get(term.attr, [])
-            holding[term] = {owner[s] for s in self._term_sids(term, sids, window)} if sids else set()
-        return {key for key in by_entity if qlang.evaluate(node, partial(_holds, holding, key))}
+        """The entities of ``by_entity`` for which the geo-query and ``q``
+        hold, each judged on the instances in the window (a ``q`` term holds
+        when some instance of its attribute satisfies it).
 
-    def _term_sids(self, term: qlang.Term, sids: list[int], window: Window) -> set[int]:
-        """The series with an instance satisfying ``term``: decided by the
-        database when it can (``value_test``), else on the read values."""
-        test = value_test(term)
-        if test is not None:
-            return self.q.instances_matching(sids, instance_window(window), test)
-        out = set()
-        for sid, kind, num, txt, js, md in self.q.instance_values(sids, instance_window(window)):
+        What the database can decide is asked through ``Querier.
+        window_scan``: the location instances whose stored box passes the
+        geo-query's prefilter, and per ``q`` term on a plain value
+        (``value_test``) the series with an instance passing it. Where each
+        read scans the samples (``Querier.shared_scan``, DuckDB) they are
+        asked together; else ``q`` is asked after the geo-query, of the
+        entities it left. The exact, geodesic geo test is made here, and the
+        other ``q`` terms on the values of the entities the geo-query left.
+        ``located``: the location series already past the extents' test
+        (``located``)."""
+        window = instance_window(query.window)
+        owner = {r.sid: key for key, refs in by_entity.items() for r in refs}
+        keys = set(by_entity)
+        geo = query.geo
+        locations = None
+        if geo is not None:
+            if located is None:
+                located = self._ever_near(geo, [sid for sid in owner if iris[sid] == geo.geoproperty])
+            locations = ([sid for sid in located if sid in owner], geo.filter.prefilter)
+            if query.q is None or not self.q.shared_scan:
+                rows, _ = self.q.window_scan(window, locations, [])
+                keys = {owner[sid] for sid in self._passing(geo, rows)}
+                locations = None
+        if query.q is None or not keys:
+            return keys
+        terms = list(dict.fromkeys(qlang.terms(query.q)))
+        sids_of: dict[str, list[int]] = {}
+        for sid, key in owner.items():
+            if key in keys:
+                sids_of.setdefault(iris[sid], []).append(sid)
+        tested = [(term, test) for term in terms if (test := value_test(term)) is not None]
+        rows, found = self.q.window_scan(window, locations, [(sids_of.get(t.attr, []), test) for t, test in tested])
+        if locations is not None:
+            keys = {owner[sid] for sid in self._passing(geo, rows)}
+            if not keys:
+                return keys
+        holding = {term: {owner[sid] for sid in sids} for (term, _), sids in zip(tested, found, strict=True)}
+        for term in terms:
+            if term not in holding:
+                sids = [sid for sid in sids_of.get(term.attr, []) if owner[sid] in keys]
+                holding[term] = {owner[sid] for sid in self._values_passing(term, sids, window)}
+        return {key for key in keys if qlang.evaluate(query.q, partial(_holds, holding, key))}
+
+    def _values_passing(self, term: qlang.Term, sids: list[int], window: InstanceWindow) -> set[int]:
+        """Those of ``sids`` with an instance satisfying ``term``, tested on
+        the read values (a term the database cannot decide)."""
+        out: set[int] = set()
+        if not sids:
+            return out
+        for sid, kind, num, txt, js, md in self.q.instance_values(sids, window):
             if sid not in out and term.matches(term_value(term, kind, num, txt, js, md)):
                 out.add(sid)
         return out
 
-    def geo_matches(
-        self, geo, window: Window, by_entity: dict[EntityKey, list[SeriesRef]], iris: dict[int, str]
-    ) -> set[EntityKey]:
-        """Entities with a location instance in the window that satisfies the geo-query."""
-        owner = {r.sid: key for key, refs in by_entity.items() for r in refs if iris[r.sid] == geo.geoproperty}
-        return {owner[sid] for sid in self._geo_sids(geo, window, list(owner))}
-
-    def located(self, query: TemporalQuery) -> dict[EntityKey, list[SeriesRef]] | None:
-        """A geo-query over whole types (no ids, no idPattern): the series of
-        the entities whose location passes it, found from the types'
-        location series alone. ``series`` would list every series of every
-        entity of the types (100,000 entities: more time than the rest of
-        the query) only for all but the few near ones to be dropped. None
-        when the query names entities (``series`` then lists few)."""
+    def located(self, query: TemporalQuery) -> tuple[dict[EntityKey, list[SeriesRef]], list[int]] | None:
+        """A geo-query over whole types (no ids, no idPattern): the entities
+        whose location may pass it, found from the types' location series
+        alone, with their series, and those location series. ``series``
+        would list every series of every entity of the types (100,000
+        entities: more time than the rest of the query) only for all but
+        the few near ones to be dropped. None when the query names entities
+        (``series`` then lists few)."""
         geo = query.geo
         if geo is None or query.entity_id is not None:
             return None
@@ -162,26 +192,28 @@ class Fetcher:
         iri = dict(zip(ld_names, self.terms.expand_all(ld_names), strict=True))
         stored = {a for t in types for name, attrs in names[t].items() if iri[name] == geo.geoproperty for a in attrs}
         if not stored:
-            return {}
-        refs = self.q.series(scope, EntityFilter(types=tuple(sorted(types))), stored)
-        sids = list(map(_SID, refs))  # C loops: one per location series of the types
-        near = self._geo_sids(geo, query.window, sids)
-        keys = {(r.entity_id, r.entity_type) for r in compress(refs, map(near.__contains__, sids))}
+            return {}, []
+        near = self.q.located_series(scope, sorted(types), stored, geo.filter.prefilter)
+        keys = {(r.entity_id, r.entity_type) for r in near}
         if not keys:
-            return {}
+            return {}, []
         found = self.q.series(scope, EntityFilter(ids=tuple(sorted({k[0] for k in keys}))))
-        return _by_entity(r for r in found if (r.entity_id, r.entity_type) in keys)
+        return _by_entity(r for r in found if (r.entity_id, r.entity_type) in keys), [r.sid for r in near]
 
-    def _geo_sids(self, geo, window: Window, sids: list[int]) -> set[int]:
-        """Those location series of ``sids`` with an instance in the window that satisfies the geo-query."""
+    def _ever_near(self, geo, sids: list[int]) -> list[int]:
+        """Those location series of ``sids`` whose stored extent passes the
+        geo-query's prefilter (the backends keep each series' extent:
+        memory, or a small table), so only their instances are read."""
         prefilter = geo.filter.prefilter
         if sids and prefilter is not None:
-            # Only those whose locations were ever inside the box (the
-            # backends keep each series' extent: memory, or a small table).
-            sids = [row[0] for row in self.q.location_extents(sids, prefilter)]
-        if not sids:
-            return set()
-        rows = self.q.location_instances(sids, instance_window(window), prefilter)
+            return [row[0] for row in self.q.location_extents(sids, prefilter)]
+        return sids
+
+    @staticmethod
+    def _passing(geo, rows: list[tuple[int, str]]) -> set[int]:
+        """The series of ``rows`` (sid, GeoJSON) with a location that
+        satisfies the geo-query: each distinct GeoJSON tested once, in one
+        array call."""
         distinct = list({geojson for _, geojson in rows})
         passed = set(compress(distinct, geo.filter.matching(distinct)))
         return {sid for sid, geojson in rows if geojson in passed}

@@ -31,12 +31,12 @@ def run(querier, terms: TermMap, query: TemporalQuery, cap: int) -> TemporalResu
     if query.tenant and query.tenant not in querier.tenants():
         raise NonexistentTenant(f"tenant {query.tenant!r} has no data")
     located = fetcher.located(query)
-    by_entity = located if located is not None else fetcher.series(query)
+    by_entity = located[0] if located is not None else fetcher.series(query)
     if query.entity_id is not None and not by_entity:
         raise ResourceNotFound(f"no temporal evolution of entity {query.entity_id!r}")
     all_refs = [r for refs in by_entity.values() for r in refs]
     iris = fetcher.attr_iris(all_refs)
-    keys = _matching(fetcher, query, by_entity, iris, geo_done=located is not None)
+    keys = _matching(fetcher, query, by_entity, iris, None if located is None else located[1])
     page_keys = keys if query.entity_id is not None else keys[query.offset : query.offset + query.limit]
     selected = {key: fetcher.selected(query, by_entity[key], iris) for key in page_keys}
     sids = [r.sid for refs in selected.values() for r in refs]
@@ -53,16 +53,13 @@ def run(querier, terms: TermMap, query: TemporalQuery, cap: int) -> TemporalResu
     return TemporalResult(entities, len(keys), content_range)
 
 
-def _matching(fetcher: Fetcher, query: TemporalQuery, by_entity, iris, geo_done: bool) -> list[EntityKey]:
+def _matching(fetcher: Fetcher, query: TemporalQuery, by_entity, iris, located: list[int] | None) -> list[EntityKey]:
     keys = set(by_entity)
     if query.attrs is not None and query.entity_id is None:
         wanted = set(query.attrs)
         keys = {k for k in keys if any(iris[r.sid] in wanted for r in by_entity[k])}
-    # The geo-query first: its bounding box usually leaves few entities for q.
-    if query.geo is not None and keys and not geo_done:
-        keys &= fetcher.geo_matches(query.geo, query.window, {k: by_entity[k] for k in keys}, iris)
-    if query.q is not None and keys:
-        keys &= fetcher.q_matches(query.q, query.window, {k: by_entity[k] for k in keys}, iris)
+    if (query.geo is not None or query.q is not None) and keys:
+        keys = fetcher.matching(query, {k: by_entity[k] for k in keys}, iris, located)
     return sorted(keys)
 
 

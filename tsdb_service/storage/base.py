@@ -244,6 +244,16 @@ class Querier(ABC):
         Memory only on DuckDB; a table (one query) on PostgreSQL. After a
         delete an extent may be larger than the remaining samples."""
 
+    def located_series(
+        self, scope: Scope, types: Sequence[str], attrs: Iterable[str], prefilter: Prefilter | None
+    ) -> list[SeriesRef]:
+        """The series of the entities of ``types`` (whole tenant) with a
+        stored name in ``attrs`` whose extent may pass ``prefilter``, as
+        ``location_extents`` decides: where a type-wide geo-query looks."""
+        refs = self.series(scope, EntityFilter(types=tuple(types)), attrs)
+        near = {row[0] for row in self.location_extents([r.sid for r in refs], prefilter)}
+        return [r for r in refs if r.sid in near]
+
     @abstractmethod
     def first_locations(self, sids: Sequence[int]) -> list[FirstLocationRow]:
         """Each series' first geo sample by (time, row)."""
@@ -315,6 +325,27 @@ class Querier(ABC):
         ``window`` whose stored box passes ``prefilter``: an NGSI-LD
         geo-query's candidates (the caller applies the exact predicate).
         One statement."""
+
+    # True: a read of the instances in a window scans the samples whatever
+    # the series (DuckDB), so the geo-query's and ``q``'s reads are best
+    # made as one (``window_scan``). False: an index reads each series'
+    # rows, so ``q`` is best asked after the geo-query, of the fewer
+    # entities it leaves.
+    shared_scan = False
+
+    def window_scan(
+        self,
+        window: InstanceWindow,
+        locations: tuple[Sequence[int], Prefilter | None] | None,
+        tests: Sequence[tuple[Sequence[int], ValueTest]],
+    ) -> tuple[list[tuple[int, str]], list[set[int]]]:
+        """``location_instances`` of ``locations`` (sids, prefilter) and
+        ``instances_matching`` of each (sids, test), over one window: what
+        an NGSI-LD geo-query and ``q`` read. Here one statement each, as an
+        index answers each cheaply; a backend that scans for each (DuckDB)
+        answers all in one."""
+        rows = [] if locations is None else self.location_instances(locations[0], window, locations[1])
+        return rows, [self.instances_matching(sids, window, test) for sids, test in tests]
 
     @abstractmethod
     def instance_aggregate(

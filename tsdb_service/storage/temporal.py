@@ -115,6 +115,38 @@ def locations_parts(d: Dialect, window: InstanceWindow, prefilter: Prefilter | N
     return f"SELECT DISTINCT sid, geo FROM {table}", where, params
 
 
+def scan_parts(
+    d: Dialect,
+    window: InstanceWindow,
+    locations: tuple[Sequence[int], Prefilter | None] | None,
+    tests: Sequence[tuple[Sequence[int], ValueTest]],
+) -> tuple[str, str, list, list[int], list[int]]:
+    """``locations_parts`` and ``matching_parts`` as one read: (head, where,
+    params, sids, roles). The caller joins the samples to the (sid, role)
+    pairs (``sid``/``role`` columns ``w_sid``/``w_role``); role 0 asks for
+    locations, role ``i + 1`` for ``tests[i]``. A row is (role, sid,
+    GeoJSON for role 0 else NULL), distinct."""
+    _, where_t, params = window_filter(d, window)
+    branches: list[str] = []
+    sids: list[int] = []
+    roles: list[int] = []
+    if locations is not None:
+        box, box_params = box_sql(d.placeholder, locations[1])
+        branches.append(f"(w_role = 0 AND kind = {_GEO} AND geo IS NOT NULL AND {box})")
+        params = [*params, *box_params]
+        sids.extend(locations[0])
+        roles.extend([0] * len(locations[0]))
+    for role, (test_sids, test) in enumerate(tests, start=1):
+        cond, cond_params = value_test_sql(d, test)
+        branches.append(f"(w_role = {role} AND {cond})")
+        params = [*params, *cond_params]
+        sids.extend(test_sids)
+        roles.extend([role] * len(test_sids))
+    columns = f"{_TIME_COLUMNS}, kind, num, txt, geo, min_lon, min_lat, max_lon, max_lat"
+    head = f"SELECT DISTINCT w_role, sid, CASE WHEN w_role = 0 THEN geo END FROM {d.samples(columns)}"
+    return head, f"{where_t} AND ({' OR '.join(branches) or 'FALSE'})", params, sids, roles
+
+
 # -- aggregation (ngsild.aggregate) ---------------------------------------------------
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import bisect
 import contextlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from datetime import UTC, datetime, timedelta
 from typing import Protocol
 
@@ -24,13 +24,18 @@ from ...query import (
     ExtentRow,
     FirstLocationRow,
     GeometryRow,
+    InstanceWindow,
     LocationRow,
     Prefilter,
     RawRow,
     RowMask,
+    Scope,
+    SeriesRef,
     TimeRange,
+    ValueTest,
 )
 from ...timefmt import iso_ms_us as iso_ms
+from .. import temporal
 from ..catalog import SeriesCatalog
 from ..common import box_passes, to_micros
 from ..export import Columns, SampleBatches, export_sql
@@ -288,6 +293,17 @@ class DuckDBQuerier(SqlQuerier):
         """Memory only: where each series has ever been."""
         return self._store.latest_geo.extents(sids, prefilter)
 
+    def located_series(
+        self, scope: Scope, types: Sequence[str], attrs: Iterable[str], prefilter: Prefilter | None
+    ) -> list[SeriesRef]:
+        """From memory: the extents' grid gives the few series near the
+        box, each looked up in the catalog's (types, attrs) set, which it
+        keeps between requests. No list of the types' 100,000 series."""
+        if not scope.whole_tenant:
+            return super().located_series(scope, types, attrs, prefilter)
+        refs = self.catalog.by_sid(scope.tenant, types, attrs)
+        return [refs[sid] for sid in self._store.latest_geo.ever_near(refs, prefilter)]
+
     def location_samples(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[LocationRow]:
         """From the tracks memory holds where they answer (``LatestGeo.
         positions``: the series it misses are loaded together and kept), so
@@ -387,6 +403,41 @@ class DuckDBQuerier(SqlQuerier):
                 " UNION ALL ".join([branch] * len(sids)), [value for sid in sids for value in (sid, *params)]
             )
         return super()._per_series(head, where, params, sids)
+
+    shared_scan = True
+
+    def window_scan(
+        self,
+        window: InstanceWindow,
+        locations: tuple[Sequence[int], Prefilter | None] | None,
+        tests: Sequence[tuple[Sequence[int], ValueTest]],
+    ) -> tuple[list[tuple[int, str]], list[set[int]]]:
+        """One statement for them all (``temporal.scan_parts``): over many
+        scattered series each would scan the sorted table's series ids
+        (about 20 ms at 11M samples), and one scan answers every question.
+        Few series: one statement each, whose per-series branches prune."""
+        if locations is not None and not locations[0]:
+            locations = None
+        asked = [i for i, (sids, _) in enumerate(tests) if sids]
+        total = sum(len(tests[i][0]) for i in asked) + (0 if locations is None else len(locations[0]))
+        if len(asked) + (locations is not None) < 2 or total <= PER_SERIES_BRANCHES:
+            return super().window_scan(window, locations, tests)
+        head, where, params, sids, roles = temporal.scan_parts(
+            self.dialect, window, locations, [tests[i] for i in asked]
+        )
+        sql = (
+            f"{head} JOIN (SELECT unnest(?::INTEGER[]) AS w_sid, unnest(?::INTEGER[]) AS w_role) w "
+            f"ON sid = w_sid WHERE sid BETWEEN ? AND ? AND {where}"
+        )
+        rows = self._fetch(sql, [sids, roles, min(sids), max(sids), *params])
+        found: list[set[int]] = [set() for _ in tests]
+        located = []
+        for role, sid, geojson in rows:
+            if role == 0:
+                located.append((sid, geojson))
+            else:
+                found[asked[role - 1]].add(sid)
+        return located, found
 
     def export_batches(self, sids: Sequence[int], time: TimeRange, batch_rows: int, sort_rows: int) -> SampleBatches:
         """See ``Querier``. DuckDB sorts a result in memory up to its

@@ -1,0 +1,103 @@
+"""``Querier.window_scan`` and ``Querier.located_series``: what an NGSI-LD
+geo-query with ``q`` reads. DuckDB answers many series' questions in one
+statement and finds a type's near series from memory; either must answer
+exactly as the one-statement-per-question reads (the seam's defaults,
+which PostgreSQL uses). On both backends, before and after DuckDB moves
+the rows from its hot table to the sorted one."""
+
+from __future__ import annotations
+
+import random
+from datetime import UTC, datetime
+
+import pytest
+from ngsild_fixtures import TENANT, ld_notify
+
+from tsdb_service.geo.filter import BBox
+from tsdb_service.query import EntityFilter, InstanceWindow, Scope, ValueTest
+from tsdb_service.storage.base import Querier
+
+SCOPE = Scope(TENANT)
+TIMES = ["2024-01-01T00:00:00Z", "2024-01-01T00:20:00Z", "2024-01-01T00:40:00Z"]
+WINDOWS = [
+    InstanceWindow(),
+    InstanceWindow("observedAt", datetime(2024, 1, 1, 0, 10, tzinfo=UTC), datetime(2024, 1, 1, 0, 50, tzinfo=UTC)),
+    InstanceWindow("observedAt", None, datetime(2024, 1, 1, 0, 10, tzinfo=UTC)),
+]
+BOX = BBox(0.0, 0.0, 0.05, 0.05)  # min_lon, min_lat, max_lon, max_lat
+TESTS = [ValueTest(">=", 5.0), ValueTest("<", 2.0), ValueTest("==", "r1"), ValueTest()]
+
+
+@pytest.fixture
+def stored(client):
+    rng = random.Random(3)
+    for at in TIMES:
+        robots = []
+        for n in range(50):  # 150 series: above DuckDB's per-series branches
+            lon, lat = rng.uniform(-0.05, 0.1), rng.uniform(-0.05, 0.1)
+            robots.append(
+                {
+                    "id": f"urn:ngsi-ld:Robot:{n:02d}",
+                    "type": "Robot",
+                    "speed": {"type": "Property", "value": rng.randrange(10), "observedAt": at},
+                    "name": {"type": "Property", "value": f"r{rng.randrange(3)}", "observedAt": at},
+                    "location": {
+                        "type": "GeoProperty",
+                        "observedAt": at,
+                        "value": {"type": "Point", "coordinates": [lon, lat]},
+                    },
+                }
+            )
+        ld_notify(client, robots)
+    return client.app.state.store
+
+
+def _sids(querier, attr: str) -> list[int]:
+    return sorted(r.sid for r in querier.series(SCOPE, EntityFilter(types=("Robot",)), [attr]))
+
+
+def _compacted(store) -> None:
+    if hasattr(store, "compact"):
+        store.compact(full=True)
+
+
+@pytest.mark.parametrize("compact", [False, True], ids=["hot", "sorted"])
+@pytest.mark.parametrize("window", WINDOWS, ids=["all", "between", "before"])
+@pytest.mark.parametrize(
+    "prefilter", [None, ("intersects", BOX), ("within", BOX)], ids=["none", "intersects", "within"]
+)
+def test_one_scan_answers_as_one_statement_each(stored, compact, window, prefilter):
+    if compact:
+        _compacted(stored)
+    q = stored.querier()
+    locations = (_sids(q, "location"), prefilter)
+    tests = [(_sids(q, "speed"), TESTS[0]), (_sids(q, "speed"), TESTS[1]), (_sids(q, "name"), TESTS[2]), ([], TESTS[3])]
+    rows, found = q.window_scan(window, locations, tests)
+    want_rows, want_found = Querier.window_scan(q, window, locations, tests)
+    assert sorted(rows) == sorted(want_rows)
+    assert found == want_found
+    assert rows and any(found) and not found[3]
+
+
+def test_without_locations_or_with_one_question(stored):
+    q = stored.querier()
+    window = WINDOWS[1]
+    for locations, tests in [
+        (None, [(_sids(q, "speed"), TESTS[0]), (_sids(q, "name"), TESTS[2])]),
+        ((_sids(q, "location"), None), []),
+        (([], None), [(_sids(q, "speed"), TESTS[1])]),
+    ]:
+        assert q.window_scan(window, locations, tests) == Querier.window_scan(q, window, locations, tests)
+
+
+@pytest.mark.parametrize(
+    "prefilter", [None, ("intersects", BOX), ("within", BOX)], ids=["none", "intersects", "within"]
+)
+def test_located_series_are_those_the_extents_keep(stored, prefilter):
+    q = stored.querier()
+    got = q.located_series(SCOPE, ["Robot"], ["location"], prefilter)
+    want = Querier.located_series(q, SCOPE, ["Robot"], ["location"], prefilter)
+    assert sorted(r.sid for r in got) == sorted(r.sid for r in want)
+    assert 0 < len(got) <= 50
+    assert q.located_series(SCOPE, ["Robot"], ["speed"], prefilter) == []  # never located
+    assert q.located_series(Scope("nobody"), ["Robot"], ["location"], prefilter) == []
