@@ -12,7 +12,7 @@ rows it returns.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from datetime import datetime
@@ -237,7 +237,7 @@ class Querier(ABC):
         ``time`` is open."""
 
     @abstractmethod
-    def location_extents(self, sids: Sequence[int], prefilter: Prefilter | None) -> list[ExtentRow]:
+    def location_extents(self, sids: Collection[int], prefilter: Prefilter | None) -> list[ExtentRow]:
         """Per located series of ``sids`` whose extent (the box of every geo
         sample it ever had) may pass ``prefilter``: the extent and, where the
         backend keeps it, its first position (else None: ``first_locations``).

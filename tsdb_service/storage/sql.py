@@ -19,7 +19,7 @@ keeps them (``storage.partials``; DuckDB), loaded by one grouped statement.
 from __future__ import annotations
 
 from abc import abstractmethod
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from datetime import UTC, datetime, timedelta
 from functools import partial
 from typing import Any, TypeVar
@@ -575,8 +575,20 @@ class SqlQuerier(Querier):
 
     # -- locations over time (geo-queries on samples) ------------------------------
 
+    def located_series(
+        self, scope: Scope, types: Sequence[str], attrs: Iterable[str], prefilter: Prefilter | None
+    ) -> list[SeriesRef]:
+        """The extents (memory on DuckDB; a GiST search by box on
+        PostgreSQL) give the few series near the box, each looked up in the
+        catalog's (types, attrs) set, which it keeps between requests: no
+        list of the types' 100,000 series per request."""
+        if not scope.whole_tenant:
+            return super().located_series(scope, types, attrs, prefilter)
+        refs = self.catalog.by_sid(scope.tenant, types, attrs)
+        return [refs[row[0]] for row in self.location_extents(refs, prefilter)]
+
     @abstractmethod
-    def location_extents(self, sids: Sequence[int], prefilter: Prefilter | None) -> list[ExtentRow]:
+    def location_extents(self, sids: Collection[int], prefilter: Prefilter | None) -> list[ExtentRow]:
         """Kept by each backend (in memory on DuckDB, a table on PostgreSQL):
         from the samples it would cost a scan of every stored position."""
 

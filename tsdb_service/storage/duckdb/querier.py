@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import bisect
 import contextlib
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Collection, Iterator, Sequence
 from datetime import UTC, datetime, timedelta
 from typing import Protocol
 
@@ -29,8 +29,6 @@ from ...query import (
     Prefilter,
     RawRow,
     RowMask,
-    Scope,
-    SeriesRef,
     TimeRange,
     ValueTest,
 )
@@ -289,20 +287,9 @@ class DuckDBQuerier(SqlQuerier):
         # sample of every series before the limit.
         return [(t, rid, iso_ms(t), kind, num, txt, js, sid) for t, rid, kind, num, txt, js, sid in rows]
 
-    def location_extents(self, sids: Sequence[int], prefilter: Prefilter | None) -> list[ExtentRow]:
+    def location_extents(self, sids: Collection[int], prefilter: Prefilter | None) -> list[ExtentRow]:
         """Memory only: where each series has ever been."""
         return self._store.latest_geo.extents(sids, prefilter)
-
-    def located_series(
-        self, scope: Scope, types: Sequence[str], attrs: Iterable[str], prefilter: Prefilter | None
-    ) -> list[SeriesRef]:
-        """From memory: the extents' grid gives the few series near the
-        box, each looked up in the catalog's (types, attrs) set, which it
-        keeps between requests. No list of the types' 100,000 series."""
-        if not scope.whole_tenant:
-            return super().located_series(scope, types, attrs, prefilter)
-        refs = self.catalog.by_sid(scope.tenant, types, attrs)
-        return [refs[sid] for sid in self._store.latest_geo.ever_near(refs, prefilter)]
 
     def location_samples(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[LocationRow]:
         """From the tracks memory holds where they answer (``LatestGeo.

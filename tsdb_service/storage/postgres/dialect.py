@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 from ..sql import Dialect
 
@@ -54,7 +54,7 @@ class PostgresDialect(Dialect):
         return "unnest(%s::bigint[], %s::bigint[]) AS per(lo, hi)"
 
 
-def int_array(values: Sequence[int]) -> str:
+def int_array(values: Iterable[int]) -> str:
     """Integers as one PostgreSQL array literal, bound as a text parameter
     and cast in SQL (``%s::integer[]``): psycopg adapts a Python list
     element by element, about 0.7 µs each, which over the thousands of

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Collection, Iterable, Iterator, Sequence
 from datetime import datetime
 from typing import Protocol
 
@@ -142,7 +142,7 @@ class PostgresQuerier(SqlQuerier):
         )
         return as_geometries(self._fetch(sql, [int_array(sids), *params, *test_params]))
 
-    def location_extents(self, sids: Sequence[int], prefilter: Prefilter | None) -> list[ExtentRow]:
+    def location_extents(self, sids: Collection[int], prefilter: Prefilter | None) -> list[ExtentRow]:
         """From ``geo_extents`` (kept by the writers, see storage.postgres.extents): the
         candidates' boxes without reading a single position. Over many
         series the table is searched by box (GiST) and intersected here:
