@@ -179,20 +179,26 @@ class Aggregator:
         rows.sort(key=_SID_BUCKET)
         out: dict[int, SeriesAggregate] = {}
         bounds: dict[int, tuple[str, str]] = {}  # the series of a response share their periods: format each once
+
+        def text(bucket: int) -> tuple[str, str]:
+            found = bounds.get(bucket)
+            if found is None:
+                lo, hi = span(bucket)
+                found = bounds[bucket] = (iso_us(lo), iso_us(hi))
+            return found
+
         for sid, group in groupby(rows, key=_SID):
             series = list(group)
             family = _family(series, methods)
             newest = max(series, key=_MAX_US)
             values_of = _period_values(family, tuple(methods))
-            periods = []
-            for bucket, parts in groupby(series, key=_BUCKET):
-                text = bounds.get(bucket)
-                if text is None:
-                    lo, hi = span(bucket)
-                    text = bounds[bucket] = (iso_us(lo), iso_us(hi))
-                group_rows = list(parts)
-                row = group_rows[0] if len(group_rows) == 1 else _merged(group_rows)
-                periods.append((*text, values_of(row)))
+            buckets = list(map(_BUCKET, series))
+            if len(set(buckets)) == len(buckets):  # one (kind, type) group per period: nearly always
+                periods = [(*text(bucket), values_of(row)) for bucket, row in zip(buckets, series, strict=True)]
+            else:
+                periods = [
+                    (*text(bucket), values_of(_one(list(parts)))) for bucket, parts in groupby(series, key=_BUCKET)
+                ]
             out[sid] = SeriesAggregate(type_name(newest[R_ATYPE], newest[R_KIND]), periods)
         return out
 
@@ -251,6 +257,11 @@ def _family(rows: list[tuple], methods) -> str | None:
         what = {"other": "relationships, objects, language maps or geometries"}.get(family, f"{family} values")
         raise BadRequestData(f"aggrMethods {', '.join(refused)} cannot be applied to {what}")
     return family
+
+
+def _one(rows: list[tuple]) -> tuple:
+    """A period's row: its only group, or its groups merged."""
+    return rows[0] if len(rows) == 1 else _merged(rows)
 
 
 def _merged(rows: list[tuple]) -> tuple:
