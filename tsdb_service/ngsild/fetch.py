@@ -137,6 +137,8 @@ class Fetcher:
             if located is None:
                 located = self._ever_near(geo, [sid for sid in owner if iris[sid] == geo.geoproperty])
             locations = ([sid for sid in located if sid in owner], geo.filter.prefilter)
+            if not locations[0]:
+                return set()
             if query.q is None or not self.q.shared_scan:
                 rows, _ = self.q.window_scan(window, locations, [])
                 keys = {owner[sid] for sid in self._passing(geo, rows)}
