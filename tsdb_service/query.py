@@ -10,6 +10,7 @@ knows about HTTP or a database, so neither side imports the other.
 from __future__ import annotations
 
 import bisect
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from enum import Enum
@@ -449,6 +450,14 @@ VALUE_TEST_OPS = ("==", ">", ">=", "<", "<=")
 # An instance's value as ``Querier.instance_values`` reads it: (sid, kind,
 # num, txt, js, md), distinct; the columns as in ``InstanceRow``.
 InstanceValueRow = tuple[int, int, float | None, str | None, str | None, str | None]
+
+# What ``Querier.window_scan`` is asked: the location series and the box
+# their instances' boxes must pass; per ``q`` term, the series and the test.
+# It answers the distinct (sid, GeoJSON) locations and, per test, the
+# series with an instance that passed.
+LocationProbe = tuple[Sequence[int], Prefilter | None]
+ValueProbe = tuple[Sequence[int], ValueTest]
+WindowScan = tuple[list[tuple[int, str]], list[set[int]]]
 
 
 @dataclass(frozen=True, slots=True)

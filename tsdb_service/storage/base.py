@@ -35,6 +35,7 @@ from ..query import (
     InstanceWindow,
     LastValueRow,
     LatestRow,
+    LocationProbe,
     LocationRow,
     Prefilter,
     RawRow,
@@ -43,7 +44,9 @@ from ..query import (
     SeriesRef,
     StoredSample,
     TimeRange,
+    ValueProbe,
     ValueTest,
+    WindowScan,
 )
 from .memory_only import T, read_off_loop
 
@@ -334,11 +337,8 @@ class Querier(ABC):
     shared_scan = False
 
     def window_scan(
-        self,
-        window: InstanceWindow,
-        locations: tuple[Sequence[int], Prefilter | None] | None,
-        tests: Sequence[tuple[Sequence[int], ValueTest]],
-    ) -> tuple[list[tuple[int, str]], list[set[int]]]:
+        self, window: InstanceWindow, locations: LocationProbe | None, tests: Sequence[ValueProbe]
+    ) -> WindowScan:
         """``location_instances`` of ``locations`` (sids, prefilter) and
         ``instances_matching`` of each (sids, test), over one window: what
         an NGSI-LD geo-query and ``q`` read. Here one statement each, as an

@@ -18,7 +18,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from ..model import Kind
-from ..query import InstancePeriods, InstanceWindow, Prefilter, ValueTest
+from ..query import InstancePeriods, InstanceWindow, LocationProbe, Prefilter, ValueProbe, ValueTest
 from .common import box_sql
 
 if TYPE_CHECKING:
@@ -118,8 +118,8 @@ def locations_parts(d: Dialect, window: InstanceWindow, prefilter: Prefilter | N
 def scan_parts(
     d: Dialect,
     window: InstanceWindow,
-    locations: tuple[Sequence[int], Prefilter | None] | None,
-    tests: Sequence[tuple[Sequence[int], ValueTest]],
+    locations: LocationProbe | None,
+    tests: Sequence[ValueProbe],
 ) -> tuple[str, str, list, list[int], list[int]]:
     """``locations_parts`` and ``matching_parts`` as one read: (head, where,
     params, sids, roles). The caller joins the samples to the (sid, role)

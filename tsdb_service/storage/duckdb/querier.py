@@ -25,12 +25,14 @@ from ...query import (
     FirstLocationRow,
     GeometryRow,
     InstanceWindow,
+    LocationProbe,
     LocationRow,
     Prefilter,
     RawRow,
     RowMask,
     TimeRange,
-    ValueTest,
+    ValueProbe,
+    WindowScan,
 )
 from ...timefmt import iso_ms_us as iso_ms
 from .. import temporal
@@ -394,11 +396,8 @@ class DuckDBQuerier(SqlQuerier):
     shared_scan = True
 
     def window_scan(
-        self,
-        window: InstanceWindow,
-        locations: tuple[Sequence[int], Prefilter | None] | None,
-        tests: Sequence[tuple[Sequence[int], ValueTest]],
-    ) -> tuple[list[tuple[int, str]], list[set[int]]]:
+        self, window: InstanceWindow, locations: LocationProbe | None, tests: Sequence[ValueProbe]
+    ) -> WindowScan:
         """One statement for them all (``temporal.scan_parts``): over many
         scattered series each would scan the sorted table's series ids
         (about 20 ms at 11M samples), and one scan answers every question.
