@@ -670,7 +670,7 @@ class SqlQuerier(Querier):
         window = window or InstanceWindow()
         d = self.dialect
         p = d.placeholder
-        at, in_window, window_params = temporal.window_filter(d, window)
+        at, in_window, window_params = temporal.window_filter(d, window, self._untimed(sids, window))
         where, params = d.sid_filter(sids)
         where += f" AND {in_window}"
         params += window_params
@@ -733,14 +733,14 @@ class SqlQuerier(Querier):
         """See ``Querier``."""
         if not sids:
             return set()
-        head, where, params = temporal.matching_parts(self.dialect, window, test)
+        head, where, params = temporal.matching_parts(self.dialect, window, test, self._untimed(sids, window))
         return {row[0] for row in self._per_series(head, where, params, sids)}
 
     def instance_values(self, sids: Sequence[int], window: InstanceWindow) -> list[InstanceValueRow]:
         """See ``Querier``."""
         if not sids:
             return []
-        head, where, params = temporal.values_parts(self.dialect, window)
+        head, where, params = temporal.values_parts(self.dialect, window, self._untimed(sids, window))
         return self._per_series(head, where, params, sids)
 
     def location_instances(
@@ -749,7 +749,7 @@ class SqlQuerier(Querier):
         """See ``Querier``."""
         if not sids:
             return []
-        head, where, params = temporal.locations_parts(self.dialect, window, prefilter)
+        head, where, params = temporal.locations_parts(self.dialect, window, prefilter, self._untimed(sids, window))
         return self._per_series(head, where, params, sids)
 
     def instance_aggregate(
@@ -758,17 +758,23 @@ class SqlQuerier(Querier):
         """See ``Querier``."""
         if not sids:
             return []
-        sql, params = temporal.aggregate_sql(self.dialect, sids, window, methods, periods)
+        sql, params = temporal.aggregate_sql(self.dialect, sids, window, methods, periods, self._untimed(sids, window))
         return self._fetch(sql, params)
 
     def instance_span(self, sids: Sequence[int], window: InstanceWindow) -> tuple[int, int] | None:
         """See ``Querier``."""
         if not sids:
             return None
-        rows = self._fetch(*temporal.span_sql(self.dialect, sids, window))
+        rows = self._fetch(*temporal.span_sql(self.dialect, sids, window, self._untimed(sids, window)))
         if not rows or rows[0][0] is None:
             return None
         return int(rows[0][0]), int(rows[0][1])
+
+    def _untimed(self, sids: Sequence[int], window: InstanceWindow) -> Sequence[int] | None:
+        """Those of ``sids`` that can hold instances without observedAt, when
+        the backend keeps that list and the window needs it (see
+        ``temporal.window_filter``); None: any of them can."""
+        return None
 
     def _per_series(self, head: str, where: str, params: list, sids: Sequence[int]) -> list:
         """``{head} WHERE <sid in sids> AND {where}``, all rows."""

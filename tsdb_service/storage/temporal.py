@@ -44,7 +44,7 @@ _TIME_COLUMNS = "sid, t, observed_at, created_at, modified_at, deleted_at"
 _COUNTS = ("totalCount", "distinctCount")
 
 
-def window_filter(d: Dialect, window: InstanceWindow) -> tuple[str, str, list]:
+def window_filter(d: Dialect, window: InstanceWindow, untimed: Sequence[int] | None = None) -> tuple[str, str, list]:
     """(time expression, WHERE fragment, params): instances whose time
     property is set and lies in the half-open ``window``.
 
@@ -52,7 +52,10 @@ def window_filter(d: Dialect, window: InstanceWindow) -> tuple[str, str, list]:
     two ranges an index can serve, not as the ``coalesce``: on PostgreSQL
     ``(sid, observed_at)`` (migration 0008) for instances with an
     observedAt, ``(sid, t)`` for the others. A test on the coalesce reads
-    every instance of the selected series."""
+    every instance of the selected series. ``untimed``: the only series
+    that can hold instances without observedAt, when the backend knows
+    them (PostgreSQL, migration 0009); the row time is tested for those
+    alone, and not at all when there are none. None: any series can."""
     expr = TIME_PROPERTY_SQL[window.timeproperty]
     if window.timeproperty != "observedAt":
         in_window, params = _in_window(d, expr, window)
@@ -60,7 +63,12 @@ def window_filter(d: Dialect, window: InstanceWindow) -> tuple[str, str, list]:
     if window.start is None and window.end is None:
         return expr, "TRUE", []
     observed, params_o = _in_window(d, "observed_at", window)
+    if untimed is not None and not untimed:
+        return expr, f"(observed_at IS NOT NULL AND {observed})", params_o
     row_time, params_t = _in_window(d, "t", window)
+    if untimed is not None:
+        listed, params_u = d.sid_filter(untimed)
+        row_time, params_t = f"{listed} AND {row_time}", [*params_u, *params_t]
     where = f"((observed_at IS NOT NULL AND {observed}) OR (observed_at IS NULL AND {row_time}))"
     return expr, where, [*params_o, *params_t]
 
@@ -87,24 +95,28 @@ def value_test_sql(d: Dialect, test: ValueTest) -> tuple[str, list]:
     return f"kind IN ({_NUMERIC}) AND num {op} {d.placeholder}", [test.value]
 
 
-def matching_parts(d: Dialect, window: InstanceWindow, test: ValueTest) -> tuple[str, str, list]:
+def matching_parts(
+    d: Dialect, window: InstanceWindow, test: ValueTest, untimed: Sequence[int] | None = None
+) -> tuple[str, str, list]:
     """The series with an instance in ``window`` that passes ``test``."""
-    _, where_t, params_t = window_filter(d, window)
+    _, where_t, params_t = window_filter(d, window, untimed)
     cond, params_c = value_test_sql(d, test)
     table = d.samples(f"{_TIME_COLUMNS}, kind, num, txt")
     return f"SELECT DISTINCT sid FROM {table}", f"{where_t} AND {cond}", [*params_t, *params_c]
 
 
-def values_parts(d: Dialect, window: InstanceWindow) -> tuple[str, str, list]:
+def values_parts(d: Dialect, window: InstanceWindow, untimed: Sequence[int] | None = None) -> tuple[str, str, list]:
     """The distinct values (and sub-properties) of the instances in ``window``."""
-    _, where_t, params_t = window_filter(d, window)
+    _, where_t, params_t = window_filter(d, window, untimed)
     table = d.samples(f"{_TIME_COLUMNS}, kind, num, txt, js, md")
     return f"SELECT DISTINCT sid, kind, num, txt, js, md FROM {table}", f"{where_t} AND kind <> {_NULL}", params_t
 
 
-def locations_parts(d: Dialect, window: InstanceWindow, prefilter: Prefilter | None) -> tuple[str, str, list]:
+def locations_parts(
+    d: Dialect, window: InstanceWindow, prefilter: Prefilter | None, untimed: Sequence[int] | None = None
+) -> tuple[str, str, list]:
     """The distinct locations in ``window`` whose stored box passes ``prefilter``."""
-    _, where_t, params_t = window_filter(d, window)
+    _, where_t, params_t = window_filter(d, window, untimed)
     where = f"{where_t} AND kind = {_GEO} AND geo IS NOT NULL"
     params = params_t
     if prefilter is not None:
@@ -150,11 +162,13 @@ def scan_parts(
 # -- aggregation (ngsild.aggregate) ---------------------------------------------------
 
 
-def _instances(d: Dialect, sids: Sequence[int], window: InstanceWindow, methods: Sequence[str]) -> tuple[str, list]:
+def _instances(
+    d: Dialect, sids: Sequence[int], window: InstanceWindow, methods: Sequence[str], untimed: Sequence[int] | None
+) -> tuple[str, list]:
     """The instances in the window: time (epoch µs), kind, type, text, the
     number a method works on (``x``), whether the value is an array and,
     for ``distinctCount``, the value as text."""
-    expr, where_t, params_t = window_filter(d, window)
+    expr, where_t, params_t = window_filter(d, window, untimed)
     where_s, params_s = d.sid_filter(sids)
     is_array = f"(kind = {int(Kind.STRUCTURED)} AND substr(js, 1, 1) = '[')"
     x = (
@@ -190,10 +204,15 @@ def _select(methods: Sequence[str]) -> str:
 
 
 def aggregate_sql(
-    d: Dialect, sids: Sequence[int], window: InstanceWindow, methods: Sequence[str], periods: InstancePeriods
+    d: Dialect,
+    sids: Sequence[int],
+    window: InstanceWindow,
+    methods: Sequence[str],
+    periods: InstancePeriods,
+    untimed: Sequence[int] | None = None,
 ) -> tuple[str, list]:
     """One grouped statement (see ``Querier.instance_aggregate``)."""
-    inner, params = _instances(d, sids, window, methods)
+    inner, params = _instances(d, sids, window, methods, untimed)
     if periods.edges:
         return _calendar_sql(d, inner, params, methods, periods.edges)
     p, div = d.placeholder, d.int_div
@@ -226,7 +245,9 @@ def _calendar_sql(
     return sql, [*params, list(edges[:-1]), list(edges[1:])]
 
 
-def span_sql(d: Dialect, sids: Sequence[int], window: InstanceWindow) -> tuple[str, list]:
+def span_sql(
+    d: Dialect, sids: Sequence[int], window: InstanceWindow, untimed: Sequence[int] | None = None
+) -> tuple[str, list]:
     """The first and last instance times in the window (epoch µs)."""
-    inner, params = _instances(d, sids, window, ())
+    inner, params = _instances(d, sids, window, (), untimed)
     return f"SELECT min(tp), max(tp) FROM ({inner}) s", params

@@ -32,6 +32,7 @@ from ...query import (
     ExtentRow,
     FirstLocationRow,
     GeometryRow,
+    InstanceWindow,
     Prefilter,
     RawRow,
     RowMask,
@@ -141,6 +142,17 @@ class PostgresQuerier(SqlQuerier):
             f" WHERE {test}"
         )
         return as_geometries(self._fetch(sql, [int_array(sids), *params, *test_params]))
+
+    def _untimed(self, sids: Sequence[int], window: InstanceWindow) -> Sequence[int] | None:
+        """From ``untimed_series`` (migration 0009, kept by the writers, see
+        ``storage.postgres.untimed``), for a window on observedAt: the row
+        time is then scanned only for those series. None when all are
+        listed (the usual NGSIv2 case): the plain test plans best."""
+        if window.timeproperty != "observedAt" or (window.start is None and window.end is None):
+            return None
+        rows = self._fetch("SELECT sid FROM untimed_series WHERE sid = ANY(%s::integer[])", [int_array(sids)])
+        listed = [row[0] for row in rows]
+        return None if len(listed) >= len(set(sids)) else listed
 
     def location_extents(self, sids: Collection[int], prefilter: Prefilter | None) -> list[ExtentRow]:
         """From ``geo_extents`` (kept by the writers, see storage.postgres.extents): the

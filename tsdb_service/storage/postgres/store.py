@@ -67,6 +67,7 @@ from .dialect import PostgresDialect, int_array
 from .extents import ExtentLedger
 from .querier import PostgresQuerier
 from .retention import PostgresSession, postgres_session
+from .untimed import UntimedLedger
 
 log = logging.getLogger(__name__)
 
@@ -144,6 +145,7 @@ class PostgresStore(CommittingStore):
         self.row_ids = RowIds()
         self.latest_instances = LatestInstances()
         self.geo_extents = ExtentLedger()  # .extents: where each series has ever been
+        self.untimed = UntimedLedger(self._series)  # series listed as holding instances without observedAt
         self._layouts: dict[tuple[str, str], ValuesLayout] = {}
         self._layouts_lock = threading.Lock()
         self._layouts_read_at = float("-inf")
@@ -361,6 +363,7 @@ class PostgresAppender(StagingAppender):
         self._store = store
         self._conn = self._connect()
         self._found: dict[SeriesKey, int] = {}  # series the transaction being committed created
+        self._untimed_stored: Callable[[], None] | None = None  # the commit's listed untimed series, once known
         self._reset()
 
     def _connect(self) -> psycopg.Connection:
@@ -437,6 +440,7 @@ class PostgresAppender(StagingAppender):
         with conn.cursor() as cur:
             extents_stored = self._store.geo_extents.record(cur, self._entities)
             extents_stored()
+            self._store.untimed.record(cur, self._entities)()
             sids = self._store._series
             self._copy_rows(cur, self._entities, sids.__getitem__, autocommit=True)
 
@@ -448,7 +452,7 @@ class PostgresAppender(StagingAppender):
         batch grows. Reading a deleted entity's attributes comes before BEGIN:
         under READ COMMITTED every statement reads what was committed when it
         started, inside a transaction or not."""
-        extents_stored = None
+        extents_stored = untimed_stored = None
         with conn.cursor() as cur, conn.cursor() as series_cur:
             if self._entities:
                 self._entities = with_deletions(self._entities, lambda e: self._entity_attrs(cur, e))
@@ -457,6 +461,7 @@ class PostgresAppender(StagingAppender):
                 if self._entities:
                     missing = self._send_series(series_cur)
                     extents_stored = self._store.geo_extents.record(cur, self._entities)
+                    untimed_stored = self._store.untimed.record(cur, self._entities)
             if self._entities:
                 self._copy_samples(cur, self._series_ids(series_cur, missing))
             for r in self._rejected:
@@ -483,6 +488,8 @@ class PostgresAppender(StagingAppender):
         self._send_commit(conn)
         if extents_stored is not None:
             extents_stored()
+        if untimed_stored is not None:
+            self._untimed_stored = untimed_stored  # once the new series' ids are known (``commit``)
         if dropped:
             rejected_store.count_dropped(self._store.rejected_dropped, dropped)
 
@@ -624,6 +631,7 @@ class PostgresAppender(StagingAppender):
 
     def commit(self) -> None:
         self._found = {}
+        self._untimed_stored = None
         try:
             self._commit()
         except psycopg.Error as exc:
@@ -633,6 +641,8 @@ class PostgresAppender(StagingAppender):
         # Cache only after commit: only now do the rows this transaction
         # created certainly exist (a rolled-back series row would orphan samples).
         self._store._series.update(self._found)
+        if self._untimed_stored is not None:
+            self._untimed_stored()
 
     def rollback(self) -> None:
         # conn.rollback() sends ROLLBACK only inside a transaction (BEGIN

@@ -1,0 +1,71 @@
+"""The series that hold NGSI-LD instances without an observedAt, kept in
+PostgreSQL (``untimed_series``, migration 0009).
+
+A window on observedAt reads an instance by its observedAt, or by its row
+time when it has none. Those are two index scans per selected series
+(``storage.temporal.window_filter``); the second finds nothing for series
+whose instances all carry observedAt, yet costs as much as the first. Readers
+ask this table which of their series can have such instances and scan the
+row time only for those (``PostgresQuerier._untimed``).
+
+The writers add a series in the transaction that stores its first instance
+without observedAt, before the samples (in the autocommit path, in its own
+statement just before the COPY: a listed series without such instances only
+costs a scan, a missing one would lose instances from windows). Entries are
+never removed. Each process remembers the series it has listed, so NGSIv2
+ingest of known series sends no statement.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Mapping, Sequence
+
+from ...model import EntitySample
+
+SeriesKey = tuple[str, str, str, str, str]  # tenant, service path, entity id, entity type, attr
+
+INSERT = (
+    "INSERT INTO untimed_series (sid) "
+    "SELECT s.sid FROM unnest(%s::text[], %s::text[], %s::text[], %s::text[], %s::text[]) "
+    "AS b(tenant, service_path, entity_id, entity_type, attr) "
+    "JOIN series s USING (tenant, service_path, entity_id, entity_type, attr) ORDER BY s.sid "
+    "ON CONFLICT (sid) DO NOTHING"
+)
+
+
+def _nothing() -> None:
+    return None
+
+
+class UntimedLedger:
+    """The series this process knows are listed in ``untimed_series``."""
+
+    def __init__(self, sids: Mapping[SeriesKey, int]) -> None:
+        self._sids = sids  # the store's series ids by key (committed series)
+        self._known: set[int] = set()
+        self._lock = threading.Lock()
+
+    def record(self, cur, entities: Sequence[EntitySample]) -> Callable[[], None]:
+        """List (with ``cur``, before the batch's samples) the series the
+        batch gives an instance without observedAt, unless known listed.
+        Returns what to call once that committed."""
+        sids, known = self._sids, self._known
+        new: dict[SeriesKey, None] = {}
+        for e in entities:
+            prefix = (e.tenant, e.service_path, e.entity_id, e.entity_type)
+            for a in e.attrs:
+                if a.observed_at is None:
+                    key = (*prefix, a.name)
+                    if sids.get(key) not in known:
+                        new[key] = None
+        if not new:
+            return _nothing
+        cur.execute(INSERT, [list(col) for col in zip(*new, strict=True)])
+
+        def committed() -> None:
+            listed = {sids[key] for key in new if key in sids}
+            with self._lock:
+                known.update(listed)
+
+        return committed
