@@ -68,6 +68,11 @@ SERIES_CHECK_S = 1.0
 _new = tuple.__new__
 
 
+# From this many series an observedAt window first asks ``untimed_series``
+# which of them can hold instances without observedAt (``_untimed``).
+UNTIMED_LOOKUP_FROM = 16
+
+
 class PostgresQuerier(SqlQuerier):
     def raw_rows(
         self,
@@ -150,6 +155,8 @@ class PostgresQuerier(SqlQuerier):
         listed (the usual NGSIv2 case): the plain test plans best."""
         if window.timeproperty != "observedAt" or (window.start is None and window.end is None):
             return None
+        if len(sids) < UNTIMED_LOOKUP_FROM:
+            return None  # a few series' second scan costs less than the look-up's round trip
         rows = self._fetch("SELECT sid FROM untimed_series WHERE sid = ANY(%s::integer[])", [int_array(sids)])
         listed = [row[0] for row in rows]
         return None if len(listed) >= len(set(sids)) else listed
