@@ -363,7 +363,6 @@ class PostgresAppender(StagingAppender):
         self._store = store
         self._conn = self._connect()
         self._found: dict[SeriesKey, int] = {}  # series the transaction being committed created
-        self._untimed_stored: Callable[[], None] | None = None  # the commit's listed untimed series, once known
         self._reset()
 
     def _connect(self) -> psycopg.Connection:
@@ -440,7 +439,7 @@ class PostgresAppender(StagingAppender):
         with conn.cursor() as cur:
             extents_stored = self._store.geo_extents.record(cur, self._entities)
             extents_stored()
-            self._store.untimed.record(cur, self._entities)()
+            self._store.untimed.record(cur, self._entities)(self._store._series)
             sids = self._store._series
             self._copy_rows(cur, self._entities, sids.__getitem__, autocommit=True)
 
@@ -453,6 +452,7 @@ class PostgresAppender(StagingAppender):
         under READ COMMITTED every statement reads what was committed when it
         started, inside a transaction or not."""
         extents_stored = untimed_stored = None
+        ids: dict[SeriesKey, int] = {}
         with conn.cursor() as cur, conn.cursor() as series_cur:
             if self._entities:
                 self._entities = with_deletions(self._entities, lambda e: self._entity_attrs(cur, e))
@@ -463,7 +463,8 @@ class PostgresAppender(StagingAppender):
                     extents_stored = self._store.geo_extents.record(cur, self._entities)
                     untimed_stored = self._store.untimed.record(cur, self._entities)
             if self._entities:
-                self._copy_samples(cur, self._series_ids(series_cur, missing))
+                ids = self._series_ids(series_cur, missing)
+                self._copy_samples(cur, ids)
             for r in self._rejected:
                 cur.execute(
                     f"INSERT INTO rejected_notifications ({REJECTED_INSERT_COLUMNS}) "
@@ -489,7 +490,7 @@ class PostgresAppender(StagingAppender):
         if extents_stored is not None:
             extents_stored()
         if untimed_stored is not None:
-            self._untimed_stored = untimed_stored  # once the new series' ids are known (``commit``)
+            untimed_stored(ids)
         if dropped:
             rejected_store.count_dropped(self._store.rejected_dropped, dropped)
 
@@ -631,7 +632,6 @@ class PostgresAppender(StagingAppender):
 
     def commit(self) -> None:
         self._found = {}
-        self._untimed_stored = None
         try:
             self._commit()
         except psycopg.Error as exc:
@@ -641,8 +641,6 @@ class PostgresAppender(StagingAppender):
         # Cache only after commit: only now do the rows this transaction
         # created certainly exist (a rolled-back series row would orphan samples).
         self._store._series.update(self._found)
-        if self._untimed_stored is not None:
-            self._untimed_stored()
 
     def rollback(self) -> None:
         # conn.rollback() sends ROLLBACK only inside a transaction (BEGIN

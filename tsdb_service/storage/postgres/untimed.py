@@ -22,8 +22,7 @@ import threading
 from collections.abc import Callable, Mapping, Sequence
 
 from ...model import EntitySample
-
-SeriesKey = tuple[str, str, str, str, str]  # tenant, service path, entity id, entity type, attr
+from .extents import SeriesKey
 
 INSERT = (
     "INSERT INTO untimed_series (sid) "
@@ -33,8 +32,11 @@ INSERT = (
     "ON CONFLICT (sid) DO NOTHING"
 )
 
+# What ``record`` returns: call it with the batch's series ids once committed.
+Committed = Callable[[Mapping[SeriesKey, int]], None]
 
-def _nothing() -> None:
+
+def _nothing(ids: Mapping[SeriesKey, int]) -> None:
     return None
 
 
@@ -46,10 +48,11 @@ class UntimedLedger:
         self._known: set[int] = set()
         self._lock = threading.Lock()
 
-    def record(self, cur, entities: Sequence[EntitySample]) -> Callable[[], None]:
+    def record(self, cur, entities: Sequence[EntitySample]) -> Committed:
         """List (with ``cur``, before the batch's samples) the series the
         batch gives an instance without observedAt, unless known listed.
-        Returns what to call once that committed."""
+        Returns what to call, with the batch's series ids (new series'
+        too), once that committed."""
         sids, known = self._sids, self._known
         new: dict[SeriesKey, None] = {}
         for e in entities:
@@ -61,10 +64,11 @@ class UntimedLedger:
                         new[key] = None
         if not new:
             return _nothing
+
         cur.execute(INSERT, [list(col) for col in zip(*new, strict=True)])
 
-        def committed() -> None:
-            listed = {sids[key] for key in new if key in sids}
+        def committed(ids: Mapping[SeriesKey, int]) -> None:
+            listed = {ids[key] for key in new if key in ids}
             with self._lock:
                 known.update(listed)
 
