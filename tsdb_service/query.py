@@ -483,7 +483,8 @@ class InstancePeriods:
 # array, its size is x), atype, n (instances with a value), n_distinct,
 # nx (instances with a number x), sum(x), sum(x * x), min(x), max(x),
 # min(txt), max(txt), the first and last instance times (epoch µs)). A
-# column no asked method needs is None.
+# column no asked method needs is None, and so is the first instance time
+# unless the whole window is one period (its start when the window has none).
 InstanceAggregateRow = tuple[
-    int, int, int, int, str | None, int, int | None, int | None, Any, Any, Any, Any, Any, Any, int, int
+    int, int, int, int, str | None, int | None, int | None, int | None, Any, Any, Any, Any, Any, Any, int | None, int
 ]

@@ -40,7 +40,6 @@ import calendar
 import math
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime, timedelta
-from functools import lru_cache
 from itertools import groupby, pairwise
 from operator import itemgetter
 from typing import NamedTuple
@@ -94,7 +93,7 @@ LD_TYPES = frozenset(
     R_MAX_US,
 ) = range(16)
 _SID, _BUCKET, _MAX_US = itemgetter(R_SID), itemgetter(R_BUCKET), itemgetter(R_MAX_US)
-_SID_BUCKET = itemgetter(R_SID, R_BUCKET)
+_SHAPE = itemgetter(R_KIND, R_IS_ARRAY, R_ATYPE)
 
 
 def us_to_datetime(us: int) -> datetime:
@@ -176,36 +175,51 @@ class Aggregator:
         return self._combine(rows, methods, lambda _b: (start, end))
 
     def _combine(self, rows, methods, span: Callable[[int], tuple[int, int]]) -> dict[int, SeriesAggregate]:
-        rows.sort(key=_SID_BUCKET)
-        out: dict[int, SeriesAggregate] = {}
+        rows.sort(key=_BUCKET)  # two stable sorts on one int each: no key tuple per row
+        rows.sort(key=_SID)
         bounds: dict[int, tuple[str, str]] = {}  # the series of a response share their periods: format each once
-
-        def text(bucket: int) -> tuple[str, str]:
-            found = bounds.get(bucket)
-            if found is None:
-                lo, hi = span(bucket)
-                found = bounds[bucket] = (iso_us(lo), iso_us(hi))
-            return found
-
+        for bucket in set(map(_BUCKET, rows)):
+            lo, hi = span(bucket)
+            bounds[bucket] = (iso_us(lo), iso_us(hi))
+        methods = tuple(methods)
+        if len(set(map(_SHAPE, rows))) == 1:  # one value shape, so one row per period: nearly always
+            return self._uniform(rows, methods, bounds)
+        out: dict[int, SeriesAggregate] = {}
         for sid, group in groupby(rows, key=_SID):
             series = list(group)
             family = _family(series, methods)
             newest = max(series, key=_MAX_US)
-            values_of = _period_values(family, tuple(methods))
-            buckets = list(map(_BUCKET, series))
-            if len(set(buckets)) == len(buckets):  # one (kind, type) group per period: nearly always
-                periods = [(*text(bucket), values_of(row)) for bucket, row in zip(buckets, series, strict=True)]
-            else:
-                periods = [
-                    (*text(bucket), values_of(_one(list(parts)))) for bucket, parts in groupby(series, key=_BUCKET)
-                ]
-            out[sid] = SeriesAggregate(type_name(newest[R_ATYPE], newest[R_KIND]), periods)
+            periods = [(bucket, _one(list(parts))) for bucket, parts in groupby(series, key=_BUCKET)]
+            pickers = [_picker(method, family) for method in methods]
+            out[sid] = SeriesAggregate(
+                type_name(newest[R_ATYPE], newest[R_KIND]),
+                [[(pick(row), *bounds[bucket]) for bucket, row in periods] for pick in pickers],
+            )
+        return out
+
+    @staticmethod
+    def _uniform(rows, methods: tuple[str, ...], bounds) -> dict[int, SeriesAggregate]:
+        """Every row of the same kind, array-ness and notified type (the
+        rows' grouping keys besides series and period), so one per period:
+        the family is checked once and each method's values are laid out by
+        one comprehension per series."""
+        family = _family(rows[:1], methods)
+        kind = rows[0][R_KIND]
+        attr_type = type_name(rows[0][R_ATYPE], kind)
+        pickers = [_picker(method, family, kind) for method in methods]
+        out: dict[int, SeriesAggregate] = {}
+        for sid, group in groupby(rows, key=_SID):
+            series = list(group)
+            out[sid] = SeriesAggregate(
+                attr_type, [[(pick(row), *bounds[row[R_BUCKET]]) for row in series] for pick in pickers]
+            )
         return out
 
 
 class SeriesAggregate(NamedTuple):
     attr_type: str  # the NGSI-LD type of the newest instance
-    periods: list[tuple[str, str, tuple]]  # (start, end, the methods' values in the order asked)
+    # per method asked, in order: its (value, period start, period end) per period, in time order
+    values: list[list[tuple[object, str, str]]]
 
 
 def type_name(atype: str | None, kind: int) -> str:
@@ -271,7 +285,7 @@ def _merged(rows: list[tuple]) -> tuple:
     xs = [r for r in rows if r[R_NX]]
     row = list(rows[0])
     row[R_KIND] = int(_K.INTEGER) if all(r[R_KIND] in _INTEGRAL for r in rows) else int(_K.NUMBER)
-    row[R_N] = sum(r[R_N] for r in rows)
+    row[R_N] = sum(r[R_N] or 0 for r in rows)
     row[R_DISTINCT] = sum(r[R_DISTINCT] or 0 for r in rows)
     row[R_NX] = sum(r[R_NX] for r in xs)
     row[R_SX] = sum(r[R_SX] or 0 for r in xs)
@@ -283,22 +297,8 @@ def _merged(rows: list[tuple]) -> tuple:
     return tuple(row)
 
 
-@lru_cache(maxsize=64)
-def _period_values(family: str | None, methods: tuple[str, ...]) -> Callable[[tuple], tuple]:
-    """The methods' values of one period's row, as one function per (family,
-    methods) with the method dispatch done once: a response holds thousands
-    of periods."""
-    pickers = tuple(_picker(method, family) for method in methods)
-    if len(pickers) == 1:  # one or two methods are the usual asks: no loop per period
-        (first,) = pickers
-        return lambda row: (first(row),)
-    if len(pickers) == 2:
-        first, second = pickers
-        return lambda row: (first(row), second(row))
-    return lambda row: tuple([pick(row) for pick in pickers])
-
-
-def _picker(method: str, family: str | None) -> Callable[[tuple], object]:
+def _picker(method: str, family: str | None, kind: int | None = None) -> Callable[[tuple], object]:
+    """One method's value of a period's row; ``kind``: every row's, when known."""
     if method == "totalCount":
         return itemgetter(R_N)
     if method == "distinctCount":
@@ -310,6 +310,8 @@ def _picker(method: str, family: str | None) -> Callable[[tuple], object]:
     if method in ("min", "max") and family != "datetime":
         at = R_MIN if method == "min" else R_MAX
         number = family == "number"
+        if kind is not None and not (number and kind in _INTEGRAL):
+            return lambda row: row[at] if row[R_NX] else None
 
         def extreme(row: tuple) -> object:
             value = row[at]

@@ -120,15 +120,16 @@ def simplified(rows: list) -> dict | list[dict]:
     return out[0] if len(out) == 1 else out
 
 
-def aggregated(series: list[tuple[str | None, str, list[tuple[str, str, tuple]]]], methods: Iterable[str]):
-    """``series``: (datasetId, attribute type, periods) per stored series of
-    one attribute; a period is (start, end, values in the order of ``methods``)."""
+def aggregated(series: list[tuple[str | None, str, list[list[tuple]]]], methods: Iterable[str]):
+    """``series``: (datasetId, attribute type, values) per stored series of
+    one attribute; ``values`` holds per method, in the order of ``methods``,
+    its (value, start, end) per period: tuples (JSON arrays too), which the
+    garbage collector skips, and a response holds thousands."""
     out = []
-    for dataset, attr_type, periods in sorted(series, key=lambda s: (s[0] is not None, s[0] or "")):
+    for dataset, attr_type, values in sorted(series, key=lambda s: (s[0] is not None, s[0] or "")):
         item: dict[str, Any] = {"type": attr_type}
-        for i, method in enumerate(methods):
-            # tuples (JSON arrays too): the collector skips them, and a response holds thousands
-            item[method] = [(values[i], lo, hi) for lo, hi, values in periods]
+        for method, periods in zip(methods, values, strict=True):
+            item[method] = periods
         if dataset is not None:
             item["datasetId"] = dataset
         out.append(item)

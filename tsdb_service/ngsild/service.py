@@ -123,7 +123,7 @@ def _aggregated(methods: tuple[str, ...], selected, iris, periods) -> dict[Entit
         for ref in refs:
             series = periods.get(ref.sid)
             if series is not None:
-                attrs.setdefault(iris[ref.sid], []).append((ref.dataset_id, series.attr_type, series.periods))
+                attrs.setdefault(iris[ref.sid], []).append((ref.dataset_id, series.attr_type, series.values))
         out[key] = {iri: aggregated(series, methods) for iri, series in attrs.items()}
     return out
 

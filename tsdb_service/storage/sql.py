@@ -97,6 +97,10 @@ class Dialect:
     placeholder = "?"
     samples_table = "samples_all"  # every committed sample (a view on DuckDB)
     many_sids = 64  # above this many ids, bind one array instead of a list
+    # Ends a subquery whose computed columns are used several times, so that
+    # they are computed once a row: PostgreSQL pulls a plain subquery up
+    # into its parent and then computes an expression at every use.
+    fence = ""
 
     def samples(self, columns: str) -> str:
         """A FROM item with ``columns`` of every committed sample."""

@@ -185,21 +185,22 @@ def _instances(
     return sql, [*params_s, *params_t]
 
 
-def _select(methods: Sequence[str]) -> str:
+def _select(methods: Sequence[str], first: bool = True) -> str:
     """Aggregate columns (``query.InstanceAggregateRow``), each only when a
     method needs it: every aggregate costs, ``count(DISTINCT)`` most (it
-    cannot stream)."""
+    cannot stream). ``first``: the first instance's time is wanted (one
+    period over the whole window starts there)."""
     wanted = set(methods)
 
     def col(sql: str, needed) -> str:
         return sql if needed else "NULL"
 
     return (
-        "SELECT sid, bucket, kind, is_array, atype, count(*), "
+        f"SELECT sid, bucket, kind, is_array, atype, {col('count(*)', 'totalCount' in wanted)}, "
         f"{col('count(DISTINCT dv)', 'distinctCount' in wanted)}, {col('count(x)', wanted - set(_COUNTS))}, "
         f"{col('sum(x)', wanted & {'sum', 'avg', 'stddev'})}, {col('sum(x * x)', wanted & {'stddev', 'sumsq'})}, "
         f"{col('min(x)', 'min' in wanted)}, {col('max(x)', 'max' in wanted)}, "
-        f"{col('min(txt)', 'min' in wanted)}, {col('max(txt)', 'max' in wanted)}, min(tp), max(tp)"
+        f"{col('min(txt)', 'min' in wanted)}, {col('max(txt)', 'max' in wanted)}, {col('min(tp)', first)}, max(tp)"
     )
 
 
@@ -210,13 +211,16 @@ def aggregate_sql(
     methods: Sequence[str],
     periods: InstancePeriods,
     untimed: Sequence[int] | None = None,
+    first_times: bool = False,
 ) -> tuple[str, list]:
-    """One grouped statement (see ``Querier.instance_aggregate``)."""
+    """One grouped statement (see ``Querier.instance_aggregate``).
+    ``first_times``: each row's first instance time even where the
+    periods do not need it."""
     inner, params = _instances(d, sids, window, methods, untimed)
     if periods.edges:
         return _calendar_sql(d, inner, params, methods, periods.edges)
     p, div = d.placeholder, d.int_div
-    ctes, source, bucket_params = f"WITH s AS ({inner})", "s", []
+    ctes, source, bucket_params = f"WITH s AS ({inner}{d.fence})", "s", []
     if periods.step_us is None:
         bucket = "0"
     elif periods.origin_us is not None:
@@ -227,8 +231,9 @@ def aggregate_sql(
         source = "s, o"
         bucket = f"o.origin + {p} * ((tp - o.origin) {div} {p})"
         bucket_params = [periods.step_us, periods.step_us]
+    first = periods.step_us is None or first_times
     sql = (
-        f"{ctes} {_select(methods)} FROM (SELECT s.*, {bucket} AS bucket FROM {source}) b "
+        f"{ctes} {_select(methods, first)} FROM (SELECT s.*, {bucket} AS bucket FROM {source}) b "
         "GROUP BY sid, bucket, kind, is_array, atype"
     )
     return sql, [*params, *bucket_params]
@@ -238,7 +243,7 @@ def _calendar_sql(
     d: Dialect, inner: str, params: list, methods: Sequence[str], edges: Sequence[int]
 ) -> tuple[str, list]:
     sql = (
-        f"{_select(methods)} FROM (SELECT s.*, per.lo AS bucket FROM ({inner}) s "
+        f"{_select(methods, first=False)} FROM (SELECT s.*, per.lo AS bucket FROM ({inner}{d.fence}) s "
         f"JOIN {d.periods_relation()} ON s.tp >= per.lo AND s.tp < per.hi) b "
         "GROUP BY sid, bucket, kind, is_array, atype"
     )

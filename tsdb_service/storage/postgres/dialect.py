@@ -6,11 +6,17 @@ from collections.abc import Iterable, Sequence
 
 from ..sql import Dialect
 
+# Where ``date_part('epoch', ...)`` in microseconds rounds to the exact value
+# (``PostgresDialect.epoch_us``): within ±2^31 s of 1970.
+_FLOAT_EXACT_FROM = "TIMESTAMP '1902-01-01 00:00:00'"
+_FLOAT_EXACT_TO = "TIMESTAMP '2038-01-01 00:00:00'"
+
 
 class PostgresDialect(Dialect):
     name = "postgresql"
     placeholder = "%s"
     samples_table = "samples"
+    fence = " OFFSET 0"
 
     def samples(self, columns: str) -> str:
         return "samples"
@@ -25,7 +31,16 @@ class PostgresDialect(Dialect):
         return f"""to_char({expr}, 'YYYY-MM-DD"T"HH24:MI:SS.MS"+00:00"')"""
 
     def epoch_us(self, expr: str) -> str:
-        return f"(extract(epoch from {expr}) * 1000000)::bigint"
+        # ``extract`` answers a numeric: exact, but it costs about 0.2 µs a
+        # row (2 ms of a 10,000-instance aggregation). ``date_part``'s
+        # float8 is as exact, once rounded, wherever the seconds stay below
+        # 2^31 (an ulp of at most 0.24 µs); the rest of the range (years
+        # 1..1901, 2038..) keeps ``extract``.
+        return (
+            f"CASE WHEN {expr} >= {_FLOAT_EXACT_FROM} AND {expr} < {_FLOAT_EXACT_TO} "
+            f"THEN (date_part('epoch', {expr}) * 1000000)::bigint "
+            f"ELSE (extract(epoch from {expr}) * 1000000)::bigint END"
+        )
 
     def json_path(self, steps: tuple[str | int, ...]) -> object:
         return [str(step) for step in steps]

@@ -32,6 +32,8 @@ from ...query import (
     ExtentRow,
     FirstLocationRow,
     GeometryRow,
+    InstanceAggregateRow,
+    InstancePeriods,
     InstanceWindow,
     Prefilter,
     RawRow,
@@ -40,6 +42,7 @@ from ...query import (
     SeriesRef,
     TimeRange,
 )
+from .. import temporal
 from ..catalog import SeriesCatalog
 from ..common import extent_prefilter
 from ..export import Columns, SampleBatches, export_sql, rows_to_columns
@@ -71,6 +74,9 @@ _new = tuple.__new__
 # From this many series an observedAt window first asks ``untimed_series``
 # which of them can hold instances without observedAt (``_untimed``).
 UNTIMED_LOOKUP_FROM = 16
+
+# ``InstanceAggregateRow``: the row's first instance time (epoch µs).
+_FIRST_US = 14
 
 
 class PostgresQuerier(SqlQuerier):
@@ -161,6 +167,58 @@ class PostgresQuerier(SqlQuerier):
         listed = [row[0] for row in rows]
         return None if len(listed) >= len(set(sids)) else listed
 
+    def instance_aggregate(
+        self, sids: Sequence[int], window: InstanceWindow, methods: Sequence[str], periods: InstancePeriods
+    ) -> list[InstanceAggregateRow]:
+        """See ``Querier``. The rows (one per series and period, in the
+        thousands) come in binary. Periods that start at the first instance
+        of an observedAt window take it from an index first (``_origin``):
+        otherwise the statement keeps every instance of the window aside to
+        take their minimum before grouping them (3 of 11 ms over 10,000
+        instances). The two reads see two snapshots, so the grouped rows'
+        own first instance must be that origin; if a write came between,
+        one statement answers instead."""
+        if not sids:
+            return []
+        untimed = self._untimed(sids, window)
+        origin = self._origin(sids, window) if periods.step_us is not None and periods.origin_us is None else None
+        if origin is not None:
+            found = self._fetch(*origin)[0][0]
+            if found is None:
+                return []
+            fixed = InstancePeriods(periods.step_us, found)
+            sql, params = temporal.aggregate_sql(self.dialect, sids, window, methods, fixed, untimed, first_times=True)
+            rows = self._fetch(sql, params, binary=True)
+            if not rows or min(row[_FIRST_US] for row in rows) == found:
+                return rows
+        sql, params = temporal.aggregate_sql(self.dialect, sids, window, methods, periods, untimed)
+        return self._fetch(sql, params, binary=True)
+
+    def _origin(self, sids: Sequence[int], window: InstanceWindow) -> tuple[str, list] | None:
+        """The first instance's time (epoch µs, NULL when none) in an
+        observedAt window without a start, as a query: per series the
+        oldest instance with an observedAt through ``(sid, observed_at)``
+        (migration 0008) and, for the series listed in ``untimed_series``
+        (0009), the oldest without one through ``(sid, t)``; one index probe
+        per series. None: no index serves the window's time property."""
+        if window.timeproperty != "observedAt" or window.start is not None:
+            return None
+        end_o, end_t, end = "", "", []
+        if window.end is not None:
+            end_o, end_t, end = " AND x.observed_at < %s", " AND x.t < %s", [self.dialect.time_value(window.end)]
+        value = f"x.kind <> {int(Kind.NULL)}"
+        sql = (
+            f"SELECT {self.dialect.epoch_us('min(m)')} FROM ("
+            "SELECT f.m FROM unnest(%s::integer[]) AS u(sid) CROSS JOIN LATERAL (SELECT x.observed_at AS m "
+            f"FROM samples x WHERE x.sid = u.sid AND x.observed_at IS NOT NULL AND {value}{end_o} "
+            "ORDER BY x.observed_at LIMIT 1) f "
+            "UNION ALL SELECT f.m FROM untimed_series u CROSS JOIN LATERAL (SELECT x.t AS m "
+            f"FROM samples x WHERE x.sid = u.sid AND x.observed_at IS NULL AND {value}{end_t} "
+            "ORDER BY x.t LIMIT 1) f WHERE u.sid = ANY(%s::integer[])) z"
+        )
+        ids = int_array(sids)
+        return sql, [ids, *end, *end, ids]
+
     def location_extents(self, sids: Collection[int], prefilter: Prefilter | None) -> list[ExtentRow]:
         """From ``geo_extents`` (kept by the writers, see storage.postgres.extents): the
         candidates' boxes without reading a single position. Over many
@@ -241,11 +299,13 @@ class PostgresQuerier(SqlQuerier):
             [],
         )
 
-    def _fetch(self, sql: str, params: list) -> list[tuple]:
+    def _fetch(self, sql: str, params: list, binary: bool = False) -> list[tuple]:
+        """All rows; ``binary``: in PostgreSQL's binary format, which parses
+        faster where thousands of numeric rows come back."""
         check_database_allowed()
         try:
-            with self._store.connection() as conn:
-                return conn.execute(sql, params, prepare=True).fetchall()
+            with self._store.connection() as conn, conn.cursor(binary=binary) as cur:
+                return cur.execute(sql, params, prepare=True).fetchall()
         except psycopg.OperationalError as exc:
             raise Unavailable(f"the database is not available: {exc}") from None
 
