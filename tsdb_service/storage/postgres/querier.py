@@ -18,8 +18,10 @@ goes to the database.
 from __future__ import annotations
 
 import contextlib
+import threading
 import time
-from collections.abc import Collection, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime
 from typing import Protocol
 
@@ -77,9 +79,24 @@ UNTIMED_LOOKUP_FROM = 16
 
 # ``InstanceAggregateRow``: the row's first instance time (epoch µs).
 _FIRST_US = 14
+# From this many series an aggregation is grouped in this many statements at
+# once (``PostgresQuerier._fetch_parts``).
+AGGREGATE_SPLIT_FROM = 32
+AGGREGATE_PARTS = 2
+
+
+def _among(listed: Sequence[int] | None, part: Sequence[int]) -> Sequence[int] | None:
+    """``_untimed``'s answer for a part of the series it was asked about."""
+    if listed is None:
+        return None
+    wanted = set(part)
+    return [sid for sid in listed if sid in wanted]
 
 
 class PostgresQuerier(SqlQuerier):
+    _helper_pool: ThreadPoolExecutor | None  # started by the first split read
+    _helpers_lock: threading.Lock
+
     def raw_rows(
         self,
         sids: Sequence[int],
@@ -171,13 +188,17 @@ class PostgresQuerier(SqlQuerier):
         self, sids: Sequence[int], window: InstanceWindow, methods: Sequence[str], periods: InstancePeriods
     ) -> list[InstanceAggregateRow]:
         """See ``Querier``. The rows (one per series and period, in the
-        thousands) come in binary. Periods that start at the first instance
-        of an observedAt window take it from an index first (``_origin``):
-        otherwise the statement keeps every instance of the window aside to
-        take their minimum before grouping them (3 of 11 ms over 10,000
-        instances). The two reads see two snapshots, so the grouped rows'
-        own first instance must be that origin; if a write came between,
-        one statement answers instead."""
+        thousands) come in binary, and from ``AGGREGATE_SPLIT_FROM`` series
+        on, the series are grouped in ``AGGREGATE_PARTS`` statements at
+        once (``_fetch_parts``).
+
+        Periods that start at the first instance of an observedAt window
+        take it from an index first (``_origin``): otherwise the statement
+        keeps every instance of the window aside to take their minimum
+        before grouping them (3 of 11 ms over 10,000 instances). The reads
+        see different snapshots, so the grouped rows' own first instance
+        must be that origin; if a write came between, one statement answers
+        instead."""
         if not sids:
             return []
         untimed = self._untimed(sids, window)
@@ -187,12 +208,49 @@ class PostgresQuerier(SqlQuerier):
             if found is None:
                 return []
             fixed = InstancePeriods(periods.step_us, found)
-            sql, params = temporal.aggregate_sql(self.dialect, sids, window, methods, fixed, untimed, first_times=True)
-            rows = self._fetch(sql, params, binary=True)
+
+            def grouped(part: Sequence[int]) -> tuple[str, list]:
+                return temporal.aggregate_sql(
+                    self.dialect, part, window, methods, fixed, _among(untimed, part), first_times=True
+                )
+
+            rows = self._fetch_parts(grouped, sids)
             if not rows or min(row[_FIRST_US] for row in rows) == found:
                 return rows
         sql, params = temporal.aggregate_sql(self.dialect, sids, window, methods, periods, untimed)
         return self._fetch(sql, params, binary=True)
+
+    def _fetch_parts(self, render: Callable[[Sequence[int]], tuple[str, list]], sids: Sequence[int]) -> list[tuple]:
+        """``render(part)``'s rows (binary) for consecutive parts of
+        ``sids``, run at once on as many pooled connections: one statement
+        runs on one server core, and grouping 10,000 instances is CPU work
+        (14 against 7 ms in two parts, on the NGSI-LD benchmark's data).
+        The first part runs in this thread."""
+        if len(sids) < AGGREGATE_SPLIT_FROM:
+            return self._fetch(*render(sids), binary=True)
+        size = -(-len(sids) // AGGREGATE_PARTS)
+        parts = [sids[k : k + size] for k in range(0, len(sids), size)]
+        others = [self._helpers().submit(self._fetch, *render(part), binary=True) for part in parts[1:]]
+        try:
+            rows = self._fetch(*render(parts[0]), binary=True)
+        finally:
+            done = [future.result() for future in others]  # never leave a statement running unread
+        for part_rows in done:
+            rows.extend(part_rows)
+        return rows
+
+    def _helpers(self) -> ThreadPoolExecutor:
+        with self._helpers_lock:
+            if self._helper_pool is None:
+                self._helper_pool = ThreadPoolExecutor(AGGREGATE_PARTS - 1, thread_name_prefix="tsdb-pg-read")
+            return self._helper_pool
+
+    def close(self) -> None:
+        """Stops the helper threads (the store closes its pool)."""
+        with self._helpers_lock:
+            if self._helper_pool is not None:
+                self._helper_pool.shutdown(wait=True)
+                self._helper_pool = None
 
     def _origin(self, sids: Sequence[int], window: InstanceWindow) -> tuple[str, list] | None:
         """The first instance's time (epoch µs, NULL when none) in an
@@ -272,6 +330,8 @@ class PostgresQuerier(SqlQuerier):
         self.catalog = SeriesCatalog(self._load_series, self._series_generation)
         self._generation: tuple[int, int] = (-1, -1)  # (own writer's series, rows in ``series``)
         self._checked = float("-inf")
+        self._helper_pool = None
+        self._helpers_lock = threading.Lock()
 
     def series(self, scope: Scope, entities: EntityFilter, attrs: Iterable[str] | None = None) -> list[SeriesRef]:
         refs = self.catalog.select(scope, entities, attrs)

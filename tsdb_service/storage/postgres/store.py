@@ -278,6 +278,7 @@ class PostgresStore(CommittingStore):
         self.stop_retention()
         self._committer.close()
         self._closed = True
+        self._querier.close()
         self.pool.close()
 
 
