@@ -38,10 +38,11 @@ from __future__ import annotations
 
 import calendar
 import math
+from collections import Counter
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime, timedelta
 from itertools import groupby, pairwise
-from operator import itemgetter
+from operator import itemgetter, truediv
 from typing import NamedTuple
 
 from ..model import Kind
@@ -94,6 +95,7 @@ LD_TYPES = frozenset(
 ) = range(16)
 _SID, _BUCKET, _MAX_US = itemgetter(R_SID), itemgetter(R_BUCKET), itemgetter(R_MAX_US)
 _SHAPE = itemgetter(R_KIND, R_IS_ARRAY, R_ATYPE)
+_NX, _SX = itemgetter(R_NX), itemgetter(R_SX)
 
 
 def us_to_datetime(us: int) -> datetime:
@@ -201,19 +203,34 @@ class Aggregator:
     def _uniform(rows, methods: tuple[str, ...], bounds) -> dict[int, SeriesAggregate]:
         """Every row of the same kind, array-ness and notified type (the
         rows' grouping keys besides series and period), so one per period:
-        the family is checked once and each method's values are laid out by
-        one comprehension per series."""
+        the family is checked once, each method's values are one column
+        over all rows (``_column``), and each series takes its slice."""
         family = _family(rows[:1], methods)
         kind = rows[0][R_KIND]
         attr_type = type_name(rows[0][R_ATYPE], kind)
-        pickers = [_picker(method, family, kind) for method in methods]
+        buckets = list(map(_BUCKET, rows))
+        los = list(map({b: lo for b, (lo, _) in bounds.items()}.__getitem__, buckets))
+        his = list(map({b: hi for b, (_, hi) in bounds.items()}.__getitem__, buckets))
+        periods = [list(zip(_column(method, family, kind, rows), los, his, strict=True)) for method in methods]
         out: dict[int, SeriesAggregate] = {}
-        for sid, group in groupby(rows, key=_SID):
-            series = list(group)
-            out[sid] = SeriesAggregate(
-                attr_type, [[(pick(row), *bounds[row[R_BUCKET]]) for row in series] for pick in pickers]
-            )
+        start = 0
+        for sid, count in Counter(map(_SID, rows)).items():  # rows are sorted by series
+            end = start + count
+            out[sid] = SeriesAggregate(attr_type, [method_periods[start:end] for method_periods in periods])
+            start = end
         return out
+
+
+def _column(method: str, family: str | None, kind: int, rows: list[tuple]) -> list:
+    """One method's value of every row (all of one kind): ``_picker``'s,
+    computed by C-level maps where every row has numbers (a response holds
+    thousands of periods)."""
+    numbers = family in ("number", "array") and all(map(_NX, rows))
+    if numbers and method == "avg":
+        return list(map(truediv, map(_SX, rows), map(_NX, rows)))
+    if numbers and method in ("min", "max") and not (family == "number" and kind in _INTEGRAL):
+        return list(map(itemgetter(R_MIN if method == "min" else R_MAX), rows))
+    return list(map(_picker(method, family, kind), rows))
 
 
 class SeriesAggregate(NamedTuple):
