@@ -467,7 +467,7 @@ class InstancePeriods:
 
     * nothing set: one period (bucket 0);
     * ``step_us``: periods of that length from ``origin_us``, or, when it is
-      None, from the first instance in the window (found by the same statement);
+      None, from the first instance in the window (found by the backend);
     * ``edges``: the consecutive periods [edges[i], edges[i + 1]) (calendar
       periods, laid out by the caller); a bucket is its period's start."""
 

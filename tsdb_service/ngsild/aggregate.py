@@ -1,9 +1,10 @@
 """The aggregated temporal representation (``format=aggregatedValues``),
-computed in the database by one grouped SQL statement per request
-(``Querier.instance_aggregate``, rendered by ``storage.temporal``; the
-start of the periods, when the window has none, is found by that same
-statement; only calendar periods over a window missing an end take a first
-statement that finds its span).
+computed in the database by grouped SQL (``Querier.instance_aggregate``,
+rendered by ``storage.temporal``): on DuckDB one statement per request,
+which also finds the start of the periods when the window has none; on
+PostgreSQL an index probe finds that start first, and many series are
+grouped in parts at once. Calendar periods over a window missing an end
+take a first statement that finds its span.
 
 Periods (``aggrPeriodDuration``):
 

@@ -356,7 +356,8 @@ class Querier(ABC):
         notified type, in the layout of ``query.InstanceAggregateRow``
         (driver tuples, a fresh list the caller may sort). Only the columns
         ``methods`` (NGSI-LD ``aggrMethods`` names) need are computed.
-        One statement."""
+        Grouped in the database, as one consistent answer: one statement,
+        or reads checked against each other (PostgreSQL)."""
 
     @abstractmethod
     def instance_span(self, sids: Sequence[int], window: InstanceWindow) -> tuple[int, int] | None:
