@@ -1,10 +1,8 @@
 """Where fixed aggregation periods start when the window has no start: at
-the first instance, with or without observedAt, before the window's end.
-PostgreSQL finds that instance by index before the grouped statement
-(``PostgresQuerier._origin``) and must answer as one statement would,
-also when a write lands between the two. Instance times read back to the
-microsecond across the range where PostgreSQL's float epoch is exact and
-beyond it."""
+the first instance, with or without observedAt, before the window's end
+(PostgreSQL finds it by index probes, ``PostgresQuerier._origin``).
+Instance times read back to the microsecond across the range where
+PostgreSQL's float epoch is exact and beyond it."""
 
 from __future__ import annotations
 
@@ -56,35 +54,6 @@ def test_an_instance_without_observed_at_can_be_the_first(client, notify):
     assert min(starts) == "2024-01-01T00:05:00.000Z"
     assert sorted(starts) == ["2024-01-01T00:05:00.000Z", "2024-01-01T01:05:00.000Z"]
     assert sum(period[0] for series in values for period in series["totalCount"]) == 3
-
-
-def test_a_write_between_the_origin_and_the_grouping(client, backend):
-    """PostgreSQL reads the origin, then groups: an older instance stored in
-    between must not land in a period that starts after it."""
-    if backend != "postgresql":
-        pytest.skip("only PostgreSQL reads the origin first")
-    speeds(client, [(4, "2024-01-01T01:10:00Z"), (6, "2024-01-01T01:40:00Z")])
-    querier = client.app.state.store.querier()
-    fetch = querier._fetch
-    statements: list[str] = []
-    written: list[str] = []
-
-    def write_after_origin(sql, params, *args, **kwargs):
-        rows = fetch(sql, params, *args, **kwargs)
-        statements.append(sql)
-        if "LIMIT 1" in sql and "GROUP BY" not in sql and not written:  # the origin probe
-            written.append(sql)
-            speeds(client, [(2, "2024-01-01T00:50:00Z")])  # an older instance arrives now
-        return rows
-
-    querier._fetch = write_after_origin
-    try:
-        got = aggregated(client, "totalCount", aggrPeriodDuration="PT1H")
-    finally:
-        del querier._fetch
-    # from the probe's origin (01:10) the instance at 00:50 would have been counted in [01:10, 02:10)
-    assert got["totalCount"] == [[3, "2024-01-01T00:50:00.000Z", "2024-01-01T01:50:00.000Z"]]
-    assert sum("GROUP BY" in sql for sql in statements) == 2  # the first answer was refused
 
 
 @pytest.mark.parametrize(

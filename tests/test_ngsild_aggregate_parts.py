@@ -5,6 +5,7 @@ from the first instance of any of them."""
 
 from __future__ import annotations
 
+import pytest
 from ngsild_fixtures import ENTITIES, get, ld_notify
 
 from tsdb_service.storage.postgres.querier import AGGREGATE_SPLIT_FROM
@@ -80,3 +81,70 @@ def test_many_series_aggregate_as_one(client, backend):
         assert entity["load"]["totalCount"] == [[len(vs), lo, hi] for lo, hi, vs in periods], entity["id"]
     grouped = [sql for sql in statements if "GROUP BY" in sql]
     assert len(grouped) == (2 if backend == "postgresql" else 1), grouped
+
+
+class _Deferred:
+    """A helper pool whose work runs when its result is asked for: the
+    parts of one aggregation then run one after the other."""
+
+    def submit(self, fn, *args, **kwargs):
+        return _Later(lambda: fn(*args, **kwargs))
+
+
+class _Later:
+    def __init__(self, work):
+        self.work = work
+
+    def result(self):
+        return self.work()
+
+
+def test_a_write_between_the_parts(client, backend, monkeypatch):
+    """PostgreSQL's parts see two snapshots: an instance older than every
+    other, stored between them, moves the second part's origin; the
+    answer must still be the one of a single statement (periods from that
+    instance), not two grids."""
+    if backend != "postgresql":
+        pytest.skip("only PostgreSQL groups in parts")
+    sent = store_robots(client)
+    querier = client.app.state.store.querier()
+    monkeypatch.setattr(querier, "_helpers", lambda: _Deferred())
+    fetch = querier._fetch
+    grouped: list[str] = []
+    last = robot(ROBOTS - 1)  # in the second part
+
+    def write_after_first_part(sql, params, *args, **kwargs):
+        rows = fetch(sql, params, *args, **kwargs)
+        if "GROUP BY" in sql:
+            grouped.append(sql)
+            if len(grouped) == 1:  # 00:02, not on the hourly grid from 00:05
+                ld_notify(
+                    client,
+                    [
+                        {
+                            "id": last,
+                            "type": "Robot",
+                            "load": {"type": "Property", "value": 99, "observedAt": "2024-01-01T00:02:00Z"},
+                        }
+                    ],
+                )
+        return rows
+
+    monkeypatch.setattr(querier, "_fetch", write_after_first_part)
+    body = get(
+        client,
+        path=ENTITIES,
+        params={
+            "type": "Robot",
+            "attrs": "load",
+            "format": "aggregatedValues",
+            "aggrMethods": "max",
+            "aggrPeriodDuration": "PT1H",
+            "limit": "100",
+        },
+    ).json()
+    assert len(grouped) == 3, grouped  # two parts, then the one statement
+    starts = {period[1] for entity in body for period in entity["load"]["max"]}
+    assert min(starts) == "2024-01-01T00:02:00.000Z"
+    assert all(start[14:16] == "02" for start in starts), sorted(starts)
+    assert len(body) == len(sent)

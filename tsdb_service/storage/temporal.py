@@ -212,10 +212,14 @@ def aggregate_sql(
     periods: InstancePeriods,
     untimed: Sequence[int] | None = None,
     first_times: bool = False,
+    origin: tuple[str, list] | None = None,
 ) -> tuple[str, list]:
     """One grouped statement (see ``Querier.instance_aggregate``).
     ``first_times``: each row's first instance time even where the
-    periods do not need it."""
+    periods do not need it. ``origin``: for periods from the first
+    instance, a query (one row, column ``origin``, epoch µs) that finds it
+    without the statement keeping every instance aside to take their
+    minimum (a backend's index probes)."""
     inner, params = _instances(d, sids, window, methods, untimed)
     if periods.edges:
         return _calendar_sql(d, inner, params, methods, periods.edges)
@@ -226,6 +230,12 @@ def aggregate_sql(
     elif periods.origin_us is not None:
         bucket = f"{p} + {p} * ((tp - {p}) {div} {p})"
         bucket_params = [periods.origin_us, periods.step_us, periods.origin_us, periods.step_us]
+    elif origin is not None:  # one value, computed once (an InitPlan), ahead of the scan
+        ctes = f"WITH o AS ({origin[0]}), s AS ({inner}{d.fence})"
+        params = [*origin[1], *params]
+        start = "(SELECT origin FROM o)"
+        bucket = f"{start} + {p} * ((tp - {start}) {div} {p})"
+        bucket_params = [periods.step_us, periods.step_us]
     else:  # from the first instance in the window, found by the same statement
         ctes += ", o AS (SELECT min(tp) AS origin FROM s)"
         source = "s, o"

@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime
-from typing import Protocol
+from typing import Final, Protocol
 
 import psycopg
 
@@ -77,12 +77,25 @@ _new = tuple.__new__
 # which of them can hold instances without observedAt (``_untimed``).
 UNTIMED_LOOKUP_FROM = 16
 
-# ``InstanceAggregateRow``: the row's first instance time (epoch µs).
-_FIRST_US = 14
+# ``InstanceAggregateRow``: the row's period start and first instance time (epoch µs).
+_BUCKET: Final = 1
+_FIRST_US: Final = 14
 # From this many series an aggregation is grouped in this many statements at
 # once (``PostgresQuerier._fetch_parts``).
 AGGREGATE_SPLIT_FROM = 32
 AGGREGATE_PARTS = 2
+
+
+def _one_grid(rows: list[InstanceAggregateRow], step: int) -> bool:
+    """Whether every row's period lies on the grid of ``step`` from the
+    first instance among ``rows``: each part's origin was the first
+    instance of every series in its own snapshot, so no instance of a part
+    precedes it, and a part whose origin is on that grid has the periods
+    the whole answer would have."""
+    if not rows:
+        return True
+    first = min(row[_FIRST_US] or 0 for row in rows)  # never None: first_times asked for
+    return all((bucket - first) % step == 0 for bucket in {row[_BUCKET] for row in rows})
 
 
 def _among(listed: Sequence[int] | None, part: Sequence[int]) -> Sequence[int] | None:
@@ -193,29 +206,27 @@ class PostgresQuerier(SqlQuerier):
         once (``_fetch_parts``).
 
         Periods that start at the first instance of an observedAt window
-        take it from an index first (``_origin``): otherwise the statement
-        keeps every instance of the window aside to take their minimum
-        before grouping them (3 of 11 ms over 10,000 instances). The reads
-        see different snapshots, so the grouped rows' own first instance
-        must be that origin; if a write came between, one statement answers
-        instead."""
+        find it by index probes (``_origin``), in each statement: otherwise
+        the statement keeps every instance of the window aside to take
+        their minimum before grouping them (3 of 11 ms over 10,000
+        instances). Parts see different snapshots, so their periods must
+        follow from the first instance of the whole answer
+        (``_one_grid``); if a write came between them, one statement
+        answers instead."""
         if not sids:
             return []
         untimed = self._untimed(sids, window)
         origin = self._origin(sids, window) if periods.step_us is not None and periods.origin_us is None else None
-        if origin is not None:
-            found = self._fetch(*origin)[0][0]
-            if found is None:
-                return []
-            fixed = InstancePeriods(periods.step_us, found)
+        if origin is not None and periods.step_us is not None:
+            step = periods.step_us
 
             def grouped(part: Sequence[int]) -> tuple[str, list]:
                 return temporal.aggregate_sql(
-                    self.dialect, part, window, methods, fixed, _among(untimed, part), first_times=True
+                    self.dialect, part, window, methods, periods, _among(untimed, part), True, origin
                 )
 
             rows = self._fetch_parts(grouped, sids)
-            if not rows or min(row[_FIRST_US] for row in rows) == found:
+            if _one_grid(rows, step):
                 return rows
         sql, params = temporal.aggregate_sql(self.dialect, sids, window, methods, periods, untimed)
         return self._fetch(sql, params, binary=True)
@@ -266,7 +277,7 @@ class PostgresQuerier(SqlQuerier):
             end_o, end_t, end = " AND x.observed_at < %s", " AND x.t < %s", [self.dialect.time_value(window.end)]
         value = f"x.kind <> {int(Kind.NULL)}"
         sql = (
-            f"SELECT {self.dialect.epoch_us('min(m)')} FROM ("
+            f"SELECT {self.dialect.epoch_us('min(m)')} AS origin FROM ("
             "SELECT f.m FROM unnest(%s::integer[]) AS u(sid) CROSS JOIN LATERAL (SELECT x.observed_at AS m "
             f"FROM samples x WHERE x.sid = u.sid AND x.observed_at IS NOT NULL AND {value}{end_o} "
             "ORDER BY x.observed_at LIMIT 1) f "
