@@ -48,6 +48,11 @@ def hourly(values: list[tuple[int, str]]) -> list[tuple[str, str, list[int]]]:
     return [(text(5 + 60 * k), text(65 + 60 * k), periods[k]) for k in sorted(periods)]
 
 
+def hourly_robots(client, methods: str) -> list[dict]:
+    params = {"type": "Robot", "attrs": "load", "format": "aggregatedValues", "aggrMethods": methods}
+    return get(client, path=ENTITIES, params={**params, "aggrPeriodDuration": "PT1H", "limit": "100"}).json()
+
+
 def test_many_series_aggregate_as_one(client, backend):
     sent = store_robots(client)
     querier = client.app.state.store.querier()
@@ -60,18 +65,7 @@ def test_many_series_aggregate_as_one(client, backend):
 
     querier._fetch = counting
     try:
-        body = get(
-            client,
-            path=ENTITIES,
-            params={
-                "type": "Robot",
-                "attrs": "load",
-                "format": "aggregatedValues",
-                "aggrMethods": "max,totalCount",
-                "aggrPeriodDuration": "PT1H",
-                "limit": "100",
-            },
-        ).json()
+        body = hourly_robots(client, "max,totalCount")
     finally:
         del querier._fetch
     assert sorted(entity["id"] for entity in body) == sorted(sent)
@@ -131,18 +125,7 @@ def test_a_write_between_the_parts(client, backend, monkeypatch):
         return rows
 
     monkeypatch.setattr(querier, "_fetch", write_after_first_part)
-    body = get(
-        client,
-        path=ENTITIES,
-        params={
-            "type": "Robot",
-            "attrs": "load",
-            "format": "aggregatedValues",
-            "aggrMethods": "max",
-            "aggrPeriodDuration": "PT1H",
-            "limit": "100",
-        },
-    ).json()
+    body = hourly_robots(client, "max")
     assert len(grouped) == 3, grouped  # two parts, then the one statement
     starts = {period[1] for entity in body for period in entity["load"]["max"]}
     assert min(starts) == "2024-01-01T00:02:00.000Z"
