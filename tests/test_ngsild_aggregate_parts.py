@@ -102,7 +102,7 @@ def test_a_write_between_the_parts(client, backend, monkeypatch):
         pytest.skip("only PostgreSQL groups in parts")
     sent = store_robots(client)
     querier = client.app.state.store.querier()
-    monkeypatch.setattr(querier, "_helpers", lambda: _Deferred())
+    monkeypatch.setattr(querier, "_helpers", _Deferred())
     fetch = querier._fetch
     grouped: list[str] = []
     last = robot(ROBOTS - 1)  # in the second part

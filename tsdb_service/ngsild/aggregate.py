@@ -231,7 +231,7 @@ def _column(method: str, family: str | None, kind: int, rows: list[tuple]) -> li
         return list(map(truediv, map(_SX, rows), map(_NX, rows)))
     if numbers and method in ("min", "max") and not (family == "number" and kind in _INTEGRAL):
         return list(map(itemgetter(R_MIN if method == "min" else R_MAX), rows))
-    return list(map(_picker(method, family, kind), rows))
+    return list(map(_picker(method, family), rows))
 
 
 class SeriesAggregate(NamedTuple):
@@ -315,8 +315,8 @@ def _merged(rows: list[tuple]) -> tuple:
     return tuple(row)
 
 
-def _picker(method: str, family: str | None, kind: int | None = None) -> Callable[[tuple], object]:
-    """One method's value of a period's row; ``kind``: every row's, when known."""
+def _picker(method: str, family: str | None) -> Callable[[tuple], object]:
+    """One method's value of a period's row."""
     if method == "totalCount":
         return itemgetter(R_N)
     if method == "distinctCount":
@@ -328,8 +328,6 @@ def _picker(method: str, family: str | None, kind: int | None = None) -> Callabl
     if method in ("min", "max") and family != "datetime":
         at = R_MIN if method == "min" else R_MAX
         number = family == "number"
-        if kind is not None and not (number and kind in _INTEGRAL):
-            return lambda row: row[at] if row[R_NX] else None
 
         def extreme(row: tuple) -> object:
             value = row[at]

@@ -21,7 +21,6 @@ goes to the database.
 from __future__ import annotations
 
 import contextlib
-import threading
 import time
 from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -110,9 +109,6 @@ def _among(listed: Sequence[int] | None, part: Sequence[int]) -> Sequence[int] |
 
 
 class PostgresQuerier(SqlQuerier):
-    _helper_pool: ThreadPoolExecutor | None  # started by the first split read
-    _helpers_lock: threading.Lock
-
     def raw_rows(
         self,
         sids: Sequence[int],
@@ -219,9 +215,8 @@ class PostgresQuerier(SqlQuerier):
         if not sids:
             return []
         untimed = self._untimed(sids, window)
-        origin = self._origin(sids, window) if periods.step_us is not None and periods.origin_us is None else None
-        if origin is not None and periods.step_us is not None:
-            step = periods.step_us
+        step = periods.step_us
+        if step is not None and periods.origin_us is None and (origin := self._origin(sids, window)) is not None:
 
             def grouped(part: Sequence[int]) -> tuple[str, list]:
                 return temporal.aggregate_sql(
@@ -244,7 +239,7 @@ class PostgresQuerier(SqlQuerier):
             return self._fetch(*render(sids), binary=True, prepare=False)
         size = -(-len(sids) // AGGREGATE_PARTS)
         parts = [sids[k : k + size] for k in range(0, len(sids), size)]
-        others = [self._helpers().submit(self._fetch, *render(part), True, False) for part in parts[1:]]
+        others = [self._helpers.submit(self._fetch, *render(part), True, False) for part in parts[1:]]
         try:
             rows = self._fetch(*render(parts[0]), binary=True, prepare=False)
         finally:
@@ -253,18 +248,9 @@ class PostgresQuerier(SqlQuerier):
             rows.extend(part_rows)
         return rows
 
-    def _helpers(self) -> ThreadPoolExecutor:
-        with self._helpers_lock:
-            if self._helper_pool is None:
-                self._helper_pool = ThreadPoolExecutor(AGGREGATE_PARTS - 1, thread_name_prefix="tsdb-pg-read")
-            return self._helper_pool
-
     def close(self) -> None:
         """Stops the helper threads (the store closes its pool)."""
-        with self._helpers_lock:
-            if self._helper_pool is not None:
-                self._helper_pool.shutdown(wait=True)
-                self._helper_pool = None
+        self._helpers.shutdown(wait=True)
 
     def _origin(self, sids: Sequence[int], window: InstanceWindow) -> tuple[str, list] | None:
         """The first instance's time (epoch µs, NULL when none) in an
@@ -344,8 +330,8 @@ class PostgresQuerier(SqlQuerier):
         self.catalog = SeriesCatalog(self._load_series, self._series_generation)
         self._generation: tuple[int, int] = (-1, -1)  # (own writer's series, rows in ``series``)
         self._checked = float("-inf")
-        self._helper_pool = None
-        self._helpers_lock = threading.Lock()
+        # Runs the other parts of a split read; its thread starts at the first.
+        self._helpers = ThreadPoolExecutor(AGGREGATE_PARTS - 1, thread_name_prefix="tsdb-pg-read")
 
     def series(self, scope: Scope, entities: EntityFilter, attrs: Iterable[str] | None = None) -> list[SeriesRef]:
         refs = self.catalog.select(scope, entities, attrs)
