@@ -9,8 +9,11 @@
    ``observedAt``; every 10th also a ``location`` GeoProperty (a Point
    within 25 km of Madrid). Then compacts (DuckDB) or runs ``VACUUM
    (ANALYZE)`` (PostgreSQL, a private cluster as in benchmarks/queries.py).
-2. Serves the app with uvicorn on a free port in this process and measures,
-   over real HTTP, one connection, ``--requests`` each:
+2. Serves the app as deployed, ``tsdb-service serve`` in its own process on a
+   free port, and measures from this process, over real HTTP, one connection,
+   ``--requests`` each. (Until 2026-11-25 the server ran in this process and
+   shared its interpreter with the client's JSON parsing; benchmarks/README.md
+   has both harnesses side by side.)
 
    * retrieve: ``GET /ngsi-ld/v1/temporal/entities/{id}`` for one day
      (``timerel=between``), a random entity per request; target p50 <= 20 ms;
@@ -25,7 +28,7 @@
      entities are within 3 km and a quarter of those pass ``q``, so every
      scale down to 0.01 matches some (the mean is reported; none is an error).
 
-3. Prints p50/p99 per request kind, the process RSS and the load average
+3. Prints p50/p99 per request kind, the server process's RSS and the load average
    (the machine may be shared), PASS/FAIL against the targets (exit 0 = all
    pass). Not a test: run it by hand.
 """
@@ -39,7 +42,6 @@ import random
 import statistics
 import sys
 import tempfile
-import threading
 import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -127,19 +129,11 @@ def load(settings, entities: int) -> dict:
     return {"instances": written, "load_s": round(load_s, 1), "total_s": round(time.perf_counter() - t0, 1)}
 
 
-def serve(settings, port: int):
-    import uvicorn
-
-    from tsdb_service.app import create_app
-
-    config = uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_level="warning")
-    server = uvicorn.Server(config)
-    server.install_signal_handlers = lambda: None
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    while not server.started:
-        time.sleep(0.05)
-    return server, thread
+def serve(db: str, port: int, read_max_series: int, workdir: Path) -> common.Server:
+    """``tsdb-service serve`` on ``db`` as its own process (uvloop, httptools),
+    the type query's read budget raised through the environment."""
+    env = {"TSDB_READ_MAX_SERIES": str(read_max_series)}
+    return common.spawned("ngsild-server", common.ours_cmd(db, port), port, workdir, env).start()
 
 
 def requests(kind: str, entities: int, rng: random.Random) -> tuple[str, dict]:
@@ -207,12 +201,6 @@ def measure(port: int, kind: str, entities: int, n: int) -> dict:
     return summary
 
 
-def rss_mb() -> float:
-    import psutil
-
-    return round(psutil.Process().memory_info().rss / 2**20, 1)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scale", type=float, default=1.0, help="entities = 100,000 x scale")
@@ -242,7 +230,9 @@ def main(argv: list[str] | None = None) -> int:
         db = str(Path(tempfile.mkdtemp(prefix="ngsild-bench-")) / "bench.duckdb")
     # A type query over all entities reads 2 series per entity: past the
     # default read budget (TSDB_READ_MAX_SERIES=50,000) from scale 0.25 on.
-    settings = Settings(db=db, read_max_series=max(50_000, 3 * entities))
+    read_max_series = max(50_000, 3 * entities)
+    settings = Settings(db=db, read_max_series=read_max_series)
+    server = None
     try:
         loaded = {}
         if not args.skip_load:
@@ -250,7 +240,7 @@ def main(argv: list[str] | None = None) -> int:
             loaded = load(settings, entities)
             print(f"  {loaded}", flush=True)
         port = free_port()
-        server, thread = serve(settings, port)
+        server = serve(db, port, read_max_series, Path(tempfile.mkdtemp(prefix="ngsild-server-")))
         results = {"entities": entities, "backend": args.backend, **loaded}
         ok = True
         for kind in TARGETS:
@@ -263,12 +253,13 @@ def main(argv: list[str] | None = None) -> int:
                 f"target p50 <= {TARGETS[kind]:.0f} ms  {'PASS' if verdict else 'FAIL'}  {got}",
                 flush=True,
             )
-        results["rss_mb"] = rss_mb()
+        rss = server.rss_bytes()
+        results["rss_mb"] = round(rss / 2**20, 1) if rss is not None else None
         results["load_average"] = common.loadavg(1)
         print(f"  RSS {results['rss_mb']} MB, load average {results['load_average']}", flush=True)
-        server.should_exit = True
-        thread.join(timeout=30)
     finally:
+        if server is not None:
+            server.stop()
         if cluster is not None:
             cluster.stop()
     if args.json:
