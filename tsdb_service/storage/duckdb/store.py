@@ -30,6 +30,7 @@ from typing import Any
 import duckdb
 import pyarrow as pa
 
+from ...config import WAL_CHECKPOINT_BYTES
 from ...errors import Unavailable
 from ...model import EntitySample, RejectedNotification
 from ...ngsi import ValuesLayout
@@ -135,8 +136,6 @@ _DIALECT = DuckDBDialect()
 _SAMPLE_TABLES = ("samples", "samples_hot")
 # Above this many rows a batch goes through Arrow (bulk loads, copies).
 ARROW_MIN_ROWS = 2048
-# DuckDB's default: fold the WAL into the file once it is this big.
-CHECKPOINT_BYTES = 16 * 1024 * 1024
 # After the database is invalidated: first reopen attempt, then doubling to at most.
 REOPEN_DELAY_S = 0.5
 REOPEN_MAX_DELAY_S = 10.0
@@ -206,13 +205,8 @@ def migrate_duckdb(con: duckdb.DuckDBPyConnection) -> list[int]:
 def connect(path: str, read_only: bool = False, checkpoint_bytes: int | None = None) -> duckdb.DuckDBPyConnection:
     if path != ":memory:":
         Path(path).parent.mkdir(parents=True, exist_ok=True)
-    # Only a non-default threshold is configured: DuckDB refuses a second
-    # in-process connection to the file whose configuration differs.
-    config: dict[str, str | bool | int | float | list[str]] = {}
-    if checkpoint_bytes is not None and checkpoint_bytes != CHECKPOINT_BYTES:
-        config["wal_autocheckpoint"] = f"{int(checkpoint_bytes)}B"
     try:
-        return duckdb.connect(path, read_only=read_only, config=config)
+        con = duckdb.connect(path, read_only=read_only)
     except duckdb.IOException as exc:
         if "lock" in str(exc).lower():
             raise RuntimeError(
@@ -221,6 +215,14 @@ def connect(path: str, read_only: bool = False, checkpoint_bytes: int | None = N
                 "to run several."
             ) from exc
         raise
+    if checkpoint_bytes is not None and not read_only:
+        # Set on the database instance, not as a connect() option: DuckDB
+        # refuses a second in-process connection to a file opened with a
+        # different configuration, and a plain connect() (migrate, probes,
+        # read-only checks) shares the instance and its setting instead.
+        # An int, formatted: SET takes no bound parameters.
+        con.execute(f"SET GLOBAL wal_autocheckpoint = '{int(checkpoint_bytes)}B'")
+    return con
 
 
 class Gate:
@@ -277,7 +279,7 @@ class DuckDBStore(CommittingStore):
         tail_rows: int = 128,
         tail_samples: int | None = None,
         agg_partials_hours: int = 100_000,
-        checkpoint_bytes: int = CHECKPOINT_BYTES,
+        checkpoint_bytes: int = WAL_CHECKPOINT_BYTES,
         reopen_delay: float | None = None,
         reopen_max_delay: float | None = None,
         rejected_limits: RejectedLimits | None = None,
