@@ -16,9 +16,10 @@ from pathlib import Path
 
 import duckdb
 
+from tsdb_service import storage
 from tsdb_service.config import WAL_CHECKPOINT_BYTES, Settings
 from tsdb_service.model import AttrSample, EntitySample, Kind
-from tsdb_service.storage import migrate, open_store
+from tsdb_service.storage import open_store
 from tsdb_service.storage.base import AppendSamples
 from tsdb_service.storage.duckdb.store import connect
 
@@ -70,8 +71,8 @@ def test_plain_connections_share_the_configured_database(tmp_path: Path):
         finally:
             other.close()
         # the migrate command opens its own plain connection to the same file
-        assert migrate(Settings(db=path))
-        assert migrate(Settings(db=path)) == []
+        assert storage.migrate(Settings(db=path))
+        assert storage.migrate(Settings(db=path)) == []
     finally:
         writer.close()
 

@@ -1,0 +1,19 @@
+"""``tsdb_service.storage.migrate`` stays the function behind ``tsdb-service
+migrate`` after the backends imported the submodule of the same name (a first
+import of a submodule rebinds the package attribute)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+
+def test_migrate_is_the_function_after_the_backends_loaded():
+    code = (
+        "import tsdb_service.storage.duckdb.store, tsdb_service.storage.postgres.store\n"
+        "import tsdb_service.storage as s\n"
+        "assert callable(s.migrate), type(s.migrate)\n"
+        "from tsdb_service.storage import migrate\n"
+        "assert callable(migrate)\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
