@@ -13,7 +13,7 @@ from tsdb_service.model import AttrSample, EntitySample, Kind
 from tsdb_service.query import EntityFilter, Scope
 from tsdb_service.storage import open_store
 from tsdb_service.storage.base import AppendSamples
-from tsdb_service.storage.migrate import SCHEMA_TABLE, load_migrations, split_statements
+from tsdb_service.storage.migrations import SCHEMA_TABLE, load_migrations, split_statements
 
 OLD_ROWS = [
     (1, 1, "2024-01-01 00:00:00", 1, "Number", 1.5),

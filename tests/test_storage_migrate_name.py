@@ -1,6 +1,7 @@
 """``tsdb_service.storage.migrate`` stays the function behind ``tsdb-service
-migrate`` after the backends imported the submodule of the same name (a first
-import of a submodule rebinds the package attribute)."""
+migrate`` after the backends loaded the migration files. Their module was
+once named ``storage.migrate`` too, and the first import of a submodule
+rebinds its name on the package: the command would have called a module."""
 
 from __future__ import annotations
 

@@ -16,7 +16,6 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ..config import Settings
-from . import migrate as _migrations  # noqa: F401 - loaded before ``def migrate`` below, see there
 from .base import Store
 from .rejected import RejectedLimits
 
@@ -27,10 +26,6 @@ class StoreUnavailable(RuntimeError):
     """The store cannot be opened; the message is one line for an operator."""
 
 
-# The submodule ``storage.migrate`` (the migration files) is imported above,
-# before this function: a first import of a submodule binds its name on the
-# package, and once the backends imported it, ``storage.migrate`` was that
-# module and ``tsdb-service migrate`` would have called a module.
 def migrate(settings: Settings) -> list[int]:
     """Apply pending schema migrations to ``settings.db`` without opening a
     store (``tsdb-service migrate``); the versions applied. An operator's

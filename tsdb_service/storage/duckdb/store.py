@@ -60,7 +60,7 @@ from ..ld_ingest import (
     publish_staged,
     with_deletions,
 )
-from ..migrate import applied_versions, load_migrations, split_statements
+from ..migrations import applied_versions, load_migrations, split_statements
 from ..partials import HourlyPartials
 from ..rejected import RejectedLimits
 from ..sql import delete_statements, instance_statements, quote_ident

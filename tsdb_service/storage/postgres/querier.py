@@ -331,7 +331,7 @@ class PostgresQuerier(SqlQuerier):
         self._store = store
         self.dialect = PostgresDialect()
         self.catalog = SeriesCatalog(self._load_series, self._series_generation)
-        self._generation: tuple[int, int] = (-1, -1)  # (own writer's series, rows in ``series``)
+        self._generation: tuple[int, int] = (-1, -1)  # (own writer's series, series ever inserted)
         self._checked = float("-inf")
         # Runs the other parts of a split read; its thread starts at the first.
         self._helpers = ThreadPoolExecutor(AGGREGATE_PARTS - 1, thread_name_prefix="tsdb-pg-read")

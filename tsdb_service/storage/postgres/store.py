@@ -59,7 +59,7 @@ from ..ld_ingest import (
     with_deletions,
 )
 from ..memory_only import check_database_allowed
-from ..migrate import applied_versions, load_migrations
+from ..migrations import applied_versions, load_migrations
 from ..rejected import RejectedLimits
 from ..sql import delete_statements, instance_statements
 from ..writer import GroupCommitter
