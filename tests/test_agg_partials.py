@@ -3,10 +3,11 @@ answer of the grouped SQL: random data, many windows, periods and methods,
 after commits that follow the caching, after every kind of delete, under the
 memory bound, and while a load races the writer.
 
-On PostgreSQL the store keeps no partials (other replicas' commits never
-reach this process's memory), so the tests give its querier some: loading
-and answering are checked on both backends; what needs the writer's
-publishes and drops only on DuckDB.
+Both backends keep them: DuckDB's writer publishes its commits and its
+deletes drop series; PostgreSQL's querier checks each series' change count
+in the database (migration 0011) before using its partials, so the same
+tests hold there (and ``test_pg_series_changes`` pins what other sessions
+and replicas write).
 
 Numbers are multiples of 1/8: every sum is exact in any order, so the
 SQL's sums (in scan order) and the partials' (exact) must be equal, bit for
@@ -40,16 +41,9 @@ def store(store_url):
     s.close()
 
 
-def kept_current(store) -> None:
-    """Skip unless the store's writer keeps partials current (DuckDB)."""
-    if store.querier()._partials() is None:
-        pytest.skip("only DuckDB keeps partials current: PostgreSQL replicas do not see each other's commits")
-
-
 def cached(store, seed: int, samples: int, rounds: int) -> random.Random:
     """Random samples written and aggregated (so cached) ``rounds`` times,
     checked against SQL; the generator, to go on with."""
-    kept_current(store)
     rng = random.Random(seed)
     with_partials(store)
     store.write_sync([AppendSamples(random_samples(rng, samples))])
@@ -58,14 +52,10 @@ def cached(store, seed: int, samples: int, rounds: int) -> random.Random:
 
 
 def with_partials(store, max_hours: int = 100_000) -> HourlyPartials:
-    """The querier's partials; a fresh set on PostgreSQL, which keeps none."""
-    q = store.querier()
-    partials = q._partials()
-    if partials is None:
-        partials = HourlyPartials(max_hours)
-        q._partials = lambda: partials
-    else:
-        partials.max_hours = max_hours
+    """The querier's partials, bounded to ``max_hours``."""
+    partials = store.querier()._partials()
+    assert partials is not None
+    partials.max_hours = max_hours
     return partials
 
 
@@ -165,7 +155,6 @@ def test_instance_deletes_and_replacements_drop_the_series(store):
 
 
 def test_retention_drops_what_it_deletes(store):
-    kept_current(store)
     with_partials(store)
     old = [sample("a", datetime.now(UTC) - timedelta(days=4000, minutes=i), float(i)) for i in range(30)]
     store.write_sync([AppendSamples([*old, *random_samples(random.Random(19), 100)])])
@@ -177,14 +166,11 @@ def test_retention_drops_what_it_deletes(store):
 
 def test_memory_stays_within_the_bound(store):
     rng = random.Random(20)
-    keeps = store.querier()._partials() is not None
     partials = with_partials(store, max_hours=25)
     store.write_sync([AppendSamples(random_samples(rng, 400))])  # ~90 series-hours
     for time in windows(rng, 6):
         assert_same(store, time, Aggregation(AggrMethod.AVG, AggrPeriod.HOUR))
         assert partials.hours <= 25
-    if not keeps:
-        return
     store.write_sync([AppendSamples(random_samples(rng, 100, span_hours=60))])
     assert partials.hours <= 25
     assert_same(store, TimeRange(), Aggregation(AggrMethod.SUM, AggrPeriod.DAY))
@@ -194,7 +180,6 @@ def test_memory_stays_within_the_bound(store):
 def test_a_commit_racing_the_load_counts_once(store, seen):
     """A commit published while a load runs: counted once whether the load's
     snapshot saw it (committed before the query) or not (after it)."""
-    kept_current(store)
     store.write_sync([AppendSamples([sample("a", T0 + timedelta(minutes=i), float(i)) for i in range(10)])])
     with_partials(store)
     q = store.querier()
@@ -223,7 +208,6 @@ def test_sums_are_exact(store):
     rounded sum of the numbers (``math.fsum``), however hours combine and
     samples arrive."""
     rng = random.Random(21)
-    keeps = store.querier()._partials() is not None
     with_partials(store)
     numbers = [rng.uniform(-1, 1) * 10 ** rng.randrange(-3, 17) for _ in range(200)]
     times = [T0 + timedelta(seconds=rng.randrange(40 * 3600)) for _ in numbers]
@@ -231,8 +215,7 @@ def test_sums_are_exact(store):
     store.write_sync([AppendSamples(first)])
     q = store.querier()
     branches = [AggBranch(sids(store))]
-    if keeps:  # the rest arrives after the partials were loaded
-        q.aggregate(branches, TimeRange(), Aggregation(AggrMethod.SUM, None))
+    q.aggregate(branches, TimeRange(), Aggregation(AggrMethod.SUM, None))  # the rest arrives after the load
     store.write_sync([AppendSamples([sample("a", t, v) for t, v in zip(times[120:], numbers[120:], strict=True)])])
     (row,) = q.aggregate(branches, TimeRange(), Aggregation(AggrMethod.SUM, None))
     assert row.value == math.fsum(numbers)

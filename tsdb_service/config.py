@@ -70,7 +70,7 @@ class Settings(BaseSettings):
     agg_partials_hours: int = Field(
         100_000,
         ge=0,
-        description="DuckDB: series-hours of aggregate partials kept in memory for aggregated series "
+        description="Series-hours of aggregate partials kept in memory for aggregated series "
         "(~400 bytes each, least recently aggregated out first; 0: off).",
     )
     wal_checkpoint_bytes: int = Field(

@@ -89,6 +89,7 @@ def _open(settings: Settings) -> Store:
         return PostgresStore(
             settings.db,
             writer_threads=settings.writer_threads or 3,
+            agg_partials_hours=settings.agg_partials_hours,
             rejected_limits=RejectedLimits.from_settings(settings),
         )
     from .duckdb.store import DuckDBStore

@@ -216,7 +216,7 @@ class Querier(ABC):
         """Per-series (and per period when ``agg.period``) partial aggregates
         of each branch, including hours retention folded into rollups (never
         under a mask). The caller combines them across series. One statement;
-        DuckDB may answer from memory (its hourly partials, ``storage.partials``)."""
+        a backend may answer from memory (its hourly partials, ``storage.partials``)."""
 
     @abstractmethod
     def latest_index(self, sids: Sequence[int], time: TimeRange, mask: RowMask | None = None) -> list[LatestRow]:

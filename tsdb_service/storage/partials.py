@@ -12,6 +12,9 @@ the numbers' sum, min and max) answer it from memory, exactly:
 * kept current by the writer, which publishes every committed sample;
 * dropped for series touched by any delete, instance replacement or
   retention batch (whatever calls ``drop``), and all at once on a reopen;
+* or, where other processes write too (PostgreSQL), checked against the
+  series' change count in the database before every use, and loaded again
+  when it moved (``series(versions=...)``);
 * at most ``max_hours`` hours in all, least recently aggregated series out.
 
 Sums are kept exact: an hour's sum is a short list of floats whose exact
@@ -38,7 +41,7 @@ import bisect
 import math
 import threading
 from collections import OrderedDict
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from datetime import UTC, datetime
 
 from ..model import Kind
@@ -109,11 +112,12 @@ def exact_parts(values: list[float]) -> list[float]:
 
 
 class _Series:
-    __slots__ = ("cells", "hours", "lo", "seen_rid")
+    __slots__ = ("cells", "hours", "lo", "seen_rid", "version")
 
-    def __init__(self, lo: int | None, seen_rid: int):
+    def __init__(self, lo: int | None, seen_rid: int, version: object = None):
         self.lo = lo  # every sample at or after this hour is counted (None: all)
         self.seen_rid = seen_rid  # rows up to this id were in the load's snapshot
+        self.version = version  # the database's change count when loaded (``series(versions=...)``)
         self.hours: list[int] = []  # sorted hour starts (µs)
         self.cells: list[list] = []
 
@@ -227,17 +231,33 @@ class HourlyPartials:
     # -- readers -------------------------------------------------------------------
 
     def series(
-        self, sids: Sequence[int], lo: int | None, load: Callable[[list[int], int | None], list[LoadRow] | None]
+        self,
+        sids: Sequence[int],
+        lo: int | None,
+        load: Callable[[list[int], int | None], list[LoadRow] | None],
+        versions: Mapping[int, object] | None = None,
     ) -> dict[int, _Series] | None:
         """Each series' entry covering every hour from ``lo`` on, loading the
         missing ones with one ``load(sids, lo)`` call; None when the load
-        declines (too many samples: ``MAX_LOAD_SAMPLES``)."""
+        declines (too many samples: ``MAX_LOAD_SAMPLES``).
+
+        ``versions``, where writes do not all pass through ``publish``
+        (PostgreSQL: other sessions and replicas), is each series' change
+        count read from the database before this call: an entry loaded at
+        another count is loaded again, and loaded entries keep the count.
+        A load sees at least what the count says (it reads later), so an
+        entry is never older than its count; a newer one is only loaded
+        again once more."""
         out: dict[int, _Series] = {}
         missing: list[int] = []
         with self._lock:
             for sid in sids:
                 entry = self._entries.get(sid)
-                if entry is not None and (entry.lo is None or (lo is not None and entry.lo <= lo)):
+                if (
+                    entry is not None
+                    and (entry.lo is None or (lo is not None and entry.lo <= lo))
+                    and (versions is None or entry.version == versions[sid])
+                ):
                     self._entries.move_to_end(sid)
                     out[sid] = entry
                 else:
@@ -256,6 +276,9 @@ class HourlyPartials:
         if rows is None:
             return None
         loaded = _build(missing, rows, lo)
+        if versions is not None:
+            for sid, entry in loaded.items():
+                entry.version = versions[sid]
         with self._lock:
             for sid, rid, t, kind, num in pending.buffer:
                 entry = loaded[sid]

@@ -13,13 +13,13 @@ connection. Every query filters samples by series id first (``sid = ?`` or
 ``sid IN (...)``): the sample tables are sorted by (sid, t), so that filter
 is what prunes them. Aggregations of plain attributes by hour-aligned
 periods are answered from a backend's in-memory hourly partials where it
-keeps them (``storage.partials``; DuckDB), loaded by one grouped statement.
+keeps them (``storage.partials``), loaded by one grouped statement.
 """
 
 from __future__ import annotations
 
 from abc import abstractmethod
-from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from datetime import UTC, datetime, timedelta
 from functools import partial
 from typing import Any, TypeVar
@@ -369,7 +369,13 @@ class SqlQuerier(Querier):
 
     def _partials(self) -> HourlyPartials | None:
         """The backend's hourly partials, when it keeps them (it must see
-        every commit: a single writer in a single process)."""
+        every commit, or check ``_series_versions`` before each use)."""
+        return None
+
+    def _series_versions(self, sids: Sequence[int]) -> Mapping[int, object] | None:
+        """Each series' change count in the database, where writes can
+        bypass this process's partials (``HourlyPartials.series``); None
+        where the partials see every commit."""
         return None
 
     def rollups_present(self) -> bool:
@@ -387,7 +393,7 @@ class SqlQuerier(Querier):
         start = None if time.start is None else to_micros(time.start)
         end = None if time.end is None else to_micros(time.end)
         lo = None if start is None else start - start % HOUR_US
-        entries = partials.series(branch.sids, lo, self._load_partials)
+        entries = partials.series(branch.sids, lo, self._load_partials, self._series_versions(branch.sids))
         if entries is None:  # too many samples to load: SQL as without partials
             return self._aggregate_sql([AggBranch(()) for _ in range(number)] + [branch], time, agg)
         method, period = agg.method, agg.period

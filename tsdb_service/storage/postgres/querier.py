@@ -52,6 +52,7 @@ from ..catalog import SeriesCatalog
 from ..common import extent_prefilter
 from ..export import Columns, SampleBatches, export_sql, rows_to_columns
 from ..memory_only import check_database_allowed
+from ..partials import HourlyPartials
 from ..sql import _MAX_BIGINT, SqlQuerier, as_first_locations, as_geometries, box_test
 from .dialect import PostgresDialect, int_array
 
@@ -69,6 +70,8 @@ class PostgresSource(Protocol):
 MANY_SIDS = 256
 # A geo_extents row's box, as its GiST index (migration 0006) spells it.
 _BOX = "box(point(min_lon, min_lat), point(max_lon, max_lat))"
+# ``series_changes`` counts series in blocks of 2**3 ids (migration 0011).
+CHANGE_BLOCK_BITS: Final = 3
 # At most this stale: a series created by another replica (see above).
 SERIES_CHECK_S = 1.0
 
@@ -327,8 +330,11 @@ class PostgresQuerier(SqlQuerier):
             [int_array(sids), self.dialect.time_value(before)],
         )
 
-    def __init__(self, store: PostgresSource):
+    def __init__(self, store: PostgresSource, partials_hours: int = 100_000):
         self._store = store
+        # Hourly partials of aggregated series (storage.partials), checked
+        # against the database's change counts before each use (migration 0011).
+        self._hourly = HourlyPartials(partials_hours)
         self.dialect = PostgresDialect()
         self.catalog = SeriesCatalog(self._load_series, self._series_generation)
         self._generation: tuple[int, int] = (-1, -1)  # (own writer's series, series ever inserted)
@@ -342,6 +348,23 @@ class PostgresQuerier(SqlQuerier):
             self._checked = float("-inf")  # maybe created by another replica: count now
             refs = self.catalog.select(scope, entities, attrs)
         return refs
+
+    def _partials(self) -> HourlyPartials | None:
+        return self._hourly if self._hourly.enabled else None
+
+    def _series_versions(self, sids: Sequence[int]) -> dict[int, tuple[int, int]]:
+        """Per series, (its block's change count, the TRUNCATE count) from
+        ``series_changes`` (migration 0011): one short index read, whatever
+        session, replica or SQL wrote the series since."""
+        blocks = sorted({sid >> CHANGE_BLOCK_BITS for sid in sids})
+        rows = self._fetch(
+            "SELECT block, sum(n)::bigint FROM series_changes WHERE block = ANY(%s::integer[]) OR block = -1 "
+            "GROUP BY block",
+            [int_array(blocks)],
+        )
+        counts = dict(rows)
+        truncated = counts.get(-1, 0)
+        return {sid: (counts.get(sid >> CHANGE_BLOCK_BITS, 0), truncated) for sid in sids}
 
     def _series_generation(self) -> tuple[int, int]:
         """Changes when series were added; reads the counter only every

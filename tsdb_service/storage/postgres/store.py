@@ -103,7 +103,27 @@ def is_storage_error(exc: BaseException) -> bool:
 
 def migrate_url(url: str) -> list[int]:
     with psycopg.connect(url) as conn:
-        return migrate_postgres(conn)
+        applied = migrate_postgres(conn)
+        fold_series_changes(conn)
+        return applied
+
+
+# Rows of ended sessions into pid 0, in one statement: every block's sum
+# stays what it was (migration 0011). Two stores folding at once: the
+# second finds the rows the first deleted gone and skips them.
+_FOLD_SERIES_CHANGES = (
+    "WITH gone AS (DELETE FROM series_changes WHERE pid <> 0 "
+    "AND pid NOT IN (SELECT pid FROM pg_stat_activity WHERE pid IS NOT NULL) RETURNING block, n) "
+    "INSERT INTO series_changes AS c (block, pid, n) SELECT block, 0, sum(n) FROM gone GROUP BY block ORDER BY block "
+    "ON CONFLICT (block, pid) DO UPDATE SET n = c.n + EXCLUDED.n"
+)
+
+
+def fold_series_changes(conn: psycopg.Connection) -> None:
+    """Keep ``series_changes`` to about one row per block of series and live
+    session: every writer session adds a row per block it writes."""
+    with conn.transaction():
+        conn.execute(_FOLD_SERIES_CHANGES)
 
 
 def migrate_postgres(conn: psycopg.Connection) -> list[int]:
@@ -133,7 +153,13 @@ class PostgresStore(CommittingStore):
     backend = "postgresql"
 
     def __init__(
-        self, url: str, *, pool_size: int = 8, writer_threads: int = 3, rejected_limits: RejectedLimits | None = None
+        self,
+        url: str,
+        *,
+        pool_size: int = 8,
+        writer_threads: int = 3,
+        agg_partials_hours: int = 100_000,
+        rejected_limits: RejectedLimits | None = None,
     ):
         self.url = url
         # Rejected-store bounds (storage.rejected) and what they dropped, by reason.
@@ -153,7 +179,7 @@ class PostgresStore(CommittingStore):
         self._committer = GroupCommitter(lambda: PostgresAppender(self), name="tsdb-pg-writer", threads=writer_threads)
         self._committer.start()
         self._closed = False
-        self._querier = PostgresQuerier(self)
+        self._querier = PostgresQuerier(self, agg_partials_hours)
 
     def querier(self) -> PostgresQuerier:
         return self._querier
