@@ -1,0 +1,120 @@
+"""DuckDB groups are written through a DuckDB appender flushed in autocommit
+mode (``DuckDBAppender._append_rows``).
+
+An appender keeps the rows it buffered before a failure, and its next flush
+would store them. The writer retries a failed group one notification at a
+time, so a leftover row would be stored twice, or a sample of a failed
+notification stored after its 503. These tests make a group fail for real
+(a value DuckDB cannot convert) and check what the table holds afterwards;
+they also pin that every time column and value reads back exactly.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import pytest
+
+from tsdb_service.config import Settings
+from tsdb_service.model import AttrSample, EntitySample, Kind
+from tsdb_service.storage import open_store
+from tsdb_service.storage.base import AppendSamples
+from tsdb_service.storage.duckdb.store import DuckDBAppender, DuckDBStore
+
+START = datetime(2026, 3, 1, 12, 0, 0, 123456, tzinfo=UTC)
+
+
+def _entity(n: int, speed: object = None) -> EntitySample:
+    return EntitySample(
+        "rows",
+        "/",
+        f"urn:ngsi-ld:Lawnmower:{n}",
+        "Lawnmower",
+        START + timedelta(seconds=n),
+        [AttrSample("speed", "Number", Kind.NUMBER, num=float(n) if speed is None else speed)],  # type: ignore[arg-type]
+    )
+
+
+def _count(store: DuckDBStore) -> int:
+    return store.cursor().execute("SELECT count(*) FROM samples_all").fetchone()[0]
+
+
+@pytest.fixture
+def store(tmp_path: Path):
+    opened = open_store(Settings(db=str(tmp_path / "rows.duckdb")))
+    assert isinstance(opened, DuckDBStore)
+    try:
+        yield opened
+    finally:
+        opened.close()
+
+
+def test_a_failed_group_leaves_no_buffered_row_behind(store: DuckDBStore):
+    store.write_sync([AppendSamples([_entity(0)])])  # the series exists: the group is samples only
+    appender = DuckDBAppender(store)
+    try:
+        appender.stage(AppendSamples([_entity(1)]))
+        appender.stage(AppendSamples([_entity(2, speed="not a number")]))
+        with pytest.raises(Exception):  # noqa: B017 - DuckDB's or Python's conversion error, both fail the group
+            appender.commit()
+        appender.rollback()
+        assert _count(store) == 1
+        appender.stage(AppendSamples([_entity(3)]))
+        appender.commit()
+    finally:
+        appender.close()
+    times = [row[0] for row in store.cursor().execute("SELECT t FROM samples_all ORDER BY t").fetchall()]
+    assert times == [(START + timedelta(seconds=n)).replace(tzinfo=None) for n in (0, 3)]
+
+
+def test_the_writer_retries_a_poisoned_group_one_by_one(store: DuckDBStore):
+    store.write_sync([AppendSamples([_entity(n)]) for n in range(3)])
+    good = [AppendSamples([_entity(n)]) for n in range(10, 20)]
+    bad = AppendSamples([_entity(99, speed="not a number")])
+    with pytest.raises(Exception):  # noqa: B017 - the poisoned op fails alone
+        store.write_sync([*good[:5], bad, *good[5:]])
+    store.write_sync([AppendSamples([_entity(30)])])  # one writer: what was queued before is settled
+    rows = store.cursor().execute("SELECT num, count(*) FROM samples_all GROUP BY num ORDER BY num").fetchall()
+    assert rows == [(float(n), 1) for n in (0, 1, 2, *range(10, 20), 30)]
+
+
+def test_every_time_column_reads_back_to_the_microsecond(store: DuckDBStore):
+    moments = [
+        datetime(1901, 12, 13, 20, 45, 52, 1, tzinfo=UTC),
+        datetime(1970, 1, 1, tzinfo=UTC),
+        datetime(2038, 1, 19, 3, 14, 8, 999999, tzinfo=UTC),
+        datetime(9999, 12, 31, 23, 59, 59, 999999, tzinfo=UTC),
+    ]
+    entities = [
+        EntitySample(
+            "rows",
+            "/",
+            f"urn:ngsi-ld:Sensor:{i}",
+            "Sensor",
+            moment,
+            [
+                AttrSample(
+                    "temperature",
+                    "Property",
+                    Kind.NUMBER,
+                    num=0.1 + i,
+                    observed_at=moment,
+                    created_at=moment - timedelta(microseconds=1) if i else moment,
+                    modified_at=moment,
+                )
+            ],
+        )
+        for i, moment in enumerate(moments)
+    ]
+    store.write_sync([AppendSamples(entities)])
+    got = (
+        store.cursor()
+        .execute("SELECT t, observed_at, created_at, modified_at, num FROM samples_all ORDER BY t")
+        .fetchall()
+    )
+    naive = [m.replace(tzinfo=None) for m in moments]
+    assert [row[0] for row in got] == naive
+    assert [row[1] for row in got] == naive
+    assert [row[2] for row in got] == [naive[0], *(m - timedelta(microseconds=1) for m in naive[1:])]
+    assert [row[4] for row in got] == [0.1 + i for i in range(len(moments))]
