@@ -625,8 +625,10 @@ def main(argv: list[str] | None = None) -> int:
     if set(ours) - OURS.keys():
         ap.error(f"--ours takes {', '.join(OURS)} or none")
     workdir = Path(tempfile.mkdtemp(prefix="tsdb-compare-"))
+    speed = {"start": common.speed_probe(workdir)}
     print(
-        f"compare: {os.cpu_count()} CPUs, load {_load()}, {'wrk' if use_wrk else 'loadgen.py'}, "
+        f"compare: {os.cpu_count()} CPUs, load {_load()}, {common.speed_text(speed['start'])}, "
+        f"{'wrk' if use_wrk else 'loadgen.py'}, "
         f"{runner.reps} reps x {runner.duration:g} s (+ {runner.warmup:g} s warm-up); work dir {workdir}",
         flush=True,
     )
@@ -637,6 +639,7 @@ def main(argv: list[str] | None = None) -> int:
         "machine": common.machine(),
         "config": {**vars(args), "json": str(args.json), "generator": "wrk" if use_wrk else "loadgen"},
         "loadavg": {"start": common.loadavg(None)},
+        "speed": speed,
     }
     steps = []
     if only - {"growth"}:
@@ -667,7 +670,11 @@ def main(argv: list[str] | None = None) -> int:
     doc["results"] = [r.__dict__ for r in results]
     doc["failed"] = failed
     doc["loadavg"]["end"] = common.loadavg(None)
-    print(f"\nload average at the end: {_load()}")
+    speed["end"] = common.speed_probe(workdir)
+    print(
+        f"\nload average at the end: {_load()}; {common.speed_text(speed['end'])} "
+        f"(at the start: {common.speed_text(speed['start'])})"
+    )
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         common.write_json(args.json, doc)

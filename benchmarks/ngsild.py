@@ -240,8 +240,11 @@ def main(argv: list[str] | None = None) -> int:
             loaded = load(settings, entities)
             print(f"  {loaded}", flush=True)
         port = free_port()
-        server = serve(db, port, read_max_series, Path(tempfile.mkdtemp(prefix="ngsild-server-")))
-        results = {"entities": entities, "backend": args.backend, **loaded}
+        workdir = Path(tempfile.mkdtemp(prefix="ngsild-server-"))
+        speed = common.speed_probe(workdir)
+        print(f"  machine: {common.speed_text(speed)}, load average {common.load_text()}", flush=True)
+        server = serve(db, port, read_max_series, workdir)
+        results = {"entities": entities, "backend": args.backend, **loaded, "speed": speed}
         ok = True
         for kind in TARGETS:
             got = measure(port, kind, entities, args.requests)
