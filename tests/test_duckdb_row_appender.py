@@ -20,7 +20,7 @@ from tsdb_service.config import Settings
 from tsdb_service.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage import open_store
 from tsdb_service.storage.base import AppendSamples
-from tsdb_service.storage.duckdb.store import DuckDBAppender, DuckDBStore
+from tsdb_service.storage.duckdb.store import MAX_ROW_APPENDERS, DuckDBAppender, DuckDBStore
 
 START = datetime(2026, 3, 1, 12, 0, 0, 123456, tzinfo=UTC)
 
@@ -118,3 +118,32 @@ def test_every_time_column_reads_back_to_the_microsecond(store: DuckDBStore):
     assert [row[1] for row in got] == naive
     assert [row[2] for row in got] == [naive[0], *(m - timedelta(microseconds=1) for m in naive[1:])]
     assert [row[4] for row in got] == [0.1 + i for i in range(len(moments))]
+
+
+def test_groups_of_many_shapes_keep_a_bounded_set_of_appenders(store: DuckDBStore):
+    """Each set of filled columns has its own appender; past
+    ``MAX_ROW_APPENDERS`` shapes the oldest is dropped, and every row of
+    every shape is still stored once, exactly."""
+    appender = DuckDBAppender(store)
+    expected = []
+    try:
+        for shape in range(32):  # which of num, txt, js, md, observedAt a sample fills
+            moment = START + timedelta(minutes=shape)
+            attr = AttrSample(
+                "reading",
+                "Property",
+                Kind.NUMBER,
+                num=float(shape) if shape & 1 else None,
+                txt=f"t{shape}" if shape & 2 else None,
+                js=f'{{"s":{shape}}}' if shape & 4 else None,
+                md='{"unitCode":"CEL"}' if shape & 8 else None,
+                observed_at=moment if shape & 16 else None,
+            )
+            appender.stage(AppendSamples([EntitySample("rows", "/", f"urn:x:{shape}", "X", moment, [attr])]))
+            appender.commit()
+            assert len(appender._row_appenders) <= MAX_ROW_APPENDERS
+            expected.append((moment.replace(tzinfo=None), attr.num, attr.txt, attr.js, attr.md))
+    finally:
+        appender.close()
+    got = store.cursor().execute("SELECT t, num, txt, js, md FROM samples_all ORDER BY t").fetchall()
+    assert got == expected

@@ -132,6 +132,9 @@ _DIALECT = DuckDBDialect()
 _SAMPLE_TABLES = ("samples", "samples_hot")
 # Above this many rows a batch goes through Arrow (bulk loads, copies).
 ARROW_MIN_ROWS = 2048
+# Appenders a writer keeps, one per set of columns its groups filled (about
+# 55 KB each): a few shapes cover ordinary traffic.
+MAX_ROW_APPENDERS = 16
 # After the database is invalidated: first reopen attempt, then doubling to at most.
 REOPEN_DELAY_S = 0.5
 REOPEN_MAX_DELAY_S = 10.0
@@ -866,6 +869,8 @@ class DuckDBAppender(StagingAppender):
         it is dropped, so a retry starts from nothing."""
         appender = self._row_appenders.get(names)
         if appender is None:
+            if len(self._row_appenders) >= MAX_ROW_APPENDERS:  # payloads of many shapes: the oldest goes
+                del self._row_appenders[next(iter(self._row_appenders))]
             appender = self._row_appenders[names] = cur.appender("samples_hot", columns=list(names))
         cols = self._cols
         try:
