@@ -97,19 +97,6 @@ SAMPLE_SCHEMA = pa.schema(
 
 SeriesKey = tuple[str, str, str, str, str]  # tenant, service path, id, type, attr
 
-_SQL_TYPES = {
-    "rid": "BIGINT",
-    "iid": "BIGINT",
-    "sid": "INTEGER",
-    "kind": "UTINYINT",
-    "num": "DOUBLE",
-    "lon": "DOUBLE",
-    "lat": "DOUBLE",
-    "min_lon": "DOUBLE",
-    "min_lat": "DOUBLE",
-    "max_lon": "DOUBLE",
-    "max_lat": "DOUBLE",
-}
 REQUIRED = frozenset({"rid", "sid", "t", "kind", "iid"})
 
 
@@ -795,10 +782,17 @@ class DuckDBAppender(StagingAppender):
         try:
             cur.execute(sql, params)
         except duckdb.Error as exc:
-            if fatal_kind(exc) != "committed":
+            if not self._committed_anyway(exc):
                 raise
-            log.warning("commit is durable but its checkpoint failed: %s", _first_line(exc))
-            self._store.notice(exc)
+
+    def _committed_anyway(self, exc: duckdb.Error) -> bool:
+        """True when ``exc`` says the commit landed and only its checkpoint
+        failed: logged, and the store told to reopen."""
+        if fatal_kind(exc) != "committed":
+            return False
+        log.warning("commit is durable but its checkpoint failed: %s", _first_line(exc))
+        self._store.notice(exc)
+        return True
 
     def _commit(self, cur: duckdb.DuckDBPyConnection) -> None:
         """Make the staged ops durable with as few database calls as possible.
@@ -882,10 +876,8 @@ class DuckDBAppender(StagingAppender):
             del self._row_appenders[names]
             with contextlib.suppress(duckdb.Error):
                 appender.clear()
-            if not isinstance(exc, duckdb.Error) or fatal_kind(exc) != "committed":
+            if not (isinstance(exc, duckdb.Error) and self._committed_anyway(exc)):
                 raise
-            log.warning("commit is durable but its checkpoint failed: %s", _first_line(exc))
-            self._store.notice(exc)
 
     def _insert_arrow(self, cur: duckdb.DuckDBPyConnection) -> None:
         cols = self._cols
