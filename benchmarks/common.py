@@ -321,8 +321,8 @@ def speed_probe(directory: Path | str, loops: int = 2_000_000, syncs: int = 100)
     ``directory`` (the disk the databases write to).
 
     On a virtual machine whose host is shared the load average says nothing
-    of the neighbours: the same loop took 0.63 and 1.24 s an hour apart on
-    2026-11-27, at load averages below 1. Printed at the start and the end of
+    of the neighbours: on 2026-11-27 this probe read 60 to 105 ms within one
+    afternoon, at load averages below 2. Printed at the start and the end of
     a run, these two figures tell a slow hour from a slow change."""
     timings = []
     for _ in range(3):

@@ -46,6 +46,7 @@ _NO_GEO = (None,) * len(GEO_COLUMNS)
 
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 ONE_US = timedelta(microseconds=1)
+_NAIVE_EPOCH = datetime(1970, 1, 1)
 
 
 def content_values(a: AttrSample) -> tuple:
@@ -60,6 +61,14 @@ def content_values(a: AttrSample) -> tuple:
 def to_micros(moment: datetime) -> int:
     """Exact microseconds since the epoch (float timestamps lose precision)."""
     return (moment - EPOCH) // ONE_US
+
+
+def naive_timestamps(micros: Iterable[int | None]) -> list[datetime | None]:
+    """``to_micros``' inverse over a column, as the naive UTC datetimes a
+    TIMESTAMP column holds (a DuckDB appender takes no integers there);
+    exact, unlike a float division."""
+    epoch, delta = _NAIVE_EPOCH, timedelta
+    return [None if v is None else epoch + delta(microseconds=v) for v in micros]
 
 
 def naive_utc(moment: datetime) -> datetime:

@@ -22,7 +22,7 @@ import logging
 import os
 import threading
 from collections.abc import Iterator, Sequence
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +46,7 @@ from ..common import (
     first_line,
     layout_values,
     layouts_from_rows,
+    naive_timestamps,
     rejected_values,
     to_micros,
     upsert_layout_sql,
@@ -98,16 +99,6 @@ SAMPLE_SCHEMA = pa.schema(
 SeriesKey = tuple[str, str, str, str, str]  # tenant, service path, id, type, attr
 
 REQUIRED = frozenset({"rid", "sid", "t", "kind", "iid"})
-
-
-_EPOCH = datetime(1970, 1, 1)
-
-
-def _timestamps(micros: list[int | None]) -> list[datetime | None]:
-    """Epoch microseconds as the naive UTC datetimes a TIMESTAMP column takes
-    from an appender (it refuses integers); exact, unlike a float division."""
-    epoch, delta = _EPOCH, timedelta
-    return [None if v is None else epoch + delta(microseconds=v) for v in micros]
 
 
 INSERT_SERIES = (
@@ -869,7 +860,7 @@ class DuckDBAppender(StagingAppender):
         cols = self._cols
         try:
             appender.append_rows(
-                zip(*(_timestamps(cols[n]) if n in TIME_COLUMNS else cols[n] for n in names), strict=True)
+                zip(*(naive_timestamps(cols[n]) if n in TIME_COLUMNS else cols[n] for n in names), strict=True)
             )
             appender.flush()
         except BaseException as exc:  # a value it cannot convert raises a plain Python error
