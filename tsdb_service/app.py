@@ -12,19 +12,19 @@ from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
 from starlette.types import ASGIApp
 
-from . import __version__, grafana, rawpath, ui
-from . import metrics as metrics_
-from .api import attrs, entities, meta, notify, op_query, subscribe, types
-from .api import export as export_api
-from .api.handlers import install_error_handlers
-from .api.openapi import install as install_openapi
-from .api.responses import JSON
-from .budget import ReadBudgetMiddleware, ReadLimits
-from .config import Settings, get_settings
-from .ngsild import routes_read as ngsild_read
-from .ngsild import write as ngsild_write
-from .security import protect
-from .storage import open_store
+from tsdb_service import __version__, grafana, rawpath, ui
+from tsdb_service import metrics as metrics_
+from tsdb_service.api import attrs, entities, meta, notify, op_query, subscribe, types
+from tsdb_service.api import export as export_api
+from tsdb_service.api.handlers import install_error_handlers
+from tsdb_service.api.openapi import install as install_openapi
+from tsdb_service.api.responses import JSON
+from tsdb_service.budget import ReadBudgetMiddleware, ReadLimits
+from tsdb_service.config import Settings, get_settings
+from tsdb_service.ngsild import routes_read as ngsild_read
+from tsdb_service.ngsild import write as ngsild_write
+from tsdb_service.security import protect
+from tsdb_service.storage import open_store
 
 log = logging.getLogger("tsdb_service")
 WRITER_SWITCH_INTERVAL_S = 0.0002

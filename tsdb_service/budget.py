@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import orjson
 
-from .errors import TsdbError
+from tsdb_service.errors import TsdbError
 
 NARROW = (
     "narrow the query: fewer entities (id, type, idPattern) or attributes (attrs), a time window "

@@ -8,8 +8,8 @@ import sys
 from collections.abc import Callable, Sequence
 from types import ModuleType
 
-from . import __version__
-from .config import LOG_LEVELS, Settings, SettingsError, load_settings
+from tsdb_service import __version__
+from tsdb_service.config import LOG_LEVELS, Settings, SettingsError, load_settings
 
 Command = Callable[[argparse.Namespace], int]
 COMMANDS: dict[str, Command] = {}
@@ -104,10 +104,10 @@ def _feature_modules() -> tuple[ModuleType, ...]:
     """The packages that add their own subcommands, each through
     ``register(subparsers, command)``; imported when the parser is built, so
     ``import tsdb_service.cli`` stays light."""
-    from .demo import commands as demo_commands
-    from .export import commands as export_commands
-    from .grafana import commands as grafana_commands
-    from .storage import copy
+    from tsdb_service.demo import commands as demo_commands
+    from tsdb_service.export import commands as export_commands
+    from tsdb_service.grafana import commands as grafana_commands
+    from tsdb_service.storage import copy
 
     return (demo_commands, grafana_commands, copy, export_commands)
 
@@ -116,7 +116,7 @@ def _feature_modules() -> tuple[ModuleType, ...]:
 def cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
-    from .storage import check_store
+    from tsdb_service.storage import check_store
 
     settings = _settings(args)
     if settings.workers > 1 and settings.backend == "duckdb":
@@ -132,7 +132,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         if value is not None:  # unset: the backend's default applies
             os.environ[f"TSDB_{name.upper()}"] = str(value)
     # --- limits (issue 12): slow clients, connection cap, descriptors (tsdb_service.httpserver) ---
-    from .httpserver import GuardedHttpToolsProtocol, raise_fd_limit
+    from tsdb_service.httpserver import GuardedHttpToolsProtocol, raise_fd_limit
 
     raise_fd_limit()
     uvicorn.run(
@@ -162,8 +162,8 @@ def serve_app():
     that line replaces the traceback. Only the lifespan is wrapped: requests
     do not pass through here.
     """
-    from .app import create_app_from_env
-    from .storage import StoreUnavailable
+    from tsdb_service.app import create_app_from_env
+    from tsdb_service.storage import StoreUnavailable
 
     app = create_app_from_env()
     lifespan = app.router.lifespan
@@ -185,7 +185,7 @@ def serve_app():
 
 @command("migrate")
 def cmd_migrate(args: argparse.Namespace) -> int:
-    from .storage import check_store, migrate
+    from tsdb_service.storage import check_store, migrate
 
     settings = _settings(args)
     check_store(settings)
@@ -196,7 +196,7 @@ def cmd_migrate(args: argparse.Namespace) -> int:
 
 @command("compact")
 def cmd_compact(args: argparse.Namespace) -> int:
-    from .storage import open_store, require_history
+    from tsdb_service.storage import open_store, require_history
 
     settings = _settings(args)
     require_history(settings.db)  # a mistyped path must not become a new, empty database

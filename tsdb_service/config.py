@@ -234,7 +234,7 @@ class Settings(BaseSettings):
     @field_validator("retention", "rollup_retention")
     @classmethod
     def _retention_spec(cls, value: str, info) -> str:
-        from .retention_policy import RetentionPolicy
+        from tsdb_service.retention_policy import RetentionPolicy
 
         RetentionPolicy.parse(value, setting="TSDB_" + info.field_name.upper())  # raises ValueError
         return value

@@ -31,7 +31,7 @@ from functools import cache
 
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
-from .config import Settings
+from tsdb_service.config import Settings
 
 log = logging.getLogger("tsdb_service.http")
 

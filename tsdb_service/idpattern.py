@@ -23,7 +23,7 @@ from functools import lru_cache
 
 import re2
 
-from .errors import BadRequest
+from tsdb_service.errors import BadRequest
 
 MAX_PATTERN = 512
 SYNTAX = "RE2 syntax (https://github.com/google/re2/wiki/Syntax): no backreferences or lookaround"

@@ -47,17 +47,10 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 from starlette.responses import Response
 
-from .api import openapi
-from .api.reads import reads_store
-from .ngsi import timeindex
-from .storage.base import (
-    AppendSamples,
-    DeleteSamples,
-    PutLayout,
-    RecordRejected,
-    Store,
-    WriteOp,
-)
+from tsdb_service.api import openapi
+from tsdb_service.api.reads import reads_store
+from tsdb_service.ngsi import timeindex
+from tsdb_service.storage.base import AppendSamples, DeleteSamples, PutLayout, RecordRejected, Store, WriteOp
 
 log = logging.getLogger(__name__)
 

@@ -16,7 +16,7 @@ from datetime import datetime, timedelta
 from enum import Enum
 from typing import Any, NamedTuple, Protocol
 
-from .model import ld_attr_name
+from tsdb_service.model import ld_attr_name
 
 
 class AggrMethod(str, Enum):

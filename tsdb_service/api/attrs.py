@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request
 
-from ..query import Shape
-from . import openapi as oa
-from .history import answer_history_async
-from .responses import JSON
+from tsdb_service.query import Shape
+from tsdb_service.api import openapi as oa
+from tsdb_service.api.history import answer_history_async
+from tsdb_service.api.responses import JSON
 
 router = APIRouter(tags=["attrs"])
 

@@ -7,15 +7,15 @@ from functools import partial
 from fastapi import APIRouter, Request
 from starlette.responses import Response
 
-from ..history.params import delete_query, entity_list_query
-from ..history.service import delete_target, run_entity_list
-from ..query import Shape
-from ..storage.base import DeleteSamples
-from . import openapi as oa
-from .history import answer_history_async
-from .reads import reads_store
-from .responses import JSON
-from .tenancy import tenant_of
+from tsdb_service.history.params import delete_query, entity_list_query
+from tsdb_service.history.service import delete_target, run_entity_list
+from tsdb_service.query import Shape
+from tsdb_service.storage.base import DeleteSamples
+from tsdb_service.api import openapi as oa
+from tsdb_service.api.history import answer_history_async
+from tsdb_service.api.reads import reads_store
+from tsdb_service.api.responses import JSON
+from tsdb_service.api.tenancy import tenant_of
 
 router = APIRouter(tags=["entities"])
 

@@ -18,10 +18,10 @@ import anyio
 from fastapi import APIRouter, Request
 from starlette.responses import StreamingResponse
 
-from ..export import Encoder, SampleStream, export_query, open_export
-from ..storage.base import Store
-from . import openapi as oa
-from .tenancy import tenant_of
+from tsdb_service.export import Encoder, SampleStream, export_query, open_export
+from tsdb_service.storage.base import Store
+from tsdb_service.api import openapi as oa
+from tsdb_service.api.tenancy import tenant_of
 
 router = APIRouter(tags=["export"])
 

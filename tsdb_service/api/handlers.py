@@ -13,9 +13,9 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 from starlette.routing import Match
 
-from ..errors import TsdbError
-from ..ngsild import errors as ld
-from .responses import JSON
+from tsdb_service.errors import TsdbError
+from tsdb_service.ngsild import errors as ld
+from tsdb_service.api.responses import JSON
 
 log = logging.getLogger("tsdb_service")
 

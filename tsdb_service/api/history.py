@@ -11,12 +11,12 @@ from functools import partial
 
 from fastapi import Request
 
-from ..history.params import history_query
-from ..history.service import run_history
-from ..history.shape import render
-from ..query import Shape
-from .responses import JSON
-from .tenancy import tenant_of
+from tsdb_service.history.params import history_query
+from tsdb_service.history.service import run_history
+from tsdb_service.history.shape import render
+from tsdb_service.query import Shape
+from tsdb_service.api.responses import JSON
+from tsdb_service.api.tenancy import tenant_of
 
 
 def answer_history(

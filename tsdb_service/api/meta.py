@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request
 
-from .. import __version__
-from . import openapi as oa
-from .reads import reads_store
-from .responses import JSON
+from tsdb_service import __version__
+from tsdb_service.api import openapi as oa
+from tsdb_service.api.reads import reads_store
+from tsdb_service.api.responses import JSON
 
 router = APIRouter(tags=["meta"])
 

@@ -17,18 +17,18 @@ from fastapi import APIRouter, Query, Request
 from starlette.requests import ClientDisconnect
 from starlette.responses import Response
 
-from ..errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaType
-from ..model import RejectedNotification
-from ..ngsi import ValuesLayout, parse_notification
-from ..ngsi.names import ID_RULE, RULE, id_problem, name_problem
-from ..ngsi.request_context import MAX_INT_PARAM
-from ..security import redact_headers
-from ..storage.base import AppendSamples, PutLayout, RecordRejected
-from . import openapi as oa
-from .handlers import REQUEST_ID_HEADER, internal_error
-from .reads import reads_store
-from .responses import JSON
-from .tenancy import tenant_header, tenant_of
+from tsdb_service.errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaType
+from tsdb_service.model import RejectedNotification
+from tsdb_service.ngsi import ValuesLayout, parse_notification
+from tsdb_service.ngsi.names import ID_RULE, RULE, id_problem, name_problem
+from tsdb_service.ngsi.request_context import MAX_INT_PARAM
+from tsdb_service.security import redact_headers
+from tsdb_service.storage.base import AppendSamples, PutLayout, RecordRejected
+from tsdb_service.api import openapi as oa
+from tsdb_service.api.handlers import REQUEST_ID_HEADER, internal_error
+from tsdb_service.api.reads import reads_store
+from tsdb_service.api.responses import JSON
+from tsdb_service.api.tenancy import tenant_header, tenant_of
 
 router = APIRouter(tags=["notify"])
 log = logging.getLogger(__name__)

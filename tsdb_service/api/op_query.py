@@ -13,14 +13,14 @@ from functools import partial
 import orjson
 from fastapi import APIRouter, Request
 
-from ..errors import BadRequest, ParseError
-from ..history.service import run_last_values
-from ..history.valuepath import parse_value_path
-from ..ngsi.request_context import MAX_IDS, check_id, id_pattern, service_paths
-from ..query import EntityFilter, LastValueQuery, Scope
-from . import openapi as oa
-from .responses import JSON
-from .tenancy import tenant_of
+from tsdb_service.errors import BadRequest, ParseError
+from tsdb_service.history.service import run_last_values
+from tsdb_service.history.valuepath import parse_value_path
+from tsdb_service.ngsi.request_context import MAX_IDS, check_id, id_pattern, service_paths
+from tsdb_service.query import EntityFilter, LastValueQuery, Scope
+from tsdb_service.api import openapi as oa
+from tsdb_service.api.responses import JSON
+from tsdb_service.api.tenancy import tenant_of
 
 router = APIRouter(tags=["op"])
 

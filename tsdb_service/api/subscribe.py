@@ -36,14 +36,14 @@ from urllib.parse import urlsplit
 import orjson
 from fastapi import APIRouter, Request
 
-from ..errors import BadRequest, TsdbError
-from ..ngsi.request_context import service_paths
-from . import openapi as oa
-from .responses import JSON
-from .tenancy import tenant_of
+from tsdb_service.errors import BadRequest, TsdbError
+from tsdb_service.ngsi.request_context import service_paths
+from tsdb_service.api import openapi as oa
+from tsdb_service.api.responses import JSON
+from tsdb_service.api.tenancy import tenant_of
 
 if TYPE_CHECKING:
-    from ..demo.subscriptions import BrokerAnswer
+    from tsdb_service.demo.subscriptions import BrokerAnswer
 
 router = APIRouter(tags=["subscribe"])
 
@@ -65,7 +65,7 @@ def subscribe(request: Request) -> JSON:
     """Runs in the threadpool (a plain ``def``): the broker call blocks.
     The sender lives with the ``subscribe`` command (imported on first use:
     the demo package is not part of serving)."""
-    from ..demo.subscriptions import send_subscription
+    from tsdb_service.demo.subscriptions import send_subscription
 
     params = request.query_params
     orion = _base_url(params.get("orionUrl"), "orionUrl")

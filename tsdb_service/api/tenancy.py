@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from fastapi import Request
 
-from ..ngsi.request_context import raw_tenant, selectors, tenant
+from tsdb_service.ngsi.request_context import raw_tenant, selectors, tenant
 
 
 def tenant_header(request: Request) -> str:

@@ -7,14 +7,14 @@ from functools import partial
 from fastapi import APIRouter, Request
 from starlette.responses import Response
 
-from ..history.params import delete_query
-from ..history.service import delete_target
-from ..query import Shape
-from ..storage.base import DeleteSamples
-from . import openapi as oa
-from .history import answer_history_async
-from .responses import JSON
-from .tenancy import tenant_of
+from tsdb_service.history.params import delete_query
+from tsdb_service.history.service import delete_target
+from tsdb_service.query import Shape
+from tsdb_service.storage.base import DeleteSamples
+from tsdb_service.api import openapi as oa
+from tsdb_service.api.history import answer_history_async
+from tsdb_service.api.responses import JSON
+from tsdb_service.api.tenancy import tenant_of
 
 router = APIRouter(tags=["types"])
 

@@ -15,7 +15,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import datetime
 
-from .sites import Tenancy
+from tsdb_service.demo.sites import Tenancy
 
 
 @dataclass(frozen=True, slots=True)

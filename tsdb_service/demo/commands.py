@@ -135,9 +135,9 @@ def _port(text: str) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     import httpx
 
-    from ..config import check_db
-    from . import usecases
-    from .serve import LocalService
+    from tsdb_service.config import check_db
+    from tsdb_service.demo import usecases
+    from tsdb_service.demo.serve import LocalService
 
     try:
         simulators = usecases.select(args.use_case)
@@ -179,7 +179,7 @@ def _window(simulators, url: str, args: argparse.Namespace):
     """(simulated start, speedup): live, and after what earlier runs stored."""
     from datetime import UTC, datetime
 
-    from .runner import live_window
+    from tsdb_service.demo.runner import live_window
 
     now = datetime.now(UTC)
     return live_window(args.speedup, args.duration, now, previous_end(url, simulators))
@@ -203,7 +203,7 @@ def previous_end(url: str, simulators) -> datetime | None:
 
 
 async def _run_demo(simulators, url: str, args: argparse.Namespace, seed: int, start, speedup: float):
-    from .runner import Progress, RunConfig, run
+    from tsdb_service.demo.runner import Progress, RunConfig, run
 
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
@@ -222,8 +222,8 @@ async def _run_demo(simulators, url: str, args: argparse.Namespace, seed: int, s
 def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start, speedup: float) -> None:
     from datetime import timedelta
 
-    from .collection import DEMO_EXAMPLES, by_name, curl
-    from .orion import iso
+    from tsdb_service.demo.collection import DEMO_EXAMPLES, by_name, curl
+    from tsdb_service.demo.orion import iso
 
     where = f"(DuckDB file {args.db}; log {service.log_path})" if service else "(already running)"
     until = f"for {args.duration:g} s" if args.duration else "until Ctrl-C"
@@ -257,8 +257,8 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start,
 
 
 def cmd_subscribe(args: argparse.Namespace) -> int:
-    from .subscriptions import DEFAULT_NOTIFY_URL, ensure_subscription
-    from .usecases import SIMULATORS
+    from tsdb_service.demo.subscriptions import DEFAULT_NOTIFY_URL, ensure_subscription
+    from tsdb_service.demo.usecases import SIMULATORS
 
     names = USE_CASE_NAMES if args.use_case == "all" else (args.use_case,)
     all_ok = True
@@ -287,8 +287,8 @@ def _queries_build(out: Path) -> int:
 
 def write_collection(out: Path) -> list[Path]:
     """Write both exports of the collection into ``out``."""
-    from .collection import http_file, postman_collection
-    from .subscriptions import dumps
+    from tsdb_service.demo.collection import http_file, postman_collection
+    from tsdb_service.demo.subscriptions import dumps
 
     out.mkdir(parents=True, exist_ok=True)
     postman = out / "tsdb-service.postman_collection.json"
@@ -299,7 +299,7 @@ def write_collection(out: Path) -> list[Path]:
 
 
 def _queries_run(args: argparse.Namespace) -> int:
-    from .collection import matching, run_all
+    from tsdb_service.demo.collection import matching, run_all
 
     queries = matching(args.only)
     if not queries:
@@ -337,7 +337,7 @@ def _unreachable(url: str) -> str | None:
 
 
 def cmd_notifications(args: argparse.Namespace) -> int:
-    from .subscriptions import write_examples
+    from tsdb_service.demo.subscriptions import write_examples
 
     for path in write_examples(Path(args.out)):
         print(f"wrote {path}")

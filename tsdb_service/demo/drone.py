@@ -26,10 +26,10 @@ import random
 from collections.abc import Iterator
 from datetime import datetime, timedelta
 
-from . import ros, sites
-from .base import Emission, Simulator
-from .enums import DRONE_MISSION_STATE, code
-from .orion import EntityState
+from tsdb_service.demo import ros, sites
+from tsdb_service.demo.base import Emission, Simulator
+from tsdb_service.demo.enums import DRONE_MISSION_STATE, code
+from tsdb_service.demo.orion import EntityState
 
 CRUISE_SPEED = 15.0  # m/s
 CRUISE_ALTITUDE = 40.0  # m

@@ -22,12 +22,12 @@ import random
 from collections.abc import Iterator
 from datetime import datetime, timedelta
 
-from . import ros, sites
-from .base import Emission, Simulator
-from .enums import LAWNMOWER_NAVIGATION_STATE as STATE
-from .enums import LAWNMOWER_NAVIGATION_SUBSTATE as SUBSTATE
-from .enums import code
-from .orion import EntityState
+from tsdb_service.demo import ros, sites
+from tsdb_service.demo.base import Emission, Simulator
+from tsdb_service.demo.enums import LAWNMOWER_NAVIGATION_STATE as STATE
+from tsdb_service.demo.enums import LAWNMOWER_NAVIGATION_SUBSTATE as SUBSTATE
+from tsdb_service.demo.enums import code
+from tsdb_service.demo.orion import EntityState
 
 TICK_S = 1.0
 MOW_SPEED = 0.4  # m/s

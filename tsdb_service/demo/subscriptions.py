@@ -17,9 +17,9 @@ from pathlib import Path
 import httpx
 import orjson
 
-from . import orion
-from .base import Simulator
-from .usecases import SIMULATORS
+from tsdb_service.demo import orion
+from tsdb_service.demo.base import Simulator
+from tsdb_service.demo.usecases import SIMULATORS
 
 DEFAULT_NOTIFY_URL = "http://tsdb-service:8668/v2/notify"
 

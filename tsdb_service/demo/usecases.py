@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from .base import Simulator
-from .drone import Drone
-from .lawnmower import Lawnmower
-from .warehouse import Warehouse
+from tsdb_service.demo.base import Simulator
+from tsdb_service.demo.drone import Drone
+from tsdb_service.demo.lawnmower import Lawnmower
+from tsdb_service.demo.warehouse import Warehouse
 
 SIMULATORS: dict[str, Simulator] = {sim.name: sim for sim in (Lawnmower(), Warehouse(), Drone())}
 

@@ -25,16 +25,10 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 
-from . import ros, sites
-from .base import Emission, Simulator
-from .enums import (
-    DOOR_COMMAND,
-    DOOR_STATE,
-    WARNING_LIGHT_COMMAND,
-    WARNING_LIGHT_STATE,
-    code,
-)
-from .orion import EntityState
+from tsdb_service.demo import ros, sites
+from tsdb_service.demo.base import Emission, Simulator
+from tsdb_service.demo.enums import DOOR_COMMAND, DOOR_STATE, WARNING_LIGHT_COMMAND, WARNING_LIGHT_STATE, code
+from tsdb_service.demo.orion import EntityState
 
 TICK_S = 0.5
 ROBOT_EVERY = 2  # ticks between robot odometry updates

@@ -11,9 +11,9 @@ is set (``value_number``, ``value_text``, ``value_bool``, ``value_json``).
             ...
 """
 
-from .encode import Encoder, chunks, write_file
-from .query import ExportFormat, ExportQuery, export_format, export_query
-from .stream import SCHEMA, SampleStream, open_export
+from tsdb_service.export.encode import Encoder, chunks, write_file
+from tsdb_service.export.query import ExportFormat, ExportQuery, export_format, export_query
+from tsdb_service.export.stream import SCHEMA, SampleStream, open_export
 
 __all__ = [
     "SCHEMA",

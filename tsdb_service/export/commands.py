@@ -12,7 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .query import ExportFormat
+from tsdb_service.export.query import ExportFormat
 
 _FLAGS = (  # (flag, HTTP parameter or header, help)
     ("--type", "type", "entity types (comma-separated)"),
@@ -42,11 +42,11 @@ def register(subparsers, command) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from ..config import Settings
-    from ..errors import TsdbError
-    from ..ngsi.request_context import tenant
-    from ..storage import open_store
-    from . import export_query, open_export, write_file
+    from tsdb_service.config import Settings
+    from tsdb_service.errors import TsdbError
+    from tsdb_service.ngsi.request_context import tenant
+    from tsdb_service.storage import open_store
+    from tsdb_service.export import export_query, open_export, write_file
 
     settings = Settings(**({"db": args.db} if args.db else {}))
     if settings.backend == "duckdb" and not Path(settings.db).is_file():

@@ -25,8 +25,8 @@ import pyarrow.compute as pc
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
-from .query import ExportFormat
-from .stream import SCHEMA, SampleStream
+from tsdb_service.export.query import ExportFormat
+from tsdb_service.export.stream import SCHEMA, SampleStream
 
 
 class _Pieces:

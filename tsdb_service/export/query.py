@@ -14,10 +14,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import Enum
 
-from ..errors import BadRequest
-from ..history.valuepath import parse_attr_list
-from ..ngsi.request_context import entity_filter, scope, time_range
-from ..query import EntityFilter, Scope, TimeRange
+from tsdb_service.errors import BadRequest
+from tsdb_service.history.valuepath import parse_attr_list
+from tsdb_service.ngsi.request_context import entity_filter, scope, time_range
+from tsdb_service.query import EntityFilter, Scope, TimeRange
 
 
 class ExportFormat(str, Enum):

@@ -22,11 +22,11 @@ from typing import TYPE_CHECKING
 
 import pyarrow as pa
 
-from ..storage.export import EXPORT_COLUMNS, SampleBatches
-from .query import ExportQuery
+from tsdb_service.storage.export import EXPORT_COLUMNS, SampleBatches
+from tsdb_service.export.query import ExportQuery
 
 if TYPE_CHECKING:
-    from ..storage.base import Store
+    from tsdb_service.storage.base import Store
 
 BATCH_ROWS = 131_072
 WINDOW_ROWS = 1_000_000  # DuckDB: samples sorted at once (``Querier.export_batches``)

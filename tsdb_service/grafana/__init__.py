@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from . import infinity, routes, simplejson
+from tsdb_service.grafana import infinity, routes, simplejson
 
 router = APIRouter()
 router.include_router(infinity.router)

@@ -22,7 +22,7 @@ def register(subparsers, command) -> None:
 
 
 def cmd_dashboards(args: argparse.Namespace) -> int:
-    from .dashboards import files, write
+    from tsdb_service.grafana.dashboards import files, write
 
     out = Path(args.out)
     if args.check:

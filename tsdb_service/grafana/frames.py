@@ -23,24 +23,12 @@ from dataclasses import dataclass, field
 
 import orjson
 
-from ..geo.encodings import from_geojson, parse_lat_lon
-from ..history.service import run_history, run_last_values
-from ..query import (
-    Aggregation,
-    AggrMethod,
-    AggrPeriod,
-    AggrScope,
-    EntityFilter,
-    HistoryQuery,
-    LastValueQuery,
-    Scope,
-    Shape,
-    TimeRange,
-    ValuePath,
-)
-from ..storage.base import Querier
-from ..timefmt import epoch_ms, iso_z, ms_of, z_of
-from .params import Column
+from tsdb_service.geo.encodings import from_geojson, parse_lat_lon
+from tsdb_service.history.service import run_history, run_last_values
+from tsdb_service.query import Aggregation, AggrMethod, AggrPeriod, AggrScope, EntityFilter, HistoryQuery, LastValueQuery, Scope, Shape, TimeRange, ValuePath
+from tsdb_service.storage.base import Querier
+from tsdb_service.timefmt import epoch_ms, iso_z, ms_of, z_of
+from tsdb_service.grafana.params import Column
 
 # Raw samples read for one request at most (newest kept): bounds memory and
 # time on very long ranges. Downsampling happens after this read.

@@ -19,24 +19,13 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request
 
-from ..api import openapi as oa
-from ..api.reads import reads_store
-from ..api.responses import JSON
-from ..geo.filter import parse_geo
-from ..history.valuepath import parse_value_path
-from . import frames
-from .params import (
-    MAX_POINTS_LIMIT,
-    aggregate_method,
-    aggregate_period,
-    choice,
-    columns,
-    entity_filter,
-    flag,
-    positive_int,
-    scope_of,
-    time_range,
-)
+from tsdb_service.api import openapi as oa
+from tsdb_service.api.reads import reads_store
+from tsdb_service.api.responses import JSON
+from tsdb_service.geo.filter import parse_geo
+from tsdb_service.history.valuepath import parse_value_path
+from tsdb_service.grafana import frames
+from tsdb_service.grafana.params import MAX_POINTS_LIMIT, aggregate_method, aggregate_period, choice, columns, entity_filter, flag, positive_int, scope_of, time_range
 
 router = APIRouter(prefix="/grafana/infinity", tags=["grafana"])
 

@@ -15,13 +15,13 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from ..errors import BadRequest
-from ..history.valuepath import parse_value_path
-from ..ngsi.request_context import aggr_method, aggr_period, entity_filter, moment
-from ..ngsi.request_context import grafana_scope as scope_of
-from ..ngsi.request_context import grafana_time_range as time_range
-from ..ngsi.request_context import lenient_count as positive_int
-from ..query import AggrMethod, AggrPeriod, ValuePath
+from tsdb_service.errors import BadRequest
+from tsdb_service.history.valuepath import parse_value_path
+from tsdb_service.ngsi.request_context import aggr_method, aggr_period, entity_filter, moment
+from tsdb_service.ngsi.request_context import grafana_scope as scope_of
+from tsdb_service.ngsi.request_context import grafana_time_range as time_range
+from tsdb_service.ngsi.request_context import lenient_count as positive_int
+from tsdb_service.query import AggrMethod, AggrPeriod, ValuePath
 
 __all__ = [
     "MAX_POINTS_LIMIT",

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request
 
-from ..api import openapi as oa
-from ..api.responses import JSON
-from ..errors import NotFound
+from tsdb_service.api import openapi as oa
+from tsdb_service.api.responses import JSON
+from tsdb_service.errors import NotFound
 
 router = APIRouter(tags=["grafana"])
 
@@ -23,7 +23,7 @@ def list_dashboards(request: Request) -> JSON:
     service's own (``use_case`` null). ``datasources`` are the ``{"type",
     "uid"}`` its panels read, taken from the dashboard itself: the use cases
     read Infinity, the service dashboard Prometheus."""
-    from . import dashboards
+    from tsdb_service.grafana import dashboards
 
     out = []
     for name in dashboards.DASHBOARDS:
@@ -63,7 +63,7 @@ def _datasources(node, found: list[dict] | None = None) -> list[dict]:
 
 @router.get("/dashboards/{use_case}", summary="One dashboard's JSON (schemaVersion 42)", **oa.DASHBOARD)
 def get_dashboard(use_case: str) -> JSON:
-    from . import dashboards
+    from tsdb_service.grafana import dashboards
 
     if use_case.endswith(".json"):
         use_case = use_case[: -len(".json")]

@@ -31,20 +31,20 @@ from typing import Any
 
 from fastapi import APIRouter, Body, Request
 
-from .. import budget
-from ..api import openapi as oa
-from ..api.reads import reads_store
-from ..api.responses import JSON
-from ..errors import BadRequest
-from ..history.service import run_last_values
-from ..history.valuepath import parse_value_path
-from ..idpattern import compile_pattern, compiled
-from ..ngsi.request_context import id_pattern
-from ..query import EntityFilter, LastValueQuery, TimeRange, ValuePath
-from ..rawpath import escape_segment, unescape_segment
-from ..timefmt import ms_of
-from . import frames
-from .params import MAX_POINTS_LIMIT, Column, moment, positive_int, scope_of
+from tsdb_service import budget
+from tsdb_service.api import openapi as oa
+from tsdb_service.api.reads import reads_store
+from tsdb_service.api.responses import JSON
+from tsdb_service.errors import BadRequest
+from tsdb_service.history.service import run_last_values
+from tsdb_service.history.valuepath import parse_value_path
+from tsdb_service.idpattern import compile_pattern, compiled
+from tsdb_service.ngsi.request_context import id_pattern
+from tsdb_service.query import EntityFilter, LastValueQuery, TimeRange, ValuePath
+from tsdb_service.rawpath import escape_segment, unescape_segment
+from tsdb_service.timefmt import ms_of
+from tsdb_service.grafana import frames
+from tsdb_service.grafana.params import MAX_POINTS_LIMIT, Column, moment, positive_int, scope_of
 
 router = APIRouter(prefix="/grafana/simplejson", tags=["grafana"])
 

@@ -12,29 +12,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from ..errors import BadRequest
-from ..ngsi.request_context import (
-    aggregation,
-    check_id,
-    entity_filter,
-    id_list,
-    id_pattern,
-    non_negative,
-    page_limit,
-    positive,
-    scope,
-    time_range,
-)
-from ..query import (
-    DeleteQuery,
-    EntityFilter,
-    EntityListQuery,
-    HistoryQuery,
-    Shape,
-    ValuePath,
-)
-from ..rawpath import unescape_segment
-from .valuepath import parse_attr_list, parse_value_path
+from tsdb_service.errors import BadRequest
+from tsdb_service.ngsi.request_context import aggregation, check_id, entity_filter, id_list, id_pattern, non_negative, page_limit, positive, scope, time_range
+from tsdb_service.query import DeleteQuery, EntityFilter, EntityListQuery, HistoryQuery, Shape, ValuePath
+from tsdb_service.rawpath import unescape_segment
+from tsdb_service.history.valuepath import parse_attr_list, parse_value_path
 
 
 def history_query(
@@ -131,7 +113,7 @@ def delete_query(
 def geo_filter(params: Mapping[str, str]) -> object | None:
     """``georel``, ``geometry`` and ``coords`` as a ``GeoFilter`` (or None);
     ``geoScope`` chooses sample (default) or entity semantics."""
-    from ..geo.filter import parse_geo
+    from tsdb_service.geo.filter import parse_geo
 
     return parse_geo(params.get("georel"), params.get("geometry"), params.get("coords"), params.get("geoScope"))
 

@@ -13,26 +13,12 @@ from dataclasses import dataclass, field
 
 import orjson
 
-from .. import budget
-from ..errors import AggrNotApplicable, Conflict, NotFound
-from ..model import Kind
-from ..query import (
-    AggBranch,
-    AggrMethod,
-    AggrScope,
-    DeleteQuery,
-    EntityFilter,
-    EntityListQuery,
-    HistoryQuery,
-    LastValueQuery,
-    Scope,
-    SeriesRef,
-    Shape,
-    TimeRange,
-    ValuePath,
-)
-from ..storage.base import Querier
-from .valuepath import extract
+from tsdb_service import budget
+from tsdb_service.errors import AggrNotApplicable, Conflict, NotFound
+from tsdb_service.model import Kind
+from tsdb_service.query import AggBranch, AggrMethod, AggrScope, DeleteQuery, EntityFilter, EntityListQuery, HistoryQuery, LastValueQuery, Scope, SeriesRef, Shape, TimeRange, ValuePath
+from tsdb_service.storage.base import Querier
+from tsdb_service.history.valuepath import extract
 
 _SINGLE_ENTITY = (Shape.ENTITY_ATTR, Shape.ENTITY)
 
@@ -122,7 +108,7 @@ def resolve_entity_series(
 def _geo_refs(querier, scope, entities, refs, geo, time):
     """``(refs, querier)``: the series of entities with matching locations,
     and a querier that reads only matching samples (see geo.matching)."""
-    from ..geo.matching import apply_geo
+    from tsdb_service.geo.matching import apply_geo
 
     if entities.ids is not None and len({r.entity_type for r in refs}) == 1:
         # A single-entity request resolved its type already: match within it.

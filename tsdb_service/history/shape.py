@@ -14,9 +14,9 @@ from __future__ import annotations
 
 from typing import TypeVar
 
-from ..query import AggrScope, HistoryQuery, Shape
-from ..timefmt import iso_ms
-from .service import EntityResult, HistoryResult
+from tsdb_service.query import AggrScope, HistoryQuery, Shape
+from tsdb_service.timefmt import iso_ms
+from tsdb_service.history.service import EntityResult, HistoryResult
 
 T = TypeVar("T")
 

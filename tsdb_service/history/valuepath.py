@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import re
 
-from ..errors import BadRequest
-from ..ngsi.names import name_problem
-from ..query import ValuePath
+from tsdb_service.errors import BadRequest
+from tsdb_service.ngsi.names import name_problem
+from tsdb_service.query import ValuePath
 
 _KEY = r"""[^\s.,\[\]()<>"'=;]+"""
 _STEP = re.compile(rf"\.?({_KEY})|\[(\d{{1,9}})\]")

@@ -86,16 +86,10 @@ from collections.abc import Iterable, Mapping
 from datetime import UTC, datetime
 from typing import overload
 
-from ..errors import BadRequest, ParseError
-from ..idpattern import compile_pattern
-from ..query import Aggregation, AggrMethod, AggrPeriod, AggrScope, EntityFilter, Scope, TimeRange
-from .names import (
-    ID_RULE,
-    SERVICE_PATH_RULE,
-    id_problem,
-    normalize_service_path,
-    service_path_problem,
-)
+from tsdb_service.errors import BadRequest, ParseError
+from tsdb_service.idpattern import compile_pattern
+from tsdb_service.query import Aggregation, AggrMethod, AggrPeriod, AggrScope, EntityFilter, Scope, TimeRange
+from tsdb_service.ngsi.names import ID_RULE, SERVICE_PATH_RULE, id_problem, normalize_service_path, service_path_problem
 
 MAX_IDS = 10_000
 # The largest integer any parameter may take (limits, offsets, lastN,

@@ -46,13 +46,13 @@ from itertools import groupby, pairwise
 from operator import itemgetter, truediv
 from typing import NamedTuple
 
-from ..model import Kind
-from ..query import InstancePeriods
-from ..timefmt import ld_iso as iso
-from ..timefmt import ld_iso_us as iso_us
-from .errors import BadRequestData
-from .fetch import Fetcher, instance_window
-from .query import Aggregation, Duration, Window
+from tsdb_service.model import Kind
+from tsdb_service.query import InstancePeriods
+from tsdb_service.timefmt import ld_iso as iso
+from tsdb_service.timefmt import ld_iso_us as iso_us
+from tsdb_service.ngsild.errors import BadRequestData
+from tsdb_service.ngsild.fetch import Fetcher, instance_window
+from tsdb_service.ngsild.query import Aggregation, Duration, Window
 
 MAX_PERIODS = 100_000
 _K = Kind

@@ -14,7 +14,7 @@ any ``TsdbError``) from NGSI-LD routes.
 
 from __future__ import annotations
 
-from ..errors import BadRequest, Conflict, NotFound, TsdbError, Unprocessable
+from tsdb_service.errors import BadRequest, Conflict, NotFound, TsdbError, Unprocessable
 
 ERROR_TYPE_BASE = "https://uri.etsi.org/ngsi-ld/errors/"
 MEDIA_TYPE = "application/json"

@@ -34,11 +34,11 @@ from itertools import compress
 
 import orjson
 
-from ..query import VALUE_TEST_OPS, EntityFilter, InstanceWindow, Scope, SeriesRef, ValueTest
-from ..storage.base import Querier
-from . import qlang
-from .context import TermMap
-from .query import DEFAULT_DATASET, TemporalQuery, TypeExpr, TypeName, Window, type_matches
+from tsdb_service.query import VALUE_TEST_OPS, EntityFilter, InstanceWindow, Scope, SeriesRef, ValueTest
+from tsdb_service.storage.base import Querier
+from tsdb_service.ngsild import qlang
+from tsdb_service.ngsild.context import TermMap
+from tsdb_service.ngsild.query import DEFAULT_DATASET, TemporalQuery, TypeExpr, TypeName, Window, type_matches
 
 EntityKey = tuple[str, str]  # (entity id, stored entity type)
 
@@ -250,7 +250,7 @@ _VALUE_KEYS = ("value", "object", "languageMap", "valueList", "objectList", "voc
 def term_value(term: qlang.Term, kind, num, txt, js, md):
     """The value a q term looks at in one stored instance: the attribute's
     value, a sub-property's value (``a.b``) or a member inside the value (``a[k]``)."""
-    from ..history.service import decode
+    from tsdb_service.history.service import decode
 
     if term.sub:
         try:

@@ -19,8 +19,8 @@ import shapely
 from shapely.geometry import shape
 from shapely.geometry.base import BaseGeometry
 
-from ..geo.filter import BBox, box_prefilter, geometries, relations_hold
-from .errors import BadRequestData
+from tsdb_service.geo.filter import BBox, box_prefilter, geometries, relations_hold
+from tsdb_service.ngsild.errors import BadRequestData
 
 GEORELS = ("near", "within", "contains", "intersects", "equals", "disjoint", "overlaps")
 GEOMETRIES = ("Point", "MultiPoint", "LineString", "MultiLineString", "Polygon", "MultiPolygon")

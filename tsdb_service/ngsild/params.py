@@ -16,27 +16,13 @@ from dataclasses import replace
 from decimal import Decimal, InvalidOperation
 from typing import Any
 
-from ..errors import BadRequest
-from ..ngsi.request_context import MAX_IDS, id_pattern, int_param, parse_time
-from . import qlang
-from .context import TermMap
-from .errors import BadRequestData, OperationNotSupported, TooManyResults
-from .geoquery import parse_ld_geo
-from .query import (
-    AGGR_METHODS,
-    Aggregation,
-    Duration,
-    Format,
-    GeoQuery,
-    Selector,
-    TemporalQuery,
-    TimeProperty,
-    TypeAnd,
-    TypeExpr,
-    TypeName,
-    TypeOr,
-    Window,
-)
+from tsdb_service.errors import BadRequest
+from tsdb_service.ngsi.request_context import MAX_IDS, id_pattern, int_param, parse_time
+from tsdb_service.ngsild import qlang
+from tsdb_service.ngsild.context import TermMap
+from tsdb_service.ngsild.errors import BadRequestData, OperationNotSupported, TooManyResults
+from tsdb_service.ngsild.geoquery import parse_ld_geo
+from tsdb_service.ngsild.query import AGGR_METHODS, Aggregation, Duration, Format, GeoQuery, Selector, TemporalQuery, TimeProperty, TypeAnd, TypeExpr, TypeName, TypeOr, Window
 
 MAX_LIST = 1000
 MAX_ID_LENGTH = 2048

@@ -14,7 +14,7 @@ from datetime import datetime
 from enum import Enum
 from typing import Any
 
-from .qlang import Node
+from tsdb_service.ngsild.qlang import Node
 
 DEFAULT_DATASET = "@none"  # how a request names the default instance in datasetId
 

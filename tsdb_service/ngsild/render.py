@@ -23,9 +23,9 @@ from typing import Any
 
 import orjson
 
-from ..history.service import decode
-from ..model import instance_urn
-from .aggregate import iso, type_name
+from tsdb_service.history.service import decode
+from tsdb_service.model import instance_urn
+from tsdb_service.ngsild.aggregate import iso, type_name
 
 LD_NULL = "urn:ngsi-ld:null"
 # attribute type → (member of one instance, member of the simplified form)

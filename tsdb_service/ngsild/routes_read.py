@@ -18,18 +18,12 @@ import orjson
 from fastapi import APIRouter, Request
 from starlette.responses import Response
 
-from ..api import openapi as oa
-from .context import (
-    JSONLD_CONTEXT_REL,
-    ContextStore,
-    TermMap,
-    link_context,
-    parse_local_contexts,
-)
-from .errors import BadRequestData, InvalidRequest, NotAcceptable
-from .params import query_from_body, query_from_params
-from .service import TemporalResult, run
-from .tenancy import ld_tenant, tenant_echo
+from tsdb_service.api import openapi as oa
+from tsdb_service.ngsild.context import JSONLD_CONTEXT_REL, ContextStore, TermMap, link_context, parse_local_contexts
+from tsdb_service.ngsild.errors import BadRequestData, InvalidRequest, NotAcceptable
+from tsdb_service.ngsild.params import query_from_body, query_from_params
+from tsdb_service.ngsild.service import TemporalResult, run
+from tsdb_service.ngsild.tenancy import ld_tenant, tenant_echo
 
 router = APIRouter(prefix="/ngsi-ld/v1", tags=["NGSI-LD temporal"])
 LD_JSON = "application/ld+json"

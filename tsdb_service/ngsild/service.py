@@ -9,14 +9,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..query import InstanceWindow
-from ..timefmt import ld_iso as iso
-from .aggregate import Aggregator
-from .context import TermMap
-from .errors import NonexistentTenant, ResourceNotFound
-from .fetch import EntityKey, Fetcher
-from .query import Format, TemporalQuery
-from .render import aggregated, entity, normalized, simplified
+from tsdb_service.query import InstanceWindow
+from tsdb_service.timefmt import ld_iso as iso
+from tsdb_service.ngsild.aggregate import Aggregator
+from tsdb_service.ngsild.context import TermMap
+from tsdb_service.ngsild.errors import NonexistentTenant, ResourceNotFound
+from tsdb_service.ngsild.fetch import EntityKey, Fetcher
+from tsdb_service.ngsild.query import Format, TemporalQuery
+from tsdb_service.ngsild.render import aggregated, entity, normalized, simplified
 
 
 @dataclass

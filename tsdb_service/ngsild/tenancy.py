@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from fastapi import Request
 
-from ..ngsi.request_context import tenant
+from tsdb_service.ngsi.request_context import tenant
 
 
 def ld_tenant(request: Request) -> str:

@@ -37,14 +37,14 @@ import orjson
 from fastapi import APIRouter, Request
 from fastapi.responses import Response
 
-from ..api import openapi as oa
-from ..errors import ParseError, PayloadTooLarge, UnsupportedMediaType
-from ..model import AttrSample, EntitySample, instance_iid
-from ..ngsi.notification import parse_ld_instance
-from ..query import EntityFilter, Scope, SeriesRef
-from ..storage.base import AppendSamples, DeleteInstance, DeleteSamples, ReplaceInstance
-from .errors import BadRequestData, InvalidRequest, NonexistentTenant, ResourceNotFound
-from .tenancy import ld_tenant, tenant_echo
+from tsdb_service.api import openapi as oa
+from tsdb_service.errors import ParseError, PayloadTooLarge, UnsupportedMediaType
+from tsdb_service.model import AttrSample, EntitySample, instance_iid
+from tsdb_service.ngsi.notification import parse_ld_instance
+from tsdb_service.query import EntityFilter, Scope, SeriesRef
+from tsdb_service.storage.base import AppendSamples, DeleteInstance, DeleteSamples, ReplaceInstance
+from tsdb_service.ngsild.errors import BadRequestData, InvalidRequest, NonexistentTenant, ResourceNotFound
+from tsdb_service.ngsild.tenancy import ld_tenant, tenant_echo
 
 router = APIRouter(prefix="/ngsi-ld/v1", tags=["NGSI-LD temporal"])
 

@@ -11,18 +11,10 @@ from collections.abc import Mapping
 
 from starlette.middleware.cors import CORSMiddleware
 
-from .guard import Guard
-from .keys import KeyRing
-from .principals import (
-    ADMIN,
-    READ,
-    WRITE,
-    Forbidden,
-    Principal,
-    Unauthorized,
-    required_scope,
-)
-from .tokens import TokenVerifier
+from tsdb_service.security.guard import Guard
+from tsdb_service.security.keys import KeyRing
+from tsdb_service.security.principals import ADMIN, READ, WRITE, Forbidden, Principal, Unauthorized, required_scope
+from tsdb_service.security.tokens import TokenVerifier
 
 __all__ = [
     "ADMIN",

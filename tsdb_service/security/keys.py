@@ -14,7 +14,7 @@ import hmac
 import re
 from pathlib import Path
 
-from .principals import Principal, parse_scopes, parse_tenants
+from tsdb_service.security.principals import Principal, parse_scopes, parse_tenants
 
 MIN_KEY_LENGTH = 16
 # RFC 6750 token68 characters: a key must travel as "Authorization: Bearer KEY".

@@ -15,9 +15,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from ..config import Settings
-from .base import Store
-from .rejected import RejectedLimits
+from tsdb_service.config import Settings
+from tsdb_service.storage.base import Store
+from tsdb_service.storage.rejected import RejectedLimits
 
 PG_CONNECT_TIMEOUT_S = 10
 
@@ -32,10 +32,10 @@ def migrate(settings: Settings) -> list[int]:
     mistake is a one-line ``StoreUnavailable``, as for ``open_store``."""
     with explained(settings.db):
         if settings.backend == "postgresql":
-            from .postgres.store import migrate_url
+            from tsdb_service.storage.postgres.store import migrate_url
 
             return migrate_url(settings.db)
-        from .duckdb.store import connect, migrate_duckdb
+        from tsdb_service.storage.duckdb.store import connect, migrate_duckdb
 
         con = connect(settings.db)
         try:
@@ -50,7 +50,7 @@ def open_store(settings: Settings, *, background: bool = False) -> Store:
     ``background`` (the server): also start the retention worker when a
     policy is set (``storage.retention``). Offline commands (copy, compact)
     never delete by retention behind the operator's back."""
-    from .retention import attach_retention
+    from tsdb_service.storage.retention import attach_retention
 
     store = _open_explained(settings)
     try:
@@ -84,7 +84,7 @@ def _open_explained(settings: Settings) -> Store:
 
 def _open(settings: Settings) -> Store:
     if settings.backend == "postgresql":
-        from .postgres.store import PostgresStore
+        from tsdb_service.storage.postgres.store import PostgresStore
 
         return PostgresStore(
             settings.db,
@@ -92,7 +92,7 @@ def _open(settings: Settings) -> Store:
             agg_partials_hours=settings.agg_partials_hours,
             rejected_limits=RejectedLimits.from_settings(settings),
         )
-    from .duckdb.store import DuckDBStore
+    from tsdb_service.storage.duckdb.store import DuckDBStore
 
     return DuckDBStore(
         settings.db,

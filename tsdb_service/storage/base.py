@@ -18,40 +18,13 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
-from ..model import AttrSample, EntitySample, RejectedNotification
-from ..ngsi import ValuesLayout
-from ..query import (
-    AggBranch,
-    AggregateRow,
-    Aggregation,
-    EntityFilter,
-    ExtentRow,
-    FirstLocationRow,
-    GeometryRow,
-    InstanceAggregateRow,
-    InstancePeriods,
-    InstanceRow,
-    InstanceValueRow,
-    InstanceWindow,
-    LastValueRow,
-    LatestRow,
-    LocationProbe,
-    LocationRow,
-    Prefilter,
-    RawRow,
-    RowMask,
-    Scope,
-    SeriesRef,
-    StoredSample,
-    TimeRange,
-    ValueProbe,
-    ValueTest,
-    WindowScan,
-)
-from .memory_only import T, read_off_loop
+from tsdb_service.model import AttrSample, EntitySample, RejectedNotification
+from tsdb_service.ngsi import ValuesLayout
+from tsdb_service.query import AggBranch, AggregateRow, Aggregation, EntityFilter, ExtentRow, FirstLocationRow, GeometryRow, InstanceAggregateRow, InstancePeriods, InstanceRow, InstanceValueRow, InstanceWindow, LastValueRow, LatestRow, LocationProbe, LocationRow, Prefilter, RawRow, RowMask, Scope, SeriesRef, StoredSample, TimeRange, ValueProbe, ValueTest, WindowScan
+from tsdb_service.storage.memory_only import T, read_off_loop
 
 if TYPE_CHECKING:
-    from .export import SampleBatches
+    from tsdb_service.storage.export import SampleBatches
 
 
 @dataclass(frozen=True, slots=True)

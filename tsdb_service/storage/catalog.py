@@ -22,9 +22,9 @@ import gc
 import threading
 from collections.abc import Callable, Iterable, Sequence
 
-from .. import budget
-from ..idpattern import compiled
-from ..query import EntityFilter, Scope, SeriesRef
+from tsdb_service import budget
+from tsdb_service.idpattern import compiled
+from tsdb_service.query import EntityFilter, Scope, SeriesRef
 
 
 class _TenantIndex:

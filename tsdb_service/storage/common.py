@@ -17,22 +17,11 @@ from typing import Any
 
 import orjson
 
-from ..model import AttrSample, EntitySample, RejectedNotification
-from ..ngsi import ValuesLayout
-from ..query import Bounds, Prefilter
-from .base import (
-    Appender,
-    AppendSamples,
-    CopyRun,
-    DeleteInstance,
-    DeleteSamples,
-    PutLayout,
-    RecordRejected,
-    ReplaceInstance,
-    Store,
-    WriteOp,
-)
-from .writer import GroupCommitter
+from tsdb_service.model import AttrSample, EntitySample, RejectedNotification
+from tsdb_service.ngsi import ValuesLayout
+from tsdb_service.query import Bounds, Prefilter
+from tsdb_service.storage.base import Appender, AppendSamples, CopyRun, DeleteInstance, DeleteSamples, PutLayout, RecordRejected, ReplaceInstance, Store, WriteOp
+from tsdb_service.storage.writer import GroupCommitter
 
 # -- sample columns ----------------------------------------------------------------
 

@@ -26,10 +26,10 @@ from dataclasses import dataclass
 from datetime import UTC
 from pathlib import Path
 
-from ..config import Settings, check_db
-from ..model import AttrSample, EntitySample, Geometry, Kind, RejectedNotification
-from ..query import EntityFilter, Scope, StoredSample
-from .base import AppendSamples, CopyRun, PutLayout, RecordRejected, Store
+from tsdb_service.config import Settings, check_db
+from tsdb_service.model import AttrSample, EntitySample, Geometry, Kind, RejectedNotification
+from tsdb_service.query import EntityFilter, Scope, StoredSample
+from tsdb_service.storage.base import AppendSamples, CopyRun, PutLayout, RecordRejected, Store
 
 # Everything goes through the seam (``Store``, ``Querier``): the source's
 # samples come from ``Querier.stored_samples`` (instance ids stay behind:
@@ -86,7 +86,7 @@ def register(subparsers, command) -> None:
 
 
 def cmd_copy(args) -> int:
-    from . import open_store, require_history
+    from tsdb_service.storage import open_store, require_history
 
     source_db, target_db = _checked(args.source, "--from"), _checked(args.target, "--to")
     if store_identity(source_db) == store_identity(target_db):
@@ -144,7 +144,7 @@ def _checked(db: str, flag: str) -> str:
 def store_identity(db: str) -> str:
     """What a store is called in ``copy_runs`` and compared by: a DuckDB file's
     absolute path, or the URL without its password."""
-    from . import redact
+    from tsdb_service.storage import redact
 
     if Settings(db=db).backend == "postgresql":
         return redact(db)

@@ -14,10 +14,10 @@ from contextlib import ExitStack
 
 import pyarrow as pa
 
-from ..errors import Unavailable
-from ..model import Kind
-from ..query import TimeRange
-from .sql import Dialect, series_time_filter
+from tsdb_service.errors import Unavailable
+from tsdb_service.model import Kind
+from tsdb_service.query import TimeRange
+from tsdb_service.storage.sql import Dialect, series_time_filter
 
 # The columns of every batch, in this order. ``time`` is a naive UTC
 # timestamp (DuckDB) or epoch microseconds (PostgreSQL); the rest as named.

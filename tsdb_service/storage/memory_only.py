@@ -19,7 +19,7 @@ from typing import TypeVar
 
 from starlette.concurrency import run_in_threadpool
 
-from .. import budget
+from tsdb_service import budget
 
 T = TypeVar("T")
 

@@ -41,10 +41,10 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from typing import Protocol
 
-from ..retention_policy import RetentionPolicy
-from .rollups import TABLE as ROLLUP_TABLE
-from .rollups import RollupPresence
-from .sql import Dialect
+from tsdb_service.retention_policy import RetentionPolicy
+from tsdb_service.storage.rollups import TABLE as ROLLUP_TABLE
+from tsdb_service.storage.rollups import RollupPresence
+from tsdb_service.storage.sql import Dialect
 
 log = logging.getLogger(__name__)
 

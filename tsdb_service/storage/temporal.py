@@ -17,14 +17,14 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from ..model import Kind
-from ..query import InstancePeriods, InstanceWindow, LocationProbe, Prefilter, ValueProbe, ValueTest
-from .common import box_sql
+from tsdb_service.model import Kind
+from tsdb_service.query import InstancePeriods, InstanceWindow, LocationProbe, Prefilter, ValueProbe, ValueTest
+from tsdb_service.storage.common import box_sql
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from .sql import Dialect
+    from tsdb_service.storage.sql import Dialect
 
 # NGSI-LD time properties → the SQL that reads them. observedAt falls back
 # to the row time for samples that had none (NGSIv2 data, or NGSI-LD without

@@ -34,8 +34,8 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import Future as SyncFuture
 from typing import Protocol
 
-from ..errors import Unavailable
-from .base import Appender, AppendSamples, WriteOp
+from tsdb_service.errors import Unavailable
+from tsdb_service.storage.base import Appender, AppendSamples, WriteOp
 
 log = logging.getLogger(__name__)
 

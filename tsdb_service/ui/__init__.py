@@ -13,6 +13,6 @@ replaces FastAPI's CDN-backed one.
 
 from __future__ import annotations
 
-from .routes import router
+from tsdb_service.ui.routes import router
 
 __all__ = ["router"]

@@ -16,11 +16,11 @@ from fastapi import APIRouter, Request
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
 
-from ..api import openapi as oa
-from ..api.reads import reads_store
-from ..api.responses import JSON
-from ..errors import NotFound
-from ..query import EntityFilter, Scope
+from tsdb_service.api import openapi as oa
+from tsdb_service.api.reads import reads_store
+from tsdb_service.api.responses import JSON
+from tsdb_service.errors import NotFound
+from tsdb_service.query import EntityFilter, Scope
 
 STATIC = Path(__file__).resolve().parent / "static"
 SWAGGER = "vendor/swagger-ui"
@@ -87,7 +87,7 @@ def tenants(request: Request) -> JSON:
 def usecases() -> JSON:
     """From the demo's own definitions, so a renamed entity or state cannot
     drift between the simulators and the page."""
-    from .usecases import describe
+    from tsdb_service.ui.usecases import describe
 
     return JSON(describe())
 

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from ..demo import enums, sites
-from ..demo.usecases import SIMULATORS
+from tsdb_service.demo import enums, sites
+from tsdb_service.demo.usecases import SIMULATORS
 
 
 def _tenancy(tenancy: sites.Tenancy) -> dict:

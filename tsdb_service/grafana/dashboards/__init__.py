@@ -14,7 +14,7 @@ from collections.abc import Callable
 from functools import cache
 from pathlib import Path
 
-from . import drone, drone_ld, kit, lawnmower, service, warehouse
+from tsdb_service.grafana.dashboards import drone, drone_ld, kit, lawnmower, service, warehouse
 
 BUILDERS: dict[str, Callable] = {
     "lawnmower": lawnmower.build,

@@ -8,10 +8,10 @@ from grafana_foundation_sdk.models import common
 from grafana_foundation_sdk.models import dashboard as dm
 from grafana_foundation_sdk.models import geomap as gm
 
-from ...demo import sites
-from ...demo.enums import DRONE_MISSION_STATE
-from . import kit
-from .kit import Query, attrs
+from tsdb_service.demo import sites
+from tsdb_service.demo.enums import DRONE_MISSION_STATE
+from tsdb_service.grafana.dashboards import kit
+from tsdb_service.grafana.dashboards.kit import Query, attrs
 
 UID = "tsdb-drone"
 DS = kit.DATASOURCES["drone"]

@@ -22,9 +22,9 @@ from grafana_foundation_sdk.cog import variants as cogvariants
 from grafana_foundation_sdk.models import common
 from grafana_foundation_sdk.models import geomap as gm
 
-from ...demo import sites
-from ...demo.enums import DRONE_MISSION_STATE
-from . import drone, kit
+from tsdb_service.demo import sites
+from tsdb_service.demo.enums import DRONE_MISSION_STATE
+from tsdb_service.grafana.dashboards import drone, kit
 
 UID = "tsdb-drone-ld"
 DS = kit.DATASOURCES["drone"]  # the tenant travels as Fiware-Service, which NGSI-LD reads accept too

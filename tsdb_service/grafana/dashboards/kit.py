@@ -23,7 +23,7 @@ from grafana_foundation_sdk.cog import variants as cogvariants
 from grafana_foundation_sdk.models import common
 from grafana_foundation_sdk.models import dashboard as dm
 
-from ...demo import sites
+from tsdb_service.demo import sites
 
 INFINITY = "yesoreyeram-infinity-datasource"
 SERVICE_URL = "http://tsdb-service:8668"  # the service's name in a compose file

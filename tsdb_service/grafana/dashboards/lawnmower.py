@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from grafana_foundation_sdk.models import common
 
-from ...demo import sites
-from ...demo.enums import LAWNMOWER_NAVIGATION_STATE, LAWNMOWER_NAVIGATION_SUBSTATE
-from . import kit
-from .kit import Query, attrs
+from tsdb_service.demo import sites
+from tsdb_service.demo.enums import LAWNMOWER_NAVIGATION_STATE, LAWNMOWER_NAVIGATION_SUBSTATE
+from tsdb_service.grafana.dashboards import kit
+from tsdb_service.grafana.dashboards.kit import Query, attrs
 
 UID = "tsdb-lawnmower"
 DS = kit.DATASOURCES["lawnmower"]

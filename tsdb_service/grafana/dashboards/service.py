@@ -14,7 +14,7 @@ from grafana_foundation_sdk.builders import prometheus
 from grafana_foundation_sdk.builders import stat as gstat
 from grafana_foundation_sdk.models import common
 
-from . import kit
+from tsdb_service.grafana.dashboards import kit
 
 UID = "tsdb-service"
 PROMETHEUS = "prometheus"

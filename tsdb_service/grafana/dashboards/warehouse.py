@@ -8,15 +8,10 @@ from grafana_foundation_sdk.builders import dashboard as db
 from grafana_foundation_sdk.models import common
 from grafana_foundation_sdk.models import dashboard as dm
 
-from ...demo import sites
-from ...demo.enums import (
-    DOOR_COMMAND,
-    DOOR_STATE,
-    WARNING_LIGHT_COMMAND,
-    WARNING_LIGHT_STATE,
-)
-from . import kit
-from .kit import Query, attrs
+from tsdb_service.demo import sites
+from tsdb_service.demo.enums import DOOR_COMMAND, DOOR_STATE, WARNING_LIGHT_COMMAND, WARNING_LIGHT_STATE
+from tsdb_service.grafana.dashboards import kit
+from tsdb_service.grafana.dashboards.kit import Query, attrs
 
 UID = "tsdb-warehouse"
 DS = kit.DATASOURCES["warehouse"]

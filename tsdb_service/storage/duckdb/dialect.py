@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from ..sql import Dialect
+from tsdb_service.storage.sql import Dialect
 
 # Periods of a fixed number of microseconds (UTC has no leap seconds here);
 # floor division is truncation because times before 1970 round down too.

@@ -45,9 +45,9 @@ import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterable
 
-from ...model import Kind
-from ...query import Bounds, ExtentRow, GeometryRow, Prefilter
-from ..common import Box, box_passes, extent_prefilter
+from tsdb_service.model import Kind
+from tsdb_service.query import Bounds, ExtentRow, GeometryRow, Prefilter
+from tsdb_service.storage.common import Box, box_passes, extent_prefilter
 
 GEO = int(Kind.GEO)
 

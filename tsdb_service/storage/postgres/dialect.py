@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
-from ..sql import Dialect
+from tsdb_service.storage.sql import Dialect
 
 # Where ``date_part('epoch', ...)`` in microseconds rounds to the exact value
 # (``PostgresDialect.epoch_us``): within ±2^31 s of 1970.

@@ -30,31 +30,17 @@ from typing import Final, Protocol
 
 import psycopg
 
-from ...errors import Unavailable
-from ...model import Kind
-from ...query import (
-    EntityFilter,
-    ExtentRow,
-    FirstLocationRow,
-    GeometryRow,
-    InstanceAggregateRow,
-    InstancePeriods,
-    InstanceWindow,
-    Prefilter,
-    RawRow,
-    RowMask,
-    Scope,
-    SeriesRef,
-    TimeRange,
-)
-from .. import temporal
-from ..catalog import SeriesCatalog
-from ..common import extent_prefilter
-from ..export import Columns, SampleBatches, export_sql, rows_to_columns
-from ..memory_only import check_database_allowed
-from ..partials import HourlyPartials
-from ..sql import _MAX_BIGINT, SqlQuerier, as_first_locations, as_geometries, box_test
-from .dialect import PostgresDialect, int_array
+from tsdb_service.errors import Unavailable
+from tsdb_service.model import Kind
+from tsdb_service.query import EntityFilter, ExtentRow, FirstLocationRow, GeometryRow, InstanceAggregateRow, InstancePeriods, InstanceWindow, Prefilter, RawRow, RowMask, Scope, SeriesRef, TimeRange
+from tsdb_service.storage import temporal
+from tsdb_service.storage.catalog import SeriesCatalog
+from tsdb_service.storage.common import extent_prefilter
+from tsdb_service.storage.export import Columns, SampleBatches, export_sql, rows_to_columns
+from tsdb_service.storage.memory_only import check_database_allowed
+from tsdb_service.storage.partials import HourlyPartials
+from tsdb_service.storage.sql import _MAX_BIGINT, SqlQuerier, as_first_locations, as_geometries, box_test
+from tsdb_service.storage.postgres.dialect import PostgresDialect, int_array
 
 
 class PostgresSource(Protocol):

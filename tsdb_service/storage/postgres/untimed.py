@@ -21,8 +21,8 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Mapping, Sequence
 
-from ...model import EntitySample
-from .extents import SeriesKey
+from tsdb_service.model import EntitySample
+from tsdb_service.storage.postgres.extents import SeriesKey
 
 INSERT = (
     "INSERT INTO untimed_series (sid) "
