@@ -109,8 +109,8 @@ def temperature(e: int, i: int) -> float:
 def load(db: Path | str, every: bool, batch_notifications: int = 50_000, cluster: BenchCluster | None = None) -> dict:
     import orjson
 
+    from tsdb_service.core.model import AttrSample, EntitySample, Kind
     from tsdb_service.geo.encodings import from_geojson
-    from tsdb_service.model import AttrSample, EntitySample, Kind
 
     ids = [entity_id(e) for e in range(ENTITIES)]
 

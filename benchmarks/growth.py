@@ -163,7 +163,7 @@ def load_postgres(url: str, size: int) -> dict:
 def check_layout(db: str, size: int) -> dict:
     """Write one notification for entity 0 through the service's parser and
     store, then compare its rows with the bulk-loaded ones."""
-    from tsdb_service.ngsi import parse_notification
+    from tsdb_service.parse import parse_notification
     from tsdb_service.storage.base import AppendSamples
 
     moment = START + timedelta(minutes=per_series(size) + 5)

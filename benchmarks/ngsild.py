@@ -73,8 +73,8 @@ def place(rng: random.Random) -> tuple[float, float]:
 def load(settings, entities: int) -> dict:
     import orjson
 
+    from tsdb_service.core.model import AttrSample, EntitySample, Kind
     from tsdb_service.geo.encodings import from_geojson
-    from tsdb_service.model import AttrSample, EntitySample, Kind
     from tsdb_service.storage import open_store
     from tsdb_service.storage.base import AppendSamples
 
@@ -215,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", help="write the results here")
     args = parser.parse_args(argv)
 
-    from tsdb_service.config import Settings
+    from tsdb_service.core.config import Settings
 
     entities = max(100, int(100_000 * args.scale))
     cluster = None

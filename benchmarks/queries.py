@@ -72,7 +72,7 @@ def samples_per_series(scale: float) -> int:
 def load(
     db: Path | str, per_series: int = SAMPLES, batch_notifications: int = 20_000, cluster: BenchCluster | None = None
 ) -> dict:
-    from tsdb_service.model import AttrSample, EntitySample, Kind
+    from tsdb_service.core.model import AttrSample, EntitySample, Kind
 
     names = [attr_name(a) for a in range(ATTRS)]
     ids = [entity_id(e) for e in range(ENTITIES)]
@@ -106,8 +106,8 @@ def engine_ceiling(db: Path | str, seconds: float = 4.0, threads: int = 2) -> di
     can do on this machine, for comparison with the served rate."""
     import threading
 
-    from tsdb_service.history.params import history_query
-    from tsdb_service.query import Shape
+    from tsdb_service.core.query import Shape
+    from tsdb_service.faces.quantumleap.params import history_query
 
     store = open_store(db)
     querier = store.querier()

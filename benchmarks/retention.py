@@ -47,7 +47,7 @@ KEEP = timedelta(days=1)
 
 
 def load(db, per_series: int, cluster, batch_notifications: int = 20_000) -> dict:
-    from tsdb_service.model import AttrSample, EntitySample, Kind
+    from tsdb_service.core.model import AttrSample, EntitySample, Kind
 
     step = SPAN / per_series
     rng = random.Random(7)
@@ -87,7 +87,7 @@ class Probe:
     a day, recording latencies until stopped."""
 
     def __init__(self, store, day_start: datetime):
-        from tsdb_service.query import (
+        from tsdb_service.core.query import (
             AggBranch,
             Aggregation,
             AggrMethod,
@@ -109,7 +109,7 @@ class Probe:
         self.query_ms: list[float] = []
 
     def _commit(self, n: int) -> None:
-        from tsdb_service.model import AttrSample, EntitySample, Kind
+        from tsdb_service.core.model import AttrSample, EntitySample, Kind
         from tsdb_service.storage.base import AppendSamples
 
         attrs = [AttrSample(f"attr{a}", "Number", Kind.NUMBER, num=float(a)) for a in range(ATTRS)]
@@ -144,7 +144,7 @@ class Probe:
 
 
 def one_pass(store, settings_kw: dict, clock_at: datetime, batch_rows: int) -> dict:
-    from tsdb_service.config import Settings
+    from tsdb_service.core.config import Settings
     from tsdb_service.storage.retention import attach_retention
 
     settings = Settings(
@@ -170,7 +170,7 @@ def one_pass(store, settings_kw: dict, clock_at: datetime, batch_rows: int) -> d
 
 def rolled_up_query_ms(store, probe) -> dict:
     """An hourly average over 8 hours that only rollups hold."""
-    from tsdb_service.query import TimeRange
+    from tsdb_service.core.query import TimeRange
 
     window = TimeRange(START + timedelta(hours=9), START + timedelta(hours=17))
     times = []

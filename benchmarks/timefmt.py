@@ -24,9 +24,9 @@ from pathlib import Path
 
 import duckdb
 
+from tsdb_service.core.timefmt import epoch_ms, iso_ms_us
 from tsdb_service.storage.duckdb.dialect import DuckDBDialect
 from tsdb_service.storage.postgres.dialect import PostgresDialect
-from tsdb_service.timefmt import epoch_ms, iso_ms_us
 
 
 def _best(fn: Callable[[], object], repeat: int) -> float:

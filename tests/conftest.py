@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from tsdb_service.app import create_app
-from tsdb_service.config import Settings
+from tsdb_service.core.config import Settings
 
 with warnings.catch_warnings():
     warnings.simplefilter("ignore")  # starlette's note about httpx2

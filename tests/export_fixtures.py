@@ -12,7 +12,7 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
-from tsdb_service.export import SCHEMA
+from tsdb_service.faces.export import SCHEMA
 
 TENANT = "exportland"
 H_A = {"Content-Type": "application/json", "Fiware-Service": TENANT, "Fiware-ServicePath": "/site/a"}

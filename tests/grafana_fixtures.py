@@ -39,9 +39,9 @@ import uvicorn
 
 from tests.support.golden_http import GoldenFile, GoldenHttp, golden_key
 from tests.support.server import free_port
-from tsdb_service.demo import orion
 from tsdb_service.demo.runner import RunConfig, rng_for, run
-from tsdb_service.demo.usecases import SIMULATORS
+from tsdb_service.usecases import orion
+from tsdb_service.usecases.registry import SIMULATORS
 
 ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = ROOT / "tests" / "golden"

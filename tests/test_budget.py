@@ -13,7 +13,7 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
-from tsdb_service.model import AttrSample, EntitySample, Kind
+from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage.base import AppendSamples
 
 T0 = datetime(2024, 5, 1, tzinfo=UTC)

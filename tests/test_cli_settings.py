@@ -15,7 +15,7 @@ import sys
 
 import pytest
 
-from tsdb_service.config import SettingsError, load_settings
+from tsdb_service.core.config import SettingsError, load_settings
 
 
 def run_cli(*args: str, env: dict | None = None, cwd=None, timeout: float = 60) -> subprocess.CompletedProcess:

@@ -16,9 +16,9 @@ from urllib.parse import urlsplit
 import pytest
 import yaml
 
+from tsdb_service.broker.subscriptions import DEFAULT_NOTIFY_URL
 from tsdb_service.cli import build_parser
-from tsdb_service.config import Settings
-from tsdb_service.demo.subscriptions import DEFAULT_NOTIFY_URL
+from tsdb_service.core.config import Settings
 
 ROOT = Path(__file__).resolve().parent.parent
 COMPOSE = yaml.safe_load((ROOT / "docker-compose.yml").read_text())

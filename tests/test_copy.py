@@ -19,8 +19,8 @@ from datetime import UTC, datetime, timedelta
 import pytest
 
 from tsdb_service.cli import main
-from tsdb_service.config import Settings
-from tsdb_service.model import AttrSample, EntitySample, Kind
+from tsdb_service.core.config import Settings
+from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage import open_store
 from tsdb_service.storage.base import AppendSamples
 from tsdb_service.storage.copy import copy_history, store_identity

@@ -4,8 +4,8 @@ with the datasources its panels use; ``GET /dashboards/service`` serves it."""
 
 from __future__ import annotations
 
-from tsdb_service.grafana import dashboards
-from tsdb_service.grafana.dashboards import kit, service
+from tsdb_service.faces.grafana import dashboards
+from tsdb_service.faces.grafana.dashboards import kit, service
 
 
 def test_every_dashboard_is_listed_with_its_datasources(client):

@@ -40,17 +40,10 @@ try:
 except ImportError:  # tests/ imported as a package
     from tests.support.server import ServerProcess, free_port
 
-from tsdb_service.demo import enums, orion, sites
-from tsdb_service.demo.runner import (
-    Progress,
-    RunConfig,
-    Stats,
-    _Clock,
-    live_window,
-    run,
-)
-from tsdb_service.demo.subscriptions import broker_headers, subscription, write_examples
-from tsdb_service.demo.usecases import SIMULATORS
+from tsdb_service.broker.subscriptions import broker_headers, subscription, write_examples
+from tsdb_service.demo.runner import Progress, RunConfig, Stats, _Clock, live_window, run
+from tsdb_service.usecases import enums, orion, sites
+from tsdb_service.usecases.registry import SIMULATORS
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 20240611
@@ -576,7 +569,7 @@ def _demo(db: Path, *args: str) -> tuple[subprocess.CompletedProcess, float, flo
 
 
 def _stored_span(db: Path) -> tuple[float, float]:
-    from tsdb_service.config import Settings
+    from tsdb_service.core.config import Settings
     from tsdb_service.storage import open_store
 
     store = open_store(Settings(db=str(db)))

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from tsdb_service.config import Settings
-from tsdb_service.model import AttrSample, EntitySample, Kind
+from tsdb_service.core.config import Settings
+from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage import open_store
 from tsdb_service.storage.base import AppendSamples
 from tsdb_service.storage.duckdb.store import MAX_ROW_APPENDERS, DuckDBAppender, DuckDBStore

@@ -23,7 +23,7 @@ from tests.export_fixtures import (
     read_csv,
     read_parquet,
 )
-from tsdb_service.export import stream as export_stream
+from tsdb_service.faces.export import stream as export_stream
 
 SELECTIONS = [
     pytest.param({}, READ, id="whole-tenant"),

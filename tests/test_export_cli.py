@@ -16,7 +16,7 @@ from tests.export_fixtures import (
     read_parquet,
 )
 from tsdb_service.cli import main
-from tsdb_service.export import ExportFormat, SampleStream, write_file
+from tsdb_service.faces.export import ExportFormat, SampleStream, write_file
 
 
 @pytest.fixture

@@ -40,9 +40,9 @@ from schemathesis.checks import (
 )
 from schemathesis.python import asgi
 
+from tsdb_service.core.timefmt import iso_ms
 from tsdb_service.history.service import decode
-from tsdb_service.ngsi import parse_notification
-from tsdb_service.timefmt import iso_ms
+from tsdb_service.parse import parse_notification
 
 EXAMPLES = int(os.environ.get("TSDB_FUZZ_EXAMPLES", "10"))
 CHECKS = [

@@ -6,12 +6,7 @@ import json
 
 import pytest
 
-from tsdb_service.geo.encodings import (
-    from_geojson,
-    from_ngsi,
-    looks_like_geojson,
-    parse_lat_lon,
-)
+from tsdb_service.geo.encodings import from_geojson, from_ngsi, looks_like_geojson, parse_lat_lon
 
 
 def coords(geometry):

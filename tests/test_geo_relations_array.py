@@ -10,9 +10,9 @@ import orjson
 import pytest
 from shapely.geometry import LineString, Point, Polygon, mapping
 
+from tsdb_service.faces.ngsild.geoquery import GEORELS as LD_GEORELS
+from tsdb_service.faces.ngsild.geoquery import parse_ld_geo
 from tsdb_service.geo.filter import geometries, relation_holds, relations_hold
-from tsdb_service.ngsild.geoquery import GEORELS as LD_GEORELS
-from tsdb_service.ngsild.geoquery import parse_ld_geo
 
 CENTRE = (-3.7038, 40.4168)
 AREA = [[-3.73, 40.40], [-3.68, 40.40], [-3.68, 40.44], [-3.73, 40.44], [-3.73, 40.40]]

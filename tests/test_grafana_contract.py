@@ -33,8 +33,8 @@ import yaml
 from tests.grafana_fixtures import ROOT, grafana_http, grafana_server  # noqa: F401
 from tests.grafana_fixtures import panels_of as _panels
 from tests.support.golden_http import GoldenFile, GoldenHttp
-from tsdb_service.demo import enums
-from tsdb_service.grafana import dashboards
+from tsdb_service.faces.grafana import dashboards
+from tsdb_service.usecases import enums
 
 USE_CASES = list(dashboards.BUILDERS)
 _UNITS_MS = {"s": 1000, "m": 60_000, "h": 3_600_000, "d": 86_400_000}

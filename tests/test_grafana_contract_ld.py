@@ -24,8 +24,8 @@ import pytest
 import yaml
 
 from tests.grafana_fixtures import ROOT, grafana_http, grafana_server, panels_of  # noqa: F401
-from tsdb_service.demo import enums, sites
-from tsdb_service.grafana import dashboards
+from tsdb_service.faces.grafana import dashboards
+from tsdb_service.usecases import enums, sites
 
 NAME = "drone-ld"
 _MISSING = object()

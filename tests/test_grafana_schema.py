@@ -26,8 +26,8 @@ from grafana_foundation_sdk.models.dashboard import Dashboard
 
 from tests.grafana_fixtures import ROOT
 from tests.grafana_fixtures import panels_of as _panels
-from tsdb_service.grafana import dashboards
-from tsdb_service.grafana.dashboards import kit, service
+from tsdb_service.faces.grafana import dashboards
+from tsdb_service.faces.grafana.dashboards import kit, service
 
 SCHEMAS = ROOT.parent / "shared" / "grafana-jsonschema"
 USE_CASES = list(dashboards.BUILDERS)

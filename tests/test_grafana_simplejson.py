@@ -16,7 +16,7 @@ from datetime import UTC, datetime
 import pytest
 
 from tests.grafana_fixtures import grafana_http, grafana_server  # noqa: F401
-from tsdb_service.demo import enums, sites
+from tsdb_service.usecases import enums, sites
 
 PREFIX = "/grafana/simplejson"
 MOWER = sites.LAWNMOWER_ID

@@ -8,9 +8,9 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
-from tsdb_service.config import Settings
-from tsdb_service.model import AttrSample, EntitySample, Kind
-from tsdb_service.query import EntityFilter, Scope, TimeRange
+from tsdb_service.core.config import Settings
+from tsdb_service.core.model import AttrSample, EntitySample, Kind
+from tsdb_service.core.query import EntityFilter, Scope, TimeRange
 from tsdb_service.storage import open_store
 from tsdb_service.storage.base import AppendSamples, DeleteSamples
 

@@ -1,4 +1,4 @@
-"""One attribute-name rule for ingest and queries (tsdb_service.ngsi.names).
+"""One attribute-name rule for ingest and queries (tsdb_service.parse.names).
 
 A name the ingest accepts can be asked for by that name on every endpoint;
 a name it could not be asked for is refused with a 400 that says why, and
@@ -12,9 +12,9 @@ from urllib.parse import quote
 import orjson
 import pytest
 
-from tsdb_service.errors import BadRequest
+from tsdb_service.core.errors import BadRequest
 from tsdb_service.history.valuepath import parse_value_path
-from tsdb_service.ngsi.names import name_problem
+from tsdb_service.parse.names import name_problem
 
 GOOD = [
     "temperature",
@@ -48,7 +48,7 @@ BAD = [
 ]
 
 # Every name works as one URL path segment too, "/" percent-encoded as %2F
-# (the history routes are matched on the raw path: tsdb_service.rawpath).
+# (the history routes are matched on the raw path: tsdb_service.http.rawpath).
 ADDRESSABLE_IN_PATH = GOOD
 
 

@@ -16,8 +16,8 @@ from urllib.parse import quote
 import orjson
 import pytest
 
-from tsdb_service.errors import ParseError
-from tsdb_service.ngsi import parse_notification
+from tsdb_service.core.errors import ParseError
+from tsdb_service.parse import parse_notification
 
 PAYLOADS = Path(__file__).parent / "payloads"
 STORED = sorted(p for p in PAYLOADS.glob("*/*.json") if "entity" in json.loads(p.read_text())["expect"])

@@ -12,7 +12,7 @@ from __future__ import annotations
 import orjson
 import pytest
 
-from tsdb_service.config import Settings
+from tsdb_service.core.config import Settings
 
 MIB = 1024 * 1024
 ORION_DEFAULT_MAX = 8 * MIB  # Orion's -outReqMsgMaxSize default ("8MB")

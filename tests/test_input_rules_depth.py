@@ -12,8 +12,8 @@ from __future__ import annotations
 import orjson
 import pytest
 
-from tsdb_service.errors import ParseError
-from tsdb_service.ngsi.values import MAX_DEPTH, to_json
+from tsdb_service.core.errors import ParseError
+from tsdb_service.parse.values import MAX_DEPTH, to_json
 
 HEADERS = {"Fiware-Service": "deep"}
 TIME = "2024-05-01T10:00:00Z"

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-from tsdb_service.ngsi.request_context import MAX_INT_PARAM
+from tsdb_service.parse.request_context import MAX_INT_PARAM
 
 HEADERS = {"Fiware-Service": "ints"}
 TOO_BIG = ["9223372036854775808", "99999999999999999999", str(MAX_INT_PARAM + 1), "1" + "0" * 40]

@@ -4,7 +4,7 @@ Before: a service path with a space or a component over 256 characters, an
 entity id or type over 1,024 characters, and a type with a comma or
 surrounding spaces were stored with 200 but refused by every query and
 delete; an id containing ``/`` (NGSI-LD ids are URIs) gave 404 on
-``/v2/entities/{id}`` even as ``%2F``. Now ``tsdb_service.ngsi.names`` holds
+``/v2/entities/{id}`` even as ``%2F``. Now ``tsdb_service.parse.names`` holds
 one rule per kind, applied at ingest (400, notification kept) and by every
 endpoint; whatever is stored is reached on every endpoint by its exact name,
 ``/`` as ``%2F`` in path segments, over real HTTP.

@@ -17,8 +17,8 @@ from datetime import UTC, datetime, timedelta
 import orjson
 import pytest
 
-from tsdb_service.ngsi import parse_notification
-from tsdb_service.ngsi.timeindex import FALLBACK_METADATA, parse_time
+from tsdb_service.parse import parse_notification
+from tsdb_service.parse.timeindex import FALLBACK_METADATA, parse_time
 
 UTC = UTC
 RECEIVED = datetime(2030, 1, 1, 12, 0, tzinfo=UTC)

@@ -11,8 +11,8 @@ import re
 from prometheus_client.parser import text_string_to_metric_families
 
 from tests.grafana_fixtures import panels_of
-from tsdb_service.grafana import dashboards
-from tsdb_service.grafana.dashboards import service
+from tsdb_service.faces.grafana import dashboards
+from tsdb_service.faces.grafana.dashboards import service
 
 SUFFIXES = {"counter": ("_total",), "histogram": ("_bucket", "_sum", "_count"), "gauge": ("",)}
 METRIC = re.compile(r"\b((?:tsdb|process)_[a-z_]+)\b")

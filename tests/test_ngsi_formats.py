@@ -9,9 +9,9 @@ from datetime import UTC, datetime
 import orjson
 import pytest
 
-from tsdb_service.errors import ParseError
-from tsdb_service.model import Kind
-from tsdb_service.ngsi import ValuesLayout, parse_notification
+from tsdb_service.core.errors import ParseError
+from tsdb_service.core.model import Kind
+from tsdb_service.parse import ValuesLayout, parse_notification
 
 RECEIVED = datetime(2030, 1, 1, tzinfo=UTC)
 

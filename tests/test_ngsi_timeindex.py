@@ -7,8 +7,8 @@ from datetime import UTC, datetime, timedelta, timezone
 import orjson
 import pytest
 
-from tsdb_service.ngsi import parse_notification
-from tsdb_service.ngsi.timeindex import parse_time
+from tsdb_service.parse import parse_notification
+from tsdb_service.parse.timeindex import parse_time
 
 UTC = UTC
 RECEIVED = datetime(2030, 1, 1, 12, 0, tzinfo=UTC)

@@ -7,9 +7,9 @@ from datetime import UTC, datetime
 
 import pytest
 
-from tsdb_service.errors import ParseError
-from tsdb_service.model import Kind
-from tsdb_service.ngsi.values import attr_sample, decode_firos, to_json
+from tsdb_service.core.errors import ParseError
+from tsdb_service.core.model import Kind
+from tsdb_service.parse.values import attr_sample, decode_firos, to_json
 
 EPOCH_2024_05_01_10 = datetime(2024, 5, 1, 10, tzinfo=UTC).timestamp()
 

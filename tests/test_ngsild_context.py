@@ -11,7 +11,8 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 import pytest
 from ngsild_fixtures import B9211, ENTITIES, H, error_type, get, ld_notify
 
-from tsdb_service.ngsild.context import (
+from tsdb_service.core.ld_errors import BadRequestData, LdContextNotAvailable
+from tsdb_service.faces.ngsild.context import (
     CORE_CONTEXT_URL,
     DEFAULT_VOCAB,
     ContextStore,
@@ -19,7 +20,6 @@ from tsdb_service.ngsild.context import (
     link_context,
     parse_local_contexts,
 )
-from tsdb_service.ngsild.errors import BadRequestData, LdContextNotAvailable
 
 USER_CONTEXT = {
     "@context": {"speed": "https://example.org/vehicle#speed", "Vehicle": "https://example.org/vehicle#Vehicle"}

@@ -11,8 +11,8 @@ from datetime import UTC, datetime
 
 import pytest
 
-from tsdb_service.model import Kind, instance_iid, instance_urn
-from tsdb_service.query import EntityFilter, InstanceWindow, Scope
+from tsdb_service.core.model import Kind, instance_iid, instance_urn
+from tsdb_service.core.query import EntityFilter, InstanceWindow, Scope
 
 SCOPE = Scope("")
 LD_HEADERS = {"Content-Type": "application/json"}
@@ -286,7 +286,7 @@ def test_unknown_time_property_is_refused():
 def test_copy_keeps_instances(client_factory, store_url, store_url_factory):
     """``tsdb-service copy`` carries observedAt, datasets and deletions, and
     keeps instances that repeat (the copy is not a re-notification)."""
-    from tsdb_service.config import Settings
+    from tsdb_service.core.config import Settings
     from tsdb_service.storage import open_store
     from tsdb_service.storage.copy import copy_history
 
@@ -322,7 +322,7 @@ def test_copy_keeps_instances(client_factory, store_url, store_url_factory):
 def test_repeats_within_one_batch_of_a_new_series_are_stored_once(client):
     """Orion-LD's first notifications of an entity can land in one group
     commit, before the series exists: the repeat is still recognised."""
-    from tsdb_service.model import AttrSample, EntitySample
+    from tsdb_service.core.model import AttrSample, EntitySample
     from tsdb_service.storage.base import AppendSamples
 
     observed = datetime(2024, 5, 1, 9, tzinfo=UTC)

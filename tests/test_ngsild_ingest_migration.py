@@ -8,9 +8,9 @@ from datetime import UTC, datetime
 import duckdb
 import psycopg
 
-from tsdb_service.config import Settings
-from tsdb_service.model import AttrSample, EntitySample, Kind
-from tsdb_service.query import EntityFilter, Scope
+from tsdb_service.core.config import Settings
+from tsdb_service.core.model import AttrSample, EntitySample, Kind
+from tsdb_service.core.query import EntityFilter, Scope
 from tsdb_service.storage import open_store
 from tsdb_service.storage.base import AppendSamples
 from tsdb_service.storage.migrations import SCHEMA_TABLE, load_migrations, split_statements

@@ -7,8 +7,8 @@ from datetime import UTC, datetime
 
 import pytest
 
-from tsdb_service.ngsild import qlang
-from tsdb_service.ngsild.qlang import And, Or, QueryError, Range, Term, parse
+from tsdb_service.faces.ngsild import qlang
+from tsdb_service.faces.ngsild.qlang import And, Or, QueryError, Range, Term, parse
 
 
 def test_comparison_and_logic_precedence():

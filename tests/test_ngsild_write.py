@@ -8,8 +8,8 @@ from datetime import datetime
 
 import pytest
 
-from tsdb_service.model import Kind, instance_urn
-from tsdb_service.query import EntityFilter, Scope
+from tsdb_service.core.model import Kind, instance_urn
+from tsdb_service.core.query import EntityFilter, Scope
 
 BASE = "/ngsi-ld/v1/temporal/entities"
 VEHICLE = "urn:ngsi-ld:Vehicle:B9211"

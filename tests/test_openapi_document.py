@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from tsdb_service.export.query import PARAMETERS as EXPORT_PARAMETERS
+from tsdb_service.faces.export.query import PARAMETERS as EXPORT_PARAMETERS
 
 HISTORY_QUERY = {
     "attrs",

@@ -23,11 +23,12 @@ try:
 except ImportError:  # tests/ imported as a package
     from tests.support.server import ServerProcess
 
-from tsdb_service.demo import collection, sites
+from tsdb_service.demo import collection
 from tsdb_service.demo.collection import QUERIES, Query, by_name, execute
 from tsdb_service.demo.commands import write_collection
 from tsdb_service.demo.runner import RunConfig, run
-from tsdb_service.demo.usecases import SIMULATORS
+from tsdb_service.usecases import sites
+from tsdb_service.usecases.registry import SIMULATORS
 
 ROOT = Path(__file__).resolve().parents[1]
 

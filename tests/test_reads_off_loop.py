@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from tsdb_service.ngsi import ValuesLayout
+from tsdb_service.parse import ValuesLayout
+from tsdb_service.read.off_loop import MEMORY_ONLY, NeedsDatabase
 from tsdb_service.storage.base import PutLayout
-from tsdb_service.storage.memory_only import MEMORY_ONLY, NeedsDatabase
 
 T0 = "2024-05-01T10:00:00.000Z"
 T1 = "2024-05-01T10:05:00.000Z"

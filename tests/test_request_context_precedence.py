@@ -13,7 +13,7 @@ from __future__ import annotations
 import orjson
 import pytest
 
-from tsdb_service.ngsi.request_context import MAX_IDS
+from tsdb_service.parse.request_context import MAX_IDS
 
 TIME = "2024-05-01T10:00:00Z"
 BODY = {

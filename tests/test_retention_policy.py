@@ -9,8 +9,8 @@ from datetime import timedelta
 import pytest
 from pydantic import ValidationError
 
-from tsdb_service.config import Settings
-from tsdb_service.retention_policy import RetentionPolicy
+from tsdb_service.core.config import Settings
+from tsdb_service.core.retention_policy import RetentionPolicy
 from tsdb_service.storage.retention import RetentionConfig
 
 DAY = timedelta(days=1)

@@ -13,7 +13,7 @@ from urllib.parse import quote
 
 import pytest
 
-from tsdb_service.query import EntityFilter, Scope
+from tsdb_service.core.query import EntityFilter, Scope
 
 NOW = datetime.now(UTC).replace(minute=0, second=0, microsecond=0)
 OLD = NOW - timedelta(days=60) - timedelta(hours=7)  # 50 hours from here: rolled up

@@ -10,7 +10,7 @@ import warnings
 
 import pytest
 
-from tsdb_service.api import notify as notify_module
+from tsdb_service.ingest import http_notify as notify_module
 
 with warnings.catch_warnings():
     warnings.simplefilter("ignore")

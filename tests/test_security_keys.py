@@ -9,7 +9,7 @@ import hashlib
 import pytest
 
 from tsdb_service.app import create_app
-from tsdb_service.config import Settings
+from tsdb_service.core.config import Settings
 from tsdb_service.security import ADMIN as ADMIN_SCOPE
 from tsdb_service.security import READ, WRITE, required_scope
 from tsdb_service.security.guard import route_path

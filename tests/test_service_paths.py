@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from tsdb_service.errors import BadRequest
-from tsdb_service.ngsi.request_context import service_paths
-from tsdb_service.query import Scope
+from tsdb_service.core.errors import BadRequest
+from tsdb_service.core.query import Scope
+from tsdb_service.parse.request_context import service_paths
 
 
 @pytest.mark.parametrize(

@@ -2,7 +2,7 @@
 copies through seam methods, and an import graph without cycles.
 
 The read seam (``storage.base.Querier``) returns the NamedTuples of
-``tsdb_service.query``: still tuples (callers unpack them), with names.
+``tsdb_service.core.query``: still tuples (callers unpack them), with names.
 Every ``Store`` has ``compact`` (DuckDB sorts, PostgreSQL has nothing to
 do). The backend packages depend on the shared storage code, never the
 other way round, and never on each other.
@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from tsdb_service.config import Settings
-from tsdb_service.model import AttrSample, EntitySample, Geometry, Kind
-from tsdb_service.query import (
+from tsdb_service.core.config import Settings
+from tsdb_service.core.model import AttrSample, EntitySample, Geometry, Kind
+from tsdb_service.core.query import (
     AggBranch,
     AggregateRow,
     Aggregation,

@@ -17,9 +17,9 @@ from starlette.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Route
 
 from tests.test_subscribe_api import StandInBroker, serving
+from tsdb_service.broker.subscriptions import subscription
 from tsdb_service.cli import main
-from tsdb_service.demo.subscriptions import subscription
-from tsdb_service.demo.usecases import SIMULATORS
+from tsdb_service.usecases.registry import SIMULATORS
 
 MOWER = SIMULATORS["lawnmower"]
 TENANT = (MOWER.tenancy.service, MOWER.tenancy.service_path)

@@ -12,8 +12,8 @@ import random
 
 import pytest
 
+from tsdb_service.core.timefmt import iso_ms_us as iso_ms
 from tsdb_service.storage.duckdb.tail_cache import TailCache
-from tsdb_service.timefmt import iso_ms_us as iso_ms
 
 SID = 7
 

@@ -10,8 +10,8 @@ import re
 
 import pytest
 
-from tsdb_service.demo import enums, sites
-from tsdb_service.ui.routes import STATIC
+from tsdb_service.faces.ui.routes import STATIC
+from tsdb_service.usecases import enums, sites
 
 
 def _entity(eid: str, etype: str, **attrs) -> dict:

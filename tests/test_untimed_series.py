@@ -13,9 +13,9 @@ from datetime import UTC, datetime
 import pytest
 from ngsild_fixtures import TENANT, get, ld_notify
 
-from tsdb_service.config import Settings
-from tsdb_service.model import AttrSample, EntitySample, Kind
-from tsdb_service.query import EntityFilter, InstanceWindow, Scope
+from tsdb_service.core.config import Settings
+from tsdb_service.core.model import AttrSample, EntitySample, Kind
+from tsdb_service.core.query import EntityFilter, InstanceWindow, Scope
 from tsdb_service.storage import open_store
 from tsdb_service.storage.base import AppendSamples
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from tsdb_service.errors import BadRequest
+from tsdb_service.core.errors import BadRequest
+from tsdb_service.core.query import ValuePath
 from tsdb_service.history.valuepath import extract, parse_attr_list, parse_value_path
-from tsdb_service.query import ValuePath
 
 
 @pytest.mark.parametrize(

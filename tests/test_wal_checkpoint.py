@@ -17,8 +17,8 @@ from pathlib import Path
 import duckdb
 
 from tsdb_service import storage
-from tsdb_service.config import WAL_CHECKPOINT_BYTES, Settings
-from tsdb_service.model import AttrSample, EntitySample, Kind
+from tsdb_service.core.config import WAL_CHECKPOINT_BYTES, Settings
+from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage import open_store
 from tsdb_service.storage.base import AppendSamples
 from tsdb_service.storage.duckdb.store import connect

@@ -12,17 +12,21 @@ from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
 from starlette.types import ASGIApp
 
-from tsdb_service import __version__, grafana, rawpath, ui
-from tsdb_service import metrics as metrics_
-from tsdb_service.api import attrs, entities, meta, notify, op_query, subscribe, types
-from tsdb_service.api import export as export_api
-from tsdb_service.api.handlers import install_error_handlers
-from tsdb_service.api.openapi import install as install_openapi
-from tsdb_service.api.responses import JSON
-from tsdb_service.budget import ReadBudgetMiddleware, ReadLimits
-from tsdb_service.config import Settings, get_settings
-from tsdb_service.ngsild import routes_read as ngsild_read
-from tsdb_service.ngsild import write as ngsild_write
+from tsdb_service import __version__
+from tsdb_service.core.budget import ReadBudgetMiddleware, ReadLimits
+from tsdb_service.core.config import Settings, get_settings
+from tsdb_service.faces import grafana, ui
+from tsdb_service.faces.export import routes as export_api
+from tsdb_service.faces.ngsild import routes_read as ngsild_read
+from tsdb_service.faces.ngsild import write as ngsild_write
+from tsdb_service.faces.operator import meta
+from tsdb_service.faces.operator import metrics as metrics_
+from tsdb_service.faces.quantumleap import attrs, entities, op_query, subscribe, types
+from tsdb_service.http import rawpath
+from tsdb_service.http.errors import install_error_handlers
+from tsdb_service.http.openapi import install as install_openapi
+from tsdb_service.http.responses import JSON
+from tsdb_service.ingest import http_notify as notify
 from tsdb_service.security import protect
 from tsdb_service.storage import open_store
 

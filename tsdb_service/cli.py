@@ -9,7 +9,7 @@ from collections.abc import Callable, Sequence
 from types import ModuleType
 
 from tsdb_service import __version__
-from tsdb_service.config import LOG_LEVELS, Settings, SettingsError, load_settings
+from tsdb_service.core.config import LOG_LEVELS, Settings, SettingsError, load_settings
 
 Command = Callable[[argparse.Namespace], int]
 COMMANDS: dict[str, Command] = {}
@@ -105,8 +105,8 @@ def _feature_modules() -> tuple[ModuleType, ...]:
     ``register(subparsers, command)``; imported when the parser is built, so
     ``import tsdb_service.cli`` stays light."""
     from tsdb_service.demo import commands as demo_commands
-    from tsdb_service.export import commands as export_commands
-    from tsdb_service.grafana import commands as grafana_commands
+    from tsdb_service.faces.export import commands as export_commands
+    from tsdb_service.faces.grafana import commands as grafana_commands
     from tsdb_service.storage import copy
 
     return (demo_commands, grafana_commands, copy, export_commands)
@@ -131,8 +131,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     for name, value in settings.model_dump().items():
         if value is not None:  # unset: the backend's default applies
             os.environ[f"TSDB_{name.upper()}"] = str(value)
-    # --- limits (issue 12): slow clients, connection cap, descriptors (tsdb_service.httpserver) ---
-    from tsdb_service.httpserver import GuardedHttpToolsProtocol, raise_fd_limit
+    # --- limits (issue 12): slow clients, connection cap, descriptors (tsdb_service.http.server) ---
+    from tsdb_service.http.server import GuardedHttpToolsProtocol, raise_fd_limit
 
     raise_fd_limit()
     uvicorn.run(

@@ -27,9 +27,9 @@ from typing import Any
 
 import httpx
 
-from tsdb_service.demo import sites
-from tsdb_service.demo.enums import DOOR_STATE, DRONE_MISSION_STATE, LAWNMOWER_NAVIGATION_STATE
-from tsdb_service.demo.sites import Tenancy
+from tsdb_service.usecases import sites
+from tsdb_service.usecases.enums import DOOR_STATE, DRONE_MISSION_STATE, LAWNMOWER_NAVIGATION_STATE
+from tsdb_service.usecases.sites import Tenancy
 
 DEFAULT_BASE_URL = "http://localhost:8668"
 # Wide defaults so the period queries cover any demo run; narrow them per request.

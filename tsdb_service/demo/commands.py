@@ -135,9 +135,9 @@ def _port(text: str) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     import httpx
 
-    from tsdb_service.config import check_db
-    from tsdb_service.demo import usecases
+    from tsdb_service.core.config import check_db
     from tsdb_service.demo.serve import LocalService
+    from tsdb_service.usecases import registry as usecases
 
     try:
         simulators = usecases.select(args.use_case)
@@ -223,7 +223,7 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start,
     from datetime import timedelta
 
     from tsdb_service.demo.collection import DEMO_EXAMPLES, by_name, curl
-    from tsdb_service.demo.orion import iso
+    from tsdb_service.usecases.orion import iso
 
     where = f"(DuckDB file {args.db}; log {service.log_path})" if service else "(already running)"
     until = f"for {args.duration:g} s" if args.duration else "until Ctrl-C"
@@ -257,8 +257,8 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start,
 
 
 def cmd_subscribe(args: argparse.Namespace) -> int:
-    from tsdb_service.demo.subscriptions import DEFAULT_NOTIFY_URL, ensure_subscription
-    from tsdb_service.demo.usecases import SIMULATORS
+    from tsdb_service.broker.subscriptions import DEFAULT_NOTIFY_URL, ensure_subscription
+    from tsdb_service.usecases.registry import SIMULATORS
 
     names = USE_CASE_NAMES if args.use_case == "all" else (args.use_case,)
     all_ok = True
@@ -287,8 +287,8 @@ def _queries_build(out: Path) -> int:
 
 def write_collection(out: Path) -> list[Path]:
     """Write both exports of the collection into ``out``."""
+    from tsdb_service.broker.subscriptions import dumps
     from tsdb_service.demo.collection import http_file, postman_collection
-    from tsdb_service.demo.subscriptions import dumps
 
     out.mkdir(parents=True, exist_ok=True)
     postman = out / "tsdb-service.postman_collection.json"
@@ -337,7 +337,7 @@ def _unreachable(url: str) -> str | None:
 
 
 def cmd_notifications(args: argparse.Namespace) -> int:
-    from tsdb_service.demo.subscriptions import write_examples
+    from tsdb_service.broker.subscriptions import write_examples
 
     for path in write_examples(Path(args.out)):
         print(f"wrote {path}")

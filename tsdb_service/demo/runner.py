@@ -32,8 +32,8 @@ from typing import TextIO
 
 import httpx
 
-from tsdb_service.demo import orion
-from tsdb_service.demo.base import Simulator
+from tsdb_service.usecases import orion
+from tsdb_service.usecases.base import Simulator
 
 
 def _cache_missing_sniffio() -> None:

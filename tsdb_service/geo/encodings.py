@@ -11,7 +11,7 @@ Validity is checked here so storage can trust a ``Geometry``: coordinates are
 finite numbers, longitudes within +-180 and latitudes within +-90, lines have
 two positions, rings are closed with four. Anything else yields ``None``; the
 caller then keeps the value as ordinary data rather than rejecting the
-notification (see ``tsdb_service.ngsi.values``).
+notification (see ``tsdb_service.parse.values``).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import orjson
 import shapely
 from shapely.errors import GEOSException
 
-from tsdb_service.model import Geometry
+from tsdb_service.core.model import Geometry
 
 GEOMETRY_TYPES = frozenset(
     {

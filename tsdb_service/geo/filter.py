@@ -20,7 +20,7 @@ import shapely
 from shapely.geometry import LineString, Point, Polygon, box, shape
 from shapely.geometry.base import BaseGeometry
 
-from tsdb_service.errors import BadRequest
+from tsdb_service.core.errors import BadRequest
 from tsdb_service.geo.geodesic import WGS84, geodesic_distance_m, geodesic_distances_m, radius_bbox
 
 # JSON-style numbers only: float() would also take "1_0", "0x1p3" or "inf".

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tsdb_service.query import RowMask, TimeRange
+from tsdb_service.core.query import RowMask, TimeRange
 from tsdb_service.geo.filter import GeoFilter
 
 Span = tuple[int, int, int | None, int | None]  # t0 µs, rid0, t1 µs | None (open), rid1

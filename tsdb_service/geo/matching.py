@@ -31,7 +31,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from operator import attrgetter
 
-from tsdb_service.query import EntityFilter, Scope, SeriesRef, TimeRange
+from tsdb_service.core.query import EntityFilter, Scope, SeriesRef, TimeRange
 from tsdb_service.geo.filter import ENTITY, GeoFilter
 
 EntityKey = tuple[str, str, str]  # service path, entity type, entity id
@@ -53,7 +53,7 @@ def apply_geo(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesRe
     if geo.scope == ENTITY:
         matched = matching_entities(querier, locations, geo, time)
         return [r for r, key in zip(refs, map(entity_key, refs), strict=True) if key in matched], querier
-    from tsdb_service.query import RowMask
+    from tsdb_service.core.query import RowMask
     from tsdb_service.geo.masks import MaskedQuerier, sample_spans
 
     intervals, kept = {}, []

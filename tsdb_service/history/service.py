@@ -13,12 +13,26 @@ from dataclasses import dataclass, field
 
 import orjson
 
-from tsdb_service import budget
-from tsdb_service.errors import AggrNotApplicable, Conflict, NotFound
-from tsdb_service.model import Kind
-from tsdb_service.query import AggBranch, AggrMethod, AggrScope, DeleteQuery, EntityFilter, EntityListQuery, HistoryQuery, LastValueQuery, Scope, SeriesRef, Shape, TimeRange, ValuePath
-from tsdb_service.storage.base import Querier
+from tsdb_service.core import budget
+from tsdb_service.core.errors import AggrNotApplicable, Conflict, NotFound
+from tsdb_service.core.model import Kind
+from tsdb_service.core.query import (
+    AggBranch,
+    AggrMethod,
+    AggrScope,
+    DeleteQuery,
+    EntityFilter,
+    EntityListQuery,
+    HistoryQuery,
+    LastValueQuery,
+    Scope,
+    SeriesRef,
+    Shape,
+    TimeRange,
+    ValuePath,
+)
 from tsdb_service.history.valuepath import extract
+from tsdb_service.storage.base import Querier
 
 _SINGLE_ENTITY = (Shape.ENTITY_ATTR, Shape.ENTITY)
 
@@ -175,7 +189,7 @@ def _raw(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> list[Entit
         one_per_row=attr_count == 1,
         attrs_per_row=attr_count,
     )
-    budget.charge_rows(len(rows))  # past the request's budget: 422 (tsdb_service.budget)
+    budget.charge_rows(len(rows))  # past the request's budget: 422 (tsdb_service.core.budget)
     if not rows:
         return []
     wanted = _columns_by_attr(q)

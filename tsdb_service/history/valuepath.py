@@ -7,7 +7,7 @@ so a value path can never be mistaken for an attribute: ``odom`` is the
 whole attribute, ``odom(twist.twist.linear.x)`` one number inside it.
 
 Keys may use any character except ``. , [ ] ( ) < > " ' = ;`` and white space.
-Attribute names follow the one rule of ``tsdb_service.ngsi.names``, the
+Attribute names follow the one rule of ``tsdb_service.parse.names``, the
 same the ingest applies, so every stored name can be asked for.
 """
 
@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import re
 
-from tsdb_service.errors import BadRequest
-from tsdb_service.ngsi.names import name_problem
-from tsdb_service.query import ValuePath
+from tsdb_service.core.errors import BadRequest
+from tsdb_service.core.query import ValuePath
+from tsdb_service.parse.names import name_problem
 
 _KEY = r"""[^\s.,\[\]()<>"'=;]+"""
 _STEP = re.compile(rf"\.?({_KEY})|\[(\d{{1,9}})\]")

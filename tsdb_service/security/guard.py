@@ -13,10 +13,17 @@ from urllib.parse import parse_qsl
 
 import orjson
 
-from tsdb_service.api.handlers import internal_error
-from tsdb_service.errors import TsdbError
+from tsdb_service.core.errors import TsdbError
+from tsdb_service.http.errors import internal_error
 from tsdb_service.security.keys import KeyRing
-from tsdb_service.security.principals import Forbidden, MissingCredential, Principal, Unauthorized, normalise_tenant, required_scope
+from tsdb_service.security.principals import (
+    Forbidden,
+    MissingCredential,
+    Principal,
+    Unauthorized,
+    normalise_tenant,
+    required_scope,
+)
 from tsdb_service.security.tokens import TokenVerifier, looks_like_jwt
 
 log = logging.getLogger(__name__)

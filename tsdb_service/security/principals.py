@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tsdb_service.errors import TsdbError
+from tsdb_service.core.errors import TsdbError
 
 READ, WRITE, ADMIN = "read", "write", "admin"
 SCOPES = frozenset({READ, WRITE, ADMIN})

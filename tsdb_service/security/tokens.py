@@ -22,7 +22,7 @@ import jwt
 from cryptography.hazmat.primitives.serialization import load_pem_public_key
 from starlette.concurrency import run_in_threadpool
 
-from tsdb_service.errors import Unavailable
+from tsdb_service.core.errors import Unavailable
 from tsdb_service.security.principals import SCOPES, Principal, Unauthorized, normalise_tenant
 
 log = logging.getLogger(__name__)

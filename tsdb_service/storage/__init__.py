@@ -15,7 +15,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from tsdb_service.config import Settings
+from tsdb_service.core.config import Settings
 from tsdb_service.storage.base import Store
 from tsdb_service.storage.rejected import RejectedLimits
 

@@ -5,7 +5,7 @@ Modelled on Prometheus' storage interface: writes go through an *appender*
 never see SQL; DuckDB and PostgreSQL each implement both halves, in their
 packages (``storage.duckdb``, ``storage.postgres``), on the shared pieces
 of ``storage.common`` and ``storage.sql``. The seam speaks the query
-vocabulary of ``tsdb_service.query``: what a read asks for and the named
+vocabulary of ``tsdb_service.core.query``: what a read asks for and the named
 rows it returns.
 """
 
@@ -18,10 +18,37 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
-from tsdb_service.model import AttrSample, EntitySample, RejectedNotification
-from tsdb_service.ngsi import ValuesLayout
-from tsdb_service.query import AggBranch, AggregateRow, Aggregation, EntityFilter, ExtentRow, FirstLocationRow, GeometryRow, InstanceAggregateRow, InstancePeriods, InstanceRow, InstanceValueRow, InstanceWindow, LastValueRow, LatestRow, LocationProbe, LocationRow, Prefilter, RawRow, RowMask, Scope, SeriesRef, StoredSample, TimeRange, ValueProbe, ValueTest, WindowScan
-from tsdb_service.storage.memory_only import T, read_off_loop
+from tsdb_service.core.model import AttrSample, EntitySample, RejectedNotification
+from tsdb_service.core.query import (
+    AggBranch,
+    AggregateRow,
+    Aggregation,
+    EntityFilter,
+    ExtentRow,
+    FirstLocationRow,
+    GeometryRow,
+    InstanceAggregateRow,
+    InstancePeriods,
+    InstanceRow,
+    InstanceValueRow,
+    InstanceWindow,
+    LastValueRow,
+    LatestRow,
+    LocationProbe,
+    LocationRow,
+    Prefilter,
+    RawRow,
+    RowMask,
+    Scope,
+    SeriesRef,
+    StoredSample,
+    TimeRange,
+    ValueProbe,
+    ValueTest,
+    WindowScan,
+)
+from tsdb_service.parse import ValuesLayout
+from tsdb_service.read.off_loop import T, read_off_loop
 
 if TYPE_CHECKING:
     from tsdb_service.storage.export import SampleBatches

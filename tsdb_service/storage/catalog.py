@@ -22,9 +22,9 @@ import gc
 import threading
 from collections.abc import Callable, Iterable, Sequence
 
-from tsdb_service import budget
-from tsdb_service.idpattern import compiled
-from tsdb_service.query import EntityFilter, Scope, SeriesRef
+from tsdb_service.core import budget
+from tsdb_service.core.idpattern import compiled
+from tsdb_service.core.query import EntityFilter, Scope, SeriesRef
 
 
 class _TenantIndex:
@@ -206,7 +206,7 @@ class SeriesCatalog:
             if pattern is not None and pattern.search(ref.entity_id) is None:
                 continue
             out.append(ref)
-        budget.check_series(len(out))  # the request's series budget (tsdb_service.budget)
+        budget.check_series(len(out))  # the request's series budget (tsdb_service.core.budget)
         return out
 
 

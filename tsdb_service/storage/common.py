@@ -17,11 +17,22 @@ from typing import Any
 
 import orjson
 
-from tsdb_service.model import AttrSample, EntitySample, RejectedNotification
-from tsdb_service.ngsi import ValuesLayout
-from tsdb_service.query import Bounds, Prefilter
-from tsdb_service.storage.base import Appender, AppendSamples, CopyRun, DeleteInstance, DeleteSamples, PutLayout, RecordRejected, ReplaceInstance, Store, WriteOp
-from tsdb_service.storage.writer import GroupCommitter
+from tsdb_service.core.model import AttrSample, EntitySample, RejectedNotification
+from tsdb_service.core.query import Bounds, Prefilter
+from tsdb_service.parse import ValuesLayout
+from tsdb_service.storage.base import (
+    Appender,
+    AppendSamples,
+    CopyRun,
+    DeleteInstance,
+    DeleteSamples,
+    PutLayout,
+    RecordRejected,
+    ReplaceInstance,
+    Store,
+    WriteOp,
+)
+from tsdb_service.write.committer import GroupCommitter
 
 # -- sample columns ----------------------------------------------------------------
 

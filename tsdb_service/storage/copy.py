@@ -26,9 +26,9 @@ from dataclasses import dataclass
 from datetime import UTC
 from pathlib import Path
 
-from tsdb_service.config import Settings, check_db
-from tsdb_service.model import AttrSample, EntitySample, Geometry, Kind, RejectedNotification
-from tsdb_service.query import EntityFilter, Scope, StoredSample
+from tsdb_service.core.config import Settings, check_db
+from tsdb_service.core.model import AttrSample, EntitySample, Geometry, Kind, RejectedNotification
+from tsdb_service.core.query import EntityFilter, Scope, StoredSample
 from tsdb_service.storage.base import AppendSamples, CopyRun, PutLayout, RecordRejected, Store
 
 # Everything goes through the seam (``Store``, ``Querier``): the source's

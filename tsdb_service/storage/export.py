@@ -1,4 +1,4 @@
-"""Stored samples as a stream of Arrow columns, for exports (``tsdb_service.export``).
+"""Stored samples as a stream of Arrow columns, for exports (``tsdb_service.faces.export``).
 
 The export's one query is rendered here (``export_sql``: bound values only)
 and run by each backend's querier (``Querier.export_batches``): DuckDB in
@@ -14,9 +14,9 @@ from contextlib import ExitStack
 
 import pyarrow as pa
 
-from tsdb_service.errors import Unavailable
-from tsdb_service.model import Kind
-from tsdb_service.query import TimeRange
+from tsdb_service.core.errors import Unavailable
+from tsdb_service.core.model import Kind
+from tsdb_service.core.query import TimeRange
 from tsdb_service.storage.sql import Dialect, series_time_filter
 
 # The columns of every batch, in this order. ``time`` is a naive UTC

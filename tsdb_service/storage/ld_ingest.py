@@ -30,7 +30,7 @@ import threading
 from collections.abc import Callable, Iterable, Sequence
 from datetime import UTC, datetime
 
-from tsdb_service.model import AttrSample, EntitySample, Kind
+from tsdb_service.core.model import AttrSample, EntitySample, Kind
 
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 

@@ -44,9 +44,9 @@ from collections import OrderedDict
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from datetime import UTC, datetime
 
-from tsdb_service.model import Kind
-from tsdb_service.query import AggrMethod, AggrPeriod
-from tsdb_service.timefmt import iso_ms_us
+from tsdb_service.core.model import Kind
+from tsdb_service.core.query import AggrMethod, AggrPeriod
+from tsdb_service.core.timefmt import iso_ms_us
 
 HOUR_US = 3_600_000_000
 _NULL, _NUMBER, _INTEGER = int(Kind.NULL), int(Kind.NUMBER), int(Kind.INTEGER)

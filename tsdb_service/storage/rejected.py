@@ -30,7 +30,7 @@ from typing import Any
 
 import orjson
 
-from tsdb_service.timefmt import received_at_z
+from tsdb_service.core.timefmt import received_at_z
 
 REASONS = ("count", "bytes", "age")
 # What the listing shows, in ``rejected_row``'s argument order.

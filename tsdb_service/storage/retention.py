@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from typing import Protocol
 
-from tsdb_service.retention_policy import RetentionPolicy
+from tsdb_service.core.retention_policy import RetentionPolicy
 from tsdb_service.storage.rollups import TABLE as ROLLUP_TABLE
 from tsdb_service.storage.rollups import RollupPresence
 from tsdb_service.storage.sql import Dialect

@@ -26,8 +26,8 @@ import time as _time
 from collections.abc import Sequence
 from datetime import timedelta
 
-from tsdb_service.model import Kind
-from tsdb_service.query import AggrMethod, AggrPeriod
+from tsdb_service.core.model import Kind
+from tsdb_service.core.query import AggrMethod, AggrPeriod
 
 TABLE = "rollups_hourly"
 HOUR = timedelta(hours=1)

@@ -24,14 +24,54 @@ from datetime import UTC, datetime, timedelta
 from functools import partial
 from typing import Any, TypeVar
 
-from tsdb_service import budget
-from tsdb_service.model import Kind
-from tsdb_service.query import TIME_PROPERTIES, AggBranch, AggregateRow, Aggregation, AggrMethod, AggrPeriod, EntityFilter, ExtentRow, FirstLocationRow, GeometryRow, InstanceAggregateRow, InstancePeriods, InstanceRow, InstanceValueRow, InstanceWindow, LastValueRow, LatestRow, LocationRow, Prefilter, RawRow, RowMask, Scope, SeriesRef, StoredSample, TimeRange, ValueTest
+from tsdb_service.core import budget
+from tsdb_service.core.model import Kind
+from tsdb_service.core.query import (
+    TIME_PROPERTIES,
+    AggBranch,
+    AggregateRow,
+    Aggregation,
+    AggrMethod,
+    AggrPeriod,
+    EntityFilter,
+    ExtentRow,
+    FirstLocationRow,
+    GeometryRow,
+    InstanceAggregateRow,
+    InstancePeriods,
+    InstanceRow,
+    InstanceValueRow,
+    InstanceWindow,
+    LastValueRow,
+    LatestRow,
+    LocationRow,
+    Prefilter,
+    RawRow,
+    RowMask,
+    Scope,
+    SeriesRef,
+    StoredSample,
+    TimeRange,
+    ValueTest,
+)
 from tsdb_service.storage import temporal
 from tsdb_service.storage.base import DeleteInstance, Querier, ReplaceInstance
 from tsdb_service.storage.catalog import SeriesCatalog
 from tsdb_service.storage.common import SAMPLE_COLUMNS, VALUE_COLUMNS, box_sql, content_values, to_micros
-from tsdb_service.storage.partials import ALL_INT, HOUR_US, ISO, MAX_LOAD_SAMPLES, NUMERIC, PRESENT, T_MAX, T_MIN, VALUE_SLOT, Accumulator, HourlyPartials, bucket_of
+from tsdb_service.storage.partials import (
+    ALL_INT,
+    HOUR_US,
+    ISO,
+    MAX_LOAD_SAMPLES,
+    NUMERIC,
+    PRESENT,
+    T_MAX,
+    T_MIN,
+    VALUE_SLOT,
+    Accumulator,
+    HourlyPartials,
+    bucket_of,
+)
 from tsdb_service.storage.partials import PERIODS as PARTIAL_PERIODS
 from tsdb_service.storage.rollups import delete_sql as rollup_delete_sql
 from tsdb_service.storage.rollups import presence_of, rolled_up_count, rollup_parts

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from tsdb_service.model import Kind
-from tsdb_service.query import InstancePeriods, InstanceWindow, LocationProbe, Prefilter, ValueProbe, ValueTest
+from tsdb_service.core.model import Kind
+from tsdb_service.core.query import InstancePeriods, InstanceWindow, LocationProbe, Prefilter, ValueProbe, ValueTest
 from tsdb_service.storage.common import box_sql
 
 if TYPE_CHECKING:

@@ -19,19 +19,32 @@ from typing import Protocol
 
 import duckdb
 
-from tsdb_service.errors import Unavailable
-from tsdb_service.query import ExtentRow, FirstLocationRow, GeometryRow, InstanceWindow, LocationProbe, LocationRow, Prefilter, RawRow, RowMask, TimeRange, ValueProbe, WindowScan
-from tsdb_service.timefmt import iso_ms_us as iso_ms
+from tsdb_service.core.errors import Unavailable
+from tsdb_service.core.query import (
+    ExtentRow,
+    FirstLocationRow,
+    GeometryRow,
+    InstanceWindow,
+    LocationProbe,
+    LocationRow,
+    Prefilter,
+    RawRow,
+    RowMask,
+    TimeRange,
+    ValueProbe,
+    WindowScan,
+)
+from tsdb_service.core.timefmt import iso_ms_us as iso_ms
+from tsdb_service.read.off_loop import check_database_allowed
 from tsdb_service.storage import temporal
 from tsdb_service.storage.catalog import SeriesCatalog
 from tsdb_service.storage.common import box_passes, to_micros
-from tsdb_service.storage.export import Columns, SampleBatches, export_sql
-from tsdb_service.storage.memory_only import check_database_allowed
-from tsdb_service.storage.partials import HourlyPartials
-from tsdb_service.storage.sql import _LOCATION_COLUMNS, GEO_KIND, SqlQuerier, as_first_locations, series_time_filter
 from tsdb_service.storage.duckdb.dialect import DuckDBDialect
 from tsdb_service.storage.duckdb.latest_geo import LatestGeo, Position, position
 from tsdb_service.storage.duckdb.tail_cache import TailCache, TailRow
+from tsdb_service.storage.export import Columns, SampleBatches, export_sql
+from tsdb_service.storage.partials import HourlyPartials
+from tsdb_service.storage.sql import _LOCATION_COLUMNS, GEO_KIND, SqlQuerier, as_first_locations, series_time_filter
 
 
 class DuckDBSource(Protocol):

@@ -16,13 +16,13 @@ from typing import Any, Protocol
 
 import duckdb
 
-from tsdb_service.model import Kind
+from tsdb_service.core.model import Kind
 from tsdb_service.storage.common import naive_utc
+from tsdb_service.storage.duckdb.dialect import DuckDBDialect
+from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL, LatestGeo
 from tsdb_service.storage.retention import SAVE_WATERMARK, rollup_delete_sql
 from tsdb_service.storage.rollups import fold_sql
 from tsdb_service.storage.sql import quote_ident
-from tsdb_service.storage.duckdb.dialect import DuckDBDialect
-from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL, LatestGeo
 
 
 def _one(cur: duckdb.DuckDBPyConnection, sql: str, params: object = None) -> tuple:

@@ -29,25 +29,47 @@ from typing import Any
 import duckdb
 import pyarrow as pa
 
-from tsdb_service.config import WAL_CHECKPOINT_BYTES
-from tsdb_service.errors import Unavailable
-from tsdb_service.model import EntitySample, RejectedNotification
-from tsdb_service.ngsi import ValuesLayout
-from tsdb_service.query import TimeRange
+from tsdb_service.core.config import WAL_CHECKPOINT_BYTES
+from tsdb_service.core.errors import Unavailable
+from tsdb_service.core.model import EntitySample, RejectedNotification
+from tsdb_service.core.query import TimeRange
+from tsdb_service.parse import ValuesLayout
 from tsdb_service.storage import rejected as rejected_store
 from tsdb_service.storage.base import DeleteInstance, DeleteSamples, PutLayout, ReplaceInstance
-from tsdb_service.storage.common import LD_TIME_COLUMNS, LOAD_LAYOUTS_SQL, REJECTED_INSERT_COLUMNS, SAMPLE_COLUMNS, CommittingStore, StagingAppender, first_line, layout_values, layouts_from_rows, naive_timestamps, rejected_values, to_micros, upsert_layout_sql, without_dropped
-from tsdb_service.storage.ld_ingest import LATEST_INSTANCE_SQL, LatestInstances, drop_renotified, latest_keys, publish_staged, with_deletions
-from tsdb_service.storage.migrations import applied_versions, load_migrations, split_statements
-from tsdb_service.storage.partials import HourlyPartials
-from tsdb_service.storage.rejected import RejectedLimits
-from tsdb_service.storage.sql import delete_statements, instance_statements, quote_ident
-from tsdb_service.storage.writer import GroupCommitter
+from tsdb_service.storage.common import (
+    LD_TIME_COLUMNS,
+    LOAD_LAYOUTS_SQL,
+    REJECTED_INSERT_COLUMNS,
+    SAMPLE_COLUMNS,
+    CommittingStore,
+    StagingAppender,
+    first_line,
+    layout_values,
+    layouts_from_rows,
+    naive_timestamps,
+    rejected_values,
+    to_micros,
+    upsert_layout_sql,
+    without_dropped,
+)
 from tsdb_service.storage.duckdb.dialect import DuckDBDialect
 from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL, LatestGeo
 from tsdb_service.storage.duckdb.querier import DuckDBQuerier
 from tsdb_service.storage.duckdb.retention import DuckDBSession
 from tsdb_service.storage.duckdb.tail_cache import TailCache
+from tsdb_service.storage.ld_ingest import (
+    LATEST_INSTANCE_SQL,
+    LatestInstances,
+    drop_renotified,
+    latest_keys,
+    publish_staged,
+    with_deletions,
+)
+from tsdb_service.storage.migrations import applied_versions, load_migrations, split_statements
+from tsdb_service.storage.partials import HourlyPartials
+from tsdb_service.storage.rejected import RejectedLimits
+from tsdb_service.storage.sql import delete_statements, instance_statements, quote_ident
+from tsdb_service.write.committer import GroupCommitter
 
 log = logging.getLogger(__name__)
 

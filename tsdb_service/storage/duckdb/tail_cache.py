@@ -33,7 +33,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Callable
 
-from tsdb_service.timefmt import iso_ms_us as iso_ms
+from tsdb_service.core.timefmt import iso_ms_us as iso_ms
 
 # (t in epoch µs, rid, ISO time, kind, num, txt, js); sorted by (t, rid)
 TailRow = tuple[int, int, str, int, float | None, str | None, str | None]

@@ -26,7 +26,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Sequence
 
-from tsdb_service.model import EntitySample
+from tsdb_service.core.model import EntitySample
 
 SeriesKey = tuple[str, str, str, str, str]  # tenant, service path, entity id, entity type, attr
 Box = tuple[float, float, float, float]  # min_lon, min_lat, max_lon, max_lat

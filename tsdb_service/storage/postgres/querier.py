@@ -30,17 +30,31 @@ from typing import Final, Protocol
 
 import psycopg
 
-from tsdb_service.errors import Unavailable
-from tsdb_service.model import Kind
-from tsdb_service.query import EntityFilter, ExtentRow, FirstLocationRow, GeometryRow, InstanceAggregateRow, InstancePeriods, InstanceWindow, Prefilter, RawRow, RowMask, Scope, SeriesRef, TimeRange
+from tsdb_service.core.errors import Unavailable
+from tsdb_service.core.model import Kind
+from tsdb_service.core.query import (
+    EntityFilter,
+    ExtentRow,
+    FirstLocationRow,
+    GeometryRow,
+    InstanceAggregateRow,
+    InstancePeriods,
+    InstanceWindow,
+    Prefilter,
+    RawRow,
+    RowMask,
+    Scope,
+    SeriesRef,
+    TimeRange,
+)
+from tsdb_service.read.off_loop import check_database_allowed
 from tsdb_service.storage import temporal
 from tsdb_service.storage.catalog import SeriesCatalog
 from tsdb_service.storage.common import extent_prefilter
 from tsdb_service.storage.export import Columns, SampleBatches, export_sql, rows_to_columns
-from tsdb_service.storage.memory_only import check_database_allowed
 from tsdb_service.storage.partials import HourlyPartials
-from tsdb_service.storage.sql import _MAX_BIGINT, SqlQuerier, as_first_locations, as_geometries, box_test
 from tsdb_service.storage.postgres.dialect import PostgresDialect, int_array
+from tsdb_service.storage.sql import _MAX_BIGINT, SqlQuerier, as_first_locations, as_geometries, box_test
 
 
 class PostgresSource(Protocol):

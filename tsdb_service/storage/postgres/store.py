@@ -30,24 +30,38 @@ from typing import Any
 import psycopg
 from psycopg_pool import ConnectionPool
 
-from tsdb_service.errors import Unavailable
-from tsdb_service.model import EntitySample, RejectedNotification
-from tsdb_service.ngsi import ValuesLayout
-from tsdb_service.query import TimeRange
+from tsdb_service.core.errors import Unavailable
+from tsdb_service.core.model import EntitySample, RejectedNotification
+from tsdb_service.core.query import TimeRange
+from tsdb_service.parse import ValuesLayout
+from tsdb_service.read.off_loop import check_database_allowed
 from tsdb_service.storage import rejected as rejected_store
 from tsdb_service.storage.base import DeleteInstance, DeleteSamples, PutLayout, ReplaceInstance
-from tsdb_service.storage.common import GEO_COLUMNS, LD_TIME_COLUMNS, LOAD_LAYOUTS_SQL, REJECTED_INSERT_COLUMNS, SAMPLE_COLUMNS, CommittingStore, StagingAppender, layout_values, layouts_from_rows, naive_utc, rejected_values, upsert_layout_sql, without_dropped
+from tsdb_service.storage.common import (
+    GEO_COLUMNS,
+    LD_TIME_COLUMNS,
+    LOAD_LAYOUTS_SQL,
+    REJECTED_INSERT_COLUMNS,
+    SAMPLE_COLUMNS,
+    CommittingStore,
+    StagingAppender,
+    layout_values,
+    layouts_from_rows,
+    naive_utc,
+    rejected_values,
+    upsert_layout_sql,
+    without_dropped,
+)
 from tsdb_service.storage.ld_ingest import LatestInstances, drop_renotified, latest_keys, publish_staged, with_deletions
-from tsdb_service.storage.memory_only import check_database_allowed
 from tsdb_service.storage.migrations import applied_versions, load_migrations
-from tsdb_service.storage.rejected import RejectedLimits
-from tsdb_service.storage.sql import delete_statements, instance_statements
-from tsdb_service.storage.writer import GroupCommitter
 from tsdb_service.storage.postgres.dialect import PostgresDialect, int_array
 from tsdb_service.storage.postgres.extents import ExtentLedger
 from tsdb_service.storage.postgres.querier import PostgresQuerier
 from tsdb_service.storage.postgres.retention import PostgresSession, postgres_session
 from tsdb_service.storage.postgres.untimed import UntimedLedger
+from tsdb_service.storage.rejected import RejectedLimits
+from tsdb_service.storage.sql import delete_statements, instance_statements
+from tsdb_service.write.committer import GroupCommitter
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Mapping, Sequence
 
-from tsdb_service.model import EntitySample
+from tsdb_service.core.model import EntitySample
 from tsdb_service.storage.postgres.extents import SeriesKey
 
 INSERT = (

@@ -1,0 +1,243 @@
+"""Orion subscriptions that make a real broker feed us, and recorded examples.
+
+The payloads are built here, not read from ``notifications/``, so that
+``tsdb-service subscribe`` works from an installed wheel; ``notifications/``
+holds the same documents written out by ``tsdb-service notifications build``
+(a test keeps the two identical).
+"""
+
+from __future__ import annotations
+
+import itertools
+import random
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import httpx
+import orjson
+
+from tsdb_service.usecases import orion
+from tsdb_service.usecases.base import Simulator
+from tsdb_service.usecases.registry import SIMULATORS
+
+DEFAULT_NOTIFY_URL = "http://tsdb-service:8668/v2/notify"
+
+_EXAMPLE_START = datetime(2025, 6, 2, 9, 0, tzinfo=UTC)
+
+
+def _data(entity: dict, attr: str) -> object:
+    return entity.get(attr, {}).get("value", {}).get("data")
+
+
+# The recorded example of each use case: its first notification that shows
+# the interesting part (an operator's cmd_vel, a door opening, a drone in flight).
+_EXAMPLE_WANTED = {
+    "lawnmower": lambda e: "cmd_vel" in e and _data(e, "navigationState") == 5,
+    "warehouse": lambda e: _data(e, "doorCommand") == 1 and _data(e, "doorState") == 2,
+    "drone": lambda e: _data(e, "missionState") == 2,
+}
+
+
+def subscription(sim: Simulator, notify_url: str = DEFAULT_NOTIFY_URL) -> dict:
+    """The NGSIv2 subscription for one use case: every change of its entities,
+    the whole entity, normalized, with the IoT Agent's TimeInstant metadata."""
+    return {
+        "description": f"tsdb-service: history of the {sim.title}",
+        "subject": {
+            "entities": [{"idPattern": pattern, "type": entity_type} for pattern, entity_type in sim.subjects],
+        },
+        "notification": {
+            "http": {"url": notify_url},
+            "attrsFormat": "normalized",
+            "metadata": ["TimeInstant"],
+            "onlyChangedAttrs": False,
+        },
+        "throttling": 0,
+    }
+
+
+def broker_headers(sim: Simulator) -> dict[str, str]:
+    """The tenancy headers a subscription must be created under."""
+    return {
+        "Content-Type": "application/json",
+        "Fiware-Service": sim.tenancy.service,
+        "Fiware-ServicePath": sim.tenancy.service_path,
+    }
+
+
+@dataclass(frozen=True, slots=True)
+class BrokerAnswer:
+    """What a broker answered to ``POST /v2/subscriptions``; ``status`` is
+    None when it could not be reached (``problem`` says why)."""
+
+    status: int | None
+    reason: str = ""
+    location: str = ""
+    text: str = ""
+    problem: str = ""
+
+    @property
+    def created(self) -> bool:
+        return self.status == 201
+
+    @property
+    def subscription_id(self) -> str:
+        return self.location.rstrip("/").rsplit("/", 1)[-1] if self.location else ""
+
+
+def send_subscription(url: str, document: dict, headers: dict[str, str], timeout: float = 10.0) -> BrokerAnswer:
+    """POST a subscription to a broker's ``.../v2/subscriptions`` URL.
+
+    Shared by ``tsdb-service subscribe`` and ``POST /v2/subscribe``. Redirects
+    are not followed: a subscription goes to the URL the operator named."""
+    try:
+        response = httpx.post(url, content=orjson.dumps(document), headers=headers, timeout=timeout)
+    except httpx.HTTPError as exc:
+        return BrokerAnswer(None, problem=f"{type(exc).__name__}: {exc}")
+    return BrokerAnswer(
+        response.status_code, response.reason_phrase, response.headers.get("location", ""), response.text
+    )
+
+
+def post_subscription(broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0) -> tuple[bool, str]:
+    """Create the subscription on a broker; (created?, what the broker answered)."""
+    url = broker.rstrip("/") + "/v2/subscriptions"
+    answer = send_subscription(url, subscription(sim, notify_url), broker_headers(sim), timeout)
+    if answer.status is None:
+        return False, f"could not reach {url}: {answer.problem}"
+    if answer.created:
+        sub_id = answer.subscription_id or "?"
+        return True, f"201 Created: subscription {sub_id} ({answer.location}) on tenant {sim.tenancy.service!r}"
+    return False, f"{answer.status} {answer.reason}: {answer.text.strip()[:500]}"
+
+
+# Orion pages GET /v2/subscriptions (20 by default, at most 1000 a page).
+_PAGE = 1000
+_MAX_PAGES = 100
+
+
+def list_subscriptions(broker: str, headers: dict[str, str], timeout: float = 10.0) -> tuple[list[dict] | None, str]:
+    """Every subscription the broker has for the tenant and service path of
+    ``headers``: ``(subscriptions, "")``, or ``(None, why)`` when it could not
+    tell. Follows Orion's paging (``Fiware-Total-Count``, else short pages)."""
+    url = broker.rstrip("/") + "/v2/subscriptions"
+    tenancy = {k: v for k, v in headers.items() if k.lower().startswith("fiware-")}
+    found: list[dict] = []
+    for _ in range(_MAX_PAGES):
+        params: dict[str, str | int] = {"limit": _PAGE, "offset": len(found), "options": "count"}
+        try:
+            response = httpx.get(url, params=params, headers=tenancy, timeout=timeout)
+        except httpx.HTTPError as exc:
+            return None, f"could not reach {url}: {type(exc).__name__}: {exc}"
+        if response.status_code != 200:
+            answer = f"{response.status_code} {response.reason_phrase}: {response.text.strip()[:300]}"
+            return None, f"listing {url} answered {answer}"
+        try:
+            page = orjson.loads(response.content)
+        except orjson.JSONDecodeError:
+            page = None
+        if not isinstance(page, list):
+            return None, f"listing {url} did not answer a JSON array"
+        found.extend(sub for sub in page if isinstance(sub, dict))
+        total = response.headers.get("fiware-total-count", "")
+        more = len(found) < int(total) if total.isdigit() else len(page) >= _PAGE
+        if not page or not more:
+            return found, ""
+    return None, f"listing {url}: more than {_MAX_PAGES * _PAGE} subscriptions"
+
+
+def notify_url_of(document: dict) -> str | None:
+    """Where a subscription sends its notifications (``http`` or ``httpCustom``)."""
+    notification = document.get("notification")
+    if not isinstance(notification, dict):
+        return None
+    for key in ("http", "httpCustom"):
+        target = notification.get(key)
+        if isinstance(target, dict) and isinstance(target.get("url"), str):
+            return target["url"]
+    return None
+
+
+def _selectors(document: dict) -> frozenset[tuple]:
+    subject = document.get("subject")
+    entities = subject.get("entities") if isinstance(subject, dict) else None
+    return (
+        frozenset(
+            (e.get("id"), e.get("idPattern"), e.get("type"), e.get("typePattern"))
+            for e in entities
+            if isinstance(e, dict)
+        )
+        if isinstance(entities, list)
+        else frozenset()
+    )
+
+
+def equivalent(existing: dict, wanted: dict) -> bool:
+    """Would ``existing`` feed the same notify URL with the same entities as
+    ``wanted``? Then creating ``wanted`` would store every sample twice."""
+    return notify_url_of(existing) == notify_url_of(wanted) and _selectors(existing) == _selectors(wanted)
+
+
+def ensure_subscription(
+    broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0, force: bool = False
+) -> tuple[bool, str]:
+    """Create the subscription unless the broker already has an equivalent
+    one for the use case's tenant and service path (``force``: create
+    anyway). ``(ok?, what happened)``; a broker whose subscriptions cannot
+    be listed is not subscribed to (unless ``force``): running twice must
+    never double the history."""
+    if force:
+        return post_subscription(broker, sim, notify_url, timeout)
+    headers = broker_headers(sim)
+    existing, problem = list_subscriptions(broker, headers, timeout)
+    if existing is None:
+        return False, f"{problem}; nothing created (--force creates without checking)"
+    wanted = subscription(sim, notify_url)
+    same = next((sub for sub in existing if equivalent(sub, wanted)), None)
+    if same is None:
+        return post_subscription(broker, sim, notify_url, timeout)
+    tenancy = f"tenant {sim.tenancy.service!r} {sim.tenancy.service_path}"
+    return True, (
+        f"already subscribed: subscription {same.get('id', '?')} (status {same.get('status', 'unknown')}) "
+        f"on {tenancy} notifies {notify_url}; nothing created (--force creates another)"
+    )
+
+
+def example_notification(sim: Simulator) -> tuple[dict[str, str], dict]:
+    """A notification from a fixed-seed run, with the headers a broker at
+    ``tsdb-service:8668`` would send along (including those libcurl adds)."""
+    wire = random.Random(f"example:{sim.name}:orion")
+    emissions = sim.emissions(_EXAMPLE_START, random.Random(f"example:{sim.name}"))
+    wanted = _EXAMPLE_WANTED[sim.name]
+    chosen = next(e for e in itertools.islice(emissions, 100_000) if wanted(e.entity))
+    body_bytes = orion.notification_body(orion.subscription_id(wire), chosen.entity)
+    headers = {"Host": "tsdb-service:8668"}
+    headers.update(orion.notification_headers(sim.tenancy.service, sim.tenancy.service_path, orion.correlator(wire)))
+    headers["Content-Length"] = str(len(body_bytes))
+    return headers, orjson.loads(body_bytes)
+
+
+def write_examples(root: Path) -> list[Path]:
+    """Write ``notifications/<use case>/`` for every use case; returns the files written."""
+    written = []
+    for name, sim in SIMULATORS.items():
+        folder = root / name
+        folder.mkdir(parents=True, exist_ok=True)
+        headers, body = example_notification(sim)
+        documents = {
+            "subscription.json": subscription(sim),
+            "subscription.headers.json": broker_headers(sim),
+            "notification.json": body,
+            "notification.headers.json": headers,
+        }
+        for filename, document in documents.items():
+            path = folder / filename
+            path.write_bytes(dumps(document))
+            written.append(path)
+    return written
+
+
+def dumps(document: object) -> bytes:
+    """Pretty, stable JSON with a final newline, for files people read and diff."""
+    return orjson.dumps(document, option=orjson.OPT_INDENT_2) + b"\n"

@@ -1,0 +1,303 @@
+"""Settings from flags and ``TSDB_*`` environment variables.
+
+``get_settings()`` is the one place the app reads configuration; tests and
+the CLI override it by passing a ``Settings`` to ``create_app``.
+"""
+
+from __future__ import annotations
+
+import re
+from functools import lru_cache
+
+from pydantic import Field, ValidationError, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+MIB = 1024 * 1024
+# DuckDB folds its WAL into the file once it is this big (its own default:
+# 16 MiB). The commit that crosses it runs the checkpoint, and every
+# notification queued behind that commit waits for it: about 60 ms at
+# 16 MiB, 20-30 ms at 4 MiB, which took the ingest p99 at 64 connections
+# from 56 to 33-38 ms at the same rate (benchmarks/README.md, "WAL
+# checkpoint threshold").
+WAL_CHECKPOINT_BYTES = 4 * MIB
+LOG_LEVELS = ("critical", "error", "warning", "info", "debug", "trace")
+POSTGRES_PREFIXES = ("postgresql://", "postgres://")
+# "scheme:" at the start of --db; one letter is a Windows drive ("C:\\data"), not a scheme.
+_SCHEME = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]+):")
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="TSDB_", extra="ignore")
+
+    db: str = Field(
+        "./data/tsdb.duckdb",
+        description="A DuckDB file path (embedded default) or a postgresql:// URL.",
+    )
+    host: str = Field("0.0.0.0", description="Address to bind, as QuantumLeap does.")
+    port: int = Field(8668, ge=1, le=65535, description="QuantumLeap's port.")
+    workers: int = Field(1, ge=1, description="uvicorn workers; PostgreSQL only.")
+    max_body_bytes: int = Field(
+        9 * MIB,
+        ge=1024,
+        description="Larger notifications get 413 (and are kept in the rejected store). Orion sends "
+        "notifications of up to 8 MB by default (its -outReqMsgMaxSize): the default leaves headroom above it.",
+    )
+    rejected_body_max_bytes: int = Field(
+        16 * MIB,
+        ge=0,
+        description="The rejected store keeps a rejected notification's body up to this many bytes "
+        "(its full size is recorded, and that it was truncated).",
+    )
+    default_limit: int = Field(10_000, ge=1, description="Rows returned when no limit is given.")
+    compact_rows: int = Field(500_000, ge=1000, description="Move the hot table into the sorted one at this many rows.")
+    major_compact_runs: int = Field(
+        8, ge=1, description="Rewrite the sorted table after this many compactions into it."
+    )
+    writer_threads: int | None = Field(
+        None,
+        ge=1,
+        le=16,
+        description="Group-commit writer threads; default 1 on DuckDB (more only contend for the GIL), "
+        "3 on PostgreSQL (commits wait on the network, so they overlap).",
+    )
+    tail_cache_series: int = Field(
+        8192, ge=0, description="DuckDB: sizes the in-memory tails (0: off); see tail_cache_samples."
+    )
+    tail_cache_rows: int = Field(128, ge=0, description="DuckDB: newest samples kept per cached series.")
+    tail_cache_samples: int = Field(
+        1_000_000, ge=0, description="DuckDB: samples kept in all tails (~200 bytes each), oldest-read out first."
+    )
+    agg_partials_hours: int = Field(
+        100_000,
+        ge=0,
+        description="Series-hours of aggregate partials kept in memory for aggregated series "
+        "(~400 bytes each, least recently aggregated out first; 0: off).",
+    )
+    wal_checkpoint_bytes: int = Field(
+        WAL_CHECKPOINT_BYTES,
+        ge=64 * 1024,
+        description="DuckDB: fold the write-ahead log into the database file once it is this big "
+        "(DuckDB's own default: 16 MiB).",
+    )
+    # --- limits (issue 12): read budgets, rejected-store bounds, slow clients ---
+    read_max_series: int = Field(
+        50_000,
+        ge=1,
+        description="Series one request may select (per resolution step); more: 422 QueryTooLarge.",
+    )
+    read_max_rows: int = Field(
+        500_000,
+        ge=1,
+        description="Samples and aggregate rows one request may read in all; more: 422 QueryTooLarge.",
+    )
+    read_max_response_bytes: int = Field(
+        64 * MIB,
+        ge=1024,
+        description="Largest answer a read may render; larger: 422 QueryTooLarge.",
+    )
+    read_max_seconds: float = Field(
+        20.0,
+        gt=0,
+        description="Wall time of one read, checked between its steps; past it: 422 QueryTooLarge.",
+    )
+    rejected_max_per_tenant: int = Field(
+        1000,
+        ge=1,
+        description="Rejected notifications kept per tenant; the oldest are dropped first.",
+    )
+    rejected_max_bytes_per_tenant: int = Field(
+        64 * MIB,
+        ge=1024,
+        description="Bytes of rejected bodies and headers kept per tenant; oldest dropped first "
+        "(a tenant's newest rejection is always kept).",
+    )
+    rejected_max_age_days: float = Field(
+        30.0,
+        gt=0,
+        description="Rejected notifications older than this are dropped (when the next is recorded).",
+    )
+    rejected_page_max_bytes: int = Field(
+        8 * MIB,
+        ge=1024,
+        description="A rejected listing stops before this many bytes (at least one row) and points to the next page.",
+    )
+    header_timeout_s: float = Field(
+        10.0,
+        gt=0,
+        description="Close a connection whose request headers are not complete this long after it "
+        "opened (or after the request's first byte).",
+    )
+    body_timeout_s: float = Field(
+        60.0,
+        gt=0,
+        description="Cut off a request whose body is not complete this long after its headers.",
+    )
+    max_connections: int = Field(
+        4096,
+        ge=1,
+        description="Open connections per process; past it a new connection gets 503 and is closed.",
+    )
+    keep_alive_s: int = Field(5, ge=1, description="Close a kept-alive connection idle this long between requests.")
+    # --- end of limits ---
+    log_level: str = Field("info", description=f"One of {', '.join(LOG_LEVELS)}.")
+    access_log: bool = Field(False, description="Log every request (uvicorn's access log).")
+
+    @field_validator("db")
+    @classmethod
+    def _db_is_a_file_or_a_postgres_url(cls, value: str) -> str:
+        """Only two kinds of --db exist. Anything else (``postgress://``,
+        ``mysql://``, ``postgresql:/x``) would otherwise become a DuckDB file
+        of that name, silently taking data meant for another database."""
+        return check_db(value)
+
+    @field_validator("host")
+    @classmethod
+    def _host_not_empty(cls, value: str) -> str:
+        if not value.strip():
+            raise ValueError("is empty: give an address to bind, e.g. 0.0.0.0 or 127.0.0.1")
+        return value.strip()
+
+    @field_validator("log_level")
+    @classmethod
+    def _known_log_level(cls, value: str) -> str:
+        level = value.strip().lower()
+        if level not in LOG_LEVELS:
+            raise ValueError(f"unknown log level {value!r}: choose from {', '.join(LOG_LEVELS)}")
+        return level
+
+    # -- security: everything off unless configured (see README "Security") --
+    # Plain strings, not lists: `serve` hands settings to workers as TSDB_*
+    # variables via str(), and a comma list survives that round trip.
+    api_keys: str = Field(
+        "",
+        repr=False,
+        description="API keys as 'KEY:SCOPES[:TENANTS]' entries separated by ';' or spaces; "
+        "SCOPES from read,write,admin; TENANTS a comma list ('-' is the default tenant), all if absent.",
+    )
+    api_keys_file: str = Field(
+        "", description="File of hashed API keys, one 'SHA256HEX SCOPES [TENANTS]' per line ('#' comments)."
+    )
+    api_key_header: str = Field("X-Api-Key", description="Header that carries an API key (besides Bearer).")
+    jwt_jwks_url: str = Field("", description="JWKS URL of the OAuth2 server (Keycloak, ...): verify JWTs with it.")
+    jwt_key: str = Field(
+        "", repr=False, description="PEM public key, or the shared secret (Keyrock: the application's JWT secret)."
+    )
+    jwt_algorithms: str = Field("", description="Allowed JWT algorithms; default: RS/PS/ES/EdDSA, or HS for a secret.")
+    jwt_audience: str = Field("", description="Required 'aud' of tokens (recommended).")
+    jwt_issuer: str = Field("", description="Required 'iss' of tokens (recommended).")
+    jwt_scopes_claims: str = Field(
+        "scope,roles,realm_access.roles",
+        description="Claims (dotted paths) whose values grant scopes: OAuth2 'scope', Keyrock 'roles', "
+        "Keycloak 'realm_access.roles'.",
+    )
+    jwt_scope_prefix: str = Field("", description="Only claim values with this prefix count (e.g. 'tsdb:').")
+    jwt_tenants_claim: str = Field("", description="Claim listing the tenants a token may touch; empty: all.")
+    jwt_jwks_cache_seconds: int = Field(300, ge=1, le=86_400, description="How long fetched JWKS keys are kept.")
+    # -- NGSI-LD temporal API reads (see README "NGSI-LD temporal API") --
+    ngsild_default_limit: int = Field(100, ge=1, description="Entities per page when a temporal query gives no limit.")
+    ngsild_max_limit: int = Field(1000, ge=1, description="Largest limit a temporal query may ask for.")
+    ngsild_max_instances: int = Field(
+        10_000, ge=1, description="Instances in one temporal answer; past it the answer is 206 Partial Content."
+    )
+    ngsild_contexts: str = Field(
+        "", description="Local JSON-LD @context files: 'URL=path' pairs separated by ';' (served instead of fetching)."
+    )
+    ngsild_context_timeout: float = Field(2.0, gt=0, le=60, description="Seconds to wait for a remote @context.")
+    cors_origins: str = Field(
+        "", description="Origins browsers may call us from, comma list ('*': any); none by default."
+    )
+
+    # --- Retention and rollups (retention_policy.py, storage/retention.py, storage/rollups.py;
+    # README "Retention and rollups") ---
+    retention: str = Field(
+        "",
+        description="How long raw samples are kept, per tenant and entity type: "
+        "'*=365d,acme=30d,acme/Robot=7d' (or the same as a JSON object); empty: forever.",
+    )
+    rollups: bool = Field(
+        False,
+        description="Fold the samples retention deletes into hourly count/sum/min/max per series, "
+        "which aggregation queries (aggrPeriod hour or longer, or none) keep answering from.",
+    )
+    rollup_retention: str = Field(
+        "",
+        description="How long hourly rollups are kept, same syntax as retention; empty: forever.",
+    )
+    retention_interval: float = Field(300.0, gt=0, description="Seconds between retention passes.")
+    retention_batch_rows: int = Field(
+        50_000,
+        ge=1,
+        description="Rows deleted per batch and table, each batch its own short transaction.",
+    )
+    retention_pause: float = Field(0.05, ge=0, description="Seconds to pause between retention batches.")
+
+    @field_validator("retention", "rollup_retention")
+    @classmethod
+    def _retention_spec(cls, value: str, info) -> str:
+        from tsdb_service.core.retention_policy import RetentionPolicy
+
+        RetentionPolicy.parse(value, setting="TSDB_" + info.field_name.upper())  # raises ValueError
+        return value
+
+    # --- end of retention and rollups ---
+
+    @property
+    def backend(self) -> str:
+        return "postgresql" if self.db.startswith(("postgresql://", "postgres://")) else "duckdb"
+
+
+def check_db(value: str) -> str:
+    """A DuckDB file path or a ``postgresql://`` / ``postgres://`` URL; else ValueError."""
+    db = value.strip()
+    if not db:
+        raise ValueError("is empty: give a DuckDB file path or a postgresql:// URL")
+    if db.startswith(POSTGRES_PREFIXES):
+        return db
+    match = _SCHEME.match(db)
+    if match is None:
+        return db
+    scheme = match[1]
+    if scheme.lower() in ("postgresql", "postgres"):
+        raise ValueError(f"{db!r} is not a PostgreSQL URL: write postgresql://user@host:port/database")
+    if db[match.end() :].startswith("//"):
+        raise ValueError(
+            f"{db!r}: unsupported scheme {scheme}:// (only postgresql:// or postgres:// URLs and DuckDB file paths)"
+        )
+    raise ValueError(
+        f"{db!r} starts like a URL ({scheme}:): give a postgresql:// URL or a DuckDB file path "
+        f"(./{db} for a file name with a colon)"
+    )
+
+
+class SettingsError(ValueError):
+    """A setting is invalid; the message is one line naming the flag and its variable."""
+
+
+def load_settings(**overrides) -> Settings:
+    """``Settings`` from ``overrides`` and ``TSDB_*`` variables, or one ``SettingsError``
+    line per problem joined with "; " (pydantic's report spans many lines)."""
+    try:
+        return Settings(**overrides)
+    except ValidationError as exc:
+        raise SettingsError(describe(exc)) from None
+
+
+def describe(exc: ValidationError) -> str:
+    """pydantic's errors as ``--port (TSDB_PORT): must be at most 65535, got 99999``."""
+    problems = []
+    for error in exc.errors():
+        name = str(error["loc"][0]) if error["loc"] else "settings"
+        message = error["msg"]
+        for prefix in ("Value error, ", "Input should be "):
+            if message.startswith(prefix):
+                message = ("must be " if prefix == "Input should be " else "") + message[len(prefix) :]
+        flag = f"--{name.replace('_', '-')} (TSDB_{name.upper()})"
+        problems.append(
+            f"{flag}: {message}, got {error['input']!r}" if error["type"] != "value_error" else f"{flag}: {message}"
+        )
+    return "; ".join(problems)
+
+
+@lru_cache(maxsize=1)
+def get_settings() -> Settings:
+    return Settings()

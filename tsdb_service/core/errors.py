@@ -1,0 +1,93 @@
+"""One error hierarchy, rendered by one handler in the NGSI error shape.
+
+Every failure a client can cause is a ``TsdbError`` with an HTTP status, an
+NGSI error name and a description. Anything else escaping a route is a bug
+and becomes a 500.
+
+Under ``/ngsi-ld/`` the same errors are rendered as NGSI-LD ProblemDetails
+(RFC 7807, ETSI GS CIM 009 clause 6.3.2): each class also names its NGSI-LD
+error type (``ld_type``); ``tsdb_service.core.ld_errors`` has the NGSI-LD
+specific classes and the renderer.
+"""
+
+from __future__ import annotations
+
+
+class TsdbError(Exception):
+    status: int = 500
+    error: str = "InternalError"
+    ld_type: str = "InternalError"  # the NGSI-LD error type (https://uri.etsi.org/ngsi-ld/errors/<ld_type>)
+
+    def __init__(
+        self, description: str, *, error: str | None = None, status: int | None = None, ld_type: str | None = None
+    ):
+        super().__init__(description)
+        self.description = description
+        if error is not None:
+            self.error = error
+        if status is not None:
+            self.status = status
+        if ld_type is not None:
+            self.ld_type = ld_type
+
+    def body(self) -> dict[str, str]:
+        return {"error": self.error, "description": self.description}
+
+
+class BadRequest(TsdbError):
+    status = 400
+    error = "BadRequest"
+    ld_type = "BadRequestData"
+
+
+class ParseError(BadRequest):
+    """A notification or parameter we cannot understand."""
+
+    error = "ParseError"
+
+
+class NotFound(TsdbError):
+    status = 404
+    error = "NotFound"
+    ld_type = "ResourceNotFound"
+
+
+class AggrNotApplicable(TsdbError):
+    """QuantumLeap's answer to sum/avg/min/max on text or boolean values."""
+
+    status = 404
+    error = "AggrMethod cannot be applied"
+
+    def __init__(self) -> None:
+        super().__init__("AggrMethod cannot be applied on type TEXT and BOOLEAN.")
+
+
+class Conflict(TsdbError):
+    status = 409
+    error = "Conflict"
+    ld_type = "AlreadyExists"
+
+
+class PayloadTooLarge(TsdbError):
+    status = 413
+    error = "PayloadTooLarge"
+    ld_type = "InvalidRequest"
+
+
+class UnsupportedMediaType(TsdbError):
+    status = 415
+    error = "UnsupportedMediaType"
+    ld_type = "InvalidRequest"
+
+
+class Unprocessable(TsdbError):
+    status = 422
+    error = "Unprocessable"
+    ld_type = "OperationNotSupported"
+
+
+class Unavailable(TsdbError):
+    """The store is closing or broken; the client may retry."""
+
+    status = 503
+    error = "ServiceUnavailable"

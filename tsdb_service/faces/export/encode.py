@@ -1,0 +1,122 @@
+"""Record batches → CSV or Parquet bytes, piece by piece.
+
+pyarrow's writers write into a file object; here that object only collects
+what each batch produced, so the caller can hand it on (an HTTP body chunk,
+a file write) and forget it. A Parquet file is one row group per batch with
+its footer at the end; a CSV file is one header line and then the rows.
+Memory is one batch and its encoding, whatever the export's size.
+
+CSV: RFC 4180 quoting; times as ``2024-05-01T10:00:00.123456Z`` (ISO 8601,
+UTC, microseconds); booleans ``true``/``false``; a null is an empty field
+and an empty string is ``""``. The times are formatted here (a cast and two
+string kernels) because pyarrow's CSV writer formats zoned timestamps about
+five times slower than everything else in the row together.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.csv as pa_csv
+import pyarrow.parquet as pq
+
+from tsdb_service.faces.export.query import ExportFormat
+from tsdb_service.faces.export.stream import SCHEMA, SampleStream
+
+
+class _Pieces:
+    """A write-only file object that keeps what was written until taken."""
+
+    closed = False
+
+    def __init__(self) -> None:
+        self._parts: list[bytes] = []
+        self._size = 0
+
+    def write(self, data) -> int:
+        piece = bytes(data)
+        self._parts.append(piece)
+        self._size += len(piece)
+        return len(piece)
+
+    def tell(self) -> int:
+        return self._size
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:  # the writer's close must not end our taking
+        pass
+
+    def take(self) -> bytes:
+        out = b"".join(self._parts)
+        self._parts = []
+        return out
+
+
+CSV_SCHEMA = SCHEMA.set(0, pa.field("time", pa.string(), nullable=False))
+
+
+def iso_times(times: pa.Array) -> pa.Array:
+    """UTC timestamps (µs) → ``2024-05-01T10:00:00.123456Z``."""
+    text = times.cast(pa.timestamp("us")).cast(pa.string())  # 2024-05-01 10:00:00.123456
+    return pc.binary_join_element_wise(pc.replace_substring(text, " ", "T", max_replacements=1), "Z", "")
+
+
+class Encoder:
+    """``encode(batch)`` → the bytes it adds; ``finish()`` → the rest."""
+
+    def __init__(self, fmt: ExportFormat) -> None:
+        self._sink = _Pieces()
+        self._csv = fmt is ExportFormat.CSV
+        if self._csv:
+            self._writer = pa_csv.CSVWriter(self._sink, CSV_SCHEMA)
+        else:
+            self._writer = pq.ParquetWriter(self._sink, SCHEMA, compression="zstd")
+
+    def encode(self, batch: pa.RecordBatch) -> bytes:
+        if batch.num_rows:
+            if self._csv:
+                batch = batch.set_column(0, CSV_SCHEMA.field(0), iso_times(batch.column(0)))
+            self._writer.write_batch(batch)
+        return self._sink.take()
+
+    def finish(self) -> bytes:
+        self._writer.close()
+        return self._sink.take()
+
+
+def chunks(stream: SampleStream, fmt: ExportFormat) -> Iterator[bytes]:
+    """The encoded export, one piece per batch (blocking: run it in a thread)."""
+    encoder = Encoder(fmt)
+    while (batch := stream.next_batch()) is not None:
+        piece = encoder.encode(batch)
+        if piece:
+            yield piece
+    yield encoder.finish()
+
+
+def write_file(stream: SampleStream, fmt: ExportFormat, path: str | os.PathLike[str]) -> tuple[int, int, float]:
+    """Write the export to ``path``; (samples, bytes, seconds).
+
+    It is written to ``path.partial`` and renamed at the end, so an export
+    cut short never leaves a complete-looking file behind."""
+    target = Path(path)
+    partial = target.with_name(target.name + ".partial")
+    started = time.perf_counter()
+    size = 0
+    try:
+        with open(partial, "wb") as out:
+            for piece in chunks(stream, fmt):
+                out.write(piece)
+                size += len(piece)
+        os.replace(partial, target)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
+    return stream.rows, size, time.perf_counter() - started

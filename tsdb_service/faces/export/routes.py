@@ -1,0 +1,67 @@
+"""``GET /v2/export``: history as a CSV or Parquet download, streamed.
+
+Everything that can fail because of the request (parameters, tenant,
+service path) or the database being away fails before the first byte, as
+an NGSI error. The body is then produced batch by batch in the threadpool
+(``Store.read``: a database read and its encoding per step), so neither the
+database nor the encoders ever run on the event loop and memory stays at
+about one batch.
+If the client goes away the cursor is closed at once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from functools import partial
+
+import anyio
+from fastapi import APIRouter, Request
+from starlette.responses import StreamingResponse
+
+from tsdb_service.faces.export import Encoder, SampleStream, export_query, open_export
+from tsdb_service.http import openapi as oa
+from tsdb_service.http.tenancy import tenant_of
+from tsdb_service.storage.base import Store
+
+router = APIRouter(tags=["export"])
+
+
+@router.get(
+    "/v2/export",
+    summary="Export history as CSV or Parquet (one row per sample)",
+    description=(
+        "Parameters: format=csv|parquet (default csv), type, id, idPattern, attrs (attribute names), "
+        "fromDate, toDate; tenant from Fiware-Service / Fiware-ServicePath. Columns: time (UTC, µs), "
+        "entity_id, entity_type, service_path, attribute, ngsi_type, value_number, value_text, "
+        "value_bool, value_json (exactly one value column set per sample)."
+    ),
+    response_class=StreamingResponse,
+    **oa.EXPORT_SPEC,
+)
+async def export(request: Request) -> StreamingResponse:
+    query = export_query(request.query_params, request.headers, tenant_of(request))
+    store = request.app.state.store
+    stream = await store.read(partial(open_export, store, query), memory_first=False)
+    filename = f"tsdb-export{query.format.suffix}"
+    return StreamingResponse(
+        _body(store, stream, Encoder(query.format)),
+        media_type=query.format.media_type,
+        headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+    )
+
+
+async def _body(store: Store, stream: SampleStream, encoder: Encoder) -> AsyncIterator[bytes]:
+    try:
+        while (piece := await store.read(partial(_step, stream, encoder), memory_first=False)) is not None:
+            if piece:
+                yield piece
+        yield await store.read(encoder.finish, memory_first=False)
+    finally:
+        with anyio.CancelScope(shield=True):  # also when the client went away
+            await store.read(stream.close, memory_first=False)
+
+
+def _step(stream: SampleStream, encoder: Encoder) -> bytes | None:
+    """One batch read and encoded; None at the end."""
+    batch = stream.next_batch()
+    return None if batch is None else encoder.encode(batch)

@@ -1,0 +1,172 @@
+"""``/grafana/infinity/*``: flat JSON rows for the Infinity datasource.
+
+Infinity (``yesoreyeram-infinity-datasource``) reads any JSON URL; these GET
+endpoints answer with arrays of flat objects that its backend parser turns
+into frames. Common query parameters:
+
+* tenant: ``Fiware-Service`` / ``Fiware-ServicePath`` headers (custom headers
+  on the datasource) or ``service`` / ``servicepath`` parameters;
+* entities: ``id`` (comma list), ``idPattern`` (regex), ``type``;
+* columns: ``attrs=name=path,...``: attributes or value paths such as
+  ``speed=odom(twist.twist.linear.x)``; a row carries each under its name;
+* time: ``from`` / ``to`` as epoch ms (Grafana's ``${__from}``) or ISO 8601.
+
+Times in rows are ISO 8601 UTC with milliseconds and a ``Z``.
+Routes read the store through ``Store.read`` (``@reads_store``): in the threadpool.
+"""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request
+
+from tsdb_service.faces.grafana import frames
+from tsdb_service.faces.grafana.params import (
+    MAX_POINTS_LIMIT,
+    aggregate_method,
+    aggregate_period,
+    choice,
+    columns,
+    entity_filter,
+    flag,
+    positive_int,
+    scope_of,
+    time_range,
+)
+from tsdb_service.geo.filter import parse_geo
+from tsdb_service.history.valuepath import parse_value_path
+from tsdb_service.http import openapi as oa
+from tsdb_service.http.responses import JSON
+from tsdb_service.http.store import reads_store
+
+router = APIRouter(prefix="/grafana/infinity", tags=["grafana"])
+
+
+def _common(request: Request):
+    params, headers = request.query_params, request.headers
+    return request.app.state.store.querier(), scope_of(params, headers), entity_filter(params), params
+
+
+@router.get("/series", summary="Time series of columns per entity, downsampled to max_points", **oa.INFINITY["series"])
+@reads_store
+def series(request: Request) -> JSON:
+    """``[{"time", "entity", col...}]``. Over ``max_points`` samples per entity
+    (default 1000), samples are bucketed (width at least ``interval_ms``) and
+    reduced by ``agg``: ``auto`` (avg for numbers, last for states: integers,
+    booleans, text), or one of avg, last, first, min, max, sum, count.
+    ``layout=wide`` gives one row per time and a column per entity and column."""
+    querier, scope, entities, params = _common(request)
+    rows = frames.series_rows(
+        querier,
+        scope,
+        entities,
+        columns(params.get("attrs")),
+        time_range(params),
+        max_points=positive_int(params.get("max_points"), "max_points", 1000, MAX_POINTS_LIMIT),
+        interval_ms=positive_int(params.get("interval_ms"), "interval_ms", None, 10**12),
+        agg=choice(params.get("agg"), "agg", frames.AGGREGATIONS, "auto"),
+        wide=choice(params.get("layout"), "layout", ("long", "wide"), "long") == "wide",
+    )
+    return JSON(rows)
+
+
+@router.get("/latest", summary="Latest value of each column per entity (gauges, stats)", **oa.INFINITY["latest"])
+@reads_store
+def latest(request: Request) -> JSON:
+    """``[{"entity", "type", "name", "time", col...}]``, one row per entity."""
+    querier, scope, entities, params = _common(request)
+    return JSON(frames.latest_rows(querier, scope, entities, columns(params.get("attrs"))))
+
+
+@router.get("/states", summary="State changes (state timelines)", **oa.INFINITY["states"])
+@reads_store
+def states(request: Request) -> JSON:
+    """``[{"time", "entity", col...}]``: a row where any column changes, and
+    each entity's last sample."""
+    querier, scope, entities, params = _common(request)
+    rows = frames.state_rows(
+        querier,
+        scope,
+        entities,
+        columns(params.get("attrs")),
+        time_range(params),
+        max_points=positive_int(params.get("max_points"), "max_points", 5000, MAX_POINTS_LIMIT),
+    )
+    return JSON(rows)
+
+
+@router.get("/events", summary="Events as annotations (e.g. perimeter detections)", **oa.INFINITY["events"])
+@reads_store
+def events(request: Request) -> JSON:
+    """``[{"time", "timeEnd", "entity", "title", "text", "tags"}]``: one per
+    run of samples where a column is truthy, or ``== equals`` (a JSON value)."""
+    querier, scope, entities, params = _common(request)
+    rows = frames.event_rows(
+        querier,
+        scope,
+        entities,
+        columns(params.get("attrs")),
+        time_range(params),
+        matches=frames.condition(params.get("equals")),
+        text=(params.get("text") or None),
+        limit=positive_int(params.get("limit"), "limit", 1000, MAX_POINTS_LIMIT),
+    )
+    return JSON(rows)
+
+
+@router.get("/positions", summary="Positions (geomap markers and heatmaps)", **oa.INFINITY["positions"])
+@reads_store
+def positions(request: Request) -> JSON:
+    """``[{"time", "entity", "type", "name", "lat", "lon", col...}]``. ``location``
+    names the attribute or value path holding the position (default
+    ``location``; GeoJSON or ``"lat, lon"``). ``latest=true`` keeps each
+    entity's latest position with its columns' latest values. ``georel``,
+    ``geometry`` and ``coords`` (NGSIv2 geo-query) keep matching positions."""
+    querier, scope, entities, params = _common(request)
+    geo = parse_geo(params.get("georel"), params.get("geometry"), params.get("coords"))
+    rows = frames.position_rows(
+        querier,
+        scope,
+        entities,
+        parse_value_path(params.get("location") or "location"),
+        columns(params.get("attrs"), required=False),
+        time_range(params),
+        latest=flag(params.get("latest"), "latest"),
+        max_points=positive_int(params.get("max_points"), "max_points", 5000, MAX_POINTS_LIMIT),
+        geo=geo,
+    )
+    return JSON(rows)
+
+
+@router.get("/aggregate", summary="One aggregate per entity (or per period)", **oa.INFINITY["aggregate"])
+@reads_store
+def aggregate(request: Request) -> JSON:
+    """``[{"entity", "type", "name", ("time",) col...}]``; ``method`` avg
+    (default), min, max, sum, count; optional ``period`` (second ... year)."""
+    querier, scope, entities, params = _common(request)
+    rows = frames.aggregate_rows(
+        querier,
+        scope,
+        entities,
+        columns(params.get("attrs")),
+        time_range(params),
+        method=aggregate_method(params.get("method")),
+        period=aggregate_period(params.get("period")),
+        limit=positive_int(params.get("limit"), "limit", 10_000, MAX_POINTS_LIMIT),
+    )
+    return JSON(rows)
+
+
+@router.get("/entities", summary="Entities of the tenant (template variables)", **oa.INFINITY["entities"])
+@reads_store
+def entities(request: Request) -> JSON:
+    """``[{"entity", "type", "name", "attrs"}]``: ids, types and attribute names."""
+    querier, scope, entities, _ = _common(request)
+    found: dict[tuple[str, str], set[str]] = {}
+    for ref in querier.series(scope, entities, None):
+        found.setdefault((ref.entity_id, ref.entity_type), set()).add(ref.attr)
+    return JSON(
+        [
+            {"entity": eid, "type": etype, "name": frames.short_name(eid), "attrs": ",".join(sorted(attrs))}
+            for (eid, etype), attrs in sorted(found.items())
+        ]
+    )

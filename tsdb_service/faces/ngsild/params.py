@@ -1,0 +1,484 @@
+"""HTTP → ``TemporalQuery``: the query string of ``GET /temporal/entities``
+and ``GET /temporal/entities/{id}``, or a ``Query`` body of ``POST
+/temporal/entityOperations/query``. Every name is expanded with the
+request's @context (a ``TermMap``); every bad value is a BadRequestData.
+The pieces every API shares (tenant, ``idPattern``, integer ranges, date-time
+parsing, ``MAX_IDS``) come from ``ngsi.request_context``; what is NGSI-LD's
+own (type expressions, ``timerel``, ``aggrMethods``, ISO 8601 durations,
+paging with ``count``) is here.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from dataclasses import replace
+from decimal import Decimal, InvalidOperation
+from typing import Any
+
+from tsdb_service.core.errors import BadRequest
+from tsdb_service.core.ld_errors import BadRequestData, OperationNotSupported, TooManyResults
+from tsdb_service.faces.ngsild import qlang
+from tsdb_service.faces.ngsild.context import TermMap
+from tsdb_service.faces.ngsild.geoquery import parse_ld_geo
+from tsdb_service.faces.ngsild.query import (
+    AGGR_METHODS,
+    Aggregation,
+    Duration,
+    Format,
+    GeoQuery,
+    Selector,
+    TemporalQuery,
+    TimeProperty,
+    TypeAnd,
+    TypeExpr,
+    TypeName,
+    TypeOr,
+    Window,
+)
+from tsdb_service.parse.request_context import MAX_IDS, id_pattern, int_param, parse_time
+
+MAX_LIST = 1000
+MAX_ID_LENGTH = 2048
+_DURATION = re.compile(
+    r"^P(?:(\d+)Y)?(?:(\d+)M)?(?:(\d+)W)?(?:(\d+)D)?(?:T(?:(\d+)H)?(?:(\d+)M)?(?:(\d+(?:[.,]\d+)?)S)?)?$"
+)
+OPTIONS = ("temporalValues", "aggregatedValues", "sysAttrs", "keyValues", "normalized", "concise", "count")
+_TYPE_TOKEN = re.compile(r"\s*([(),;|]|[^(),;|\s]+)")
+
+
+def query_from_params(
+    params: Mapping[str, str], tenant: str, terms: TermMap, *, limits: tuple[int, int], entity_id: str | None = None
+) -> TemporalQuery:
+    """``limits``: (default page size, maximum page size)."""
+    get = params.get
+    selectors = (Selector(),)
+    if entity_id is None:
+        selectors = (
+            Selector(
+                ids=_list(get("id"), "id", MAX_IDS),
+                id_pattern=_ld(id_pattern, get("idPattern")),
+                types=parse_types(get("type"), terms),
+            ),
+        )
+    query = TemporalQuery(
+        tenant=tenant,
+        window=window(get("timerel"), get("timeAt"), get("endTimeAt"), get("timeproperty")),
+        entity_id=entity_id,
+        selectors=selectors,
+        attrs=_names(get("attrs"), "attrs", terms),
+        pick=_projection(get("pick"), "pick", terms),
+        omit=_projection(get("omit"), "omit", terms),
+        q=parse_q(get("q"), terms),
+        geo=geo_query(get("georel"), get("geometry"), get("coordinates"), get("geoproperty"), terms),
+        dataset_ids=_list(get("datasetId"), "datasetId"),
+        last_n=_positive(get("lastN"), "lastN"),
+        first_n=_positive(get("firstN"), "firstN"),
+        local=_flag(get("local"), "local"),
+    )
+    if query.last_n is not None and query.first_n is not None:
+        raise BadRequestData("lastN and firstN exclude each other")
+    query = _representation(query, get("options"), get("format"), get("aggrMethods"), get("aggrPeriodDuration"))
+    query = _paging(query, params, limits)
+    _refuse_unsupported(params)
+    if entity_id is None:
+        require_filter(query)
+    return query
+
+
+def query_from_body(
+    body: Any, params: Mapping[str, str], tenant: str, terms: TermMap, *, limits: tuple[int, int]
+) -> TemporalQuery:
+    """A ``Query`` (clause 5.2.23) with ``temporalQ``; representation,
+    paging and ``lastN`` may also come from the query string."""
+    if not isinstance(body, dict):
+        raise BadRequestData("the body must be a JSON object of type Query")
+    if body.get("type") != "Query":
+        raise BadRequestData("the body's type must be 'Query'")
+    known = {
+        "type",
+        "entities",
+        "attrs",
+        "q",
+        "geoQ",
+        "temporalQ",
+        "scopeQ",
+        "lang",
+        "csf",
+        "@context",
+        "pick",
+        "omit",
+        "datasetId",
+        "aggrMethods",
+        "aggrPeriodDuration",
+        "lastN",
+        "local",
+    }
+    unknown = sorted(set(body) - known)
+    if unknown:
+        raise BadRequestData(f"unknown Query members: {', '.join(u[:40] for u in unknown[:5])}")
+    if body.get("scopeQ") not in (None, ""):
+        raise OperationNotSupported("scopeQ is not supported: scopes are not stored")
+    temporal = body.get("temporalQ", {})
+    if not isinstance(temporal, dict):
+        raise BadRequestData("temporalQ must be an object")
+    geo = body.get("geoQ", {})
+    if not isinstance(geo, dict):
+        raise BadRequestData("geoQ must be an object")
+    query = TemporalQuery(
+        tenant=tenant,
+        window=window(
+            temporal.get("timerel"), temporal.get("timeAt"), temporal.get("endTimeAt"), temporal.get("timeproperty")
+        ),
+        selectors=_selectors(body.get("entities"), terms),
+        attrs=_names(_joined(body.get("attrs"), "attrs"), "attrs", terms),
+        pick=_projection(_joined(body.get("pick"), "pick"), "pick", terms),
+        omit=_projection(_joined(body.get("omit"), "omit"), "omit", terms),
+        q=parse_q(_string(body.get("q"), "q"), terms),
+        geo=geo_query(geo.get("georel"), geo.get("geometry"), geo.get("coordinates"), geo.get("geoproperty"), terms),
+        dataset_ids=_list(_joined(body.get("datasetId"), "datasetId"), "datasetId"),
+        last_n=_positive(_text(temporal.get("lastN", body.get("lastN", params.get("lastN")))), "lastN"),
+        local=_flag(_text(body.get("local", params.get("local"))), "local"),
+    )
+    methods = _joined(body.get("aggrMethods"), "aggrMethods") or params.get("aggrMethods")
+    period = body.get("aggrPeriodDuration") or params.get("aggrPeriodDuration")
+    query = _representation(query, params.get("options"), params.get("format"), methods, period)
+    query = _paging(query, params, limits)
+    require_filter(query)
+    return query
+
+
+def require_filter(query: TemporalQuery) -> None:
+    """Clause 5.7.3: a query names types, attributes, q, a geo-query or local
+    scope; otherwise it would return the whole database."""
+    has_type = any(s.types is not None for s in query.selectors)
+    if not (has_type or query.attrs is not None or query.q is not None or query.geo is not None or query.local):
+        raise BadRequestData("a temporal query needs at least one of type, attrs, q, a geo-query or local=true")
+
+
+# --- the temporal query -----------------------------------------------------------
+
+
+def window(timerel, time_at, end_time_at, timeproperty) -> Window:
+    prop = TimeProperty.OBSERVED_AT
+    if timeproperty not in (None, ""):
+        try:
+            prop = TimeProperty(str(timeproperty))
+        except ValueError:
+            raise BadRequestData(
+                f"timeproperty must be one of {', '.join(p.value for p in TimeProperty)}, "
+                f"not {str(timeproperty)[:40]!r}"
+            ) from None
+    if timerel in (None, ""):
+        if time_at not in (None, "") or end_time_at not in (None, ""):
+            raise BadRequestData("timeAt and endTimeAt need timerel")
+        return Window(timeproperty=prop)
+    if timerel not in ("before", "after", "between"):
+        raise BadRequestData(f"timerel must be before, after or between, not {str(timerel)[:40]!r}")
+    if time_at in (None, ""):
+        raise BadRequestData(f"timerel={timerel} needs timeAt")
+    at = _time(time_at, "timeAt")
+    if timerel == "before":
+        return Window("before", None, at, prop)
+    if timerel == "after":
+        return Window("after", at, None, prop)
+    if end_time_at in (None, ""):
+        raise BadRequestData("timerel=between needs endTimeAt")
+    end = _time(end_time_at, "endTimeAt")
+    if end <= at:
+        raise BadRequestData("endTimeAt must be later than timeAt")
+    return Window("between", at, end, prop)
+
+
+def _time(raw: Any, name: str):
+    if not isinstance(raw, str):
+        raise BadRequestData(f"{name} must be a date-time string")
+    try:
+        return parse_time(raw, name)
+    except BadRequest as exc:
+        raise BadRequestData(exc.description) from None
+
+
+# --- entities ---------------------------------------------------------------------
+
+
+def parse_types(raw: str | None, terms: TermMap) -> TypeExpr | None:
+    """A type expression (clause 4.17): ``,`` and ``|`` are OR, ``;`` is
+    AND, parentheses group; ``;`` binds tighter."""
+    if raw in (None, ""):
+        return None
+    tokens = _TYPE_TOKEN.findall(raw)
+    if "".join(tokens) != re.sub(r"\s+", "", raw):
+        raise BadRequestData(f"bad type expression {raw[:80]!r}")
+    names = [t for t in tokens if t not in "(),;|"]
+    if len(names) > MAX_LIST:
+        raise BadRequestData(f"type lists more than {MAX_LIST} types")
+    expanded = dict(zip(names, terms.expand_all(names), strict=True))
+    pos = 0
+
+    def disjunction(depth: int) -> TypeExpr:
+        nonlocal pos
+        if depth > 16:
+            raise BadRequestData("type expression nests too deeply")
+        parts = [conjunction(depth)]
+        while pos < len(tokens) and tokens[pos] in (",", "|"):
+            pos += 1
+            parts.append(conjunction(depth))
+        return parts[0] if len(parts) == 1 else TypeOr(tuple(parts))
+
+    def conjunction(depth: int) -> TypeExpr:
+        nonlocal pos
+        parts = [atom(depth)]
+        while pos < len(tokens) and tokens[pos] == ";":
+            pos += 1
+            parts.append(atom(depth))
+        return parts[0] if len(parts) == 1 else TypeAnd(tuple(parts))
+
+    def atom(depth: int) -> TypeExpr:
+        nonlocal pos
+        if pos >= len(tokens):
+            raise BadRequestData(f"type expression {raw[:80]!r} ends early")
+        token = tokens[pos]
+        pos += 1
+        if token == "(":
+            inner = disjunction(depth + 1)
+            if pos >= len(tokens) or tokens[pos] != ")":
+                raise BadRequestData(f"missing ')' in type expression {raw[:80]!r}")
+            pos += 1
+            return inner
+        if token in "),;|":
+            raise BadRequestData(f"unexpected {token!r} in type expression {raw[:80]!r}")
+        return TypeName(expanded[token], token)
+
+    expr = disjunction(0)
+    if pos != len(tokens):
+        raise BadRequestData(f"unexpected {tokens[pos]!r} in type expression {raw[:80]!r}")
+    return expr
+
+
+def _selectors(raw: Any, terms: TermMap) -> tuple[Selector, ...]:
+    if raw is None:
+        return (Selector(),)
+    if not isinstance(raw, list) or not raw or len(raw) > MAX_LIST:
+        raise BadRequestData("entities must be a non-empty array of EntitySelectors")
+    out = []
+    for item in raw:
+        if not isinstance(item, dict) or not set(item) <= {"id", "idPattern", "type"}:
+            raise BadRequestData("each EntitySelector has only id, idPattern and type")
+        ident = item.get("id")
+        if ident is not None and (not isinstance(ident, str) or not ident or len(ident) > MAX_ID_LENGTH):
+            raise BadRequestData("an EntitySelector id must be a non-empty string")
+        out.append(
+            Selector(
+                ids=(ident,) if ident else None,
+                id_pattern=_ld(id_pattern, _string(item.get("idPattern"), "idPattern")),
+                types=parse_types(_string(item.get("type"), "type"), terms),
+            )
+        )
+    return tuple(out)
+
+
+# --- attributes, q, geo -------------------------------------------------------------
+
+
+def _names(raw: str | None, name: str, terms: TermMap) -> tuple[str, ...] | None:
+    items = _list(raw, name)
+    return None if items is None else tuple(dict.fromkeys(terms.expand_all(items)))
+
+
+def _projection(raw: str | None, name: str, terms: TermMap) -> tuple[str, ...] | None:
+    """pick/omit: ``id``, ``type`` and attribute names."""
+    items = _list(raw, name)
+    if items is None:
+        return None
+    attrs = [i for i in items if i not in ("id", "type")]
+    expanded = dict(zip(attrs, terms.expand_all(attrs), strict=True))
+    return tuple(dict.fromkeys(i if i in ("id", "type") else expanded[i] for i in items))
+
+
+def parse_q(raw: str | None, terms: TermMap) -> qlang.Node | None:
+    if raw in (None, ""):
+        return None
+    try:
+        node = qlang.parse(raw)
+    except qlang.QueryError as exc:
+        raise BadRequestData(f"invalid q: {exc}") from None
+    names = sorted({t.attr for t in qlang.terms(node)})
+    expanded = dict(zip(names, terms.expand_all(names), strict=True))
+    return qlang.map_attrs(node, expanded.__getitem__)
+
+
+def geo_query(georel, geometry, coordinates, geoproperty, terms: TermMap) -> GeoQuery | None:
+    geo = parse_ld_geo(georel, geometry, coordinates)
+    if geo is None:
+        if geoproperty not in (None, ""):
+            raise BadRequestData("geoproperty needs georel, geometry and coordinates")
+        return None
+    prop = terms.expand(str(geoproperty)) if geoproperty not in (None, "") else terms.expand("location")
+    return GeoQuery(geo, prop)
+
+
+# --- representation, paging --------------------------------------------------------
+
+
+def _representation(query: TemporalQuery, options, fmt, methods, period) -> TemporalQuery:
+    """``format`` wins over ``options``; ``temporalValues,aggregatedValues``
+    together mean aggregation (a common Grafana plugin sends both)."""
+    opts = _list(options, "options") or ()
+    unknown = [o for o in opts if o not in OPTIONS]
+    if unknown:
+        raise BadRequestData(f"unknown options: {', '.join(o[:40] for o in unknown)}")
+    if "concise" in opts or fmt == "concise":
+        raise OperationNotSupported(
+            "the concise temporal representation is not supported: use normalized, temporalValues or aggregatedValues"
+        )
+    chosen = Format.NORMALIZED
+    if fmt not in (None, ""):
+        try:
+            chosen = Format(fmt) if fmt != "normalized" else Format.NORMALIZED
+        except ValueError:
+            raise BadRequestData(
+                f"format must be normalized, temporalValues or aggregatedValues, not {str(fmt)[:40]!r}"
+            ) from None
+    elif "aggregatedValues" in opts:
+        chosen = Format.AGGREGATED
+    elif "temporalValues" in opts:
+        chosen = Format.TEMPORAL_VALUES
+    aggregation = None
+    if chosen is Format.AGGREGATED:
+        aggregation = Aggregation(_methods(methods), parse_duration(period))
+    elif methods not in (None, "") or period not in (None, ""):
+        raise BadRequestData("aggrMethods and aggrPeriodDuration need format=aggregatedValues")
+    return replace(
+        query,
+        format=chosen,
+        aggregation=aggregation,
+        sys_attrs="sysAttrs" in opts,
+        count=query.count or "count" in opts,
+    )
+
+
+def _methods(raw) -> tuple[str, ...]:
+    items = _list(raw, "aggrMethods")
+    if not items:
+        raise BadRequestData("aggregatedValues needs aggrMethods")
+    bad = [m for m in items if m not in AGGR_METHODS]
+    if bad:
+        raise BadRequestData(f"unknown aggrMethods {', '.join(b[:40] for b in bad)}: use {', '.join(AGGR_METHODS)}")
+    return tuple(dict.fromkeys(items))
+
+
+def parse_duration(raw) -> Duration:
+    """ISO 8601 ``PnYnMnWnDTnHnMnS`` (weeks may mix with the rest, as many
+    parsers allow); absent means ``PT0S``, the whole window."""
+    if raw in (None, ""):
+        return Duration()
+    text = str(raw).strip()
+    match = _DURATION.match(text)
+    if not match or text in ("P", "PT") or text.endswith("T"):
+        raise BadRequestData(f"aggrPeriodDuration must be an ISO 8601 duration such as PT1H or P1M, not {text[:40]!r}")
+    y, mo, w, d, h, mi, s = match.groups()
+    try:
+        seconds = Decimal((s or "0").replace(",", "."))
+    except InvalidOperation:
+        raise BadRequestData(f"bad seconds in aggrPeriodDuration {text[:40]!r}") from None
+    months = int(y or 0) * 12 + int(mo or 0)
+    days = int(w or 0) * 7 + int(d or 0)
+    micros = (int(h or 0) * 3600 + int(mi or 0) * 60) * 1_000_000 + int(seconds * 1_000_000)
+    if months > 12 * 10_000 or days > 3_660_000 or micros > 10**17:
+        raise BadRequestData(f"aggrPeriodDuration {text[:40]!r} is too long")
+    return Duration(months, days, micros)
+
+
+def _paging(query: TemporalQuery, params: Mapping[str, str], limits: tuple[int, int]) -> TemporalQuery:
+    default_limit, max_limit = limits
+    limit = _non_negative(params.get("limit"), "limit")
+    if limit is not None and limit > max_limit:
+        raise TooManyResults(f"limit must be at most {max_limit}")
+    offset = _non_negative(params.get("offset"), "offset") or 0
+    count = _flag(params.get("count"), "count") or query.count
+    order = params.get("orderBy")
+    if order not in (None, "", "id"):
+        raise BadRequestData(f"orderBy supports only id, not {order[:40]!r}")
+    if limit == 0 and not count:
+        raise BadRequestData("limit=0 needs count=true")
+    return replace(query, limit=default_limit if limit is None else limit, offset=offset, count=count)
+
+
+def _refuse_unsupported(params: Mapping[str, str]) -> None:
+    if params.get("scopeQ") not in (None, ""):
+        raise OperationNotSupported("scopeQ is not supported: scopes are not stored")
+    if params.get("csf") not in (None, ""):
+        raise OperationNotSupported("csf is not supported: there are no context sources here")
+    if params.get("offsetN") not in (None, ""):
+        raise OperationNotSupported(
+            "offsetN is not supported: page through instances with firstN or lastN and "
+            "timerel, following the Content-Range of a 206 answer"
+        )
+
+
+# --- small parsers ------------------------------------------------------------------
+
+
+def _list(raw: str | None, name: str, most: int = MAX_LIST) -> tuple[str, ...] | None:
+    if raw is None:
+        return None
+    items = tuple(dict.fromkeys(part.strip() for part in str(raw).split(",") if part.strip()))
+    if not items:
+        raise BadRequestData(f"{name} is empty")
+    if len(items) > most:
+        raise BadRequestData(f"{name} lists more than {most} items")
+    if any(len(i) > MAX_ID_LENGTH for i in items):
+        raise BadRequestData(f"{name} has an item longer than {MAX_ID_LENGTH} characters")
+    return items
+
+
+def _joined(raw: Any, name: str) -> str | None:
+    """Body members may be a list of strings or one comma-separated string."""
+    if raw is None:
+        return None
+    if isinstance(raw, list) and all(isinstance(i, str) for i in raw):
+        return ",".join(raw) if raw else None
+    if isinstance(raw, str):
+        return raw
+    raise BadRequestData(f"{name} must be a string or an array of strings")
+
+
+def _string(raw: Any, name: str) -> str | None:
+    if raw is None or isinstance(raw, str):
+        return raw
+    raise BadRequestData(f"{name} must be a string")
+
+
+def _text(raw: Any) -> str | None:
+    if raw is None or isinstance(raw, str):
+        return raw
+    if isinstance(raw, bool):
+        return "true" if raw else "false"
+    return str(raw)
+
+
+def _positive(raw: str | None, name: str) -> int | None:
+    return _ld(int_param, raw, name, 1)
+
+
+def _non_negative(raw: str | None, name: str) -> int | None:
+    return _ld(int_param, raw, name, 0)
+
+
+def _ld(parse, *args):
+    """A shared parser's (``ngsi.request_context``) 400 as this API's
+    BadRequestData: the same ProblemDetails, and the class NGSI-LD callers
+    expect."""
+    try:
+        return parse(*args)
+    except BadRequest as exc:
+        raise BadRequestData(exc.description) from None
+
+
+def _flag(raw: str | None, name: str) -> bool:
+    if raw in (None, ""):
+        return False
+    if raw not in ("true", "false"):
+        raise BadRequestData(f"{name} must be true or false, not {str(raw)[:40]!r}")
+    return raw == "true"

@@ -1,0 +1,169 @@
+"""What a temporal request asks for, parsed and validated, before any SQL.
+
+``ngsild.params`` builds a ``TemporalQuery`` from HTTP (query string or a
+``Query`` body); ``ngsild.fetch`` runs it against the store;
+``ngsild.render`` turns the instances into NGSI-LD JSON. Attribute and type
+names in here are already expanded to IRIs with the request's @context.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime
+from enum import Enum
+from typing import Any
+
+from tsdb_service.faces.ngsild.qlang import Node
+
+DEFAULT_DATASET = "@none"  # how a request names the default instance in datasetId
+
+
+class TimeProperty(str, Enum):
+    OBSERVED_AT = "observedAt"
+    CREATED_AT = "createdAt"
+    MODIFIED_AT = "modifiedAt"
+    DELETED_AT = "deletedAt"
+
+
+class Format(str, Enum):
+    NORMALIZED = "normalized"
+    TEMPORAL_VALUES = "temporalValues"  # the simplified temporal representation
+    AGGREGATED = "aggregatedValues"
+
+
+AGGR_METHODS = ("totalCount", "distinctCount", "sum", "avg", "min", "max", "stddev", "sumsq")
+
+
+@dataclass(frozen=True, slots=True)
+class Window:
+    """The temporal query as a half-open interval ``[start, end)`` on one
+    time property: ``before`` → ``(-inf, timeAt)``, ``after`` →
+    ``[timeAt, +inf)``, ``between`` → ``[timeAt, endTimeAt)``; no
+    ``timerel``: all of time. Bounds are timezone-aware UTC."""
+
+    timerel: str | None = None
+    start: datetime | None = None
+    end: datetime | None = None
+    timeproperty: TimeProperty = TimeProperty.OBSERVED_AT
+
+
+@dataclass(frozen=True, slots=True)
+class Duration:
+    """An ISO 8601 duration ``PnYnMnDTnHnMnS`` or ``PnW``. Calendar parts
+    (years, months) are kept apart because their length varies."""
+
+    months: int = 0  # years x 12 + months
+    days: int = 0  # weeks x 7 + days
+    micros: int = 0  # hours, minutes, seconds
+
+    @property
+    def zero(self) -> bool:
+        return self.months == 0 and self.days == 0 and self.micros == 0
+
+    @property
+    def calendar(self) -> bool:
+        return self.months != 0
+
+    @property
+    def fixed_micros(self) -> int:
+        """The length of a duration without calendar parts, in microseconds."""
+        return self.days * 86_400_000_000 + self.micros
+
+
+@dataclass(frozen=True, slots=True)
+class Aggregation:
+    methods: tuple[str, ...]
+    period: Duration  # zero: one period over the whole window
+
+
+@dataclass(frozen=True, slots=True)
+class TypeName:
+    iri: str
+    term: str = ""  # as the request wrote it (stored names may be that term)
+
+
+@dataclass(frozen=True, slots=True)
+class TypeAnd:
+    parts: tuple[TypeExpr, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class TypeOr:
+    parts: tuple[TypeExpr, ...]
+
+
+TypeExpr = TypeName | TypeAnd | TypeOr
+
+
+def type_matches(expr: TypeExpr, has: Callable[[TypeName], bool]) -> bool:
+    """Does an entity satisfy ``expr``? ``has(name)`` says whether it has one type."""
+    if isinstance(expr, TypeName):
+        return has(expr)
+    if isinstance(expr, TypeAnd):
+        return all(type_matches(p, has) for p in expr.parts)
+    return any(type_matches(p, has) for p in expr.parts)
+
+
+def type_names(expr: TypeExpr) -> list[TypeName]:
+    if isinstance(expr, TypeName):
+        return [expr]
+    return [name for p in expr.parts for name in type_names(p)]
+
+
+@dataclass(frozen=True, slots=True)
+class Selector:
+    """One entity selector: ids (exact), an id regex, a type expression;
+    ``None`` = any. A query's selectors are alternatives (OR)."""
+
+    ids: tuple[str, ...] | None = None
+    id_pattern: str | None = None
+    types: TypeExpr | None = None
+
+
+@dataclass(frozen=True)
+class GeoQuery:
+    """``georel``/``geometry``/``coordinates``/``geoproperty``; ``filter``
+    is a ``tsdb_service.geo.filter.GeoFilter`` (lon/lat shapes, geodesic
+    distances)."""
+
+    filter: Any
+    geoproperty: str  # expanded IRI
+
+
+@dataclass(frozen=True)
+class TemporalQuery:
+    """One temporal read. ``attrs``/``pick``/``omit`` hold expanded IRIs
+    (and ``id``/``type`` in pick/omit); ``None`` means not given.
+    ``entity_id`` is set on ``GET /temporal/entities/{id}``."""
+
+    tenant: str
+    window: Window = Window()
+    entity_id: str | None = None
+    selectors: tuple[Selector, ...] = (Selector(),)
+    attrs: tuple[str, ...] | None = None
+    pick: tuple[str, ...] | None = None
+    omit: tuple[str, ...] | None = None
+    q: Node | None = None
+    geo: GeoQuery | None = None
+    dataset_ids: tuple[str, ...] | None = None
+    last_n: int | None = None
+    first_n: int | None = None  # the firstN draft: the oldest N per attribute
+    format: Format = Format.NORMALIZED
+    aggregation: Aggregation | None = None
+    sys_attrs: bool = False
+    limit: int = 20
+    offset: int = 0
+    count: bool = False
+    local: bool = False
+
+    @property
+    def wanted_attrs(self) -> tuple[str, ...] | None:
+        """The attributes to return: ``attrs`` narrowed by ``pick``; ``omit``
+        is applied by the caller."""
+        if self.pick is not None:
+            picked = tuple(a for a in self.pick if a not in ("id", "type"))
+            if self.attrs is not None:
+                return tuple(a for a in picked if a in self.attrs)
+            return picked
+        return self.attrs

@@ -1,0 +1,192 @@
+"""The read half of the NGSI-LD temporal API (clauses 6.18.3.2, 6.19.3.1, 6.24):
+
+* ``GET /ngsi-ld/v1/temporal/entities`` — query,
+* ``GET /ngsi-ld/v1/temporal/entities/{entityId}`` — retrieve,
+* ``POST /ngsi-ld/v1/temporal/entityOperations/query`` — query with a ``Query`` body.
+
+Content negotiation: ``Accept: application/ld+json`` puts the @context in
+the body; ``application/json`` (or none, or ``*/*``) names it in a ``Link``
+header. The request's context comes from its ``Link`` header (or, for a
+POST sent as ``application/ld+json``, the body's ``@context``).
+"""
+
+from __future__ import annotations
+
+from urllib.parse import urlencode
+
+import orjson
+from fastapi import APIRouter, Request
+from starlette.responses import Response
+
+from tsdb_service.core.ld_errors import BadRequestData, InvalidRequest, NotAcceptable
+from tsdb_service.faces.ngsild.context import (
+    JSONLD_CONTEXT_REL,
+    ContextStore,
+    TermMap,
+    link_context,
+    parse_local_contexts,
+)
+from tsdb_service.faces.ngsild.params import query_from_body, query_from_params
+from tsdb_service.faces.ngsild.service import TemporalResult, run
+from tsdb_service.http import openapi as oa
+from tsdb_service.http.ld_tenancy import ld_tenant, tenant_echo
+
+router = APIRouter(prefix="/ngsi-ld/v1", tags=["NGSI-LD temporal"])
+LD_JSON = "application/ld+json"
+JSON = "application/json"
+MAX_BODY = 1 << 20
+
+
+def contexts(request: Request) -> ContextStore:
+    """The app's context store, made on first use from the settings."""
+    state = request.app.state
+    store = getattr(state, "ngsild_contexts", None)
+    if store is None:
+        settings = state.settings
+        store = state.ngsild_contexts = ContextStore(
+            parse_local_contexts(settings.ngsild_contexts), timeout=settings.ngsild_context_timeout
+        )
+    return store
+
+
+def _limits(request: Request) -> tuple[int, int]:
+    s = request.app.state.settings
+    return s.ngsild_default_limit, s.ngsild_max_limit
+
+
+def _cap(request: Request) -> int:
+    return request.app.state.settings.ngsild_max_instances
+
+
+def accepted(header: str | None) -> str:
+    """The response media type for an ``Accept`` header; 406 if none fits."""
+    if not header or not header.strip():
+        return JSON
+    best, best_q = None, -1.0
+    for part in header.split(","):
+        fields = [f.strip() for f in part.split(";")]
+        media = fields[0].lower()
+        q = 1.0
+        for f in fields[1:]:
+            if f.startswith("q="):
+                try:
+                    q = float(f[2:])
+                except ValueError:
+                    q = 0.0
+        if media in (LD_JSON, JSON, "*/*", "application/*") and q > best_q and q > 0:
+            best, best_q = (LD_JSON if media == LD_JSON else JSON), q
+            if media == LD_JSON:
+                best_q += 0.0001  # an exact ld+json beats a wildcard at the same q
+    if best is None:
+        raise NotAcceptable(f"cannot answer with {header[:80]!r}: use application/json or application/ld+json")
+    return best
+
+
+@router.get("/temporal/entities", summary="Query temporal entities", **oa.ld_read_spec())
+async def query_entities(request: Request) -> Response:
+    media = accepted(request.headers.get("accept"))
+    params = dict(request.query_params)
+
+    def work() -> tuple[TemporalResult, TermMap, object]:
+        terms = contexts(request).term_map(link_context(request.headers.get("link")))
+        query = query_from_params(params, ld_tenant(request), terms, limits=_limits(request))
+        return run(request.app.state.store.querier(), terms, query, _cap(request)), terms, query
+
+    result, terms, query = await request.app.state.store.read(work, memory_first=False)
+    return _respond(request, media, terms, result, query, many=True)
+
+
+@router.get("/temporal/entities/{entity_id}", summary="Retrieve one temporal entity", **oa.ld_read_spec())
+async def retrieve_entity(entity_id: str, request: Request) -> Response:
+    media = accepted(request.headers.get("accept"))
+    if not entity_id or len(entity_id) > 2048:
+        raise BadRequestData("the entity id must be 1 to 2048 characters")
+    params = dict(request.query_params)
+
+    def work():
+        terms = contexts(request).term_map(link_context(request.headers.get("link")))
+        query = query_from_params(params, ld_tenant(request), terms, limits=(1, 1), entity_id=entity_id)
+        return run(request.app.state.store.querier(), terms, query, _cap(request)), terms, query
+
+    result, terms, query = await request.app.state.store.read(work, memory_first=False)
+    return _respond(request, media, terms, result, query, many=False)
+
+
+@router.post(
+    "/temporal/entityOperations/query",
+    summary="Query temporal entities with a Query body",
+    **oa.ld_read_spec(body=oa.LD_FRAGMENT_BODY),
+)
+async def query_post(request: Request) -> Response:
+    media = accepted(request.headers.get("accept"))
+    content_type = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
+    if content_type not in (JSON, LD_JSON):
+        raise InvalidRequest("the body must be application/json or application/ld+json", status=415)
+    raw = await request.body()
+    if len(raw) > MAX_BODY:
+        raise BadRequestData(f"the Query body is larger than {MAX_BODY} bytes", status=413)
+    try:
+        body = orjson.loads(raw)
+    except orjson.JSONDecodeError as exc:
+        raise InvalidRequest(f"the body is not JSON: {exc}") from None
+    link = request.headers.get("link")
+    if content_type == LD_JSON:
+        if link_context(link) is not None:
+            raise BadRequestData("an application/ld+json body carries its @context; do not send a Link header too")
+        if not isinstance(body, dict) or "@context" not in body:
+            raise BadRequestData("an application/ld+json body needs an @context")
+        context = body["@context"]
+    else:
+        if isinstance(body, dict) and "@context" in body:
+            raise BadRequestData("an application/json body cannot carry @context: send application/ld+json")
+        context = link_context(link)
+    params = dict(request.query_params)
+
+    def work():
+        terms = contexts(request).term_map(context)
+        query = query_from_body(body, params, ld_tenant(request), terms, limits=_limits(request))
+        return run(request.app.state.store.querier(), terms, query, _cap(request)), terms, query
+
+    result, terms, query = await request.app.state.store.read(work, memory_first=False)
+    return _respond(request, media, terms, result, query, many=True)
+
+
+def _respond(request: Request, media: str, terms: TermMap, result: TemporalResult, query, many: bool) -> Response:
+    headers: dict[str, str] = tenant_echo(request)
+    links: list[str] = []
+    if media == LD_JSON:
+        for item in result.entities:
+            item["@context"] = terms.response_context
+    else:
+        links.append(f'<{terms.link_url}>; rel="{JSONLD_CONTEXT_REL}"; type="{LD_JSON}"')
+    if many:
+        if query.count:
+            headers["NGSILD-Results-Count"] = str(result.count)
+        links += _page_links(request, query, result.count)
+    if links:
+        headers["Link"] = ", ".join(links)
+    status = 200
+    if result.content_range is not None:
+        status = 206
+        headers["Content-Range"] = result.content_range
+    body = result.entities if many else result.entities[0]
+    content = orjson.dumps(body, option=orjson.OPT_NON_STR_KEYS)
+    return Response(content, status_code=status, media_type=media, headers=headers)
+
+
+def _page_links(request: Request, query, total: int) -> list[str]:
+    """``Link`` rel next/prev for ``limit``/``offset`` paging (GET only: a
+    POST's body cannot travel in a link, so there the links name only the
+    changed query string)."""
+    out: list[str] = []
+    limit, offset = query.limit, query.offset
+    if limit == 0:
+        return out
+    params = [(k, v) for k, v in request.query_params.multi_items() if k not in ("offset", "limit")]
+    path = request.url.path
+    if offset + limit < total:
+        out.append(f'<{path}?{urlencode([*params, ("limit", limit), ("offset", offset + limit)])}>; rel="next"')
+    if offset > 0:
+        prev = max(0, offset - limit)
+        out.append(f'<{path}?{urlencode([*params, ("limit", limit), ("offset", prev)])}>; rel="prev"')
+    return out

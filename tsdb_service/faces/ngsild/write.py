@@ -1,0 +1,325 @@
+"""NGSI-LD temporal writes (ETSI GS CIM 009 clauses 5.6.11-5.6.15, 6.18-6.22).
+
+* ``POST /temporal/entities``: create or add to an entity's temporal
+  representation (``201`` + ``Location`` when the entity had no instances,
+  else ``204``);
+* ``POST /temporal/entities/{id}/attrs``: add instances (``404`` for an
+  unknown entity);
+* ``DELETE /temporal/entities/{id}``: every instance of the entity;
+* ``DELETE /temporal/entities/{id}/attrs/{attrId}``: the default instances
+  of the attribute, those of one ``datasetId``, or with ``deleteAll=true``
+  all of them;
+* ``PATCH`` / ``DELETE /temporal/entities/{id}/attrs/{attrId}/{instanceId}``:
+  replace or delete one instance.
+
+The written data is the notified data: each instance becomes a sample read
+exactly as a notified NGSI-LD attribute (``ngsi.notification``), so the
+NGSIv2/QuantumLeap API and Grafana see it too (instances with one
+observedAt share one NGSIv2 row; one without observedAt gets the time it
+was written). ``createdAt`` and ``modifiedAt`` of written instances are
+the time of the write; a ``PATCH`` sets ``modifiedAt``. Every write goes
+through the group committer and is answered after its commit. Names are
+stored as sent (no JSON-LD expansion, as for notifications); ``@context``
+is accepted where the spec puts it (body for ``application/ld+json``,
+``Link`` header for ``application/json``) and not otherwise used.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from functools import partial
+from typing import Any
+from urllib.parse import quote
+
+import orjson
+from fastapi import APIRouter, Request
+from fastapi.responses import Response
+
+from tsdb_service.core.errors import ParseError, PayloadTooLarge, UnsupportedMediaType
+from tsdb_service.core.ld_errors import BadRequestData, InvalidRequest, NonexistentTenant, ResourceNotFound
+from tsdb_service.core.model import AttrSample, EntitySample, instance_iid
+from tsdb_service.core.query import EntityFilter, Scope, SeriesRef
+from tsdb_service.http import openapi as oa
+from tsdb_service.http.ld_tenancy import ld_tenant, tenant_echo
+from tsdb_service.parse.notification import parse_ld_instance
+from tsdb_service.storage.base import AppendSamples, DeleteInstance, DeleteSamples, ReplaceInstance
+
+router = APIRouter(prefix="/ngsi-ld/v1", tags=["NGSI-LD temporal"])
+
+BASE = "/ngsi-ld/v1/temporal/entities"
+_ENTITY_KEYS = frozenset({"id", "type", "@context", "scope", "createdAt", "modifiedAt", "deletedAt"})
+_URI = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*:\S+\Z")
+_JSON_TYPES = ("application/json", "application/ld+json")
+
+
+# --- routes ---------------------------------------------------------------------
+
+
+@router.post(
+    "/temporal/entities",
+    status_code=201,
+    summary="Create or update a temporal representation",
+    **oa.ld_spec(ok_codes={201: "Created", 204: "Updated"}, body=oa.LD_ENTITY_BODY),
+)
+async def upsert_temporal(request: Request) -> Response:
+    tenant = ld_tenant(request)
+    doc = await _body(request)
+    entity_id = _entity_id(doc.get("id"))
+    types = _types(doc.get("type"))
+    attrs = {name: raw for name, raw in doc.items() if name not in _ENTITY_KEYS}
+    look = partial(_entity_series, request, tenant, entity_id, True)
+    existing = await request.app.state.store.read(look, memory_first=False)
+    entity_type = _entity_type(existing, types, entity_id)
+    samples = _samples(tenant, entity_id, entity_type, attrs, datetime.now(UTC))
+    if samples:
+        await request.app.state.store.write(AppendSamples(samples, dedup=False))
+    headers = tenant_echo(request)
+    if existing:
+        return Response(status_code=204, headers=headers)
+    if not samples:
+        raise BadRequestData(f"entity {entity_id[:200]!r} has no attribute instances to store")
+    return Response(status_code=201, headers={**headers, "Location": f"{BASE}/{quote(entity_id, safe=':')}"})
+
+
+@router.post(
+    "/temporal/entities/{entity_id}/attrs",
+    status_code=204,
+    summary="Add attribute instances",
+    **oa.ld_spec(ok_codes={204: "Added"}, body=oa.LD_FRAGMENT_BODY),
+)
+async def append_temporal(entity_id: str, request: Request) -> Response:
+    tenant = ld_tenant(request)
+    doc = await _body(request)
+    existing = await _existing(request, tenant, entity_id)
+    body_id = doc.get("id")
+    if body_id is not None and body_id != entity_id:
+        raise BadRequestData(f"the body's id {str(body_id)[:200]!r} is not the entity of the URL")
+    attrs = {name: raw for name, raw in doc.items() if name not in _ENTITY_KEYS}
+    if not attrs:
+        raise BadRequestData("the body names no attribute")
+    entity_type = _entity_type(existing, _types(doc["type"]) if "type" in doc else (), entity_id)
+    samples = _samples(tenant, entity_id, entity_type, attrs, datetime.now(UTC))
+    if samples:
+        await request.app.state.store.write(AppendSamples(samples, dedup=False))
+    return Response(status_code=204, headers=tenant_echo(request))
+
+
+@router.delete(
+    "/temporal/entities/{entity_id}",
+    status_code=204,
+    summary="Delete a temporal representation",
+    **oa.ld_spec(ok_codes={204: "Deleted"}),
+)
+async def delete_temporal(entity_id: str, request: Request) -> Response:
+    tenant = ld_tenant(request)
+    existing = await _existing(request, tenant, entity_id)
+    await request.app.state.store.write(DeleteSamples(tuple(r.sid for r in existing)))
+    return Response(status_code=204, headers=tenant_echo(request))
+
+
+@router.delete(
+    "/temporal/entities/{entity_id}/attrs/{attr_id}",
+    status_code=204,
+    summary="Delete an attribute's instances",
+    **oa.ld_spec(ok_codes={204: "Deleted"}),
+)
+async def delete_attr_temporal(
+    entity_id: str, attr_id: str, request: Request, datasetId: str | None = None, deleteAll: str | None = None
+) -> Response:
+    tenant = ld_tenant(request)
+    every = _flag(deleteAll, "deleteAll")
+    existing = await _existing(request, tenant, entity_id)
+    refs = [r for r in existing if r.ld_attr == attr_id and (every or r.dataset_id == datasetId)]
+    if not refs:
+        which = "" if every else (" with datasetId " + repr(datasetId[:200]) if datasetId else " (default instance)")
+        raise ResourceNotFound(f"entity {entity_id[:200]!r} has no attribute {attr_id[:200]!r}{which}")
+    await request.app.state.store.write(DeleteSamples(tuple(r.sid for r in refs)))
+    return Response(status_code=204, headers=tenant_echo(request))
+
+
+@router.patch(
+    "/temporal/entities/{entity_id}/attrs/{attr_id}/{instance_id}",
+    status_code=204,
+    summary="Modify an attribute instance",
+    **oa.ld_spec(ok_codes={204: "Modified"}, body=oa.LD_FRAGMENT_BODY),
+)
+async def patch_instance(entity_id: str, attr_id: str, instance_id: str, request: Request) -> Response:
+    tenant = ld_tenant(request)
+    doc = await _body(request)
+    ref, iid = await _instance(request, tenant, entity_id, attr_id, instance_id)
+    sample = _patch_sample(attr_id, doc)
+    if sample.dataset_id != ref.dataset_id:
+        raise BadRequestData(
+            f"the instance belongs to datasetId {ref.dataset_id!r}, not {sample.dataset_id!r}; "
+            "an instance cannot move to another dataset"
+        )
+    await request.app.state.store.write(ReplaceInstance(ref.sid, iid, sample, datetime.now(UTC)))
+    return Response(status_code=204, headers=tenant_echo(request))
+
+
+@router.delete(
+    "/temporal/entities/{entity_id}/attrs/{attr_id}/{instance_id}",
+    status_code=204,
+    summary="Delete an attribute instance",
+    **oa.ld_spec(ok_codes={204: "Deleted"}),
+)
+async def delete_instance(entity_id: str, attr_id: str, instance_id: str, request: Request) -> Response:
+    tenant = ld_tenant(request)
+    ref, iid = await _instance(request, tenant, entity_id, attr_id, instance_id)
+    await request.app.state.store.write(DeleteInstance(ref.sid, iid))
+    return Response(status_code=204, headers=tenant_echo(request))
+
+
+# --- request bodies ------------------------------------------------------------------
+
+
+async def _body(request: Request) -> dict:
+    """The JSON object sent, with the spec's rules on where ``@context`` goes."""
+    media = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if media not in _JSON_TYPES:
+        raise UnsupportedMediaType(f"Content-Type must be application/json or application/ld+json, got {media!r}")
+    raw = await request.body()
+    limit = request.app.state.settings.max_body_bytes
+    if len(raw) > limit:
+        raise PayloadTooLarge(f"the body has {len(raw)} bytes; at most {limit} are accepted")
+    try:
+        doc = orjson.loads(raw)
+    except orjson.JSONDecodeError as exc:
+        raise InvalidRequest(f"the body is not valid JSON: {exc}") from None
+    if type(doc) is not dict:
+        raise InvalidRequest("the body must be a JSON object")
+    if media == "application/ld+json" and "@context" not in doc:
+        raise BadRequestData("an application/ld+json body must carry its @context")
+    if media == "application/json" and "@context" in doc:
+        raise BadRequestData(
+            "an application/json body must not carry @context: send it in a Link header, "
+            "or send the body as application/ld+json"
+        )
+    return doc
+
+
+def _entity_id(value: Any) -> str:
+    if type(value) is not str or not _URI.match(value):
+        raise BadRequestData(f"the entity id must be a URI, got {str(value)[:200]!r}")
+    return value
+
+
+def _types(value: Any) -> tuple[str, ...]:
+    """NGSI-LD allows one type or several; the first names the stored entity."""
+    types = [value] if type(value) is str else value
+    if type(types) is not list or not types or any(type(t) is not str or not t for t in types):
+        raise BadRequestData("the entity type must be a non-empty string or array of strings")
+    return tuple(types)
+
+
+def _flag(value: str | None, name: str) -> bool:
+    if value is None or value == "false":
+        return False
+    if value == "true":
+        return True
+    raise BadRequestData(f"{name} must be true or false, got {value[:40]!r}")
+
+
+def _samples(tenant: str, entity_id: str, entity_type: str, attrs: dict, now: datetime) -> list[EntitySample]:
+    """Instances → NGSIv2 rows: instances observed at the same time share a
+    row, as long as each stored attribute appears once in it."""
+    rows: list[EntitySample] = []
+    open_rows: dict[datetime, list[EntitySample]] = {}
+    for name, raw in attrs.items():
+        for instance in raw if type(raw) is list else [raw]:
+            sample = _instance_sample(name, instance)
+            sample.created_at = sample.modified_at = now
+            t = sample.observed_at or sample.deleted_at or now
+            for row in open_rows.setdefault(t, []):
+                if all(a.name != sample.name for a in row.attrs):
+                    row.attrs.append(sample)
+                    break
+            else:
+                row = EntitySample(tenant, "/", entity_id, entity_type, t, [sample])
+                open_rows[t].append(row)
+                rows.append(row)
+    return rows
+
+
+# Members the system sets: a client's values are ignored (clause 4.8).
+_SYSTEM_MEMBERS = ("@context", "instanceId", "createdAt", "modifiedAt")
+
+
+def _instance_sample(name: str, raw: Any) -> AttrSample:
+    if type(raw) is dict and any(k in raw for k in _SYSTEM_MEMBERS):
+        raw = {k: v for k, v in raw.items() if k not in _SYSTEM_MEMBERS}
+    try:
+        return parse_ld_instance(name, raw)
+    except ParseError as exc:
+        raise BadRequestData(exc.description) from None
+
+
+def _patch_sample(attr_id: str, doc: dict) -> AttrSample:
+    """The new content: ``{attrId: instance}`` (or a one-instance array), or the instance itself."""
+    raw: Any = doc.get(attr_id, doc)
+    if type(raw) is list:
+        if len(raw) != 1:
+            raise BadRequestData(f"give exactly one instance of {attr_id[:200]!r}, got {len(raw)}")
+        raw = raw[0]
+    return _instance_sample(attr_id, raw)
+
+
+# --- what is stored ------------------------------------------------------------------
+
+
+def _entity_series(request: Request, tenant: str, entity_id: str, with_samples: bool) -> list[SeriesRef]:
+    """The entity's series that hold instances (any type, any service path)."""
+    q = request.app.state.store.querier()
+    refs = q.series(Scope(tenant), EntityFilter(ids=(entity_id,)))
+    if not with_samples or not refs:
+        return refs
+    live = q.sids_with_samples([r.sid for r in refs])
+    return [r for r in refs if r.sid in live]
+
+
+async def _existing(request: Request, tenant: str, entity_id: str) -> list[SeriesRef]:
+    def look() -> list[SeriesRef]:
+        if tenant and tenant not in request.app.state.store.querier().tenants():
+            raise NonexistentTenant(f"tenant {tenant!r} does not exist")
+        return _entity_series(request, tenant, entity_id, True)
+
+    refs = await request.app.state.store.read(look, memory_first=False)
+    if not refs:
+        raise ResourceNotFound(f"entity {entity_id[:200]!r} has no temporal representation")
+    return refs
+
+
+def _entity_type(existing: Sequence[SeriesRef], types: Sequence[str], entity_id: str) -> str:
+    """The stored type: the one already stored (if the body names types, one
+    of them must be it), else the body's first."""
+    stored = sorted({r.entity_type for r in existing})
+    if not stored:
+        if not types:
+            raise BadRequestData("the entity needs a type")
+        return types[0]
+    match = [t for t in stored if not types or t in types]
+    if not match:
+        raise BadRequestData(f"entity {entity_id[:200]!r} is stored with type {stored[0]!r}, not {types[0]!r}")
+    return match[0]
+
+
+async def _instance(
+    request: Request, tenant: str, entity_id: str, attr_id: str, instance_id: str
+) -> tuple[SeriesRef, int]:
+    """The series and instance id an instanceId names, or 404."""
+    existing = await _existing(request, tenant, entity_id)
+    iid = instance_iid(instance_id)
+    refs = [r for r in existing if r.ld_attr == attr_id]
+    if iid is None or not refs:
+        raise ResourceNotFound(
+            f"no instance {instance_id[:200]!r} of attribute {attr_id[:200]!r} of entity {entity_id[:200]!r}"
+        )
+    store = request.app.state.store
+    sid = await store.read(partial(store.querier().instance_series, [r.sid for r in refs], iid), memory_first=False)
+    if sid is None:
+        raise ResourceNotFound(
+            f"no instance {instance_id[:200]!r} of attribute {attr_id[:200]!r} of entity {entity_id[:200]!r}"
+        )
+    return next(r for r in refs if r.sid == sid), iid

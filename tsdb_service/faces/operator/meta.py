@@ -1,0 +1,51 @@
+"""Service metadata: version, health and the API index, as QuantumLeap has them."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request
+
+from tsdb_service import __version__
+from tsdb_service.http import openapi as oa
+from tsdb_service.http.responses import JSON
+from tsdb_service.http.store import reads_store
+
+router = APIRouter(tags=["meta"])
+
+
+@router.get("/version", **oa.spec(ok_=oa.ok(oa.VERSION), errors_=()))
+def version() -> JSON:
+    """The release only, as QuantumLeap answers: which backend and how it is
+    configured are the operator's business, not every client's."""
+    return JSON({"version": __version__})
+
+
+# What a health probe may say: the status (the HTTP code carries it too, for
+# an orchestrator) and a short human reason when it is not "pass". Counters
+# of commits and writes would tell anyone how busy the service is.
+_HEALTH_KEYS = ("status", "output")
+
+
+@router.get("/health", **oa.HEALTH)
+@reads_store
+def health(request: Request) -> JSON:
+    report = request.app.state.store.health()
+    status = 200 if report["status"] == "pass" else 503
+    public = {key: report[key] for key in _HEALTH_KEYS if key in report}
+    return JSON(public, status_code=status, headers={"Content-Type": "application/health+json"})
+
+
+# QuantumLeap's index also names /v2/subscriptions and /v2/types, which
+# neither it nor we serve; only URLs that answer are listed here.
+API_INDEX = {
+    "notify_url": "/v2/notify",
+    "subscribe_url": "/v2/subscribe",
+    "entities_url": "/v2/entities",
+    "attributes_url": "/v2/attrs",
+    "op_query_url": "/v2/op/query",
+}
+
+
+@router.get("/v2/", **oa.spec(ok_=oa.ok(oa.API_INDEX), errors_=oa.AUTH))
+@router.get("/v2", **oa.spec(ok_=oa.ok(oa.API_INDEX), errors_=oa.AUTH))
+def api_index() -> JSON:
+    return JSON(API_INDEX)

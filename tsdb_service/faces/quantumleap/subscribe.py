@@ -1,0 +1,215 @@
+"""``POST /v2/subscribe``: QuantumLeap's (<= 0.8) subscription helper.
+
+A client names the broker (``orionUrl``), where the broker reaches us
+(``quantumleapUrl``) and what to follow; we create the Orion subscription
+that makes the broker notify ``{quantumleapUrl}/notify``, under the
+request's ``Fiware-Service`` and ``Fiware-ServicePath``. The subscription is
+the one QuantumLeap built:
+
+* ``subject.entities``: one entry with ``type`` (``entityType``) and ``id``
+  (``entityId``), else ``idPattern`` (default ``.*``);
+* ``attributes`` sets both ``subject.condition.attrs`` and
+  ``notification.attrs``; otherwise ``observedAttributes`` sets the first and
+  ``notifiedAttributes`` the second;
+* ``notification.metadata``: ``dateCreated``, ``dateModified``,
+  ``TimeInstant``, ``timestamp`` (and ``timeIndexAttribute``), the metadata
+  our time index reads;
+* ``timeIndexAttribute`` makes it an ``httpCustom`` notification carrying
+  ``Fiware-TimeIndex-Attribute``;
+* ``throttling`` in seconds, 1 when not given.
+
+The broker's own answer decides ours: its 201 becomes ours (with the
+subscription's URL at the broker in ``Location``); its 4xx is passed on; an
+unreachable broker is QuantumLeap's ``400 Orion is not reachable``; a 5xx or
+anything unexpected is ``502``.
+
+The request makes this service send HTTP requests to a URL the client
+chooses: expose it only where clients may create subscriptions anyway.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
+from urllib.parse import urlsplit
+
+import orjson
+from fastapi import APIRouter, Request
+
+from tsdb_service.core.errors import BadRequest, TsdbError
+from tsdb_service.http import openapi as oa
+from tsdb_service.http.responses import JSON
+from tsdb_service.http.tenancy import tenant_of
+from tsdb_service.parse.request_context import service_paths
+
+if TYPE_CHECKING:
+    from tsdb_service.broker.subscriptions import BrokerAnswer
+
+router = APIRouter(tags=["subscribe"])
+
+METADATA = ("dateCreated", "dateModified", "TimeInstant", "timestamp")
+TIME_INDEX_HEADER = "Fiware-TimeIndex-Attribute"
+DEFAULT_THROTTLING = 1
+_MAX_URL = 2048
+_MAX_NAME = 256
+_MAX_ERROR_TEXT = 500
+
+
+@router.post(
+    "/v2/subscribe",
+    status_code=201,
+    summary="Create the Orion subscription that feeds this service",
+    **oa.SUBSCRIBE_SPEC,
+)
+def subscribe(request: Request) -> JSON:
+    """Runs in the threadpool (a plain ``def``): the broker call blocks.
+    The sender lives with the ``subscribe`` command (imported on first use:
+    the demo package is not part of serving)."""
+    from tsdb_service.broker.subscriptions import send_subscription
+
+    params = request.query_params
+    orion = _base_url(params.get("orionUrl"), "orionUrl")
+    document = build_subscription(_base_url(params.get("quantumleapUrl"), "quantumleapUrl"), params)
+    answer = send_subscription(orion + "/subscriptions", document, _broker_headers(request))
+    return _answer(orion, document, answer)
+
+
+def build_subscription(service_url: str, params: Mapping[str, str]) -> dict:
+    """The Orion subscription QuantumLeap's helper made, from the query parameters."""
+    entity_type = _name(params, "entityType")
+    entity_id = _name(params, "entityId")
+    entity: dict[str, str] = {"type": entity_type} if entity_type else {}
+    if entity_id:
+        entity["id"] = entity_id
+    else:
+        entity["idPattern"] = _name(params, "idPattern") or ".*"
+    attributes = _names(params, "attributes")
+    observed = attributes or _names(params, "observedAttributes")
+    notified = attributes or _names(params, "notifiedAttributes")
+    time_index = _name(params, "timeIndexAttribute")
+
+    subject: dict = {"entities": [entity]}
+    if observed:
+        subject["condition"] = {"attrs": observed}
+    notify_url = service_url + "/notify"
+    if time_index:
+        target = {"httpCustom": {"url": notify_url, "headers": {TIME_INDEX_HEADER: time_index}}}
+    else:
+        target = {"http": {"url": notify_url}}
+    notification: dict = {**target}
+    if notified:
+        notification["attrs"] = notified
+    notification["metadata"] = [*METADATA, *([time_index] if time_index and time_index not in METADATA else [])]
+    return {
+        "description": f"Created by tsdb-service {service_url}.",
+        "subject": subject,
+        "notification": notification,
+        "throttling": _throttling(params.get("throttling")),
+    }
+
+
+# --- parameters ------------------------------------------------------------------------------
+
+
+def _base_url(raw: str | None, name: str) -> str:
+    """An absolute http(s) URL with the API version: ``http://host:port/v2``.
+    A bare ``http://host:port`` gets ``/v2``, the only version either side has."""
+    if raw is None or not raw.strip():
+        raise BadRequest(f"{name} is required: the base URL with the API version, e.g. http://orion:1026/v2")
+    text = raw.strip()
+    parts = urlsplit(text) if len(text) <= _MAX_URL else None
+    if parts is None or parts.scheme not in ("http", "https") or not parts.hostname or parts.query or parts.fragment:
+        raise BadRequest(f"{name} must be an absolute http(s) URL such as http://orion:1026/v2, not {raw[:120]!r}")
+    try:
+        parts.port  # noqa: B018 - raises on a bad port
+    except ValueError:
+        raise BadRequest(f"{name} has a bad port: {raw[:120]!r}") from None
+    base = text.rstrip("/")
+    return base if parts.path.strip("/") else base + "/v2"
+
+
+def _name(params: Mapping[str, str], key: str) -> str | None:
+    value = (params.get(key) or "").strip()
+    if not value:
+        return None
+    if len(value) > _MAX_NAME:
+        raise BadRequest(f"{key} is longer than {_MAX_NAME} characters")
+    return value
+
+
+def _names(params: Mapping[str, str], key: str) -> list[str]:
+    """A comma list; empty items are dropped, the order is kept."""
+    raw = params.get(key) or ""
+    names = list(dict.fromkeys(part.strip() for part in raw.split(",") if part.strip()))
+    for name in names:
+        if len(name) > _MAX_NAME:
+            raise BadRequest(f"{key} lists a name longer than {_MAX_NAME} characters")
+    return names
+
+
+def _throttling(raw: str | None) -> int:
+    if raw is None or not raw.strip():
+        return DEFAULT_THROTTLING
+    text = raw.strip()
+    if not text.isdigit() or len(text) > 9:
+        raise BadRequest(f"throttling must be a non-negative number of seconds, not {raw[:40]!r}")
+    return int(text)
+
+
+def _broker_headers(request: Request) -> dict[str, str]:
+    """The tenancy of the request, forwarded as given (after checking it)."""
+    headers = {"Content-Type": "application/json"}
+    service = (request.headers.get("fiware-service") or "").strip()
+    if service:
+        tenant_of(request)  # a tenant we would refuse to store is refused here too
+        headers["Fiware-Service"] = service
+    path = (request.headers.get("fiware-servicepath") or "").strip()
+    if path:
+        service_paths(path)
+        headers["Fiware-ServicePath"] = path
+    return headers
+
+
+# --- the broker's answer -------------------------------------------------------------------------
+
+
+def _answer(orion: str, document: dict, answer: BrokerAnswer) -> JSON:
+    if answer.status is None:
+        raise BadRequest(f"Orion is not reachable at {orion}: {answer.problem}", error="Bad Request")
+    if answer.created:
+        location = _absolute(orion, answer.location)
+        body = {"subscriptionId": answer.subscription_id, "location": location, "subscription": document}
+        return JSON(body, status_code=201, headers={"Location": location} if location else None)
+    if 400 <= answer.status < 500:
+        raise TsdbError(**_broker_error(orion, answer), status=answer.status)
+    raise TsdbError(
+        f"the broker at {orion} answered {answer.status} {answer.reason} to the subscription",
+        error="BadGateway",
+        status=502,
+    )
+
+
+def _broker_error(orion: str, answer: BrokerAnswer) -> dict[str, str]:
+    """The broker's own NGSI error when it sent one; else what happened, with
+    a hint for the usual mistake (a URL that is not the broker's API)."""
+    try:
+        doc = orjson.loads(answer.text) if answer.text else None
+    except orjson.JSONDecodeError:
+        doc = None
+    if isinstance(doc, dict) and isinstance(doc.get("error"), str):
+        description = doc.get("description")
+        text = description if isinstance(description, str) else ""
+        return {"error": doc["error"][:100], "description": text[:_MAX_ERROR_TEXT]}
+    hint = " (is orionUrl the broker's API base, e.g. http://orion:1026/v2?)" if answer.status in (404, 405) else ""
+    return {
+        "error": "BadRequest",
+        "description": f"the broker at {orion} answered {answer.status} {answer.reason} to the subscription{hint}",
+    }
+
+
+def _absolute(orion: str, location: str) -> str:
+    """Orion answers ``Location: /v2/subscriptions/<id>``, relative to itself."""
+    if not location or "://" in location:
+        return location
+    parts = urlsplit(orion)
+    return f"{parts.scheme}://{parts.netloc}{location if location.startswith('/') else '/' + location}"

@@ -1,0 +1,128 @@
+"""The HTTP server's defences against slow and idle clients.
+
+uvicorn (0.54, httptools) never times out a request whose headers or body
+never finish: 20,000 half-open sockets exhausted the descriptor limit, and
+from then on every normal request failed. Its ``timeout_keep_alive`` only
+covers the idle time *between* requests, and ``limit_concurrency`` answers
+503 to new requests but keeps every connection open. So the protocol here
+adds, per connection:
+
+* a **header deadline**: a connection that has not completed a request's
+  headers ``header_timeout_s`` after it opened (or after that request's first
+  byte) is closed;
+* a **body deadline**: a request body not complete ``body_timeout_s`` after
+  its headers is cut off; the route sees a disconnect (the notify route logs
+  it as one line, nothing is stored);
+* a **connection cap**: past ``max_connections`` open connections a new one
+  is answered 503 and closed at once, so descriptors stay free for the
+  process's own files and for clients once the cap eases;
+
+and at start the soft descriptor limit is raised to the hard one. Settings:
+``TSDB_HEADER_TIMEOUT_S``, ``TSDB_BODY_TIMEOUT_S``, ``TSDB_MAX_CONNECTIONS``,
+``TSDB_KEEP_ALIVE_S``; ``cli serve`` passes them to the worker processes
+through the environment, where this module reads them once.
+"""
+
+from __future__ import annotations
+
+import logging
+from asyncio import TimerHandle
+from functools import cache
+
+from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+
+from tsdb_service.core.config import Settings
+
+log = logging.getLogger("tsdb_service.http")
+
+_BUSY_BODY = b'{"error":"ServiceUnavailable","description":"too many connections; try again later"}'
+_BUSY = (
+    b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\nconnection: close\r\n"
+    b"content-length: %d\r\n\r\n%s" % (len(_BUSY_BODY), _BUSY_BODY)
+)
+
+
+@cache
+def _limits() -> tuple[float, float, int]:
+    settings = Settings()
+    return settings.header_timeout_s, settings.body_timeout_s, settings.max_connections
+
+
+class GuardedHttpToolsProtocol(HttpToolsProtocol):
+    """uvicorn's httptools protocol with header and body deadlines and a
+    connection cap (see the module docstring)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._header_timeout, self._body_timeout, self._max_connections = _limits()
+        self._deadline: TimerHandle | None = None
+
+    def connection_made(self, transport) -> None:
+        super().connection_made(transport)
+        if len(self.connections) > self._max_connections:
+            log.warning(
+                "%d connections open (TSDB_MAX_CONNECTIONS): refusing %s", len(self.connections) - 1, _peer(self.client)
+            )
+            transport.write(_BUSY)
+            transport.close()
+            return
+        self._arm(self._header_timeout, "headers")
+
+    def connection_lost(self, exc) -> None:
+        self._disarm()
+        super().connection_lost(exc)
+
+    def on_message_begin(self) -> None:
+        super().on_message_begin()
+        if self._deadline is None:  # a further request on a kept-alive connection
+            self._arm(self._header_timeout, "headers")
+
+    def on_headers_complete(self) -> None:
+        self._disarm()
+        super().on_headers_complete()
+        self._arm(self._body_timeout, "body")
+
+    def on_message_complete(self) -> None:
+        self._disarm()
+        super().on_message_complete()
+
+    def _arm(self, seconds: float, what: str) -> None:
+        self._disarm()
+        self._deadline = self.loop.call_later(seconds, self._expire, what)
+
+    def _disarm(self) -> None:
+        if self._deadline is not None:
+            self._deadline.cancel()
+            self._deadline = None
+
+    def _expire(self, what: str) -> None:
+        self._deadline = None
+        if not self.transport.is_closing():
+            log.debug(
+                "closing %s: request %s incomplete after the timeout (TSDB_%s_TIMEOUT_S)",
+                _peer(self.client),
+                what,
+                "HEADER" if what == "headers" else "BODY",
+            )
+            self.transport.close()
+
+
+def _peer(client) -> str:
+    return f"{client[0]}:{client[1]:d}" if client else "a client"
+
+
+def raise_fd_limit() -> tuple[int, int] | None:
+    """Soft descriptor limit up to the hard one (each connection holds one);
+    returns (soft, hard) as now set, or None where there is no such limit."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not POSIX
+        return None
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != hard:
+        try:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+            soft = hard
+        except (ValueError, OSError) as exc:
+            log.warning("could not raise the open-files limit from %d to %d: %s", soft, hard, exc)
+    return soft, hard

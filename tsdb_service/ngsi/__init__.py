@@ -1,5 +1,0 @@
-"""NGSI notifications (NGSIv2, NGSIv1 legacy, NGSI-LD) → ingest model."""
-
-from tsdb_service.ngsi.notification import ValuesLayout, parse_notification
-
-__all__ = ["ValuesLayout", "parse_notification"]
