@@ -270,7 +270,7 @@ def bulk_load(db: Path | str, steps: Iterable[list], batch_notifications: int, p
     """Write ``steps`` (lists of ``EntitySample``, one list per time step) through
     the store's own write path, ``batch_notifications`` per ``AppendSamples``.
     Returns (the open store, samples written, seconds); the store is closed on error."""
-    from tsdb_service.storage.base import AppendSamples
+    from tsdb_service.write.ops import AppendSamples
 
     t0 = time.perf_counter()
     store = open_store(db)

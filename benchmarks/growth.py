@@ -164,7 +164,7 @@ def check_layout(db: str, size: int) -> dict:
     """Write one notification for entity 0 through the service's parser and
     store, then compare its rows with the bulk-loaded ones."""
     from tsdb_service.parse import parse_notification
-    from tsdb_service.storage.base import AppendSamples
+    from tsdb_service.write.ops import AppendSamples
 
     moment = START + timedelta(minutes=per_series(size) + 5)
     attrs = ",".join(f'"{a}":{{"type":"Number","value":{i + 0.5},"metadata":{{}}}}' for i, a in enumerate(ATTRS))

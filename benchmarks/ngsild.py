@@ -76,7 +76,7 @@ def load(settings, entities: int) -> dict:
     from tsdb_service.core.model import AttrSample, EntitySample, Kind
     from tsdb_service.geo.encodings import from_geojson
     from tsdb_service.storage import open_store
-    from tsdb_service.storage.base import AppendSamples
+    from tsdb_service.write.ops import AppendSamples
 
     rng = random.Random(13)
     spots = [place(rng) for _ in range(entities)]

@@ -108,6 +108,7 @@ def engine_ceiling(db: Path | str, seconds: float = 4.0, threads: int = 2) -> di
 
     from tsdb_service.core.query import Shape
     from tsdb_service.faces.quantumleap.params import history_query
+    from tsdb_service.read.requests import RowsRead, SeriesSelect
 
     store = open_store(db)
     querier = store.querier()
@@ -127,9 +128,9 @@ def engine_ceiling(db: Path | str, seconds: float = 4.0, threads: int = 2) -> di
                 entity_id=entity_id(rng.randrange(ENTITIES)),
                 attr=attr_name(rng.randrange(ATTRS)),
             )
-            refs = querier.series(query.scope, query.entities, {query.attrs[0].attr})
+            refs = querier.series(SeriesSelect(query.scope, query.entities, {query.attrs[0].attr}))
             querier.raw_rows(
-                [r.sid for r in refs], query.time, newest_first=True, limit=100, offset=0, one_per_row=True
+                RowsRead([r.sid for r in refs], query.time, newest_first=True, limit=100, offset=0, one_per_row=True)
             )
             n += 1
         counts.append(n)

@@ -96,11 +96,13 @@ class Probe:
             Scope,
             TimeRange,
         )
+        from tsdb_service.read.requests import AggregateRead, SeriesSelect
 
         self.store = store
+        self.ask = AggregateRead
         q = store.querier()
         self.q = q
-        self.refs = q.series(Scope(""), EntityFilter(types=("Robot",)), {"attr0"})
+        self.refs = q.series(SeriesSelect(Scope(""), EntityFilter(types=("Robot",)), {"attr0"}))
         self.branch = AggBranch
         self.agg = Aggregation(AggrMethod.AVG, AggrPeriod.HOUR)
         self.window = TimeRange(day_start, day_start + timedelta(hours=8))
@@ -110,7 +112,7 @@ class Probe:
 
     def _commit(self, n: int) -> None:
         from tsdb_service.core.model import AttrSample, EntitySample, Kind
-        from tsdb_service.storage.base import AppendSamples
+        from tsdb_service.write.ops import AppendSamples
 
         attrs = [AttrSample(f"attr{a}", "Number", Kind.NUMBER, num=float(a)) for a in range(ATTRS)]
         moment = START + SPAN + timedelta(seconds=n)
@@ -125,7 +127,7 @@ class Probe:
             self.commit_ms.append((time.perf_counter() - t0) * 1000)
             ref = rng.choice(self.refs)
             t0 = time.perf_counter()
-            self.q.aggregate([self.branch((ref.sid,))], self.window, self.agg)
+            self.q.aggregate(self.ask([self.branch((ref.sid,))], self.window, self.agg))
             self.query_ms.append((time.perf_counter() - t0) * 1000)
             n += 1
             time.sleep(0.01)
@@ -171,12 +173,13 @@ def one_pass(store, settings_kw: dict, clock_at: datetime, batch_rows: int) -> d
 def rolled_up_query_ms(store, probe) -> dict:
     """An hourly average over 8 hours that only rollups hold."""
     from tsdb_service.core.query import TimeRange
+    from tsdb_service.read.requests import AggregateRead
 
     window = TimeRange(START + timedelta(hours=9), START + timedelta(hours=17))
     times = []
     for ref in probe.refs[:200]:
         t0 = time.perf_counter()
-        rows = probe.q.aggregate([probe.branch((ref.sid,))], window, probe.agg)
+        rows = probe.q.aggregate(AggregateRead([probe.branch((ref.sid,))], window, probe.agg))
         times.append((time.perf_counter() - t0) * 1000)
         assert rows, "nothing rolled up"
     return pct(times)

@@ -24,9 +24,10 @@ import pytest
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.core.query import AggBranch, Aggregation, AggrMethod, AggrPeriod, EntityFilter, Scope, TimeRange
+from tsdb_service.read.requests import AggregateRead, InstancesRead, SeriesSelect
 from tsdb_service.storage import open_store
-from tsdb_service.storage.base import AppendSamples, DeleteInstance, DeleteSamples, ReplaceInstance
 from tsdb_service.storage.partials import HourlyPartials, exact_parts
+from tsdb_service.write.ops import AppendSamples, DeleteInstance, DeleteSamples, ReplaceInstance
 
 T0 = datetime(2024, 5, 1, 22, tzinfo=UTC)  # a day and a month boundary inside the data
 SCOPE = Scope("", ("/",))
@@ -84,7 +85,7 @@ def random_samples(rng: random.Random, n: int, span_hours: int = 30) -> list[Ent
 
 
 def sids(store) -> tuple[int, ...]:
-    return tuple(sorted(r.sid for r in store.querier().series(SCOPE, EntityFilter(types=("T",)))))
+    return tuple(sorted(r.sid for r in store.querier().series(SeriesSelect(SCOPE, EntityFilter(types=("T",))))))
 
 
 def windows(rng: random.Random, n: int) -> list[TimeRange]:
@@ -104,7 +105,7 @@ def windows(rng: random.Random, n: int) -> list[TimeRange]:
 def assert_same(store, time: TimeRange, agg: Aggregation) -> None:
     q = store.querier()
     branches = [AggBranch(sids(store))]
-    got = sorted(q.aggregate(branches, time, agg))
+    got = sorted(q.aggregate(AggregateRead(branches, time, agg)))
     want = sorted(q._aggregate_sql(branches, time, agg))
     assert got == want, (time, agg)
 
@@ -145,7 +146,7 @@ def test_deletes_drop_what_they_touch(store):
 def test_instance_deletes_and_replacements_drop_the_series(store):
     rng = cached(store, 18, 200, 2)
     q = store.querier()
-    rows = [r for r in q.temporal_instances(sids(store)) if r.kind == int(Kind.NUMBER)]
+    rows = [r for r in q.temporal_instances(InstancesRead(sids(store))) if r.kind == int(Kind.NUMBER)]
     replaced, deleted = rows[0], rows[1]
     new = AttrSample("v", "Number", Kind.NUMBER, num=1e3)
     store.write_sync([ReplaceInstance(replaced.sid, replaced.iid, new, datetime.now(UTC))])
@@ -196,10 +197,10 @@ def test_a_commit_racing_the_load_counts_once(store, seen):
 
     q._load_partials = racing_load
     agg = Aggregation(AggrMethod.SUM, AggrPeriod.HOUR)
-    q.aggregate([AggBranch(sids(store))], TimeRange(), agg)
+    q.aggregate(AggregateRead([AggBranch(sids(store))], TimeRange(), agg))
     q._load_partials = real_load
     assert_same(store, TimeRange(), agg)
-    (row,) = q.aggregate([AggBranch(sids(store))], TimeRange(), agg)
+    (row,) = q.aggregate(AggregateRead([AggBranch(sids(store))], TimeRange(), agg))
     assert (row.n_numeric, row.value) == (11, 145.0)
 
 
@@ -215,14 +216,16 @@ def test_sums_are_exact(store):
     store.write_sync([AppendSamples(first)])
     q = store.querier()
     branches = [AggBranch(sids(store))]
-    q.aggregate(branches, TimeRange(), Aggregation(AggrMethod.SUM, None))  # the rest arrives after the load
+    q.aggregate(
+        AggregateRead(branches, TimeRange(), Aggregation(AggrMethod.SUM, None))
+    )  # the rest arrives after the load
     store.write_sync([AppendSamples([sample("a", t, v) for t, v in zip(times[120:], numbers[120:], strict=True)])])
-    (row,) = q.aggregate(branches, TimeRange(), Aggregation(AggrMethod.SUM, None))
+    (row,) = q.aggregate(AggregateRead(branches, TimeRange(), Aggregation(AggrMethod.SUM, None)))
     assert row.value == math.fsum(numbers)
     by_day: dict[str, list[float]] = {}
     for t, v in zip(times, numbers, strict=True):
         by_day.setdefault(t.strftime("%Y-%m-%dT00:00:00.000+00:00"), []).append(v)
-    rows = q.aggregate(branches, TimeRange(), Aggregation(AggrMethod.SUM, AggrPeriod.DAY))
+    rows = q.aggregate(AggregateRead(branches, TimeRange(), Aggregation(AggrMethod.SUM, AggrPeriod.DAY)))
     assert {r.bucket: r.value for r in rows} == {day: math.fsum(vs) for day, vs in by_day.items()}
 
 
@@ -243,7 +246,7 @@ def test_a_load_too_big_is_left_to_sql(store, monkeypatch):
     rng = random.Random(23)
     partials = with_partials(store)
     store.write_sync([AppendSamples(random_samples(rng, 300))])
-    monkeypatch.setattr("tsdb_service.storage.sql.MAX_LOAD_SAMPLES", 50)
+    monkeypatch.setattr("tsdb_service.storage.sql.aggregate.MAX_LOAD_SAMPLES", 50)
     assert_same(store, TimeRange(), Aggregation(AggrMethod.AVG, AggrPeriod.DAY))
     assert partials.hours == 0
     for time in windows(rng, 4):  # narrow windows load (and keep) their few samples

@@ -14,7 +14,7 @@ from datetime import UTC, datetime, timedelta
 import pytest
 
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
-from tsdb_service.storage.base import AppendSamples
+from tsdb_service.write.ops import AppendSamples
 
 T0 = datetime(2024, 5, 1, tzinfo=UTC)
 ENTITIES = 20

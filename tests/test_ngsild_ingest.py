@@ -13,6 +13,7 @@ import pytest
 
 from tsdb_service.core.model import Kind, instance_iid, instance_urn
 from tsdb_service.core.query import EntityFilter, InstanceWindow, Scope
+from tsdb_service.read.requests import ANY_TIME, InstancesRead, SeriesSelect
 
 SCOPE = Scope("")
 LD_HEADERS = {"Content-Type": "application/json"}
@@ -30,11 +31,11 @@ def notify_ld(client, *entities, headers=None):
     assert response.status_code == 200, response.text
 
 
-def instances(client, eid="urn:ngsi-ld:Vehicle:A4567", window=None, **kw):
+def instances(client, eid="urn:ngsi-ld:Vehicle:A4567", window=ANY_TIME, **kw):
     q = client.app.state.store.querier()
-    refs = q.series(SCOPE, EntityFilter(ids=(eid,)))
+    refs = q.series(SeriesSelect(SCOPE, EntityFilter(ids=(eid,))))
     by_sid = {r.sid: r for r in refs}
-    rows = q.temporal_instances([r.sid for r in refs], window, **kw)
+    rows = q.temporal_instances(InstancesRead([r.sid for r in refs], window, **kw))
     return [(by_sid[r.sid].ld_attr, r) for r in rows]
 
 
@@ -323,7 +324,7 @@ def test_repeats_within_one_batch_of_a_new_series_are_stored_once(client):
     """Orion-LD's first notifications of an entity can land in one group
     commit, before the series exists: the repeat is still recognised."""
     from tsdb_service.core.model import AttrSample, EntitySample
-    from tsdb_service.storage.base import AppendSamples
+    from tsdb_service.write.ops import AppendSamples
 
     observed = datetime(2024, 5, 1, 9, tzinfo=UTC)
 

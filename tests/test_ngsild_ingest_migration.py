@@ -11,9 +11,10 @@ import psycopg
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.core.query import EntityFilter, Scope
+from tsdb_service.read.requests import InstancesRead, SeriesSelect
 from tsdb_service.storage import open_store
-from tsdb_service.storage.base import AppendSamples
 from tsdb_service.storage.migrations import SCHEMA_TABLE, load_migrations, split_statements
+from tsdb_service.write.ops import AppendSamples
 
 OLD_ROWS = [
     (1, 1, "2024-01-01 00:00:00", 1, "Number", 1.5),
@@ -58,8 +59,8 @@ def test_existing_samples_get_instance_ids(store_url, backend):
     store = open_store(Settings(db=store_url))
     try:
         q = store.querier()
-        refs = q.series(Scope(""), EntityFilter(ids=("e",)))
-        rows = q.temporal_instances([r.sid for r in refs])
+        refs = q.series(SeriesSelect(Scope(""), EntityFilter(ids=("e",))))
+        rows = q.temporal_instances(InstancesRead([r.sid for r in refs]))
         assert sorted(r.num for r in rows) == [1.5, 2.5, 3.5]
         old_ids = {r.iid for r in rows}
         assert len(old_ids) == 3 and None not in old_ids
@@ -80,7 +81,7 @@ def test_existing_samples_get_instance_ids(store_url, backend):
                 )
             ]
         )
-        new = {r.iid for r in q.temporal_instances([r.sid for r in refs])} - old_ids
+        new = {r.iid for r in q.temporal_instances(InstancesRead([r.sid for r in refs]))} - old_ids
         assert len(new) == 1 and min(new) > max(old_ids)
     finally:
         store.close()

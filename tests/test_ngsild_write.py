@@ -10,6 +10,7 @@ import pytest
 
 from tsdb_service.core.model import Kind, instance_urn
 from tsdb_service.core.query import EntityFilter, Scope
+from tsdb_service.read.requests import InstancesRead, SeriesSelect
 
 BASE = "/ngsi-ld/v1/temporal/entities"
 VEHICLE = "urn:ngsi-ld:Vehicle:B9211"
@@ -33,8 +34,8 @@ def temporal_vehicle(**extra) -> dict:
 
 def stored(client, tenant="", eid=VEHICLE):
     q = client.app.state.store.querier()
-    refs = {r.sid: r for r in q.series(Scope(tenant), EntityFilter(ids=(eid,)))}
-    return [(refs[r.sid].ld_attr, r) for r in q.temporal_instances(list(refs))]
+    refs = {r.sid: r for r in q.series(SeriesSelect(Scope(tenant), EntityFilter(ids=(eid,))))}
+    return [(refs[r.sid].ld_attr, r) for r in q.temporal_instances(InstancesRead(list(refs)))]
 
 
 def problem(response, status: int, ld_type: str) -> dict:

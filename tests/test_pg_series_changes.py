@@ -20,8 +20,9 @@ import pytest
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.core.query import AggBranch, Aggregation, AggrMethod, AggrPeriod, EntityFilter, Scope, TimeRange
+from tsdb_service.read.requests import AggregateRead, SeriesSelect
 from tsdb_service.storage import open_store
-from tsdb_service.storage.base import AppendSamples
+from tsdb_service.write.ops import AppendSamples
 
 T0 = datetime(2024, 5, 1, 10, tzinfo=UTC)
 SCOPE = Scope("", ("/",))
@@ -55,9 +56,9 @@ def hourly(store) -> dict[tuple[int, str | None], float | None]:
     """The hourly sums from the querier (partials where it may use them),
     checked equal to SQL's."""
     q = store.querier()
-    refs = q.series(SCOPE, EntityFilter(types=("T",)))
+    refs = q.series(SeriesSelect(SCOPE, EntityFilter(types=("T",))))
     branches = [AggBranch(tuple(sorted(r.sid for r in refs)))]
-    got = sorted(q.aggregate(branches, TimeRange(), HOURLY_SUM))
+    got = sorted(q.aggregate(AggregateRead(branches, TimeRange(), HOURLY_SUM)))
     assert got == sorted(q._aggregate_sql(branches, TimeRange(), HOURLY_SUM))
     return {(row.sid, row.bucket): row.value for row in got}
 

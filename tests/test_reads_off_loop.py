@@ -19,7 +19,7 @@ import pytest
 
 from tsdb_service.parse import ValuesLayout
 from tsdb_service.read.off_loop import MEMORY_ONLY, NeedsDatabase
-from tsdb_service.storage.base import PutLayout
+from tsdb_service.write.ops import PutLayout
 
 T0 = "2024-05-01T10:00:00.000Z"
 T1 = "2024-05-01T10:05:00.000Z"

@@ -12,8 +12,9 @@ import pytest
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Geometry, Kind
 from tsdb_service.core.query import EntityFilter, Scope, TimeRange
+from tsdb_service.read.requests import LocationsIn, SamplesIn, SeriesSelect
 from tsdb_service.storage import open_store
-from tsdb_service.storage.base import AppendSamples
+from tsdb_service.write.ops import AppendSamples
 
 NOW = datetime.now(UTC).replace(minute=0, second=0, microsecond=0)
 DAY = timedelta(days=1)
@@ -36,8 +37,10 @@ def entity(tenant: str, eid: str, etype: str, age: timedelta, n: int = 1, **extr
 
 def count(store, tenant: str, eid: str | None = None, etype: str | None = None) -> int:
     q = store.querier()
-    refs = q.series(Scope(tenant), EntityFilter(ids=(eid,) if eid else None, types=(etype,) if etype else None))
-    return q.count([r.sid for r in refs], TimeRange())
+    refs = q.series(
+        SeriesSelect(Scope(tenant), EntityFilter(ids=(eid,) if eid else None, types=(etype,) if etype else None))
+    )
+    return q.count(SamplesIn([r.sid for r in refs], TimeRange()))
 
 
 class Batches:
@@ -222,8 +225,8 @@ def test_latest_location_recomputed_when_an_old_one_goes(store_url, geo_kind):
         )
         store.retention.run_once()
         q = store.querier()
-        refs = q.series(Scope(""), EntityFilter(), {"location"})
-        latest = dict(q.latest_geometries([r.sid for r in refs], TimeRange(), None))
+        refs = q.series(SeriesSelect(Scope(""), EntityFilter(), {"location"}))
+        latest = dict(q.latest_geometries(LocationsIn([r.sid for r in refs], TimeRange(), None)))
         by_entity = {r.entity_id: latest.get(r.sid) for r in refs}
         assert by_entity["A"] is None
         assert "[3.0,0]" in by_entity["B"]

@@ -14,6 +14,7 @@ from urllib.parse import quote
 import pytest
 
 from tsdb_service.core.query import EntityFilter, Scope
+from tsdb_service.read.requests import SeriesSelect
 
 NOW = datetime.now(UTC).replace(minute=0, second=0, microsecond=0)
 OLD = NOW - timedelta(days=60) - timedelta(hours=7)  # 50 hours from here: rolled up
@@ -167,7 +168,7 @@ def test_deleting_an_entity_removes_its_rollups(loaded):
     assert loaded.delete("/v2/entities/Robot:2?type=Robot", headers=H).status_code == 204
     assert loaded.get("/v2/entities/Robot:2?aggrMethod=count", headers=H).json() == []
     store = loaded.app.state.store
-    robot2 = {r.sid for r in store.querier().series(Scope("acme"), EntityFilter(ids=("Robot:2",)))}
+    robot2 = {r.sid for r in store.querier().series(SeriesSelect(Scope("acme"), EntityFilter(ids=("Robot:2",))))}
     assert not [row for row in rollup_rows(loaded) if row[0] in robot2]
 
 

@@ -1,7 +1,7 @@
 """The storage seam's guarantees, on both backends: named rows, ``compact``,
 copies through seam methods, and an import graph without cycles.
 
-The read seam (``storage.base.Querier``) returns the NamedTuples of
+The read seam (``read.Querier``) returns the NamedTuples of
 ``tsdb_service.core.query``: still tuples (callers unpack them), with names.
 Every ``Store`` has ``compact`` (DuckDB sorts, PostgreSQL has nothing to
 do). The backend packages depend on the shared storage code, never the
@@ -36,8 +36,19 @@ from tsdb_service.core.query import (
     StoredSample,
     TimeRange,
 )
+from tsdb_service.read import Querier
+from tsdb_service.read.requests import (
+    AggregateRead,
+    ExtentsNear,
+    InstancesRead,
+    LocationsIn,
+    RowsRead,
+    SamplesIn,
+    SeriesSelect,
+)
 from tsdb_service.storage import open_store
-from tsdb_service.storage.base import AppendSamples, Querier, Store
+from tsdb_service.storage.store import Store
+from tsdb_service.write.ops import AppendSamples
 
 try:
     from support.imports import module_imports
@@ -85,29 +96,31 @@ def store(store_url):
 
 
 def _sids(q: Querier, attr: str) -> list[int]:
-    return [r.sid for r in q.series(SCOPE, EntityFilter(ids=("Robot:1",)), {attr})]
+    return [r.sid for r in q.series(SeriesSelect(SCOPE, EntityFilter(ids=("Robot:1",)), {attr}))]
 
 
 def test_sample_reads_return_named_rows(store):
     q = store.querier()
     speed = _sids(q, "speed")
     # The bulk read: plain tuples in the RawRow layout (from memory and from SQL).
-    rows = q.raw_rows(speed, TimeRange(), newest_first=True, limit=3, offset=0, one_per_row=True)
+    rows = q.raw_rows(RowsRead(speed, TimeRange(), newest_first=True, limit=3, offset=0, one_per_row=True))
     assert [type(r) for r in rows] == [tuple] * 3
     assert [r[4] for r in rows] == [2.0, 3.0, 4.0]
     sid, _, iso, kind, num, _, _ = rows[-1]
     assert (sid, iso, kind, num) == (speed[0], "2024-05-01T00:04:00.000+00:00", int(Kind.NUMBER), 4.0)
-    sql_rows = q.raw_rows(speed, TimeRange(), newest_first=False, limit=2, offset=1, one_per_row=False)
+    sql_rows = q.raw_rows(RowsRead(speed, TimeRange(), newest_first=False, limit=2, offset=1, one_per_row=False))
     assert [len(r) for r in sql_rows] == [len(RawRow.__args__)] * 2
-    agg = q.aggregate([AggBranch(tuple(speed))], TimeRange(), Aggregation(AggrMethod.SUM, AggrPeriod.HOUR))
+    agg = q.aggregate(
+        AggregateRead([AggBranch(tuple(speed))], TimeRange(), Aggregation(AggrMethod.SUM, AggrPeriod.HOUR))
+    )
     assert [type(r) for r in agg] == [AggregateRow]
     assert (agg[0].n_present, agg[0].value, agg[0].bucket) == (5, 10.0, "2024-05-01T00:00:00.000+00:00")
-    latest = q.latest_index(speed, TimeRange())
+    latest = q.latest_index(SamplesIn(speed, TimeRange()))
     assert latest == [LatestRow(speed[0], "2024-05-01T00:04:00.000+00:00")]
     assert type(latest[0]) is LatestRow
     last = q.last_values(speed)
     assert type(last[0]) is LastValueRow and last[0].num == 4.0 and last[0].atype == "Number"
-    instances = q.temporal_instances(speed)
+    instances = q.temporal_instances(InstancesRead(speed))
     assert {type(r) for r in instances} == {InstanceRow} and len(instances) == 5
 
 
@@ -116,15 +129,15 @@ def test_location_reads_return_named_rows(store):
     loc = _sids(q, "location")
     prefilter = ("intersects", _Box())
     for time in (TimeRange(), TimeRange(None, T0 + timedelta(hours=1))):  # memory and SQL on DuckDB
-        geos = q.latest_geometries(loc, time, prefilter)
+        geos = q.latest_geometries(LocationsIn(loc, time, prefilter))
         assert [type(r) for r in geos] == [GeometryRow]
         assert geos[0].sid == loc[0] and '"coordinates":[4.0,1.0]' in geos[0].geojson
-    extents = q.location_extents(loc, prefilter)
+    extents = q.location_extents(ExtentsNear(loc, prefilter))
     assert [type(r) for r in extents] == [ExtentRow]
     assert extents[0][:5] == (loc[0], 0.0, 1.0, 4.0, 1.0)
     first = q.first_locations(loc)
     assert [type(r) for r in first] == [FirstLocationRow] and first[0].sid == loc[0]
-    samples = q.location_samples(loc, TimeRange(T0 + timedelta(minutes=2)), prefilter)
+    samples = q.location_samples(LocationsIn(loc, TimeRange(T0 + timedelta(minutes=2)), prefilter))
     assert {len(r) for r in samples} == {len(LocationRow.__args__)}  # the bulk read: plain tuples
     assert [(r[5], r[3], r[4]) for r in samples] == [(float(i), True, True) for i in range(1, 5)]
 
@@ -134,7 +147,9 @@ def test_compact_is_on_every_store(store):
     done = store.compact(full=True)
     assert isinstance(done, str) and done
     q = store.querier()
-    rows = q.raw_rows(_sids(q, "speed"), TimeRange(), newest_first=False, limit=10, offset=0, one_per_row=True)
+    rows = q.raw_rows(
+        RowsRead(_sids(q, "speed"), TimeRange(), newest_first=False, limit=10, offset=0, one_per_row=True)
+    )
     assert [r[4] for r in rows] == [0.0, 1.0, 2.0, 3.0, 4.0]
 
 
@@ -154,9 +169,11 @@ def test_copy_goes_through_the_seam(store, store_url_factory):
         assert report.target_total == 10
         assert with_target.copy_runs_open() == []
         q = with_target.querier()
-        rows = q.raw_rows(_sids(q, "speed"), TimeRange(), newest_first=False, limit=10, offset=0, one_per_row=True)
+        rows = q.raw_rows(
+            RowsRead(_sids(q, "speed"), TimeRange(), newest_first=False, limit=10, offset=0, one_per_row=True)
+        )
         assert [r[4] for r in rows] == [0.0, 1.0, 2.0, 3.0, 4.0]
-        assert [r.geojson for r in q.latest_geometries(_sids(q, "location"), TimeRange(), None)] == [
+        assert [r.geojson for r in q.latest_geometries(LocationsIn(_sids(q, "location"), TimeRange(), None))] == [
             _point(4.0, 1.0).geojson
         ]
     finally:

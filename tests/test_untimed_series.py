@@ -16,8 +16,9 @@ from ngsild_fixtures import TENANT, get, ld_notify
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.core.query import EntityFilter, InstanceWindow, Scope
+from tsdb_service.read.requests import SeriesSelect
 from tsdb_service.storage import open_store
-from tsdb_service.storage.base import AppendSamples
+from tsdb_service.write.ops import AppendSamples
 
 ROBOT = "urn:ngsi-ld:Robot:r1"
 WINDOW = {"timerel": "after", "timeAt": "2024-01-01T00:00:00Z", "attrs": "speed"}
@@ -45,7 +46,7 @@ def listed(store) -> set[int] | None:
 
 
 def speed_sid(store) -> int:
-    [ref] = store.querier().series(Scope(TENANT), EntityFilter(ids=(ROBOT,)), ["speed"])
+    [ref] = store.querier().series(SeriesSelect(Scope(TENANT), EntityFilter(ids=(ROBOT,)), ["speed"]))
     return ref.sid
 
 

@@ -20,8 +20,8 @@ from tsdb_service import storage
 from tsdb_service.core.config import WAL_CHECKPOINT_BYTES, Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage import open_store
-from tsdb_service.storage.base import AppendSamples
 from tsdb_service.storage.duckdb.store import connect
+from tsdb_service.write.ops import AppendSamples
 
 KIB = 1024
 

@@ -15,7 +15,8 @@ from ngsild_fixtures import TENANT, ld_notify
 
 from tsdb_service.core.query import EntityFilter, InstanceWindow, Scope, ValueTest
 from tsdb_service.geo.filter import BBox
-from tsdb_service.storage.base import Querier
+from tsdb_service.read.instances import SeparateScans
+from tsdb_service.read.requests import ExtentsNear, LocatedSelect, SeriesSelect, WindowScan
 
 SCOPE = Scope(TENANT)
 TIMES = ["2024-01-01T00:00:00Z", "2024-01-01T00:20:00Z", "2024-01-01T00:40:00Z"]
@@ -53,7 +54,7 @@ def stored(client):
 
 
 def _sids(querier, attr: str) -> list[int]:
-    return sorted(r.sid for r in querier.series(SCOPE, EntityFilter(types=("Robot",)), [attr]))
+    return sorted(r.sid for r in querier.series(SeriesSelect(SCOPE, EntityFilter(types=("Robot",)), [attr])))
 
 
 def _compacted(store) -> None:
@@ -72,8 +73,8 @@ def test_one_scan_answers_as_one_statement_each(stored, compact, window, prefilt
     q = stored.querier()
     locations = (_sids(q, "location"), prefilter)
     tests = [(_sids(q, "speed"), TESTS[0]), (_sids(q, "speed"), TESTS[1]), (_sids(q, "name"), TESTS[2]), ([], TESTS[3])]
-    rows, found = q.window_scan(window, locations, tests)
-    want_rows, want_found = Querier.window_scan(q, window, locations, tests)
+    rows, found = q.window_scan(WindowScan(window, locations, tests))
+    want_rows, want_found = SeparateScans.window_scan(q, WindowScan(window, locations, tests))
     assert sorted(rows) == sorted(want_rows)
     assert found == want_found
     assert rows and any(found) and not found[3]
@@ -87,8 +88,8 @@ def test_without_locations_or_with_one_question(stored):
         ((_sids(q, "location"), None), []),
         (([], None), [(_sids(q, "speed"), TESTS[1])]),
     ]:
-        rows, found = q.window_scan(window, locations, tests)
-        want_rows, want_found = Querier.window_scan(q, window, locations, tests)
+        rows, found = q.window_scan(WindowScan(window, locations, tests))
+        want_rows, want_found = SeparateScans.window_scan(q, WindowScan(window, locations, tests))
         assert (sorted(rows), found) == (sorted(want_rows), want_found)  # rows come in no order
 
 
@@ -97,19 +98,19 @@ def test_without_locations_or_with_one_question(stored):
 )
 def test_located_series_are_those_the_extents_keep(stored, prefilter):
     q = stored.querier()
-    got = q.located_series(SCOPE, ["Robot"], ["location"], prefilter)
-    want = Querier.located_series(q, SCOPE, ["Robot"], ["location"], prefilter)
+    got = q.located_series(LocatedSelect(SCOPE, ["Robot"], ["location"], prefilter))
+    want = _located_by_catalogue(q, prefilter)
     assert sorted(r.sid for r in got) == sorted(r.sid for r in want)
     assert 0 < len(got) <= 50
-    assert q.located_series(SCOPE, ["Robot"], ["speed"], prefilter) == []  # never located
-    assert q.located_series(Scope("nobody"), ["Robot"], ["location"], prefilter) == []
+    assert q.located_series(LocatedSelect(SCOPE, ["Robot"], ["speed"], prefilter)) == []  # never located
+    assert q.located_series(LocatedSelect(Scope("nobody"), ["Robot"], ["location"], prefilter)) == []
 
 
 def test_located_series_sees_series_created_since(stored, client):
     """The catalog keeps each (types, attrs) set until new series arrive: a
     robot notified after a first geo-query is found by the next one."""
     q = stored.querier()
-    before = {r.entity_id for r in q.located_series(SCOPE, ["Robot"], ["location"], ("intersects", BOX))}
+    before = {r.entity_id for r in q.located_series(LocatedSelect(SCOPE, ["Robot"], ["location"], ("intersects", BOX)))}
     newcomer = {
         "id": "urn:ngsi-ld:Robot:new",
         "type": "Robot",
@@ -120,5 +121,16 @@ def test_located_series_sees_series_created_since(stored, client):
         },
     }
     ld_notify(client, [newcomer])
-    after = {r.entity_id for r in stored.querier().located_series(SCOPE, ["Robot"], ["location"], ("intersects", BOX))}
+    after = {
+        r.entity_id
+        for r in stored.querier().located_series(LocatedSelect(SCOPE, ["Robot"], ["location"], ("intersects", BOX)))
+    }
     assert after == before | {"urn:ngsi-ld:Robot:new"}
+
+
+def _located_by_catalogue(q, prefilter):
+    """The plain way to find them: every located series of the type, kept
+    where its extent may pass (what the catalog's (types, attrs) set saves)."""
+    refs = q.series(SeriesSelect(SCOPE, EntityFilter(types=("Robot",)), ["location"]))
+    near = {row[0] for row in q.location_extents(ExtentsNear([r.sid for r in refs], prefilter))}
+    return [r for r in refs if r.sid in near]

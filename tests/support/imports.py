@@ -11,7 +11,7 @@ PACKAGE = Path(__file__).resolve().parent.parent.parent / "tsdb_service"
 
 
 def module_name(path: Path) -> str:
-    """``tsdb_service/storage/base.py`` → ``tsdb_service.storage.base``."""
+    """``tsdb_service/storage/store.py`` → ``tsdb_service.storage.store``."""
     parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
     if parts[-1] == "__init__":
         parts.pop()

@@ -185,7 +185,7 @@ class DeleteQuery:
     time: TimeRange = field(default_factory=TimeRange)
 
 
-# -- what the read seam (``storage.base.Querier``) takes and returns ---------
+# -- what the read seam (``read.Querier``) takes and returns ---------
 
 _EPOCH = datetime(1970, 1, 1)
 

@@ -32,7 +32,8 @@ from tsdb_service.core.query import (
     ValuePath,
 )
 from tsdb_service.history.valuepath import extract
-from tsdb_service.storage.base import Querier
+from tsdb_service.read import HistoryReads
+from tsdb_service.read.requests import AggregateRead, RowsRead, SamplesIn, SeriesSelect
 
 _SINGLE_ENTITY = (Shape.ENTITY_ATTR, Shape.ENTITY)
 
@@ -93,13 +94,13 @@ def _attr_names(attrs: Sequence[ValuePath] | None) -> set[str] | None:
 
 
 def resolve_entity_series(
-    querier: Querier, scope: Scope, entities: EntityFilter, attrs: set[str] | None
+    querier: HistoryReads, scope: Scope, entities: EntityFilter, attrs: set[str] | None
 ) -> list[SeriesRef]:
     """Series of one entity id; without a type, the id must name one type."""
     if entities.types is not None and len(entities.types) == 1:
-        return querier.series(scope, entities, attrs)
+        return querier.series(SeriesSelect(scope, entities, attrs))
     # Which types does this id have (any attribute)? A series lookup only.
-    everything = querier.series(scope, entities, None)
+    everything = querier.series(SeriesSelect(scope, entities))
     refs = everything if attrs is None else [r for r in everything if r.attr in attrs]
     types = {r.entity_type for r in everything}
     if len(types) > 1:
@@ -121,8 +122,8 @@ def resolve_entity_series(
 
 def _geo_refs(querier, scope, entities, refs, geo, time):
     """``(refs, querier)``: the series of entities with matching locations,
-    and a querier that reads only matching samples (see geo.matching)."""
-    from tsdb_service.geo.matching import apply_geo
+    and a querier that reads only matching samples (see history.geo_matching)."""
+    from tsdb_service.history.geo_matching import apply_geo
 
     if entities.ids is not None and len({r.entity_type for r in refs}) == 1:
         # A single-entity request resolved its type already: match within it.
@@ -130,12 +131,12 @@ def _geo_refs(querier, scope, entities, refs, geo, time):
     return apply_geo(querier, scope, entities, refs, geo, time)
 
 
-def run_history(querier: Querier, q: HistoryQuery) -> HistoryResult:
+def run_history(querier: HistoryReads, q: HistoryQuery) -> HistoryResult:
     names = _attr_names(q.attrs)
     if q.shape in _SINGLE_ENTITY:
         refs = resolve_entity_series(querier, q.scope, q.entities, names)
     else:
-        refs = querier.series(q.scope, q.entities, names)
+        refs = querier.series(SeriesSelect(q.scope, q.entities, names))
     if refs and q.geo is not None:
         refs, querier = _geo_refs(querier, q.scope, q.entities, refs, q.geo, q.time)
     if not refs:
@@ -176,18 +177,20 @@ def _columns_by_attr(q: HistoryQuery) -> dict[str, list[tuple[str, tuple]]] | No
     return out
 
 
-def _raw(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> list[EntityResult]:
+def _raw(querier: HistoryReads, q: HistoryQuery, refs: list[SeriesRef]) -> list[EntityResult]:
     by_sid = {r.sid: r for r in refs}
     attr_count = len({r.attr for r in refs})
     n = min(q.last_n, q.limit) if q.last_n else q.limit
     rows = querier.raw_rows(
-        list(by_sid),
-        q.time,
-        newest_first=q.last_n is not None,
-        limit=budget.row_cap(n),
-        offset=q.offset,
-        one_per_row=attr_count == 1,
-        attrs_per_row=attr_count,
+        RowsRead(
+            list(by_sid),
+            q.time,
+            newest_first=q.last_n is not None,
+            limit=budget.row_cap(n),
+            offset=q.offset,
+            one_per_row=attr_count == 1,
+            attrs_per_row=attr_count,
+        )
     )
     budget.charge_rows(len(rows))  # past the request's budget: 422 (tsdb_service.core.budget)
     if not rows:
@@ -272,7 +275,7 @@ def _one_series(ref: SeriesRef, rows: list[tuple], wanted) -> EntityResult:
 _GLOBAL = ("", "")
 
 
-def _aggregated(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> list[EntityResult]:
+def _aggregated(querier: HistoryReads, q: HistoryQuery, refs: list[SeriesRef]) -> list[EntityResult]:
     agg = q.aggregation
     assert agg is not None, "run_history sends only aggregated queries here"
     method = agg.method
@@ -293,7 +296,7 @@ def _aggregated(querier: Querier, q: HistoryQuery, refs: list[SeriesRef]) -> lis
     branches = [AggBranch(tuple(r.sid for r in refs if r.attr in plain_attrs))]
     for vp in path_columns:
         branches.append(AggBranch(tuple(r.sid for r in refs if r.attr == vp.attr), vp.steps))
-    rows = querier.aggregate(branches, q.time, agg)
+    rows = querier.aggregate(AggregateRead(branches, q.time, agg))
     budget.charge_rows(len(rows))
     global_scope = agg.scope is AggrScope.GLOBAL
     cells, totals, members = _cells(rows, by_sid, plain_attrs, path_columns, method, global_scope)
@@ -443,15 +446,15 @@ def _order(q: HistoryQuery, entities: list[EntityResult]) -> list[EntityResult]:
 # --- entity list -------------------------------------------------------------------------
 
 
-def run_entity_list(querier: Querier, q: EntityListQuery) -> list[dict]:
-    refs = querier.series(q.scope, q.entities, None)
+def run_entity_list(querier: HistoryReads, q: EntityListQuery) -> list[dict]:
+    refs = querier.series(SeriesSelect(q.scope, q.entities))
     if refs and q.geo is not None:
         refs, querier = _geo_refs(querier, q.scope, q.entities, refs, q.geo, q.time)
     if not refs:
         return []
     by_sid = {r.sid: r for r in refs}
     latest: dict[tuple[str, str], str] = {}
-    for sid, iso in querier.latest_index(list(by_sid), q.time):
+    for sid, iso in querier.latest_index(SamplesIn(list(by_sid), q.time)):
         ref = by_sid[sid]
         key = (ref.entity_type, ref.entity_id)
         if iso > latest.get(key, ""):
@@ -478,11 +481,11 @@ def json_type_name(value) -> str:
     return "StructuredValue"
 
 
-def run_last_values(querier: Querier, q: LastValueQuery) -> list[dict]:
+def run_last_values(querier: HistoryReads, q: LastValueQuery) -> list[dict]:
     names = _attr_names(q.attrs)
     refs: dict[int, SeriesRef] = {}
     for selector in q.selectors:
-        for ref in querier.series(q.scope, selector, names):
+        for ref in querier.series(SeriesSelect(q.scope, selector, names)):
             refs[ref.sid] = ref
     if not refs:
         return []
@@ -519,13 +522,13 @@ def run_last_values(querier: Querier, q: LastValueQuery) -> list[dict]:
 # --- deletes ------------------------------------------------------------------------------------
 
 
-def delete_target(querier: Querier, q: DeleteQuery) -> tuple[list[int], TimeRange]:
+def delete_target(querier: HistoryReads, q: DeleteQuery) -> tuple[list[int], TimeRange]:
     """The series ids a delete applies to; raises QuantumLeap's 404 or 409."""
     if q.entities.ids is not None:
         refs = resolve_entity_series(querier, q.scope, q.entities, None)
     else:
-        refs = querier.series(q.scope, q.entities, None)
+        refs = querier.series(SeriesSelect(q.scope, q.entities))
     sids = [r.sid for r in refs]
-    if not sids or querier.count(sids, q.time) == 0:
+    if not sids or querier.count(SamplesIn(sids, q.time)) == 0:
         raise not_found()
     return sids, q.time

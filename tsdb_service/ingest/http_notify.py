@@ -28,7 +28,7 @@ from tsdb_service.parse import ValuesLayout, parse_notification
 from tsdb_service.parse.names import ID_RULE, RULE, id_problem, name_problem
 from tsdb_service.parse.request_context import MAX_INT_PARAM
 from tsdb_service.security import redact_headers
-from tsdb_service.storage.base import AppendSamples, PutLayout, RecordRejected
+from tsdb_service.write.ops import AppendSamples, PutLayout, RecordRejected
 
 router = APIRouter(tags=["notify"])
 log = logging.getLogger(__name__)

@@ -16,8 +16,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from tsdb_service.core.config import Settings
-from tsdb_service.storage.base import Store
 from tsdb_service.storage.rejected import RejectedLimits
+from tsdb_service.storage.store import Store
 
 PG_CONNECT_TIMEOUT_S = 10
 

@@ -20,19 +20,18 @@ import orjson
 from tsdb_service.core.model import AttrSample, EntitySample, RejectedNotification
 from tsdb_service.core.query import Bounds, Prefilter
 from tsdb_service.parse import ValuesLayout
-from tsdb_service.storage.base import (
-    Appender,
+from tsdb_service.storage.store import CopyRun, Store
+from tsdb_service.write.appender import Appender
+from tsdb_service.write.committer import GroupCommitter
+from tsdb_service.write.ops import (
     AppendSamples,
-    CopyRun,
     DeleteInstance,
     DeleteSamples,
     PutLayout,
     RecordRejected,
     ReplaceInstance,
-    Store,
     WriteOp,
 )
-from tsdb_service.write.committer import GroupCommitter
 
 # -- sample columns ----------------------------------------------------------------
 

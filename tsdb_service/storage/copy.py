@@ -29,7 +29,9 @@ from pathlib import Path
 from tsdb_service.core.config import Settings, check_db
 from tsdb_service.core.model import AttrSample, EntitySample, Geometry, Kind, RejectedNotification
 from tsdb_service.core.query import EntityFilter, Scope, StoredSample
-from tsdb_service.storage.base import AppendSamples, CopyRun, PutLayout, RecordRejected, Store
+from tsdb_service.read.requests import SeriesSelect
+from tsdb_service.storage.store import CopyRun, Store
+from tsdb_service.write.ops import AppendSamples, PutLayout, RecordRejected
 
 # Everything goes through the seam (``Store``, ``Querier``): the source's
 # samples come from ``Querier.stored_samples`` (instance ids stay behind:
@@ -241,7 +243,7 @@ def _series(store: Store) -> dict[int, tuple[str, str, str, str, str, str | None
     return {
         ref.sid: (tenant, ref.service_path, ref.entity_id, ref.entity_type, ref.attr, ref.dataset_id)
         for tenant in reader.tenants()
-        for ref in reader.series(Scope(tenant), EntityFilter())
+        for ref in reader.series(SeriesSelect(Scope(tenant), EntityFilter()))
     }
 
 

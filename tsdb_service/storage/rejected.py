@@ -16,7 +16,7 @@ listing must not hand out gigabytes. So:
   page starts.
 
 Backends differ only in placeholders and how a string's byte length is
-written (``Dialect``); every value is a bound parameter.
+written (``RejectedSpelling``); every value is a bound parameter.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ class RejectedLimits:
 
 
 @dataclass(frozen=True, slots=True)
-class Dialect:
+class RejectedSpelling:
     placeholder: str  # "?" (DuckDB) or "%s" (psycopg)
     text_bytes: str  # the function giving a text column's length in bytes
 
@@ -63,14 +63,18 @@ class Dialect:
         return f"octet_length(body) + {self.text_bytes}(headers)"
 
 
-DUCKDB = Dialect("?", "strlen")
-POSTGRES = Dialect("%s", "octet_length")
+DUCKDB = RejectedSpelling("?", "strlen")
+POSTGRES = RejectedSpelling("%s", "octet_length")
 
 Execute = Callable[[str, list], list[tuple]]
 
 
 def prune(
-    execute: Execute, dialect: Dialect, tenants: Iterable[str], limits: RejectedLimits, now: datetime | None = None
+    execute: Execute,
+    dialect: RejectedSpelling,
+    tenants: Iterable[str],
+    limits: RejectedLimits,
+    now: datetime | None = None,
 ) -> dict[str, int]:
     """Drop what is over the bounds, oldest first, inside the caller's
     transaction; returns rows dropped per reason. ``tenants`` are the ones
@@ -96,7 +100,7 @@ def prune(
 
 def page(
     execute: Execute,
-    dialect: Dialect,
+    dialect: RejectedSpelling,
     tenant: str | None,
     limit: int,
     offset: int,

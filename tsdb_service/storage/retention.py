@@ -44,7 +44,7 @@ from typing import Protocol
 from tsdb_service.core.retention_policy import RetentionPolicy
 from tsdb_service.storage.rollups import TABLE as ROLLUP_TABLE
 from tsdb_service.storage.rollups import RollupPresence
-from tsdb_service.storage.sql import Dialect
+from tsdb_service.storage.sql.dialect import SqlDialect
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +93,7 @@ class Session(Protocol):
     def save_watermark(self, kind: str, rule: str, horizon: datetime) -> None: ...
 
 
-def rollup_delete_sql(dialect: Dialect, sids: Sequence[int], cutoff: datetime, limit: int) -> tuple[str, list]:
+def rollup_delete_sql(dialect: SqlDialect, sids: Sequence[int], cutoff: datetime, limit: int) -> tuple[str, list]:
     """At most ``limit`` rollup rows of ``sids`` older than ``cutoff`` (by key: the primary key finds them)."""
     where, params = dialect.sid_filter(sids)
     p = dialect.placeholder

@@ -35,7 +35,8 @@ from concurrent.futures import Future as SyncFuture
 from typing import Protocol
 
 from tsdb_service.core.errors import Unavailable
-from tsdb_service.storage.base import Appender, AppendSamples, WriteOp
+from tsdb_service.write.appender import Appender
+from tsdb_service.write.ops import AppendSamples, WriteOp
 
 log = logging.getLogger(__name__)
 

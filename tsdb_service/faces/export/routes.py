@@ -21,7 +21,7 @@ from starlette.responses import StreamingResponse
 from tsdb_service.faces.export import Encoder, SampleStream, export_query, open_export
 from tsdb_service.http import openapi as oa
 from tsdb_service.http.tenancy import tenant_of
-from tsdb_service.storage.base import Store
+from tsdb_service.storage.store import Store
 
 router = APIRouter(tags=["export"])
 

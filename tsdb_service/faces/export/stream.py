@@ -23,10 +23,11 @@ from typing import TYPE_CHECKING
 import pyarrow as pa
 
 from tsdb_service.faces.export.query import ExportQuery
-from tsdb_service.storage.export import EXPORT_COLUMNS, SampleBatches
+from tsdb_service.read.bulk import EXPORT_COLUMNS, SampleBatches
+from tsdb_service.read.requests import ExportRead, SeriesSelect
 
 if TYPE_CHECKING:
-    from tsdb_service.storage.base import Store
+    from tsdb_service.storage.store import Store
 
 BATCH_ROWS = 131_072
 WINDOW_ROWS = 1_000_000  # DuckDB: samples sorted at once (``Querier.export_batches``)
@@ -90,12 +91,14 @@ def open_export(store: Store, query: ExportQuery) -> SampleStream:
     """Resolve the series and start the query; nothing is read yet beyond
     what the database needs to produce the first batch."""
     querier = store.querier()
-    refs = querier.series(query.scope, query.entities, query.attrs)
+    refs = querier.series(SeriesSelect(query.scope, query.entities, query.attrs))
     stream = SampleStream()
     if not refs:
         return stream
     sids = sorted({ref.sid for ref in refs})
-    batches = stream._resources.enter_context(querier.export_batches(sids, query.time, BATCH_ROWS, WINDOW_ROWS))
+    batches = stream._resources.enter_context(
+        querier.export_batches(ExportRead(sids, query.time, BATCH_ROWS, WINDOW_ROWS))
+    )
     stream._next = partial(_next_batch, batches)
     return stream
 

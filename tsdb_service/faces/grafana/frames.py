@@ -40,7 +40,7 @@ from tsdb_service.core.timefmt import epoch_ms, iso_z, ms_of, z_of
 from tsdb_service.faces.grafana.params import Column
 from tsdb_service.geo.encodings import from_geojson, parse_lat_lon
 from tsdb_service.history.service import run_history, run_last_values
-from tsdb_service.storage.base import Querier
+from tsdb_service.read import Querier
 
 # Raw samples read for one request at most (newest kept): bounds memory and
 # time on very long ranges. Downsampling happens after this read.

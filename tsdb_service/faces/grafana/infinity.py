@@ -37,6 +37,7 @@ from tsdb_service.history.valuepath import parse_value_path
 from tsdb_service.http import openapi as oa
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.store import reads_store
+from tsdb_service.read.requests import SeriesSelect
 
 router = APIRouter(prefix="/grafana/infinity", tags=["grafana"])
 
@@ -162,7 +163,7 @@ def entities(request: Request) -> JSON:
     """``[{"entity", "type", "name", "attrs"}]``: ids, types and attribute names."""
     querier, scope, entities, _ = _common(request)
     found: dict[tuple[str, str], set[str]] = {}
-    for ref in querier.series(scope, entities, None):
+    for ref in querier.series(SeriesSelect(scope, entities)):
         found.setdefault((ref.entity_id, ref.entity_type), set()).add(ref.attr)
     return JSON(
         [

@@ -45,6 +45,7 @@ from tsdb_service.http.rawpath import escape_segment, unescape_segment
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.store import reads_store
 from tsdb_service.parse.request_context import id_pattern
+from tsdb_service.read.requests import SeriesSelect
 
 router = APIRouter(prefix="/grafana/simplejson", tags=["grafana"])
 
@@ -223,7 +224,7 @@ def test_connection(request: Request) -> JSON:
 def _catalog(request: Request, entities: EntityFilter | None = None) -> dict[tuple[str, str], set[str]]:
     scope = scope_of(request.query_params, request.headers)
     found: dict[tuple[str, str], set[str]] = {}
-    for ref in request.app.state.store.querier().series(scope, entities or EntityFilter(), None):
+    for ref in request.app.state.store.querier().series(SeriesSelect(scope, entities or EntityFilter())):
         found.setdefault((ref.entity_id, ref.entity_type), set()).add(ref.attr)
     return found
 

@@ -53,6 +53,7 @@ from tsdb_service.core.timefmt import ld_iso as iso
 from tsdb_service.core.timefmt import ld_iso_us as iso_us
 from tsdb_service.faces.ngsild.fetch import Fetcher, instance_window
 from tsdb_service.faces.ngsild.query import Aggregation, Duration, Window
+from tsdb_service.read.requests import InstanceAggregateRead, InstancesIn
 
 MAX_PERIODS = 100_000
 _K = Kind
@@ -149,22 +150,23 @@ class Aggregator:
         period, methods = agg.period, agg.methods
         where = instance_window(window)
         if period.zero:
-            rows = self.q.instance_aggregate(sids, where, methods, InstancePeriods())
+            rows = self.q.instance_aggregate(InstanceAggregateRead(sids, where, methods, InstancePeriods()))
             return self._whole(rows, window, methods)
         if not period.calendar:
             step = period.fixed_micros
             origin = datetime_to_us(window.start) if window.start is not None else None
-            rows = self.q.instance_aggregate(sids, where, methods, InstancePeriods(step, origin))
+            rows = self.q.instance_aggregate(InstanceAggregateRead(sids, where, methods, InstancePeriods(step, origin)))
             return self._combine(rows, methods, lambda lo: (lo, lo + step))
         start, end = window.start, window.end
         if start is None or end is None:  # calendar periods need both ends to lay out the months
-            bounds = self.q.instance_span(sids, where)
+            bounds = self.q.instance_span(InstancesIn(sids, where))
             if bounds is None:
                 return {}
             start = start or us_to_datetime(bounds[0])
             end = end or us_to_datetime(bounds[1] + 1)
         edges = boundaries(start, end, period)
-        rows = self.q.instance_aggregate(sids, where, methods, InstancePeriods(edges=tuple(edges)))
+        periods = InstancePeriods(edges=tuple(edges))
+        rows = self.q.instance_aggregate(InstanceAggregateRead(sids, where, methods, periods))
         following = dict(pairwise(edges))
         return self._combine(rows, methods, lambda lo: (lo, following[lo]))
 

@@ -38,15 +38,16 @@ from tsdb_service.core.query import VALUE_TEST_OPS, EntityFilter, InstanceWindow
 from tsdb_service.faces.ngsild import qlang
 from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.query import DEFAULT_DATASET, TemporalQuery, TypeExpr, TypeName, Window, type_matches
-from tsdb_service.storage.base import Querier
+from tsdb_service.read import TemporalReads
+from tsdb_service.read.requests import ExtentsNear, InstancesIn, LocatedSelect, SeriesSelect, WindowScan
 
 EntityKey = tuple[str, str]  # (entity id, stored entity type)
 
 
 class Fetcher:
-    """Answers one query's questions through the read seam (``storage.base.Querier``)."""
+    """Answers one query's questions through the read seam (``read.Querier``)."""
 
-    def __init__(self, querier: Querier, terms: TermMap):
+    def __init__(self, querier: TemporalReads, terms: TermMap):
         self.q = querier
         self.terms = terms
 
@@ -60,7 +61,7 @@ class Fetcher:
         refs: list[SeriesRef] = []
         for selector in query.selectors:
             ids = (query.entity_id,) if query.entity_id is not None else selector.ids
-            found = self.q.series(scope, EntityFilter(ids=ids, id_pattern=selector.id_pattern))
+            found = self.q.series(SeriesSelect(scope, EntityFilter(ids=ids, id_pattern=selector.id_pattern)))
             if selector.types is not None:
                 types = {r.entity_type for r in found}
                 ok = self._types_taken(selector.types, types)
@@ -140,7 +141,7 @@ class Fetcher:
             if not locations[0]:
                 return set()
             if query.q is None or not self.q.shared_scan:
-                rows, _ = self.q.window_scan(window, locations, [])
+                rows, _ = self.q.window_scan(WindowScan(window, locations, []))
                 keys = {owner[sid] for sid in self._passing(geo, rows)}
                 locations = None
         if query.q is None or not keys:
@@ -151,7 +152,8 @@ class Fetcher:
             if key in keys:
                 sids_of.setdefault(iris[sid], []).append(sid)
         tested = [(term, test) for term in terms if (test := value_test(term)) is not None]
-        rows, found = self.q.window_scan(window, locations, [(sids_of.get(t.attr, []), test) for t, test in tested])
+        probes = [(sids_of.get(t.attr, []), test) for t, test in tested]
+        rows, found = self.q.window_scan(WindowScan(window, locations, probes))
         if locations is not None:
             keys = {owner[sid] for sid in self._passing(geo, rows)}
             if not keys:
@@ -169,7 +171,7 @@ class Fetcher:
         out: set[int] = set()
         if not sids:
             return out
-        for sid, kind, num, txt, js, md in self.q.instance_values(sids, window):
+        for sid, kind, num, txt, js, md in self.q.instance_values(InstancesIn(sids, window)):
             if sid not in out and term.matches(term_value(term, kind, num, txt, js, md)):
                 out.add(sid)
         return out
@@ -195,11 +197,11 @@ class Fetcher:
         stored = {a for t in types for name, attrs in names[t].items() if iri[name] == geo.geoproperty for a in attrs}
         if not stored:
             return {}, []
-        near = self.q.located_series(scope, sorted(types), stored, geo.filter.prefilter)
+        near = self.q.located_series(LocatedSelect(scope, sorted(types), stored, geo.filter.prefilter))
         keys = {(r.entity_id, r.entity_type) for r in near}
         if not keys:
             return {}, []
-        found = self.q.series(scope, EntityFilter(ids=tuple(sorted({k[0] for k in keys}))))
+        found = self.q.series(SeriesSelect(scope, EntityFilter(ids=tuple(sorted({k[0] for k in keys})))))
         return _by_entity(r for r in found if (r.entity_id, r.entity_type) in keys), [r.sid for r in near]
 
     def _ever_near(self, geo, sids: list[int]) -> list[int]:
@@ -208,7 +210,7 @@ class Fetcher:
         memory, or a small table), so only their instances are read."""
         prefilter = geo.filter.prefilter
         if sids and prefilter is not None:
-            return [row[0] for row in self.q.location_extents(sids, prefilter)]
+            return [row[0] for row in self.q.location_extents(ExtentsNear(sids, prefilter))]
         return sids
 
     @staticmethod

@@ -17,6 +17,7 @@ from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.fetch import EntityKey, Fetcher
 from tsdb_service.faces.ngsild.query import Format, TemporalQuery
 from tsdb_service.faces.ngsild.render import aggregated, entity, normalized, simplified
+from tsdb_service.read.requests import InstancesRead
 
 
 @dataclass
@@ -69,7 +70,9 @@ def _instances(querier, query: TemporalQuery, sids, cap: int):
     w = query.window
     window = InstanceWindow(w.timeproperty.value, w.start, w.end)
     newest_first = query.last_n is not None
-    rows = querier.temporal_instances(sids, window, last_n=query.last_n, limit=cap + 1, newest_first=newest_first)
+    rows = querier.temporal_instances(
+        InstancesRead(sids, window, last_n=query.last_n, limit=cap + 1, newest_first=newest_first)
+    )
     if query.first_n is not None:
         rows = _first_n(rows, query.first_n)
     if len(rows) <= cap:

@@ -44,7 +44,8 @@ from tsdb_service.core.query import EntityFilter, Scope, SeriesRef
 from tsdb_service.http import openapi as oa
 from tsdb_service.http.ld_tenancy import ld_tenant, tenant_echo
 from tsdb_service.parse.notification import parse_ld_instance
-from tsdb_service.storage.base import AppendSamples, DeleteInstance, DeleteSamples, ReplaceInstance
+from tsdb_service.read.requests import InstanceLookup, SeriesSelect
+from tsdb_service.write.ops import AppendSamples, DeleteInstance, DeleteSamples, ReplaceInstance
 
 router = APIRouter(prefix="/ngsi-ld/v1", tags=["NGSI-LD temporal"])
 
@@ -272,7 +273,7 @@ def _patch_sample(attr_id: str, doc: dict) -> AttrSample:
 def _entity_series(request: Request, tenant: str, entity_id: str, with_samples: bool) -> list[SeriesRef]:
     """The entity's series that hold instances (any type, any service path)."""
     q = request.app.state.store.querier()
-    refs = q.series(Scope(tenant), EntityFilter(ids=(entity_id,)))
+    refs = q.series(SeriesSelect(Scope(tenant), EntityFilter(ids=(entity_id,))))
     if not with_samples or not refs:
         return refs
     live = q.sids_with_samples([r.sid for r in refs])
@@ -317,7 +318,8 @@ async def _instance(
             f"no instance {instance_id[:200]!r} of attribute {attr_id[:200]!r} of entity {entity_id[:200]!r}"
         )
     store = request.app.state.store
-    sid = await store.read(partial(store.querier().instance_series, [r.sid for r in refs], iid), memory_first=False)
+    lookup = InstanceLookup([r.sid for r in refs], iid)
+    sid = await store.read(partial(store.querier().instance_series, lookup), memory_first=False)
     if sid is None:
         raise ResourceNotFound(
             f"no instance {instance_id[:200]!r} of attribute {attr_id[:200]!r} of entity {entity_id[:200]!r}"

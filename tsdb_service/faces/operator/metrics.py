@@ -50,7 +50,8 @@ from starlette.responses import Response
 from tsdb_service.http import openapi
 from tsdb_service.http.store import reads_store
 from tsdb_service.parse import timeindex
-from tsdb_service.storage.base import AppendSamples, DeleteSamples, PutLayout, RecordRejected, Store, WriteOp
+from tsdb_service.storage.store import Store
+from tsdb_service.write.ops import AppendSamples, DeleteSamples, PutLayout, RecordRejected, WriteOp
 
 log = logging.getLogger(__name__)
 

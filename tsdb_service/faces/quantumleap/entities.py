@@ -15,7 +15,7 @@ from tsdb_service.http import openapi as oa
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.store import reads_store
 from tsdb_service.http.tenancy import tenant_of
-from tsdb_service.storage.base import DeleteSamples
+from tsdb_service.write.ops import DeleteSamples
 
 router = APIRouter(tags=["entities"])
 

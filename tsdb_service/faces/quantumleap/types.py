@@ -14,7 +14,7 @@ from tsdb_service.history.service import delete_target
 from tsdb_service.http import openapi as oa
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.tenancy import tenant_of
-from tsdb_service.storage.base import DeleteSamples
+from tsdb_service.write.ops import DeleteSamples
 
 router = APIRouter(tags=["types"])
 

@@ -21,6 +21,7 @@ from tsdb_service.core.query import EntityFilter, Scope
 from tsdb_service.http import openapi as oa
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.store import reads_store
+from tsdb_service.read.requests import SeriesSelect
 
 STATIC = Path(__file__).resolve().parent / "static"
 SWAGGER = "vendor/swagger-ui"
@@ -68,7 +69,7 @@ def tenants(request: Request) -> JSON:
     querier = request.app.state.store.querier()
     out = []
     for tenant in querier.tenants():
-        refs = querier.series(Scope(tenant), EntityFilter())
+        refs = querier.series(SeriesSelect(Scope(tenant), EntityFilter()))
         out.append(
             {
                 "tenant": tenant,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from tsdb_service.storage.sql import Dialect
+from tsdb_service.storage.sql.dialect import SqlDialect
 
 # Periods of a fixed number of microseconds (UTC has no leap seconds here);
 # floor division is truncation because times before 1970 round down too.
@@ -17,7 +17,7 @@ def _shift(width: int) -> int:
     return -(-_YEAR_1_US // width) * width
 
 
-class DuckDBDialect(Dialect):
+class DuckDBDialect(SqlDialect):
     name = "duckdb"
 
     def samples(self, columns: str) -> str:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import bisect
 import contextlib
-from collections.abc import Collection, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from datetime import UTC, datetime, timedelta
 from typing import Protocol
 
@@ -24,27 +24,28 @@ from tsdb_service.core.query import (
     ExtentRow,
     FirstLocationRow,
     GeometryRow,
-    InstanceWindow,
-    LocationProbe,
     LocationRow,
-    Prefilter,
     RawRow,
     RowMask,
     TimeRange,
-    ValueProbe,
     WindowScan,
 )
 from tsdb_service.core.timefmt import iso_ms_us as iso_ms
+from tsdb_service.read.bulk import Columns, SampleBatches
 from tsdb_service.read.off_loop import check_database_allowed
-from tsdb_service.storage import temporal
+from tsdb_service.read.requests import ExportRead, ExtentsNear, LocationsIn, RowsRead
+from tsdb_service.read.requests import WindowScan as WindowScanRead
 from tsdb_service.storage.catalog import SeriesCatalog
 from tsdb_service.storage.common import box_passes, to_micros
 from tsdb_service.storage.duckdb.dialect import DuckDBDialect
 from tsdb_service.storage.duckdb.latest_geo import LatestGeo, Position, position
 from tsdb_service.storage.duckdb.tail_cache import TailCache, TailRow
-from tsdb_service.storage.export import Columns, SampleBatches, export_sql
 from tsdb_service.storage.partials import HourlyPartials
-from tsdb_service.storage.sql import _LOCATION_COLUMNS, GEO_KIND, SqlQuerier, as_first_locations, series_time_filter
+from tsdb_service.storage.sql import temporal
+from tsdb_service.storage.sql.bulk import export_sql
+from tsdb_service.storage.sql.dialect import GEO_KIND, series_time_filter
+from tsdb_service.storage.sql.locations import LOCATION_COLUMNS, as_first_locations
+from tsdb_service.storage.sql.querier import SqlQuerier
 
 
 class DuckDBSource(Protocol):
@@ -88,36 +89,18 @@ class DuckDBQuerier(SqlQuerier):
     def _load_series(self, after: int) -> list[tuple]:
         return self._fetch(_LOAD_SERIES, [after])
 
-    def raw_rows(
-        self,
-        sids: Sequence[int],
-        time: TimeRange,
-        *,
-        newest_first: bool,
-        limit: int,
-        offset: int,
-        one_per_row: bool,
-        attrs_per_row: int = 1,
-        mask: RowMask | None = None,
-    ) -> list[RawRow]:
+    def raw_rows(self, ask: RowsRead) -> list[RawRow]:
         """One attribute per row: try the in-memory tails first; under a geo
         mask, tails where they provably answer and one statement for the rest."""
+        sids, time, newest_first, limit, offset = ask.sids, ask.time, ask.newest_first, ask.limit, ask.offset
+        one_per_row, mask = ask.one_per_row, ask.mask
         if one_per_row and mask is not None and len(sids) <= TAIL_MAX_SERIES:
             return self._masked_rows(sids, time, newest_first, limit, offset, mask)
         if one_per_row and mask is None and (len(sids) == 1 or (newest_first and len(sids) <= TAIL_MAX_SERIES)):
             rows = self._from_tails(sids, time, newest_first, limit, offset)
             if rows is not None:
                 return rows
-        return super().raw_rows(
-            sids,
-            time,
-            newest_first=newest_first,
-            limit=limit,
-            offset=offset,
-            one_per_row=one_per_row,
-            attrs_per_row=attrs_per_row,
-            mask=mask,
-        )
+        return super().raw_rows(ask)
 
     def _from_tails(
         self, sids: Sequence[int], time: TimeRange, newest_first: bool, limit: int, offset: int
@@ -289,22 +272,23 @@ class DuckDBQuerier(SqlQuerier):
         # sample of every series before the limit.
         return [(t, rid, iso_ms(t), kind, num, txt, js, sid) for t, rid, kind, num, txt, js, sid in rows]
 
-    def location_extents(self, sids: Collection[int], prefilter: Prefilter | None) -> list[ExtentRow]:
+    def location_extents(self, ask: ExtentsNear) -> list[ExtentRow]:
         """Memory only: where each series has ever been."""
-        return self._store.latest_geo.extents(sids, prefilter)
+        return self._store.latest_geo.extents(ask.sids, ask.prefilter)
 
-    def location_samples(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[LocationRow]:
+    def location_samples(self, ask: LocationsIn) -> list[LocationRow]:
         """From the tracks memory holds where they answer (``LatestGeo.
         positions``: the series it misses are loaded together and kept), so
         a repeated geo-query reads no positions: the samples in the window
         and the last one before it, as the SQL (``SqlQuerier``) returns them."""
+        sids, time, prefilter = ask.sids, ask.time, ask.prefilter
         if not sids or len(sids) > TAIL_MAX_SERIES:
-            return super().location_samples(sids, time, prefilter)
+            return super().location_samples(ask)
         start = None if time.start is None else to_micros(time.start)
         end = None if time.end is None else to_micros(time.end)
         tracks = self._store.latest_geo.positions(sorted(sids), start, self._load_positions)
         if tracks is None:
-            return super().location_samples(sids, time, prefilter)
+            return super().location_samples(ask)
         out: list[LocationRow] = []
         for sid in sorted(tracks):
             for t_us, rid, geojson, *corners in _in_window(tracks[sid], start, end):
@@ -343,22 +327,22 @@ class DuckDBQuerier(SqlQuerier):
         params: list = []
         for sid in sids:
             where, more = series_time_filter(d, [sid], time)
-            parts.append(f"SELECT {_LOCATION_COLUMNS} FROM {SORTED} WHERE {where} AND {located}")
+            parts.append(f"SELECT {LOCATION_COLUMNS} FROM {SORTED} WHERE {where} AND {located}")
             params += more
         where, more = series_time_filter(d, sids, time)
-        parts.append(f"SELECT {_LOCATION_COLUMNS} FROM {HOT} WHERE {where} AND {located}")
+        parts.append(f"SELECT {LOCATION_COLUMNS} FROM {HOT} WHERE {where} AND {located}")
         params += more
         if time.start is not None:
             before = d.time_value(time.start)
             for sid in sids:
                 parts.append(
-                    f"(SELECT {_LOCATION_COLUMNS} FROM {SORTED} WHERE sid = ? AND t < ? AND {located} "
+                    f"(SELECT {LOCATION_COLUMNS} FROM {SORTED} WHERE sid = ? AND t < ? AND {located} "
                     "ORDER BY t DESC, rid DESC LIMIT 1)"
                 )
                 params += [sid, before]
             where, more = d.sid_filter(sids)
             parts.append(
-                f"SELECT {_LOCATION_COLUMNS} FROM {HOT} WHERE {where} AND t < ? AND {located} "
+                f"SELECT {LOCATION_COLUMNS} FROM {HOT} WHERE {where} AND t < ? AND {located} "
                 "QUALIFY row_number() OVER (PARTITION BY sid ORDER BY t DESC, rid DESC) = 1"
             )
             params += [*more, before]
@@ -376,11 +360,11 @@ class DuckDBQuerier(SqlQuerier):
         ] * len(sids)
         return as_first_locations(self._fetch(" UNION ALL ".join(parts), list(sids)))
 
-    def latest_geometries(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[GeometryRow]:
+    def latest_geometries(self, ask: LocationsIn) -> list[GeometryRow]:
         """The latest locations come from memory unless bounded by ``toDate``."""
-        if time.start is None and time.end is None:
-            return self._store.latest_geo.matching(sids, prefilter)
-        return super().latest_geometries(sids, time, prefilter)
+        if ask.time.start is None and ask.time.end is None:
+            return self._store.latest_geo.matching(ask.sids, ask.prefilter)
+        return super().latest_geometries(ask)
 
     def _per_series(self, head: str, where: str, params: list, sids: Sequence[int]) -> list:
         """A few scattered series become one ``sid = ?`` branch each (UNION
@@ -395,19 +379,18 @@ class DuckDBQuerier(SqlQuerier):
 
     shared_scan = True
 
-    def window_scan(
-        self, window: InstanceWindow, locations: LocationProbe | None, tests: Sequence[ValueProbe]
-    ) -> WindowScan:
+    def window_scan(self, ask: WindowScanRead) -> WindowScan:
         """One statement for them all (``temporal.scan_parts``): over many
         scattered series each would scan the sorted table's series ids
         (about 20 ms at 11M samples), and one scan answers every question.
         Few series: one statement each, whose per-series branches prune."""
+        window, locations, tests = ask.window, ask.locations, ask.tests
         if locations is not None and not locations[0]:
             locations = None
         asked = [i for i, (sids, _) in enumerate(tests) if sids]
         total = sum(len(tests[i][0]) for i in asked) + (0 if locations is None else len(locations[0]))
         if len(asked) + (locations is not None) < 2 or total <= PER_SERIES_BRANCHES:
-            return super().window_scan(window, locations, tests)
+            return super().window_scan(WindowScanRead(window, locations, tests))
         head, where, params, sids, roles = temporal.scan_parts(
             self.dialect, window, locations, [tests[i] for i in asked]
         )
@@ -425,8 +408,8 @@ class DuckDBQuerier(SqlQuerier):
                 found[asked[role - 1]].add(sid)
         return located, found
 
-    def export_batches(self, sids: Sequence[int], time: TimeRange, batch_rows: int, sort_rows: int) -> SampleBatches:
-        """See ``Querier``. DuckDB sorts a result in memory up to its
+    def export_batches(self, ask: ExportRead) -> SampleBatches:
+        """See ``BulkReader``. DuckDB sorts a result in memory up to its
         (machine-wide) memory limit, so the selection is read as consecutive
         time windows of about ``sort_rows`` samples each (split evenly over
         its time span), each sorted on its own: memory follows the window,
@@ -434,6 +417,7 @@ class DuckDBQuerier(SqlQuerier):
         (``to_arrow_reader``) on a private cursor (the thread's own may be
         in use meanwhile)."""
         check_database_allowed()
+        sids, time, batch_rows, sort_rows = ask.sids, ask.time, ask.batch_rows, ask.sort_rows
         batches = SampleBatches()
         try:
             cursor = self._store.cursor().cursor()

@@ -22,7 +22,7 @@ from tsdb_service.storage.duckdb.dialect import DuckDBDialect
 from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL, LatestGeo
 from tsdb_service.storage.retention import SAVE_WATERMARK, rollup_delete_sql
 from tsdb_service.storage.rollups import fold_sql
-from tsdb_service.storage.sql import quote_ident
+from tsdb_service.storage.sql.dialect import quote_ident
 
 
 def _one(cur: duckdb.DuckDBPyConnection, sql: str, params: object = None) -> tuple:

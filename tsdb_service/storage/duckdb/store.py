@@ -35,7 +35,6 @@ from tsdb_service.core.model import EntitySample, RejectedNotification
 from tsdb_service.core.query import TimeRange
 from tsdb_service.parse import ValuesLayout
 from tsdb_service.storage import rejected as rejected_store
-from tsdb_service.storage.base import DeleteInstance, DeleteSamples, PutLayout, ReplaceInstance
 from tsdb_service.storage.common import (
     LD_TIME_COLUMNS,
     LOAD_LAYOUTS_SQL,
@@ -68,8 +67,10 @@ from tsdb_service.storage.ld_ingest import (
 from tsdb_service.storage.migrations import applied_versions, load_migrations, split_statements
 from tsdb_service.storage.partials import HourlyPartials
 from tsdb_service.storage.rejected import RejectedLimits
-from tsdb_service.storage.sql import delete_statements, instance_statements, quote_ident
+from tsdb_service.storage.sql.dialect import quote_ident
+from tsdb_service.storage.sql.writes import delete_statements, instance_statements
 from tsdb_service.write.committer import GroupCommitter
+from tsdb_service.write.ops import DeleteInstance, DeleteSamples, PutLayout, ReplaceInstance
 
 log = logging.getLogger(__name__)
 

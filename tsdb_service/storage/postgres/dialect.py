@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
-from tsdb_service.storage.sql import Dialect
+from tsdb_service.storage.sql.dialect import SqlDialect
 
 # Where ``date_part('epoch', ...)`` in microseconds rounds to the exact value
 # (``PostgresDialect.epoch_us``): within ±2^31 s of 1970.
@@ -12,7 +12,7 @@ _FLOAT_EXACT_FROM = "TIMESTAMP '1902-01-01 00:00:00'"
 _FLOAT_EXACT_TO = "TIMESTAMP '2038-01-01 00:00:00'"
 
 
-class PostgresDialect(Dialect):
+class PostgresDialect(SqlDialect):
     name = "postgresql"
     placeholder = "%s"
     samples_table = "samples"

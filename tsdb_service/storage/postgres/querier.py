@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime
 from operator import itemgetter
@@ -33,28 +33,34 @@ import psycopg
 from tsdb_service.core.errors import Unavailable
 from tsdb_service.core.model import Kind
 from tsdb_service.core.query import (
-    EntityFilter,
     ExtentRow,
     FirstLocationRow,
     GeometryRow,
     InstanceAggregateRow,
-    InstancePeriods,
     InstanceWindow,
-    Prefilter,
     RawRow,
     RowMask,
-    Scope,
     SeriesRef,
-    TimeRange,
 )
+from tsdb_service.read.bulk import Columns, SampleBatches
 from tsdb_service.read.off_loop import check_database_allowed
-from tsdb_service.storage import temporal
+from tsdb_service.read.requests import (
+    ExportRead,
+    ExtentsNear,
+    InstanceAggregateRead,
+    LocationsIn,
+    RowsRead,
+    SeriesSelect,
+)
 from tsdb_service.storage.catalog import SeriesCatalog
 from tsdb_service.storage.common import extent_prefilter
-from tsdb_service.storage.export import Columns, SampleBatches, export_sql, rows_to_columns
 from tsdb_service.storage.partials import HourlyPartials
 from tsdb_service.storage.postgres.dialect import PostgresDialect, int_array
-from tsdb_service.storage.sql import _MAX_BIGINT, SqlQuerier, as_first_locations, as_geometries, box_test
+from tsdb_service.storage.sql import temporal
+from tsdb_service.storage.sql.bulk import export_sql, rows_to_columns
+from tsdb_service.storage.sql.dialect import MAX_BIGINT, box_test
+from tsdb_service.storage.sql.locations import as_first_locations, as_geometries
+from tsdb_service.storage.sql.querier import SqlQuerier
 
 
 class PostgresSource(Protocol):
@@ -115,35 +121,23 @@ def _among(listed: Sequence[int] | None, part: Sequence[int]) -> Sequence[int] |
 
 
 class PostgresQuerier(SqlQuerier):
-    def raw_rows(
-        self,
-        sids: Sequence[int],
-        time: TimeRange,
-        *,
-        newest_first: bool,
-        limit: int,
-        offset: int,
-        one_per_row: bool,
-        attrs_per_row: int = 1,
-        mask: RowMask | None = None,
-    ) -> list[RawRow]:
+    def raw_rows(self, ask: RowsRead) -> list[RawRow]:
         """Under a geo mask, one attribute per row: one ``(sid, t)`` index
         scan per series in the wanted order, each stopping at its first
         ``offset + limit`` samples inside one of its mask intervals. A
         wandering entity's series has dozens of intervals (in, out, in ...):
         a scan per series tests each sample against the (materialised) mask,
         where a scan per interval would cost one index descent each."""
-        if mask is None or not one_per_row or not sids:
-            return super().raw_rows(
-                sids,
-                time,
-                newest_first=newest_first,
-                limit=limit,
-                offset=offset,
-                one_per_row=one_per_row,
-                attrs_per_row=attrs_per_row,
-                mask=mask,
-            )
+        sids, time, mask, newest_first, limit, offset = (
+            ask.sids,
+            ask.time,
+            ask.mask,
+            ask.newest_first,
+            ask.limit,
+            ask.offset,
+        )
+        if mask is None or not ask.one_per_row or not sids:
+            return super().raw_rows(ask)
         d = self.dialect
         direction = "DESC" if newest_first else "ASC"
         window, params = "", []
@@ -154,7 +148,7 @@ class PostgresQuerier(SqlQuerier):
             window += " AND x.t <= %s"
             params.append(d.time_value(time.end))
         order = f"ORDER BY t {direction}, rid {direction}"
-        wanted = min(limit + offset, _MAX_BIGINT)
+        wanted = min(limit + offset, MAX_BIGINT)
         subset = RowMask({sid: mask.intervals[sid] for sid in sids if sid in mask.intervals})
         sql = (
             f"WITH m AS MATERIALIZED (SELECT * FROM {d.mask_relation()}) "
@@ -166,14 +160,15 @@ class PostgresQuerier(SqlQuerier):
             f"ORDER BY x.t {direction}, x.rid {direction} LIMIT %s) l) kept {order} LIMIT %s OFFSET %s"
         )
         series = sorted(subset.intervals)
-        rows = self._fetch(sql, [*subset.arrays(), int_array(series), *params, wanted, limit, min(offset, _MAX_BIGINT)])
+        rows = self._fetch(sql, [*subset.arrays(), int_array(series), *params, wanted, limit, min(offset, MAX_BIGINT)])
         if newest_first:
             rows.reverse()
         return rows
 
-    def latest_geometries(self, sids: Sequence[int], time: TimeRange, prefilter: Prefilter | None) -> list[GeometryRow]:
+    def latest_geometries(self, ask: LocationsIn) -> list[GeometryRow]:
         """One index probe per series (``(sid, t)`` index, newest first)
         instead of ranking every location sample."""
+        sids, time, prefilter = ask.sids, ask.time, ask.prefilter
         if not sids:
             return []
         where, params = "", []
@@ -202,10 +197,8 @@ class PostgresQuerier(SqlQuerier):
         listed = [row[0] for row in rows]
         return None if len(listed) >= len(set(sids)) else listed
 
-    def instance_aggregate(
-        self, sids: Sequence[int], window: InstanceWindow, methods: Sequence[str], periods: InstancePeriods
-    ) -> list[InstanceAggregateRow]:
-        """See ``Querier``. The rows (one per series and period, in the
+    def instance_aggregate(self, ask: InstanceAggregateRead) -> list[InstanceAggregateRow]:
+        """See ``TemporalReader``. The rows (one per series and period, in the
         thousands) come in binary, and from ``AGGREGATE_SPLIT_FROM`` series
         on, the series are grouped in ``AGGREGATE_PARTS`` statements at
         once (``_fetch_parts``).
@@ -218,6 +211,7 @@ class PostgresQuerier(SqlQuerier):
         follow from the first instance of the whole answer
         (``_one_grid``); if a write came between them, one statement
         answers instead."""
+        sids, window, methods, periods = ask.sids, ask.window, ask.methods, ask.periods
         if not sids:
             return []
         untimed = self._untimed(sids, window)
@@ -283,11 +277,12 @@ class PostgresQuerier(SqlQuerier):
         ids = int_array(sids)
         return sql, [ids, *end, *end, ids]
 
-    def location_extents(self, sids: Collection[int], prefilter: Prefilter | None) -> list[ExtentRow]:
+    def location_extents(self, ask: ExtentsNear) -> list[ExtentRow]:
         """From ``geo_extents`` (kept by the writers, see storage.postgres.extents): the
         candidates' boxes without reading a single position. Over many
         series the table is searched by box (GiST) and intersected here:
         ``sid = ANY`` of thousands of ids would be tested on every row."""
+        sids, prefilter = ask.sids, ask.prefilter
         if not sids:
             return []
         cols = "sid, min_lon, min_lat, max_lon, max_lat"
@@ -342,11 +337,11 @@ class PostgresQuerier(SqlQuerier):
         # Runs the other parts of a split read; its thread starts at the first.
         self._helpers = ThreadPoolExecutor(AGGREGATE_PARTS - 1, thread_name_prefix="tsdb-pg-read")
 
-    def series(self, scope: Scope, entities: EntityFilter, attrs: Iterable[str] | None = None) -> list[SeriesRef]:
-        refs = self.catalog.select(scope, entities, attrs)
+    def series(self, ask: SeriesSelect) -> list[SeriesRef]:
+        refs = self.catalog.select(ask.scope, ask.entities, ask.attrs)
         if not refs:
             self._checked = float("-inf")  # maybe created by another replica: count now
-            refs = self.catalog.select(scope, entities, attrs)
+            refs = self.catalog.select(ask.scope, ask.entities, ask.attrs)
         return refs
 
     def _partials(self) -> HourlyPartials | None:
@@ -398,15 +393,16 @@ class PostgresQuerier(SqlQuerier):
         except psycopg.OperationalError as exc:
             raise Unavailable(f"the database is not available: {exc}") from None
 
-    def export_batches(self, sids: Sequence[int], time: TimeRange, batch_rows: int, sort_rows: int) -> SampleBatches:
-        """See ``Querier``. A server-side cursor (in its own transaction on
+    def export_batches(self, ask: ExportRead) -> SampleBatches:
+        """See ``BulkReader``. A server-side cursor (in its own transaction on
         a pooled connection, held until ``close()``) streams the sorted
         rows; each ``fetchmany`` becomes one batch, times as epoch
         microseconds (no Python ``datetime`` per row). PostgreSQL sorts on
         disk: ``sort_rows`` is not needed."""
         check_database_allowed()
         d = self.dialect
-        sql, params = export_sql(d, sids, time, d.epoch_us("x.t"))
+        sql, params = export_sql(d, ask.sids, ask.time, d.epoch_us("x.t"))
+        batch_rows = ask.batch_rows
         batches = SampleBatches()
         res = batches.resources
         try:

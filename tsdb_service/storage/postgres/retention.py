@@ -18,7 +18,7 @@ from tsdb_service.storage.common import naive_utc
 from tsdb_service.storage.postgres.dialect import PostgresDialect, int_array
 from tsdb_service.storage.retention import SAVE_WATERMARK, rollup_delete_sql
 from tsdb_service.storage.rollups import fold_sql
-from tsdb_service.storage.sql import quote_ident
+from tsdb_service.storage.sql.dialect import quote_ident
 
 PG_LOCK = 0x7473_6472  # "tsdr": one retention pass at a time across replicas
 

@@ -36,7 +36,6 @@ from tsdb_service.core.query import TimeRange
 from tsdb_service.parse import ValuesLayout
 from tsdb_service.read.off_loop import check_database_allowed
 from tsdb_service.storage import rejected as rejected_store
-from tsdb_service.storage.base import DeleteInstance, DeleteSamples, PutLayout, ReplaceInstance
 from tsdb_service.storage.common import (
     GEO_COLUMNS,
     LD_TIME_COLUMNS,
@@ -60,8 +59,9 @@ from tsdb_service.storage.postgres.querier import PostgresQuerier
 from tsdb_service.storage.postgres.retention import PostgresSession, postgres_session
 from tsdb_service.storage.postgres.untimed import UntimedLedger
 from tsdb_service.storage.rejected import RejectedLimits
-from tsdb_service.storage.sql import delete_statements, instance_statements
+from tsdb_service.storage.sql.writes import delete_statements, instance_statements
 from tsdb_service.write.committer import GroupCommitter
+from tsdb_service.write.ops import DeleteInstance, DeleteSamples, PutLayout, ReplaceInstance
 
 log = logging.getLogger(__name__)
 

@@ -9,7 +9,7 @@ other attributes, and a notification without a location keeps the previous
 one. So "the drone's temperature readings inside this polygon" are the
 readings taken while it was inside, and a robot that drove through an area
 and left still has its in-area samples. ``lastN``, ``limit``, ``offset`` and
-aggregations apply to the matching samples (see ``geo.masks``).
+aggregations apply to the matching samples (see ``history.geo_masks``).
 
 Entity semantics (``geoScope=entity``): an entity matches when its *latest*
 location satisfies the relation (the latest at or before ``toDate`` when
@@ -33,6 +33,7 @@ from operator import attrgetter
 
 from tsdb_service.core.query import EntityFilter, Scope, SeriesRef, TimeRange
 from tsdb_service.geo.filter import ENTITY, GeoFilter
+from tsdb_service.read.requests import LocationsIn, SeriesSelect
 
 EntityKey = tuple[str, str, str]  # service path, entity type, entity id
 LOCATION = "location"
@@ -54,7 +55,7 @@ def apply_geo(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesRe
         matched = matching_entities(querier, locations, geo, time)
         return [r for r, key in zip(refs, map(entity_key, refs), strict=True) if key in matched], querier
     from tsdb_service.core.query import RowMask
-    from tsdb_service.geo.masks import MaskedQuerier, sample_spans
+    from tsdb_service.history.geo_masks import MaskedQuerier, sample_spans
 
     intervals, kept = {}, []
     for key, found in sample_spans(querier, locations, geo, time).items():
@@ -84,7 +85,7 @@ def _selection(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesR
     """Built once per selection and reused while the catalog gives the same
     series (the key holds their ids), so a repeated query over 10,000
     entities does not re-key 20,000 series each time."""
-    named = querier.series(scope, entities, [LOCATION])
+    named = querier.series(SeriesSelect(scope, entities, [LOCATION]))
     # The series ids themselves: exact, and cheaper than any summary of them.
     key = (scope, entities, tuple([r.sid for r in refs]), tuple([r.sid for r in named]))
     with _memo_lock:
@@ -115,10 +116,11 @@ def _fallback_locations(
 ) -> dict[int, EntityKey]:
     """Entities without a ``location`` attribute: their first geo-typed one
     (with a geometry stored at or before ``toDate``), sid -> entity."""
-    others = [r for r in querier.series(scope, entities, None) if entity_key(r) in without]
+    others = [r for r in querier.series(SeriesSelect(scope, entities)) if entity_key(r) in without]
     if not others:
         return {}
-    located = {sid for sid, _ in querier.latest_geometries([r.sid for r in others], TimeRange(None, time.end), None)}
+    latest = querier.latest_geometries(LocationsIn([r.sid for r in others], TimeRange(None, time.end)))
+    located = {sid for sid, _ in latest}
     first: dict[EntityKey, SeriesRef] = {}
     for ref in others:
         if ref.sid in located:
@@ -133,5 +135,5 @@ def matching_entities(querier, locations: dict[int, EntityKey], geo: GeoFilter, 
     ``toDate``) matches ``geo``."""
     if not locations:
         return set()
-    rows = querier.latest_geometries(list(locations), TimeRange(None, time.end), geo.prefilter)
+    rows = querier.latest_geometries(LocationsIn(list(locations), TimeRange(None, time.end), geo.prefilter))
     return {locations[sid] for sid, geojson in rows if geo.matches(geojson)}

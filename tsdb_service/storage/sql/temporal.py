@@ -1,4 +1,4 @@
-"""NGSI-LD temporal reads rendered to SQL, for any backend with a ``Dialect``.
+"""NGSI-LD temporal reads rendered to SQL, for any backend with a ``SqlDialect``.
 
 ``ngsild`` decides what to ask (which series, which window, which test a
 ``q`` term makes, how aggregation periods are laid out); this module spells
@@ -24,7 +24,7 @@ from tsdb_service.storage.common import box_sql
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from tsdb_service.storage.sql import Dialect
+    from tsdb_service.storage.sql.dialect import SqlDialect
 
 # NGSI-LD time properties → the SQL that reads them. observedAt falls back
 # to the row time for samples that had none (NGSIv2 data, or NGSI-LD without
@@ -44,7 +44,7 @@ _TIME_COLUMNS = "sid, t, observed_at, created_at, modified_at, deleted_at"
 _COUNTS = ("totalCount", "distinctCount")
 
 
-def window_filter(d: Dialect, window: InstanceWindow, untimed: Sequence[int] | None = None) -> tuple[str, str, list]:
+def window_filter(d: SqlDialect, window: InstanceWindow, untimed: Sequence[int] | None = None) -> tuple[str, str, list]:
     """(time expression, WHERE fragment, params): instances whose time
     property is set and lies in the half-open ``window``.
 
@@ -73,7 +73,7 @@ def window_filter(d: Dialect, window: InstanceWindow, untimed: Sequence[int] | N
     return expr, where, [*params_o, *params_t]
 
 
-def _in_window(d: Dialect, column: str, window: InstanceWindow) -> tuple[str, list]:
+def _in_window(d: SqlDialect, column: str, window: InstanceWindow) -> tuple[str, list]:
     """``column`` within the half-open window's given bounds (TRUE for none)."""
     tests, params = [], []
     if window.start is not None:
@@ -85,7 +85,7 @@ def _in_window(d: Dialect, column: str, window: InstanceWindow) -> tuple[str, li
     return " AND ".join(tests) or "TRUE", params
 
 
-def value_test_sql(d: Dialect, test: ValueTest) -> tuple[str, list]:
+def value_test_sql(d: SqlDialect, test: ValueTest) -> tuple[str, list]:
     """SQL: one instance passes ``test`` (see ``query.ValueTest``)."""
     if test.op is None:
         return f"kind <> {_NULL}", []
@@ -96,7 +96,7 @@ def value_test_sql(d: Dialect, test: ValueTest) -> tuple[str, list]:
 
 
 def matching_parts(
-    d: Dialect, window: InstanceWindow, test: ValueTest, untimed: Sequence[int] | None = None
+    d: SqlDialect, window: InstanceWindow, test: ValueTest, untimed: Sequence[int] | None = None
 ) -> tuple[str, str, list]:
     """The series with an instance in ``window`` that passes ``test``."""
     _, where_t, params_t = window_filter(d, window, untimed)
@@ -105,7 +105,7 @@ def matching_parts(
     return f"SELECT DISTINCT sid FROM {table}", f"{where_t} AND {cond}", [*params_t, *params_c]
 
 
-def values_parts(d: Dialect, window: InstanceWindow, untimed: Sequence[int] | None = None) -> tuple[str, str, list]:
+def values_parts(d: SqlDialect, window: InstanceWindow, untimed: Sequence[int] | None = None) -> tuple[str, str, list]:
     """The distinct values (and sub-properties) of the instances in ``window``."""
     _, where_t, params_t = window_filter(d, window, untimed)
     table = d.samples(f"{_TIME_COLUMNS}, kind, num, txt, js, md")
@@ -113,7 +113,7 @@ def values_parts(d: Dialect, window: InstanceWindow, untimed: Sequence[int] | No
 
 
 def locations_parts(
-    d: Dialect, window: InstanceWindow, prefilter: Prefilter | None, untimed: Sequence[int] | None = None
+    d: SqlDialect, window: InstanceWindow, prefilter: Prefilter | None, untimed: Sequence[int] | None = None
 ) -> tuple[str, str, list]:
     """The distinct locations in ``window`` whose stored box passes ``prefilter``."""
     _, where_t, params_t = window_filter(d, window, untimed)
@@ -128,7 +128,7 @@ def locations_parts(
 
 
 def scan_parts(
-    d: Dialect,
+    d: SqlDialect,
     window: InstanceWindow,
     locations: LocationProbe | None,
     tests: Sequence[ValueProbe],
@@ -163,7 +163,7 @@ def scan_parts(
 
 
 def _instances(
-    d: Dialect, sids: Sequence[int], window: InstanceWindow, methods: Sequence[str], untimed: Sequence[int] | None
+    d: SqlDialect, sids: Sequence[int], window: InstanceWindow, methods: Sequence[str], untimed: Sequence[int] | None
 ) -> tuple[str, list]:
     """The instances in the window: time (epoch µs), kind, type, text, the
     number a method works on (``x``), whether the value is an array and,
@@ -205,7 +205,7 @@ def _select(methods: Sequence[str], first: bool = True) -> str:
 
 
 def aggregate_sql(
-    d: Dialect,
+    d: SqlDialect,
     sids: Sequence[int],
     window: InstanceWindow,
     methods: Sequence[str],
@@ -250,7 +250,7 @@ def aggregate_sql(
 
 
 def _calendar_sql(
-    d: Dialect, inner: str, params: list, methods: Sequence[str], edges: Sequence[int]
+    d: SqlDialect, inner: str, params: list, methods: Sequence[str], edges: Sequence[int]
 ) -> tuple[str, list]:
     sql = (
         f"{_select(methods, first=False)} FROM (SELECT s.*, per.lo AS bucket FROM ({inner}{d.fence}) s "
@@ -261,7 +261,7 @@ def _calendar_sql(
 
 
 def span_sql(
-    d: Dialect, sids: Sequence[int], window: InstanceWindow, untimed: Sequence[int] | None = None
+    d: SqlDialect, sids: Sequence[int], window: InstanceWindow, untimed: Sequence[int] | None = None
 ) -> tuple[str, list]:
     """The first and last instance times in the window (epoch µs)."""
     inner, params = _instances(d, sids, window, (), untimed)

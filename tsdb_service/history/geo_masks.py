@@ -24,10 +24,14 @@ Resolving costs little because most entities are never near the query:
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from tsdb_service.core.query import RowMask, TimeRange
+from tsdb_service.core.query import AggregateRow, LatestRow, RawRow, RowMask, TimeRange
 from tsdb_service.geo.filter import GeoFilter
+from tsdb_service.read import HistoryReads
+from tsdb_service.read.requests import AggregateRead, ExtentsNear, LocationsIn, RowsRead, SamplesIn
 
 Span = tuple[int, int, int | None, int | None]  # t0 µs, rid0, t1 µs | None (open), rid1
 
@@ -37,9 +41,9 @@ def sample_spans(querier, locations: dict[int, tuple], geo: GeoFilter, time: Tim
     entities of ``locations`` (location series id -> entity) that matched."""
     spans: dict[int, list[Span]] = {}
     # The dict itself: backends test membership in it (no set of 10,000s built).
-    read = _from_extents(querier, querier.location_extents(locations, geo.prefilter), geo, spans)
+    read = _from_extents(querier, querier.location_extents(ExtentsNear(locations, geo.prefilter)), geo, spans)
     if read:
-        spans.update(location_spans(querier.location_samples(read, time, geo.prefilter), geo))
+        spans.update(location_spans(querier.location_samples(LocationsIn(read, time, geo.prefilter)), geo))
     return {locations[sid]: found for sid, found in spans.items()}
 
 
@@ -113,21 +117,21 @@ class MaskedQuerier:
     """A querier whose sample reads keep only the samples ``mask`` keeps;
     everything else is the wrapped querier's."""
 
-    def __init__(self, inner, mask: RowMask):
+    def __init__(self, inner: HistoryReads, mask: RowMask):
         self._inner = inner
         self.mask = mask
 
     def __getattr__(self, name: str):
         return getattr(self._inner, name)
 
-    def raw_rows(self, sids, time, **options) -> list[tuple]:
-        return self._inner.raw_rows(sids, time, mask=self.mask, **options)
+    def raw_rows(self, ask: RowsRead) -> list[RawRow]:
+        return self._inner.raw_rows(replace(ask, mask=self.mask))
 
-    def aggregate(self, branches, time, agg) -> list[tuple]:
-        return self._inner.aggregate(branches, time, agg, mask=self.mask)
+    def aggregate(self, ask: AggregateRead) -> list[AggregateRow]:
+        return self._inner.aggregate(replace(ask, mask=self.mask))
 
-    def latest_index(self, sids, time) -> list[tuple]:
-        return self._inner.latest_index(sids, time, mask=self.mask)
+    def latest_index(self, ask: SamplesIn) -> list[LatestRow]:
+        return self._inner.latest_index(replace(ask, mask=self.mask))
 
-    def count(self, sids, time) -> int:
-        return self._inner.count(sids, time, mask=self.mask)
+    def count(self, ask: SamplesIn) -> int:
+        return self._inner.count(replace(ask, mask=self.mask))

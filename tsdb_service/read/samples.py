@@ -1,0 +1,41 @@
+"""History reads: samples, aggregates and latest values of series.
+
+What the QuantumLeap API, Grafana and the explorer read (``history``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Protocol
+
+from tsdb_service.core.query import AggregateRow, LastValueRow, LatestRow, RawRow
+from tsdb_service.read.requests import AggregateRead, RowsRead, SamplesIn
+
+
+class SampleReader(Protocol):
+    def raw_rows(self, ask: RowsRead) -> list[RawRow]:
+        """Samples of the selected rows (``RowsRead``), oldest first, as
+        tuples in the layout ``query.RawRow`` names. DuckDB may answer from
+        memory (its tails)."""
+        ...
+
+    def aggregate(self, ask: AggregateRead) -> list[AggregateRow]:
+        """Per-series (and per period when ``agg.period``) partial aggregates
+        of each branch, including hours retention folded into rollups (never
+        under a mask). The caller combines them across series. One statement;
+        a backend may answer from memory (its hourly partials)."""
+        ...
+
+    def latest_index(self, ask: SamplesIn) -> list[LatestRow]:
+        """Each series' newest sample time in ``ask.time`` (series without one: no row)."""
+        ...
+
+    def last_values(self, sids: Sequence[int]) -> list[LastValueRow]:
+        """Each series' newest sample (by time, then row)."""
+        ...
+
+    def count(self, ask: SamplesIn) -> int:
+        """Samples of ``ask.sids`` in ``ask.time``; when there are none (and no
+        mask), the rolled-up hours a delete would remove: non-zero whenever a
+        delete has something to remove."""
+        ...
