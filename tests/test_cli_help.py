@@ -8,7 +8,7 @@ import argparse
 import pytest
 
 from tsdb_service import __version__
-from tsdb_service.cli import build_parser
+from tsdb_service.cli.main import build_parser
 
 try:
     from test_cli_settings import run_cli

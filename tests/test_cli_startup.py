@@ -67,7 +67,7 @@ def test_a_lifespan_failure_inside_uvicorn_is_one_line(locked_duckdb):
     """The race the pre-flight check cannot close: the store fails to open in
     the application's start-up, inside uvicorn. One line, and uvicorn's exit 3."""
     _, path = locked_duckdb
-    code = "import sys, uvicorn; uvicorn.run('tsdb_service.cli:serve_app', factory=True, port=int(sys.argv[1]))"
+    code = "import sys, uvicorn; uvicorn.run('tsdb_service.cli.main:serve_app', factory=True, port=int(sys.argv[1]))"
     env = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")} | {"TSDB_DB": str(path)}
     done = subprocess.run(
         [sys.executable, "-c", code, str(free_port())], capture_output=True, text=True, env=env, timeout=60

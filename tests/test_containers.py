@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from tsdb_service.broker.subscriptions import DEFAULT_NOTIFY_URL
-from tsdb_service.cli import build_parser
+from tsdb_service.cli.main import build_parser
 from tsdb_service.core.config import Settings
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -209,7 +209,7 @@ def broker():
 
 
 def test_subscribe_posts_the_subscription_and_reports_the_answer(broker, capsys):
-    from tsdb_service.cli import main
+    from tsdb_service.cli.main import main
 
     notify_url = "http://qa:8668/v2/notify"
     code = main(["subscribe", "--broker", broker, "--use-case", "lawnmower", "--notify-url", notify_url])
@@ -223,7 +223,7 @@ def test_subscribe_posts_the_subscription_and_reports_the_answer(broker, capsys)
 
 
 def test_subscribe_reports_a_broker_refusal(broker, capsys):
-    from tsdb_service.cli import main
+    from tsdb_service.cli.main import main
 
     assert main(["subscribe", "--broker", broker, "--use-case", "drone"]) == 1
     out = capsys.readouterr().out

@@ -15,7 +15,7 @@ from tests.export_fixtures import (
     read_csv,
     read_parquet,
 )
-from tsdb_service.cli import main
+from tsdb_service.cli.main import main
 from tsdb_service.faces.export import ExportFormat, SampleStream, write_file
 
 

@@ -227,7 +227,7 @@ def test_provisioning_points_grafana_at_the_dashboards():
 
 
 def test_dashboards_command_writes_and_checks(tmp_path, capsys):
-    from tsdb_service.cli import main
+    from tsdb_service.cli.main import main
 
     assert main(["dashboards", "build", "--out", str(tmp_path)]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == [

@@ -14,7 +14,7 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from tsdb_service.app import create_app
 from tsdb_service.core.config import Settings
-from tsdb_service.faces.operator.metrics import OTHER, UNMATCHED, Metrics
+from tsdb_service.telemetry import OTHER, UNMATCHED, Metrics
 
 GOOD_ALPHA, GOOD_BETA, BAD_BETA, QUERIES = 5, 2, 3, 4
 ATTR_ROUTE = "/v2/entities/{entity_id}/attrs/{attr_name}"

@@ -7,7 +7,7 @@ from datetime import UTC, datetime
 
 import pytest
 
-from tsdb_service.core.ld_errors import BadRequestData, OperationNotSupported, TooManyResults
+from tsdb_service.core.errors import BadRequestData, OperationNotSupported, TooManyResults
 from tsdb_service.faces.ngsild.context import DEFAULT_VOCAB, ContextStore
 from tsdb_service.faces.ngsild.params import parse_duration, parse_types, query_from_body, query_from_params
 from tsdb_service.faces.ngsild.query import Duration, Format, TimeProperty, TypeAnd, TypeName, TypeOr

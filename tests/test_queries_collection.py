@@ -23,9 +23,9 @@ try:
 except ImportError:  # tests/ imported as a package
     from tests.support.server import ServerProcess
 
+from tsdb_service.cli.demo import write_collection
 from tsdb_service.demo import collection
 from tsdb_service.demo.collection import QUERIES, Query, by_name, execute
-from tsdb_service.demo.commands import write_collection
 from tsdb_service.demo.runner import RunConfig, run
 from tsdb_service.usecases import sites
 from tsdb_service.usecases.registry import SIMULATORS
@@ -113,7 +113,7 @@ def test_latest_values_are_the_newest(service):
 
 
 def test_queries_run_command_prints_a_line_per_request(service, capsys):
-    from tsdb_service.cli import main
+    from tsdb_service.cli.main import main
 
     url, _ = service
     assert main(["queries", "run", "--url", url, "--only", "lawnmower"]) == 0

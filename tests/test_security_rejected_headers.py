@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import orjson
 
-from tsdb_service.security import redact_headers
+from tsdb_service.core.credentials import redact_headers
 
 SECRETS = {
     "Authorization": "Bearer eyJ.secret.token",

@@ -18,7 +18,7 @@ from starlette.routing import Route
 
 from tests.test_subscribe_api import StandInBroker, serving
 from tsdb_service.broker.subscriptions import subscription
-from tsdb_service.cli import main
+from tsdb_service.cli.main import main
 from tsdb_service.usecases.registry import SIMULATORS
 
 MOWER = SIMULATORS["lawnmower"]

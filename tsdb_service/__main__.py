@@ -1,5 +1,5 @@
 import sys
 
-from tsdb_service.cli import main
+from tsdb_service.cli.main import main
 
 sys.exit(main())

@@ -6,8 +6,8 @@ and becomes a 500.
 
 Under ``/ngsi-ld/`` the same errors are rendered as NGSI-LD ProblemDetails
 (RFC 7807, ETSI GS CIM 009 clause 6.3.2): each class also names its NGSI-LD
-error type (``ld_type``); ``tsdb_service.core.ld_errors`` has the NGSI-LD
-specific classes and the renderer.
+error type (``ld_type``); the classes at the end are the NGSI-LD types the
+generic ones do not already give. ``http.errors`` renders both shapes.
 """
 
 from __future__ import annotations
@@ -91,3 +91,64 @@ class Unavailable(TsdbError):
 
     status = 503
     error = "ServiceUnavailable"
+
+
+# --- NGSI-LD error types (ETSI GS CIM 009 clause 5.5.2) ----------------------------------------
+
+
+class InvalidRequest(BadRequest):
+    """Syntactically invalid: not JSON, not an object, a malformed parameter."""
+
+    error = "InvalidRequest"
+    ld_type = "InvalidRequest"
+
+
+class BadRequestData(BadRequest):
+    """Well-formed, but the data does not meet the operation's requirements."""
+
+    error = "BadRequestData"
+    ld_type = "BadRequestData"
+
+
+class ResourceNotFound(NotFound):
+    error = "ResourceNotFound"
+    ld_type = "ResourceNotFound"
+
+
+class AlreadyExists(Conflict):
+    error = "AlreadyExists"
+    ld_type = "AlreadyExists"
+
+
+class OperationNotSupported(Unprocessable):
+    error = "OperationNotSupported"
+    ld_type = "OperationNotSupported"
+
+
+class TooComplexQuery(TsdbError):
+    status = 403
+    error = "TooComplexQuery"
+    ld_type = "TooComplexQuery"
+
+
+class TooManyResults(TsdbError):
+    status = 403
+    error = "TooManyResults"
+    ld_type = "TooManyResults"
+
+
+class NonexistentTenant(NotFound):
+    error = "NonexistentTenant"
+    ld_type = "NonexistentTenant"
+
+
+class NotAcceptable(TsdbError):
+    status = 406
+    error = "NotAcceptable"
+    ld_type = "NotAcceptable"
+
+
+class LdContextNotAvailable(TsdbError):
+    status = 503
+    error = "LdContextNotAvailable"
+    ld_type = "LdContextNotAvailable"

@@ -1,6 +1,6 @@
 """The one place errors become HTTP responses: in the NGSI shape
 ``{"error": ..., "description": ...}``, and under ``/ngsi-ld/`` as NGSI-LD
-ProblemDetails (``tsdb_service.core.ld_errors``)."""
+ProblemDetails (``http.problems``)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 from starlette.routing import Match
 
-from tsdb_service.core import ld_errors as ld
 from tsdb_service.core.errors import TsdbError
+from tsdb_service.http import problems as ld
 from tsdb_service.http.responses import JSON
 
 log = logging.getLogger("tsdb_service")

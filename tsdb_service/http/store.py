@@ -1,4 +1,11 @@
-"""``@reads_store``: a route whose whole body reads the store, run through ``Store.read``.
+"""How a route reaches the store: ``store_of(request)``, typed as the seams.
+
+Routes see the store only as ``ServiceStore``: the read seam (``read.Reader``:
+the querier and the awaited ``read``), the write seam (``write.Writer``), and
+the few registrations and reports routes answer with. ``storage`` (which
+backend, its connections, its maintenance) stays out of every route's reach.
+
+``@reads_store``: a route whose whole body reads the store, run through ``Store.read``.
 
 FastAPI would run a plain ``def`` route in its own threadpool, a second way
 off the event loop beside ``Store.read``. Routes that read the store and
@@ -13,12 +20,45 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Awaitable, Callable
-from typing import ParamSpec, TypeVar, cast
+from typing import Any, ParamSpec, Protocol, TypeVar, cast
 
 from starlette.requests import Request
 
+from tsdb_service.parse import ValuesLayout
+from tsdb_service.read import Reader
+from tsdb_service.write import Writer
+
 P = ParamSpec("P")
 R = TypeVar("R")
+
+
+class ServiceStore(Reader, Writer, Protocol):
+    """What the HTTP layer may use of the store."""
+
+    backend: str
+
+    def values_layout(self, tenant: str, subscription_id: str) -> ValuesLayout | None:
+        """A registered ``values``-format layout (memory first; see ``storage.store``)."""
+        ...
+
+    def layouts(self, tenant: str) -> dict[str, ValuesLayout]:
+        """The tenant's registered layouts by subscription id."""
+        ...
+
+    def rejected_page(
+        self, tenant: str | None, limit: int, offset: int, max_bytes: int
+    ) -> tuple[list[dict[str, Any]], int | None]:
+        """Rejected notifications, newest first, paged by count and bytes."""
+        ...
+
+    def health(self) -> dict[str, Any]:
+        """The ``/health`` report."""
+        ...
+
+
+def store_of(request: Request) -> ServiceStore:
+    """The app's store, as the seams (the lifespan opened it)."""
+    return cast(ServiceStore, request.app.state.store)
 
 
 def reads_store(route: Callable[P, R]) -> Callable[P, Awaitable[R]]:
@@ -27,7 +67,7 @@ def reads_store(route: Callable[P, R]) -> Callable[P, Awaitable[R]]:
 
     @functools.wraps(route)
     async def awaited(*args: P.args, **kwargs: P.kwargs) -> R:
-        store = cast(Request, kwargs["request"]).app.state.store
+        store = store_of(cast(Request, kwargs["request"]))
         return await store.read(functools.partial(route, *args, **kwargs), memory_first=False)
 
     return awaited

@@ -1,10 +1,16 @@
-"""The tenant of a /v2 request, read the way Orion writes it.
+"""The tenant of a request, read the way Orion writes it.
 
 The rule itself (which selectors count, when they conflict, what a valid
-tenant is) lives in ``ngsi.request_context``, shared with the notification
-parser, Grafana and NGSI-LD, so a notification is always stored under the
-tenant a query with the same headers reads. This module only takes the
-headers off a ``Request``.
+tenant is) lives in ``parse.request_context``, shared with the notification
+parser, so a notification is always stored under the tenant a query with the
+same headers reads. This module only takes the headers off a ``Request``.
+
+NGSI-LD (``NGSILD-Tenant``, ETSI GS CIM 009 clause 6.3.14) has the NGSIv2
+tenants (``Fiware-Service``): the same names, stored lower-cased as Orion
+does, so data written over either API is one tenant. Both headers may be sent
+when they name the same tenant; two different tenants are a 400, never one
+silently preferred. Without either, the default tenant (""), which always
+exists.
 """
 
 from __future__ import annotations
@@ -24,3 +30,10 @@ def tenant_of(request: Request) -> str:
     """``Fiware-Service`` / ``NGSILD-Tenant`` lower-cased, as Orion stores
     them; "" is the default tenant. Conflicting selectors are a 400."""
     return tenant(request.headers.items())
+
+
+def tenant_echo(request: Request) -> dict[str, str]:
+    """Response headers naming the tenant a request was served for (the
+    NGSI-LD spec's responses carry ``NGSILD-Tenant`` when the request did)."""
+    raw = request.headers.get("ngsild-tenant")
+    return {"NGSILD-Tenant": raw} if raw else {}

@@ -17,17 +17,18 @@ from fastapi import APIRouter, Query, Request
 from starlette.requests import ClientDisconnect
 from starlette.responses import Response
 
+from tsdb_service.core.credentials import redact_headers
 from tsdb_service.core.errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaType
 from tsdb_service.core.model import RejectedNotification
 from tsdb_service.http import openapi as oa
 from tsdb_service.http.errors import REQUEST_ID_HEADER, internal_error
 from tsdb_service.http.responses import JSON
-from tsdb_service.http.store import reads_store
+from tsdb_service.http.store import reads_store, store_of
 from tsdb_service.http.tenancy import tenant_header, tenant_of
+from tsdb_service.ingest import openapi as notify_oa
 from tsdb_service.parse import ValuesLayout, parse_notification
 from tsdb_service.parse.names import ID_RULE, RULE, id_problem, name_problem
 from tsdb_service.parse.request_context import MAX_INT_PARAM
-from tsdb_service.security import redact_headers
 from tsdb_service.write.ops import AppendSamples, PutLayout, RecordRejected
 
 router = APIRouter(tags=["notify"])
@@ -45,13 +46,13 @@ NOTIFY_PATHS = frozenset({"/v2/notify", "/ngsi-ld/v1/notify"})
 _JSON_HEADERS = [(b"content-type", b"application/json")]
 
 
-@router.post("/v2/notify", summary="Receive an NGSIv2 or NGSI-LD notification", **oa.NOTIFY)
+@router.post("/v2/notify", summary="Receive an NGSIv2 or NGSI-LD notification", **notify_oa.NOTIFY)
 async def notify(request: Request) -> Response:
     status, payload, headers = await receive_notification(request)
     return Response(payload, status_code=status, headers=headers, media_type="application/json")
 
 
-@router.post("/ngsi-ld/v1/notify", summary="Receive an NGSI-LD notification", **oa.NOTIFY)
+@router.post("/ngsi-ld/v1/notify", summary="Receive an NGSI-LD notification", **notify_oa.NOTIFY)
 async def notify_ld(request: Request) -> Response:
     status, payload, headers = await receive_notification(request)
     return Response(payload, status_code=status, headers=headers, media_type="application/json")
@@ -96,7 +97,7 @@ async def receive_notification(request: Request) -> tuple[int, bytes, dict[str, 
 
 async def _receive(request: Request) -> None:
     state = request.app.state
-    store = state.store
+    store = store_of(request)
     settings = state.settings
     received_at = datetime.now(UTC)
     body = await _read_body(request, settings.max_body_bytes, settings.rejected_body_max_bytes)
@@ -243,7 +244,7 @@ def _rejected_tenant(request) -> str:
 @router.get(
     "/v2/notify/rejected",
     summary="Notifications we answered with 4xx, newest first",
-    **oa.REJECTED,
+    **notify_oa.REJECTED,
 )
 @reads_store
 def list_rejected(
@@ -262,7 +263,7 @@ def list_rejected(
     and ``X-Next-Offset`` say where the next page starts."""
     tenant = None if all_tenants else tenant_of(request)
     max_bytes = request.app.state.settings.rejected_page_max_bytes
-    rows, next_offset = request.app.state.store.rejected_page(tenant, limit, offset, max_bytes)
+    rows, next_offset = store_of(request).rejected_page(tenant, limit, offset, max_bytes)
     response = JSON(rows)
     if next_offset is not None:
         url = request.url.include_query_params(offset=next_offset)
@@ -274,7 +275,7 @@ def list_rejected(
 @router.put(
     "/v2/notify/subscriptions/{subscription_id}",
     summary="Register the attribute list of a subscription that notifies in Orion's 'values' format",
-    **oa.PUT_LAYOUT,
+    **notify_oa.PUT_LAYOUT,
 )
 async def put_layout(subscription_id: str, request: Request) -> JSON:
     tenant = tenant_of(request)
@@ -283,18 +284,18 @@ async def put_layout(subscription_id: str, request: Request) -> JSON:
     except orjson.JSONDecodeError as exc:
         raise ParseError(f"invalid JSON: {exc}") from None
     layout = layout_from_document(doc)
-    await request.app.state.store.write(PutLayout(tenant, subscription_id, layout))
+    await store_of(request).write(PutLayout(tenant, subscription_id, layout))
     return JSON(layout_document(layout), status_code=200)
 
 
 @router.get(
     "/v2/notify/subscriptions",
     summary="Registered 'values' layouts of this tenant",
-    **oa.spec(oa.FIWARE_SERVICE, oa.NGSILD_TENANT, ok_=oa.ok(oa.LAYOUTS), errors_=(400, *oa.AUTH, 503)),
+    **oa.spec(oa.FIWARE_SERVICE, oa.NGSILD_TENANT, ok_=oa.ok(notify_oa.LAYOUTS), errors_=(400, *oa.AUTH, 503)),
 )
 @reads_store
 def list_layouts(request: Request) -> JSON:
-    layouts = request.app.state.store.layouts(tenant_of(request))
+    layouts = store_of(request).layouts(tenant_of(request))
     return JSON({sub: layout_document(layout) for sub, layout in sorted(layouts.items())})
 
 

@@ -56,7 +56,7 @@ def _no_op() -> None:
 
 
 # Called once per entity whose time index falls back to the reception time;
-# ``tsdb_service.faces.operator.metrics`` installs its counter here (a hook, so this parser
+# ``tsdb_service.telemetry`` installs its counter here (a hook, so this parser
 # stays free of metrics code).
 on_fallback: Callable[[], None] = _no_op
 

@@ -1,13 +1,12 @@
 """Who may do what: API keys and OAuth2 bearer tokens with scopes and
-tenants, CORS for browser clients, and keeping credentials out of storage.
+tenants, and CORS for browser clients (``core.credentials`` keeps credentials
+out of storage).
 
 Everything is off unless configured (see ``Settings``' security block and
 the README's "Security" section): ``protect`` then returns the app as is.
 """
 
 from __future__ import annotations
-
-from collections.abc import Mapping
 
 from starlette.middleware.cors import CORSMiddleware
 
@@ -24,12 +23,9 @@ __all__ = [
     "Principal",
     "Unauthorized",
     "protect",
-    "redact_headers",
     "required_scope",
 ]
 
-CREDENTIAL_HEADERS = frozenset({"authorization", "proxy-authorization", "x-auth-token", "cookie", "x-api-key"})
-REDACTED = "[redacted]"
 CORS_MAX_AGE_S = 600
 
 
@@ -52,11 +48,3 @@ def protect(app, settings):
             max_age=CORS_MAX_AGE_S,
         )
     return app
-
-
-def redact_headers(headers: Mapping[str, str], key_header: str = "X-Api-Key") -> dict[str, str]:
-    """A copy of ``headers`` whose credentials (``Authorization``, Keyrock's
-    ``X-Auth-Token``, cookies, API keys, the configured key header) read
-    ``[redacted]``: kept notifications say a credential was sent, never which."""
-    secret = CREDENTIAL_HEADERS | {key_header.strip().lower()}
-    return {name: REDACTED if name.lower() in secret else value for name, value in headers.items()}

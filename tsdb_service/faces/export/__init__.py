@@ -13,6 +13,7 @@ is set (``value_number``, ``value_text``, ``value_bool``, ``value_json``).
 
 from tsdb_service.faces.export.encode import Encoder, chunks, write_file
 from tsdb_service.faces.export.query import ExportFormat, ExportQuery, export_format, export_query
+from tsdb_service.faces.export.routes import router
 from tsdb_service.faces.export.stream import SCHEMA, SampleStream, open_export
 
 __all__ = [
@@ -25,5 +26,6 @@ __all__ = [
     "export_format",
     "export_query",
     "open_export",
+    "router",
     "write_file",
 ]

@@ -18,10 +18,12 @@ import anyio
 from fastapi import APIRouter, Request
 from starlette.responses import StreamingResponse
 
-from tsdb_service.faces.export import Encoder, SampleStream, export_query, open_export
-from tsdb_service.http import openapi as oa
+from tsdb_service.faces.export import openapi as export_oa
+from tsdb_service.faces.export.encode import Encoder
+from tsdb_service.faces.export.query import export_query
+from tsdb_service.faces.export.stream import SampleStream, open_export
+from tsdb_service.http.store import ServiceStore, store_of
 from tsdb_service.http.tenancy import tenant_of
-from tsdb_service.storage.store import Store
 
 router = APIRouter(tags=["export"])
 
@@ -36,11 +38,11 @@ router = APIRouter(tags=["export"])
         "value_bool, value_json (exactly one value column set per sample)."
     ),
     response_class=StreamingResponse,
-    **oa.EXPORT_SPEC,
+    **export_oa.EXPORT_SPEC,
 )
 async def export(request: Request) -> StreamingResponse:
     query = export_query(request.query_params, request.headers, tenant_of(request))
-    store = request.app.state.store
+    store = store_of(request)
     stream = await store.read(partial(open_export, store, query), memory_first=False)
     filename = f"tsdb-export{query.format.suffix}"
     return StreamingResponse(
@@ -50,7 +52,7 @@ async def export(request: Request) -> StreamingResponse:
     )
 
 
-async def _body(store: Store, stream: SampleStream, encoder: Encoder) -> AsyncIterator[bytes]:
+async def _body(store: ServiceStore, stream: SampleStream, encoder: Encoder) -> AsyncIterator[bytes]:
     try:
         while (piece := await store.read(partial(_step, stream, encoder), memory_first=False)) is not None:
             if piece:

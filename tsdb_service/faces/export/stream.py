@@ -18,16 +18,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from contextlib import ExitStack
 from functools import partial
-from typing import TYPE_CHECKING
 
 import pyarrow as pa
 
 from tsdb_service.faces.export.query import ExportQuery
+from tsdb_service.read import Reader
 from tsdb_service.read.bulk import EXPORT_COLUMNS, SampleBatches
 from tsdb_service.read.requests import ExportRead, SeriesSelect
-
-if TYPE_CHECKING:
-    from tsdb_service.storage.store import Store
 
 BATCH_ROWS = 131_072
 WINDOW_ROWS = 1_000_000  # DuckDB: samples sorted at once (``Querier.export_batches``)
@@ -87,7 +84,7 @@ def _nothing() -> None:
     return None
 
 
-def open_export(store: Store, query: ExportQuery) -> SampleStream:
+def open_export(store: Reader, query: ExportQuery) -> SampleStream:
     """Resolve the series and start the query; nothing is read yet beyond
     what the database needs to produce the first batch."""
     querier = store.querier()

@@ -20,6 +20,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 
 from tsdb_service.faces.grafana import frames
+from tsdb_service.faces.grafana import openapi as grafana_oa
 from tsdb_service.faces.grafana.params import (
     MAX_POINTS_LIMIT,
     aggregate_method,
@@ -34,9 +35,8 @@ from tsdb_service.faces.grafana.params import (
 )
 from tsdb_service.geo.filter import parse_geo
 from tsdb_service.history.valuepath import parse_value_path
-from tsdb_service.http import openapi as oa
 from tsdb_service.http.responses import JSON
-from tsdb_service.http.store import reads_store
+from tsdb_service.http.store import reads_store, store_of
 from tsdb_service.read.requests import SeriesSelect
 
 router = APIRouter(prefix="/grafana/infinity", tags=["grafana"])
@@ -44,10 +44,12 @@ router = APIRouter(prefix="/grafana/infinity", tags=["grafana"])
 
 def _common(request: Request):
     params, headers = request.query_params, request.headers
-    return request.app.state.store.querier(), scope_of(params, headers), entity_filter(params), params
+    return store_of(request).querier(), scope_of(params, headers), entity_filter(params), params
 
 
-@router.get("/series", summary="Time series of columns per entity, downsampled to max_points", **oa.INFINITY["series"])
+@router.get(
+    "/series", summary="Time series of columns per entity, downsampled to max_points", **grafana_oa.INFINITY["series"]
+)
 @reads_store
 def series(request: Request) -> JSON:
     """``[{"time", "entity", col...}]``. Over ``max_points`` samples per entity
@@ -70,7 +72,9 @@ def series(request: Request) -> JSON:
     return JSON(rows)
 
 
-@router.get("/latest", summary="Latest value of each column per entity (gauges, stats)", **oa.INFINITY["latest"])
+@router.get(
+    "/latest", summary="Latest value of each column per entity (gauges, stats)", **grafana_oa.INFINITY["latest"]
+)
 @reads_store
 def latest(request: Request) -> JSON:
     """``[{"entity", "type", "name", "time", col...}]``, one row per entity."""
@@ -78,7 +82,11 @@ def latest(request: Request) -> JSON:
     return JSON(frames.latest_rows(querier, scope, entities, columns(params.get("attrs"))))
 
 
-@router.get("/states", summary="State changes (state timelines)", **oa.INFINITY["states"])
+@router.get(
+    "/states",
+    summary="State changes (state timelines)",
+    **grafana_oa.INFINITY["states"],
+)
 @reads_store
 def states(request: Request) -> JSON:
     """``[{"time", "entity", col...}]``: a row where any column changes, and
@@ -95,7 +103,11 @@ def states(request: Request) -> JSON:
     return JSON(rows)
 
 
-@router.get("/events", summary="Events as annotations (e.g. perimeter detections)", **oa.INFINITY["events"])
+@router.get(
+    "/events",
+    summary="Events as annotations (e.g. perimeter detections)",
+    **grafana_oa.INFINITY["events"],
+)
 @reads_store
 def events(request: Request) -> JSON:
     """``[{"time", "timeEnd", "entity", "title", "text", "tags"}]``: one per
@@ -114,7 +126,11 @@ def events(request: Request) -> JSON:
     return JSON(rows)
 
 
-@router.get("/positions", summary="Positions (geomap markers and heatmaps)", **oa.INFINITY["positions"])
+@router.get(
+    "/positions",
+    summary="Positions (geomap markers and heatmaps)",
+    **grafana_oa.INFINITY["positions"],
+)
 @reads_store
 def positions(request: Request) -> JSON:
     """``[{"time", "entity", "type", "name", "lat", "lon", col...}]``. ``location``
@@ -138,7 +154,11 @@ def positions(request: Request) -> JSON:
     return JSON(rows)
 
 
-@router.get("/aggregate", summary="One aggregate per entity (or per period)", **oa.INFINITY["aggregate"])
+@router.get(
+    "/aggregate",
+    summary="One aggregate per entity (or per period)",
+    **grafana_oa.INFINITY["aggregate"],
+)
 @reads_store
 def aggregate(request: Request) -> JSON:
     """``[{"entity", "type", "name", ("time",) col...}]``; ``method`` avg
@@ -157,7 +177,11 @@ def aggregate(request: Request) -> JSON:
     return JSON(rows)
 
 
-@router.get("/entities", summary="Entities of the tenant (template variables)", **oa.INFINITY["entities"])
+@router.get(
+    "/entities",
+    summary="Entities of the tenant (template variables)",
+    **grafana_oa.INFINITY["entities"],
+)
 @reads_store
 def entities(request: Request) -> JSON:
     """``[{"entity", "type", "name", "attrs"}]``: ids, types and attribute names."""

@@ -11,13 +11,13 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 
 from tsdb_service.core.errors import NotFound
-from tsdb_service.http import openapi as oa
+from tsdb_service.faces.grafana import openapi as grafana_oa
 from tsdb_service.http.responses import JSON
 
 router = APIRouter(tags=["grafana"])
 
 
-@router.get("/dashboards", summary="The use-case dashboards", **oa.DASHBOARDS)
+@router.get("/dashboards", summary="The use-case dashboards", **grafana_oa.DASHBOARDS)
 def list_dashboards(request: Request) -> JSON:
     """Every shipped dashboard: the use cases' (``use_case`` names it) and the
     service's own (``use_case`` null). ``datasources`` are the ``{"type",
@@ -61,7 +61,7 @@ def _datasources(node, found: list[dict] | None = None) -> list[dict]:
     return found
 
 
-@router.get("/dashboards/{use_case}", summary="One dashboard's JSON (schemaVersion 42)", **oa.DASHBOARD)
+@router.get("/dashboards/{use_case}", summary="One dashboard's JSON (schemaVersion 42)", **grafana_oa.DASHBOARD)
 def get_dashboard(use_case: str) -> JSON:
     from tsdb_service.faces.grafana import dashboards
 

@@ -37,13 +37,13 @@ from tsdb_service.core.idpattern import compile_pattern, compiled
 from tsdb_service.core.query import EntityFilter, LastValueQuery, TimeRange, ValuePath
 from tsdb_service.core.timefmt import ms_of
 from tsdb_service.faces.grafana import frames
+from tsdb_service.faces.grafana import openapi as grafana_oa
 from tsdb_service.faces.grafana.params import MAX_POINTS_LIMIT, Column, moment, positive_int, scope_of
 from tsdb_service.history.service import run_last_values
 from tsdb_service.history.valuepath import parse_value_path
-from tsdb_service.http import openapi as oa
 from tsdb_service.http.rawpath import escape_segment, unescape_segment
 from tsdb_service.http.responses import JSON
-from tsdb_service.http.store import reads_store
+from tsdb_service.http.store import reads_store, store_of
 from tsdb_service.parse.request_context import id_pattern
 from tsdb_service.read.requests import SeriesSelect
 
@@ -215,7 +215,7 @@ def _cell(value, kind: str):
 
 
 @router.get("", include_in_schema=False)
-@router.get("/", summary="Test connection (SimpleJSON / simPod)", **oa.SIMPLEJSON["test"])
+@router.get("/", summary="Test connection (SimpleJSON / simPod)", **grafana_oa.SIMPLEJSON["test"])
 def test_connection(request: Request) -> JSON:
     scope = scope_of(request.query_params, request.headers)
     return JSON({"status": "ok", "tenant": scope.tenant, "servicePaths": list(scope.service_paths)})
@@ -224,7 +224,7 @@ def test_connection(request: Request) -> JSON:
 def _catalog(request: Request, entities: EntityFilter | None = None) -> dict[tuple[str, str], set[str]]:
     scope = scope_of(request.query_params, request.headers)
     found: dict[tuple[str, str], set[str]] = {}
-    for ref in request.app.state.store.querier().series(SeriesSelect(scope, entities or EntityFilter())):
+    for ref in store_of(request).querier().series(SeriesSelect(scope, entities or EntityFilter())):
         found.setdefault((ref.entity_id, ref.entity_type), set()).add(ref.attr)
     return found
 
@@ -252,7 +252,11 @@ def _metric_names(request: Request, contains: str = "") -> list[str]:
     return [n for n in names if contains in n] if contains else names
 
 
-@router.post("/search", summary="Metric names, or variable values (SimpleJSON)", **oa.SIMPLEJSON["search"])
+@router.post(
+    "/search",
+    summary="Metric names, or variable values (SimpleJSON)",
+    **grafana_oa.SIMPLEJSON["search"],
+)
 @reads_store
 def search(request: Request, body: Any = Body(None)) -> JSON:
     """``{"target": ""}`` → every ``<entity>/<attribute>``; ``entities``,
@@ -263,7 +267,11 @@ def search(request: Request, body: Any = Body(None)) -> JSON:
     return JSON(named if named is not None else _metric_names(request, text))
 
 
-@router.post("/variable", summary="Values of a query variable (simPod)", **oa.SIMPLEJSON["variable"])
+@router.post(
+    "/variable",
+    summary="Values of a query variable (simPod)",
+    **grafana_oa.SIMPLEJSON["variable"],
+)
 @reads_store
 def variable(request: Request, body: Any = Body(None)) -> JSON:
     """``{"payload": {"target": "entities"}}`` (or a string) → ``[{"__text", "__value"}]``."""
@@ -302,7 +310,9 @@ _PAYLOADS = [
 ]
 
 
-@router.post("/metrics", summary="Metrics with their payload options (simPod builder)", **oa.SIMPLEJSON["metrics"])
+@router.post(
+    "/metrics", summary="Metrics with their payload options (simPod builder)", **grafana_oa.SIMPLEJSON["metrics"]
+)
 @reads_store
 def metrics(request: Request, body: Any = Body(None)) -> JSON:
     """``[{"label", "value": "<entity>/<attribute>", "payloads": [...]}]``."""
@@ -323,7 +333,7 @@ def metrics(request: Request, body: Any = Body(None)) -> JSON:
 @router.post(
     "/metric-payload-options",
     summary="Options of one payload field (simPod builder)",
-    **oa.SIMPLEJSON["metric-payload-options"],
+    **grafana_oa.SIMPLEJSON["metric-payload-options"],
 )
 @reads_store
 def metric_payload_options(request: Request, body: Any = Body(None)) -> JSON:
@@ -348,7 +358,7 @@ def metric_payload_options(request: Request, body: Any = Body(None)) -> JSON:
     scope = scope_of(request.query_params, request.headers)
     ids = None if eid == "*" else (eid,)
     found = run_last_values(
-        request.app.state.store.querier(), LastValueQuery(scope, (EntityFilter(ids=ids),), (ValuePath(path.attr),))
+        store_of(request).querier(), LastValueQuery(scope, (EntityFilter(ids=ids),), (ValuePath(path.attr),))
     )
     leaves: list[str] = []
     for ent in found:
@@ -371,7 +381,11 @@ def _leaves(value, prefix: str, out: list[str], depth: int = 0) -> None:
         out.append(prefix)
 
 
-@router.post("/query", summary="Panel data: timeseries, table or data frames", **oa.SIMPLEJSON["query"])
+@router.post(
+    "/query",
+    summary="Panel data: timeseries, table or data frames",
+    **grafana_oa.SIMPLEJSON["query"],
+)
 @reads_store
 def query(request: Request, body: Any = Body(None)) -> JSON:
     """Grafana's query request (``range``, ``intervalMs``, ``maxDataPoints``,
@@ -390,7 +404,7 @@ def query(request: Request, body: Any = Body(None)) -> JSON:
     interval_ms = positive_int(_num_text(doc.get("intervalMs")), "intervalMs", None, 10**12)
     filters = _adhoc(doc)
     scope = scope_of(request.query_params, request.headers)
-    querier = request.app.state.store.querier()
+    querier = store_of(request).querier()
     out: list[dict] = []
     for raw in targets:
         budget.checkpoint()  # each target is a step of the request's wall-time budget
@@ -513,7 +527,10 @@ _MAX_EVENTS = 10_000
 
 
 @router.post(
-    "/annotations", name="annotations", summary="Annotations (classic SimpleJSON)", **oa.SIMPLEJSON["annotations"]
+    "/annotations",
+    name="annotations",
+    summary="Annotations (classic SimpleJSON)",
+    **grafana_oa.SIMPLEJSON["annotations"],
 )
 @reads_store
 def annotation_events(request: Request, body: Any = Body(None)) -> JSON:
@@ -529,12 +546,12 @@ def annotation_events(request: Request, body: Any = Body(None)) -> JSON:
     path_text, sep, equals = rest.partition("=")
     target = Target({"target": f"{entity}{slash}{path_text}".strip(), "refId": "annotations"})
     scope = scope_of(request.query_params, request.headers)
-    events = _events(request.app.state.store.querier(), scope, target, _range(doc), [], equals.strip() if sep else None)
+    events = _events(store_of(request).querier(), scope, target, _range(doc), [], equals.strip() if sep else None)
     head = {k: annotation[k] for k in ("name", "enable", "iconColor", "query") if k in annotation}
     return JSON([{"annotation": head, **event} for event in events])
 
 
-@router.post("/tag-keys", summary="Ad hoc filter keys", **oa.SIMPLEJSON["tag-keys"])
+@router.post("/tag-keys", summary="Ad hoc filter keys", **grafana_oa.SIMPLEJSON["tag-keys"])
 def tag_keys(request: Request, body: Any = Body(None)) -> JSON:
     scope_of(request.query_params, request.headers)  # a bad tenant is still a 400
     return JSON(
@@ -542,7 +559,7 @@ def tag_keys(request: Request, body: Any = Body(None)) -> JSON:
     )
 
 
-@router.post("/tag-values", summary="Ad hoc filter values of one key", **oa.SIMPLEJSON["tag-values"])
+@router.post("/tag-values", summary="Ad hoc filter values of one key", **grafana_oa.SIMPLEJSON["tag-values"])
 @reads_store
 def tag_values(request: Request, body: Any = Body(None)) -> JSON:
     key = _str(_obj(body).get("key"), "key").strip()

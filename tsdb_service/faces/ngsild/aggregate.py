@@ -46,7 +46,7 @@ from itertools import groupby, pairwise
 from operator import itemgetter, truediv
 from typing import NamedTuple
 
-from tsdb_service.core.ld_errors import BadRequestData
+from tsdb_service.core.errors import BadRequestData
 from tsdb_service.core.model import Kind
 from tsdb_service.core.query import InstancePeriods
 from tsdb_service.core.timefmt import ld_iso as iso

@@ -29,7 +29,7 @@ from typing import Any
 import httpx
 from pyld import jsonld
 
-from tsdb_service.core.ld_errors import BadRequestData, LdContextNotAvailable
+from tsdb_service.core.errors import BadRequestData, LdContextNotAvailable
 
 CORE_CONTEXT_URL = "https://uri.etsi.org/ngsi-ld/v1/ngsi-ld-core-context-v1.9.jsonld"
 CORE_CONTEXT_FILE = Path(__file__).with_name("ngsi-ld-core-context-v1.9.jsonld")

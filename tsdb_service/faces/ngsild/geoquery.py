@@ -19,7 +19,7 @@ import shapely
 from shapely.geometry import shape
 from shapely.geometry.base import BaseGeometry
 
-from tsdb_service.core.ld_errors import BadRequestData
+from tsdb_service.core.errors import BadRequestData
 from tsdb_service.geo.filter import BBox, box_prefilter, geometries, relations_hold
 
 GEORELS = ("near", "within", "contains", "intersects", "equals", "disjoint", "overlaps")

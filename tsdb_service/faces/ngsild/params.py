@@ -16,8 +16,7 @@ from dataclasses import replace
 from decimal import Decimal, InvalidOperation
 from typing import Any
 
-from tsdb_service.core.errors import BadRequest
-from tsdb_service.core.ld_errors import BadRequestData, OperationNotSupported, TooManyResults
+from tsdb_service.core.errors import BadRequest, BadRequestData, OperationNotSupported, TooManyResults
 from tsdb_service.faces.ngsild import qlang
 from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.geoquery import parse_ld_geo

@@ -18,7 +18,8 @@ import orjson
 from fastapi import APIRouter, Request
 from starlette.responses import Response
 
-from tsdb_service.core.ld_errors import BadRequestData, InvalidRequest, NotAcceptable
+from tsdb_service.core.errors import BadRequestData, InvalidRequest, NotAcceptable
+from tsdb_service.faces.ngsild import openapi as ld_oa
 from tsdb_service.faces.ngsild.context import (
     JSONLD_CONTEXT_REL,
     ContextStore,
@@ -28,8 +29,8 @@ from tsdb_service.faces.ngsild.context import (
 )
 from tsdb_service.faces.ngsild.params import query_from_body, query_from_params
 from tsdb_service.faces.ngsild.service import TemporalResult, run
-from tsdb_service.http import openapi as oa
-from tsdb_service.http.ld_tenancy import ld_tenant, tenant_echo
+from tsdb_service.http.store import store_of
+from tsdb_service.http.tenancy import tenant_echo, tenant_of
 
 router = APIRouter(prefix="/ngsi-ld/v1", tags=["NGSI-LD temporal"])
 LD_JSON = "application/ld+json"
@@ -82,21 +83,21 @@ def accepted(header: str | None) -> str:
     return best
 
 
-@router.get("/temporal/entities", summary="Query temporal entities", **oa.ld_read_spec())
+@router.get("/temporal/entities", summary="Query temporal entities", **ld_oa.ld_read_spec())
 async def query_entities(request: Request) -> Response:
     media = accepted(request.headers.get("accept"))
     params = dict(request.query_params)
 
     def work() -> tuple[TemporalResult, TermMap, object]:
         terms = contexts(request).term_map(link_context(request.headers.get("link")))
-        query = query_from_params(params, ld_tenant(request), terms, limits=_limits(request))
-        return run(request.app.state.store.querier(), terms, query, _cap(request)), terms, query
+        query = query_from_params(params, tenant_of(request), terms, limits=_limits(request))
+        return run(store_of(request).querier(), terms, query, _cap(request)), terms, query
 
-    result, terms, query = await request.app.state.store.read(work, memory_first=False)
+    result, terms, query = await store_of(request).read(work, memory_first=False)
     return _respond(request, media, terms, result, query, many=True)
 
 
-@router.get("/temporal/entities/{entity_id}", summary="Retrieve one temporal entity", **oa.ld_read_spec())
+@router.get("/temporal/entities/{entity_id}", summary="Retrieve one temporal entity", **ld_oa.ld_read_spec())
 async def retrieve_entity(entity_id: str, request: Request) -> Response:
     media = accepted(request.headers.get("accept"))
     if not entity_id or len(entity_id) > 2048:
@@ -105,17 +106,17 @@ async def retrieve_entity(entity_id: str, request: Request) -> Response:
 
     def work():
         terms = contexts(request).term_map(link_context(request.headers.get("link")))
-        query = query_from_params(params, ld_tenant(request), terms, limits=(1, 1), entity_id=entity_id)
-        return run(request.app.state.store.querier(), terms, query, _cap(request)), terms, query
+        query = query_from_params(params, tenant_of(request), terms, limits=(1, 1), entity_id=entity_id)
+        return run(store_of(request).querier(), terms, query, _cap(request)), terms, query
 
-    result, terms, query = await request.app.state.store.read(work, memory_first=False)
+    result, terms, query = await store_of(request).read(work, memory_first=False)
     return _respond(request, media, terms, result, query, many=False)
 
 
 @router.post(
     "/temporal/entityOperations/query",
     summary="Query temporal entities with a Query body",
-    **oa.ld_read_spec(body=oa.LD_FRAGMENT_BODY),
+    **ld_oa.ld_read_spec(body=ld_oa.LD_FRAGMENT_BODY),
 )
 async def query_post(request: Request) -> Response:
     media = accepted(request.headers.get("accept"))
@@ -144,10 +145,10 @@ async def query_post(request: Request) -> Response:
 
     def work():
         terms = contexts(request).term_map(context)
-        query = query_from_body(body, params, ld_tenant(request), terms, limits=_limits(request))
-        return run(request.app.state.store.querier(), terms, query, _cap(request)), terms, query
+        query = query_from_body(body, params, tenant_of(request), terms, limits=_limits(request))
+        return run(store_of(request).querier(), terms, query, _cap(request)), terms, query
 
-    result, terms, query = await request.app.state.store.read(work, memory_first=False)
+    result, terms, query = await store_of(request).read(work, memory_first=False)
     return _respond(request, media, terms, result, query, many=True)
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tsdb_service.core.ld_errors import NonexistentTenant, ResourceNotFound
+from tsdb_service.core.errors import NonexistentTenant, ResourceNotFound
 from tsdb_service.core.query import InstanceWindow
 from tsdb_service.core.timefmt import ld_iso as iso
 from tsdb_service.faces.ngsild.aggregate import Aggregator

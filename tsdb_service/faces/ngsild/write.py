@@ -37,12 +37,20 @@ import orjson
 from fastapi import APIRouter, Request
 from fastapi.responses import Response
 
-from tsdb_service.core.errors import ParseError, PayloadTooLarge, UnsupportedMediaType
-from tsdb_service.core.ld_errors import BadRequestData, InvalidRequest, NonexistentTenant, ResourceNotFound
+from tsdb_service.core.errors import (
+    BadRequestData,
+    InvalidRequest,
+    NonexistentTenant,
+    ParseError,
+    PayloadTooLarge,
+    ResourceNotFound,
+    UnsupportedMediaType,
+)
 from tsdb_service.core.model import AttrSample, EntitySample, instance_iid
 from tsdb_service.core.query import EntityFilter, Scope, SeriesRef
-from tsdb_service.http import openapi as oa
-from tsdb_service.http.ld_tenancy import ld_tenant, tenant_echo
+from tsdb_service.faces.ngsild import openapi as ld_oa
+from tsdb_service.http.store import store_of
+from tsdb_service.http.tenancy import tenant_echo, tenant_of
 from tsdb_service.parse.notification import parse_ld_instance
 from tsdb_service.read.requests import InstanceLookup, SeriesSelect
 from tsdb_service.write.ops import AppendSamples, DeleteInstance, DeleteSamples, ReplaceInstance
@@ -62,20 +70,20 @@ _JSON_TYPES = ("application/json", "application/ld+json")
     "/temporal/entities",
     status_code=201,
     summary="Create or update a temporal representation",
-    **oa.ld_spec(ok_codes={201: "Created", 204: "Updated"}, body=oa.LD_ENTITY_BODY),
+    **ld_oa.ld_spec(ok_codes={201: "Created", 204: "Updated"}, body=ld_oa.LD_ENTITY_BODY),
 )
 async def upsert_temporal(request: Request) -> Response:
-    tenant = ld_tenant(request)
+    tenant = tenant_of(request)
     doc = await _body(request)
     entity_id = _entity_id(doc.get("id"))
     types = _types(doc.get("type"))
     attrs = {name: raw for name, raw in doc.items() if name not in _ENTITY_KEYS}
     look = partial(_entity_series, request, tenant, entity_id, True)
-    existing = await request.app.state.store.read(look, memory_first=False)
+    existing = await store_of(request).read(look, memory_first=False)
     entity_type = _entity_type(existing, types, entity_id)
     samples = _samples(tenant, entity_id, entity_type, attrs, datetime.now(UTC))
     if samples:
-        await request.app.state.store.write(AppendSamples(samples, dedup=False))
+        await store_of(request).write(AppendSamples(samples, dedup=False))
     headers = tenant_echo(request)
     if existing:
         return Response(status_code=204, headers=headers)
@@ -88,10 +96,10 @@ async def upsert_temporal(request: Request) -> Response:
     "/temporal/entities/{entity_id}/attrs",
     status_code=204,
     summary="Add attribute instances",
-    **oa.ld_spec(ok_codes={204: "Added"}, body=oa.LD_FRAGMENT_BODY),
+    **ld_oa.ld_spec(ok_codes={204: "Added"}, body=ld_oa.LD_FRAGMENT_BODY),
 )
 async def append_temporal(entity_id: str, request: Request) -> Response:
-    tenant = ld_tenant(request)
+    tenant = tenant_of(request)
     doc = await _body(request)
     existing = await _existing(request, tenant, entity_id)
     body_id = doc.get("id")
@@ -103,7 +111,7 @@ async def append_temporal(entity_id: str, request: Request) -> Response:
     entity_type = _entity_type(existing, _types(doc["type"]) if "type" in doc else (), entity_id)
     samples = _samples(tenant, entity_id, entity_type, attrs, datetime.now(UTC))
     if samples:
-        await request.app.state.store.write(AppendSamples(samples, dedup=False))
+        await store_of(request).write(AppendSamples(samples, dedup=False))
     return Response(status_code=204, headers=tenant_echo(request))
 
 
@@ -111,12 +119,12 @@ async def append_temporal(entity_id: str, request: Request) -> Response:
     "/temporal/entities/{entity_id}",
     status_code=204,
     summary="Delete a temporal representation",
-    **oa.ld_spec(ok_codes={204: "Deleted"}),
+    **ld_oa.ld_spec(ok_codes={204: "Deleted"}),
 )
 async def delete_temporal(entity_id: str, request: Request) -> Response:
-    tenant = ld_tenant(request)
+    tenant = tenant_of(request)
     existing = await _existing(request, tenant, entity_id)
-    await request.app.state.store.write(DeleteSamples(tuple(r.sid for r in existing)))
+    await store_of(request).write(DeleteSamples(tuple(r.sid for r in existing)))
     return Response(status_code=204, headers=tenant_echo(request))
 
 
@@ -124,19 +132,19 @@ async def delete_temporal(entity_id: str, request: Request) -> Response:
     "/temporal/entities/{entity_id}/attrs/{attr_id}",
     status_code=204,
     summary="Delete an attribute's instances",
-    **oa.ld_spec(ok_codes={204: "Deleted"}),
+    **ld_oa.ld_spec(ok_codes={204: "Deleted"}),
 )
 async def delete_attr_temporal(
     entity_id: str, attr_id: str, request: Request, datasetId: str | None = None, deleteAll: str | None = None
 ) -> Response:
-    tenant = ld_tenant(request)
+    tenant = tenant_of(request)
     every = _flag(deleteAll, "deleteAll")
     existing = await _existing(request, tenant, entity_id)
     refs = [r for r in existing if r.ld_attr == attr_id and (every or r.dataset_id == datasetId)]
     if not refs:
         which = "" if every else (" with datasetId " + repr(datasetId[:200]) if datasetId else " (default instance)")
         raise ResourceNotFound(f"entity {entity_id[:200]!r} has no attribute {attr_id[:200]!r}{which}")
-    await request.app.state.store.write(DeleteSamples(tuple(r.sid for r in refs)))
+    await store_of(request).write(DeleteSamples(tuple(r.sid for r in refs)))
     return Response(status_code=204, headers=tenant_echo(request))
 
 
@@ -144,10 +152,10 @@ async def delete_attr_temporal(
     "/temporal/entities/{entity_id}/attrs/{attr_id}/{instance_id}",
     status_code=204,
     summary="Modify an attribute instance",
-    **oa.ld_spec(ok_codes={204: "Modified"}, body=oa.LD_FRAGMENT_BODY),
+    **ld_oa.ld_spec(ok_codes={204: "Modified"}, body=ld_oa.LD_FRAGMENT_BODY),
 )
 async def patch_instance(entity_id: str, attr_id: str, instance_id: str, request: Request) -> Response:
-    tenant = ld_tenant(request)
+    tenant = tenant_of(request)
     doc = await _body(request)
     ref, iid = await _instance(request, tenant, entity_id, attr_id, instance_id)
     sample = _patch_sample(attr_id, doc)
@@ -156,7 +164,7 @@ async def patch_instance(entity_id: str, attr_id: str, instance_id: str, request
             f"the instance belongs to datasetId {ref.dataset_id!r}, not {sample.dataset_id!r}; "
             "an instance cannot move to another dataset"
         )
-    await request.app.state.store.write(ReplaceInstance(ref.sid, iid, sample, datetime.now(UTC)))
+    await store_of(request).write(ReplaceInstance(ref.sid, iid, sample, datetime.now(UTC)))
     return Response(status_code=204, headers=tenant_echo(request))
 
 
@@ -164,12 +172,12 @@ async def patch_instance(entity_id: str, attr_id: str, instance_id: str, request
     "/temporal/entities/{entity_id}/attrs/{attr_id}/{instance_id}",
     status_code=204,
     summary="Delete an attribute instance",
-    **oa.ld_spec(ok_codes={204: "Deleted"}),
+    **ld_oa.ld_spec(ok_codes={204: "Deleted"}),
 )
 async def delete_instance(entity_id: str, attr_id: str, instance_id: str, request: Request) -> Response:
-    tenant = ld_tenant(request)
+    tenant = tenant_of(request)
     ref, iid = await _instance(request, tenant, entity_id, attr_id, instance_id)
-    await request.app.state.store.write(DeleteInstance(ref.sid, iid))
+    await store_of(request).write(DeleteInstance(ref.sid, iid))
     return Response(status_code=204, headers=tenant_echo(request))
 
 
@@ -272,7 +280,7 @@ def _patch_sample(attr_id: str, doc: dict) -> AttrSample:
 
 def _entity_series(request: Request, tenant: str, entity_id: str, with_samples: bool) -> list[SeriesRef]:
     """The entity's series that hold instances (any type, any service path)."""
-    q = request.app.state.store.querier()
+    q = store_of(request).querier()
     refs = q.series(SeriesSelect(Scope(tenant), EntityFilter(ids=(entity_id,))))
     if not with_samples or not refs:
         return refs
@@ -282,11 +290,11 @@ def _entity_series(request: Request, tenant: str, entity_id: str, with_samples: 
 
 async def _existing(request: Request, tenant: str, entity_id: str) -> list[SeriesRef]:
     def look() -> list[SeriesRef]:
-        if tenant and tenant not in request.app.state.store.querier().tenants():
+        if tenant and tenant not in store_of(request).querier().tenants():
             raise NonexistentTenant(f"tenant {tenant!r} does not exist")
         return _entity_series(request, tenant, entity_id, True)
 
-    refs = await request.app.state.store.read(look, memory_first=False)
+    refs = await store_of(request).read(look, memory_first=False)
     if not refs:
         raise ResourceNotFound(f"entity {entity_id[:200]!r} has no temporal representation")
     return refs
@@ -317,7 +325,7 @@ async def _instance(
         raise ResourceNotFound(
             f"no instance {instance_id[:200]!r} of attribute {attr_id[:200]!r} of entity {entity_id[:200]!r}"
         )
-    store = request.app.state.store
+    store = store_of(request)
     lookup = InstanceLookup([r.sid for r in refs], iid)
     sid = await store.read(partial(store.querier().instance_series, lookup), memory_first=False)
     if sid is None:

@@ -1,18 +1,22 @@
-"""Service metadata: version, health and the API index, as QuantumLeap has them."""
+"""Service metadata: version, health and the API index, as QuantumLeap has
+them, and the Prometheus metrics (``telemetry``) an operator scrapes."""
 
 from __future__ import annotations
 
 from fastapi import APIRouter, Request
+from starlette.responses import Response
 
 from tsdb_service import __version__
+from tsdb_service.faces.operator import openapi as ops_oa
 from tsdb_service.http import openapi as oa
 from tsdb_service.http.responses import JSON
-from tsdb_service.http.store import reads_store
+from tsdb_service.http.store import reads_store, store_of
 
 router = APIRouter(tags=["meta"])
+METRICS_CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
 
 
-@router.get("/version", **oa.spec(ok_=oa.ok(oa.VERSION), errors_=()))
+@router.get("/version", **oa.spec(ok_=oa.ok(ops_oa.VERSION), errors_=()))
 def version() -> JSON:
     """The release only, as QuantumLeap answers: which backend and how it is
     configured are the operator's business, not every client's."""
@@ -25,10 +29,10 @@ def version() -> JSON:
 _HEALTH_KEYS = ("status", "output")
 
 
-@router.get("/health", **oa.HEALTH)
+@router.get("/health", **ops_oa.HEALTH)
 @reads_store
 def health(request: Request) -> JSON:
-    report = request.app.state.store.health()
+    report = store_of(request).health()
     status = 200 if report["status"] == "pass" else 503
     public = {key: report[key] for key in _HEALTH_KEYS if key in report}
     return JSON(public, status_code=status, headers={"Content-Type": "application/health+json"})
@@ -45,7 +49,13 @@ API_INDEX = {
 }
 
 
-@router.get("/v2/", **oa.spec(ok_=oa.ok(oa.API_INDEX), errors_=oa.AUTH))
-@router.get("/v2", **oa.spec(ok_=oa.ok(oa.API_INDEX), errors_=oa.AUTH))
+@router.get("/v2/", **oa.spec(ok_=oa.ok(ops_oa.API_INDEX), errors_=oa.AUTH))
+@router.get("/v2", **oa.spec(ok_=oa.ok(ops_oa.API_INDEX), errors_=oa.AUTH))
 def api_index() -> JSON:
     return JSON(API_INDEX)
+
+
+@router.get("/metrics", summary="Prometheus metrics (text exposition format)", **ops_oa.METRICS)
+@reads_store  # in the threadpool: the store sizes may query the database
+def metrics_endpoint(request: Request) -> Response:
+    return Response(request.app.state.metrics.render(), media_type=METRICS_CONTENT_TYPE)

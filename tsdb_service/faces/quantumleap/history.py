@@ -16,6 +16,7 @@ from tsdb_service.faces.quantumleap.params import history_query
 from tsdb_service.faces.quantumleap.shape import render
 from tsdb_service.history.service import run_history
 from tsdb_service.http.responses import JSON
+from tsdb_service.http.store import store_of
 from tsdb_service.http.tenancy import tenant_of
 
 
@@ -40,7 +41,7 @@ def answer_history(
         attr=attr,
         values_only=values_only,
     )
-    result = run_history(app.state.store.querier(), query)
+    result = run_history(store_of(request).querier(), query)
     return JSON(render(result))
 
 
@@ -49,4 +50,4 @@ async def answer_history_async(request: Request, shape: Shape, **kwargs) -> JSON
     in the threadpool. A geo-query goes straight to the threadpool: its
     matching is work that a retry there would repeat."""
     read = partial(answer_history, request, shape, **kwargs)
-    return await request.app.state.store.read(read, memory_first="georel" not in request.query_params)
+    return await store_of(request).read(read, memory_first="georel" not in request.query_params)

@@ -15,10 +15,11 @@ from fastapi import APIRouter, Request
 
 from tsdb_service.core.errors import BadRequest, ParseError
 from tsdb_service.core.query import EntityFilter, LastValueQuery, Scope
+from tsdb_service.faces.quantumleap import openapi as ql_oa
 from tsdb_service.history.service import run_last_values
 from tsdb_service.history.valuepath import parse_value_path
-from tsdb_service.http import openapi as oa
 from tsdb_service.http.responses import JSON
+from tsdb_service.http.store import store_of
 from tsdb_service.http.tenancy import tenant_of
 from tsdb_service.parse.request_context import MAX_IDS, check_id, id_pattern, service_paths
 
@@ -30,14 +31,14 @@ _MAX_BODY = 1024 * 1024
 @router.post(
     "/v2/op/query",
     summary="Last value of each matching entity (QuantumLeap as context provider)",
-    **oa.OP_QUERY,
+    **ql_oa.OP_QUERY,
 )
 async def op_query(request: Request) -> JSON:
     body = await request.body()
     if len(body) > _MAX_BODY:
         raise BadRequest("query body is larger than 1 MiB")
     query = last_value_query(body, tenant_of(request), request.headers.get("fiware-servicepath"))
-    store = request.app.state.store
+    store = store_of(request)
     entities = await store.read(partial(run_last_values, store.querier(), query), memory_first=False)
     return JSON(entities)
 

@@ -37,7 +37,7 @@ import orjson
 from fastapi import APIRouter, Request
 
 from tsdb_service.core.errors import BadRequest, TsdbError
-from tsdb_service.http import openapi as oa
+from tsdb_service.faces.quantumleap import openapi as ql_oa
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.tenancy import tenant_of
 from tsdb_service.parse.request_context import service_paths
@@ -59,7 +59,7 @@ _MAX_ERROR_TEXT = 500
     "/v2/subscribe",
     status_code=201,
     summary="Create the Orion subscription that feeds this service",
-    **oa.SUBSCRIBE_SPEC,
+    **ql_oa.SUBSCRIBE_SPEC,
 )
 def subscribe(request: Request) -> JSON:
     """Runs in the threadpool (a plain ``def``): the broker call blocks.

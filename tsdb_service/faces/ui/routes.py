@@ -18,9 +18,9 @@ from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
 
 from tsdb_service.core.errors import NotFound
 from tsdb_service.core.query import EntityFilter, Scope
-from tsdb_service.http import openapi as oa
+from tsdb_service.faces.ui import openapi as ui_oa
 from tsdb_service.http.responses import JSON
-from tsdb_service.http.store import reads_store
+from tsdb_service.http.store import reads_store, store_of
 from tsdb_service.read.requests import SeriesSelect
 
 STATIC = Path(__file__).resolve().parent / "static"
@@ -44,7 +44,7 @@ def explorer_root() -> RedirectResponse:
     return RedirectResponse("ui/", status_code=307)
 
 
-@router.get("/ui/", summary="The explorer page", response_class=HTMLResponse, **oa.UI_PAGE)
+@router.get("/ui/", summary="The explorer page", response_class=HTMLResponse, **ui_oa.UI_PAGE)
 def explorer_page() -> FileResponse:
     return FileResponse(STATIC / "index.html", media_type="text/html", headers={"Cache-Control": CACHE_OWN})
 
@@ -61,12 +61,12 @@ def static_file(name: str) -> FileResponse:
     return FileResponse(path, media_type=media_type, headers={"Cache-Control": cache_control})
 
 
-@router.get("/ui/tenants", summary="Tenants that have stored series, with their service paths", **oa.UI_TENANTS)
+@router.get("/ui/tenants", summary="Tenants that have stored series, with their service paths", **ui_oa.UI_TENANTS)
 @reads_store
 def tenants(request: Request) -> JSON:
     """``[{"tenant", "servicePaths", "types", "entities", "series"}]``. The
     tenant ``""`` is Orion's default one (no ``Fiware-Service``)."""
-    querier = request.app.state.store.querier()
+    querier = store_of(request).querier()
     out = []
     for tenant in querier.tenants():
         refs = querier.series(SeriesSelect(Scope(tenant), EntityFilter()))
@@ -83,7 +83,7 @@ def tenants(request: Request) -> JSON:
 
 
 @router.get(
-    "/ui/usecases", summary="What the explorer's use-case views show: tenancy, ids, enumerations", **oa.UI_USECASES
+    "/ui/usecases", summary="What the explorer's use-case views show: tenancy, ids, enumerations", **ui_oa.UI_USECASES
 )
 def usecases() -> JSON:
     """From the demo's own definitions, so a renamed entity or state cannot

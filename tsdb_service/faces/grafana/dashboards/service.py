@@ -1,5 +1,5 @@
 """tsdb-service itself: ingest, commits, queries and storage, from its Prometheus
-``/metrics`` (see ``tsdb_service.faces.operator.metrics``), for the operator rather than the use cases.
+``/metrics`` (see ``tsdb_service.telemetry``), for the operator rather than the use cases.
 
 Counters, histograms and the queue sum over replicas scraped separately; the
 store sizes describe the one shared database, so they take the ``max``.

@@ -1,9 +1,9 @@
-"""Prometheus metrics (``GET /metrics``): what an operator running us next to
-Orion watches.
+"""Prometheus metrics: what an operator running us next to Orion watches
+(served at ``GET /metrics`` by ``faces.operator.meta``).
 
 Three sources, each hooked where it costs least:
 
-* the **group committer** (``storage.writer``) sees every write op once and
+* the **group committer** (``write.committer``) sees every write op once and
   every commit: notifications received / accepted / rejected / failed per
   tenant, commit latency and group size. It reports per group, from the
   writer thread, so the request path pays nothing;
@@ -17,7 +17,7 @@ Three sources, each hooked where it costs least:
 
 Each app has its own registry, so two apps in one process (tests) never mix
 counts. The time-index fallback counter is the exception: the parser reports
-through one module-level hook (``ngsi.timeindex.on_fallback``), so that
+through one module-level hook (``parse.timeindex.on_fallback``), so that
 counter is per process and every app's registry shows it.
 
 Tenant labels are capped at ``max_tenants`` distinct values per app; later
@@ -33,7 +33,6 @@ import time
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-from fastapi import APIRouter, Request
 from prometheus_client import (
     CollectorRegistry,
     Counter,
@@ -45,17 +44,13 @@ from prometheus_client import (
 )
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
-from starlette.responses import Response
 
-from tsdb_service.http import openapi
-from tsdb_service.http.store import reads_store
 from tsdb_service.parse import timeindex
 from tsdb_service.storage.store import Store
 from tsdb_service.write.ops import AppendSamples, DeleteSamples, PutLayout, RecordRejected, WriteOp
 
 log = logging.getLogger(__name__)
 
-CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
 OTHER = "other"
 MAX_TENANTS = 100
 STATS_TTL_S = 5.0
@@ -392,12 +387,3 @@ class Metrics:
     def render(self) -> bytes:
         """The exposition text. Blocking (store sizes): run it in a thread."""
         return generate_latest(self.registry)
-
-
-router = APIRouter(tags=["meta"])
-
-
-@router.get("/metrics", summary="Prometheus metrics (text exposition format)", **openapi.METRICS)
-@reads_store  # in the threadpool: the store sizes may query the database
-def metrics_endpoint(request: Request) -> Response:
-    return Response(request.app.state.metrics.render(), media_type=CONTENT_TYPE)

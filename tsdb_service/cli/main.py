@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -103,10 +104,10 @@ def build_parser() -> argparse.ArgumentParser:
 def _feature_modules() -> tuple[ModuleType, ...]:
     """The packages that add their own subcommands, each through
     ``register(subparsers, command)``; imported when the parser is built, so
-    ``import tsdb_service.cli`` stays light."""
-    from tsdb_service.demo import commands as demo_commands
-    from tsdb_service.faces.export import commands as export_commands
-    from tsdb_service.faces.grafana import commands as grafana_commands
+    ``import tsdb_service.cli.main`` stays light."""
+    from tsdb_service.cli import dashboards as grafana_commands
+    from tsdb_service.cli import demo as demo_commands
+    from tsdb_service.cli import export as export_commands
     from tsdb_service.storage import copy
 
     return (demo_commands, grafana_commands, copy, export_commands)
@@ -136,7 +137,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     raise_fd_limit()
     uvicorn.run(
-        "tsdb_service.cli:serve_app",
+        "tsdb_service.cli.main:serve_app",
         factory=True,
         host=settings.host,
         port=settings.port,
@@ -152,6 +153,26 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+WRITER_SWITCH_INTERVAL_S = 0.0002
+
+
+def tune_interpreter() -> None:
+    """Process-wide, so the ``serve`` process's alone (never ``create_app``,
+    which tests and embedders call): the writer thread needs the GIL back
+    after each database call, and with the default 5 ms switch interval a
+    busy event loop makes every group commit wait that long, which caps
+    ingest far below what DuckDB does."""
+    sys.setswitchinterval(WRITER_SWITCH_INTERVAL_S)
+
+
+def tune_collector() -> None:
+    """Once the store is open: ingest allocates many short-lived objects, so
+    move everything built at start-up out of the collector's way and collect
+    young objects less often."""
+    gc.freeze()
+    gc.set_threshold(50_000, 20, 20)
+
+
 def serve_app():
     """uvicorn's factory for ``serve``: the app, with a start-up failure that
     an operator can fix reported as one line instead of a traceback.
@@ -165,6 +186,7 @@ def serve_app():
     from tsdb_service.app import create_app_from_env
     from tsdb_service.storage import StoreUnavailable
 
+    tune_interpreter()
     app = create_app_from_env()
     lifespan = app.router.lifespan
 
@@ -173,6 +195,8 @@ def serve_app():
             failure = sys.exc_info()[1]
             if message["type"] == "lifespan.startup.failed" and isinstance(failure, StoreUnavailable | SettingsError):
                 message = {**message, "message": f"error: {failure}"}
+            elif message["type"] == "lifespan.startup.complete":
+                tune_collector()
             await send(message)
 
         await lifespan(scope, receive, send_short)

@@ -1,26 +1,24 @@
-"""NGSI-LD errors: ProblemDetails (ETSI GS CIM 009 clauses 5.5.2, 5.5.3).
+"""NGSI-LD errors as ProblemDetails (ETSI GS CIM 009 clauses 5.5.2, 5.5.3).
 
 Every ``TsdbError`` names an NGSI-LD error type (``ld_type``); under
-``/ngsi-ld/`` the app's one error handler renders it as
+``/ngsi-ld/`` the app's one error handler (``http.errors``) renders it as
 
     {"type": "https://uri.etsi.org/ngsi-ld/errors/<ld_type>", "title", "status", "detail"}
 
 with the media type ``application/json``: clause 5.5.3 asks for RFC 7807's
 members but, so that existing clients keep working, the plain JSON media
-type rather than ``application/problem+json``. The classes below are the
-NGSI-LD types the generic hierarchy does not already give; raise them (or
-any ``TsdbError``) from NGSI-LD routes.
+type rather than ``application/problem+json``.
 """
 
 from __future__ import annotations
 
-from tsdb_service.core.errors import BadRequest, Conflict, NotFound, TsdbError, Unprocessable
+from tsdb_service.core.errors import TsdbError
 
 ERROR_TYPE_BASE = "https://uri.etsi.org/ngsi-ld/errors/"
 MEDIA_TYPE = "application/json"
 PATH_PREFIX = "/ngsi-ld/"
 # The notification endpoint is the broker's, not a client's: it keeps the
-# NGSI error shape of /v2/notify (see api.notify).
+# NGSI error shape of /v2/notify (see ingest.http_notify).
 _NOT_LD = frozenset({"/ngsi-ld/v1/notify"})
 
 # Clause 5.5.2's short descriptions, as each type's title.
@@ -40,64 +38,6 @@ TITLES = {
     "NonexistentTenant": "The addressed tenant does not exist",
     "NotAcceptable": "The media type asked for in the Accept header is not supported",
 }
-
-
-class InvalidRequest(BadRequest):
-    """Syntactically invalid: not JSON, not an object, a malformed parameter."""
-
-    error = "InvalidRequest"
-    ld_type = "InvalidRequest"
-
-
-class BadRequestData(BadRequest):
-    """Well-formed, but the data does not meet the operation's requirements."""
-
-    error = "BadRequestData"
-    ld_type = "BadRequestData"
-
-
-class ResourceNotFound(NotFound):
-    error = "ResourceNotFound"
-    ld_type = "ResourceNotFound"
-
-
-class AlreadyExists(Conflict):
-    error = "AlreadyExists"
-    ld_type = "AlreadyExists"
-
-
-class OperationNotSupported(Unprocessable):
-    error = "OperationNotSupported"
-    ld_type = "OperationNotSupported"
-
-
-class TooComplexQuery(TsdbError):
-    status = 403
-    error = "TooComplexQuery"
-    ld_type = "TooComplexQuery"
-
-
-class TooManyResults(TsdbError):
-    status = 403
-    error = "TooManyResults"
-    ld_type = "TooManyResults"
-
-
-class NonexistentTenant(NotFound):
-    error = "NonexistentTenant"
-    ld_type = "NonexistentTenant"
-
-
-class NotAcceptable(TsdbError):
-    status = 406
-    error = "NotAcceptable"
-    ld_type = "NotAcceptable"
-
-
-class LdContextNotAvailable(TsdbError):
-    status = 503
-    error = "LdContextNotAvailable"
-    ld_type = "LdContextNotAvailable"
 
 
 def is_ngsild_path(path: str) -> bool:

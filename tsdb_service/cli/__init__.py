@@ -1,0 +1,1 @@
+"""``tsdb-service``: every command, the top of the house (``main`` runs them)."""

@@ -1,0 +1,31 @@
+"""The export route's part of the OpenAPI description."""
+
+from __future__ import annotations
+
+from tsdb_service.http.openapi import FROM_DATE, ID, ID_PATTERN, READ_ERRORS, TENANCY, TO_DATE, TYPE, query, spec
+
+EXPORT = [
+    *TENANCY,
+    ID,
+    TYPE,
+    ID_PATTERN,
+    FROM_DATE,
+    TO_DATE,
+    query("attrs", "Attribute names (not value paths), comma-separated."),
+    query("format", "File format.", {"enum": ["csv", "parquet"], "default": "csv"}),
+]
+
+
+EXPORT_SPEC = spec(
+    *EXPORT,
+    ok_={
+        200: {
+            "description": "One row per sample, streamed",
+            "content": {
+                "text/csv": {"schema": {"type": "string"}},
+                "application/vnd.apache.parquet": {"schema": {"type": "string", "format": "binary"}},
+            },
+        }
+    },
+    errors_=READ_ERRORS,
+)
