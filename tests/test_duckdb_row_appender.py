@@ -19,7 +19,8 @@ import pytest
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage import open_store
-from tsdb_service.storage.duckdb.store import MAX_ROW_APPENDERS, DuckDBAppender, DuckDBStore
+from tsdb_service.storage.duckdb.appender import MAX_ROW_APPENDERS, DuckDBAppender
+from tsdb_service.storage.duckdb.store import DuckDBStore
 from tsdb_service.write.ops import AppendSamples
 
 START = datetime(2026, 3, 1, 12, 0, 0, 123456, tzinfo=UTC)

@@ -20,7 +20,7 @@ from tsdb_service import storage
 from tsdb_service.core.config import WAL_CHECKPOINT_BYTES, Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage import open_store
-from tsdb_service.storage.duckdb.store import connect
+from tsdb_service.storage.duckdb.connection import connect
 from tsdb_service.write.ops import AppendSamples
 
 KIB = 1024

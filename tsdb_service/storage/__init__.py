@@ -35,7 +35,7 @@ def migrate(settings: Settings) -> list[int]:
             from tsdb_service.storage.postgres.store import migrate_url
 
             return migrate_url(settings.db)
-        from tsdb_service.storage.duckdb.store import connect, migrate_duckdb
+        from tsdb_service.storage.duckdb.connection import connect, migrate_duckdb
 
         con = connect(settings.db)
         try:

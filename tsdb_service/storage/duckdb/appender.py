@@ -1,0 +1,533 @@
+"""The DuckDB writer: stages a group's operations as columns and commits
+them in one transaction (a DuckDB appender flushed in autocommit mode, or an
+Arrow batch for bulk loads), then publishes what it wrote to memory."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from typing import Any, Protocol
+
+import duckdb
+import pyarrow as pa
+
+from tsdb_service.core.errors import Unavailable
+from tsdb_service.core.model import EntitySample, RejectedNotification
+from tsdb_service.core.query import TimeRange
+from tsdb_service.parse import ValuesLayout
+from tsdb_service.storage import rejected as rejected_store
+from tsdb_service.storage.common import (
+    LD_TIME_COLUMNS,
+    REJECTED_INSERT_COLUMNS,
+    SAMPLE_COLUMNS,
+    StagingAppender,
+    first_line,
+    layout_values,
+    naive_timestamps,
+    rejected_values,
+    to_micros,
+    upsert_layout_sql,
+    without_dropped,
+)
+from tsdb_service.storage.duckdb.connection import (
+    MAYBE_STORED,
+    NOTHING_STORED,
+    SAMPLE_TABLES,
+    Gate,
+    fatal_kind,
+)
+from tsdb_service.storage.duckdb.dialect import DuckDBDialect
+from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL, LatestGeo
+from tsdb_service.storage.duckdb.tail_cache import TailCache
+from tsdb_service.storage.ld_ingest import (
+    LATEST_INSTANCE_SQL,
+    LatestInstances,
+    drop_renotified,
+    latest_keys,
+    publish_staged,
+    with_deletions,
+)
+from tsdb_service.storage.partials import HourlyPartials
+from tsdb_service.storage.rejected import RejectedLimits
+from tsdb_service.storage.sql.writes import delete_statements, instance_statements
+from tsdb_service.write.ops import DeleteInstance, DeleteSamples, PutLayout, ReplaceInstance
+
+log = logging.getLogger(__name__)
+
+# Time columns travel as epoch microseconds (exact, and cheap to convert).
+TIME_COLUMNS = frozenset({"t", *LD_TIME_COLUMNS})
+
+
+_ARROW_TYPES = {
+    "rid": pa.int64(),
+    "iid": pa.int64(),
+    "sid": pa.int32(),
+    "kind": pa.uint8(),
+    "num": pa.float64(),
+    "lon": pa.float64(),
+    "lat": pa.float64(),
+    "min_lon": pa.float64(),
+    "min_lat": pa.float64(),
+    "max_lon": pa.float64(),
+    "max_lat": pa.float64(),
+}
+
+
+# The shared columns plus the instance id, which this store allocates.
+SAMPLE_SCHEMA = pa.schema(
+    [
+        (name, pa.timestamp("us") if name in TIME_COLUMNS else _ARROW_TYPES.get(name, pa.string()))
+        for name in (*SAMPLE_COLUMNS, "iid")
+    ]
+)
+
+
+SeriesKey = tuple[str, str, str, str, str]  # tenant, service path, id, type, attr
+
+
+REQUIRED = frozenset({"rid", "sid", "t", "kind", "iid"})
+
+
+INSERT_SERIES = (
+    "INSERT INTO series BY NAME SELECT unnest($1::INTEGER[]) AS sid, unnest($2::VARCHAR[]) AS tenant, "
+    "unnest($3::VARCHAR[]) AS service_path, unnest($4::VARCHAR[]) AS entity_id, "
+    "unnest($5::VARCHAR[]) AS entity_type, unnest($6::VARCHAR[]) AS attr, unnest($7::VARCHAR[]) AS dataset_id"
+)
+
+
+_DIALECT = DuckDBDialect()
+
+
+# Above this many rows a batch goes through Arrow (bulk loads, copies).
+ARROW_MIN_ROWS = 2048
+
+
+# Appenders a writer keeps, one per set of columns its groups filled (about
+# 55 KB each): a few shapes cover ordinary traffic.
+MAX_ROW_APPENDERS = 16
+
+
+def micros_or_none(moment: datetime | None) -> int | None:
+    return None if moment is None else to_micros(moment)
+
+
+class AppendTarget(Protocol):
+    """What a writer shares with its store (``storage.duckdb.store``): the
+    connection and its generation, the id counters and series map it
+    allocates from under ``_alloc_lock``, and the in-memory views a commit
+    publishes to (tails, partials, latest locations and instances, layouts)."""
+
+    _con: duckdb.DuckDBPyConnection
+    _generation: int
+    _gate: Gate
+    _broken: str | None
+    _alloc_lock: threading.Lock
+    _series_lock: threading.Lock
+    _series: dict[SeriesKey, int]
+    _pending_series: dict[SeriesKey, int]
+    _layouts: dict[tuple[str, str], ValuesLayout]
+    _next_sid: int
+    _next_rid: int
+    _next_iid: int
+    _next_rejected: int
+    tail: TailCache
+    partials: HourlyPartials
+    latest_geo: LatestGeo
+    latest_instances: LatestInstances
+    rejected_limits: RejectedLimits
+    rejected_dropped: dict[str, int]
+
+    def notice(self, exc: BaseException) -> str | None: ...
+
+    def forget(self, sids) -> None: ...
+
+    def compactor_lock(self) -> contextlib.AbstractContextManager[Any]: ...
+
+    def _note_write(self, exc: BaseException | None) -> None: ...
+
+
+class DuckDBAppender(StagingAppender):
+    """Turns staged ops into columnar batches; only the writer thread uses it."""
+
+    def __init__(self, store: AppendTarget):
+        self._store = store
+        self._cur = store._con.cursor()
+        self._generation = store._generation
+        # DuckDB appenders on self._cur, one per set of columns a group fills
+        self._row_appenders: dict[tuple[str, ...], Any] = {}
+        self._reset()
+
+    def _current_cursor(self) -> duckdb.DuckDBPyConnection:
+        """This writer's cursor on the store's current connection (a reopen
+        closed the one made on the previous connection)."""
+        store = self._store
+        if self._generation != store._generation:
+            self._cur = store._con.cursor()
+            self._generation = store._generation
+            self._row_appenders = {}
+        return self._cur
+
+    def _reset(self) -> None:
+        self._cols: dict[str, list] = {name: [] for name in SAMPLE_SCHEMA.names}
+        self._new_series: dict[SeriesKey, int] = {}
+        self._new_datasets: dict[SeriesKey, str] = {}  # new series of non-default datasetIds
+        self._latest: dict[SeriesKey, tuple | None] = {}  # this transaction's latest instance keys
+        self._rejected: list[tuple] = []
+        self._layouts: list[PutLayout] = []
+        self._deletes: list[tuple[DeleteSamples, int]] = []
+        self._instance_ops: list[DeleteInstance | ReplaceInstance] = []
+
+    def _stage_delete(self, op: DeleteSamples) -> None:
+        # Rows allocated after this op was staged (by any writer) survive it.
+        self._deletes.append((op, self._store._next_rid - 1))
+
+    def _sid(self, key: SeriesKey) -> int:
+        """The series id for ``key``; caller holds the store's allocation lock.
+
+        Several writers share one id space: an id not yet committed is kept
+        in ``_pending_series`` so every writer uses the same id for a key,
+        and each writer that uses it inserts the series row itself (OR
+        IGNORE), so no sample can outlive a failed series insert.
+        """
+        store = self._store
+        sid = store._series.get(key)
+        if sid is not None:
+            return sid
+        sid = self._new_series.get(key)
+        if sid is None:
+            sid = store._pending_series.get(key)
+            if sid is None:
+                sid = store._pending_series[key] = store._next_sid
+                store._next_sid += 1
+            self._new_series[key] = sid
+        return sid
+
+    def _stage_samples(self, entities: Sequence[EntitySample], dedup: bool) -> None:
+        store = self._store
+        entities = with_deletions(entities, self._entity_attrs)
+        with store._alloc_lock:
+            entities = self._without_renotified(entities, dedup)
+            self._stage_locked(entities)
+
+    def _entity_attrs(self, entity: EntitySample) -> list[tuple[str, str | None]]:
+        """Stored attributes (name, datasetId) of a deleted entity."""
+        return self._cur.execute(
+            "SELECT attr, dataset_id FROM series WHERE tenant = ? AND service_path = ? AND entity_id = ? "
+            "AND entity_type = ? ORDER BY attr",
+            [entity.tenant, entity.service_path, entity.entity_id, entity.entity_type],
+        ).fetchall()
+
+    def _without_renotified(self, entities: Sequence[EntitySample], dedup: bool) -> list[EntitySample]:
+        """Drop NGSI-LD instances equal to their series' latest stored one
+        (``dedup``; else only note them as the latest)."""
+        if not any(a.observed_at is not None for e in entities for a in e.attrs):
+            return list(entities)
+        series = self._store._series
+        items = []
+        for e in entities:
+            prefix = (e.tenant, e.service_path, e.entity_id, e.entity_type)
+            for a in e.attrs:
+                key = (*prefix, a.name)
+                items.append((key, series.get(key) or self._new_series.get(key), a, dedup))
+        return without_dropped(
+            entities, drop_renotified(items, self._store.latest_instances, self._latest, self._latest_of)
+        )
+
+    def _latest_of(self, sids: list[int]) -> dict:
+        return latest_keys(
+            self._cur.execute(
+                LATEST_INSTANCE_SQL.format(table="samples_all", sids="sid IN (SELECT unnest(?::INTEGER[]))"), [sids]
+            ).fetchall()
+        )
+
+    def _stage_locked(self, entities: Sequence[EntitySample]) -> None:
+        c = self._cols
+        rid_, sid_, t_, kind_, atype_, num_, txt_, js_, md_ = (
+            c["rid"],
+            c["sid"],
+            c["t"],
+            c["kind"],
+            c["atype"],
+            c["num"],
+            c["txt"],
+            c["js"],
+            c["md"],
+        )
+        geo_, lon_, lat_ = c["geo"], c["lon"], c["lat"]
+        mnlon, mnlat, mxlon, mxlat = c["min_lon"], c["min_lat"], c["max_lon"], c["max_lat"]
+        iid_, obs_, cre_, mod_, del_ = c["iid"], c["observed_at"], c["created_at"], c["modified_at"], c["deleted_at"]
+        store = self._store
+        for entity in entities:
+            rid = store._next_rid
+            store._next_rid += 1
+            micros = to_micros(entity.time_index)
+            prefix = (entity.tenant, entity.service_path, entity.entity_id, entity.entity_type)
+            for attr in entity.attrs:
+                key = (*prefix, attr.name)
+                rid_.append(rid)
+                sid_.append(self._sid(key))
+                iid_.append(store._next_iid)
+                store._next_iid += 1
+                t_.append(micros)
+                kind_.append(int(attr.kind))
+                atype_.append(attr.ngsi_type)
+                num_.append(attr.num)
+                txt_.append(attr.txt)
+                js_.append(attr.js)
+                md_.append(attr.md)
+                if (
+                    attr.observed_at is None
+                    and attr.created_at is None
+                    and attr.modified_at is None
+                    and attr.deleted_at is None
+                    and attr.dataset_id is None
+                ):
+                    obs_.append(None)
+                    cre_.append(None)
+                    mod_.append(None)
+                    del_.append(None)
+                else:
+                    obs_.append(micros_or_none(attr.observed_at))
+                    cre_.append(micros_or_none(attr.created_at))
+                    mod_.append(micros_or_none(attr.modified_at))
+                    del_.append(micros_or_none(attr.deleted_at))
+                    if attr.dataset_id is not None and key in self._new_series:
+                        self._new_datasets[key] = attr.dataset_id
+                g = attr.geo
+                if g is None:
+                    geo_.append(None)
+                    lon_.append(None)
+                    lat_.append(None)
+                    mnlon.append(None)
+                    mnlat.append(None)
+                    mxlon.append(None)
+                    mxlat.append(None)
+                else:
+                    geo_.append(g.geojson)
+                    lon_.append(g.lon)
+                    lat_.append(g.lat)
+                    mnlon.append(g.min_lon)
+                    mnlat.append(g.min_lat)
+                    mxlon.append(g.max_lon)
+                    mxlat.append(g.max_lat)
+
+    def _stage_rejected(self, r: RejectedNotification) -> None:
+        store = self._store
+        with store._alloc_lock:
+            rejected_id = store._next_rejected
+            store._next_rejected += 1
+        self._rejected.append((rejected_id, *rejected_values(r)))
+
+    def commit(self) -> None:
+        """Commit the staged ops, or raise ``Unavailable`` saying whether
+        anything may have been stored when the database instance is (or has
+        just become) invalid: the group committer must not retry then.
+
+        A commit whose automatic checkpoint failed is durable: it is
+        published and acknowledged like any other, and the store reopens.
+        """
+        store = self._store
+        if store._broken is not None:
+            raise Unavailable(NOTHING_STORED)
+        with store._gate.use(NOTHING_STORED):
+            try:
+                self._commit(self._current_cursor())
+            except duckdb.Error as exc:
+                store._note_write(exc)
+                kind = store.notice(exc)
+                if kind == "refused":
+                    raise Unavailable(NOTHING_STORED) from exc
+                if kind is not None:
+                    raise Unavailable(MAYBE_STORED) from exc
+                raise
+        store._note_write(None)
+
+    def _durable(self, cur: duckdb.DuckDBPyConnection, sql: str, params=None) -> None:
+        """Execute a statement that commits (autocommit, or COMMIT itself).
+        "COMMIT succeeded ... but the autocheckpoint failed" means it did:
+        carry on as committed (the store starts reopening; the next
+        statement will be refused)."""
+        try:
+            cur.execute(sql, params)
+        except duckdb.Error as exc:
+            if not self._committed_anyway(exc):
+                raise
+
+    def _committed_anyway(self, exc: duckdb.Error) -> bool:
+        """True when ``exc`` says the commit landed and only its checkpoint
+        failed: logged, and the store told to reopen."""
+        if fatal_kind(exc) != "committed":
+            return False
+        log.warning("commit is durable but its checkpoint failed: %s", first_line(exc))
+        self._store.notice(exc)
+        return True
+
+    def _commit(self, cur: duckdb.DuckDBPyConnection) -> None:
+        """Make the staged ops durable with as few database calls as possible.
+
+        Under load the event loop holds the GIL, and every return from
+        DuckDB into Python waits for it. A small batch is therefore appended
+        and flushed in autocommit mode: two calls, one transaction. Big
+        batches (bulk loads) go through Arrow instead, where the per-row
+        conversion cost matters more than the GIL. New series
+        rows are committed first; if the samples then fail, an unused series
+        row is harmless.
+        """
+        if self._new_series:
+            store = self._store
+            # Series rows are written one writer at a time, each skipping the
+            # keys another writer has committed meanwhile: a plain INSERT that
+            # cannot conflict (OR IGNORE is several times slower in DuckDB).
+            with store._series_lock:
+                keys = [k for k in self._new_series if k not in store._series]
+                if keys:
+                    self._durable(
+                        cur,
+                        INSERT_SERIES,
+                        [
+                            [self._new_series[k] for k in keys],
+                            *([k[i] for k in keys] for i in range(5)),
+                            [self._new_datasets.get(k) for k in keys],
+                        ],
+                    )
+                with store._alloc_lock:
+                    store._series.update(self._new_series)
+                    for key in self._new_series:
+                        store._pending_series.pop(key, None)
+            self._new_series = {}
+        if self._cols["rid"]:
+            if len(self._cols["rid"]) <= ARROW_MIN_ROWS:
+                # Only columns that carry a value: converting the all-NULL
+                # ones (geometry, metadata...) would hold the GIL for nothing.
+                names = tuple(
+                    n for n in SAMPLE_SCHEMA.names if n in REQUIRED or any(v is not None for v in self._cols[n])
+                )
+                self._append_rows(cur, names)
+            else:
+                self._insert_arrow(cur)
+            self._store.tail.publish(self._cols)
+            self._store.latest_geo.publish(self._cols)
+            self._store.partials.publish(self._cols)
+        if self._rejected or self._layouts or self._deletes or self._instance_ops:
+            # A delete must not race the compactor moving or rewriting the
+            # same rows (its copy could resurrect them): hold its lock.
+            changes = self._deletes or self._instance_ops
+            guard = self._store.compactor_lock() if changes else contextlib.nullcontext()
+            with guard:
+                self._commit_other(cur)
+        publish_staged(self._store.latest_instances, self._latest, self._store._series.get)
+        self._publish()
+
+    def _append_rows(self, cur: duckdb.DuckDBPyConnection, names: tuple[str, ...]) -> None:
+        """The staged rows of ``names`` through a DuckDB appender, flushed in
+        autocommit mode: one statement, its own transaction, one WAL fsync,
+        as durable as an INSERT. A third cheaper in CPU than the INSERT ...
+        SELECT unnest($1..$n) it replaces (binding and planning that
+        statement was most of a small group's cost), at 8 to 100
+        notifications a group (``benchmarks/README.md``).
+
+        An appender keeps the rows buffered before a failure, and a later
+        flush would store them: after any error its buffer is cleared and
+        it is dropped, so a retry starts from nothing."""
+        appender = self._row_appenders.get(names)
+        if appender is None:
+            if len(self._row_appenders) >= MAX_ROW_APPENDERS:  # payloads of many shapes: the oldest goes
+                del self._row_appenders[next(iter(self._row_appenders))]
+            appender = self._row_appenders[names] = cur.appender("samples_hot", columns=list(names))
+        cols = self._cols
+        try:
+            appender.append_rows(
+                zip(*(naive_timestamps(cols[n]) if n in TIME_COLUMNS else cols[n] for n in names), strict=True)
+            )
+            appender.flush()
+        except BaseException as exc:  # a value it cannot convert raises a plain Python error
+            del self._row_appenders[names]
+            with contextlib.suppress(duckdb.Error):
+                appender.clear()
+            if not (isinstance(exc, duckdb.Error) and self._committed_anyway(exc)):
+                raise
+
+    def _insert_arrow(self, cur: duckdb.DuckDBPyConnection) -> None:
+        cols = self._cols
+        arrays = [
+            pa.array(cols[f.name], pa.int64()).cast(f.type)
+            if f.name in TIME_COLUMNS
+            else pa.array(cols[f.name], f.type)
+            for f in SAMPLE_SCHEMA
+        ]
+        cur.register("_batch", pa.Table.from_arrays(arrays, schema=SAMPLE_SCHEMA))
+        try:
+            self._durable(cur, "INSERT INTO samples_hot BY NAME SELECT * FROM _batch")
+        finally:
+            with contextlib.suppress(duckdb.Error):  # fails on an invalid instance
+                cur.unregister("_batch")
+
+    def _commit_other(self, cur: duckdb.DuckDBPyConnection) -> None:
+        cur.execute("BEGIN")
+        for row in self._rejected:
+            cur.execute(
+                f"INSERT INTO rejected_notifications (id, {REJECTED_INSERT_COLUMNS}) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                list(row),
+            )
+        dropped = None
+        if self._rejected:
+            dropped = rejected_store.prune(
+                lambda sql, params: cur.execute(sql, params).fetchall(),
+                rejected_store.DUCKDB,
+                [row[1] for row in self._rejected],
+                self._store.rejected_limits,
+            )
+        for put in self._layouts:
+            cur.execute(upsert_layout_sql("?"), layout_values(put, datetime.now(UTC)))
+        for op, upto_rid in self._deletes:
+            for sql, params in delete_statements(
+                _DIALECT, SAMPLE_TABLES, op.sids, TimeRange(op.start, op.end), upto_rid
+            ):
+                cur.execute(sql, params)
+        for instance_op in self._instance_ops:
+            for sql, params in instance_statements(_DIALECT, SAMPLE_TABLES, instance_op):
+                cur.execute(sql, params)
+        self._durable(cur, "COMMIT")
+        if dropped:
+            rejected_store.count_dropped(self._store.rejected_dropped, dropped)
+        store = self._store
+        for op, upto_rid in self._deletes:
+            store.forget(op.sids)
+            if store._broken is None:  # else the reopen rebuilds every location
+                store.latest_geo.recompute(op.sids, upto_rid, self._latest_geo_of)
+        for instance_op in self._instance_ops:
+            store.forget([instance_op.sid])
+            if store._broken is None:
+                store.latest_geo.recompute([instance_op.sid], store._next_rid, self._latest_geo_of)
+
+    def _latest_geo_of(self, sids: list[int]) -> list[tuple]:
+        return self._cur.execute(
+            LATEST_GEO_SQL.format(where="AND sid IN (SELECT unnest(?::INTEGER[]))"), [sids]
+        ).fetchall()
+
+    def _publish(self) -> None:
+        """Expose only what is durable."""
+        self._store._series.update(self._new_series)
+        for put in self._layouts:
+            self._store._layouts[(put.tenant, put.subscription_id)] = put.layout
+        self._reset()
+
+    def rollback(self) -> None:
+        # Ids staged for new series stay reserved in _pending_series: the
+        # next writer to see those keys inserts their rows.
+        try:
+            if self._store._broken is None and self._generation == self._store._generation:
+                with self._store._gate.use(NOTHING_STORED):
+                    self._cur.execute("ROLLBACK")
+        except (duckdb.Error, Unavailable):
+            pass  # no transaction was open, or the connection is being replaced
+        self._reset()
+
+    def close(self) -> None:
+        self._row_appenders = {}
+        with contextlib.suppress(duckdb.Error):
+            self._cur.close()
