@@ -22,6 +22,7 @@ from tsdb_service.http.budget import ReadBudgetMiddleware
 from tsdb_service.http.errors import install_error_handlers
 from tsdb_service.http.openapi import install as install_openapi
 from tsdb_service.http.responses import JSON
+from tsdb_service.http.store import ServiceStore
 from tsdb_service.ingest import http_notify as notify
 from tsdb_service.ingest import openapi as notify_oa
 from tsdb_service.security import protect
@@ -55,12 +56,20 @@ class TsdbApp(FastAPI):
         await super().__call__(scope, receive, send)
 
 
-def create_app(settings: Settings | None = None, metrics: telemetry.Metrics | None = None) -> FastAPI:
+def create_app(
+    settings: Settings | None = None, metrics: telemetry.Metrics | None = None, store: ServiceStore | None = None
+) -> FastAPI:
+    """The app. ``store``: serve this one (``http.memory.MemoryStore`` in
+    route tests) instead of opening ``settings.db``; the caller closes it."""
     settings = settings or get_settings()
     metrics = metrics or telemetry.Metrics()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        if store is not None:
+            app.state.store = store
+            yield
+            return
         app.state.store = await run_in_threadpool(open_store, settings, background=True)
         metrics.attach(app.state.store)
         log.info("tsdb-service %s on %s (%s)", __version__, settings.db, app.state.store.backend)

@@ -421,6 +421,31 @@ class Bounds(Protocol):
 Prefilter = tuple[str, Bounds]
 
 
+# -- the bounding-box prefilter ----------------------------------------------------------------
+#
+# A stored sample keeps its geometry's box (min_lon, min_lat, max_lon,
+# max_lat). A geo-query's ``Prefilter`` says what that box must do to
+# possibly match: "within" lie inside the query box, "intersects" overlap
+# it. The same two tests run in SQL (``storage.common.box_sql``) and in memory
+# (``box_passes``: DuckDB's latest locations and extents, the in-memory querier).
+
+WITHIN = "within"
+Box = tuple[float, float, float, float]  # min_lon, min_lat, max_lon, max_lat
+
+
+def box_passes(how: str, b: Box, box: Bounds) -> bool:
+    if how == WITHIN:
+        return b[0] >= box.min_lon and b[2] <= box.max_lon and b[1] >= box.min_lat and b[3] <= box.max_lat
+    return b[2] >= box.min_lon and b[0] <= box.max_lon and b[3] >= box.min_lat and b[1] <= box.max_lat
+
+
+def extent_prefilter(prefilter: Prefilter | None) -> Prefilter | None:
+    """The test on a series' extent (the box of all its samples' boxes): a
+    sample's box passes either test only if it overlaps the query box, and
+    the extent holds every sample's box, so overlap is the extent's test."""
+    return None if prefilter is None else ("intersects", prefilter[1])
+
+
 # -- NGSI-LD temporal reads: what ``ngsild`` asks beyond whole instances ----------
 
 

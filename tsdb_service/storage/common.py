@@ -18,7 +18,7 @@ from typing import Any
 import orjson
 
 from tsdb_service.core.model import AttrSample, EntitySample, RejectedNotification
-from tsdb_service.core.query import Bounds, Prefilter
+from tsdb_service.core.query import WITHIN, Prefilter
 from tsdb_service.parse import ValuesLayout
 from tsdb_service.storage.store import CopyRun, Store
 from tsdb_service.write.appender import Appender
@@ -75,22 +75,7 @@ def naive_utc(moment: datetime) -> datetime:
     return moment.astimezone(UTC).replace(tzinfo=None)
 
 
-# -- the bounding-box prefilter ------------------------------------------------------
-#
-# A stored sample keeps its geometry's box (min_lon, min_lat, max_lon,
-# max_lat). A geo-query's ``Prefilter`` says what that box must do to
-# possibly match: "within" lie inside the query box, "intersects" overlap
-# it. The same two tests run in SQL (``box_sql``) and in memory
-# (``box_passes``, DuckDB's latest locations and extents).
-
-WITHIN = "within"
-Box = tuple[float, float, float, float]  # min_lon, min_lat, max_lon, max_lat
-
-
-def box_passes(how: str, b: Box, box: Bounds) -> bool:
-    if how == WITHIN:
-        return b[0] >= box.min_lon and b[2] <= box.max_lon and b[1] >= box.min_lat and b[3] <= box.max_lat
-    return b[2] >= box.min_lon and b[0] <= box.max_lon and b[3] >= box.min_lat and b[1] <= box.max_lat
+# -- the bounding-box prefilter (``core.query``: ``box_passes``) -------------------------------
 
 
 def box_sql(placeholder: str, prefilter: Prefilter | None) -> tuple[str, list]:
@@ -105,13 +90,6 @@ def box_sql(placeholder: str, prefilter: Prefilter | None) -> tuple[str, list]:
     else:
         sql = f"(max_lon >= {p} AND min_lon <= {p} AND max_lat >= {p} AND min_lat <= {p})"
     return sql, [box.min_lon, box.max_lon, box.min_lat, box.max_lat]
-
-
-def extent_prefilter(prefilter: Prefilter | None) -> Prefilter | None:
-    """The test on a series' extent (the box of all its samples' boxes): a
-    sample's box passes either test only if it overlaps the query box, and
-    the extent holds every sample's box, so overlap is the extent's test."""
-    return None if prefilter is None else ("intersects", prefilter[1])
 
 
 # -- values layouts --------------------------------------------------------------------

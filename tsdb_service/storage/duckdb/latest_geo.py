@@ -46,8 +46,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Iterable
 
 from tsdb_service.core.model import Kind
-from tsdb_service.core.query import Bounds, ExtentRow, GeometryRow, Prefilter
-from tsdb_service.storage.common import Box, box_passes, extent_prefilter
+from tsdb_service.core.query import Bounds, Box, ExtentRow, GeometryRow, Prefilter, box_passes, extent_prefilter
 
 GEO = int(Kind.GEO)
 

@@ -29,6 +29,7 @@ from tsdb_service.core.query import (
     RowMask,
     TimeRange,
     WindowScan,
+    box_passes,
 )
 from tsdb_service.core.timefmt import iso_ms_us as iso_ms
 from tsdb_service.read.bulk import Columns, SampleBatches
@@ -36,7 +37,7 @@ from tsdb_service.read.off_loop import check_database_allowed
 from tsdb_service.read.requests import ExportRead, ExtentsNear, LocationsIn, RowsRead
 from tsdb_service.read.requests import WindowScan as WindowScanRead
 from tsdb_service.storage.catalog import SeriesCatalog
-from tsdb_service.storage.common import box_passes, to_micros
+from tsdb_service.storage.common import to_micros
 from tsdb_service.storage.duckdb.dialect import DuckDBDialect
 from tsdb_service.storage.duckdb.latest_geo import LatestGeo, Position, position
 from tsdb_service.storage.duckdb.tail_cache import TailCache, TailRow

@@ -41,6 +41,7 @@ from tsdb_service.core.query import (
     RawRow,
     RowMask,
     SeriesRef,
+    extent_prefilter,
 )
 from tsdb_service.read.bulk import Columns, SampleBatches
 from tsdb_service.read.off_loop import check_database_allowed
@@ -53,7 +54,6 @@ from tsdb_service.read.requests import (
     SeriesSelect,
 )
 from tsdb_service.storage.catalog import SeriesCatalog
-from tsdb_service.storage.common import extent_prefilter
 from tsdb_service.storage.partials import HourlyPartials
 from tsdb_service.storage.postgres.dialect import PostgresDialect, int_array
 from tsdb_service.storage.sql import temporal
