@@ -12,6 +12,7 @@ POST sent as ``application/ld+json``, the body's ``@context``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from urllib.parse import urlencode
 
 import orjson
@@ -28,6 +29,7 @@ from tsdb_service.faces.ngsild.context import (
     parse_local_contexts,
 )
 from tsdb_service.faces.ngsild.params import query_from_body, query_from_params
+from tsdb_service.faces.ngsild.query import TemporalQuery
 from tsdb_service.faces.ngsild.service import TemporalResult, run
 from tsdb_service.http.store import store_of
 from tsdb_service.http.tenancy import tenant_echo, tenant_of
@@ -86,15 +88,14 @@ def accepted(header: str | None) -> str:
 @router.get("/temporal/entities", summary="Query temporal entities", **ld_oa.ld_read_spec())
 async def query_entities(request: Request) -> Response:
     media = accepted(request.headers.get("accept"))
-    params = dict(request.query_params)
-
-    def work() -> tuple[TemporalResult, TermMap, object]:
-        terms = contexts(request).term_map(link_context(request.headers.get("link")))
-        query = query_from_params(params, tenant_of(request), terms, limits=_limits(request))
-        return run(store_of(request).querier(), terms, query, _cap(request)), terms, query
-
-    result, terms, query = await store_of(request).read(work, memory_first=False)
-    return _respond(request, media, terms, result, query, many=True)
+    params, limits = dict(request.query_params), _limits(request)
+    return await _answer(
+        request,
+        media,
+        link_context(request.headers.get("link")),
+        lambda terms: query_from_params(params, tenant_of(request), terms, limits=limits),
+        many=True,
+    )
 
 
 @router.get("/temporal/entities/{entity_id}", summary="Retrieve one temporal entity", **ld_oa.ld_read_spec())
@@ -103,14 +104,13 @@ async def retrieve_entity(entity_id: str, request: Request) -> Response:
     if not entity_id or len(entity_id) > 2048:
         raise BadRequestData("the entity id must be 1 to 2048 characters")
     params = dict(request.query_params)
-
-    def work():
-        terms = contexts(request).term_map(link_context(request.headers.get("link")))
-        query = query_from_params(params, tenant_of(request), terms, limits=(1, 1), entity_id=entity_id)
-        return run(store_of(request).querier(), terms, query, _cap(request)), terms, query
-
-    result, terms, query = await store_of(request).read(work, memory_first=False)
-    return _respond(request, media, terms, result, query, many=False)
+    return await _answer(
+        request,
+        media,
+        link_context(request.headers.get("link")),
+        lambda terms: query_from_params(params, tenant_of(request), terms, limits=(1, 1), entity_id=entity_id),
+        many=False,
+    )
 
 
 @router.post(
@@ -141,15 +141,34 @@ async def query_post(request: Request) -> Response:
         if isinstance(body, dict) and "@context" in body:
             raise BadRequestData("an application/json body cannot carry @context: send application/ld+json")
         context = link_context(link)
-    params = dict(request.query_params)
+    params, limits = dict(request.query_params), _limits(request)
+    return await _answer(
+        request,
+        media,
+        context,
+        lambda terms: query_from_body(body, params, tenant_of(request), terms, limits=limits),
+        many=True,
+    )
 
-    def work():
+
+async def _answer(
+    request: Request,
+    media: str,
+    context: str | list | dict | None,
+    parse: Callable[[TermMap], TemporalQuery],
+    many: bool,
+) -> Response:
+    """Expand the terms with ``context``, parse the query with them, run it:
+    all off the event loop (a context may be fetched, a query reads), then
+    the answer in the media type asked for."""
+
+    def work() -> tuple[TemporalResult, TermMap, TemporalQuery]:
         terms = contexts(request).term_map(context)
-        query = query_from_body(body, params, tenant_of(request), terms, limits=_limits(request))
+        query = parse(terms)
         return run(store_of(request).querier(), terms, query, _cap(request)), terms, query
 
     result, terms, query = await store_of(request).read(work, memory_first=False)
-    return _respond(request, media, terms, result, query, many=True)
+    return _respond(request, media, terms, result, query, many)
 
 
 def _respond(request: Request, media: str, terms: TermMap, result: TemporalResult, query, many: bool) -> Response:

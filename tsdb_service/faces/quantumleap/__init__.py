@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from tsdb_service.faces.quantumleap import attrs, entities, op_query, subscribe, types
+from tsdb_service.faces.quantumleap import deletes, entities, history, op_query, subscribe
 
 router = APIRouter()
-for _routes in (entities, types, attrs, op_query, subscribe):
+for _routes in (entities, history, deletes, op_query, subscribe):
     router.include_router(_routes.router)
