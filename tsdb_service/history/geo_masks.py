@@ -24,6 +24,7 @@ Resolving costs little because most entities are never near the query:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -36,7 +37,9 @@ from tsdb_service.read.requests import AggregateRead, ExtentsNear, LocationsIn, 
 Span = tuple[int, int, int | None, int | None]  # t0 µs, rid0, t1 µs | None (open), rid1
 
 
-def sample_spans(querier, locations: dict[int, tuple], geo: GeoFilter, time: TimeRange) -> dict[tuple, list[Span]]:
+def sample_spans(
+    querier: HistoryReads, locations: dict[int, tuple], geo: GeoFilter, time: TimeRange
+) -> dict[tuple, list[Span]]:
     """Entity -> the intervals in which its location matched, for the
     entities of ``locations`` (location series id -> entity) that matched."""
     spans: dict[int, list[Span]] = {}
@@ -47,7 +50,9 @@ def sample_spans(querier, locations: dict[int, tuple], geo: GeoFilter, time: Tim
     return {locations[sid]: found for sid, found in spans.items()}
 
 
-def _from_extents(querier, extents: list[tuple], geo: GeoFilter, spans: dict[int, list[Span]]) -> list[int]:
+def _from_extents(
+    querier: HistoryReads, extents: Sequence[tuple], geo: GeoFilter, spans: dict[int, list[Span]]
+) -> list[int]:
     """Decide what the extents decide: a series whose every position matches
     matched from its first one on (into ``spans``; a first position the
     backend does not keep is looked up, one index probe each); one whose

@@ -33,6 +33,7 @@ from operator import attrgetter
 
 from tsdb_service.core.query import EntityFilter, Scope, SeriesRef, TimeRange
 from tsdb_service.geo.filter import ENTITY, GeoFilter
+from tsdb_service.read import HistoryReads
 from tsdb_service.read.requests import LocationsIn, SeriesSelect
 
 EntityKey = tuple[str, str, str]  # service path, entity type, entity id
@@ -43,7 +44,9 @@ entity_key = attrgetter("service_path", "entity_type", "entity_id")
 _SID = attrgetter("sid")
 
 
-def apply_geo(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesRef], geo: GeoFilter, time: TimeRange):
+def apply_geo(
+    querier: HistoryReads, scope: Scope, entities: EntityFilter, refs: list[SeriesRef], geo: GeoFilter, time: TimeRange
+) -> tuple[list[SeriesRef], HistoryReads]:
     """``(refs, querier)`` for the rest of the request: the series of the
     matching entities, and a querier whose sample reads keep only the
     matching samples (the same querier under entity semantics)."""
@@ -81,7 +84,7 @@ _memo: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _memo_lock = threading.Lock()
 
 
-def _selection(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesRef]) -> _Selection:
+def _selection(querier: HistoryReads, scope: Scope, entities: EntityFilter, refs: list[SeriesRef]) -> _Selection:
     """Built once per selection and reused while the catalog gives the same
     series (the key holds their ids), so a repeated query over 10,000
     entities does not re-key 20,000 series each time."""
@@ -112,7 +115,7 @@ def _selection(querier, scope: Scope, entities: EntityFilter, refs: list[SeriesR
 
 
 def _fallback_locations(
-    querier, scope: Scope, entities: EntityFilter, time: TimeRange, without: frozenset[EntityKey]
+    querier: HistoryReads, scope: Scope, entities: EntityFilter, time: TimeRange, without: frozenset[EntityKey]
 ) -> dict[int, EntityKey]:
     """Entities without a ``location`` attribute: their first geo-typed one
     (with a geometry stored at or before ``toDate``), sid -> entity."""
@@ -130,7 +133,9 @@ def _fallback_locations(
     return {ref.sid: k for k, ref in first.items()}
 
 
-def matching_entities(querier, locations: dict[int, EntityKey], geo: GeoFilter, time: TimeRange) -> set[EntityKey]:
+def matching_entities(
+    querier: HistoryReads, locations: dict[int, EntityKey], geo: GeoFilter, time: TimeRange
+) -> set[EntityKey]:
     """Entity semantics: the entities whose latest location (at or before
     ``toDate``) matches ``geo``."""
     if not locations:

@@ -31,6 +31,7 @@ from tsdb_service.core.query import (
     TimeRange,
     ValuePath,
 )
+from tsdb_service.geo.filter import GeoFilter
 from tsdb_service.history.valuepath import extract
 from tsdb_service.read import HistoryReads
 from tsdb_service.read.requests import AggregateRead, RowsRead, SamplesIn, SeriesSelect
@@ -120,7 +121,9 @@ def resolve_entity_series(
 # --- history -------------------------------------------------------------------------
 
 
-def _geo_refs(querier, scope, entities, refs, geo, time):
+def _geo_refs(
+    querier: HistoryReads, scope: Scope, entities: EntityFilter, refs: list[SeriesRef], geo: GeoFilter, time: TimeRange
+) -> tuple[list[SeriesRef], HistoryReads]:
     """``(refs, querier)``: the series of entities with matching locations,
     and a querier that reads only matching samples (see history.geo_matching)."""
     from tsdb_service.history.geo_matching import apply_geo

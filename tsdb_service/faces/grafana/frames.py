@@ -40,7 +40,7 @@ from tsdb_service.core.timefmt import epoch_ms, iso_z, ms_of, z_of
 from tsdb_service.faces.grafana.params import Column
 from tsdb_service.geo.encodings import from_geojson, parse_lat_lon
 from tsdb_service.history.service import run_history, run_last_values
-from tsdb_service.read import Querier
+from tsdb_service.read import HistoryReads
 
 # Raw samples read for one request at most (newest kept): bounds memory and
 # time on very long ranges. Downsampling happens after this read.
@@ -68,7 +68,7 @@ def short_name(entity_id: str) -> str:
 
 
 def fetch(
-    querier: Querier,
+    querier: HistoryReads,
     scope: Scope,
     entities: EntityFilter,
     cols: Sequence[Column],
@@ -227,7 +227,7 @@ def rows_wide(all_series: Sequence[EntitySeries]) -> list[dict]:
 
 
 def series_rows(
-    querier: Querier,
+    querier: HistoryReads,
     scope: Scope,
     entities: EntityFilter,
     cols: Sequence[Column],
@@ -256,7 +256,7 @@ def _fill(span: tuple[int | None, int | None], series: EntitySeries) -> tuple[in
 
 
 def state_rows(
-    querier: Querier,
+    querier: HistoryReads,
     scope: Scope,
     entities: EntityFilter,
     cols: Sequence[Column],
@@ -314,7 +314,7 @@ def condition(equals: str | None) -> Callable[[object], bool]:
 
 
 def event_rows(
-    querier: Querier,
+    querier: HistoryReads,
     scope: Scope,
     entities: EntityFilter,
     cols: Sequence[Column],
@@ -401,7 +401,7 @@ def lon_lat(value) -> tuple[float, float] | None:
 
 
 def position_rows(
-    querier: Querier,
+    querier: HistoryReads,
     scope: Scope,
     entities: EntityFilter,
     location: ValuePath,
@@ -441,7 +441,9 @@ def _geo_ok(geo, point: tuple[float, float]) -> bool:
     return geo.matches({"type": "Point", "coordinates": [point[0], point[1]]})
 
 
-def _latest_positions(querier, scope, entities, loc: Column, cols: Sequence[Column], geo) -> list[dict]:
+def _latest_positions(
+    querier: HistoryReads, scope: Scope, entities: EntityFilter, loc: Column, cols: Sequence[Column], geo
+) -> list[dict]:
     rows = []
     for item in latest_rows(querier, scope, entities, (loc, *cols)):
         point = lon_lat(item.pop(loc.name))
@@ -458,7 +460,7 @@ def _latest_positions(querier, scope, entities, loc: Column, cols: Sequence[Colu
     return rows
 
 
-def latest_rows(querier: Querier, scope: Scope, entities: EntityFilter, cols: Sequence[Column]) -> list[dict]:
+def latest_rows(querier: HistoryReads, scope: Scope, entities: EntityFilter, cols: Sequence[Column]) -> list[dict]:
     """``[{"entity", "type", "name", "time", col...}]``: the latest value of
     each column per entity; ``time`` is the newest of those samples."""
     paths = tuple(dict.fromkeys(col.path for col in cols))
@@ -480,7 +482,7 @@ def latest_rows(querier: Querier, scope: Scope, entities: EntityFilter, cols: Se
 
 
 def aggregate_rows(
-    querier: Querier,
+    querier: HistoryReads,
     scope: Scope,
     entities: EntityFilter,
     cols: Sequence[Column],

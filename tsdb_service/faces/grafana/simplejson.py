@@ -34,7 +34,7 @@ from fastapi import APIRouter, Body, Request
 from tsdb_service.core import budget
 from tsdb_service.core.errors import BadRequest
 from tsdb_service.core.idpattern import compile_pattern, compiled
-from tsdb_service.core.query import EntityFilter, LastValueQuery, TimeRange, ValuePath
+from tsdb_service.core.query import EntityFilter, LastValueQuery, Scope, TimeRange, ValuePath
 from tsdb_service.core.timefmt import ms_of
 from tsdb_service.faces.grafana import frames
 from tsdb_service.faces.grafana import openapi as grafana_oa
@@ -45,6 +45,7 @@ from tsdb_service.http.rawpath import escape_segment, unescape_segment
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.store import reads_store, store_of
 from tsdb_service.parse.request_context import id_pattern
+from tsdb_service.read import HistoryReads
 from tsdb_service.read.requests import SeriesSelect
 
 router = APIRouter(prefix="/grafana/simplejson", tags=["grafana"])
@@ -478,7 +479,7 @@ def _render(target: Target, sampled: list[frames.EntitySeries], several: bool) -
     return out
 
 
-def _annotation_frames(querier, scope, target: Target, time: TimeRange, filters) -> list[dict]:
+def _annotation_frames(querier: HistoryReads, scope: Scope, target: Target, time: TimeRange, filters) -> list[dict]:
     events = _events(querier, scope, target, time, filters, target.equals)
     return [
         {
@@ -495,7 +496,7 @@ def _annotation_frames(querier, scope, target: Target, time: TimeRange, filters)
     ]
 
 
-def _events(querier, scope, target: Target, time: TimeRange, filters, equals) -> list[dict]:
+def _events(querier: HistoryReads, scope: Scope, target: Target, time: TimeRange, filters, equals) -> list[dict]:
     """One event per run of consecutive samples meeting the condition, labelled
     with every value the run went through (``missionState(data) = 1 → 2 → 3``):
     a run of truthy states is several states, not only its first."""

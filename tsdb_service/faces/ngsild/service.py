@@ -10,13 +10,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from tsdb_service.core.errors import NonexistentTenant, ResourceNotFound
-from tsdb_service.core.query import InstanceWindow
+from tsdb_service.core.query import InstanceRow, InstanceWindow
 from tsdb_service.core.timefmt import ld_iso as iso
 from tsdb_service.faces.ngsild.aggregate import Aggregator
 from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.fetch import EntityKey, Fetcher
 from tsdb_service.faces.ngsild.query import Format, TemporalQuery
 from tsdb_service.faces.ngsild.render import aggregated, entity, normalized, simplified
+from tsdb_service.read import TemporalReads
 from tsdb_service.read.requests import InstancesRead
 
 
@@ -27,7 +28,7 @@ class TemporalResult:
     content_range: str | None = None  # set: the instances were cut (206)
 
 
-def run(querier, terms: TermMap, query: TemporalQuery, cap: int) -> TemporalResult:
+def run(querier: TemporalReads, terms: TermMap, query: TemporalQuery, cap: int) -> TemporalResult:
     fetcher = Fetcher(querier, terms)
     if query.tenant and query.tenant not in querier.tenants():
         raise NonexistentTenant(f"tenant {query.tenant!r} has no data")
@@ -64,7 +65,9 @@ def _matching(fetcher: Fetcher, query: TemporalQuery, by_entity, iris, located: 
     return sorted(keys)
 
 
-def _instances(querier, query: TemporalQuery, sids, cap: int):
+def _instances(
+    querier: TemporalReads, query: TemporalQuery, sids: list[int], cap: int
+) -> tuple[list[InstanceRow], str | None]:
     """The page's instances, at most ``cap``; past it, cut at one instant
     so no attribute is left with a gap, and say which span was served."""
     w = query.window
