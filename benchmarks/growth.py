@@ -46,8 +46,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import common
-import compare
 import lawnmower
+import loads
+import wrkrun
 
 TENANT = "benchgrowth"
 ENTITIES = 200
@@ -227,7 +228,7 @@ def compare_store(db: str):
 # --- measuring ---------------------------------------------------------------------------
 
 
-def measure(db: str, size: int, runner: compare.Runner, workdir: Path, tag: str) -> dict:
+def measure(db: str, size: int, runner: loads.Runner, workdir: Path, tag: str) -> dict:
     port = common.free_port()
     server = common.spawned(f"growth-{tag}", common.ours_cmd(db, port, 1), port, workdir)
     server.start(timeout=600)
@@ -245,12 +246,12 @@ def measure(db: str, size: int, runner: compare.Runner, workdir: Path, tag: str)
         lastn = [f"/v2/entities/{entity_id(e)}/attrs/{a}?lastN=100" for e, a in picks]
         hourly = [f"/v2/entities/{entity_id(e)}/attrs/{a}?aggrMethod=avg&aggrPeriod=hour&{day}" for e, a in picks]
         for key, paths in (("lastN1", lastn), ("hourly1", hourly)):
-            runs = runner.repeat(server.url, compare.get_load(server.url, paths, hdrs), 1)
-            out[key] = compare.summary(runs, "p50_ms")
+            runs = runner.repeat(server.url, loads.get_load(server.url, paths, hdrs), 1)
+            out[key] = loads.summary(runs, "p50_ms")
             out[key + "_errors"] = sum(r["non_2xx"] + r["errors"] for r in runs)
-        runs = runner.repeat(server.url, compare.ingest_load(server.url, f"g{tag}", []), 16)
-        out["ingest16"] = compare.summary(runs, "rps")
-        out["ingest16_p99"] = compare.summary(runs, "p99_ms")
+        runs = runner.repeat(server.url, loads.ingest_load(server.url, f"g{tag}", []), 16)
+        out["ingest16"] = loads.summary(runs, "rps")
+        out["ingest16_p99"] = loads.summary(runs, "p99_ms")
         out["rss_end_mib"] = round((server.rss_bytes() or 0) / 2**20)
     finally:
         server.stop()
@@ -263,7 +264,7 @@ def db_bytes(db: str, cluster) -> int:
     return sum(p.stat().st_size for p in Path(db).parent.glob(Path(db).name + "*"))
 
 
-def run(sizes_text: str, backends_text: str, runner: compare.Runner, workdir: Path) -> dict:
+def run(sizes_text: str, backends_text: str, runner: loads.Runner, workdir: Path) -> dict:
     sizes = [parse_size(s) for s in sizes_text.split(",") if s.strip()]
     backends = [b.strip() for b in backends_text.split(",") if b.strip()]
     curve: dict = {}
@@ -375,7 +376,7 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--warmup", type=float, default=2.0)
     args = ap.parse_args(argv)
-    runner = compare.Runner(args.reps, args.duration, args.warmup, compare.wrkrun.ensure_wrk() is not None)
+    runner = loads.Runner(args.reps, args.duration, args.warmup, wrkrun.ensure_wrk() is not None)
     workdir = Path(tempfile.mkdtemp(prefix="tsdb-growth-"))
     try:
         run(args.sizes, args.backends, runner, workdir)
