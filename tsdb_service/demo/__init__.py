@@ -1,10 +1,8 @@
-"""The one-command demo: use-case simulators that notify like Orion, the
-subscriptions that would make a real broker do it, and the request collection.
+"""The one-command demo: the use cases' simulators (``usecases``) replayed
+against a service as Orion would, and the request collection.
 
-Modules: ``lawnmower``, ``warehouse``, ``drone`` (pure, seeded physics);
-``orion`` (notification bodies and headers); ``runner`` (pacing, HTTP,
-progress); ``serve`` (the demo's own service process); ``subscriptions``
-(Orion payloads and recorded examples); ``collection`` (the request
-collection and its exports); ``enums`` and ``sites`` (shared constants);
-``commands`` (the CLI).
+Modules: ``runner`` (pacing, HTTP, progress); ``serve`` (the demo's own
+service process); ``collection`` (the request collection and its exports).
+The CLI is ``cli.demo``; the subscriptions that make a real broker feed us
+are ``broker.subscriptions``.
 """

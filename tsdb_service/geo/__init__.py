@@ -1,1 +1,2 @@
-"""Location handling: NGSI geo encodings normalised to GeoJSON."""
+"""Geometry primitives: NGSI location encodings normalised to GeoJSON
+(``encodings``), geo-query filters (``filter``), geodesic distances."""

@@ -1,4 +1,6 @@
-"""Storage backends behind one seam (see ``base``).
+"""Storage backends behind the two seams (``read``, ``write``): DuckDB
+(``duckdb``) and PostgreSQL (``postgres``) on the SQL they share (``sql``),
+each a ``store.Store``.
 
 Opening a store is where an operator's mistakes show up: a DuckDB file held
 by another process, a directory we cannot write, a PostgreSQL server that is
