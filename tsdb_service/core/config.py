@@ -79,6 +79,18 @@ class Settings(BaseSettings):
         description="DuckDB: fold the write-ahead log into the database file once it is this big "
         "(DuckDB's own default: 16 MiB).",
     )
+    ingest_log: bool = Field(
+        True,
+        description="DuckDB: acknowledge notifications once they are in our own log next to the database "
+        "(FILE.ingest-log/), and apply them to the database in bulk behind it. Off: each group waits for "
+        "its own database commit. PostgreSQL has no ingest log (see the docs, Architecture).",
+    )
+    ingest_log_lag_bytes: int = Field(
+        64 * 1024 * 1024,
+        ge=1024 * 1024,
+        description="DuckDB: how far (encoded bytes) the ingest log may run ahead of the database before "
+        "ingest waits for it.",
+    )
     # --- limits (issue 12): read budgets, rejected-store bounds, slow clients ---
     read_max_series: int = Field(
         50_000,

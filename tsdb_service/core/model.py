@@ -93,6 +93,10 @@ class EntitySample:
     # tenant, service path, id and type) that ``attrs`` does not name gets a
     # deletion instance at this time when the sample is stored.
     deleted_at: datetime | None = None
+    # The row id the ingest log gave it (``write.logged``): stored as given, so
+    # replaying the log after a crash skips what the database already holds.
+    # None: the store allocates one when it stages the sample.
+    rid: int | None = None
 
 
 # NGSI-LD keeps several instances of one attribute apart by datasetId; the

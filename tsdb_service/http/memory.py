@@ -31,7 +31,7 @@ class MemoryStore:
     def querier(self) -> MemoryQuerier:
         return self._querier
 
-    async def read(self, fn: Callable[[], T], *, memory_first: bool = True) -> T:
+    async def read(self, fn: Callable[[], T], *, memory_first: bool = True, consistent: bool = True) -> T:
         return fn()  # memory only: nothing to take off the loop
 
     async def write(self, op: WriteOp) -> None:

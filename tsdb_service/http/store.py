@@ -63,11 +63,22 @@ def store_of(request: Request) -> ServiceStore:
 
 def reads_store(route: Callable[P, R]) -> Callable[P, Awaitable[R]]:
     """Wrap a plain ``def`` route that takes ``request: Request``; its
-    signature and docstring (the OpenAPI description) stay the route's."""
+    signature and docstring (the OpenAPI description) stay the route's. The
+    read sees every write acknowledged before it."""
+    return _wrapped(route, consistent=True)
 
+
+def reports_store(route: Callable[P, R]) -> Callable[P, Awaitable[R]]:
+    """``reads_store`` for reports about the service itself (health,
+    metrics): they answer at once, without waiting for the ingest log."""
+    return _wrapped(route, consistent=False)
+
+
+def _wrapped(route: Callable[P, R], consistent: bool) -> Callable[P, Awaitable[R]]:
     @functools.wraps(route)
     async def awaited(*args: P.args, **kwargs: P.kwargs) -> R:
         store = store_of(cast(Request, kwargs["request"]))
-        return await store.read(functools.partial(route, *args, **kwargs), memory_first=False)
+        read = functools.partial(route, *args, **kwargs)
+        return await store.read(read, memory_first=False, consistent=consistent)
 
     return awaited

@@ -110,7 +110,7 @@ async def _receive(request: Request) -> None:
         parse = partial(
             parse_notification, body, request.headers, received_at=received_at, values_layout=store.values_layout
         )
-        entities = await store.read(parse, memory_first=len(body) <= _PARSE_INLINE_MAX)
+        entities = await store.read(parse, memory_first=len(body) <= _PARSE_INLINE_MAX, consistent=False)
     except TsdbError as exc:
         if exc.status < 500:
             await _keep_rejected(request, store, received_at, exc, body, settings.rejected_body_max_bytes)

@@ -58,8 +58,9 @@ class Reader(Protocol):
 
     def querier(self) -> Querier: ...
 
-    async def read(self, fn: Callable[[], T], *, memory_first: bool = True) -> T:
+    async def read(self, fn: Callable[[], T], *, memory_first: bool = True, consistent: bool = True) -> T:
         """``fn()``, awaited: from memory on the loop when it can answer so,
         else in the threadpool (see ``read.off_loop``). ``memory_first=False``
-        goes to the threadpool at once."""
+        goes to the threadpool at once. ``consistent``: first wait until
+        every write acknowledged before the call is readable."""
         ...

@@ -107,6 +107,8 @@ def _open(settings: Settings) -> Store:
         agg_partials_hours=settings.agg_partials_hours,
         checkpoint_bytes=settings.wal_checkpoint_bytes,
         rejected_limits=RejectedLimits.from_settings(settings),
+        ingest_log=settings.ingest_log,
+        ingest_log_lag_bytes=settings.ingest_log_lag_bytes,
     )
 
 

@@ -23,6 +23,7 @@ from tsdb_service.parse import ValuesLayout
 from tsdb_service.storage.store import CopyRun, Store
 from tsdb_service.write.appender import Appender
 from tsdb_service.write.committer import GroupCommitter
+from tsdb_service.write.logged import LoggedWriter
 from tsdb_service.write.ops import (
     AppendSamples,
     DeleteInstance,
@@ -147,7 +148,7 @@ def without_dropped(entities: Sequence[EntitySample], keep: Iterable[bool]) -> l
                 e
                 if len(attrs) == len(e.attrs)
                 else EntitySample(
-                    e.tenant, e.service_path, e.entity_id, e.entity_type, e.time_index, attrs, e.deleted_at
+                    e.tenant, e.service_path, e.entity_id, e.entity_type, e.time_index, attrs, e.deleted_at, e.rid
                 )
             )
     return out
@@ -165,11 +166,40 @@ class CommittingStore(Store):
     # full, I/O error); cleared by the next write that commits.
     _write_failure: str | None = None
 
+    # Samples go through the ingest log when the backend keeps one
+    # (``write.logged``): acknowledged there, applied behind it.
+    _logged: LoggedWriter | None = None
+
     async def write(self, op: WriteOp) -> None:
-        await self._committer.submit(op)
+        logged = self._logged
+        if logged is None:
+            await self._committer.submit(op)
+        elif isinstance(op, AppendSamples):
+            await logged.write(op)
+        else:
+            await logged.barrier()  # after every sample acknowledged before it
+            await self._committer.submit(op)
 
     def write_sync(self, ops: Sequence[WriteOp]) -> None:
-        self._committer.submit_sync(ops)
+        logged = self._logged
+        if logged is None:
+            self._committer.submit_sync(ops)
+            return
+        samples = [op for op in ops if isinstance(op, AppendSamples)]
+        others = [op for op in ops if not isinstance(op, AppendSamples)]
+        if samples:
+            logged.write_sync(samples)
+        if others:
+            logged.sync()
+            self._committer.submit_sync(others)
+
+    async def caught_up(self) -> None:
+        if self._logged is not None:
+            await self._logged.caught_up()
+
+    def sync(self) -> None:
+        if self._logged is not None:
+            self._logged.sync()
 
     def layouts(self, tenant: str) -> dict[str, ValuesLayout]:
         return {sub: layout for (t, sub), layout in list(self._layouts.items()) if t == tenant}
@@ -180,7 +210,11 @@ class CommittingStore(Store):
         problem = self._health_problem()
         if problem is None and self._write_failure is not None:
             problem = "the database refuses writes: " + self._write_failure
-        ok = self._committer.alive and problem is None and self._reachable()
+        logged = self._logged
+        if problem is None and logged is not None and logged.failure is not None:
+            problem = logged.failure
+        alive = self._committer.alive and (logged is None or logged.alive)
+        ok = alive and problem is None and self._reachable()
         report: dict[str, Any] = {
             "status": "pass" if ok else "fail",
             "backend": self.backend,

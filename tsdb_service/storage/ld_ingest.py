@@ -164,6 +164,7 @@ def with_deletions(
                 entity.time_index,
                 [*entity.attrs, *extra],
                 entity.deleted_at,
+                entity.rid,
             )
         )
     return out

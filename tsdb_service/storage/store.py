@@ -130,8 +130,21 @@ class Store(ABC):
     def close(self) -> None:
         """Drain queued writes, commit them, checkpoint, release the database."""
 
-    async def read(self, fn: Callable[[], T], *, memory_first: bool = True) -> T:
+    async def caught_up(self) -> None:  # noqa: B027 - a store without a log is always caught up
+        """Return once every write acknowledged before the call is readable
+        (a store with an ingest log applies it behind the acknowledgement)."""
+
+    def sync(self) -> None:  # noqa: B027 - a store without a log is always caught up
+        """Block until every write acknowledged so far is readable (commands,
+        tests, background workers; never on the event loop)."""
+
+    async def read(self, fn: Callable[[], T], *, memory_first: bool = True, consistent: bool = True) -> T:
         """``fn()``, awaited: the one way a route reads the store.
+
+        ``consistent`` (the default): the read sees every write acknowledged
+        before it was called (``caught_up``), so a client reads what it just
+        wrote. Only the notification parser's look-up of its ``values``
+        layout, and reports about the service itself, read without waiting.
 
         The rule: **no database call on the event loop**. A read runs first
         on the loop with ``storage.memory_only.MEMORY_ONLY`` set, where it
@@ -147,6 +160,8 @@ class Store(ABC):
         closing the store (the app's lifespan) are not reads: the app runs
         them in the threadpool itself.
         """
+        if consistent:
+            await self.caught_up()
         return await read_off_loop(fn, memory_first)
 
 

@@ -10,7 +10,7 @@ from tsdb_service import __version__
 from tsdb_service.faces.operator import openapi as ops_oa
 from tsdb_service.http import openapi as oa
 from tsdb_service.http.responses import JSON
-from tsdb_service.http.store import reads_store, store_of
+from tsdb_service.http.store import reports_store, store_of
 
 router = APIRouter(tags=["meta"])
 METRICS_CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
@@ -30,7 +30,7 @@ _HEALTH_KEYS = ("status", "output")
 
 
 @router.get("/health", **ops_oa.HEALTH)
-@reads_store
+@reports_store
 def health(request: Request) -> JSON:
     report = store_of(request).health()
     status = 200 if report["status"] == "pass" else 503
@@ -56,6 +56,6 @@ def api_index() -> JSON:
 
 
 @router.get("/metrics", summary="Prometheus metrics (text exposition format)", **ops_oa.METRICS)
-@reads_store  # in the threadpool: the store sizes may query the database
+@reports_store  # in the threadpool: the store sizes may query the database
 def metrics_endpoint(request: Request) -> Response:
     return Response(request.app.state.metrics.render(), media_type=METRICS_CONTENT_TYPE)

@@ -261,8 +261,10 @@ class DuckDBAppender(StagingAppender):
         iid_, obs_, cre_, mod_, del_ = c["iid"], c["observed_at"], c["created_at"], c["modified_at"], c["deleted_at"]
         store = self._store
         for entity in entities:
-            rid = store._next_rid
-            store._next_rid += 1
+            rid = entity.rid
+            if rid is None:
+                rid = store._next_rid
+                store._next_rid += 1
             micros = to_micros(entity.time_index)
             prefix = (entity.tenant, entity.service_path, entity.entity_id, entity.entity_type)
             for attr in entity.attrs:

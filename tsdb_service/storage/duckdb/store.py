@@ -25,12 +25,15 @@ import contextlib
 import logging
 import threading
 from collections.abc import Iterator, Sequence
+from datetime import UTC, datetime
 from typing import Any
 
 import duckdb
+import orjson
 
 from tsdb_service.core.config import WAL_CHECKPOINT_BYTES
 from tsdb_service.core.errors import Unavailable
+from tsdb_service.core.model import EntitySample, RejectedNotification
 from tsdb_service.parse import ValuesLayout
 from tsdb_service.storage import rejected as rejected_store
 from tsdb_service.storage.common import (
@@ -63,8 +66,12 @@ from tsdb_service.storage.ld_ingest import (
 from tsdb_service.storage.partials import HourlyPartials
 from tsdb_service.storage.rejected import RejectedLimits
 from tsdb_service.write.committer import GroupCommitter
+from tsdb_service.write.log import IngestLog
+from tsdb_service.write.logged import MAX_LAG_BYTES, LoggedWriter
+from tsdb_service.write.ops import RecordRejected
 
 log = logging.getLogger(__name__)
+LOG_SUFFIX = ".ingest-log"  # the ingest log's directory, next to the file
 
 
 class DuckDBStore(CommittingStore):
@@ -85,6 +92,8 @@ class DuckDBStore(CommittingStore):
         reopen_delay: float | None = None,
         reopen_max_delay: float | None = None,
         rejected_limits: RejectedLimits | None = None,
+        ingest_log: bool = True,
+        ingest_log_lag_bytes: int = MAX_LAG_BYTES,
     ):
         self.path = path
         # Rejected-store bounds (storage.rejected) and what they dropped, by reason.
@@ -125,6 +134,56 @@ class DuckDBStore(CommittingStore):
         self._compactor.start()
         self._closed = False
         self._querier: DuckDBQuerier | None = None
+        if ingest_log and path != ":memory:":
+            self._logged = self._ingest_log(path + LOG_SUFFIX, ingest_log_lag_bytes)
+
+    # -- the ingest log (write.logged): samples acknowledged there, applied here ----------
+
+    def _ingest_log(self, directory: str, max_lag_bytes: int) -> LoggedWriter:
+        logged = LoggedWriter(
+            IngestLog(directory),
+            apply=self._committer.submit_sync,
+            allocate_rids=self._allocate_rids,
+            stored_rid=self._stored_rid,
+            reject=self._keep_unappliable,
+            healthy=lambda: self._broken is None and self._write_failure is None,
+            seen_rid=self._rids_above,
+            max_lag_bytes=max_lag_bytes,
+        )
+        try:
+            logged.start()
+        except BaseException:
+            self.close()
+            raise
+        return logged
+
+    def _allocate_rids(self, n: int) -> int:
+        """The first of ``n`` consecutive row ids, for the log to hand out."""
+        with self._alloc_lock:
+            first = self._next_rid
+            self._next_rid += n
+        return first
+
+    def _rids_above(self, rid: int) -> None:
+        with self._alloc_lock:
+            self._next_rid = max(self._next_rid, rid + 1)
+
+    def _stored_rid(self) -> int:
+        """The largest row id the file holds: what of the log it has applied."""
+        with self.reading():
+            cur = self._con.cursor()
+            try:
+                return tables_max(cur, "rid")
+            finally:
+                cur.close()
+
+    def _keep_unappliable(self, entity: EntitySample, reason: str) -> None:
+        body = orjson.dumps(entity)
+        rejected = RejectedNotification(
+            entity.tenant, datetime.now(UTC), "NotApplied", f"acknowledged but refused by the database: {reason}",
+            "{}", body,
+        )  # fmt: skip
+        self._committer.submit_sync([RecordRejected(rejected)])
 
     def _load_state(self, con: duckdb.DuckDBPyConnection) -> None:
         """What the store keeps in memory, from the file: the series ids, the
@@ -357,6 +416,8 @@ class DuckDBStore(CommittingStore):
         if self._closed:
             return
         self.stop_retention()
+        if self._logged is not None:
+            self._logged.close()  # everything acknowledged is applied first
         self._stop_reopen.set()
         reopener = self._reopener
         if reopener is not None and reopener.is_alive():
