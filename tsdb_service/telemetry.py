@@ -299,6 +299,7 @@ class StoreCollector(Collector):
             yield GaugeMetricFamily(
                 "tsdb_write_queue_depth", "Write ops queued, not yet taken by a writer.", value=depth
             )
+        yield from _ingest_log_metrics(getattr(self._store, "_logged", None))
         dropped = getattr(self._store, "rejected_dropped", None)
         if dropped is not None:
             family = CounterMetricFamily(
@@ -338,6 +339,26 @@ class StoreCollector(Collector):
                     self._sizes = None
                 self._at = time.monotonic()
             return self._sizes
+
+
+def _ingest_log_metrics(logged) -> Iterable:
+    """The ingest log (``write.logged``): how far it runs ahead of the database."""
+    if logged is None:
+        return
+    yield GaugeMetricFamily(
+        "tsdb_ingest_log_lag_records",
+        "Notification groups acknowledged in the ingest log and not yet applied to the database.",
+        value=logged.acked_seq - logged.applied_seq,
+    )
+    yield GaugeMetricFamily(
+        "tsdb_ingest_log_lag_bytes", "Encoded bytes acknowledged and not yet applied.", value=logged.lag_bytes
+    )
+    yield CounterMetricFamily(
+        "tsdb_ingest_log_applied_batches", "Database transactions that applied the log.", value=logged.applied_batches
+    )
+    yield CounterMetricFamily(
+        "tsdb_ingest_log_applied_samples", "Samples applied from the log.", value=logged.applied_samples
+    )
 
 
 def _committer(store: Store):
