@@ -24,6 +24,22 @@ with warnings.catch_warnings():
     from fastapi.testclient import TestClient
 
 
+class StoreClient(TestClient):
+    """A test client after whose writes the store has applied them too.
+
+    A notification is acknowledged once it is in the ingest log and applied
+    to the database just behind (``write.logged``); reads through the API
+    wait for it. Tests that look into the store directly (its querier, its
+    tables) see what the API would: every write request syncs the store."""
+
+    def request(self, method, url, *args, **kwargs):
+        response = super().request(method, url, *args, **kwargs)
+        store = getattr(self.app.state, "store", None)
+        if method.upper() not in ("GET", "HEAD", "OPTIONS") and store is not None and hasattr(store, "sync"):
+            store.sync()
+        return response
+
+
 def _backends() -> list[str]:
     """Both backends unless TSDB_TEST_BACKENDS narrows it (e.g. "duckdb")."""
     wanted = os.environ.get("TSDB_TEST_BACKENDS", "duckdb,postgresql")
@@ -89,7 +105,7 @@ def client_factory(app_factory):
     """``with client_factory(url) as client:`` → a started in-process app."""
 
     def make(url: str, **overrides) -> TestClient:
-        return TestClient(app_factory(url, **overrides))
+        return StoreClient(app_factory(url, **overrides))
 
     return make
 

@@ -361,6 +361,25 @@ def _ingest_log_metrics(logged) -> Iterable:
     )
 
 
+class _OtherOps:
+    """An observer that passes on all but samples (counted at the ingest log)."""
+
+    def __init__(self, inner: WriterMetrics):
+        self._inner = inner
+
+    def taken(self, ops: Sequence[WriteOp]) -> None:
+        if rest := [op for op in ops if not isinstance(op, AppendSamples)]:
+            self._inner.taken(rest)
+
+    def committed(self, ops: Sequence[WriteOp], seconds: float) -> None:
+        if rest := [op for op in ops if not isinstance(op, AppendSamples)]:
+            self._inner.committed(rest, seconds)
+
+    def failed_ops(self, ops: Sequence[WriteOp]) -> None:
+        if rest := [op for op in ops if not isinstance(op, AppendSamples)]:
+            self._inner.failed_ops(rest)
+
+
 def _committer(store: Store):
     # Both stores keep their group committer here; the seam has no accessor
     # because nothing but metrics needs one.
@@ -385,9 +404,18 @@ class Metrics:
         self._retention_collector: RetentionLagCollector | None = None
 
     def attach(self, store: Store) -> None:
-        """Observe ``store``'s writers and report its sizes (called once the store is open)."""
+        """Observe ``store``'s writers and report its sizes (called once the store is open).
+
+        With an ingest log, notifications are counted (and their commit
+        timed) when the log acknowledges them; the database writer then
+        reports only the other ops, which go to it directly."""
         committer = _committer(store)
-        if committer is not None:
+        logged = getattr(store, "_logged", None)
+        if logged is not None:
+            logged.observe(self.writer)
+            if committer is not None:
+                committer.observer = _OtherOps(self.writer)
+        elif committer is not None:
             committer.observer = self.writer
         self._store_collector = StoreCollector(store, self._stats_ttl)
         self.registry.register(self._store_collector)

@@ -155,6 +155,7 @@ class RetentionWorker:
     def run_once(self) -> dict[str, int]:
         """One pass over every rule; returns the rows deleted per table."""
         deleted: dict[str, int] = {}
+        self._store.sync()  # after every sample acknowledged before the pass (the ingest log)
         with self._run_lock, self._session() as session:
             if session is None:
                 return deleted

@@ -57,7 +57,7 @@ from tsdb_service.core.errors import Unavailable
 from tsdb_service.core.model import EntitySample
 from tsdb_service.write import codec
 from tsdb_service.write.appender import Appender
-from tsdb_service.write.committer import GroupCommitter
+from tsdb_service.write.committer import CommitObserver, GroupCommitter
 from tsdb_service.write.log import IngestLog, LogError
 from tsdb_service.write.ops import AppendSamples, WriteOp
 
@@ -153,6 +153,10 @@ class LoggedWriter:
         if self._applier.is_alive():
             self._applier.join()
         self.log.close()
+
+    def observe(self, observer: CommitObserver) -> None:
+        """Tell ``observer`` of each acknowledged group (telemetry)."""
+        self._writer.observer = observer
 
     @property
     def alive(self) -> bool:
