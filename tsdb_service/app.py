@@ -7,6 +7,7 @@ import gc
 import logging
 import sys
 from contextlib import asynccontextmanager
+from pathlib import Path
 
 from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
@@ -28,7 +29,7 @@ from tsdb_service.http.openapi import install as install_openapi
 from tsdb_service.http.responses import JSON
 from tsdb_service.ingest import http_notify as notify
 from tsdb_service.security import protect
-from tsdb_service.storage import open_store
+from tsdb_service.storage import open_store, redact
 
 log = logging.getLogger("tsdb_service")
 WRITER_SWITCH_INTERVAL_S = 0.0002
@@ -71,7 +72,7 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
         sys.setswitchinterval(WRITER_SWITCH_INTERVAL_S)
         app.state.store = await run_in_threadpool(open_store, settings, background=True)
         metrics.attach(app.state.store)
-        log.info("tsdb-service %s on %s (%s)", __version__, settings.db, app.state.store.backend)
+        log.info("tsdb-service %s opened the %s", __version__, describe_database(settings))
         # Ingest allocates many short-lived objects; move everything built at
         # startup out of the collector's way and collect young objects less often.
         gc.freeze()
@@ -112,6 +113,16 @@ def create_app(settings: Settings | None = None, metrics: metrics_.Metrics | Non
     app.include_router(ngsild_write.router)
     app.include_router(ngsild_read.router)
     return app
+
+
+def describe_database(settings: Settings) -> str:
+    """The database a server opened, for its log: a DuckDB file's absolute
+    path, or a PostgreSQL URL without its password."""
+    if settings.backend == "postgresql":
+        return f"PostgreSQL database at {redact(settings.db)}"
+    if settings.db == ":memory:":
+        return "DuckDB database in memory (nothing is kept)"
+    return f"DuckDB file {Path(settings.db).resolve()}"
 
 
 def create_app_from_env() -> FastAPI:
