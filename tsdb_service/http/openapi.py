@@ -669,8 +669,24 @@ _NEXT = {
     },
     "X-Next-Offset": {"description": "offset of the next page", "schema": {"type": "integer"}},
 }
-REJECTED = spec(FIWARE_SERVICE, NGSILD_TENANT, ok_=ok(ref_array("RejectedNotification")), errors_=(400, *AUTH, 503))
-REJECTED["responses"][200]["headers"] = _NEXT
+HINT = {
+    "X-Tsdb-Hint": {
+        "description": "On an empty answer whose tenant holds no data: the tenants that do "
+        "(the body stays QuantumLeap's [])",
+        "schema": {"type": "string"},
+    }
+}
+
+
+def with_headers(operation: dict, headers: dict, status: int = 200) -> dict:
+    """``operation`` (a ``spec``) with ``headers`` declared on its ``status`` answer."""
+    operation["responses"][status]["headers"] = headers
+    return operation
+
+
+REJECTED = with_headers(
+    spec(FIWARE_SERVICE, NGSILD_TENANT, ok_=ok(ref_array("RejectedNotification")), errors_=(400, *AUTH, 503)), _NEXT
+)
 
 LAYOUTS = {"type": "object", "additionalProperties": ref("ValuesLayout"), "description": "subscription id → layout"}
 PUT_LAYOUT = spec(

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 from fastapi import Request
 
-from tsdb_service.parse.request_context import raw_tenant, selectors, tenant
+from tsdb_service.parse.request_context import raw_tenant, selectors, tenant, tenant_hint
+
+HINT_HEADER = "X-Tsdb-Hint"
 
 
 def tenant_header(request: Request) -> str:
@@ -24,3 +26,15 @@ def tenant_of(request: Request) -> str:
     """``Fiware-Service`` / ``NGSILD-Tenant`` lower-cased, as Orion stores
     them; "" is the default tenant. Conflicting selectors are a 400."""
     return tenant(request.headers.items())
+
+
+def empty_answer_hint(request: Request, asked: str) -> dict[str, str]:
+    """The ``X-Tsdb-Hint`` header for an empty answer (``{}`` when there is
+    nothing to say): the tenants that hold data when ``asked`` holds none,
+    limited to those the caller's credential may touch. A header, so the
+    body stays QuantumLeap's ``[]``."""
+    principal = getattr(request.state, "principal", None)
+    tenants = request.app.state.store.querier().tenants()
+    visible = [t for t in tenants if principal is None or principal.may_touch(t)]
+    hint = tenant_hint(visible, asked)
+    return {HINT_HEADER: f"{hint} (send Fiware-Service: TENANT)"} if hint else {}
