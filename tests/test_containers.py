@@ -16,7 +16,7 @@ from urllib.parse import urlsplit
 import pytest
 import yaml
 
-from tsdb_service.broker.subscriptions import DEFAULT_NOTIFY_URL
+from tsdb_service.broker.subscriptions import COMPOSE_NOTIFY_URL
 from tsdb_service.cli import build_parser
 from tsdb_service.core.config import Settings
 
@@ -75,7 +75,7 @@ def test_tsdb_service_wiring():
     assert "tsdb-data:/data" in tsdb["volumes"] and "tsdb-data" in COMPOSE["volumes"]
     assert tsdb["environment"]["TSDB_DB"].startswith("/data/")
     # The subscriptions Orion gets notify this service by its compose name.
-    notify = urlsplit(DEFAULT_NOTIFY_URL)
+    notify = urlsplit(COMPOSE_NOTIFY_URL)
     assert (notify.hostname, notify.port, notify.path) == ("tsdb-service", 8668, "/v2/notify")
 
 
@@ -120,4 +120,4 @@ def test_subscriptions_run_once_orion_and_the_service_are_healthy():
     args = build_parser().parse_args(job["command"])
     assert (args.command, args.use_case, args.force) == ("subscribe", "all", False)  # keeps what exists
     assert (urlsplit(args.broker).hostname, urlsplit(args.broker).port) == ("orion", 1026)
-    assert (args.notify_url or DEFAULT_NOTIFY_URL) == DEFAULT_NOTIFY_URL
+    assert (args.notify_url or COMPOSE_NOTIFY_URL) == COMPOSE_NOTIFY_URL

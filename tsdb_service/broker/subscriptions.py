@@ -8,11 +8,14 @@ holds the same documents written out by ``tsdb-service notifications build``
 
 from __future__ import annotations
 
+import ipaddress
 import itertools
 import random
+import socket
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import httpx
 import orjson
@@ -21,7 +24,13 @@ from tsdb_service.usecases import orion
 from tsdb_service.usecases.base import Simulator
 from tsdb_service.usecases.registry import SIMULATORS
 
-DEFAULT_NOTIFY_URL = "http://tsdb-service:8668/v2/notify"
+# Where Orion notifies us inside docker-compose.yml's network (the recorded
+# subscriptions of notifications/ use it too); elsewhere see default_notify_url.
+COMPOSE_NOTIFY_URL = "http://tsdb-service:8668/v2/notify"
+PORT = 8668
+# A documentation address (RFC 5737): a UDP socket "connected" to it tells
+# which local address the default route uses, without sending anything.
+_ANY_REMOTE = "192.0.2.1"
 
 _EXAMPLE_START = datetime(2025, 6, 2, 9, 0, tzinfo=UTC)
 
@@ -39,7 +48,36 @@ _EXAMPLE_WANTED = {
 }
 
 
-def subscription(sim: Simulator, notify_url: str = DEFAULT_NOTIFY_URL) -> dict:
+def default_notify_url(broker: str, port: int = PORT, path: str = "/v2/notify") -> str:
+    """Where the broker at ``broker`` can reach a tsdb-service running on
+    this machine: this machine's address on the route to the broker. A
+    broker on this machine itself (``localhost``) often runs in a container,
+    where ``localhost`` is the container: then the machine's address on its
+    default route, which a container reaches as well as a local process.
+    The host name when the machine has no route at all."""
+    host = urlsplit(broker).hostname or "localhost"
+    address = _local_address(host)
+    if address is None or ipaddress.ip_address(address).is_loopback:
+        address = _local_address(_ANY_REMOTE)
+    if address is None:
+        address = socket.gethostname()
+    elif ":" in address:
+        address = f"[{address}]"
+    return f"http://{address}:{port}{path}"
+
+
+def _local_address(host: str) -> str | None:
+    """The local address a datagram to ``host`` would leave from (nothing is sent)."""
+    try:
+        family, _, _, _, target = socket.getaddrinfo(host, 9, type=socket.SOCK_DGRAM)[0]
+        with socket.socket(family, socket.SOCK_DGRAM) as probe:
+            probe.connect(target)
+            return str(probe.getsockname()[0]).split("%")[0]
+    except (OSError, UnicodeError):
+        return None
+
+
+def subscription(sim: Simulator, notify_url: str = COMPOSE_NOTIFY_URL) -> dict:
     """The NGSIv2 subscription for one use case: every change of its entities,
     the whole entity, normalized, with the IoT Agent's TimeInstant metadata."""
     return {
@@ -192,7 +230,9 @@ def ensure_subscription(
     headers = broker_headers(sim)
     existing, problem = list_subscriptions(broker, headers, timeout)
     if existing is None:
-        return False, f"{problem}; nothing created (--force creates without checking)"
+        # --force only helps a broker that answers but cannot list; one that cannot be reached gets nothing either way.
+        hint = "" if problem.startswith("could not reach") else " (--force creates without checking)"
+        return False, f"{problem}; nothing created{hint}"
     wanted = subscription(sim, notify_url)
     same = next((sub for sub in existing if equivalent(sub, wanted)), None)
     if same is None:

@@ -69,12 +69,15 @@ def _add_demo(sub) -> None:
 
 def _add_subscribe(sub) -> None:
     p = sub.add_parser("subscribe", help="create a use case's subscription on a real Orion broker, once")
-    p.add_argument("--broker", required=True, help="the broker's base URL, e.g. http://orion:1026")
+    p.add_argument("--broker", required=True, metavar="URL", help="the broker's base URL, e.g. http://orion:1026")
     p.add_argument("--use-case", required=True, choices=[*USE_CASE_NAMES, "all"], help="whose subscription to create")
     p.add_argument(
         "--notify-url",
         default=None,
-        help="where the broker sends notifications (default http://tsdb-service:8668/v2/notify)",
+        metavar="URL",
+        help="where the broker sends notifications; inside docker-compose.yml's network "
+        "http://tsdb-service:8668/v2/notify (default: port 8668 of this machine, at the address the broker "
+        "reaches it by; printed)",
     )
     p.add_argument(
         "--force",
@@ -257,13 +260,15 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start,
 
 
 def cmd_subscribe(args: argparse.Namespace) -> int:
-    from tsdb_service.broker.subscriptions import DEFAULT_NOTIFY_URL, ensure_subscription
+    from tsdb_service.broker.subscriptions import default_notify_url, ensure_subscription
     from tsdb_service.usecases.registry import SIMULATORS
 
     names = USE_CASE_NAMES if args.use_case == "all" else (args.use_case,)
+    notify_url = args.notify_url or default_notify_url(args.broker)
+    given = "" if args.notify_url else " (this machine as the broker reaches it; --notify-url to choose)"
+    print(f"notify URL: {notify_url}{given}")
     all_ok = True
     for name in names:
-        notify_url = args.notify_url or DEFAULT_NOTIFY_URL
         ok, answer = ensure_subscription(args.broker, SIMULATORS[name], notify_url, force=args.force)
         print(f"{name}: {answer}")
         all_ok &= ok
