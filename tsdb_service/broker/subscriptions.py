@@ -12,6 +12,7 @@ import ipaddress
 import itertools
 import random
 import socket
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -104,6 +105,47 @@ def broker_headers(sim: Simulator) -> dict[str, str]:
     }
 
 
+def ld_subscription(sim: Simulator, notify_url: str) -> dict:
+    """The NGSI-LD subscription for one use case (Orion-LD): the same entities,
+    normalized, to ``/ngsi-ld/v1/notify``. NGSI-LD has no service paths, so
+    Orion-LD sends the use case's as a ``Fiware-ServicePath`` header
+    (``receiverInfo``): the history lands where the NGSIv2 feed puts it, and
+    the dashboards and the explorer find it there."""
+    return {
+        "type": "Subscription",
+        "description": f"tsdb-service: history of the {sim.title}",
+        "entities": [{"idPattern": pattern, "type": entity_type} for pattern, entity_type in sim.subjects],
+        "notification": {
+            "format": "normalized",
+            "endpoint": {
+                "uri": notify_url,
+                "accept": "application/json",
+                "receiverInfo": [{"key": "Fiware-ServicePath", "value": sim.tenancy.service_path}],
+            },
+        },
+    }
+
+
+def ld_broker_headers(sim: Simulator) -> dict[str, str]:
+    """The tenant an NGSI-LD subscription or update is made in (no @context: the core one)."""
+    return {"Content-Type": "application/json", "NGSILD-Tenant": sim.tenancy.service}
+
+
+@dataclass(frozen=True, slots=True)
+class BrokerApi:
+    """Where and how a subscription is made on a broker, per API."""
+
+    name: str
+    subscriptions_path: str
+    notify_path: str  # ours, where the broker sends notifications
+    document: Callable[[Simulator, str], dict]
+    headers: Callable[[Simulator], dict[str, str]]
+
+
+NGSIV2 = BrokerApi("NGSIv2", "/v2/subscriptions", "/v2/notify", subscription, broker_headers)
+NGSI_LD = BrokerApi("NGSI-LD", "/ngsi-ld/v1/subscriptions", "/ngsi-ld/v1/notify", ld_subscription, ld_broker_headers)
+
+
 @dataclass(frozen=True, slots=True)
 class BrokerAnswer:
     """What a broker answered to ``POST /v2/subscriptions``; ``status`` is
@@ -138,10 +180,12 @@ def send_subscription(url: str, document: dict, headers: dict[str, str], timeout
     )
 
 
-def post_subscription(broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0) -> tuple[bool, str]:
+def post_subscription(
+    broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0, api: BrokerApi = NGSIV2
+) -> tuple[bool, str]:
     """Create the subscription on a broker; (created?, what the broker answered)."""
-    url = broker.rstrip("/") + "/v2/subscriptions"
-    answer = send_subscription(url, subscription(sim, notify_url), broker_headers(sim), timeout)
+    url = broker.rstrip("/") + api.subscriptions_path
+    answer = send_subscription(url, api.document(sim, notify_url), api.headers(sim), timeout)
     if answer.status is None:
         return False, f"could not reach {url}: {answer.problem}"
     if answer.created:
@@ -155,15 +199,18 @@ _PAGE = 1000
 _MAX_PAGES = 100
 
 
-def list_subscriptions(broker: str, headers: dict[str, str], timeout: float = 10.0) -> tuple[list[dict] | None, str]:
+def list_subscriptions(
+    broker: str, headers: dict[str, str], timeout: float = 10.0, path: str = NGSIV2.subscriptions_path
+) -> tuple[list[dict] | None, str]:
     """Every subscription the broker has for the tenant and service path of
     ``headers``: ``(subscriptions, "")``, or ``(None, why)`` when it could not
-    tell. Follows Orion's paging (``Fiware-Total-Count``, else short pages)."""
-    url = broker.rstrip("/") + "/v2/subscriptions"
-    tenancy = {k: v for k, v in headers.items() if k.lower().startswith("fiware-")}
+    tell. Follows Orion's paging (``Fiware-Total-Count``, Orion-LD's
+    ``NGSILD-Results-Count``, else short pages)."""
+    url = broker.rstrip("/") + path
+    tenancy = {k: v for k, v in headers.items() if k.lower().startswith(("fiware-", "ngsild-"))}
     found: list[dict] = []
     for _ in range(_MAX_PAGES):
-        params: dict[str, str | int] = {"limit": _PAGE, "offset": len(found), "options": "count"}
+        params: dict[str, str | int] = {"limit": _PAGE, "offset": len(found), "options": "count", "count": "true"}
         try:
             response = httpx.get(url, params=params, headers=tenancy, timeout=timeout)
         except httpx.HTTPError as exc:
@@ -178,7 +225,7 @@ def list_subscriptions(broker: str, headers: dict[str, str], timeout: float = 10
         if not isinstance(page, list):
             return None, f"listing {url} did not answer a JSON array"
         found.extend(sub for sub in page if isinstance(sub, dict))
-        total = response.headers.get("fiware-total-count", "")
+        total = response.headers.get("fiware-total-count", response.headers.get("ngsild-results-count", ""))
         more = len(found) < int(total) if total.isdigit() else len(page) >= _PAGE
         if not page or not more:
             return found, ""
@@ -186,20 +233,21 @@ def list_subscriptions(broker: str, headers: dict[str, str], timeout: float = 10
 
 
 def notify_url_of(document: dict) -> str | None:
-    """Where a subscription sends its notifications (``http`` or ``httpCustom``)."""
+    """Where a subscription sends its notifications (NGSIv2 ``http`` or
+    ``httpCustom``, NGSI-LD ``endpoint``)."""
     notification = document.get("notification")
     if not isinstance(notification, dict):
         return None
-    for key in ("http", "httpCustom"):
+    for key, field in (("http", "url"), ("httpCustom", "url"), ("endpoint", "uri")):
         target = notification.get(key)
-        if isinstance(target, dict) and isinstance(target.get("url"), str):
-            return target["url"]
+        if isinstance(target, dict) and isinstance(target.get(field), str):
+            return target[field]
     return None
 
 
 def _selectors(document: dict) -> frozenset[tuple]:
     subject = document.get("subject")
-    entities = subject.get("entities") if isinstance(subject, dict) else None
+    entities = subject.get("entities") if isinstance(subject, dict) else document.get("entities")
     return (
         frozenset(
             (e.get("id"), e.get("idPattern"), e.get("type"), e.get("typePattern"))
@@ -218,7 +266,7 @@ def equivalent(existing: dict, wanted: dict) -> bool:
 
 
 def ensure_subscription(
-    broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0, force: bool = False
+    broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0, force: bool = False, api: BrokerApi = NGSIV2
 ) -> tuple[bool, str]:
     """Create the subscription unless the broker already has an equivalent
     one for the use case's tenant and service path (``force``: create
@@ -226,17 +274,16 @@ def ensure_subscription(
     be listed is not subscribed to (unless ``force``): running twice must
     never double the history."""
     if force:
-        return post_subscription(broker, sim, notify_url, timeout)
-    headers = broker_headers(sim)
-    existing, problem = list_subscriptions(broker, headers, timeout)
+        return post_subscription(broker, sim, notify_url, timeout, api)
+    existing, problem = list_subscriptions(broker, api.headers(sim), timeout, api.subscriptions_path)
     if existing is None:
         # --force only helps a broker that answers but cannot list; one that cannot be reached gets nothing either way.
         hint = "" if problem.startswith("could not reach") else " (--force creates without checking)"
         return False, f"{problem}; nothing created{hint}"
-    wanted = subscription(sim, notify_url)
+    wanted = api.document(sim, notify_url)
     same = next((sub for sub in existing if equivalent(sub, wanted)), None)
     if same is None:
-        return post_subscription(broker, sim, notify_url, timeout)
+        return post_subscription(broker, sim, notify_url, timeout, api)
     tenancy = f"tenant {sim.tenancy.service!r} {sim.tenancy.service_path}"
     return True, (
         f"already subscribed: subscription {same.get('id', '?')} (status {same.get('status', 'unknown')}) "
