@@ -28,7 +28,7 @@ from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
 
 from tests.support.server import ServerProcess
-from tests.test_subscribe_api import serving
+from tests.test_subscribe_api import served
 from tsdb_service.broker.updates import ld_entity
 from tsdb_service.cli import main
 from tsdb_service.usecases.registry import SIMULATORS
@@ -131,9 +131,7 @@ class StandInOrion:
 
 @pytest.fixture
 def orion():
-    stand_in = StandInOrion()
-    with serving(stand_in.app) as url:
-        stand_in.url = url
+    with served(StandInOrion()) as stand_in:
         yield stand_in
 
 

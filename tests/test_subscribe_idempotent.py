@@ -19,7 +19,7 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Route
 
-from tests.test_subscribe_api import StandInBroker, serving
+from tests.test_subscribe_api import StandInBroker, served
 from tsdb_service.broker.subscriptions import default_notify_url, subscription
 from tsdb_service.cli import main
 from tsdb_service.usecases.registry import SIMULATORS
@@ -64,9 +64,7 @@ def _as_orion_lists(sub: dict) -> dict:
 
 @pytest.fixture
 def broker():
-    stand_in = PagingBroker()
-    with serving(stand_in.app) as url:
-        stand_in.url = url
+    with served(PagingBroker()) as stand_in:
         yield stand_in
 
 
