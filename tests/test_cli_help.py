@@ -85,3 +85,52 @@ def test_demo_feeding_an_unreachable_service_says_so_once():
     done = run_cli("demo", "--no-serve", "--url", url, "--duration", "1")
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [f"error: cannot reach {url}: [Errno 111] Connection refused"]
+
+
+def test_serve_placeholders_say_what_a_value_is():
+    """Count and byte settings said ``TENANT`` (the last word of their name)."""
+    usage = " ".join(run_cli("serve", "--help").stdout.split())
+    for expected in (
+        "--rejected-max-per-tenant N",
+        "--rejected-max-bytes-per-tenant BYTES",
+        "--max-body-bytes BYTES",
+        "--read-max-seconds SECONDS",
+        "--header-timeout-s SECONDS",
+        "--rejected-max-age-days DAYS",
+        "--host ADDRESS",
+        "--port PORT",
+        "--jwt-jwks-url URL",
+        "--retention RULES",
+    ):
+        assert expected in usage, expected
+    assert "TENANT]" not in usage.replace("[:TENANTS]", "")
+
+
+def test_serve_help_has_no_empty_default():
+    text = " ".join(run_cli("serve", "--help").stdout.split())
+    assert "(default ;" not in text and "default ;" not in text
+    assert "(not set by default; env TSDB_API_KEYS)" in text
+
+
+@pytest.mark.parametrize(
+    ("argv", "usage", "meant"),
+    [
+        (["serve", "--prot", "8668"], "usage: tsdb-service serve ", "--port"),
+        (["export", "--out", "x.csv", "--servce", "lawnmower"], "usage: tsdb-service export ", "--service"),
+        (["queries", "run", "--ulr", "http://x"], "usage: tsdb-service queries run ", "--url"),
+        (
+            ["subscribe", "--broker", "http://o:1026", "--use-case", "all", "--notfy-url", "x"],
+            "usage: tsdb-service subscribe ",
+            "--notify-url",
+        ),
+    ],
+)
+def test_a_mistyped_flag_prints_its_subcommand_usage(tmp_path, argv, usage, meant):
+    done = run_cli(*argv, cwd=tmp_path)
+    assert done.returncode == 2
+    assert done.stderr.startswith(usage), done.stderr
+    last = done.stderr.strip().splitlines()[-1]
+    assert last.startswith(f"tsdb-service {argv[0]}") and "unrecognized arguments" in last, last
+    if meant:
+        assert f"did you mean {meant}?" in last
+    assert list(tmp_path.iterdir()) == []

@@ -102,3 +102,62 @@ def test_demo_validates_its_db_and_port(tmp_path):
     done = run_cli("demo", "--port", "99999", "--duration", "1", cwd=tmp_path)
     assert done.returncode == 2 and "--port" in done.stderr and "65535" in done.stderr, done.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.fixture
+def listening_port():
+    """A port another socket already listens on."""
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        sock.listen()
+        yield sock.getsockname()[1]
+
+
+def test_serve_refuses_a_port_in_use_before_creating_anything(tmp_path, listening_port):
+    done = run_cli("serve", "--host", "127.0.0.1", "--port", str(listening_port), cwd=tmp_path)
+    assert_usage_error(done, "--port (TSDB_PORT)", f"127.0.0.1:{listening_port} is already in use")
+    assert list(tmp_path.iterdir()) == [], "nothing may be created when the port is taken"
+
+
+@pytest.mark.parametrize(
+    ("host", "needle"),
+    [("999.1.1.1", "cannot listen on '999.1.1.1'"), ("192.0.2.77", "not an address of this machine")],
+)
+def test_serve_refuses_a_host_it_cannot_listen_on(tmp_path, host, needle):
+    assert_usage_error(run_cli("serve", "--host", host, cwd=tmp_path), "--host (TSDB_HOST)", needle)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("args", "needles"),
+    [
+        (["--api-keys", "short:read"], ["--api-keys (TSDB_API_KEYS)", "at least 16"]),
+        (["--api-keys", "long-enough-key-1234:superuser"], ["--api-keys (TSDB_API_KEYS)", "read, write, admin"]),
+        (["--api-keys-file", "/nonexistent/keys"], ["--api-keys-file (TSDB_API_KEYS_FILE)", "cannot read"]),
+        (["--jwt-key", "s" * 32, "--jwt-algorithms", "FOO"], ["--jwt-algorithms (TSDB_JWT_ALGORITHMS)", "FOO"]),
+        (["--jwt-key", "s" * 32, "--jwt-algorithms", "RS256"], ["--jwt-algorithms", "cannot be used"]),
+        (["--jwt-algorithms", "RS256"], ["TSDB_JWT_ALGORITHMS", "no token is verified"]),
+        (["--jwt-audience", "tsdb"], ["TSDB_JWT_AUDIENCE", "TSDB_JWT_JWKS_URL or TSDB_JWT_KEY"]),
+        (["--jwt-jwks-url", "notaurl"], ["--jwt-jwks-url (TSDB_JWT_JWKS_URL)", "not an http(s) URL"]),
+        (["--jwt-jwks-url", "ftp://kc/certs"], ["--jwt-jwks-url (TSDB_JWT_JWKS_URL)", "not an http(s) URL"]),
+        (["--jwt-key", "-----BEGIN PUBLIC KEY-----\nnope\n-----END PUBLIC KEY-----"], ["not a PEM public key"]),
+        (["--ngsild-contexts", "garbage"], ["--ngsild-contexts (TSDB_NGSILD_CONTEXTS)", "URL=path"]),
+        (["--ngsild-contexts", "garbage=./c.jsonld"], ["--ngsild-contexts", "'garbage' is not an http(s) URL"]),
+        (["--ngsild-contexts", "https://ex.org/c.jsonld=/nonexistent.jsonld"], ["cannot read /nonexistent.jsonld"]),
+    ],
+)
+def test_serve_refuses_bad_security_and_context_settings_in_one_line(tmp_path, args, needles):
+    """Each used to be a 35-line traceback after the database was created, or was accepted."""
+    done = run_cli("serve", *args, cwd=tmp_path)
+    assert_usage_error(done, *needles)
+    assert "Traceback" not in done.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_local_context_file_that_is_not_json_is_refused(tmp_path):
+    (tmp_path / "c.jsonld").write_text("{not json")
+    done = run_cli("serve", "--ngsild-contexts", f"https://ex.org/c.jsonld={tmp_path / 'c.jsonld'}", cwd=tmp_path)
+    assert_usage_error(done, "--ngsild-contexts", "is not JSON")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.jsonld"]

@@ -18,6 +18,8 @@ from pathlib import Path
 import pytest
 from pg_cluster import free_port
 
+from tsdb_service import __version__
+
 try:
     from test_cli_settings import run_cli
 except ImportError:  # tests/ imported as a package
@@ -153,7 +155,9 @@ def test_serve_still_starts_on_a_good_database(tmp_path):
         "--port",
         str(port),
     ]
-    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    log = tmp_path / "serve.log"
+    with log.open("wb") as sink:
+        proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=sink, env=env)
     try:
         import httpx
 
@@ -170,3 +174,13 @@ def test_serve_still_starts_on_a_good_database(tmp_path):
         proc.terminate()
         proc.wait(30)
     assert db.exists()
+    # The log says which database was opened, by its absolute path.
+    assert f"INFO:     tsdb-service {__version__} opened the DuckDB file {db.resolve()}" in log.read_text()
+
+
+def test_the_log_names_a_postgresql_database_without_its_password():
+    from tsdb_service.app import describe_database
+    from tsdb_service.core.config import Settings
+
+    said = describe_database(Settings(db="postgresql://tsdb:s3cret@db.example:5432/history"))
+    assert said == "PostgreSQL database at postgresql://tsdb:***@db.example:5432/history"

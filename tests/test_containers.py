@@ -1,29 +1,75 @@
-"""Dockerfile and docker-compose.yml agree with the repository.
+"""Dockerfile, docker-compose.yml and its Orion-LD variant agree with the repository.
 
 No container engine runs here, so the images are never built in the test
-suite; what can drift without one is checked instead: images are pinned,
-mounted files exist where the dashboards' README says to mount them,
-service names and ports match the URLs baked into the provisioning and the
-Orion subscriptions, and the one-shot subscriber's command parses.
+suite; what can drift without one is checked instead: both compose files,
+and the stack they make together, are valid under the Compose
+Specification's JSON schema (vendored in tests/support/compose-spec/ with
+its licence); images are pinned; mounted files exist where the dashboards'
+README says to mount them; service names and ports match the URLs baked into
+the provisioning and the subscriptions; the subscriber's and the feeder's
+commands parse; the image installs no extras and carries only the pruned
+virtual environment. tests/test_broker_feed.py runs the same two commands
+against a stand-in broker.
 """
 
 from __future__ import annotations
 
+import json
 import re
+import subprocess
 from pathlib import Path
 from urllib.parse import urlsplit
 
+import jsonschema
 import pytest
 import yaml
 
-from tsdb_service.broker.subscriptions import DEFAULT_NOTIFY_URL
+from tsdb_service.broker.subscriptions import COMPOSE_NOTIFY_URL
 from tsdb_service.cli.main import build_parser
 from tsdb_service.core.config import Settings
 
 ROOT = Path(__file__).resolve().parent.parent
 COMPOSE = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
 SERVICES = COMPOSE["services"]
+ORION_LD = yaml.safe_load((ROOT / "docker-compose.orion-ld.yml").read_text())
 DOCKERFILE = (ROOT / "Dockerfile").read_text()
+SCHEMA = json.loads((ROOT / "tests/support/compose-spec/compose-spec.json").read_text())
+
+
+def merged(base: dict, override: dict) -> dict:
+    """``docker compose -f base -f override``: mappings merge key by key, and a
+    scalar or a sequence (``command``, ``image``) replaces the base's."""
+    out = dict(base)
+    for key, value in override.items():
+        out[key] = merged(base[key], value) if isinstance(value, dict) and isinstance(base.get(key), dict) else value
+    return out
+
+
+STACK_LD = merged(COMPOSE, ORION_LD)
+
+
+def _problems(document: dict) -> list[str]:
+    validator = jsonschema.Draft7Validator(SCHEMA, format_checker=jsonschema.Draft7Validator.FORMAT_CHECKER)
+    return [f"{'/'.join(map(str, e.absolute_path))}: {e.message}" for e in validator.iter_errors(document)]
+
+
+@pytest.mark.parametrize(
+    "document", [COMPOSE, ORION_LD, STACK_LD], ids=["docker-compose.yml", "orion-ld override", "the Orion-LD stack"]
+)
+def test_compose_files_follow_the_compose_specification(document):
+    assert _problems(document) == []
+
+
+def test_the_validator_catches_what_compose_would_refuse():
+    broken = merged(COMPOSE, {"services": {"feeder": {"depends_on": {"subscriptions": {"condition": "done"}}}}})
+    assert _problems(broken) and _problems(merged(COMPOSE, {"services": {"orion": {"ports": 1026}}}))
+
+
+def test_the_orion_ld_variant_only_changes_what_it_says():
+    assert set(ORION_LD["services"]) <= set(SERVICES)
+    assert set(ORION_LD) == {"services"}
+    assert STACK_LD["services"]["orion"]["image"].startswith("fiware/orion-ld:")
+    assert "-dbhost" in STACK_LD["services"]["orion"]["command"] and "mongo" in STACK_LD["services"]["orion"]["command"]
 
 
 def _instructions(name: str) -> list[str]:
@@ -37,7 +83,7 @@ def _published(service: str) -> dict[int, int]:
 
 
 def test_the_stack_has_its_services():
-    assert set(SERVICES) == {"mongo", "orion", "tsdb-service", "subscriptions", "prometheus", "grafana"}
+    assert set(SERVICES) == {"mongo", "orion", "tsdb-service", "subscriptions", "feeder", "prometheus", "grafana"}
 
 
 @pytest.mark.parametrize("service", sorted(SERVICES))
@@ -47,9 +93,24 @@ def test_images_are_pinned(service):
     assert name and tag and tag != "latest" and re.search(r"\d", tag), image
 
 
+def _stages() -> list[str]:
+    """The Dockerfile's build stages, each from its FROM line on."""
+    return re.split(r"(?m)^(?=FROM )", DOCKERFILE)[1:]
+
+
 def test_dockerfile_is_small_and_conventional():
-    (base,) = _instructions("FROM")
-    assert base.startswith("python:3.11.") and "slim" in base
+    bases = _instructions("FROM")
+    assert len(bases) == 2 and bases[0].endswith(" AS build"), bases
+    for base in bases:
+        assert base.split()[0].startswith("python:3.11.") and "slim" in base
+    build, runtime = _stages()
+    # Runtime dependencies only: no [test] or [bench] extras, pruned, then copied alone.
+    assert (
+        "pip install . " in build.replace("\\\n", " ") + " " and "[" not in build.split("pip install", 1)[1].split()[0]
+    )
+    assert "prune-venv.sh /opt/tsdb/lib/python3.11/site-packages" in build
+    assert re.findall(r"(?m)^COPY .*", runtime) == ["COPY --from=build /opt/tsdb /opt/tsdb"]
+    assert "pip" not in runtime.replace("PIP_", "")
     assert _instructions("USER") == ["tsdb"]
     assert _instructions("EXPOSE") == [str(Settings().port)]
     assert _instructions("VOLUME") == ['["/data"]']
@@ -57,15 +118,64 @@ def test_dockerfile_is_small_and_conventional():
     (health,) = _instructions("HEALTHCHECK")
     assert "http://127.0.0.1:8668/health" in health
     assert "TSDB_DB=/data/tsdb.duckdb" in " ".join(_instructions("ENV"))
+    assert "PATH=/opt/tsdb/bin:$PATH" in " ".join(_instructions("ENV"))
     for copy in _instructions("COPY"):
+        if copy.startswith("--from="):
+            continue
         for source in copy.split()[:-1]:
             assert (ROOT / source).exists(), source
 
 
+def test_the_prune_script_removes_only_what_the_service_never_loads(tmp_path):
+    """docker/prune-venv.sh on a site-packages tree laid out as pip leaves it.
+    (On a real environment: 572 -> 412 MB, the service, the demo and both
+    export formats still working; docs/containers.md.)"""
+    site = tmp_path / "site-packages"
+    removed = [
+        "pip/__init__.py",
+        "setuptools/__init__.py",
+        "pkg_resources/__init__.py",
+        "_distutils_hack/__init__.py",
+        "distutils-precedence.pth",
+        "pandas/tests/test_x.py",
+        "numpy/_core/tests/test_y.py",
+        "pyarrow/tests/test_z.py",
+        "pyarrow/include/arrow/api.h",
+        "pyarrow/lib.pyx",
+        "pyarrow/lib.pxd",
+        "pyarrow/_flight.cpython-311-x86_64-linux-gnu.so",
+        "pyarrow/libarrow_flight.so.2600",
+        "pyarrow/libarrow_python_flight.so.2600",
+        "pyarrow/_s3fs.cpython-311-x86_64-linux-gnu.so",
+        "pyarrow/libarrow_s3.so.2600",
+        "pyarrow/libarrow_python.so",
+        "pyarrow/libarrow_python.so.2600.1.0",
+    ]
+    kept = [
+        "tsdb_service/cli/main.py",
+        "tsdb_service/faces/ui/static/explorer.js",
+        "pyarrow/libarrow.so.2600",
+        "pyarrow/libarrow_python.so.2600",
+        "pyarrow/libparquet.so.2600",
+        "pyarrow/_parquet.cpython-311-x86_64-linux-gnu.so",
+        "pyarrow/fs.py",
+        "pandas/testing.py",
+        "_duckdb.cpython-311-x86_64-linux-gnu.so",
+        "duckdb/__init__.py",
+    ]
+    for name in removed + kept:
+        (site / name).parent.mkdir(parents=True, exist_ok=True)
+        (site / name).write_text("x")
+    done = subprocess.run(["sh", str(ROOT / "docker" / "prune-venv.sh"), str(site)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    left = {str(path.relative_to(site)) for path in site.rglob("*") if path.is_file()}
+    assert left == set(kept)
+
+
 def test_dockerignore_keeps_local_state_out():
     ignored = set((ROOT / ".dockerignore").read_text().split())
-    assert {".git", ".venv", "data", "*.duckdb", "tests"} <= ignored
-    assert not ignored & {"tsdb_service", "migrations", "pyproject.toml", "README.md"}
+    assert {".git", ".venv", "data", "*.duckdb", "tests", "docs", "site", "benchmarks"} <= ignored
+    assert not ignored & {"tsdb_service", "migrations", "pyproject.toml", "README.md", "docker"}
 
 
 def test_tsdb_service_wiring():
@@ -74,8 +184,8 @@ def test_tsdb_service_wiring():
     assert _published("tsdb-service") == {8668: 8668}
     assert "tsdb-data:/data" in tsdb["volumes"] and "tsdb-data" in COMPOSE["volumes"]
     assert tsdb["environment"]["TSDB_DB"].startswith("/data/")
-    # The subscriptions Orion gets notify this service by its compose name.
-    notify = urlsplit(DEFAULT_NOTIFY_URL)
+    # The recorded subscriptions (notifications/) notify this service by its compose name.
+    notify = urlsplit(COMPOSE_NOTIFY_URL)
     assert (notify.hostname, notify.port, notify.path) == ("tsdb-service", 8668, "/v2/notify")
 
 
@@ -109,9 +219,11 @@ def test_grafana_mounts_what_the_dashboards_readme_says():
         assert url.hostname in SERVICES and url.port in _published(url.hostname), source["url"]
 
 
-def test_subscriptions_run_once_orion_and_the_service_are_healthy():
-    job = SERVICES["subscriptions"]
-    assert job["image"] == SERVICES["tsdb-service"]["image"] and job["build"] == "." and job["restart"] == "no"
+@pytest.mark.parametrize("stack", [COMPOSE, STACK_LD], ids=["Orion", "Orion-LD"])
+def test_subscriptions_run_once_orion_and_the_service_are_healthy(stack):
+    services = stack["services"]
+    job = services["subscriptions"]
+    assert job["image"] == services["tsdb-service"]["image"] and job["build"] == "." and job["restart"] == "no"
     assert {name: dep["condition"] for name, dep in job["depends_on"].items()} == {
         "orion": "service_healthy",
         "tsdb-service": "service_healthy",
@@ -120,4 +232,23 @@ def test_subscriptions_run_once_orion_and_the_service_are_healthy():
     args = build_parser().parse_args(job["command"])
     assert (args.command, args.use_case, args.force) == ("subscribe", "all", False)  # keeps what exists
     assert (urlsplit(args.broker).hostname, urlsplit(args.broker).port) == ("orion", 1026)
-    assert (args.notify_url or DEFAULT_NOTIFY_URL) == DEFAULT_NOTIFY_URL
+    # Orion reaches the service by its compose name; the path is the API the broker speaks.
+    notify = urlsplit(args.notify_url)
+    assert (notify.hostname, notify.port) == ("tsdb-service", 8668)
+    assert notify.path == ("/ngsi-ld/v1/notify" if args.ngsi_ld else "/v2/notify")
+    assert args.ngsi_ld == ("orion-ld" in services["orion"]["image"])
+
+
+@pytest.mark.parametrize("stack", [COMPOSE, STACK_LD], ids=["Orion", "Orion-LD"])
+def test_the_feeder_updates_orion_once_subscribed(stack):
+    """Data goes through the broker, as in a deployment: the feeder sends entity
+    updates to Orion, never notifications to tsdb-service."""
+    services = stack["services"]
+    feeder = services["feeder"]
+    assert feeder["image"] == services["tsdb-service"]["image"] and "build" not in feeder
+    assert feeder["depends_on"] == {"subscriptions": {"condition": "service_completed_successfully"}}
+    args = build_parser().parse_args(feeder["command"])
+    assert (args.command, args.no_serve, args.duration) == ("demo", True, None)  # live until the stack stops
+    assert (urlsplit(args.broker).hostname, urlsplit(args.broker).port) == ("orion", 1026)
+    assert urlsplit(args.url).hostname == "tsdb-service"
+    assert args.ngsi_ld == build_parser().parse_args(services["subscriptions"]["command"]).ngsi_ld

@@ -125,3 +125,49 @@ def test_an_interrupted_export_leaves_no_file(tmp_path):
     with pytest.raises(OSError, match="disk full"):
         write_file(stream, ExportFormat.CSV, tmp_path / "cut.csv")
     assert list(Path(tmp_path).iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("out", "says"),
+    [
+        ("x.json", "its suffix '.json' names no export format"),
+        ("history", "it has no suffix"),
+        ("missing/dir/x.csv", "does not exist"),
+        (".", "is a directory"),
+    ],
+)
+def test_a_bad_out_is_one_line_before_the_database_is_opened(stored, tmp_path, capsys, monkeypatch, out, says):
+    """``--out x.json`` wrote CSV silently; a missing directory ended in a traceback."""
+    url, _, _ = stored
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("tsdb_service.storage.open_store", _never_opened)
+    assert main(["export", "--db", url, "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: --out {out}") and says in err and err.count("\n") == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.endswith((".duckdb", ".wal"))) == []
+
+
+def _never_opened(*_args, **_kwargs):
+    raise AssertionError("the database was opened for an export that cannot be written")
+
+
+def test_the_format_flag_wins_over_the_suffix(stored, tmp_path):
+    url, _, _ = stored
+    out = tmp_path / "history.json"
+    assert main(["export", "--db", url, "--out", str(out), "--service", TENANT, "--format", "csv"]) == 0
+    assert out.read_bytes().startswith(b'"time","entity_id"')
+
+
+def test_an_empty_export_names_the_tenants_with_data(stored, tmp_path, capsys):
+    """The demo's data is under lawnmower, warehouse, drone: without --service
+    (or with a mistyped one) an export found nothing and said only "0 samples"."""
+    url, _, _ = stored
+    assert main(["export", "--db", url, "--out", str(tmp_path / "none.csv")]) == 0
+    said = capsys.readouterr()
+    assert "exported 0 samples" in said.out
+    hint = "hint: the default tenant (no Fiware-Service) holds no data; tenants with data: elsewhere, exportland"
+    assert said.err == hint + " (--service TENANT)\n"
+    assert main(["export", "--db", url, "--out", str(tmp_path / "typo.csv"), "--service", TENANT + "x"]) == 0
+    assert f"hint: tenant '{TENANT}x' holds no data; tenants with data: elsewhere, {TENANT}" in capsys.readouterr().err
+    assert main(["export", "--db", url, "--out", str(tmp_path / "some.csv"), "--service", TENANT]) == 0
+    assert capsys.readouterr().err == ""

@@ -114,11 +114,17 @@ def serving(app):
         thread.join(timeout=30)
 
 
-@pytest.fixture(scope="module")
-def broker():
-    stand_in = StandInBroker()
+@contextmanager
+def served(stand_in):
+    """A stand-in broker served by ``serving``, its URL set as ``stand_in.url``."""
     with serving(stand_in.app) as url:
         stand_in.url = url
+        yield stand_in
+
+
+@pytest.fixture(scope="module")
+def broker():
+    with served(StandInBroker()) as stand_in:
         yield stand_in
 
 

@@ -11,13 +11,16 @@ fields Orion adds (``status``, ``timesSent``, ``condition``).
 
 from __future__ import annotations
 
+from urllib.parse import urlsplit
+
 import pytest
+from pg_cluster import free_port
 from starlette.requests import Request
 from starlette.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Route
 
-from tests.test_subscribe_api import StandInBroker, serving
-from tsdb_service.broker.subscriptions import subscription
+from tests.test_subscribe_api import StandInBroker, served
+from tsdb_service.broker.subscriptions import default_notify_url, subscription
 from tsdb_service.cli.main import main
 from tsdb_service.usecases.registry import SIMULATORS
 
@@ -61,14 +64,13 @@ def _as_orion_lists(sub: dict) -> dict:
 
 @pytest.fixture
 def broker():
-    stand_in = PagingBroker()
-    with serving(stand_in.app) as url:
-        stand_in.url = url
+    with served(PagingBroker()) as stand_in:
         yield stand_in
 
 
 def _subscribe(broker, *extra: str) -> int:
-    return main(["subscribe", "--broker", broker.url, "--use-case", "lawnmower", *extra])
+    url = [] if "--notify-url" in extra else ["--notify-url", NOTIFY]
+    return main(["subscribe", "--broker", broker.url, "--use-case", "lawnmower", *url, *extra])
 
 
 def _seed(broker, tenant, document) -> None:
@@ -136,3 +138,28 @@ def test_the_same_notify_url_option_is_what_is_compared(broker):
         assert _subscribe(broker, "--notify-url", url) == 0
     (only,) = broker.subscriptions[TENANT]
     assert only["notification"]["http"]["url"] == url
+
+
+def test_the_default_notify_url_is_this_machine_and_is_printed(broker, capsys):
+    """It was http://tsdb-service:8668/v2/notify, a name only docker-compose.yml's network resolves."""
+    assert main(["subscribe", "--broker", broker.url, "--use-case", "lawnmower"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    (made,) = broker.subscriptions[TENANT]
+    url = made["notification"]["http"]["url"]
+    assert first == f"notify URL: {url} (this machine as the broker reaches it; --notify-url to choose)"
+    assert url == default_notify_url(broker.url) and url.endswith(":8668/v2/notify")
+    assert urlsplit(url).hostname not in ("tsdb-service", "localhost", "127.0.0.1")
+
+
+def test_a_given_notify_url_is_printed_as_given(broker, capsys):
+    assert _subscribe(broker, "--notify-url", "http://qa:8668/v2/notify") == 0
+    assert capsys.readouterr().out.splitlines()[0] == "notify URL: http://qa:8668/v2/notify"
+
+
+def test_an_unreachable_broker_gets_no_force_hint(capsys):
+    """--force cannot help a broker nobody answers at."""
+    url = f"http://127.0.0.1:{free_port()}"
+    assert main(["subscribe", "--broker", url, "--use-case", "lawnmower", "--notify-url", NOTIFY]) == 1
+    out = capsys.readouterr().out
+    assert f"could not reach {url}/v2/subscriptions" in out and "nothing created" in out
+    assert "--force" not in out

@@ -257,3 +257,101 @@ def test_docs_render_from_the_package(browser, demo_server, shots):
     urls = _check_stayed_local(browser, demo_server)
     assert demo_server.url + "/openapi.json" in urls
     _shot(browser, shots, "docs")
+
+
+# -- layout: what a reader at 1400 and 1920 px must not meet ------------------------------------
+
+WIDTHS = (1400, 1920)
+LAYOUT_CHECKS = (Path(__file__).parent / "support" / "layout_checks.js").read_text()
+
+
+def _layout(browser, check: str, *args) -> list[str]:
+    """Run one function of ``support/layout_checks.js`` in the page: its problems."""
+    return browser.execute_script(f"{LAYOUT_CHECKS}\nreturn {check}(...arguments);", *args)
+
+
+@pytest.fixture
+def wide(browser):
+    """Each width in turn; the window is set back afterwards."""
+    yield lambda width: browser.set_window_size(width, 1100)
+    browser.set_window_size(1400, 1100)
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_map_labels_stay_apart_and_inside(browser, demo_server, shots, wide, width):
+    """Sensor labels overlapped on the drone's map; the lawnmower map's right-hand
+    longitude (and its top and bottom latitudes) were cut by the frame."""
+    wide(width)
+    for view, hash_ in (("drone", "#/drone"), ("lawnmower", "#/lawnmower"), ("explore", "#/explore?tenant=drone")):
+        _open(browser, demo_server.url + "/ui/" + hash_, view)
+        assert _layout(browser, "mapLabelProblems", "svg.map") == [], f"{view} at {width} px"
+        assert browser.find_elements("css selector", "svg.map text.grat-label"), "the graticule lost every label"
+    _shot(browser, shots, f"drone-map-{width}")
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_time_labels_never_overlap(browser, demo_server, wide, width):
+    """Date labels collided on the half-width charts (uPlot's two-line first label)."""
+    wide(width)
+    for view, hash_ in (
+        ("explore", "#/explore?tenant=lawnmower"),
+        ("lawnmower", "#/lawnmower"),
+        ("warehouse", "#/warehouse"),
+        ("drone", "#/drone"),
+    ):
+        _open(browser, demo_server.url + "/ui/" + hash_, view)
+        for span in RANGES:  # from the default window to a week, where labels become dates
+            _choose_range(browser, span, view)
+            assert _layout(browser, "timeLabelProblems") == [], f"{view} at {width} px, range {span}"
+
+
+RANGES = ("auto", "3600", "604800")
+
+
+def _choose_range(browser, value: str, view: str) -> None:
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    browser.execute_script(
+        "const r = document.getElementById('range'); delete document.body.dataset.ready;"
+        "r.value = arguments[0]; r.dispatchEvent(new Event('change'));",
+        value,
+    )
+    WebDriverWait(browser, READY_TIMEOUT_S).until(
+        lambda d: d.execute_script("return document.body.dataset.ready") == view, message=f"range {value}"
+    )
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_drone_priority_table_fits_its_card(browser, demo_server, shots, wide, width):
+    wide(width)
+    _open(browser, demo_server.url + "/ui/#/drone", "drone")
+    assert _layout(browser, "tableProblems") == [], f"at {width} px"
+
+
+def test_explore_names_series_and_states(browser, demo_server, shots):
+    """Every legend read ``data:`` (the key inside std_msgs values) instead of the
+    attribute's name, and enumerations showed as numbers."""
+    _open(browser, demo_server.url + "/ui/#/explore?tenant=lawnmower", "explore")
+    labels = browser.execute_script(
+        "return [...document.querySelectorAll('.chart')].filter((b) => b.uplot)"
+        ".map((b) => [b.dataset.attr, b.uplot.series.slice(1).map((s) => s.label)])"
+    )
+    by_attr = dict(labels)
+    assert by_attr["navigationState"] == ["navigationState"]
+    assert by_attr["obstacleDistance"] == ["obstacleDistance"]
+    assert not [attr for attr, names in labels if "data" in names], labels
+    ticks, shown = browser.execute_script(
+        """const u = document.querySelector('.chart[data-attr="navigationState"]').uplot;
+        u.setCursor({left: u.bbox.width / devicePixelRatio / 2, top: 10});
+        return [u.axes[1]._values.map(String), u.root.querySelector('.u-series:nth-child(2) .u-value').textContent];"""
+    )
+    usecase = demo_server_usecases(demo_server)["lawnmower"]["enums"]["navigationState"]
+    assert set(ticks) <= set(usecase.values()) and "mowing" in ticks, ticks
+    assert shown in usecase.values(), shown
+    _shot(browser, shots, "explore-states")
+
+
+def demo_server_usecases(server) -> dict:
+    import httpx
+
+    return httpx.get(server.url + "/ui/usecases", timeout=10).json()

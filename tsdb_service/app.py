@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 from contextlib import asynccontextmanager
+from pathlib import Path
 
 from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
@@ -26,7 +27,7 @@ from tsdb_service.http.store import ServiceStore
 from tsdb_service.ingest import http_notify as notify
 from tsdb_service.ingest import openapi as notify_oa
 from tsdb_service.security import protect
-from tsdb_service.storage import open_store
+from tsdb_service.storage import open_store, redact
 
 log = logging.getLogger("tsdb_service")
 
@@ -72,7 +73,7 @@ def create_app(
             return
         app.state.store = await run_in_threadpool(open_store, settings, background=True)
         metrics.attach(app.state.store)
-        log.info("tsdb-service %s on %s (%s)", __version__, settings.db, app.state.store.backend)
+        log.info("tsdb-service %s opened the %s", __version__, describe_database(settings))
         try:
             yield
         finally:
@@ -109,6 +110,16 @@ FEATURE_SCHEMAS = {
     **quantumleap_oa.SCHEMAS,
     **grafana_oa.SCHEMAS,
 }
+
+
+def describe_database(settings: Settings) -> str:
+    """The database a server opened, for its log: a DuckDB file's absolute
+    path, or a PostgreSQL URL without its password."""
+    if settings.backend == "postgresql":
+        return f"PostgreSQL database at {redact(settings.db)}"
+    if settings.db == ":memory:":
+        return "DuckDB database in memory (nothing is kept)"
+    return f"DuckDB file {Path(settings.db).resolve()}"
 
 
 def create_app_from_env() -> FastAPI:

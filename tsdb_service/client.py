@@ -9,6 +9,8 @@ for everything but ``export``.
 
 Usage::
 
+    from datetime import UTC, datetime, timedelta
+
     from tsdb_service.client import Client
 
     with Client("http://localhost:8668", service="lawnmower", service_path="/bosch") as tsdb:
@@ -16,8 +18,8 @@ Usage::
         mower = "urn:ngsiv2:ROS2System:Lawnmower01"
         speed = tsdb.entity_attr(mower, "odom(twist.twist.linear.x)", last_n=500)
         speed.plot()                                         # index: time (UTC)
-        tsdb.entity(mower, ["navigationState(data)", "obstacleDistance(range)"],
-                    from_date="2025-06-02T09:00:00Z", to_date="2025-06-02T10:00:00Z")
+        hour_ago = datetime.now(UTC) - timedelta(hours=1)      # the demo's data is live
+        tsdb.entity(mower, ["navigationState(data)", "obstacleDistance(range)"], from_date=hour_ago)
         tsdb.entity_attr(mower, "odom(twist.twist.linear.x)", aggr_method="avg", aggr_period="minute")
         tsdb.type_history("ROS2System", ["obstacleDistance(range)"], last_n=100)  # entity_id, time, ...
         samples = tsdb.export(entity_type="ROS2System")      # one row per sample, typed columns

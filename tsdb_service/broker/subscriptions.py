@@ -8,11 +8,15 @@ holds the same documents written out by ``tsdb-service notifications build``
 
 from __future__ import annotations
 
+import ipaddress
 import itertools
 import random
+import socket
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import httpx
 import orjson
@@ -21,7 +25,13 @@ from tsdb_service.usecases import orion
 from tsdb_service.usecases.base import Simulator
 from tsdb_service.usecases.registry import SIMULATORS
 
-DEFAULT_NOTIFY_URL = "http://tsdb-service:8668/v2/notify"
+# Where Orion notifies us inside docker-compose.yml's network (the recorded
+# subscriptions of notifications/ use it too); elsewhere see default_notify_url.
+COMPOSE_NOTIFY_URL = "http://tsdb-service:8668/v2/notify"
+PORT = 8668
+# A documentation address (RFC 5737): a UDP socket "connected" to it tells
+# which local address the default route uses, without sending anything.
+_ANY_REMOTE = "192.0.2.1"
 
 _EXAMPLE_START = datetime(2025, 6, 2, 9, 0, tzinfo=UTC)
 
@@ -39,7 +49,36 @@ _EXAMPLE_WANTED = {
 }
 
 
-def subscription(sim: Simulator, notify_url: str = DEFAULT_NOTIFY_URL) -> dict:
+def default_notify_url(broker: str, port: int = PORT, path: str = "/v2/notify") -> str:
+    """Where the broker at ``broker`` can reach a tsdb-service running on
+    this machine: this machine's address on the route to the broker. A
+    broker on this machine itself (``localhost``) often runs in a container,
+    where ``localhost`` is the container: then the machine's address on its
+    default route, which a container reaches as well as a local process.
+    The host name when the machine has no route at all."""
+    host = urlsplit(broker).hostname or "localhost"
+    address = _local_address(host)
+    if address is None or ipaddress.ip_address(address).is_loopback:
+        address = _local_address(_ANY_REMOTE)
+    if address is None:
+        address = socket.gethostname()
+    elif ":" in address:
+        address = f"[{address}]"
+    return f"http://{address}:{port}{path}"
+
+
+def _local_address(host: str) -> str | None:
+    """The local address a datagram to ``host`` would leave from (nothing is sent)."""
+    try:
+        family, _, _, _, target = socket.getaddrinfo(host, 9, type=socket.SOCK_DGRAM)[0]
+        with socket.socket(family, socket.SOCK_DGRAM) as probe:
+            probe.connect(target)
+            return str(probe.getsockname()[0]).split("%")[0]
+    except (OSError, UnicodeError):
+        return None
+
+
+def subscription(sim: Simulator, notify_url: str = COMPOSE_NOTIFY_URL) -> dict:
     """The NGSIv2 subscription for one use case: every change of its entities,
     the whole entity, normalized, with the IoT Agent's TimeInstant metadata."""
     return {
@@ -64,6 +103,47 @@ def broker_headers(sim: Simulator) -> dict[str, str]:
         "Fiware-Service": sim.tenancy.service,
         "Fiware-ServicePath": sim.tenancy.service_path,
     }
+
+
+def ld_subscription(sim: Simulator, notify_url: str) -> dict:
+    """The NGSI-LD subscription for one use case (Orion-LD): the same entities,
+    normalized, to ``/ngsi-ld/v1/notify``. NGSI-LD has no service paths, so
+    Orion-LD sends the use case's as a ``Fiware-ServicePath`` header
+    (``receiverInfo``): the history lands where the NGSIv2 feed puts it, and
+    the dashboards and the explorer find it there."""
+    return {
+        "type": "Subscription",
+        "description": f"tsdb-service: history of the {sim.title}",
+        "entities": [{"idPattern": pattern, "type": entity_type} for pattern, entity_type in sim.subjects],
+        "notification": {
+            "format": "normalized",
+            "endpoint": {
+                "uri": notify_url,
+                "accept": "application/json",
+                "receiverInfo": [{"key": "Fiware-ServicePath", "value": sim.tenancy.service_path}],
+            },
+        },
+    }
+
+
+def ld_broker_headers(sim: Simulator) -> dict[str, str]:
+    """The tenant an NGSI-LD subscription or update is made in (no @context: the core one)."""
+    return {"Content-Type": "application/json", "NGSILD-Tenant": sim.tenancy.service}
+
+
+@dataclass(frozen=True, slots=True)
+class BrokerApi:
+    """Where and how a subscription is made on a broker, per API."""
+
+    name: str
+    subscriptions_path: str
+    notify_path: str  # ours, where the broker sends notifications
+    document: Callable[[Simulator, str], dict]
+    headers: Callable[[Simulator], dict[str, str]]
+
+
+NGSIV2 = BrokerApi("NGSIv2", "/v2/subscriptions", "/v2/notify", subscription, broker_headers)
+NGSI_LD = BrokerApi("NGSI-LD", "/ngsi-ld/v1/subscriptions", "/ngsi-ld/v1/notify", ld_subscription, ld_broker_headers)
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,10 +180,12 @@ def send_subscription(url: str, document: dict, headers: dict[str, str], timeout
     )
 
 
-def post_subscription(broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0) -> tuple[bool, str]:
+def post_subscription(
+    broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0, api: BrokerApi = NGSIV2
+) -> tuple[bool, str]:
     """Create the subscription on a broker; (created?, what the broker answered)."""
-    url = broker.rstrip("/") + "/v2/subscriptions"
-    answer = send_subscription(url, subscription(sim, notify_url), broker_headers(sim), timeout)
+    url = broker.rstrip("/") + api.subscriptions_path
+    answer = send_subscription(url, api.document(sim, notify_url), api.headers(sim), timeout)
     if answer.status is None:
         return False, f"could not reach {url}: {answer.problem}"
     if answer.created:
@@ -117,15 +199,18 @@ _PAGE = 1000
 _MAX_PAGES = 100
 
 
-def list_subscriptions(broker: str, headers: dict[str, str], timeout: float = 10.0) -> tuple[list[dict] | None, str]:
+def list_subscriptions(
+    broker: str, headers: dict[str, str], timeout: float = 10.0, path: str = NGSIV2.subscriptions_path
+) -> tuple[list[dict] | None, str]:
     """Every subscription the broker has for the tenant and service path of
     ``headers``: ``(subscriptions, "")``, or ``(None, why)`` when it could not
-    tell. Follows Orion's paging (``Fiware-Total-Count``, else short pages)."""
-    url = broker.rstrip("/") + "/v2/subscriptions"
-    tenancy = {k: v for k, v in headers.items() if k.lower().startswith("fiware-")}
+    tell. Follows Orion's paging (``Fiware-Total-Count``, Orion-LD's
+    ``NGSILD-Results-Count``, else short pages)."""
+    url = broker.rstrip("/") + path
+    tenancy = {k: v for k, v in headers.items() if k.lower().startswith(("fiware-", "ngsild-"))}
     found: list[dict] = []
     for _ in range(_MAX_PAGES):
-        params: dict[str, str | int] = {"limit": _PAGE, "offset": len(found), "options": "count"}
+        params: dict[str, str | int] = {"limit": _PAGE, "offset": len(found), "options": "count", "count": "true"}
         try:
             response = httpx.get(url, params=params, headers=tenancy, timeout=timeout)
         except httpx.HTTPError as exc:
@@ -140,7 +225,7 @@ def list_subscriptions(broker: str, headers: dict[str, str], timeout: float = 10
         if not isinstance(page, list):
             return None, f"listing {url} did not answer a JSON array"
         found.extend(sub for sub in page if isinstance(sub, dict))
-        total = response.headers.get("fiware-total-count", "")
+        total = response.headers.get("fiware-total-count", response.headers.get("ngsild-results-count", ""))
         more = len(found) < int(total) if total.isdigit() else len(page) >= _PAGE
         if not page or not more:
             return found, ""
@@ -148,20 +233,21 @@ def list_subscriptions(broker: str, headers: dict[str, str], timeout: float = 10
 
 
 def notify_url_of(document: dict) -> str | None:
-    """Where a subscription sends its notifications (``http`` or ``httpCustom``)."""
+    """Where a subscription sends its notifications (NGSIv2 ``http`` or
+    ``httpCustom``, NGSI-LD ``endpoint``)."""
     notification = document.get("notification")
     if not isinstance(notification, dict):
         return None
-    for key in ("http", "httpCustom"):
+    for key, field in (("http", "url"), ("httpCustom", "url"), ("endpoint", "uri")):
         target = notification.get(key)
-        if isinstance(target, dict) and isinstance(target.get("url"), str):
-            return target["url"]
+        if isinstance(target, dict) and isinstance(target.get(field), str):
+            return target[field]
     return None
 
 
 def _selectors(document: dict) -> frozenset[tuple]:
     subject = document.get("subject")
-    entities = subject.get("entities") if isinstance(subject, dict) else None
+    entities = subject.get("entities") if isinstance(subject, dict) else document.get("entities")
     return (
         frozenset(
             (e.get("id"), e.get("idPattern"), e.get("type"), e.get("typePattern"))
@@ -180,7 +266,7 @@ def equivalent(existing: dict, wanted: dict) -> bool:
 
 
 def ensure_subscription(
-    broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0, force: bool = False
+    broker: str, sim: Simulator, notify_url: str, timeout: float = 10.0, force: bool = False, api: BrokerApi = NGSIV2
 ) -> tuple[bool, str]:
     """Create the subscription unless the broker already has an equivalent
     one for the use case's tenant and service path (``force``: create
@@ -188,15 +274,16 @@ def ensure_subscription(
     be listed is not subscribed to (unless ``force``): running twice must
     never double the history."""
     if force:
-        return post_subscription(broker, sim, notify_url, timeout)
-    headers = broker_headers(sim)
-    existing, problem = list_subscriptions(broker, headers, timeout)
+        return post_subscription(broker, sim, notify_url, timeout, api)
+    existing, problem = list_subscriptions(broker, api.headers(sim), timeout, api.subscriptions_path)
     if existing is None:
-        return False, f"{problem}; nothing created (--force creates without checking)"
-    wanted = subscription(sim, notify_url)
+        # --force only helps a broker that answers but cannot list; one that cannot be reached gets nothing either way.
+        hint = "" if problem.startswith("could not reach") else " (--force creates without checking)"
+        return False, f"{problem}; nothing created{hint}"
+    wanted = api.document(sim, notify_url)
     same = next((sub for sub in existing if equivalent(sub, wanted)), None)
     if same is None:
-        return post_subscription(broker, sim, notify_url, timeout)
+        return post_subscription(broker, sim, notify_url, timeout, api)
     tenancy = f"tenant {sim.tenancy.service!r} {sim.tenancy.service_path}"
     return True, (
         f"already subscribed: subscription {same.get('id', '?')} (status {same.get('status', 'unknown')}) "

@@ -65,17 +65,29 @@ def _add_demo(sub) -> None:
         help=f"only these simulators ({', '.join(USE_CASE_NAMES)}; repeat or comma-separate; default: all three)",
     )
     p.add_argument("--concurrency", type=_positive_int, default=16, help="notifications in flight at most (default 16)")
+    p.add_argument(
+        "--broker",
+        metavar="URL",
+        help="update the entities in this Orion broker (e.g. http://orion:1026) instead of notifying the service: "
+        "the broker notifies the service through the subscriptions `tsdb-service subscribe` made (default: none, "
+        "the simulators notify the service directly)",
+    )
+    _add_ngsi_ld(p, "the broker is Orion-LD: NGSI-LD entity updates (with --broker)")
 
 
 def _add_subscribe(sub) -> None:
     p = sub.add_parser("subscribe", help="create a use case's subscription on a real Orion broker, once")
-    p.add_argument("--broker", required=True, help="the broker's base URL, e.g. http://orion:1026")
+    p.add_argument("--broker", required=True, metavar="URL", help="the broker's base URL, e.g. http://orion:1026")
     p.add_argument("--use-case", required=True, choices=[*USE_CASE_NAMES, "all"], help="whose subscription to create")
     p.add_argument(
         "--notify-url",
         default=None,
-        help="where the broker sends notifications (default http://tsdb-service:8668/v2/notify)",
+        metavar="URL",
+        help="where the broker sends notifications; inside docker-compose.yml's network "
+        "http://tsdb-service:8668/v2/notify (default: port 8668 of this machine, at the address the broker "
+        "reaches it by; printed)",
     )
+    _add_ngsi_ld(p, "an NGSI-LD subscription (Orion-LD), notifying /ngsi-ld/v1/notify")
     p.add_argument(
         "--force",
         action="store_true",
@@ -83,6 +95,10 @@ def _add_subscribe(sub) -> None:
         "for the tenant: by default that one is kept and nothing is created, so running twice never stores "
         "every sample twice",
     )
+
+
+def _add_ngsi_ld(p, text: str) -> None:
+    p.add_argument("--ngsi-ld", action="store_true", help=f"{text} (default: NGSIv2, Orion)")
 
 
 def _add_queries(sub) -> None:
@@ -142,8 +158,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     try:
         simulators = usecases.select(args.use_case)
         check_db(args.db)
+        if args.ngsi_ld and not args.broker:
+            raise ValueError("--ngsi-ld needs --broker: it says what kind of broker the entities are sent to")
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    broker = args.broker.rstrip("/") if args.broker else None
+    unreachable = _unreachable(broker) if broker else None
+    if unreachable:
+        print(f"error: cannot reach the broker at {broker}: {unreachable}", file=sys.stderr)
         return 2
     seed = args.seed if args.seed is not None else random.SystemRandom().randrange(1_000_000)
     service = None
@@ -210,7 +233,14 @@ async def _run_demo(simulators, url: str, args: argparse.Namespace, seed: int, s
     loop.add_signal_handler(signal.SIGINT, stop.set)  # first Ctrl-C: drain and stop cleanly
     loop.add_signal_handler(signal.SIGTERM, stop.set)
     config = RunConfig(
-        url=url, speedup=speedup, duration=args.duration, seed=seed, concurrency=args.concurrency, start=start
+        url=url,
+        speedup=speedup,
+        duration=args.duration,
+        seed=seed,
+        concurrency=args.concurrency,
+        start=start,
+        broker=args.broker,
+        ngsi_ld=args.ngsi_ld,
     )
     try:
         return await run(simulators, config, progress=Progress(), stop=stop)
@@ -227,7 +257,15 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start,
 
     where = f"(DuckDB file {args.db}; log {service.log_path})" if service else "(already running)"
     until = f"for {args.duration:g} s" if args.duration else "until Ctrl-C"
-    print(f"tsdb-service demo: feeding {url} {where}")
+    if args.broker:
+        kind = "Orion-LD (NGSI-LD)" if args.ngsi_ld else "Orion (NGSIv2)"
+        print(f"tsdb-service demo: updating the entities in {kind} at {args.broker.rstrip('/')}; it notifies {url}")
+        print(
+            "  through its subscriptions: `tsdb-service subscribe` creates them"
+            + (" (--ngsi-ld)" if args.ngsi_ld else "")
+        )
+    else:
+        print(f"tsdb-service demo: feeding {url} {where}")
     print(f"  explorer     {url}/ui  (charts, maps and the three use cases in a browser)")
     print(f"  API docs     {url}/docs")
     print(f"  dashboards   {url}/dashboards")
@@ -257,14 +295,17 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start,
 
 
 def cmd_subscribe(args: argparse.Namespace) -> int:
-    from tsdb_service.broker.subscriptions import DEFAULT_NOTIFY_URL, ensure_subscription
+    from tsdb_service.broker.subscriptions import NGSI_LD, NGSIV2, default_notify_url, ensure_subscription
     from tsdb_service.usecases.registry import SIMULATORS
 
     names = USE_CASE_NAMES if args.use_case == "all" else (args.use_case,)
+    api = NGSI_LD if args.ngsi_ld else NGSIV2
+    notify_url = args.notify_url or default_notify_url(args.broker, path=api.notify_path)
+    given = "" if args.notify_url else " (this machine as the broker reaches it; --notify-url to choose)"
+    print(f"notify URL: {notify_url}{given}")
     all_ok = True
     for name in names:
-        notify_url = args.notify_url or DEFAULT_NOTIFY_URL
-        ok, answer = ensure_subscription(args.broker, SIMULATORS[name], notify_url, force=args.force)
+        ok, answer = ensure_subscription(args.broker, SIMULATORS[name], notify_url, force=args.force, api=api)
         print(f"{name}: {answer}")
         all_ok &= ok
     return 0 if all_ok else 1

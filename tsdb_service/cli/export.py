@@ -9,19 +9,22 @@ service has open, or ask the running service over HTTP.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
 from tsdb_service.faces.export.query import ExportFormat
+from tsdb_service.parse.request_context import tenant_hint
 
-_FLAGS = (  # (flag, HTTP parameter or header, help)
-    ("--type", "type", "entity types (comma-separated)"),
-    ("--id", "id", "entity ids (comma-separated)"),
-    ("--id-pattern", "idPattern", "entity id regular expression"),
-    ("--attrs", "attrs", "attribute names (comma-separated; default: all)"),
-    ("--from-date", "fromDate", "first time included (ISO 8601; default: the oldest sample)"),
-    ("--to-date", "toDate", "last time included (ISO 8601; default: the newest sample)"),
+_FLAGS = (  # (flag, HTTP parameter or header, placeholder, help)
+    ("--type", "type", "TYPES", "entity types (comma-separated)"),
+    ("--id", "id", "IDS", "entity ids (comma-separated)"),
+    ("--id-pattern", "idPattern", "REGEX", "entity id regular expression"),
+    ("--attrs", "attrs", "NAMES", "attribute names (comma-separated; default: all)"),
+    ("--from-date", "fromDate", "TIME", "first time included (ISO 8601; default: the oldest sample)"),
+    ("--to-date", "toDate", "TIME", "last time included (ISO 8601; default: the newest sample)"),
 )
+SUFFIXES = {".csv": ExportFormat.CSV, ".parquet": ExportFormat.PARQUET, ".pq": ExportFormat.PARQUET}
 
 
 def register(subparsers, command) -> None:
@@ -31,13 +34,23 @@ def register(subparsers, command) -> None:
         description="Write one row per sample (time, entity, attribute, typed value) of a tenant, "
         "optionally narrowed to types, entities, attributes and a time range.",
     )
-    p.add_argument("--db", help="DuckDB file or postgresql:// URL to read (env TSDB_DB; default ./data/tsdb.duckdb)")
-    p.add_argument("--out", required=True, help="file to write; its suffix (.csv, .parquet) picks the format")
+    p.add_argument(
+        "--db",
+        metavar="PATH|URL",
+        help="DuckDB file or postgresql:// URL to read (env TSDB_DB; default ./data/tsdb.duckdb)",
+    )
+    p.add_argument(
+        "--out", required=True, metavar="FILE", help="file to write; its suffix (.csv, .parquet) picks the format"
+    )
     p.add_argument("--format", choices=[f.value for f in ExportFormat], help="csv or parquet (default: from --out)")
-    p.add_argument("--service", default="", help="tenant, as Fiware-Service (default: the default tenant)")
-    p.add_argument("--service-path", default="/", help="Fiware-ServicePath: paths and their children (default /)")
-    for flag, _, text in _FLAGS:
-        p.add_argument(flag, help=text if "default" in text else f"{text} (default: all)")
+    p.add_argument(
+        "--service", default="", metavar="TENANT", help="tenant, as Fiware-Service (default: the default tenant)"
+    )
+    p.add_argument(
+        "--service-path", default="/", metavar="PATH", help="Fiware-ServicePath: paths and their children (default /)"
+    )
+    for flag, _, metavar, text in _FLAGS:
+        p.add_argument(flag, metavar=metavar, help=text if "default" in text else f"{text} (default: all)")
     command("export")(cmd_export)
 
 
@@ -52,9 +65,15 @@ def cmd_export(args: argparse.Namespace) -> int:
     if settings.backend == "duckdb" and not Path(settings.db).is_file():
         print(f"error: no database at {settings.db}", file=sys.stderr)
         return 2
-    params = {name: getattr(args, flag[2:].replace("-", "_")) for flag, name, _ in _FLAGS}
+    try:
+        check_out(args.out)
+        out_format = args.format or format_of(args.out)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    params = {name: getattr(args, flag[2:].replace("-", "_")) for flag, name, _, _ in _FLAGS}
     params = {k: v for k, v in params.items() if v is not None}
-    params["format"] = args.format or _format_of(args.out)
+    params["format"] = out_format
     headers = {"fiware-service": args.service, "fiware-servicepath": args.service_path}
     try:
         query = export_query(params, headers, tenant(headers.items()))
@@ -65,6 +84,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     try:
         with open_export(store, query) as stream:
             rows, size, seconds = write_file(stream, query.format, args.out)
+        hint = tenant_hint(store.querier().tenants(), query.scope.tenant) if rows == 0 else None
     finally:
         store.close()
     rate = rows / seconds if seconds > 0 else 0.0
@@ -72,10 +92,31 @@ def cmd_export(args: argparse.Namespace) -> int:
         f"exported {rows:,} samples to {args.out} ({size:,} bytes, {query.format.value}) "
         f"in {seconds:.2f} s ({rate:,.0f} samples/s)"
     )
+    if hint:
+        print(f"hint: {hint} (--service TENANT)", file=sys.stderr)
     return 0
 
 
-def _format_of(path: str) -> str:
-    """The format named by the file's suffix; CSV when it names none."""
-    suffix = Path(path).suffix.lower().lstrip(".")
-    return ExportFormat.PARQUET.value if suffix in ("parquet", "pq") else ExportFormat.CSV.value
+def check_out(out: str) -> None:
+    """``ValueError`` if ``--out`` cannot be written: checked before the
+    database is opened, so a typo costs nothing."""
+    path = Path(out)
+    if path.is_dir():
+        raise ValueError(f"--out {out} is a directory: give a file name, e.g. {path / 'history.csv'}")
+    folder = path.parent
+    if not folder.is_dir():
+        raise ValueError(f"--out {out}: the directory {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(f"--out {out}: the directory {folder} is not writable")
+
+
+def format_of(out: str) -> str:
+    """The format named by ``--out``'s suffix; ``ValueError`` for any other
+    suffix (a ``.json`` file must not silently hold CSV)."""
+    suffix = Path(out).suffix.lower()
+    if suffix not in SUFFIXES:
+        named = f"its suffix {suffix!r}" if suffix else "it has no suffix"
+        raise ValueError(
+            f"--out {out}: {named} names no export format: end it in .csv or .parquet, or give --format csv|parquet"
+        )
+    return SUFFIXES[suffix].value

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import gc
 import os
+import re
 import sys
 from collections.abc import Callable, Sequence
 from types import ModuleType
@@ -36,8 +37,53 @@ def setting_help(name: str) -> str:
     what = (field.description or "").rstrip(".")
     if field.default is None:  # the description says what applies when unset
         return f"{what} (env TSDB_{name.upper()})"
+    if field.default == "":
+        return f"{what} (not set by default; env TSDB_{name.upper()})"
     default = str(field.default).lower() if isinstance(field.default, bool) else str(field.default)
     return f"{what} (default {default}; env TSDB_{name.upper()})"
+
+
+# The placeholder of a text setting's flag, where its name does not say it.
+_TEXT_METAVARS = {
+    "host": "ADDRESS",
+    "api_keys": "KEY:SCOPES[:TENANTS]",
+    "api_keys_file": "FILE",
+    "api_key_header": "HEADER",
+    "jwt_jwks_url": "URL",
+    "jwt_key": "PEM|SECRET",
+    "jwt_algorithms": "ALGORITHMS",
+    "jwt_audience": "AUDIENCE",
+    "jwt_issuer": "ISSUER",
+    "jwt_scopes_claims": "CLAIMS",
+    "jwt_scope_prefix": "PREFIX",
+    "jwt_tenants_claim": "CLAIM",
+    "ngsild_contexts": "URL=PATH;...",
+    "cors_origins": "ORIGINS",
+    "retention": "RULES",
+    "rollup_retention": "RULES",
+}
+_SECONDS = ("_s", "_seconds", "_timeout", "_interval", "_pause")
+
+
+def setting_metavar(name: str) -> str:
+    """What a flag's value is: ``BYTES``, ``SECONDS``, ``DAYS``, ``N`` (a
+    count), ``NUMBER``, ``PORT``, or what a text setting holds."""
+    annotation = Settings.model_fields[name].annotation
+    if name in _TEXT_METAVARS:
+        return _TEXT_METAVARS[name]
+    if name == "port":
+        return "PORT"
+    if "_bytes" in name:
+        return "BYTES"
+    if name.endswith(_SECONDS):
+        return "SECONDS"
+    if name.endswith("_days"):
+        return "DAYS"
+    if annotation in (int, int | None):
+        return "N"
+    if annotation in (float, float | None):
+        return "NUMBER"
+    return "TEXT"
 
 
 def _add_db(p: argparse.ArgumentParser) -> None:
@@ -58,7 +104,7 @@ def _add_settings(p: argparse.ArgumentParser) -> None:
         elif name == "log_level":
             p.add_argument(flag, dest=name, metavar="{" + ",".join(LOG_LEVELS) + "}", help=setting_help(name))
         else:
-            p.add_argument(flag, dest=name, metavar=name.split("_")[-1].upper(), help=setting_help(name))
+            p.add_argument(flag, dest=name, metavar=setting_metavar(name), help=setting_help(name))
 
 
 _SCALARS = (str, int, float, bool, int | None, float | None, str | None)
@@ -127,13 +173,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    check_serve(settings)  # one line each, before anything is created
     check_store(settings)  # a wrong --db is one line here, before uvicorn starts
     # Workers are separate processes: hand them the settings through the environment.
     for name, value in settings.model_dump().items():
         if value is not None:  # unset: the backend's default applies
             os.environ[f"TSDB_{name.upper()}"] = str(value)
     # --- limits (issue 12): slow clients, connection cap, descriptors (tsdb_service.http.server) ---
-    from tsdb_service.http.server import GuardedHttpToolsProtocol, raise_fd_limit
+    from tsdb_service.http.server import GuardedHttpToolsProtocol, log_config, raise_fd_limit
 
     raise_fd_limit()
     uvicorn.run(
@@ -143,6 +190,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         port=settings.port,
         workers=settings.workers,
         log_level=settings.log_level,
+        log_config=log_config(settings.log_level),  # tsdb-service's own lines too (the database opened)
         access_log=settings.access_log,
         loop="uvloop",
         http=GuardedHttpToolsProtocol,  # httptools with header/body deadlines and a connection cap
@@ -171,6 +219,33 @@ def tune_collector() -> None:
     young objects less often."""
     gc.freeze()
     gc.set_threshold(50_000, 20, 20)
+
+
+def check_serve(settings: Settings) -> None:
+    """What ``serve`` can check before it creates the database or starts
+    uvicorn: that it can listen on ``--host``/``--port``, and the security
+    and NGSI-LD settings that are read at start (keys, key file, token
+    settings, local @context files). ``SettingsError``, one line."""
+    from tsdb_service.faces.ngsild.context import check_local_contexts
+    from tsdb_service.http.server import check_bind
+    from tsdb_service.security import check_settings
+
+    try:
+        check_settings(settings)
+        check_local_contexts(settings.ngsild_contexts)
+        check_bind(settings.host, settings.port)
+    except ValueError as exc:
+        raise SettingsError(_flag_named(str(exc))) from None
+
+
+def _flag_named(message: str) -> str:
+    """``TSDB_API_KEYS entry 1: ...`` as ``--api-keys (TSDB_API_KEYS) entry 1: ...``: a
+    message that opens with a variable names its flag too, as every setting's error does."""
+    variable = re.match(r"TSDB_[A-Z_]*[A-Z]", message)
+    if variable is None or variable[0].removeprefix("TSDB_").lower() not in Settings.model_fields:
+        return message
+    flag = "--" + variable[0].removeprefix("TSDB_").lower().replace("_", "-")
+    return f"{flag} ({variable[0]}){message[variable.end() :]}"
 
 
 def serve_app():
@@ -240,12 +315,38 @@ def cmd_version(_: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:  # said by the subcommand that was given them, with its usage
+        _refuse_unknown(_chosen_parser(parser, args), unknown)
     try:
         return COMMANDS[args.command](args)
     except (RuntimeError, SettingsError) as exc:  # operator errors: a bad setting, a locked DuckDB file
         print(f"error: {exc}", file=sys.stderr)
         return 2
+
+
+def _chosen_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The innermost (sub)command parser the command line chose (``queries run``, ``serve``, ...)."""
+    while True:
+        subparsers = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        name = getattr(args, subparsers[0].dest, None) if subparsers else None
+        if name is None:
+            return parser
+        parser = subparsers[0].choices[name]
+
+
+def _refuse_unknown(parser: argparse.ArgumentParser, unknown: list[str]) -> None:
+    """argparse's error for unrecognized arguments (usage, then one ``error:``
+    line, exit 2), from the subcommand's parser, with the flag meant when one
+    is close."""
+    import difflib
+
+    flags = [flag for action in parser._actions for flag in action.option_strings]
+    message = f"unrecognized arguments: {' '.join(unknown)}"
+    typo = next((arg.split("=", 1)[0] for arg in unknown if arg.startswith("--")), None)
+    close = difflib.get_close_matches(typo, flags, n=1) if typo else []
+    parser.error(message + (f" (did you mean {close[0]}?)" if close else ""))
 
 
 if __name__ == "__main__":

@@ -639,9 +639,13 @@ POSTMAN_SCHEMA = "https://schema.getpostman.com/json/collection/v2.1.0/collectio
 
 
 def curl(query: Query, base_url: str, variables: dict[str, str] | None = None) -> str:
+    """The request as a curl command line; ``-g`` when the URL holds ``[ ] { }``,
+    which curl otherwise reads as a URL pattern (NGSI-LD ``coordinates=[...]``)."""
     values = dict(VARIABLES) | {"baseUrl": base_url} | dict(variables or {})
     headers = " ".join(f"-H '{key}: {value}'" for key, value in query.headers().items())
-    return f"curl -s '{base_url}{query.target(values)}' {headers}"
+    target = query.target(values)
+    globoff = " -g" if any(c in target for c in "[]{}") else ""
+    return f"curl -s{globoff} '{base_url}{target}' {headers}"
 
 
 def http_file(queries: Sequence[Query] = QUERIES) -> str:

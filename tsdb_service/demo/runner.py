@@ -12,6 +12,12 @@ time). Which emissions are sent depends only on the seed, the speedup and
 the duration, never on how fast the service answers: a slow service makes
 the run late (the progress display says by how much), not different.
 
+Where: by default the notifications go to the service's ``/v2/notify``,
+exactly as Orion would send them. With ``broker`` the entities go to that
+Orion (NGSIv2) or, with ``ngsi_ld``, Orion-LD as entity updates
+(``broker.updates``), and the broker notifies the service through its
+subscriptions.
+
 HTTP: ``concurrency`` sender tasks, each one keep-alive ``httpx.AsyncClient``
 connection, fed by a small bounded queue: at most that many requests are in
 flight, the way a broker's notification worker pool behaves. A non-2xx
@@ -32,8 +38,11 @@ from typing import TextIO
 
 import httpx
 
+from tsdb_service.broker.updates import update_request
 from tsdb_service.usecases import orion
 from tsdb_service.usecases.base import Simulator
+
+NOTIFY_PATH = "/v2/notify"
 
 
 def _cache_missing_sniffio() -> None:
@@ -69,6 +78,13 @@ class RunConfig:
     seed: int = 0
     concurrency: int = 16
     start: datetime | None = None  # simulated start; default per the module docstring
+    broker: str | None = None  # update the entities in this broker instead of notifying ``url``
+    ngsi_ld: bool = False  # the broker is Orion-LD: NGSI-LD updates
+
+    @property
+    def target(self) -> str:
+        """The base URL requests go to: the broker, or the service."""
+        return (self.broker or self.url).rstrip("/")
 
 
 @dataclass
@@ -163,7 +179,7 @@ async def run(
     clock = _Clock(config.start or default_start(config.speedup, config.duration), config.speedup, config.duration)
     stats = {sim.name: Stats(sim.name) for sim in simulators}
     outbox: asyncio.Queue = asyncio.Queue(maxsize=2 * config.concurrency)
-    senders = [asyncio.create_task(_sender(config.url, outbox)) for _ in range(config.concurrency)]
+    senders = [asyncio.create_task(_sender(config.target, outbox)) for _ in range(config.concurrency)]
     reporter = asyncio.create_task(progress.follow(stats, clock)) if progress else None
     try:
         await asyncio.gather(*(_drive(sim, clock, config, stats[sim.name], outbox, stop) for sim in simulators))
@@ -190,9 +206,13 @@ async def _drive(sim, clock, config, stats: Stats, outbox: asyncio.Queue, stop: 
         stats.lag = max(0.0, -wait)
         if await _wait_or_stop(stop, wait):
             break
-        headers = orion.notification_headers(sim.tenancy.service, sim.tenancy.service_path, orion.correlator(wire))
-        body = orion.notification_body(subscription, emission.entity)
-        await outbox.put((stats, headers, body))  # blocks while every sender is busy: backpressure
+        if config.broker:
+            path, headers, body = update_request(sim, emission.entity, config.ngsi_ld)
+        else:
+            path = NOTIFY_PATH
+            headers = orion.notification_headers(sim.tenancy.service, sim.tenancy.service_path, orion.correlator(wire))
+            body = orion.notification_body(subscription, emission.entity)
+        await outbox.put((stats, path, headers, body))  # blocks while every sender is busy: backpressure
         stats.sent += 1
         stats.sim_time = emission.at
     stats.done = True
@@ -225,9 +245,9 @@ async def _sender(url: str, outbox: asyncio.Queue) -> None:
             await _post(client, *item)
 
 
-async def _post(client: httpx.AsyncClient, stats: Stats, headers: dict, body: bytes) -> None:
+async def _post(client: httpx.AsyncClient, stats: Stats, path: str, headers: dict, body: bytes) -> None:
     try:
-        response = await client.post("/v2/notify", content=body, headers=headers)
+        response = await client.post(path, content=body, headers=headers)
         if 200 <= response.status_code < 300:
             stats.acked += 1
         else:

@@ -288,6 +288,12 @@ def install(app, api_key_header: str = "X-Api-Key", schemas: dict[str, dict] | N
 # --- per-route declarations -------------------------------------------------------------------------
 
 
+def with_headers(operation: dict, headers: dict, status: int = 200) -> dict:
+    """``operation`` (a ``spec``) with ``headers`` declared on its ``status`` answer."""
+    operation["responses"][status]["headers"] = headers
+    return operation
+
+
 # --- Grafana ---------------------------------------------------------------------------------------
 
 

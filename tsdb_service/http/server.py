@@ -126,3 +126,50 @@ def raise_fd_limit() -> tuple[int, int] | None:
         except (ValueError, OSError) as exc:
             log.warning("could not raise the open-files limit from %d to %d: %s", soft, hard, exc)
     return soft, hard
+
+
+def check_bind(host: str, port: int) -> None:
+    """``ValueError`` saying why the server could not listen on ``host:port``
+    (an unknown name, an address of another machine, a port in use or
+    reserved); checked by ``serve`` before it creates the database, with
+    ``SO_REUSEADDR`` as uvicorn binds. The socket is closed at once, so
+    another program can still take the port before uvicorn does: then
+    uvicorn reports it."""
+    import errno
+    import socket
+
+    try:
+        addresses = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (socket.gaierror, UnicodeError) as exc:
+        reason = exc.strerror if isinstance(exc, socket.gaierror) else str(exc)
+        raise ValueError(f"--host (TSDB_HOST): cannot listen on {host!r}: {reason}") from None
+    family, kind, proto, _, address = addresses[0]
+    with socket.socket(family, kind, proto) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind(address)
+        except OSError as exc:
+            where = f"{host}:{port}"
+            if exc.errno == errno.EADDRINUSE:
+                reason = (
+                    f"--port (TSDB_PORT): {where} is already in use: stop what listens there, or choose another --port"
+                )
+            elif exc.errno == errno.EADDRNOTAVAIL:
+                reason = f"--host (TSDB_HOST): {host} is not an address of this machine (0.0.0.0 listens on all)"
+            elif exc.errno == errno.EACCES:
+                reason = f"--port (TSDB_PORT): no permission to listen on {where} (ports below 1024 need privileges)"
+            else:
+                reason = f"--host/--port: cannot listen on {where}: {exc.strerror or exc}"
+            raise ValueError(reason) from None
+
+
+def log_config(level: str) -> dict:
+    """uvicorn's logging configuration, with tsdb-service's own loggers
+    printed the same way at ``level`` (the database opened, warnings)."""
+    import copy
+
+    from uvicorn.config import LOGGING_CONFIG
+
+    config = copy.deepcopy(LOGGING_CONFIG)
+    config["loggers"]["tsdb_service"] = {"handlers": ["default"], "level": level.upper(), "propagate": False}
+    return config

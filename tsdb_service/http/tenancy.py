@@ -17,7 +17,10 @@ from __future__ import annotations
 
 from fastapi import Request
 
-from tsdb_service.parse.request_context import raw_tenant, selectors, tenant
+from tsdb_service.http.store import store_of
+from tsdb_service.parse.request_context import raw_tenant, selectors, tenant, tenant_hint
+
+HINT_HEADER = "X-Tsdb-Hint"
 
 
 def tenant_header(request: Request) -> str:
@@ -37,3 +40,15 @@ def tenant_echo(request: Request) -> dict[str, str]:
     NGSI-LD spec's responses carry ``NGSILD-Tenant`` when the request did)."""
     raw = request.headers.get("ngsild-tenant")
     return {"NGSILD-Tenant": raw} if raw else {}
+
+
+def empty_answer_hint(request: Request, asked: str) -> dict[str, str]:
+    """The ``X-Tsdb-Hint`` header for an empty answer (``{}`` when there is
+    nothing to say): the tenants that hold data when ``asked`` holds none,
+    limited to those the caller's credential may touch. A header, so the
+    body stays QuantumLeap's ``[]``."""
+    principal = getattr(request.state, "principal", None)
+    tenants = store_of(request).querier().tenants()
+    visible = [t for t in tenants if principal is None or principal.may_touch(t)]
+    hint = tenant_hint(visible, asked)
+    return {HINT_HEADER: f"{hint} (send Fiware-Service: TENANT)"} if hint else {}

@@ -165,6 +165,23 @@ def tenant(headers: Iterable[tuple[str, str]], extra: Iterable[tuple[str, str]] 
         raise BadRequest(f"bad tenant: {exc}", error="BadRequest") from None
 
 
+HINT_TENANTS = 20  # tenants a hint names at most
+
+
+def tenant_hint(with_data: Iterable[str], asked: str) -> str | None:
+    """For an answer with nothing in it: when the tenant ``asked`` holds no
+    series but others do, a sentence naming them (a new user's data is
+    usually under the tenant its broker used, e.g. the demo's ``lawnmower``);
+    else None."""
+    tenants = list(with_data)
+    others = [t for t in tenants if t != asked]
+    if asked in tenants or not others:
+        return None
+    who = "the default tenant (no Fiware-Service)" if asked == "" else f"tenant {asked!r}"
+    names = ", ".join(t or "(default)" for t in others[:HINT_TENANTS]) + (", ..." if len(others) > HINT_TENANTS else "")
+    return f"{who} holds no data; tenants with data: {names}"
+
+
 def notification_tenant(headers: Iterable[tuple[str, str]]) -> str:
     """``tenant`` for a notification: a ``ParseError`` (kept in the rejected store)."""
     try:

@@ -13,7 +13,7 @@ from starlette.middleware.cors import CORSMiddleware
 from tsdb_service.security.guard import Guard
 from tsdb_service.security.keys import KeyRing
 from tsdb_service.security.principals import ADMIN, READ, WRITE, Forbidden, Principal, Unauthorized, required_scope
-from tsdb_service.security.tokens import TokenVerifier
+from tsdb_service.security.tokens import TokenVerifier, check_token_settings
 
 __all__ = [
     "ADMIN",
@@ -22,6 +22,7 @@ __all__ = [
     "Forbidden",
     "Principal",
     "Unauthorized",
+    "check_settings",
     "protect",
     "required_scope",
 ]
@@ -48,3 +49,11 @@ def protect(app, settings):
             max_age=CORS_MAX_AGE_S,
         )
     return app
+
+
+def check_settings(settings) -> None:
+    """``ValueError`` (one line naming the setting) if the security settings
+    cannot work: keys, key file, token settings. Nothing is started, nothing
+    is fetched: ``serve`` calls it before it creates anything."""
+    KeyRing.from_settings(settings.api_keys, settings.api_keys_file)
+    check_token_settings(settings)

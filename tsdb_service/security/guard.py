@@ -32,6 +32,7 @@ log = logging.getLogger(__name__)
 OPEN_PATHS = frozenset({"/health", "/version", "/docs", "/docs/oauth2-redirect", "/redoc", "/openapi.json"})
 REALM = 'Bearer realm="tsdb-service"'
 _TENANT_HEADERS = (b"fiware-service", b"ngsild-tenant")
+PRINCIPAL = "principal"  # the verified caller, in the request's state
 
 
 class Guard:
@@ -48,6 +49,7 @@ class Guard:
         try:
             principal = await self._authenticate(scope)
             _authorise(principal, scope)
+            scope.setdefault("state", {})[PRINCIPAL] = principal  # request.state.principal
         except TsdbError as exc:
             await _refuse(send, exc)
             return

@@ -58,7 +58,7 @@ def parse_inline(raw: str) -> list[tuple[bytes, Principal]]:
         if not entry:
             continue
         key, _, rest = entry.partition(":")
-        where = f"TSDB_API_KEYS entry {n}"
+        where = f"TSDB_API_KEYS: entry {n}"
         if len(key) < MIN_KEY_LENGTH or not _KEY.match(key):
             raise ValueError(
                 f"{where}: a key needs at least {MIN_KEY_LENGTH} characters from A-Z a-z 0-9 . _ ~ + / = -"
@@ -74,7 +74,7 @@ def parse_file(path: Path) -> list[tuple[bytes, Principal]]:
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
     except OSError as exc:
-        raise ValueError(f"cannot read the API keys file {str(path)!r}: {exc.strerror}") from None
+        raise ValueError(f"TSDB_API_KEYS_FILE: cannot read the API keys file {str(path)!r}: {exc.strerror}") from None
     entries = []
     for number, line in enumerate(lines, start=1):
         fields = line.split("#", 1)[0].split()

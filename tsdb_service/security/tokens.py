@@ -16,6 +16,7 @@ import threading
 import time
 from collections.abc import Iterable
 from typing import Any
+from urllib.parse import urlsplit
 
 import httpx
 import jwt
@@ -91,12 +92,8 @@ class TokenVerifier:
     """Verify a JWT and turn its claims into a ``Principal``."""
 
     def __init__(self, settings: Any):
-        if settings.jwt_jwks_url and settings.jwt_key:
-            raise ValueError("configure either TSDB_JWT_JWKS_URL or TSDB_JWT_KEY, not both")
+        self.static_key, self.algorithms = check_token_settings(settings)
         self.jwks = JwksCache(settings.jwt_jwks_url, settings.jwt_jwks_cache_seconds) if settings.jwt_jwks_url else None
-        self.static_key = _load_key(settings.jwt_key) if settings.jwt_key else None
-        symmetric = isinstance(self.static_key, bytes)
-        self.algorithms = _algorithms(settings.jwt_algorithms, symmetric)
         self.audience = settings.jwt_audience or None
         self.issuer = settings.jwt_issuer or None
         self.scope_claims = [c.strip() for c in settings.jwt_scopes_claims.split(",") if c.strip()]
@@ -170,6 +167,35 @@ def _strings(value: Any) -> Iterable[str]:
                 yield item["name"]
 
 
+# Settings that only mean something when tokens are verified.
+_TOKEN_ONLY = ("jwt_algorithms", "jwt_audience", "jwt_issuer", "jwt_scope_prefix", "jwt_tenants_claim")
+
+
+def check_token_settings(settings: Any) -> tuple[Any, list[str]]:
+    """The configured key (None with a JWKS URL or no token source) and the
+    allowed algorithms; ``ValueError`` naming the setting when the token
+    settings cannot work: both sources, a JWKS URL that is not an http(s)
+    URL, a key that is not a PEM public key, an algorithm that is unknown or
+    of the other family, token settings without a token source (tokens would
+    then not be checked at all). Reads nothing but the settings."""
+    if settings.jwt_jwks_url and settings.jwt_key:
+        raise ValueError("configure either TSDB_JWT_JWKS_URL or TSDB_JWT_KEY, not both")
+    if settings.jwt_jwks_url:
+        url = urlsplit(settings.jwt_jwks_url.strip())
+        if url.scheme not in ("http", "https") or not url.hostname:
+            raise ValueError(
+                f"TSDB_JWT_JWKS_URL: {settings.jwt_jwks_url!r} is not an http(s) URL, "
+                "e.g. https://keycloak/realms/fiware/protocol/openid-connect/certs"
+            )
+    elif not settings.jwt_key:
+        given = [name for name in _TOKEN_ONLY if getattr(settings, name)]
+        if given:
+            flags = ", ".join(f"TSDB_{name.upper()}" for name in given)
+            raise ValueError(f"{flags} set, but no token is verified: set TSDB_JWT_JWKS_URL or TSDB_JWT_KEY too")
+    key = _load_key(settings.jwt_key) if settings.jwt_key else None
+    return key, _algorithms(settings.jwt_algorithms, isinstance(key, bytes))
+
+
 def _load_key(raw: str) -> Any:
     if raw.lstrip().startswith("-----BEGIN"):
         try:
@@ -182,6 +208,11 @@ def _load_key(raw: str) -> Any:
 def _algorithms(raw: str, symmetric: bool) -> list[str]:
     family = HMAC if symmetric else ASYMMETRIC
     chosen = [a.strip() for a in raw.split(",") if a.strip()] or list(family)
+    unknown = [a for a in chosen if a not in HMAC + ASYMMETRIC]
+    if unknown:
+        raise ValueError(
+            f"TSDB_JWT_ALGORITHMS: unknown algorithm {', '.join(unknown)}; choose from {', '.join(HMAC + ASYMMETRIC)}"
+        )
     wrong = [a for a in chosen if a not in family]
     if wrong:
         kind = "a shared secret" if symmetric else "a public key or JWKS"

@@ -263,6 +263,24 @@ def parse_local_contexts(spec: str) -> dict[str, str]:
             continue
         url, sep, path = item.rpartition("=")
         if not sep or not url or not path:
-            raise ValueError(f"TSDB_NGSILD_CONTEXTS entries are URL=path, not {item!r}")
+            raise ValueError(f"TSDB_NGSILD_CONTEXTS: entries are URL=path, not {item!r}")
         out[url] = path
     return out
+
+
+def check_local_contexts(spec: str) -> dict[str, str]:
+    """``parse_local_contexts``, and each entry usable: an http(s) URL (the
+    ones a request's ``Link`` header names) and a readable JSON file.
+    ``ValueError`` naming the entry; ``serve`` checks this at start, so a
+    mistyped setting is not found at the first NGSI-LD request."""
+    local = parse_local_contexts(spec)
+    for url, path in local.items():
+        if not re.match(r"^https?://[^/\s]+", url):
+            raise ValueError(f"TSDB_NGSILD_CONTEXTS: {url!r} is not an http(s) URL (entries are URL=path)")
+        try:
+            json.loads(Path(path).read_text(encoding="utf-8"))
+        except OSError as exc:
+            raise ValueError(f"TSDB_NGSILD_CONTEXTS: cannot read {path} for {url}: {exc.strerror}") from None
+        except ValueError as exc:
+            raise ValueError(f"TSDB_NGSILD_CONTEXTS: {path} (for {url}) is not JSON: {exc}") from None
+    return local

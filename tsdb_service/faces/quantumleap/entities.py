@@ -10,7 +10,7 @@ from tsdb_service.history.service import run_entity_list
 from tsdb_service.http import openapi as oa
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.store import reads_store, store_of
-from tsdb_service.http.tenancy import tenant_of
+from tsdb_service.http.tenancy import empty_answer_hint, tenant_of
 
 router = APIRouter(tags=["entities"])
 
@@ -18,11 +18,14 @@ router = APIRouter(tags=["entities"])
 @router.get(
     "/v2/entities",
     summary="Entity ids with their type and latest time index",
-    **oa.spec(*ql_oa.ENTITY_LIST, ok_=oa.ok(oa.ref_array("EntityListItem")), errors_=oa.READ_ERRORS),
+    **oa.with_headers(
+        oa.spec(*ql_oa.ENTITY_LIST, ok_=oa.ok(oa.ref_array("EntityListItem")), errors_=oa.READ_ERRORS), ql_oa.HINT
+    ),
 )
 @reads_store
 def list_entities(request: Request) -> JSON:
     query = entity_list_query(
         request.query_params, request.headers, tenant_of(request), request.app.state.settings.default_limit
     )
-    return JSON(run_entity_list(store_of(request).querier(), query))
+    found = run_entity_list(store_of(request).querier(), query)
+    return JSON(found, headers=None if found else empty_answer_hint(request, query.scope.tenant))

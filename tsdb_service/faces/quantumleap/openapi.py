@@ -239,3 +239,11 @@ SCHEMAS: dict[str, dict] = {
         description="An entity at its latest values, NGSIv2 normalized form",
     ),
 }
+
+HINT = {
+    "X-Tsdb-Hint": {
+        "description": "On an empty answer whose tenant holds no data: the tenants that do "
+        "(the body stays QuantumLeap's [])",
+        "schema": {"type": "string"},
+    }
+}

@@ -137,21 +137,52 @@
     return { xs: times.map((t) => t / 1000), columns: [...out.values()] };
   }
 
+  /** Time tick labels of one kind for a whole axis: dates, clock times, or both. */
+  function timeLabel(ms, stepSeconds, spanSeconds) {
+    const d = new Date(ms), day = `${pad(d.getMonth() + 1)}-${pad(d.getDate())}`;
+    if (stepSeconds >= 86400) return day;
+    return (spanSeconds > 86400 ? `${day} ` : "") + clock(ms, stepSeconds < 60);
+  }
+  const LABEL_PX = 7; // width of a tick label character at the axes' 12 px, with room to spare
+
+  /** The x axis: one label format per axis, and ticks far enough apart for it (uPlot's
+   * default puts a two-line date under the first tick, which collides on half-width charts). */
+  function timeAxis0(xRange) {
+    const spanSeconds = xRange ? (xRange[1] - xRange[0]) / 1000 : 3600;
+    const sample = timeLabel(Date.now(), spanSeconds < 600 ? 1 : 60, spanSeconds);
+    return { space: sample.length * LABEL_PX + 18,
+      values: (u, splits, axisIdx, space, incr) => splits.map((v) => timeLabel(v * 1000, incr, spanSeconds)) };
+  }
+
+  /** A y axis naming the codes of an enumeration ({"0": "docked", ...}) instead of numbers. */
+  function enumAxis(names) {
+    const codes = Object.keys(names).map(Number).sort((a, b) => a - b);
+    const widest = Math.max(...Object.values(names).map((n) => n.length));
+    return { size: widest * LABEL_PX + 14, splits: () => codes, values: (u, ticks) => ticks.map((v) => names[String(v)] || v) };
+  }
+
   /**
-   * A time-series chart. series: [{label, values, color?, stepped?, dash?, points?}].
-   * The container gets data-series / data-points for whoever checks it was drawn.
+   * A time-series chart. series: [{label, values, color?, stepped?, dash?, points?, names?}];
+   * ``names`` (an enumeration) labels the y axis and the legend's value with state names.
+   * The container gets data-series / data-points for whoever checks it was drawn, and
+   * ``box.uplot`` the chart.
    */
   function lineChart(box, { xs, series, xRange, height = 180, unit = "" }) {
+    const names = series.length === 1 ? series[0].names : null;
+    const codes = names ? Object.keys(names).map(Number) : [];
     const opts = {
       width: Math.max(box.clientWidth, 300),
       height,
       padding: [8, 16, 0, 0],
       cursor: { sync: { key: "view" } },
       legend: { live: true },
-      scales: { x: { time: true, range: (u, lo, hi) => (xRange ? [xRange[0] / 1000, xRange[1] / 1000] : [lo, hi]) } },
-      axes: [{}, { size: 60, values: (u, ticks) => ticks.map((v) => `${+v.toPrecision(6)}${unit}`) }],
+      scales: { x: { time: true, range: (u, lo, hi) => (xRange ? [xRange[0] / 1000, xRange[1] / 1000] : [lo, hi]) },
+        y: names ? { range: [Math.min(...codes) - 0.5, Math.max(...codes) + 0.5] } : {} },
+      axes: [timeAxis0(xRange), names ? enumAxis(names)
+        : { size: 60, values: (u, ticks) => ticks.map((v) => `${+v.toPrecision(6)}${unit}`) }],
       series: [{}].concat(series.map((one, i) => ({
         label: one.label,
+        value: one.names ? (u, v) => (v === null || v === undefined ? "--" : one.names[String(v)] || String(v)) : undefined,
         stroke: one.color || PALETTE[i % PALETTE.length],
         width: one.width || 1.5,
         dash: one.dash,
@@ -162,6 +193,7 @@
     };
     const data = [xs].concat(series.map((one) => one.values));
     const chart = new uPlot(opts, data, box);
+    box.uplot = chart;
     chart.tsdbHeight = height;
     charts.push(chart);
     box.dataset.series = String(series.length);
@@ -222,7 +254,8 @@
 
   function timeAxis(x, xRange, y, x0, x1) {
     const seconds = (xRange[1] - xRange[0]) / 1000;
-    const step = TICK_STEPS.find((st) => seconds / st <= 8) || 86400 * Math.ceil(seconds / 86400 / 8);
+    const most = Math.max(2, Math.min(8, Math.floor((x1 - x0) / 64))); // "HH:MM:SS" at 10 px is ~45 px wide
+    const step = TICK_STEPS.find((st) => seconds / st <= most) || 86400 * Math.ceil(seconds / 86400 / most);
     const g = s("g", { class: "axis" }, s("line", { x1: x0, x2: x1, y1: y - 10, y2: y - 10 }));
     const offset = new Date(xRange[0]).getTimezoneOffset() * 60e3;
     for (let t = Math.ceil((xRange[0] - offset) / (step * 1000)) * step * 1000 + offset; t <= xRange[1]; t += step * 1000) {
@@ -260,7 +293,9 @@
     const px = (lon) => width / 2 + (lon - lon0) * kx * scale;
     const py = (lat) => height / 2 - (lat - lat0) * METRES_PER_DEG * scale;
     const svg = s("svg", { class: "map", viewBox: `0 0 ${width} ${height}`, width, height });
-    svg.append(graticule(px, py, lon0, lat0, kx, scale, width, height));
+    box.replaceChildren(svg); // in the document from here on, so labels can be measured
+    const grat = graticule(px, py, lon0, lat0, kx, scale, width, height);
+    svg.append(grat);
     for (const ring of rings) {
       svg.append(s("polygon", { points: ring.coords.map((c) => `${px(c[0])},${py(c[1])}`).join(" "),
         fill: ring.fill || "none", stroke: ring.stroke || "#8b949e", "stroke-dasharray": "5 4" },
@@ -279,15 +314,62 @@
       svg.append(s("circle", { class: m.cls || "marker", cx: px(m.lon), cy: py(m.lat), r: m.r || 5,
         fill: m.color || "#d62728", stroke: "#fff", "stroke-width": 1.5 }, m.title ? s("title", {}, m.title) : null));
     }
-    for (const m of markers.filter((one) => one.label)) { // labels on top of every marker
-      svg.append(s("text", { class: "label", x: px(m.lon) + (m.r || 5) + 3, y: py(m.lat) + 4 }, m.label));
-    }
-    svg.append(scaleBar(scale, height), s("g", { class: "north" },
+    const furniture = [scaleBar(scale, height), s("g", { class: "north" },
       s("text", { x: width - 18, y: 18, "text-anchor": "middle" }, "N"),
-      s("path", { d: `M${width - 18} 22 l-5 12 l5 -3 l5 3 z`, fill: "#333" })));
-    box.replaceChildren(svg);
+      s("path", { d: `M${width - 18} 22 l-5 12 l5 -3 l5 3 z`, fill: "#333" }))];
+    svg.append(...furniture);
+    const taken = furniture.map((g) => g.getBBox()).concat(markers.map((m) => {
+      const r = m.r || 5;
+      return { x: px(m.lon) - r, y: py(m.lat) - r, width: 2 * r, height: 2 * r };
+    }));
+    fitGraticuleLabels(grat, width, height, taken);
+    for (const m of markers.filter((one) => one.label)) { // labels on top of every marker, apart
+      placeLabel(svg, s("text", { class: "label" }, m.label), px(m.lon), py(m.lat), m.r || 5, width, height, taken);
+    }
     box.dataset.pathPoints = String(drawn);
     box.dataset.markers = String(markers.length);
+  }
+
+  const overlap = (a, b) => Math.max(0, Math.min(a.x + a.width, b.x + b.width) - Math.max(a.x, b.x)) *
+    Math.max(0, Math.min(a.y + a.height, b.y + b.height) - Math.max(a.y, b.y));
+
+  /** Put ``label`` beside the marker at (x, y) of radius r: the first of eight places that
+   * stays in the frame and covers no other label or marker, else the one that covers least. */
+  function placeLabel(svg, label, x, y, r, width, height, taken) {
+    svg.append(label);
+    const w = label.getBBox().width, h = 11, gap = r + 3;
+    const places = [[x + gap, y + 4, "start"], [x - gap, y + 4, "end"], [x, y - gap - 1, "middle"], [x, y + gap + h - 1, "middle"],
+      [x + gap - 2, y - gap, "start"], [x - gap + 2, y - gap, "end"], [x + gap - 2, y + gap + h - 3, "start"], [x - gap + 2, y + gap + h - 3, "end"]];
+    let best = null;
+    for (const [lx, ly, anchor] of places) {
+      const left = anchor === "start" ? lx : anchor === "end" ? lx - w : lx - w / 2;
+      const box = { x: left, y: ly - h + 2, width: w, height: h };
+      const outside = box.x < 0 || box.y < 0 || box.x + w > width || box.y + h > height;
+      const cost = (outside ? 1e6 : 0) + taken.reduce((sum, other) => sum + overlap(box, other), 0);
+      if (best === null || cost < best.cost) best = { cost, lx, ly, anchor, box };
+      if (cost === 0) break;
+    }
+    label.setAttribute("x", best.lx);
+    label.setAttribute("y", best.ly);
+    label.setAttribute("text-anchor", best.anchor);
+    taken.push(best.box);
+  }
+
+  /** Graticule labels that would leave the frame, or sit on the scale bar, the north arrow or
+   * another label, are moved inside (longitudes) or left out. */
+  function fitGraticuleLabels(grat, width, height, taken) {
+    const placed = [];
+    for (const text of [...grat.querySelectorAll(".grat-label")]) {
+      let box = text.getBBox();
+      if (box.x + box.width > width - 2 && text.dataset.axis === "lon") {
+        text.setAttribute("text-anchor", "end");
+        text.setAttribute("x", Number(text.getAttribute("x")) - 4);
+        box = text.getBBox();
+      }
+      const outside = box.x < 0 || box.y < 0 || box.x + box.width > width || box.y + box.height > height;
+      if (outside || taken.concat(placed).some((other) => overlap(box, other) > 0)) text.remove();
+      else placed.push(box);
+    }
   }
 
   function colourRuns(path) {
@@ -309,13 +391,13 @@
     const digits = Math.max(0, -Math.floor(Math.log10(step)));
     for (let lat = Math.ceil((lat0 - latHalf) / step) * step; lat <= lat0 + latHalf; lat += step) {
       g.append(s("line", { class: "grat", x1: 0, x2: width, y1: py(lat), y2: py(lat) }),
-        s("text", { class: "grat-label", x: 3, y: py(lat) - 2 }, `${lat.toFixed(digits)}°`));
+        s("text", { class: "grat-label", "data-axis": "lat", x: 3, y: py(lat) - 2 }, `${lat.toFixed(digits)}°`));
     }
     const lonStep = niceStep((2 * lonHalf) / 6);
     const lonDigits = Math.max(0, -Math.floor(Math.log10(lonStep)));
     for (let lon = Math.ceil((lon0 - lonHalf) / lonStep) * lonStep; lon <= lon0 + lonHalf; lon += lonStep) {
       g.append(s("line", { class: "grat", x1: px(lon), x2: px(lon), y1: 0, y2: height }),
-        s("text", { class: "grat-label", x: px(lon) + 2, y: 11 }, `${lon.toFixed(lonDigits)}°`));
+        s("text", { class: "grat-label", "data-axis": "lon", x: px(lon) + 2, y: 11 }, `${lon.toFixed(lonDigits)}°`));
     }
     return g;
   }
@@ -356,7 +438,7 @@
   }
 
   async function viewExplore(box, params, stale) {
-    const tenants = await api("ui/tenants");
+    const [tenants, cases] = await Promise.all([api("ui/tenants"), useCases()]);
     if (!tenants.length) {
       box.append(panel("No data yet", null, h("p", {}, "Nothing is stored. Run ", h("code", {}, "tsdb-service demo"),
         " or point an Orion subscription at ", h("code", {}, "/v2/notify"), ".")));
@@ -383,10 +465,12 @@
       box.append(h("p", { class: "muted" }, "No entity in this service path."));
       return;
     }
-    await exploreEntity(box, { ...scope, id: entity.entity, type: entity.type }, entity.attrs.split(","), stale);
+    const useCase = Object.values(cases).find((one) => one.service === tenant.tenant);
+    await exploreEntity(box, { ...scope, id: entity.entity, type: entity.type }, entity.attrs.split(","), stale,
+      useCase ? useCase.enums : {});
   }
 
-  async function exploreEntity(box, sel, attrNames, stale) {
+  async function exploreEntity(box, sel, attrNames, stale, enums) {
     const latest = {};
     let newest = -Infinity;
     for (let i = 0; i < attrNames.length; i += MAX_COLUMNS) {
@@ -422,7 +506,7 @@
     });
     const grid = h("div", { class: "grid" });
     box.append(grid);
-    const draws = attributeCharts(grid, rows, plotted, xRange);
+    const draws = attributeCharts(grid, rows, plotted, xRange, enums);
     box.append(latestTable(attrNames, latest));
     for (const draw of draws) draw(); // once every panel is placed, so each chart fits its cell
   }
@@ -442,8 +526,10 @@
     return [...byTime.values()].sort((a, b) => Date.parse(a.time) - Date.parse(b.time));
   }
 
-  /** A panel per attribute in ``grid``; returns the functions that draw their charts. */
-  function attributeCharts(grid, rows, plotted, xRange) {
+  /** A panel per attribute in ``grid``; returns the functions that draw their charts. A series
+   * is named after its attribute, or after its value path when the attribute has several;
+   * an attribute with an enumeration (the use cases' states) shows state names. */
+  function attributeCharts(grid, rows, plotted, xRange, enums) {
     const draws = [];
     const byAttr = new Map();
     plotted.forEach((p, i) => {
@@ -459,6 +545,10 @@
         const label = col.keys.length ? col.keys.join(".") : attr;
         if (present.length && present.every((v) => v === present[0]) && cols.length > 1) constant.push(`${label} = ${present[0]}`);
         else varying.push({ label, values: values.get(col.key) || [], stepped: Number.isInteger(present[0]) });
+      }
+      if (varying.length === 1) { // the attribute's one number (e.g. std_msgs' "data"): named after it
+        varying[0].label = attr;
+        varying[0].names = enums[attr];
       }
       const box = h("div", { class: "chart", "data-attr": attr });
       const caption = constant.length ? h("div", { class: "caption" }, `constant: ${constant.join(", ")}`) : null;
@@ -661,20 +751,23 @@
   function sensorTable(cfg, placed, visits, total) {
     const byId = new Map(placed.map((p) => [p.entity, p]));
     const fmt = (v, digits) => (typeof v === "number" ? v.toFixed(digits) : "");
-    return h("table", { id: "drone-sensors" },
+    const priorityOf = (sensor) => { const seen = byId.get(sensor.id) || {}; return typeof seen.priority === "number" ? seen.priority : sensor.priority; };
+    const widest = Math.max(...cfg.sensors.map((sensor, i) => Math.max(priorityOf(sensor), total ? visits[i + 1] / total : 0)), 1e-9);
+    const pct = (v) => `${((v / widest) * 100).toFixed(1)}%`; // of the cell: the table never outgrows its card
+    return h("table", { id: "drone-sensors", class: "fit" },
       h("tr", {}, h("th", {}, "sensor"), h("th", { class: "num" }, "priority"), h("th", { class: "num" }, "visits"),
-        h("th", {}, "share of visits vs priority"), h("th", { class: "num" }, "°C"), h("th", { class: "num" }, "%"), h("th", {}, "last reading")),
+        h("th", { class: "bars" }, "share of visits vs priority"), h("th", { class: "num" }, "°C"), h("th", { class: "num" }, "%"), h("th", {}, "last reading")),
       cfg.sensors.map((sensor, i) => {
         const seen = byId.get(sensor.id) || {};
-        const priority = typeof seen.priority === "number" ? seen.priority : sensor.priority;
+        const priority = priorityOf(sensor);
         const share = total ? visits[i + 1] / total : 0;
         return h("tr", { class: "sensor-row", "data-sensor": sensor.id },
           h("td", { class: "nowrap" }, h("i", { class: "swatch", style: `background:${stateColor(i + 1, 0)}` }), shortName(sensor.id)),
           h("td", { class: "num" }, fmt(priority, 3)), h("td", { class: "num" }, visits[i + 1]),
-          h("td", {}, h("span", { class: "bar", style: `width:${Math.round(share * 300)}px`, title: `share ${(share * 100).toFixed(1)} %` }), h("br"),
-            h("span", { class: "bar expected", style: `width:${Math.round(priority * 300)}px`, title: `priority ${priority}` })),
+          h("td", { class: "bars" }, h("span", { class: "bar", style: `width:${pct(share)}`, title: `share ${(share * 100).toFixed(1)} %` }),
+            h("span", { class: "bar expected", style: `width:${pct(priority)}`, title: `priority ${priority}` })),
           h("td", { class: "num" }, fmt(seen.temperature, 2)), h("td", { class: "num" }, fmt(seen.humidity, 1)),
-          h("td", {}, seen.time ? stamp(Date.parse(seen.time)) : ""));
+          h("td", { class: "nowrap", title: seen.time ? stamp(Date.parse(seen.time)) : "" }, seen.time ? clock(Date.parse(seen.time), true) : ""));
       }),
       h("tr", {}, h("td", { colspan: 7, class: "caption" }, "Bars: blue = share of visits in this range, gold = mission priority.")));
   }

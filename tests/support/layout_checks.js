@@ -1,0 +1,61 @@
+/* Layout checks the explorer's browser test runs in the page (tests/test_ui_browser.py).
+ * Each returns a list of problems, empty when the page is right. */
+"use strict";
+
+/** Labels of the SVGs matching ``selector``: inside their frame, on no other label, on no marker. */
+function mapLabelProblems(selector) {
+const problems = [];
+const hit = (a, b) => Math.max(0, Math.min(a.right, b.right) - Math.max(a.left, b.left)) *
+  Math.max(0, Math.min(a.bottom, b.bottom) - Math.max(a.top, b.top));
+for (const svg of document.querySelectorAll(selector)) {
+  const frame = svg.getBoundingClientRect();
+  const labels = [...svg.querySelectorAll("text.label, text.grat-label")].map((t) => [t.textContent, t.getBoundingClientRect()]);
+  const circles = [...svg.querySelectorAll("circle")].map((c) => c.getBoundingClientRect());
+  for (const [text, r] of labels) {
+    if (r.left < frame.left - 0.5 || r.right > frame.right + 0.5 || r.top < frame.top - 0.5 || r.bottom > frame.bottom + 0.5)
+      problems.push(`${svg.parentElement.id || svg.parentElement.dataset.attr}: '${text}' is cut by the frame`);
+  }
+  labels.forEach(([a, ra], i) => labels.slice(i + 1).forEach(([b, rb]) => {
+    if (hit(ra, rb) > 1) problems.push(`'${a}' overlaps '${b}'`);
+  }));
+  for (const [text, r] of labels) for (const c of circles) if (hit(r, c) > 2) problems.push(`'${text}' covers a marker`);
+}
+return problems;
+}
+
+/** Tick labels of every chart's time axis (uPlot's rendered ones, measured in its font) and of
+ * every state timeline: none may reach into the next. */
+function timeLabelProblems() {
+const problems = [];
+const ctx = document.createElement("canvas").getContext("2d");
+for (const box of document.querySelectorAll(".chart")) {
+  const u = box.uplot;
+  if (!u) continue;
+  const axis = u.axes[0];
+  ctx.font = axis.font[0];
+  // uPlot labels may have several lines (a date under some times): compare line by line.
+  const rows = [];
+  (axis._values || []).forEach((v, i) => String(v).split("\n").forEach((line, row) => {
+    if (line) (rows[row] = rows[row] || []).push({ line, x: u.valToPos(axis._splits[i], "x"), w: ctx.measureText(line).width });
+  }));
+  for (const row of rows) for (let i = 1; i < (row || []).length; i++) {
+    const a = row[i - 1], b = row[i];
+    if (b.x - a.x < (a.w + b.w) / 2 + 2) problems.push(`${box.id || box.dataset.attr}: '${a.line}' and '${b.line}' overlap`);
+  }
+}
+for (const axis of document.querySelectorAll(".bands .axis")) {
+  const r = [...axis.querySelectorAll("text")].map((t) => [t.textContent, t.getBoundingClientRect()]);
+  for (let i = 1; i < r.length; i++) if (r[i][1].left < r[i - 1][1].right + 2) problems.push(`timeline: '${r[i - 1][0]}' and '${r[i][0]}' overlap`);
+}
+return problems;
+}
+
+/** The drone's priority table: inside its card, no cell cut. */
+function tableProblems() {
+const table = document.getElementById("drone-sensors"), card = table.closest(".panel");
+const problems = [];
+if (table.getBoundingClientRect().right > card.getBoundingClientRect().right - 1) problems.push("the table leaves its card");
+for (const cell of table.querySelectorAll("td, th"))
+  if (cell.scrollWidth > cell.clientWidth + 1) problems.push(`'${cell.textContent}' is cut (${cell.scrollWidth} > ${cell.clientWidth})`);
+return problems;
+}
