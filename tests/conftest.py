@@ -8,6 +8,7 @@ over PostgreSQL URLs runs the same tests against PostgreSQL.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import re
@@ -36,7 +37,8 @@ class StoreClient(TestClient):
         response = super().request(method, url, *args, **kwargs)
         store = getattr(self.app.state, "store", None)
         if method.upper() not in ("GET", "HEAD", "OPTIONS") and store is not None and hasattr(store, "sync"):
-            store.sync()
+            with contextlib.suppress(Exception):  # a store that cannot catch up now says so to the next read
+                store.sync()
         return response
 
 

@@ -7,14 +7,36 @@ from __future__ import annotations
 
 import asyncio
 import threading
+import time
 from datetime import UTC, datetime
 
+import pytest
+
+from tsdb_service.core.errors import Unavailable
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.write.log import IngestLog
 from tsdb_service.write.logged import LoggedWriter
 from tsdb_service.write.ops import AppendSamples
 
 T0 = datetime(2024, 5, 1, tzinfo=UTC)
+
+
+def synced(w: LoggedWriter, timeout: float = 30.0) -> None:
+    """``w.sync()`` once the database takes the log again (it says
+    Unavailable while it refuses it)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            w.sync(timeout=1)
+            return
+        except Unavailable:
+            assert time.monotonic() < deadline, "the log was never applied"
+            time.sleep(0.01)
+
+
+def acknowledge_in_background(w: LoggedWriter, op: AppendSamples) -> None:
+    """A request in flight: it returns once the log acknowledged ``op``."""
+    threading.Thread(target=asyncio.run, args=(w.write(op),), daemon=True).start()
 
 
 def entity(n: int, name: str = "speed") -> EntitySample:
@@ -118,7 +140,7 @@ def test_replay_applies_only_what_the_database_lacks(tmp_path):
     w = db.writer(tmp_path)
     db.gate.clear()
     for i in range(1, 4):
-        threading.Thread(target=w.write_sync, args=([AppendSamples([entity(i)])],), daemon=True).start()
+        acknowledge_in_background(w, AppendSamples([entity(i)]))
     while w.acked_seq < 3:
         threading.Event().wait(0.01)
     # A crash: the log holds three records, the database none. Keep one as if applied.
@@ -141,11 +163,11 @@ def test_an_entity_the_database_always_refuses_is_kept_and_the_rest_goes_on(tmp_
     w = db.writer(tmp_path)
     db.gate.clear()
     for i in (1, 2, 3):
-        threading.Thread(target=w.write_sync, args=([AppendSamples([entity(i)])],), daemon=True).start()
+        acknowledge_in_background(w, AppendSamples([entity(i)]))
     while w.acked_seq < 3:
         threading.Event().wait(0.01)
     db.gate.set()
-    w.sync(timeout=30)
+    synced(w)
     assert sorted(eid for _, eid in db.rows) == ["e1", "e3"]
     assert db.rejected == ["e2"]
     w.close()
@@ -161,12 +183,14 @@ def test_a_sick_database_never_sends_entities_to_the_rejected_store(tmp_path, mo
         healthy=lambda: False,
     )  # fmt: skip
     w.start()
-    threading.Thread(target=w.write_sync, args=([AppendSamples([entity(1)])],), daemon=True).start()
+    acknowledge_in_background(w, AppendSamples([entity(1)]))
     threading.Event().wait(0.3)
     assert db.rejected == [] and db.rows == []
     assert w.failure is not None and "retrying" in w.failure
+    with pytest.raises(Unavailable):  # a read cannot see what was acknowledged: 503, not a wait
+        asyncio.run(w.caught_up())
     db.refuse = set()  # space is back
-    w.sync(timeout=30)
+    synced(w)
     assert [eid for _, eid in db.rows] == ["e1"]
     assert w.failure is None
     w.close()

@@ -190,7 +190,9 @@ class LoggedWriter:
     # -- waiting for the database -------------------------------------------------------------
 
     async def caught_up(self) -> None:
-        """Return once everything acknowledged before this call is applied."""
+        """Return once everything acknowledged before this call is applied;
+        ``Unavailable`` (503) while the database refuses the log: a read
+        could not see what was acknowledged."""
         target = self.acked_seq
         if self.applied_seq >= target:
             return
@@ -199,41 +201,56 @@ class LoggedWriter:
         with self._cond:
             if self.applied_seq >= target:
                 return
+            self._check_failure()
             self._waiters.append((target, loop, future))
         await future
 
     def sync(self, timeout: float | None = None) -> None:
         """Block until everything acknowledged so far is applied (commands,
-        tests, the retention worker: callers that are not on the event loop)."""
+        tests, the retention worker: callers that are not on the event loop);
+        ``Unavailable`` while the database refuses the log."""
         target = self.acked_seq
         with self._cond:
-            if not self._cond.wait_for(lambda: self.applied_seq >= target or self._closing, timeout):
-                raise Unavailable("the ingest log is not applied yet; retry later")
+            done = self._cond.wait_for(
+                lambda: self.applied_seq >= target or self._closing or self.failure is not None, timeout
+            )
+            if self.applied_seq < target:
+                self._check_failure()
+                if not done:
+                    raise Unavailable("the ingest log is not applied yet; retry later")
+
+    def _check_failure(self) -> None:
+        if self.failure is not None:
+            raise Unavailable(f"the database is catching up with the ingest log ({self.failure}); retry later")
 
     async def barrier(self) -> None:
         """Before a write that must follow every acknowledged sample."""
         await self.caught_up()
 
-    def _wake(self) -> None:
+    def _wake(self, error: BaseException | None = None) -> None:
+        """Settle the waiting reads: the caught-up ones, or all with ``error``."""
         with self._cond:
-            done = [(loop, f) for seq, loop, f in self._waiters if seq <= self.applied_seq]
-            self._waiters = [w for w in self._waiters if w[0] > self.applied_seq]
+            if error is None:
+                done = [(loop, f) for seq, loop, f in self._waiters if seq <= self.applied_seq]
+                self._waiters = [w for w in self._waiters if w[0] > self.applied_seq]
+            else:
+                done = [(loop, f) for _, loop, f in self._waiters]
+                self._waiters = []
             self._cond.notify_all()
         by_loop: dict[asyncio.AbstractEventLoop, list[asyncio.Future]] = {}
         for loop, future in done:
             by_loop.setdefault(loop, []).append(future)
         for loop, futures in by_loop.items():
             with contextlib.suppress(RuntimeError):  # loop closed: nobody waits
-                loop.call_soon_threadsafe(_resolve, futures)
+                loop.call_soon_threadsafe(_resolve, futures, error)
 
     # -- the applier thread ----------------------------------------------------------------------
 
     def _apply_loop(self) -> None:
         while True:
             batch = self._take()
-            if batch is None:
+            if batch is None or not self._apply_batch(batch):
                 return
-            self._apply_batch(batch)
 
     def _take(self) -> list[_Pending] | None:
         """The next batch: consecutive records up to ``apply_rows`` samples."""
@@ -251,7 +268,9 @@ class LoggedWriter:
                 rows += item.samples
             return batch
 
-    def _apply_batch(self, batch: list[_Pending]) -> None:
+    def _apply_batch(self, batch: list[_Pending]) -> bool:
+        """Apply one batch, retrying until it is in; False when the service
+        is closing meanwhile (the log keeps the batch for the next start)."""
         ops = _merged([item.op for item in batch])
         delay = RETRY_DELAY_S
         attempt = 0
@@ -264,6 +283,9 @@ class LoggedWriter:
                 reason = getattr(exc, "description", None) or str(exc) or type(exc).__name__
                 self.failure = f"applying the ingest log to the database failed, retrying: {reason}"
                 log.warning("%s (attempt %d)", self.failure, attempt)
+                self._wake(Unavailable(f"the database is catching up with the ingest log: {reason}; retry later"))
+                if self._closing:
+                    return False
                 time.sleep(delay)
                 delay = min(delay * 2, RETRY_MAX_DELAY_S)
                 ops = self._unstored(ops)  # a commit whose outcome was unknown may have landed
@@ -281,6 +303,7 @@ class LoggedWriter:
             self.applied_seq = batch[-1].seq
         self.log.drop_upto(self.applied_seq)
         self._wake()
+        return True
 
     def _unstored(self, ops: list[AppendSamples]) -> list[AppendSamples]:
         try:
@@ -352,7 +375,11 @@ def _merged(ops: list[AppendSamples]) -> list[AppendSamples]:
     return out
 
 
-def _resolve(futures: list[asyncio.Future]) -> None:
+def _resolve(futures: list[asyncio.Future], error: BaseException | None) -> None:
     for future in futures:
-        if not future.done():
+        if future.done():
+            continue
+        if error is None:
             future.set_result(None)
+        else:
+            future.set_exception(error)
