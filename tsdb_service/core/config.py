@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 from functools import lru_cache
+from urllib.parse import urlsplit
 
 from pydantic import Field, ValidationError, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -202,7 +203,36 @@ class Settings(BaseSettings):
     ngsild_contexts: str = Field(
         "", description="Local JSON-LD @context files: 'URL=path' pairs separated by ';' (served instead of fetching)."
     )
-    ngsild_context_timeout: float = Field(2.0, gt=0, le=60, description="Seconds to wait for a remote @context.")
+    ngsild_context_timeout: float = Field(
+        2.0,
+        gt=0,
+        le=60,
+        description="Seconds a request may spend loading remote @contexts in all: name resolution, "
+        "connections, redirects and whole bodies.",
+    )
+    ld_context_allow: str = Field(
+        "",
+        description="URL prefixes whose @contexts may be fetched from any address, comma list (e.g. "
+        "'http://127.0.0.1:' for a conformance run on one machine); any other @context host must resolve "
+        "to public addresses only.",
+    )
+    ld_context_offline: bool = Field(
+        False,
+        description="Never fetch a remote @context: only the built-in core context and the files of "
+        "TSDB_NGSILD_CONTEXTS.",
+    )
+    ld_context_max_bytes: int = Field(
+        1 * MIB, ge=1024, le=64 * MIB, description="Largest remote @context document, counted after decompression."
+    )
+    ld_context_cache_bytes: int = Field(
+        32 * MIB,
+        ge=0,
+        description="Bytes of valid @context documents and term maps kept in memory (least recently used "
+        "out first; documents are fresh for an hour and a fallback for a day).",
+    )
+    ld_inline_context_max_bytes: int = Field(
+        64 * 1024, ge=1024, le=16 * MIB, description="Largest @context a request may carry inline (as JSON)."
+    )
     cors_origins: str = Field(
         "", description="Origins browsers may call us from, comma list ('*': any); none by default."
     )
@@ -231,6 +261,12 @@ class Settings(BaseSettings):
     )
     retention_pause: float = Field(0.05, ge=0, description="Seconds to pause between retention batches.")
 
+    @field_validator("ld_context_allow")
+    @classmethod
+    def _url_prefixes(cls, value: str) -> str:
+        url_prefixes(value)  # raises ValueError
+        return value
+
     @field_validator("retention", "rollup_retention")
     @classmethod
     def _retention_spec(cls, value: str, info) -> str:
@@ -244,6 +280,21 @@ class Settings(BaseSettings):
     @property
     def backend(self) -> str:
         return "postgresql" if self.db.startswith(("postgresql://", "postgres://")) else "duckdb"
+
+
+def url_prefixes(spec: str) -> tuple[str, ...]:
+    """A comma list of URL prefixes (``TSDB_LD_CONTEXT_ALLOW``), each
+    ``http://`` or ``https://`` with a host and no user info; ValueError otherwise."""
+    out = []
+    for item in spec.split(","):
+        prefix = item.strip()
+        if not prefix:
+            continue
+        parts = urlsplit(prefix)
+        if parts.scheme not in ("http", "https") or not parts.netloc or "@" in parts.netloc:
+            raise ValueError(f"URL prefixes are http(s)://host[:port][/path] without user info, not {prefix!r}")
+        out.append(prefix)
+    return tuple(out)
 
 
 def check_db(value: str) -> str:

@@ -20,13 +20,7 @@ from starlette.responses import Response
 
 from tsdb_service.core.errors import BadRequestData, InvalidRequest, NotAcceptable
 from tsdb_service.faces.ngsild import openapi as ld_oa
-from tsdb_service.faces.ngsild.context import (
-    JSONLD_CONTEXT_REL,
-    ContextStore,
-    TermMap,
-    link_context,
-    parse_local_contexts,
-)
+from tsdb_service.faces.ngsild.context import JSONLD_CONTEXT_REL, ContextStore, TermMap, link_context
 from tsdb_service.faces.ngsild.params import query_from_body, query_from_params
 from tsdb_service.faces.ngsild.service import TemporalResult, run
 from tsdb_service.http.store import store_of
@@ -43,10 +37,7 @@ def contexts(request: Request) -> ContextStore:
     state = request.app.state
     store = getattr(state, "ngsild_contexts", None)
     if store is None:
-        settings = state.settings
-        store = state.ngsild_contexts = ContextStore(
-            parse_local_contexts(settings.ngsild_contexts), timeout=settings.ngsild_context_timeout
-        )
+        store = state.ngsild_contexts = ContextStore.from_settings(state.settings)
     return store
 
 
@@ -87,9 +78,10 @@ def accepted(header: str | None) -> str:
 async def query_entities(request: Request) -> Response:
     media = accepted(request.headers.get("accept"))
     params = dict(request.query_params)
+    context = await contexts(request).prepare(link_context(request.headers.get("link")))
 
     def work() -> tuple[TemporalResult, TermMap, object]:
-        terms = contexts(request).term_map(link_context(request.headers.get("link")))
+        terms = context.terms()
         query = query_from_params(params, tenant_of(request), terms, limits=_limits(request))
         return run(store_of(request).querier(), terms, query, _cap(request)), terms, query
 
@@ -103,9 +95,10 @@ async def retrieve_entity(entity_id: str, request: Request) -> Response:
     if not entity_id or len(entity_id) > 2048:
         raise BadRequestData("the entity id must be 1 to 2048 characters")
     params = dict(request.query_params)
+    context = await contexts(request).prepare(link_context(request.headers.get("link")))
 
     def work():
-        terms = contexts(request).term_map(link_context(request.headers.get("link")))
+        terms = context.terms()
         query = query_from_params(params, tenant_of(request), terms, limits=(1, 1), entity_id=entity_id)
         return run(store_of(request).querier(), terms, query, _cap(request)), terms, query
 
@@ -142,9 +135,10 @@ async def query_post(request: Request) -> Response:
             raise BadRequestData("an application/json body cannot carry @context: send application/ld+json")
         context = link_context(link)
     params = dict(request.query_params)
+    prepared = await contexts(request).prepare(context)
 
     def work():
-        terms = contexts(request).term_map(context)
+        terms = prepared.terms()
         query = query_from_body(body, params, tenant_of(request), terms, limits=_limits(request))
         return run(store_of(request).querier(), terms, query, _cap(request)), terms, query
 
