@@ -10,13 +10,15 @@ from __future__ import annotations
 
 from starlette.middleware.cors import CORSMiddleware
 
+from tsdb_service.core.errors import Forbidden, Unauthorized
 from tsdb_service.security.guard import Guard
 from tsdb_service.security.keys import KeyRing
-from tsdb_service.security.principals import ADMIN, READ, WRITE, Forbidden, Principal, Unauthorized, required_scope
+from tsdb_service.security.principals import ADMIN, METRICS, READ, WRITE, Principal, required_scope
 from tsdb_service.security.tokens import TokenVerifier
 
 __all__ = [
     "ADMIN",
+    "METRICS",
     "READ",
     "WRITE",
     "Forbidden",

@@ -22,8 +22,8 @@ import jwt
 from cryptography.hazmat.primitives.serialization import load_pem_public_key
 from starlette.concurrency import run_in_threadpool
 
-from tsdb_service.core.errors import Unavailable
-from tsdb_service.security.principals import SCOPES, Principal, Unauthorized, normalise_tenant
+from tsdb_service.core.errors import Unauthorized, Unavailable
+from tsdb_service.security.principals import SCOPES, Principal, normalise_tenant
 
 log = logging.getLogger(__name__)
 

@@ -24,7 +24,7 @@ from tsdb_service.faces.ngsild.context import JSONLD_CONTEXT_REL, ContextStore, 
 from tsdb_service.faces.ngsild.params import query_from_body, query_from_params
 from tsdb_service.faces.ngsild.service import TemporalResult, run
 from tsdb_service.http.store import store_of
-from tsdb_service.http.tenancy import tenant_echo, tenant_of
+from tsdb_service.http.tenancy import caller_of, tenant_echo, tenant_of
 
 router = APIRouter(prefix="/ngsi-ld/v1", tags=["NGSI-LD temporal"])
 LD_JSON = "application/ld+json"
@@ -48,6 +48,12 @@ def _limits(request: Request) -> tuple[int, int]:
 
 def _cap(request: Request) -> int:
     return request.app.state.settings.ngsild_max_instances
+
+
+def _tell(request: Request) -> bool:
+    """Whether an unknown tenant is a NonexistentTenant: not with
+    authentication on, where it would tell a caller which tenants exist."""
+    return caller_of(request) is None
 
 
 def accepted(header: str | None) -> str:
@@ -83,7 +89,7 @@ async def query_entities(request: Request) -> Response:
     def work() -> tuple[TemporalResult, TermMap, object]:
         terms = context.terms()
         query = query_from_params(params, tenant_of(request), terms, limits=_limits(request))
-        return run(store_of(request).querier(), terms, query, _cap(request)), terms, query
+        return run(store_of(request).querier(), terms, query, _cap(request), tell_tenants=_tell(request)), terms, query
 
     result, terms, query = await store_of(request).read(work, memory_first=False)
     return _respond(request, media, terms, result, query, many=True)
@@ -100,7 +106,7 @@ async def retrieve_entity(entity_id: str, request: Request) -> Response:
     def work():
         terms = context.terms()
         query = query_from_params(params, tenant_of(request), terms, limits=(1, 1), entity_id=entity_id)
-        return run(store_of(request).querier(), terms, query, _cap(request)), terms, query
+        return run(store_of(request).querier(), terms, query, _cap(request), tell_tenants=_tell(request)), terms, query
 
     result, terms, query = await store_of(request).read(work, memory_first=False)
     return _respond(request, media, terms, result, query, many=False)
@@ -140,7 +146,7 @@ async def query_post(request: Request) -> Response:
     def work():
         terms = prepared.terms()
         query = query_from_body(body, params, tenant_of(request), terms, limits=_limits(request))
-        return run(store_of(request).querier(), terms, query, _cap(request)), terms, query
+        return run(store_of(request).querier(), terms, query, _cap(request), tell_tenants=_tell(request)), terms, query
 
     result, terms, query = await store_of(request).read(work, memory_first=False)
     return _respond(request, media, terms, result, query, many=True)
