@@ -40,8 +40,15 @@ class Settings(BaseSettings):
     max_body_bytes: int = Field(
         9 * MIB,
         ge=1024,
-        description="Larger notifications get 413 (and are kept in the rejected store). Orion sends "
-        "notifications of up to 8 MB by default (its -outReqMsgMaxSize): the default leaves headroom above it.",
+        description="Larger notifications and NGSI-LD temporal writes get 413 (notifications are kept in the "
+        "rejected store). Orion sends notifications of up to 8 MB by default (its -outReqMsgMaxSize): "
+        "the default leaves headroom above it.",
+    )
+    max_request_body_bytes: int = Field(
+        1 * MIB,
+        ge=1024,
+        description="Largest body of any other request (queries, Grafana, layouts); larger: 413, "
+        "refused while it is read.",
     )
     rejected_body_max_bytes: int = Field(
         16 * MIB,
@@ -112,6 +119,18 @@ class Settings(BaseSettings):
         description="Bytes of rejected bodies and headers kept per tenant; oldest dropped first "
         "(a tenant's newest rejection is always kept).",
     )
+    rejected_max_total: int = Field(
+        10_000,
+        ge=1,
+        description="Rejected notifications kept over all tenants together (refused tenant headers are "
+        "chosen by the sender, so the per-tenant bounds alone multiply); the oldest are dropped first.",
+    )
+    rejected_max_total_bytes: int = Field(
+        256 * MIB,
+        ge=1024,
+        description="Bytes of rejected bodies and headers kept over all tenants together; oldest dropped first "
+        "(the newest rejection is always kept).",
+    )
     rejected_max_age_days: float = Field(
         30.0,
         gt=0,
@@ -139,6 +158,13 @@ class Settings(BaseSettings):
         description="Open connections per process; past it a new connection gets 503 and is closed.",
     )
     keep_alive_s: int = Field(5, ge=1, description="Close a kept-alive connection idle this long between requests.")
+    max_header_bytes: int = Field(
+        128 * 1024,
+        ge=8 * 1024,
+        le=16 * MIB,
+        description="Largest request head (request line and header fields); larger: 431 and the "
+        "connection is closed, counted while it arrives.",
+    )
     # --- end of limits ---
     log_level: str = Field("info", description=f"One of {', '.join(LOG_LEVELS)}.")
     access_log: bool = Field(False, description="Log every request (uvicorn's access log).")

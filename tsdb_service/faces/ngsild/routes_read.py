@@ -29,7 +29,6 @@ from tsdb_service.http.tenancy import caller_of, tenant_echo, tenant_of
 router = APIRouter(prefix="/ngsi-ld/v1", tags=["NGSI-LD temporal"])
 LD_JSON = "application/ld+json"
 JSON = "application/json"
-MAX_BODY = 1 << 20
 
 
 def contexts(request: Request) -> ContextStore:
@@ -122,9 +121,7 @@ async def query_post(request: Request) -> Response:
     content_type = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
     if content_type not in (JSON, LD_JSON):
         raise InvalidRequest("the body must be application/json or application/ld+json", status=415)
-    raw = await request.body()
-    if len(raw) > MAX_BODY:
-        raise BadRequestData(f"the Query body is larger than {MAX_BODY} bytes", status=413)
+    raw = await request.body()  # at most TSDB_MAX_REQUEST_BODY_BYTES (http.bodies)
     try:
         body = orjson.loads(raw)
     except orjson.JSONDecodeError as exc:
