@@ -36,6 +36,12 @@ def register(subparsers, command) -> None:
     p.add_argument("--format", choices=[f.value for f in ExportFormat], help="csv or parquet (default: from --out)")
     p.add_argument("--service", default="", help="tenant, as Fiware-Service (default: the default tenant)")
     p.add_argument("--service-path", default="/", help="Fiware-ServicePath: paths and their children (default /)")
+    p.add_argument(
+        "--raw",
+        action="store_true",
+        help="CSV: write text cells as stored (by default a cell starting with = + - @ tab or CR gets a "
+        "leading ' so a spreadsheet does not run it as a formula)",
+    )
     for flag, _, text in _FLAGS:
         p.add_argument(flag, help=text if "default" in text else f"{text} (default: all)")
     command("export")(cmd_export)
@@ -55,6 +61,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     params = {name: getattr(args, flag[2:].replace("-", "_")) for flag, name, _ in _FLAGS}
     params = {k: v for k, v in params.items() if v is not None}
     params["format"] = args.format or _format_of(args.out)
+    if args.raw:
+        params["raw"] = "true"
     headers = {"fiware-service": args.service, "fiware-servicepath": args.service_path}
     try:
         query = export_query(params, headers, tenant(headers.items()))
@@ -64,7 +72,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     store = open_store(settings)
     try:
         with open_export(store, query) as stream:
-            rows, size, seconds = write_file(stream, query.format, args.out)
+            rows, size, seconds = write_file(stream, query.format, args.out, query.raw)
     finally:
         store.close()
     rate = rows / seconds if seconds > 0 else 0.0
