@@ -117,6 +117,7 @@ def _feature_modules() -> tuple[ModuleType, ...]:
 def cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from tsdb_service import security
     from tsdb_service.storage import check_store
 
     settings = _settings(args)
@@ -126,6 +127,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
             "use --db postgresql://... to run several workers.",
             file=sys.stderr,
         )
+        return 2
+    try:
+        security.check(settings)  # a weak secret or an open CORS is one line here too
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     check_store(settings)  # a wrong --db is one line here, before uvicorn starts
     # Workers are separate processes: hand them the settings through the environment.

@@ -199,7 +199,9 @@ class Settings(BaseSettings):
         "",
         repr=False,
         description="API keys as 'KEY:SCOPES[:TENANTS]' entries separated by ';' or spaces; "
-        "SCOPES from read,write,admin; TENANTS a comma list ('-' is the default tenant), all if absent.",
+        "SCOPES from read,write,admin,metrics; TENANTS a comma list ('-' is the default tenant), all if absent. "
+        "Given as a flag, the keys show in ps and /proc to every local user: prefer --api-keys-file "
+        "(digests only), or at least the variable.",
     )
     api_keys_file: str = Field(
         "", description="File of hashed API keys, one 'SHA256HEX SCOPES [TENANTS]' per line ('#' comments)."
@@ -207,7 +209,10 @@ class Settings(BaseSettings):
     api_key_header: str = Field("X-Api-Key", description="Header that carries an API key (besides Bearer).")
     jwt_jwks_url: str = Field("", description="JWKS URL of the OAuth2 server (Keycloak, ...): verify JWTs with it.")
     jwt_key: str = Field(
-        "", repr=False, description="PEM public key, or the shared secret (Keyrock: the application's JWT secret)."
+        "",
+        repr=False,
+        description="PEM public key, or the shared secret (Keyrock: the application's JWT secret; at least "
+        "32 bytes). A secret given as a flag shows in ps: prefer the variable.",
     )
     jwt_algorithms: str = Field("", description="Allowed JWT algorithms; default: RS/PS/ES/EdDSA, or HS for a secret.")
     jwt_audience: str = Field("", description="Required 'aud' of tokens (recommended).")
@@ -260,7 +265,14 @@ class Settings(BaseSettings):
         64 * 1024, ge=1024, le=16 * MIB, description="Largest @context a request may carry inline (as JSON)."
     )
     cors_origins: str = Field(
-        "", description="Origins browsers may call us from, comma list ('*': any); none by default."
+        "",
+        description="Origins browsers may call us from, comma list ('*': any, refused without authentication "
+        "unless TSDB_CORS_ALLOW_UNAUTHENTICATED); none by default.",
+    )
+    cors_allow_unauthenticated: bool = Field(
+        False,
+        description="Accept TSDB_CORS_ORIGINS=* with no authentication configured: any web page a visitor "
+        "opens may then read, write and delete history.",
     )
 
     # --- Retention and rollups (retention_policy.py, storage/retention.py, storage/rollups.py;

@@ -24,6 +24,7 @@ __all__ = [
     "Forbidden",
     "Principal",
     "Unauthorized",
+    "check",
     "protect",
     "required_scope",
 ]
@@ -34,12 +35,19 @@ CORS_MAX_AGE_S = 600
 def protect(app, settings):
     """Wrap the ASGI ``app`` in what the settings ask for: the guard when any
     credential is configured, CORS (outermost, so preflights need no
-    credential and refusals still reach the browser) when origins are."""
+    credential and refusals still reach the browser) when origins are.
+    ValueError for settings that would leave the service open (see ``check``)."""
     keys = KeyRing.from_settings(settings.api_keys, settings.api_keys_file)
     tokens = TokenVerifier.from_settings(settings)
+    origins = [o.strip().rstrip("/") for o in settings.cors_origins.split(",") if o.strip()]
+    if "*" in origins and keys is None and tokens is None and not settings.cors_allow_unauthenticated:
+        raise ValueError(
+            "TSDB_CORS_ORIGINS=* without authentication lets any web page its visitors open read, write and "
+            "delete this service's history: configure keys or tokens (TSDB_API_KEYS_FILE, TSDB_JWT_*), name "
+            "the origins, or set TSDB_CORS_ALLOW_UNAUTHENTICATED=true if that is really meant"
+        )
     if keys is not None or tokens is not None:
         app = Guard(app, keys, tokens, settings.api_key_header)
-    origins = [o.strip().rstrip("/") for o in settings.cors_origins.split(",") if o.strip()]
     if origins:
         app = CORSMiddleware(
             app,
@@ -50,3 +58,9 @@ def protect(app, settings):
             max_age=CORS_MAX_AGE_S,
         )
     return app
+
+
+def check(settings) -> None:
+    """The security settings, checked before a server starts (``serve``):
+    ValueError naming the setting, as ``protect`` would raise it."""
+    protect(None, settings)
