@@ -11,9 +11,10 @@ network, and the error texts a port scanner. So ``fetch``:
   (``TSDB_LD_CONTEXT_ALLOW``), resolves the host and refuses it if **any**
   address is not public (loopback, private, link-local, shared, reserved,
   multicast; IPv4 inside IPv6 is judged as IPv4);
-* connects to the address it checked (the URL's host is replaced by that
-  address; ``Host`` and, for TLS, SNI and certificate verification keep the
-  name), so a second DNS answer cannot swap in another address;
+* connects to an address it checked (the URL's host is replaced by that
+  address, the next one tried if it refuses the connection; ``Host`` and,
+  for TLS, SNI and certificate verification keep the name), so a second
+  DNS answer cannot swap in another address;
 * follows at most ``max_redirects`` redirects itself, each one checked again;
 * gives up after ``deadline`` seconds in all (name resolution, connection,
   redirects and the whole body: a server sending a byte a second does not
@@ -95,22 +96,22 @@ def _checked(url: str) -> httpx.URL:
     return parsed
 
 
-async def _address(url: httpx.URL, allowed: bool) -> str:
-    """The address to connect to: every address the host resolves to must be
-    public unless the URL is allowed; the first one is used."""
+async def _addresses(url: httpx.URL, allowed: bool) -> list[str]:
+    """The addresses to connect to, in the resolver's order: every address
+    the host resolves to must be public unless the URL is allowed."""
     port = url.port or (443 if url.scheme == "https" else 80)
     try:
         infos = await anyio.getaddrinfo(url.host, port, type=socket.SOCK_STREAM)
     except OSError as exc:
         raise FetchFailed(f"cannot resolve {url.host!r}: {exc}") from None
-    addresses = [str(info[4][0]) for info in infos]
+    addresses = list(dict.fromkeys(str(info[4][0]) for info in infos))
     if not addresses:
         raise FetchFailed(f"{url.host!r} has no address")
     if not allowed:
         private = [a for a in addresses if not is_public(a)]
         if private:
             raise FetchFailed(f"{url.host!r} resolves to the non-public address {private[0]}")
-    return addresses[0]
+    return addresses
 
 
 async def fetch(url: str, policy: FetchPolicy) -> bytes:
@@ -128,18 +129,8 @@ async def _follow(url: str, policy: FetchPolicy) -> bytes:
     async with httpx.AsyncClient(trust_env=False, follow_redirects=False, timeout=None) as client:
         for _ in range(policy.max_redirects + 1):
             target = _checked(url)
-            address = await _address(target, _allowed(str(target), policy.allow))
-            host = target.netloc.decode("ascii")
-            request = client.build_request(
-                "GET",
-                target.copy_with(host=address),
-                headers={"Host": host, "Accept": policy.accept, "Accept-Encoding": "gzip, deflate"},
-                extensions={"sni_hostname": target.host} if target.scheme == "https" else {},
-            )
-            try:
-                response = await client.send(request, stream=True)
-            except httpx.HTTPError as exc:
-                raise FetchFailed(f"{url[:200]!r}: {type(exc).__name__} {exc}") from None
+            addresses = await _addresses(target, _allowed(str(target), policy.allow))
+            response = await _connect(client, target, addresses, policy.accept)
             try:
                 if response.status_code in _REDIRECTS and response.headers.get("location"):
                     url = urljoin(url, response.headers["location"])
@@ -150,6 +141,26 @@ async def _follow(url: str, policy: FetchPolicy) -> bytes:
             finally:
                 await response.aclose()
     raise FetchFailed(f"more than {policy.max_redirects} redirects from {url[:200]!r}")
+
+
+async def _connect(client: httpx.AsyncClient, target: httpx.URL, addresses: list[str], accept: str) -> httpx.Response:
+    """GET ``target`` from the first of the checked ``addresses`` that
+    accepts a connection (the name stays in Host and SNI)."""
+    failure: Exception | None = None
+    for address in addresses:
+        request = client.build_request(
+            "GET",
+            target.copy_with(host=address),
+            headers={"Host": target.netloc.decode("ascii"), "Accept": accept, "Accept-Encoding": "gzip, deflate"},
+            extensions={"sni_hostname": target.host} if target.scheme == "https" else {},
+        )
+        try:
+            return await client.send(request, stream=True)
+        except httpx.ConnectError as exc:
+            failure = exc
+        except httpx.HTTPError as exc:
+            raise FetchFailed(f"{str(target)[:200]!r}: {type(exc).__name__} {exc}") from None
+    raise FetchFailed(f"{str(target)[:200]!r}: {type(failure).__name__} {failure}")
 
 
 async def _body(response: httpx.Response, limit: int, url: str) -> bytes:
