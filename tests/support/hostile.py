@@ -18,7 +18,9 @@ import json
 import threading
 import time
 import zlib
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
+
+from .local_http import LocalServer
 
 __all__ = ["Hostile", "gzip_of_zeros"]
 
@@ -35,24 +37,13 @@ def gzip_of_zeros(size: int) -> bytes:
     return b"".join(out)
 
 
-class Hostile:
+class Hostile(LocalServer):
     def __init__(self):
         self.routes: dict[str, tuple] = {}
         self.hits: dict[str, int] = {}
         self.hosts: list[str] = []
         self._lock = threading.Lock()
-        self._server = ThreadingHTTPServer(("127.0.0.1", 0), self._handler())
-        self._server.daemon_threads = True
-        self._server.block_on_close = False  # a trickling handler must not hold the test up
-        self._thread = threading.Thread(target=self._server.serve_forever, args=(0.05,), daemon=True)
-
-    @property
-    def port(self) -> int:
-        return self._server.server_address[1]
-
-    @property
-    def url(self) -> str:
-        return f"http://127.0.0.1:{self.port}"
+        super().__init__()
 
     def document(self, path: str, doc: object, headers: dict[str, str] | None = None) -> str:
         body = doc if isinstance(doc, bytes) else json.dumps(doc).encode()
@@ -120,11 +111,3 @@ class Hostile:
                 pass
 
         return Handler
-
-    def __enter__(self) -> Hostile:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._server.shutdown()
-        self._server.server_close()
