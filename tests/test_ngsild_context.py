@@ -20,6 +20,21 @@ from tsdb_service.faces.ngsild.context import (
     link_context,
     parse_local_contexts,
 )
+from tsdb_service.http.outbound import FetchPolicy
+
+LOCAL = "http://127.0.0.1:"  # the test servers' URLs, allowed as TSDB_LD_CONTEXT_ALLOW allows them
+
+
+def local_store(**kwargs) -> ContextStore:
+    """A context store that may fetch from this machine's test servers."""
+    return ContextStore(policy=FetchPolicy(allow=(LOCAL,), **kwargs))
+
+
+@pytest.fixture
+def client(client_factory, store_url):
+    with client_factory(store_url, ld_context_allow=LOCAL) as c:
+        yield c
+
 
 USER_CONTEXT = {
     "@context": {"speed": "https://example.org/vehicle#speed", "Vehicle": "https://example.org/vehicle#Vehicle"}
@@ -81,7 +96,7 @@ def test_core_context_ships_with_the_package():
 
 
 def test_user_context_fetched_once_and_cached(context_server):
-    store = ContextStore()
+    store = local_store()
     url = context_server.url + "/vehicle.jsonld"
     terms = store.term_map(url)
     assert terms.expand_all(["speed", "Vehicle", "other"]) == [
@@ -91,7 +106,7 @@ def test_user_context_fetched_once_and_cached(context_server):
     ]
     assert terms.compact("https://example.org/vehicle#speed") == "speed"
     assert store.term_map(url) is terms
-    assert ContextStore().term_map(url).expand("speed") and context_server.hits["/vehicle.jsonld"] >= 1
+    assert local_store().term_map(url).expand("speed") and context_server.hits["/vehicle.jsonld"] >= 1
     before = context_server.hits["/vehicle.jsonld"]
     store.term_map([url]).expand("Vehicle")
     assert context_server.hits["/vehicle.jsonld"] == before  # the document is cached per store
@@ -109,7 +124,7 @@ def test_local_context_files(tmp_path):
 
 
 def test_unreachable_and_broken_contexts(context_server):
-    store = ContextStore(timeout=0.5)
+    store = local_store(deadline=0.5)
     with pytest.raises(LdContextNotAvailable):
         store.term_map(context_server.url + "/missing.jsonld")
     with pytest.raises(BadRequestData):

@@ -84,7 +84,7 @@ def test_405_names_every_allowed_method(client_factory, embedded_db, method, pat
 
 
 def test_wildcard_origin(client_factory, embedded_db):
-    with client_factory(embedded_db, cors_origins="*") as client:
+    with client_factory(embedded_db, cors_origins="*", cors_allow_unauthenticated=True) as client:
         response = client.options("/v2/entities", headers={**PREFLIGHT, "Origin": "https://any.example"})
     assert response.status_code == 200
     assert response.headers["access-control-allow-origin"] == "*"

@@ -11,7 +11,7 @@ import pytest
 from tsdb_service.app import create_app
 from tsdb_service.core.config import Settings
 from tsdb_service.security import ADMIN as ADMIN_SCOPE
-from tsdb_service.security import READ, WRITE, required_scope
+from tsdb_service.security import METRICS, READ, WRITE, required_scope
 from tsdb_service.security.guard import route_path
 
 READER, WRITER, ADMIN = "reader-0123456789abcdef", "writer-0123456789abcdef", "admin-0123456789abcdef"
@@ -221,11 +221,12 @@ def test_bad_keys_file_line(tmp_path):
         ("GET", "/grafana/infinity/series", READ),
         ("DELETE", "/v2/entities/r1", ADMIN_SCOPE),
         ("DELETE", "/v2/types/Robot", ADMIN_SCOPE),
-        ("PATCH", "/anything", WRITE),
+        ("PATCH", "/anything", ADMIN_SCOPE),
+        ("GET", "/metrics", METRICS),
         ("GET", "/ngsi-ld/v1/temporal/entities", READ),
         ("POST", "/ngsi-ld/v1/temporal/entityOperations/query", READ),
         ("POST", "/ngsi-ld/v1/temporal/entities", WRITE),
-        ("PATCH", "/ngsi-ld/v1/temporal/entities/e1/attrs/speed/i1", WRITE),
+        ("PATCH", "/ngsi-ld/v1/temporal/entities/e1/attrs/speed/i1", ADMIN_SCOPE),
         ("DELETE", "/ngsi-ld/v1/temporal/entities/e1", ADMIN_SCOPE),
     ],
 )

@@ -19,6 +19,7 @@ from tsdb_service.faces.grafana import openapi as grafana_oa
 from tsdb_service.faces.operator import openapi as operator_oa
 from tsdb_service.faces.quantumleap import openapi as quantumleap_oa
 from tsdb_service.http import rawpath
+from tsdb_service.http.bodies import BodyLimit
 from tsdb_service.http.budget import ReadBudgetMiddleware
 from tsdb_service.http.errors import install_error_handlers
 from tsdb_service.http.openapi import install as install_openapi
@@ -96,6 +97,12 @@ def create_app(
     install_error_handlers(app)
     install_openapi(app, settings.api_key_header, FEATURE_SCHEMAS)
     app.add_middleware(ReadBudgetMiddleware, limits=ReadLimits.from_settings(settings))
+    app.add_middleware(
+        BodyLimit,
+        default=settings.max_request_body_bytes,
+        larger=settings.max_body_bytes,
+        larger_routes=ngsild.LARGE_BODIES,
+    )
     for feature in FEATURES:
         app.include_router(feature.router)
     return app

@@ -21,7 +21,9 @@ through one module-level hook (``parse.timeindex.on_fallback``), so that
 counter is per process and every app's registry shows it.
 
 Tenant labels are capped at ``max_tenants`` distinct values per app; later
-tenants are counted under ``other``. With ``--workers N`` every worker
+tenants are counted under ``other``, and a tenant header the API refused
+(kept as received with a refused notification, so chosen by whoever sent
+it) under ``invalid``: labels carry only validated tenants. With ``--workers N`` every worker
 process has its own counters (see the README's *Metrics*).
 """
 
@@ -46,12 +48,14 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 
 from tsdb_service.parse import timeindex
+from tsdb_service.parse.request_context import is_stored_tenant
 from tsdb_service.storage.store import Store
 from tsdb_service.write.ops import AppendSamples, DeleteSamples, PutLayout, RecordRejected, WriteOp
 
 log = logging.getLogger(__name__)
 
 OTHER = "other"
+INVALID = "invalid"  # the label of every tenant header the API refused
 MAX_TENANTS = 100
 STATS_TTL_S = 5.0
 UNMATCHED = "(unmatched)"
@@ -77,7 +81,8 @@ disable_created_metrics()
 
 
 class TenantLabels:
-    """The first ``limit`` tenants seen keep their name; later ones are ``other``.
+    """The first ``limit`` valid tenants seen keep their name; later ones are
+    ``other``, refused tenant headers ``invalid``.
 
     Tenants are few in practice, but a label per distinct ``Fiware-Service``
     would let any client create series without bound."""
@@ -90,6 +95,8 @@ class TenantLabels:
     def __call__(self, tenant: str) -> str:
         if tenant in self._seen:
             return tenant
+        if not is_stored_tenant(tenant):
+            return INVALID
         with self._lock:
             if len(self._seen) < self._limit:
                 self._seen.add(tenant)

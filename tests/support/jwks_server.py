@@ -9,20 +9,21 @@ them, and their JWKS served over HTTP from a local thread.
 from __future__ import annotations
 
 import json
-import threading
 import time
 import uuid
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
 
 import jwt
 from cryptography.hazmat.primitives.asymmetric import rsa
+
+from .local_http import LocalServer
 
 __all__ = ["Issuer"]
 
 ISSUER = "http://issuer.test/realms/fiware"
 
 
-class Issuer:
+class Issuer(LocalServer):
     """Signs tokens with its current key; publishes the keys in ``published``."""
 
     def __init__(self):
@@ -31,12 +32,11 @@ class Issuer:
         self.fetches = 0
         self.available = True
         self.kid = self.rotate()
-        self._server = ThreadingHTTPServer(("127.0.0.1", 0), self._handler())
-        self._thread = threading.Thread(target=self._server.serve_forever, args=(0.05,), daemon=True)
+        super().__init__()
 
     @property
     def jwks_url(self) -> str:
-        return f"http://127.0.0.1:{self._server.server_address[1]}/certs"
+        return f"{self.url}/certs"
 
     def rotate(self, publish: bool = True) -> str:
         """A new signing key (published unless told otherwise); its kid."""
@@ -80,11 +80,3 @@ class Issuer:
                 pass
 
         return Handler
-
-    def __enter__(self) -> Issuer:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *_exc) -> None:
-        self._server.shutdown()
-        self._server.server_close()

@@ -49,6 +49,12 @@ def register(subparsers, command) -> None:
     p.add_argument(
         "--service-path", default="/", metavar="PATH", help="Fiware-ServicePath: paths and their children (default /)"
     )
+    p.add_argument(
+        "--raw",
+        action="store_true",
+        help="CSV: write text cells as stored (by default a cell starting with = + - @ tab or CR gets a "
+        "leading ' so a spreadsheet does not run it as a formula)",
+    )
     for flag, _, metavar, text in _FLAGS:
         p.add_argument(flag, metavar=metavar, help=text if "default" in text else f"{text} (default: all)")
     command("export")(cmd_export)
@@ -74,6 +80,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     params = {name: getattr(args, flag[2:].replace("-", "_")) for flag, name, _, _ in _FLAGS}
     params = {k: v for k, v in params.items() if v is not None}
     params["format"] = out_format
+    if args.raw:
+        params["raw"] = "true"
     headers = {"fiware-service": args.service, "fiware-servicepath": args.service_path}
     try:
         query = export_query(params, headers, tenant(headers.items()))
@@ -83,7 +91,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     store = open_store(settings)
     try:
         with open_export(store, query) as stream:
-            rows, size, seconds = write_file(stream, query.format, args.out)
+            rows, size, seconds = write_file(stream, query.format, args.out, query.raw)
         hint = tenant_hint(store.querier().tenants(), query.scope.tenant) if rows == 0 else None
     finally:
         store.close()

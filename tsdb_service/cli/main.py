@@ -226,12 +226,12 @@ def check_serve(settings: Settings) -> None:
     uvicorn: that it can listen on ``--host``/``--port``, and the security
     and NGSI-LD settings that are read at start (keys, key file, token
     settings, local @context files). ``SettingsError``, one line."""
+    from tsdb_service import security
     from tsdb_service.faces.ngsild.context import check_local_contexts
     from tsdb_service.http.server import check_bind
-    from tsdb_service.security import check_settings
 
     try:
-        check_settings(settings)
+        security.check(settings)  # keys, tokens, a weak secret, an open CORS
         check_local_contexts(settings.ngsild_contexts)
         check_bind(settings.host, settings.port)
     except ValueError as exc:

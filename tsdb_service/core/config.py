@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 from functools import lru_cache
+from urllib.parse import urlsplit
 
 from pydantic import Field, ValidationError, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -39,8 +40,15 @@ class Settings(BaseSettings):
     max_body_bytes: int = Field(
         9 * MIB,
         ge=1024,
-        description="Larger notifications get 413 (and are kept in the rejected store). Orion sends "
-        "notifications of up to 8 MB by default (its -outReqMsgMaxSize): the default leaves headroom above it.",
+        description="Larger notifications and NGSI-LD temporal writes get 413 (notifications are kept in the "
+        "rejected store). Orion sends notifications of up to 8 MB by default (its -outReqMsgMaxSize): "
+        "the default leaves headroom above it.",
+    )
+    max_request_body_bytes: int = Field(
+        1 * MIB,
+        ge=1024,
+        description="Largest body of any other request (queries, Grafana, layouts); larger: 413, "
+        "refused while it is read.",
     )
     rejected_body_max_bytes: int = Field(
         16 * MIB,
@@ -123,6 +131,18 @@ class Settings(BaseSettings):
         description="Bytes of rejected bodies and headers kept per tenant; oldest dropped first "
         "(a tenant's newest rejection is always kept).",
     )
+    rejected_max_total: int = Field(
+        10_000,
+        ge=1,
+        description="Rejected notifications kept over all tenants together (refused tenant headers are "
+        "chosen by the sender, so the per-tenant bounds alone multiply); the oldest are dropped first.",
+    )
+    rejected_max_total_bytes: int = Field(
+        256 * MIB,
+        ge=1024,
+        description="Bytes of rejected bodies and headers kept over all tenants together; oldest dropped first "
+        "(the newest rejection is always kept).",
+    )
     rejected_max_age_days: float = Field(
         30.0,
         gt=0,
@@ -150,6 +170,13 @@ class Settings(BaseSettings):
         description="Open connections per process; past it a new connection gets 503 and is closed.",
     )
     keep_alive_s: int = Field(5, ge=1, description="Close a kept-alive connection idle this long between requests.")
+    max_header_bytes: int = Field(
+        128 * 1024,
+        ge=8 * 1024,
+        le=16 * MIB,
+        description="Largest request head (request line and header fields); larger: 431 and the "
+        "connection is closed, counted while it arrives.",
+    )
     # --- end of limits ---
     log_level: str = Field("info", description=f"One of {', '.join(LOG_LEVELS)}.")
     access_log: bool = Field(False, description="Log every request (uvicorn's access log).")
@@ -184,7 +211,9 @@ class Settings(BaseSettings):
         "",
         repr=False,
         description="API keys as 'KEY:SCOPES[:TENANTS]' entries separated by ';' or spaces; "
-        "SCOPES from read,write,admin; TENANTS a comma list ('-' is the default tenant), all if absent.",
+        "SCOPES from read,write,admin,metrics; TENANTS a comma list ('-' is the default tenant), all if absent. "
+        "Given as a flag, the keys show in ps and /proc to every local user: prefer --api-keys-file "
+        "(digests only), or at least the variable.",
     )
     api_keys_file: str = Field(
         "", description="File of hashed API keys, one 'SHA256HEX SCOPES [TENANTS]' per line ('#' comments)."
@@ -192,7 +221,10 @@ class Settings(BaseSettings):
     api_key_header: str = Field("X-Api-Key", description="Header that carries an API key (besides Bearer).")
     jwt_jwks_url: str = Field("", description="JWKS URL of the OAuth2 server (Keycloak, ...): verify JWTs with it.")
     jwt_key: str = Field(
-        "", repr=False, description="PEM public key, or the shared secret (Keyrock: the application's JWT secret)."
+        "",
+        repr=False,
+        description="PEM public key, or the shared secret (Keyrock: the application's JWT secret; at least "
+        "32 bytes). A secret given as a flag shows in ps: prefer the variable.",
     )
     jwt_algorithms: str = Field("", description="Allowed JWT algorithms; default: RS/PS/ES/EdDSA, or HS for a secret.")
     jwt_audience: str = Field("", description="Required 'aud' of tokens (recommended).")
@@ -214,9 +246,45 @@ class Settings(BaseSettings):
     ngsild_contexts: str = Field(
         "", description="Local JSON-LD @context files: 'URL=path' pairs separated by ';' (served instead of fetching)."
     )
-    ngsild_context_timeout: float = Field(2.0, gt=0, le=60, description="Seconds to wait for a remote @context.")
+    ngsild_context_timeout: float = Field(
+        2.0,
+        gt=0,
+        le=60,
+        description="Seconds a request may spend loading remote @contexts in all: name resolution, "
+        "connections, redirects and whole bodies.",
+    )
+    ld_context_allow: str = Field(
+        "",
+        description="URL prefixes whose @contexts may be fetched from any address, comma list (e.g. "
+        "'http://127.0.0.1:' for a conformance run on one machine); any other @context host must resolve "
+        "to public addresses only.",
+    )
+    ld_context_offline: bool = Field(
+        False,
+        description="Never fetch a remote @context: only the built-in core context and the files of "
+        "TSDB_NGSILD_CONTEXTS.",
+    )
+    ld_context_max_bytes: int = Field(
+        1 * MIB, ge=1024, le=64 * MIB, description="Largest remote @context document, counted after decompression."
+    )
+    ld_context_cache_bytes: int = Field(
+        32 * MIB,
+        ge=0,
+        description="Bytes of valid @context documents and term maps kept in memory (least recently used "
+        "out first; documents are fresh for an hour and a fallback for a day).",
+    )
+    ld_inline_context_max_bytes: int = Field(
+        64 * 1024, ge=1024, le=16 * MIB, description="Largest @context a request may carry inline (as JSON)."
+    )
     cors_origins: str = Field(
-        "", description="Origins browsers may call us from, comma list ('*': any); none by default."
+        "",
+        description="Origins browsers may call us from, comma list ('*': any, refused without authentication "
+        "unless TSDB_CORS_ALLOW_UNAUTHENTICATED); none by default.",
+    )
+    cors_allow_unauthenticated: bool = Field(
+        False,
+        description="Accept TSDB_CORS_ORIGINS=* with no authentication configured: any web page a visitor "
+        "opens may then read, write and delete history.",
     )
 
     # --- Retention and rollups (retention_policy.py, storage/retention.py, storage/rollups.py;
@@ -243,6 +311,12 @@ class Settings(BaseSettings):
     )
     retention_pause: float = Field(0.05, ge=0, description="Seconds to pause between retention batches.")
 
+    @field_validator("ld_context_allow")
+    @classmethod
+    def _url_prefixes(cls, value: str) -> str:
+        url_prefixes(value)  # raises ValueError
+        return value
+
     @field_validator("retention", "rollup_retention")
     @classmethod
     def _retention_spec(cls, value: str, info) -> str:
@@ -256,6 +330,21 @@ class Settings(BaseSettings):
     @property
     def backend(self) -> str:
         return "postgresql" if self.db.startswith(("postgresql://", "postgres://")) else "duckdb"
+
+
+def url_prefixes(spec: str) -> tuple[str, ...]:
+    """A comma list of URL prefixes (``TSDB_LD_CONTEXT_ALLOW``), each
+    ``http://`` or ``https://`` with a host and no user info; ValueError otherwise."""
+    out = []
+    for item in spec.split(","):
+        prefix = item.strip()
+        if not prefix:
+            continue
+        parts = urlsplit(prefix)
+        if parts.scheme not in ("http", "https") or not parts.netloc or "@" in parts.netloc:
+            raise ValueError(f"URL prefixes are http(s)://host[:port][/path] without user info, not {prefix!r}")
+        out.append(prefix)
+    return tuple(out)
 
 
 def check_db(value: str) -> str:

@@ -86,6 +86,26 @@ class Unprocessable(TsdbError):
     ld_type = "OperationNotSupported"
 
 
+class Unauthorized(TsdbError):
+    """No credential, or one we cannot verify: the client should authenticate."""
+
+    status = 401
+    error = "Unauthorized"
+    ld_type = "Unauthorized"  # no NGSI-LD type covers authentication (clause 5.5.2)
+
+
+class MissingCredential(Unauthorized):
+    """No credential at all (the challenge then carries no error code)."""
+
+
+class Forbidden(TsdbError):
+    """A verified caller asking for more than it was granted (scope or tenant)."""
+
+    status = 403
+    error = "Forbidden"
+    ld_type = "Forbidden"
+
+
 class Unavailable(TsdbError):
     """The store is closing or broken; the client may retry."""
 

@@ -16,11 +16,18 @@ adds, per connection:
 * a **connection cap**: past ``max_connections`` open connections a new one
   is answered 503 and closed at once, so descriptors stay free for the
   process's own files and for clients once the cap eases;
+* a **head size limit**: a request line and header fields of more than
+  ``max_header_bytes`` are answered 431 and the connection closed. httptools
+  keeps a header it has not finished in memory (and copies it as it grows:
+  six parallel 40 MB headers cost 330 MB and stalled every request for
+  seconds), so the bytes are counted as they arrive, before the parser
+  sees them, and the complete head is measured once more;
 
 and at start the soft descriptor limit is raised to the hard one. Settings:
 ``TSDB_HEADER_TIMEOUT_S``, ``TSDB_BODY_TIMEOUT_S``, ``TSDB_MAX_CONNECTIONS``,
-``TSDB_KEEP_ALIVE_S``; ``cli serve`` passes them to the worker processes
-through the environment, where this module reads them once.
+``TSDB_KEEP_ALIVE_S``, ``TSDB_MAX_HEADER_BYTES``; ``cli serve`` passes them
+to the worker processes through the environment, where this module reads
+them once.
 """
 
 from __future__ import annotations
@@ -40,12 +47,21 @@ _BUSY = (
     b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\nconnection: close\r\n"
     b"content-length: %d\r\n\r\n%s" % (len(_BUSY_BODY), _BUSY_BODY)
 )
+_HEAD_BODY = (
+    b'{"error":"RequestHeaderFieldsTooLarge","description":"the request line and headers are larger than '
+    b'the service accepts (TSDB_MAX_HEADER_BYTES)"}'
+)
+_HEAD_TOO_LARGE = (
+    b"HTTP/1.1 431 Request Header Fields Too Large\r\ncontent-type: application/json\r\n"
+    b"connection: close\r\ncontent-length: %d\r\n\r\n%s" % (len(_HEAD_BODY), _HEAD_BODY)
+)
+_END_OF_HEAD = b"\r\n\r\n"
 
 
 @cache
-def _limits() -> tuple[float, float, int]:
+def _limits() -> tuple[float, float, int, int]:
     settings = Settings()
-    return settings.header_timeout_s, settings.body_timeout_s, settings.max_connections
+    return settings.header_timeout_s, settings.body_timeout_s, settings.max_connections, settings.max_header_bytes
 
 
 class GuardedHttpToolsProtocol(HttpToolsProtocol):
@@ -54,8 +70,37 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
-        self._header_timeout, self._body_timeout, self._max_connections = _limits()
+        self._header_timeout, self._body_timeout, self._max_connections, self._max_head = _limits()
         self._deadline: TimerHandle | None = None
+        self._in_head = True  # the bytes arriving belong to a request head
+        self._head_bytes = 0
+        self._tail = b""  # the last bytes seen, in case the head's end is split between reads
+        self._refused = False
+
+    def data_received(self, data: bytes) -> None:
+        if self._refused:
+            return
+        if self._in_head:
+            seen = self._tail + data
+            end = seen.find(_END_OF_HEAD)
+            self._head_bytes += len(data) if end < 0 else max(0, end + len(_END_OF_HEAD) - len(self._tail))
+            if self._head_bytes > self._max_head:
+                self._refuse_head()
+                return
+            self._tail = seen[-(len(_END_OF_HEAD) - 1) :]
+        super().data_received(data)
+        if self._refused:
+            self._refuse_head()
+
+    def _refuse_head(self) -> None:
+        self._refused = True
+        self._disarm()
+        if not self.transport.is_closing():
+            log.info(
+                "request head from %s over %d bytes (TSDB_MAX_HEADER_BYTES): 431", _peer(self.client), self._max_head
+            )
+            self.transport.write(_HEAD_TOO_LARGE)
+            self.transport.close()
 
     def connection_made(self, transport) -> None:
         super().connection_made(transport)
@@ -79,12 +124,23 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
 
     def on_headers_complete(self) -> None:
         self._disarm()
+        self._in_head = False
+        if len(self.url) + sum(len(name) + len(value) + 4 for name, value in self.headers) > self._max_head:
+            self._refused = True  # answered once the parser returns (data_received); the app never starts
+            return
         super().on_headers_complete()
         self._arm(self._body_timeout, "body")
 
+    def on_body(self, body: bytes) -> None:
+        if not self._refused:
+            super().on_body(body)
+
     def on_message_complete(self) -> None:
         self._disarm()
+        if self._refused:
+            return
         super().on_message_complete()
+        self._in_head, self._head_bytes, self._tail = True, 0, b""
 
     def _arm(self, seconds: float, what: str) -> None:
         self._disarm()

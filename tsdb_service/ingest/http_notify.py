@@ -24,7 +24,7 @@ from tsdb_service.http import openapi as oa
 from tsdb_service.http.errors import REQUEST_ID_HEADER, internal_error
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.store import reads_store, store_of
-from tsdb_service.http.tenancy import tenant_header, tenant_of
+from tsdb_service.http.tenancy import require_every_tenant, tenant_header, tenant_of
 from tsdb_service.ingest import openapi as notify_oa
 from tsdb_service.parse import ValuesLayout, parse_notification
 from tsdb_service.parse.names import ID_RULE, RULE, id_problem, name_problem
@@ -255,12 +255,15 @@ def list_rejected(
         False,
         alias="allTenants",
         description="Operator listing: every tenant's rejections, each with its tenant as stored (a tenant "
-        "header the API refuses is stored as received). Ignores Fiware-Service.",
+        "header the API refuses is stored as received). Ignores Fiware-Service. With authentication on, "
+        "only a credential not restricted to tenants may ask (403 otherwise).",
     ),
 ) -> JSON:
     """Pages by count (``limit``) and by size (``TSDB_REJECTED_PAGE_MAX_BYTES``,
     at least one row): when more rows follow, ``Link: <...>; rel="next"``
     and ``X-Next-Offset`` say where the next page starts."""
+    if all_tenants:
+        require_every_tenant(request, "allTenants=true")
     tenant = None if all_tenants else tenant_of(request)
     max_bytes = request.app.state.settings.rejected_page_max_bytes
     rows, next_offset = store_of(request).rejected_page(tenant, limit, offset, max_bytes)

@@ -148,6 +148,13 @@ def select_tenant(chosen: list[tuple[str, str]]) -> str:
     return raw.lower()
 
 
+def is_stored_tenant(name: str) -> bool:
+    """Is ``name`` a tenant as the API stores it (``""`` or 1 to 50
+    lower-case letters, digits, underscores)? A refused notification is kept
+    under the header as received, which is not one."""
+    return name == "" or (_TENANT.match(name) is not None and name == name.lower())
+
+
 def raw_tenant(chosen: list[tuple[str, str]]) -> str:
     """The tenant as received, for keeping a refused notification: the
     selectors' values joined by ``,`` when they conflict. ``,`` is never in

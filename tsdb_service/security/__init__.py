@@ -10,19 +10,21 @@ from __future__ import annotations
 
 from starlette.middleware.cors import CORSMiddleware
 
+from tsdb_service.core.errors import Forbidden, Unauthorized
 from tsdb_service.security.guard import Guard
 from tsdb_service.security.keys import KeyRing
-from tsdb_service.security.principals import ADMIN, READ, WRITE, Forbidden, Principal, Unauthorized, required_scope
+from tsdb_service.security.principals import ADMIN, METRICS, READ, WRITE, Principal, required_scope
 from tsdb_service.security.tokens import TokenVerifier, check_token_settings
 
 __all__ = [
     "ADMIN",
+    "METRICS",
     "READ",
     "WRITE",
     "Forbidden",
     "Principal",
     "Unauthorized",
-    "check_settings",
+    "check",
     "protect",
     "required_scope",
 ]
@@ -33,12 +35,19 @@ CORS_MAX_AGE_S = 600
 def protect(app, settings):
     """Wrap the ASGI ``app`` in what the settings ask for: the guard when any
     credential is configured, CORS (outermost, so preflights need no
-    credential and refusals still reach the browser) when origins are."""
+    credential and refusals still reach the browser) when origins are.
+    ValueError for settings that would leave the service open (see ``check``)."""
     keys = KeyRing.from_settings(settings.api_keys, settings.api_keys_file)
     tokens = TokenVerifier.from_settings(settings)
+    origins = [o.strip().rstrip("/") for o in settings.cors_origins.split(",") if o.strip()]
+    if "*" in origins and keys is None and tokens is None and not settings.cors_allow_unauthenticated:
+        raise ValueError(
+            "TSDB_CORS_ORIGINS=* without authentication lets any web page its visitors open read, write and "
+            "delete this service's history: configure keys or tokens (TSDB_API_KEYS_FILE, TSDB_JWT_*), name "
+            "the origins, or set TSDB_CORS_ALLOW_UNAUTHENTICATED=true if that is really meant"
+        )
     if keys is not None or tokens is not None:
         app = Guard(app, keys, tokens, settings.api_key_header)
-    origins = [o.strip().rstrip("/") for o in settings.cors_origins.split(",") if o.strip()]
     if origins:
         app = CORSMiddleware(
             app,
@@ -51,9 +60,11 @@ def protect(app, settings):
     return app
 
 
-def check_settings(settings) -> None:
-    """``ValueError`` (one line naming the setting) if the security settings
-    cannot work: keys, key file, token settings. Nothing is started, nothing
-    is fetched: ``serve`` calls it before it creates anything."""
+def check(settings) -> None:
+    """The security settings, checked before a server starts (``serve``,
+    before it creates anything): ValueError naming the setting. Keys, key
+    file and token settings, then whatever ``protect`` would refuse (a weak
+    HMAC secret, an open CORS without authentication). Nothing is fetched."""
     KeyRing.from_settings(settings.api_keys, settings.api_keys_file)
     check_token_settings(settings)
+    protect(None, settings)

@@ -9,21 +9,14 @@ credential is configured, so it costs nothing then.
 from __future__ import annotations
 
 import logging
-from urllib.parse import parse_qsl
 
 import orjson
 
-from tsdb_service.core.errors import TsdbError
+from tsdb_service.core.errors import Forbidden, MissingCredential, TsdbError, Unauthorized
 from tsdb_service.http.errors import internal_error
+from tsdb_service.http.tenancy import PRINCIPAL, refusal, selected_tenants
 from tsdb_service.security.keys import KeyRing
-from tsdb_service.security.principals import (
-    Forbidden,
-    MissingCredential,
-    Principal,
-    Unauthorized,
-    normalise_tenant,
-    required_scope,
-)
+from tsdb_service.security.principals import Principal, normalise_tenant, required_scope
 from tsdb_service.security.tokens import TokenVerifier, looks_like_jwt
 
 log = logging.getLogger(__name__)
@@ -31,8 +24,6 @@ log = logging.getLogger(__name__)
 # What an orchestrator and a reader of the API description need, nothing more.
 OPEN_PATHS = frozenset({"/health", "/version", "/docs", "/docs/oauth2-redirect", "/redoc", "/openapi.json"})
 REALM = 'Bearer realm="tsdb-service"'
-_TENANT_HEADERS = (b"fiware-service", b"ngsild-tenant")
-PRINCIPAL = "principal"  # the verified caller, in the request's state
 
 
 class Guard:
@@ -49,7 +40,7 @@ class Guard:
         try:
             principal = await self._authenticate(scope)
             _authorise(principal, scope)
-            scope.setdefault("state", {})[PRINCIPAL] = principal  # request.state.principal
+            scope[PRINCIPAL] = principal  # routes authorise the tenant they parse (http.tenancy)
         except TsdbError as exc:
             await _refuse(send, exc)
             return
@@ -104,24 +95,19 @@ def _authorise(principal: Principal, scope) -> None:
     for tenant in tenants_of(scope):
         if not principal.may_touch(tenant):
             log.info("%s may not touch tenant %r", principal.name, tenant)
-            raise Forbidden(
-                f"this credential does not grant access to tenant {tenant[:60]!r}"
-                if tenant
-                else "this credential does not grant access to the default tenant"
-            )
+            raise Forbidden(refusal(tenant))
 
 
 def tenants_of(scope) -> set[str]:
     """Every tenant a request could select: each ``Fiware-Service`` and
     ``NGSILD-Tenant`` header and each ``service`` query parameter (Grafana),
-    lower-cased as the routes do; the default tenant if none (or an empty one)
-    is given. Checking all of them means no combination of selectors reaches
-    a tenant the caller was not granted, whichever one a route prefers."""
-    selected = [v.decode("latin-1") for n, v in scope["headers"] if n in _TENANT_HEADERS]
-    query = scope.get("query_string", b"")
-    if b"service=" in query:
-        selected += [v for k, v in parse_qsl(query.decode("latin-1"), keep_blank_values=True) if k == "service"]
-    return {normalise_tenant(v) for v in selected} or {""}
+    parsed as the routes parse them (``http.tenancy.selected_tenants``:
+    ``%73ervice`` is ``service``) and
+    lower-cased; the default tenant if none (or an empty one) is given.
+    Checking all of them means no combination of selectors reaches a tenant
+    the caller was not granted, whichever one a route prefers; the routes
+    check the tenant they use once more (``http.tenancy``)."""
+    return {normalise_tenant(v) for v in selected_tenants(scope)} or {""}
 
 
 async def _refuse(send, exc: TsdbError) -> None:

@@ -1,41 +1,26 @@
 """Who is calling and what they may do: scopes, tenant restrictions, and the
 scope each request needs.
 
-Scopes are ``read``, ``write`` and ``admin``. ``admin`` implies the other two;
-``write`` does not imply ``read``, so the key an Orion subscription carries
-cannot be used to read the history it writes.
+Scopes are ``read``, ``write``, ``admin`` and ``metrics``. ``admin`` implies
+the others; ``write`` does not imply ``read``, so the key an Orion
+subscription carries cannot be used to read the history it writes.
+``metrics`` is what ``/metrics`` needs (its labels name every tenant): a
+Prometheus scraper's key, or any ``read`` credential not restricted to tenants.
+The errors (``Unauthorized``, ``MissingCredential``, ``Forbidden``) are in
+``core.errors``, so routes can refuse too.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tsdb_service.core.errors import TsdbError
-
-READ, WRITE, ADMIN = "read", "write", "admin"
-SCOPES = frozenset({READ, WRITE, ADMIN})
+READ, WRITE, ADMIN, METRICS = "read", "write", "admin", "metrics"
+SCOPES = frozenset({READ, WRITE, ADMIN, METRICS})
 DEFAULT_TENANT_TOKEN = "-"  # stands for "" (no Fiware-Service) in tenant lists
 
 # Reads that travel as POST (a query in a body) need read, not write.
 _READ_POSTS = ("/grafana/", "/v2/op/query", "/ngsi-ld/v1/temporal/entityOperations/query")  # queries in a body
-
-
-class Unauthorized(TsdbError):
-    """No credential, or one we cannot verify: the client should authenticate."""
-
-    status = 401
-    error = "Unauthorized"
-
-
-class MissingCredential(Unauthorized):
-    """No credential at all (the challenge then carries no error code)."""
-
-
-class Forbidden(TsdbError):
-    """A verified caller asking for more than it was granted."""
-
-    status = 403
-    error = "Forbidden"
+METRICS_PATH = "/metrics"
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,20 +33,27 @@ class Principal:
     tenants: frozenset[str] | None = None
 
     def may(self, scope: str) -> bool:
-        return ADMIN in self.scopes or scope in self.scopes
+        """``admin`` implies every scope; ``metrics`` (whose labels name every
+        tenant) is also implied by ``read`` over every tenant."""
+        if ADMIN in self.scopes or scope in self.scopes:
+            return True
+        return scope == METRICS and READ in self.scopes and self.tenants is None
 
     def may_touch(self, tenant: str) -> bool:
         return self.tenants is None or tenant in self.tenants
 
 
 def required_scope(method: str, path: str) -> str:
-    """The scope a request needs: deletes, the rejected store (which holds
-    raw request bodies) and ``POST /v2/subscribe`` (which makes this service
-    call a URL the client names) need admin, changes need write, everything
-    else read."""
+    """The scope a request needs: changing or deleting stored history
+    (``DELETE``, and ``PATCH`` of an NGSI-LD instance), the rejected store
+    (which holds raw request bodies) and ``POST /v2/subscribe`` (which makes
+    this service call a URL the client names) need admin; ``/metrics`` needs
+    metrics; adding data needs write, everything else read."""
     path = path.rstrip("/") or "/"
-    if method == "DELETE" or path == "/v2/notify/rejected" or path.startswith("/v2/notify/rejected/"):
+    if method in ("DELETE", "PATCH") or path == "/v2/notify/rejected" or path.startswith("/v2/notify/rejected/"):
         return ADMIN
+    if path == METRICS_PATH:
+        return METRICS
     if method == "POST" and path == "/v2/subscribe":
         return ADMIN
     if method in ("GET", "HEAD", "OPTIONS"):
@@ -74,7 +66,7 @@ def required_scope(method: str, path: str) -> str:
 def parse_scopes(raw: str, where: str) -> frozenset[str]:
     scopes = frozenset(s.strip().lower() for s in raw.split(",") if s.strip())
     if not scopes or not scopes <= SCOPES:
-        raise ValueError(f"{where}: scopes must be a comma list of read, write, admin; got {raw!r}")
+        raise ValueError(f"{where}: scopes must be a comma list of read, write, admin, metrics; got {raw!r}")
     return scopes
 
 

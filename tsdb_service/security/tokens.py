@@ -23,8 +23,8 @@ import jwt
 from cryptography.hazmat.primitives.serialization import load_pem_public_key
 from starlette.concurrency import run_in_threadpool
 
-from tsdb_service.core.errors import Unavailable
-from tsdb_service.security.principals import SCOPES, Principal, Unauthorized, normalise_tenant
+from tsdb_service.core.errors import Unauthorized, Unavailable
+from tsdb_service.security.principals import SCOPES, Principal, normalise_tenant
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +33,7 @@ HMAC = ("HS256", "HS384", "HS512")
 LEEWAY_S = 30  # clock skew between us and the token issuer
 JWKS_TIMEOUT_S = 5.0
 JWKS_MIN_REFETCH_S = 30.0  # an unknown key id refetches at most this often
+MIN_HMAC_KEY_BYTES = 32  # 256 bits, HS256's hash size (RFC 7518 3.2)
 
 
 def looks_like_jwt(credential: str) -> bool:
@@ -202,7 +203,14 @@ def _load_key(raw: str) -> Any:
             return load_pem_public_key(raw.strip().encode())
         except ValueError as exc:
             raise ValueError(f"TSDB_JWT_KEY is not a PEM public key: {exc}") from None
-    return raw.encode("utf-8")
+    secret = raw.encode("utf-8")
+    if len(secret) < MIN_HMAC_KEY_BYTES:
+        raise ValueError(
+            f"TSDB_JWT_KEY: an HMAC secret must have at least {MIN_HMAC_KEY_BYTES} bytes (RFC 7518 3.2), "
+            f"this one has {len(secret)}; a short one can be guessed offline from any token it signed "
+            "(make one with: openssl rand -hex 32)"
+        )
+    return secret
 
 
 def _algorithms(raw: str, symmetric: bool) -> list[str]:

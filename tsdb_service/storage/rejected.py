@@ -5,12 +5,15 @@ client that keeps sending bad notifications must not fill the disk, and one
 listing must not hand out gigabytes. So:
 
 * **bounds**, per tenant: at most ``max_count`` rows and ``max_bytes`` of
-  stored body and headers, none older than ``max_age_s``. Enforced in the
-  transaction that records a rejection (oldest dropped first; a tenant's
-  newest rejection is always kept, so what was just refused can be read);
-  what is dropped is counted by reason (``count``, ``bytes``, ``age``) for
-  ``/metrics``. The tenant is the one the row is stored under (a tenant
-  header the API refuses is its own tenant, as received).
+  stored body and headers, none older than ``max_age_s``; and over all
+  tenants together at most ``max_total_count`` rows and ``max_total_bytes``
+  (the tenant is the one the row is stored under, and a tenant header the
+  API refuses is its own tenant, as received: chosen by the sender, so the
+  per-tenant bounds alone multiply by the headers an attacker invents).
+  Enforced in the transaction that records a rejection (oldest dropped
+  first; a tenant's newest rejection, and the newest of all, are always
+  kept, so what was just refused can be read); what is dropped is counted
+  by reason (``count``, ``bytes``, ``age``) for ``/metrics``.
 * **pages** by size as well as by count: a listing stops before its rendered
   rows pass ``max_bytes`` (always at least one row), and says where the next
   page starts.
@@ -42,6 +45,8 @@ class RejectedLimits:
     max_count: int = 1000
     max_bytes: int = 64 * 1024 * 1024
     max_age_s: float = 30 * 86400.0
+    max_total_count: int = 10_000
+    max_total_bytes: int = 256 * 1024 * 1024
 
     @classmethod
     def from_settings(cls, settings) -> RejectedLimits:
@@ -49,6 +54,8 @@ class RejectedLimits:
             settings.rejected_max_per_tenant,
             settings.rejected_max_bytes_per_tenant,
             settings.rejected_max_age_days * 86400.0,
+            settings.rejected_max_total,
+            settings.rejected_max_total_bytes,
         )
 
 
@@ -86,15 +93,23 @@ def prune(
     dropped["age"] = len(execute(f"DELETE FROM rejected_notifications WHERE received_at < {p} RETURNING id", [oldest]))
     ranked = (
         "SELECT id, row_number() OVER w AS n, sum({bytes}) OVER w AS b FROM rejected_notifications "
-        f"WHERE tenant = {p} WINDOW w AS (ORDER BY id DESC)"
-    ).format(bytes=dialect.row_bytes)
+        "{where}WINDOW w AS (ORDER BY id DESC)"
+    )
+    per_tenant = ranked.format(bytes=dialect.row_bytes, where=f"WHERE tenant = {p} ")
     for tenant in sorted(set(tenants)):
         for reason, condition, bound in (("count", "n", limits.max_count), ("bytes", "b", limits.max_bytes)):
             sql = (
-                f"DELETE FROM rejected_notifications WHERE id IN (SELECT id FROM ({ranked}) r "
+                f"DELETE FROM rejected_notifications WHERE id IN (SELECT id FROM ({per_tenant}) r "
                 f"WHERE n > 1 AND {condition} > {p}) RETURNING id"
             )
             dropped[reason] += len(execute(sql, [tenant, bound]))
+    every = ranked.format(bytes=dialect.row_bytes, where="")
+    for reason, condition, bound in (("count", "n", limits.max_total_count), ("bytes", "b", limits.max_total_bytes)):
+        sql = (
+            f"DELETE FROM rejected_notifications WHERE id IN (SELECT id FROM ({every}) r "
+            f"WHERE n > 1 AND {condition} > {p}) RETURNING id"
+        )
+        dropped[reason] += len(execute(sql, [bound]))
     return dropped
 
 

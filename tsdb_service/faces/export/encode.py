@@ -8,7 +8,10 @@ Memory is one batch and its encoding, whatever the export's size.
 
 CSV: RFC 4180 quoting; times as ``2024-05-01T10:00:00.123456Z`` (ISO 8601,
 UTC, microseconds); booleans ``true``/``false``; a null is an empty field
-and an empty string is ``""``. The times are formatted here (a cast and two
+and an empty string is ``""``. A text cell that starts with ``=``, ``+``,
+``-``, ``@``, a tab or a carriage return gets a leading ``'`` (OWASP's
+advice against CSV injection: a spreadsheet would run it as a formula);
+``raw`` writes every cell as stored. The times are formatted here (a cast and two
 string kernels) because pyarrow's CSV writer formats zoned timestamps about
 five times slower than everything else in the row together.
 """
@@ -60,6 +63,16 @@ class _Pieces:
 
 
 CSV_SCHEMA = SCHEMA.set(0, pa.field("time", pa.string(), nullable=False))
+_TEXT_COLUMNS = [i for i, f in enumerate(SCHEMA) if i > 0 and pa.types.is_string(f.type)]
+_FORMULA = r"^[=+\-@\t\r]"  # what a spreadsheet may read as a formula (OWASP CSV injection)
+
+
+def neutralised(column: pa.Array) -> pa.Array:
+    """Text cells a spreadsheet would run as formulas, prefixed with ``'``."""
+    risky = pc.match_substring_regex(column, _FORMULA)
+    if not pc.any(risky).as_py():
+        return column
+    return pc.if_else(risky, pc.binary_join_element_wise("'", column, ""), column)
 
 
 def iso_times(times: pa.Array) -> pa.Array:
@@ -71,9 +84,10 @@ def iso_times(times: pa.Array) -> pa.Array:
 class Encoder:
     """``encode(batch)`` → the bytes it adds; ``finish()`` → the rest."""
 
-    def __init__(self, fmt: ExportFormat) -> None:
+    def __init__(self, fmt: ExportFormat, raw: bool = False) -> None:
         self._sink = _Pieces()
         self._csv = fmt is ExportFormat.CSV
+        self._neutralise = self._csv and not raw
         if self._csv:
             self._writer = pa_csv.CSVWriter(self._sink, CSV_SCHEMA)
         else:
@@ -83,6 +97,9 @@ class Encoder:
         if batch.num_rows:
             if self._csv:
                 batch = batch.set_column(0, CSV_SCHEMA.field(0), iso_times(batch.column(0)))
+            if self._neutralise:
+                for i in _TEXT_COLUMNS:
+                    batch = batch.set_column(i, CSV_SCHEMA.field(i), neutralised(batch.column(i)))
             self._writer.write_batch(batch)
         return self._sink.take()
 
@@ -91,9 +108,9 @@ class Encoder:
         return self._sink.take()
 
 
-def chunks(stream: SampleStream, fmt: ExportFormat) -> Iterator[bytes]:
+def chunks(stream: SampleStream, fmt: ExportFormat, raw: bool = False) -> Iterator[bytes]:
     """The encoded export, one piece per batch (blocking: run it in a thread)."""
-    encoder = Encoder(fmt)
+    encoder = Encoder(fmt, raw)
     while (batch := stream.next_batch()) is not None:
         piece = encoder.encode(batch)
         if piece:
@@ -101,7 +118,9 @@ def chunks(stream: SampleStream, fmt: ExportFormat) -> Iterator[bytes]:
     yield encoder.finish()
 
 
-def write_file(stream: SampleStream, fmt: ExportFormat, path: str | os.PathLike[str]) -> tuple[int, int, float]:
+def write_file(
+    stream: SampleStream, fmt: ExportFormat, path: str | os.PathLike[str], raw: bool = False
+) -> tuple[int, int, float]:
     """Write the export to ``path``; (samples, bytes, seconds).
 
     It is written to ``path.partial`` and renamed at the end, so an export
@@ -112,7 +131,7 @@ def write_file(stream: SampleStream, fmt: ExportFormat, path: str | os.PathLike[
     size = 0
     try:
         with open(partial, "wb") as out:
-            for piece in chunks(stream, fmt):
+            for piece in chunks(stream, fmt, raw):
                 out.write(piece)
                 size += len(piece)
         os.replace(partial, target)

@@ -13,6 +13,12 @@ EXPORT = [
     TO_DATE,
     query("attrs", "Attribute names (not value paths), comma-separated."),
     query("format", "File format.", {"enum": ["csv", "parquet"], "default": "csv"}),
+    query(
+        "raw",
+        "CSV: write text cells as stored. By default a cell starting with =, +, -, @, tab or CR gets a "
+        "leading ' so a spreadsheet does not run it as a formula (OWASP CSV injection).",
+        {"type": "boolean", "default": False},
+    ),
 ]
 
 

@@ -34,7 +34,7 @@ class ExportFormat(str, Enum):
 
 
 _MEDIA_TYPES = {ExportFormat.CSV: "text/csv; charset=utf-8", ExportFormat.PARQUET: "application/vnd.apache.parquet"}
-PARAMETERS = ("format", "type", "id", "idPattern", "attrs", "fromDate", "toDate")
+PARAMETERS = ("format", "type", "id", "idPattern", "attrs", "fromDate", "toDate", "raw")
 
 
 @dataclass(frozen=True, slots=True)
@@ -47,6 +47,7 @@ class ExportQuery:
     attrs: tuple[str, ...] | None
     time: TimeRange
     format: ExportFormat = ExportFormat.CSV
+    raw: bool = False  # CSV cells as stored, formulas included (encode.neutralised)
 
 
 def export_format(raw: str | None, default: ExportFormat = ExportFormat.CSV) -> ExportFormat:
@@ -70,7 +71,16 @@ def export_query(params: Mapping[str, str], headers: Mapping[str, str], tenant: 
         attrs=_attr_names(get("attrs")),
         time=time_range(get("fromDate"), get("toDate")),
         format=export_format(get("format")),
+        raw=_flag(get("raw"), "raw"),
     )
+
+
+def _flag(raw: str | None, name: str) -> bool:
+    if raw in (None, "", "false"):
+        return False
+    if raw == "true":
+        return True
+    raise BadRequest(f"{name} must be true or false, not {raw[:40]!r}")
 
 
 def _attr_names(raw: str | None) -> tuple[str, ...] | None:

@@ -33,9 +33,10 @@ router = APIRouter(tags=["export"])
     summary="Export history as CSV or Parquet (one row per sample)",
     description=(
         "Parameters: format=csv|parquet (default csv), type, id, idPattern, attrs (attribute names), "
-        "fromDate, toDate; tenant from Fiware-Service / Fiware-ServicePath. Columns: time (UTC, µs), "
+        "fromDate, toDate, raw; tenant from Fiware-Service / Fiware-ServicePath. Columns: time (UTC, µs), "
         "entity_id, entity_type, service_path, attribute, ngsi_type, value_number, value_text, "
-        "value_bool, value_json (exactly one value column set per sample)."
+        "value_bool, value_json (exactly one value column set per sample). CSV text cells starting with "
+        "=, +, -, @, tab or CR get a leading ' (CSV injection); raw=true writes them as stored."
     ),
     response_class=StreamingResponse,
     **export_oa.EXPORT_SPEC,
@@ -46,7 +47,7 @@ async def export(request: Request) -> StreamingResponse:
     stream = await store.read(partial(open_export, store, query), memory_first=False)
     filename = f"tsdb-export{query.format.suffix}"
     return StreamingResponse(
-        _body(store, stream, Encoder(query.format)),
+        _body(store, stream, Encoder(query.format, query.raw)),
         media_type=query.format.media_type,
         headers={"Content-Disposition": f'attachment; filename="{filename}"'},
     )

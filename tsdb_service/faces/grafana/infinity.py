@@ -30,21 +30,21 @@ from tsdb_service.faces.grafana.params import (
     entity_filter,
     flag,
     positive_int,
-    scope_of,
     time_range,
 )
 from tsdb_service.geo.filter import parse_geo
 from tsdb_service.history.valuepath import parse_value_path
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.store import reads_store, store_of
+from tsdb_service.http.tenancy import grafana_scope
 from tsdb_service.read.requests import SeriesSelect
 
 router = APIRouter(prefix="/grafana/infinity", tags=["grafana"])
 
 
 def _common(request: Request):
-    params, headers = request.query_params, request.headers
-    return store_of(request).querier(), scope_of(params, headers), entity_filter(params), params
+    params = request.query_params
+    return store_of(request).querier(), grafana_scope(request), entity_filter(params), params
 
 
 @router.get(

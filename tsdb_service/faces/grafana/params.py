@@ -19,7 +19,6 @@ from tsdb_service.core.errors import BadRequest
 from tsdb_service.core.query import AggrMethod, AggrPeriod, ValuePath
 from tsdb_service.history.valuepath import parse_value_path
 from tsdb_service.parse.request_context import aggr_method, aggr_period, entity_filter, moment
-from tsdb_service.parse.request_context import grafana_scope as scope_of
 from tsdb_service.parse.request_context import grafana_time_range as time_range
 from tsdb_service.parse.request_context import lenient_count as positive_int
 
@@ -34,7 +33,6 @@ __all__ = [
     "flag",
     "moment",
     "positive_int",
-    "scope_of",
     "time_range",
 ]
 

@@ -38,12 +38,13 @@ from tsdb_service.core.query import EntityFilter, LastValueQuery, Scope, TimeRan
 from tsdb_service.core.timefmt import ms_of
 from tsdb_service.faces.grafana import frames
 from tsdb_service.faces.grafana import openapi as grafana_oa
-from tsdb_service.faces.grafana.params import MAX_POINTS_LIMIT, Column, moment, positive_int, scope_of
+from tsdb_service.faces.grafana.params import MAX_POINTS_LIMIT, Column, moment, positive_int
 from tsdb_service.history.service import run_last_values
 from tsdb_service.history.valuepath import parse_value_path
 from tsdb_service.http.rawpath import escape_segment, unescape_segment
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.store import reads_store, store_of
+from tsdb_service.http.tenancy import grafana_scope
 from tsdb_service.parse.request_context import id_pattern
 from tsdb_service.read import HistoryReads
 from tsdb_service.read.requests import SeriesSelect
@@ -218,12 +219,12 @@ def _cell(value, kind: str):
 @router.get("", include_in_schema=False)
 @router.get("/", summary="Test connection (SimpleJSON / simPod)", **grafana_oa.SIMPLEJSON["test"])
 def test_connection(request: Request) -> JSON:
-    scope = scope_of(request.query_params, request.headers)
+    scope = grafana_scope(request)
     return JSON({"status": "ok", "tenant": scope.tenant, "servicePaths": list(scope.service_paths)})
 
 
 def _catalog(request: Request, entities: EntityFilter | None = None) -> dict[tuple[str, str], set[str]]:
-    scope = scope_of(request.query_params, request.headers)
+    scope = grafana_scope(request)
     found: dict[tuple[str, str], set[str]] = {}
     for ref in store_of(request).querier().series(SeriesSelect(scope, entities or EntityFilter())):
         found.setdefault((ref.entity_id, ref.entity_type), set()).add(ref.attr)
@@ -356,7 +357,7 @@ def metric_payload_options(request: Request, body: Any = Body(None)) -> JSON:
         return JSON([])
     eid, attr = parts
     path = parse_value_path(attr)
-    scope = scope_of(request.query_params, request.headers)
+    scope = grafana_scope(request)
     ids = None if eid == "*" else (eid,)
     found = run_last_values(
         store_of(request).querier(), LastValueQuery(scope, (EntityFilter(ids=ids),), (ValuePath(path.attr),))
@@ -404,7 +405,7 @@ def query(request: Request, body: Any = Body(None)) -> JSON:
     max_points = positive_int(_num_text(doc.get("maxDataPoints")), "maxDataPoints", 1000, MAX_POINTS_LIMIT)
     interval_ms = positive_int(_num_text(doc.get("intervalMs")), "intervalMs", None, 10**12)
     filters = _adhoc(doc)
-    scope = scope_of(request.query_params, request.headers)
+    scope = grafana_scope(request)
     querier = store_of(request).querier()
     out: list[dict] = []
     for raw in targets:
@@ -546,7 +547,7 @@ def annotation_events(request: Request, body: Any = Body(None)) -> JSON:
     entity, slash, rest = text.partition("/")  # an id may contain "=": look for it after the id
     path_text, sep, equals = rest.partition("=")
     target = Target({"target": f"{entity}{slash}{path_text}".strip(), "refId": "annotations"})
-    scope = scope_of(request.query_params, request.headers)
+    scope = grafana_scope(request)
     events = _events(store_of(request).querier(), scope, target, _range(doc), [], equals.strip() if sep else None)
     head = {k: annotation[k] for k in ("name", "enable", "iconColor", "query") if k in annotation}
     return JSON([{"annotation": head, **event} for event in events])
@@ -554,7 +555,7 @@ def annotation_events(request: Request, body: Any = Body(None)) -> JSON:
 
 @router.post("/tag-keys", summary="Ad hoc filter keys", **grafana_oa.SIMPLEJSON["tag-keys"])
 def tag_keys(request: Request, body: Any = Body(None)) -> JSON:
-    scope_of(request.query_params, request.headers)  # a bad tenant is still a 400
+    grafana_scope(request)  # a bad tenant is still a 400
     return JSON(
         [{"type": "string", "text": "entity"}, {"type": "string", "text": "type"}, {"type": "string", "text": "name"}]
     )

@@ -31,6 +31,9 @@ from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from typing import Any
 
+from tsdb_service.core.errors import BadRequest
+from tsdb_service.core.idpattern import compile_pattern
+
 MAX_Q_LENGTH = 4096
 MAX_DEPTH = 32
 OPERATORS = ("==", "!=", ">=", ">", "<=", "<", "~=", "!~=")
@@ -58,7 +61,7 @@ class Term:
     sub: tuple[str, ...] = ()
     inner: tuple[str, ...] = ()
     op: str | None = None
-    value: Any = None  # a scalar, a tuple (value list), a Range, or a compiled regex
+    value: Any = None  # a scalar, a tuple (value list), a Range, or a compiled RE2 regex
 
     def matches(self, value: Any) -> bool:
         """Does one instance value (already reduced along ``sub``/``inner``) satisfy the term?"""
@@ -222,10 +225,10 @@ class _Parser:
 def _value(op: str, raw: str, where: int) -> Any:
     if op in ("~=", "!~="):
         pattern = _string(raw) if raw.startswith('"') else raw
-        try:
-            return re.compile(pattern)
-        except re.error as exc:
-            raise QueryError(f"bad regular expression after {op!r} at position {where}: {exc}") from None
+        try:  # RE2, as idPattern: linear time whatever the pattern (core.idpattern)
+            return compile_pattern(pattern, f"the regular expression after {op!r} at position {where}")
+        except BadRequest as exc:
+            raise QueryError(exc.description) from None
     items = _split_list(raw)
     if len(items) > 1:
         if op not in ("==", "!="):

@@ -21,23 +21,16 @@ from starlette.responses import Response
 
 from tsdb_service.core.errors import BadRequestData, InvalidRequest, NotAcceptable
 from tsdb_service.faces.ngsild import openapi as ld_oa
-from tsdb_service.faces.ngsild.context import (
-    JSONLD_CONTEXT_REL,
-    ContextStore,
-    TermMap,
-    link_context,
-    parse_local_contexts,
-)
+from tsdb_service.faces.ngsild.context import JSONLD_CONTEXT_REL, ContextStore, TermMap, link_context
 from tsdb_service.faces.ngsild.params import query_from_body, query_from_params
 from tsdb_service.faces.ngsild.query import TemporalQuery
 from tsdb_service.faces.ngsild.service import TemporalResult, run
 from tsdb_service.http.store import store_of
-from tsdb_service.http.tenancy import tenant_echo, tenant_of
+from tsdb_service.http.tenancy import caller_of, tenant_echo, tenant_of
 
 router = APIRouter(prefix="/ngsi-ld/v1", tags=["NGSI-LD temporal"])
 LD_JSON = "application/ld+json"
 JSON = "application/json"
-MAX_BODY = 1 << 20
 
 
 def contexts(request: Request) -> ContextStore:
@@ -45,10 +38,7 @@ def contexts(request: Request) -> ContextStore:
     state = request.app.state
     store = getattr(state, "ngsild_contexts", None)
     if store is None:
-        settings = state.settings
-        store = state.ngsild_contexts = ContextStore(
-            parse_local_contexts(settings.ngsild_contexts), timeout=settings.ngsild_context_timeout
-        )
+        store = state.ngsild_contexts = ContextStore.from_settings(state.settings)
     return store
 
 
@@ -59,6 +49,12 @@ def _limits(request: Request) -> tuple[int, int]:
 
 def _cap(request: Request) -> int:
     return request.app.state.settings.ngsild_max_instances
+
+
+def _tell(request: Request) -> bool:
+    """Whether an unknown tenant is a NonexistentTenant: not with
+    authentication on, where it would tell a caller which tenants exist."""
+    return caller_of(request) is None
 
 
 def accepted(header: str | None) -> str:
@@ -123,9 +119,7 @@ async def query_post(request: Request) -> Response:
     content_type = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
     if content_type not in (JSON, LD_JSON):
         raise InvalidRequest("the body must be application/json or application/ld+json", status=415)
-    raw = await request.body()
-    if len(raw) > MAX_BODY:
-        raise BadRequestData(f"the Query body is larger than {MAX_BODY} bytes", status=413)
+    raw = await request.body()  # at most TSDB_MAX_REQUEST_BODY_BYTES (http.bodies)
     try:
         body = orjson.loads(raw)
     except orjson.JSONDecodeError as exc:
@@ -158,14 +152,16 @@ async def _answer(
     parse: Callable[[TermMap], TemporalQuery],
     many: bool,
 ) -> Response:
-    """Expand the terms with ``context``, parse the query with them, run it:
-    all off the event loop (a context may be fetched, a query reads), then
-    the answer in the media type asked for."""
+    """Load ``context`` (on the event loop, within its deadline), then
+    expand the terms with it, parse the query and run it off the loop, and
+    answer in the media type asked for."""
+    prepared = await contexts(request).prepare(context)
 
     def work() -> tuple[TemporalResult, TermMap, TemporalQuery]:
-        terms = contexts(request).term_map(context)
+        terms = prepared.terms()
         query = parse(terms)
-        return run(store_of(request).querier(), terms, query, _cap(request)), terms, query
+        querier = store_of(request).querier()
+        return run(querier, terms, query, _cap(request), tell_tenants=_tell(request)), terms, query
 
     result, terms, query = await store_of(request).read(work, memory_first=False)
     return _respond(request, media, terms, result, query, many)

@@ -28,9 +28,14 @@ class TemporalResult:
     content_range: str | None = None  # set: the instances were cut (206)
 
 
-def run(querier: TemporalReads, terms: TermMap, query: TemporalQuery, cap: int) -> TemporalResult:
+def run(
+    querier: TemporalReads, terms: TermMap, query: TemporalQuery, cap: int, *, tell_tenants: bool = True
+) -> TemporalResult:
+    """``tell_tenants=False`` (authentication on): a tenant without data
+    answers as one without matching entities, so the answer does not tell
+    a caller which tenants exist."""
     fetcher = Fetcher(querier, terms)
-    if query.tenant and query.tenant not in querier.tenants():
+    if tell_tenants and query.tenant and query.tenant not in querier.tenants():
         raise NonexistentTenant(f"tenant {query.tenant!r} has no data")
     located = fetcher.located(query)
     by_entity = located[0] if located is not None else fetcher.series(query)

@@ -42,7 +42,6 @@ from tsdb_service.core.errors import (
     InvalidRequest,
     NonexistentTenant,
     ParseError,
-    PayloadTooLarge,
     ResourceNotFound,
     UnsupportedMediaType,
 )
@@ -50,7 +49,7 @@ from tsdb_service.core.model import AttrSample, EntitySample, instance_iid
 from tsdb_service.core.query import EntityFilter, Scope, SeriesRef
 from tsdb_service.faces.ngsild import openapi as ld_oa
 from tsdb_service.http.store import store_of
-from tsdb_service.http.tenancy import tenant_echo, tenant_of
+from tsdb_service.http.tenancy import caller_of, tenant_echo, tenant_of
 from tsdb_service.parse.notification import parse_ld_instance
 from tsdb_service.read.requests import InstanceLookup, SeriesSelect
 from tsdb_service.write.ops import AppendSamples, DeleteInstance, DeleteSamples, ReplaceInstance
@@ -61,6 +60,8 @@ BASE = "/ngsi-ld/v1/temporal/entities"
 _ENTITY_KEYS = frozenset({"id", "type", "@context", "scope", "createdAt", "modifiedAt", "deletedAt"})
 _URI = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*:\S+\Z")
 _JSON_TYPES = ("application/json", "application/ld+json")
+# What a broker or a client writes may be as large as a notification (TSDB_MAX_BODY_BYTES).
+LARGE_BODIES = (("POST", BASE), ("PATCH", BASE))
 
 
 # --- routes ---------------------------------------------------------------------
@@ -189,10 +190,7 @@ async def _body(request: Request) -> dict:
     media = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if media not in _JSON_TYPES:
         raise UnsupportedMediaType(f"Content-Type must be application/json or application/ld+json, got {media!r}")
-    raw = await request.body()
-    limit = request.app.state.settings.max_body_bytes
-    if len(raw) > limit:
-        raise PayloadTooLarge(f"the body has {len(raw)} bytes; at most {limit} are accepted")
+    raw = await request.body()  # at most TSDB_MAX_BODY_BYTES (http.bodies)
     try:
         doc = orjson.loads(raw)
     except orjson.JSONDecodeError as exc:
@@ -290,7 +288,8 @@ def _entity_series(request: Request, tenant: str, entity_id: str, with_samples: 
 
 async def _existing(request: Request, tenant: str, entity_id: str) -> list[SeriesRef]:
     def look() -> list[SeriesRef]:
-        if tenant and tenant not in store_of(request).querier().tenants():
+        tell = caller_of(request) is None  # with authentication on, do not tell which tenants exist
+        if tell and tenant and tenant not in store_of(request).querier().tenants():
             raise NonexistentTenant(f"tenant {tenant!r} does not exist")
         return _entity_series(request, tenant, entity_id, True)
 

@@ -25,8 +25,6 @@ from tsdb_service.parse.request_context import MAX_IDS, check_id, id_pattern, se
 
 router = APIRouter(tags=["op"])
 
-_MAX_BODY = 1024 * 1024
-
 
 @router.post(
     "/v2/op/query",
@@ -34,9 +32,7 @@ _MAX_BODY = 1024 * 1024
     **ql_oa.OP_QUERY,
 )
 async def op_query(request: Request) -> JSON:
-    body = await request.body()
-    if len(body) > _MAX_BODY:
-        raise BadRequest("query body is larger than 1 MiB")
+    body = await request.body()  # at most TSDB_MAX_REQUEST_BODY_BYTES (http.bodies)
     query = last_value_query(body, tenant_of(request), request.headers.get("fiware-servicepath"))
     store = store_of(request)
     entities = await store.read(partial(run_last_values, store.querier(), query), memory_first=False)

@@ -21,6 +21,7 @@ from tsdb_service.core.query import EntityFilter, Scope
 from tsdb_service.faces.ui import openapi as ui_oa
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.store import reads_store, store_of
+from tsdb_service.http.tenancy import visible
 from tsdb_service.read.requests import SeriesSelect
 
 STATIC = Path(__file__).resolve().parent / "static"
@@ -65,10 +66,11 @@ def static_file(name: str) -> FileResponse:
 @reads_store
 def tenants(request: Request) -> JSON:
     """``[{"tenant", "servicePaths", "types", "entities", "series"}]``. The
-    tenant ``""`` is Orion's default one (no ``Fiware-Service``)."""
+    tenant ``""`` is Orion's default one (no ``Fiware-Service``). With
+    authentication on, only the tenants the credential may touch."""
     querier = store_of(request).querier()
     out = []
-    for tenant in querier.tenants():
+    for tenant in visible(request, querier.tenants()):
         refs = querier.series(SeriesSelect(Scope(tenant), EntityFilter()))
         out.append(
             {
