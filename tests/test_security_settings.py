@@ -48,7 +48,7 @@ def test_any_origin_without_authentication_is_refused_unless_meant(tmp_path):
     create_app(Settings(db=db, cors_origins="*", api_keys="reader-0123456789abcdef:read"))
     create_app(Settings(db=db, cors_origins="https://grafana.example.org"))
     done = run_cli("serve", "--db", db, "--port", str(free_port()), "--cors-origins", "*")
-    _one_line(done, "TSDB_CORS_ORIGINS=*", "TSDB_CORS_ALLOW_UNAUTHENTICATED")
+    _one_line(done, "--cors-origins (TSDB_CORS_ORIGINS) is *", "TSDB_CORS_ALLOW_UNAUTHENTICATED")
 
 
 def test_help_steers_keys_away_from_the_command_line():

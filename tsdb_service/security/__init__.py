@@ -42,7 +42,7 @@ def protect(app, settings):
     origins = [o.strip().rstrip("/") for o in settings.cors_origins.split(",") if o.strip()]
     if "*" in origins and keys is None and tokens is None and not settings.cors_allow_unauthenticated:
         raise ValueError(
-            "TSDB_CORS_ORIGINS=* without authentication lets any web page its visitors open read, write and "
+            "TSDB_CORS_ORIGINS is * without authentication, which lets any web page its visitors open read, write and "
             "delete this service's history: configure keys or tokens (TSDB_API_KEYS_FILE, TSDB_JWT_*), name "
             "the origins, or set TSDB_CORS_ALLOW_UNAUTHENTICATED=true if that is really meant"
         )
