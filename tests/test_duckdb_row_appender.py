@@ -11,12 +11,15 @@ they also pin that every time column and value reads back exactly.
 
 from __future__ import annotations
 
+import contextlib
+import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import pytest
 
 from tsdb_service.core.config import Settings
+from tsdb_service.core.errors import Unavailable
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage import open_store
 from tsdb_service.storage.duckdb.appender import MAX_ROW_APPENDERS, DuckDBAppender
@@ -43,7 +46,9 @@ def _count(store: DuckDBStore) -> int:
 
 @pytest.fixture
 def store(tmp_path: Path):
-    opened = open_store(Settings(db=str(tmp_path / "rows.duckdb")))
+    """The database writer itself: no ingest log in front (its own poisoned
+    entities: ``test_a_poisoned_entity_through_the_log_is_kept``)."""
+    opened = open_store(Settings(db=str(tmp_path / "rows.duckdb"), ingest_log=False))
     assert isinstance(opened, DuckDBStore)
     try:
         yield opened
@@ -148,3 +153,30 @@ def test_groups_of_many_shapes_keep_a_bounded_set_of_appenders(store: DuckDBStor
         appender.close()
     got = store.cursor().execute("SELECT t, num, txt, js, md FROM samples_all ORDER BY t").fetchall()
     assert got == expected
+
+
+def test_a_poisoned_entity_through_the_log_is_kept(tmp_path: Path, monkeypatch):
+    """Through the ingest log the poisoned entity was acknowledged: the rest
+    of its batch is applied and it is kept in the rejected store."""
+    monkeypatch.setattr("tsdb_service.write.logged.RETRY_DELAY_S", 0.001)
+    monkeypatch.setattr("tsdb_service.write.logged.RETRY_MAX_DELAY_S", 0.002)
+    logged = open_store(Settings(db=str(tmp_path / "logged.duckdb")))
+    try:
+        good = [AppendSamples([_entity(n)]) for n in range(10, 13)]
+        bad = AppendSamples([_entity(99, speed="not a number")])
+        with contextlib.suppress(Unavailable):  # the first syncs find the applier retrying
+            logged.write_sync([*good[:2], bad, good[2]])
+        deadline = time.monotonic() + 30
+        while True:
+            try:
+                logged.sync()
+                break
+            except Unavailable:
+                assert time.monotonic() < deadline
+                time.sleep(0.01)
+        rows = logged.cursor().execute("SELECT num FROM samples_all ORDER BY num").fetchall()
+        assert rows == [(10.0,), (11.0,), (12.0,)]
+        [kept] = logged.rejected(None, 10, 0)
+        assert kept["error"] == "NotApplied" and "urn:" in kept["body"]
+    finally:
+        logged.close()
