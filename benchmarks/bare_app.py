@@ -44,3 +44,43 @@ async def notify(request: Request) -> dict:
 @app.get("/v2/entities/{entity_id}/attrs/{attr}")
 async def lastn(entity_id: str, attr: str) -> Response:
     return Response(_LASTN_100, media_type="application/json")
+
+
+# --- the raw ASGI ceiling ------------------------------------------------------------------------
+#
+# The same two answers with no framework at all: what the HTTP server itself
+# (uvicorn or granian) and the event loop can do on this machine. A route of
+# ours that is served ahead of the framework (``POST /v2/notify``) is held
+# against this ceiling, as is the hottest read (lastN).
+
+_EMPTY = b"{}"
+_JSON_HEADERS_EMPTY = [(b"content-type", b"application/json"), (b"content-length", b"2")]
+_JSON_HEADERS_LASTN = [(b"content-type", b"application/json"), (b"content-length", str(len(_LASTN_100)).encode())]
+
+
+async def raw_app(scope, receive, send) -> None:
+    if scope["type"] == "lifespan":
+        while True:
+            message = await receive()
+            if message["type"] == "lifespan.startup":
+                await send({"type": "lifespan.startup.complete"})
+            elif message["type"] == "lifespan.shutdown":
+                await send({"type": "lifespan.shutdown.complete"})
+                return
+    if scope["type"] != "http":
+        return
+    if scope["method"] == "POST" and scope["path"] == "/v2/notify":
+        chunks, more = [], True
+        while more:
+            message = await receive()
+            chunks.append(message.get("body", b""))
+            more = message.get("more_body", False)
+        json.loads(b"".join(chunks))
+        await send({"type": "http.response.start", "status": 200, "headers": _JSON_HEADERS_EMPTY})
+        await send({"type": "http.response.body", "body": _EMPTY})
+    elif scope["method"] == "GET" and (scope["path"].startswith("/v2/entities/") or scope["path"] == "/health"):
+        await send({"type": "http.response.start", "status": 200, "headers": _JSON_HEADERS_LASTN})
+        await send({"type": "http.response.body", "body": _LASTN_100})
+    else:
+        await send({"type": "http.response.start", "status": 404, "headers": _JSON_HEADERS_EMPTY})
+        await send({"type": "http.response.body", "body": _EMPTY})

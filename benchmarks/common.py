@@ -76,6 +76,22 @@ def bare_cmd(port: int) -> list[str]:
     return [sys.executable, *app, "--log-level", "warning", *UVICORN_FLAGS]
 
 
+def raw_cmd(port: int) -> list[str]:
+    """The raw ASGI ceiling (``bare_app.raw_app``: no framework), under uvicorn."""
+    app = ["-m", "uvicorn", "--app-dir", str(HERE), "bare_app:raw_app", "--host", HOST, "--port", str(port)]
+    return [sys.executable, *app, "--log-level", "warning", *UVICORN_FLAGS]
+
+
+def granian_cmd(target: str, port: int, factory: bool = False, app_dir: Path | None = None) -> list[str]:
+    """``target`` (module:attribute) served by granian instead of uvicorn:
+    one worker, uvloop, HTTP/1.1, as our uvicorn settings."""
+    cmd = [sys.executable, "-m", "granian", "--interface", "asgi", "--host", HOST, "--port", str(port)]
+    cmd += ["--workers", "1", "--loop", "uvloop", "--http", "1", "--no-ws", "--log-level", "warning"]
+    if app_dir is not None:
+        cmd += ["--working-dir", str(app_dir)]
+    return cmd + (["--factory"] if factory else []) + [target]
+
+
 def spawned(name: str, cmd: list[str], port: int, workdir: Path, env: dict[str, str] | None = None) -> Server:
     """A server of ours or the bare app, not started yet: its log ``<name>.log`` in
     ``workdir``, ``env`` on top of ours, ready on any non-5xx answer of /health."""
