@@ -17,11 +17,13 @@ from tsdb_service.core.config import Settings, get_settings
 from tsdb_service.faces import export, grafana, ngsild, operator, quantumleap, ui
 from tsdb_service.faces.grafana import openapi as grafana_oa
 from tsdb_service.faces.operator import openapi as operator_oa
+from tsdb_service.faces.quantumleap import history as quantumleap_history
 from tsdb_service.faces.quantumleap import openapi as quantumleap_oa
 from tsdb_service.http import rawpath
 from tsdb_service.http.bodies import BodyLimit
 from tsdb_service.http.budget import ReadBudgetMiddleware
 from tsdb_service.http.errors import install_error_handlers
+from tsdb_service.http.fastpath import FastRoutes
 from tsdb_service.http.openapi import install as install_openapi
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.store import ServiceStore
@@ -34,13 +36,15 @@ log = logging.getLogger("tsdb_service")
 
 
 class TsdbApp(FastAPI):
-    """FastAPI with the notification fast path in front of everything,
-    framework included (see ingest.http_notify), the security layers (CORS,
-    authentication: ``security.protect``) in front of both, and every HTTP
-    request timed (refusals included)."""
+    """FastAPI with the notification fast path and the history reads' fast
+    path in front of everything, framework included (``ingest.http_notify``,
+    ``http.fastpath``), the security layers (CORS, authentication:
+    ``security.protect``) in front of all, and every HTTP request timed
+    (refusals included)."""
 
     request_metrics: telemetry.RequestMetrics
     front: ASGIApp  # the guarded ASGI entry point; create_app sets it
+    fast: FastRoutes  # the history reads served ahead of the framework; create_app sets it
 
     async def __call__(self, scope, receive, send) -> None:
         if scope["type"] != "http":
@@ -54,6 +58,10 @@ class TsdbApp(FastAPI):
     async def dispatch(self, scope, receive, send) -> None:
         if notify.is_notification(scope):
             await notify.serve_notification(self, scope, receive, send)
+            return
+        matched = self.fast.match(scope)
+        if matched is not None:
+            await self.fast.serve(self, scope, receive, send, matched)
             return
         await super().__call__(scope, receive, send)
 
@@ -105,9 +113,12 @@ def create_app(
     )
     for feature in FEATURES:
         app.include_router(feature.router)
+    app.fast = FastRoutes(quantumleap_history.router.routes, FAST_PATHS, ReadLimits.from_settings(settings))
     return app
 
 
+# The hottest reads, served ahead of the framework (``http.fastpath``).
+FAST_PATHS = tuple(route.path for route in quantumleap_history.ROUTES)
 # Every feature with routes, in the order the router tries them.
 FEATURES = (operator, notify, quantumleap, grafana, export, ui, ngsild)
 # The component schemas their routes refer to (each feature's ``openapi.SCHEMAS``).

@@ -79,10 +79,21 @@ def client_disconnected(request: Request) -> JSON:
     )
 
 
+def error_response(request: Request, exc: TsdbError) -> JSON:
+    """A ``TsdbError`` as the answer of the API the path belongs to."""
+    return _error(request, exc.error, exc.description, exc.status, exc.ld_type)
+
+
+def unexpected_response(request: Request, exc: BaseException) -> JSON:
+    """A bug: 500, the internals in the log under a request id, never in the answer."""
+    request_id, body = internal_error(f"unhandled error in {request.method} {request.url.path}", exc)
+    return _error(request, body["error"], body["description"], 500, "InternalError", {REQUEST_ID_HEADER: request_id})
+
+
 def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(TsdbError)
     async def tsdb_error(request: Request, exc: TsdbError) -> JSON:
-        return _error(request, exc.error, exc.description, exc.status, exc.ld_type)
+        return error_response(request, exc)
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError) -> JSON:
@@ -107,7 +118,4 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(Exception)
     async def unexpected(request: Request, exc: Exception) -> JSON:
-        request_id, body = internal_error(f"unhandled error in {request.method} {request.url.path}", exc)
-        return _error(
-            request, body["error"], body["description"], 500, "InternalError", {REQUEST_ID_HEADER: request_id}
-        )
+        return unexpected_response(request, exc)
