@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/ingest_ab.py base TSDB_WAL_CHECKPOINT_BYTES=16777216
     .venv/bin/python benchmarks/ingest_ab.py --connections 16 --rounds 5 base TSDB_WRITER_THREADS=2
     .venv/bin/python benchmarks/ingest_ab.py --copy-db /tmp/big.duckdb base TSDB_WAL_CHECKPOINT_BYTES=16777216
+    .venv/bin/python benchmarks/ingest_ab.py --backend postgresql --workers 2 base TSDB_WRITER_THREADS=1
 
 Each variant is ``base`` (the defaults) or ``KEY=VALUE[,KEY=VALUE...]``
 added to the server's environment. A round starts one fresh server per
@@ -21,6 +22,7 @@ server's CPU per notification" before a default changes.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import shutil
 import sys
 import tempfile
@@ -29,7 +31,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import common
-import compare
+import loads
 import wrkrun
 
 
@@ -43,15 +45,27 @@ def variant_env(spec: str) -> dict[str, str]:
     return dict(pairs)
 
 
-def one_run(spec: str, tag: str, connections: int, duration: float, warmup: float, copy_db: str | None) -> dict:
+def one_run(
+    spec: str,
+    tag: str,
+    connections: int,
+    duration: float,
+    warmup: float,
+    copy_db: str | None,
+    cluster=None,
+    workers: int = 1,
+) -> dict:
+    """One fresh server on a new DuckDB file, or a new database of ``cluster``."""
     work = Path(tempfile.mkdtemp(prefix="ingest-ab-"))
-    db = work / "db.duckdb"
-    if copy_db:
+    db: Path | str = work / "db.duckdb"
+    if cluster is not None:
+        db = cluster.cluster.database(f"ab{tag}_{abs(hash(spec)) % 10**6}")
+    elif copy_db:
         shutil.copy(copy_db, db)
     port = common.free_port()
-    server = common.spawned("ab", common.ours_cmd(db, port), port, work, variant_env(spec)).start()
+    server = common.spawned("ab", common.ours_cmd(db, port, workers), port, work, variant_env(spec)).start()
     try:
-        make = compare.ingest_load(server.url, f"ab{tag}", [])
+        make = loads.ingest_load(server.url, f"ab{tag}", [])
         if warmup > 0:
             wrkrun.run(server.url, make("w")[0], connections, warmup)
         cpu0 = server.cpu_seconds()
@@ -78,14 +92,30 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=float, default=2.0)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--copy-db", help="start every run from a copy of this DuckDB file")
+    parser.add_argument("--backend", choices=["duckdb", "postgresql"], default="duckdb")
+    parser.add_argument("--workers", type=int, default=1, help="server processes (PostgreSQL only)")
     parser.add_argument("--json", help="write every run here")
     args = parser.parse_args(argv)
     if wrkrun.ensure_wrk() is None:
         raise SystemExit("wrk is needed (apt-get install wrk)")
     runs: dict[str, list[dict]] = {spec: [] for spec in args.variants}
+    with contextlib.ExitStack() as stack:
+        cluster = None
+        if args.backend == "postgresql":
+            from pgutil import BenchCluster
+
+            cluster = stack.enter_context(BenchCluster())
+        _rounds(args, runs, cluster)
+    _report(args, runs)
+    return 0
+
+
+def _rounds(args, runs: dict[str, list[dict]], cluster) -> None:
     for r in range(args.rounds):
         for spec in args.variants:
-            got = one_run(spec, f"{r}", args.connections, args.duration, args.warmup, args.copy_db)
+            got = one_run(
+                spec, f"{r}", args.connections, args.duration, args.warmup, args.copy_db, cluster, args.workers
+            )
             runs[spec].append(got)
             print(
                 f"round {r + 1}  {spec:40s} {got['rps']:8,.0f}/s  p50 {got['p50_ms']:6.1f}  "
@@ -93,6 +123,9 @@ def main(argv: list[str] | None = None) -> int:
                 f"(load {common.load_text(common.loadavg(1))})",
                 flush=True,
             )
+
+
+def _report(args, runs: dict[str, list[dict]]) -> None:
     rounds = f"{args.rounds} round{'s' if args.rounds != 1 else ''}"
     print(f"\n{args.connections} connections, {rounds} of {args.duration:g} s; medians [min-max]:")
     for spec, got in runs.items():
@@ -103,7 +136,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {spec:40s} rate {cells[0]}/s  p50 {cells[1]} ms  p99 {cells[2]} ms  CPU {cells[3]} ms/notification")
     if args.json:
         common.write_json(args.json, {"connections": args.connections, "copy_db": args.copy_db, "runs": runs})
-    return 0
 
 
 if __name__ == "__main__":
