@@ -233,10 +233,11 @@ def _resolve(group: list[_Waiter], error: BaseException | None) -> None:
             by_loop.setdefault(waiter.loop, []).append(waiter.future)
     for loop, futures in by_loop.items():
         with contextlib.suppress(RuntimeError):  # loop already closed: nobody is waiting any more
-            loop.call_soon_threadsafe(_settle, futures, error)
+            loop.call_soon_threadsafe(settle, futures, error)
 
 
-def _settle(futures: list[asyncio.Future], error: BaseException | None) -> None:
+def settle(futures: list[asyncio.Future], error: BaseException | None) -> None:
+    """Settle waiting futures on their loop: the result, or ``error``."""
     for future in futures:
         if future.done():
             continue

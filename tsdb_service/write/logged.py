@@ -57,7 +57,7 @@ from tsdb_service.core.errors import Unavailable
 from tsdb_service.core.model import EntitySample
 from tsdb_service.write import codec
 from tsdb_service.write.appender import Appender
-from tsdb_service.write.committer import CommitObserver, GroupCommitter
+from tsdb_service.write.committer import CommitObserver, GroupCommitter, settle
 from tsdb_service.write.log import IngestLog, LogError
 from tsdb_service.write.ops import AppendSamples, WriteOp
 
@@ -242,7 +242,7 @@ class LoggedWriter:
             by_loop.setdefault(loop, []).append(future)
         for loop, futures in by_loop.items():
             with contextlib.suppress(RuntimeError):  # loop closed: nobody waits
-                loop.call_soon_threadsafe(_resolve, futures, error)
+                loop.call_soon_threadsafe(settle, futures, error)
 
     # -- the applier thread ----------------------------------------------------------------------
 
@@ -373,13 +373,3 @@ def _merged(ops: list[AppendSamples]) -> list[AppendSamples]:
         else:
             out.append(op)
     return out
-
-
-def _resolve(futures: list[asyncio.Future], error: BaseException | None) -> None:
-    for future in futures:
-        if future.done():
-            continue
-        if error is None:
-            future.set_result(None)
-        else:
-            future.set_exception(error)
