@@ -155,6 +155,7 @@ class TemporalQuery:
     limit: int = 20
     offset: int = 0
     count: bool = False
+    descending: bool = False  # orderBy=id;desc
     local: bool = False
 
     @property

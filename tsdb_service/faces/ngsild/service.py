@@ -7,11 +7,12 @@ Runs in the threadpool (database calls, maybe a context fetch).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from tsdb_service.core.errors import NonexistentTenant, ResourceNotFound
-from tsdb_service.core.query import InstanceRow, InstanceWindow
+from tsdb_service.core.query import ANY_INSTANCE, InstanceRow, InstanceWindow, ValueTest
 from tsdb_service.core.timefmt import ld_iso as iso
+from tsdb_service.faces.ngsild import qlang
 from tsdb_service.faces.ngsild.aggregate import Aggregator
 from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.fetch import EntityKey, Fetcher
@@ -34,35 +35,114 @@ def run(querier: TemporalReads, terms: TermMap, query: TemporalQuery, cap: int) 
         raise NonexistentTenant(f"tenant {query.tenant!r} has no data")
     located = fetcher.located(query)
     by_entity = located[0] if located is not None else fetcher.series(query)
-    if query.entity_id is not None and not by_entity:
-        raise ResourceNotFound(f"no temporal evolution of entity {query.entity_id!r}")
+    if query.entity_id is not None:
+        return _retrieve(fetcher, query, by_entity, cap, terms)
+    iris = fetcher.attr_iris([r for refs in by_entity.values() for r in refs])
+    keys = _with_attrs(query, by_entity, iris)
+    # Whether each entity has an instance in the window is learnt from its
+    # page's read when the page holds every match and shows every series
+    # that decides it; otherwise it is asked first, with q's reads.
+    whole = query.offset == 0 and len(keys) <= query.limit and query.pick is None and query.omit is None
+    alive = None if whole or _alive_implied(query) else _alive(fetcher, query, by_entity, iris, keys)
+    if keys and (query.geo is not None or query.q is not None or alive is not None):
+        located_sids = None if located is None else located[1]
+        keys = sorted(
+            fetcher.matching(query, {k: by_entity[k] for k in keys}, iris, located_sids, alive),
+            reverse=query.descending,
+        )
+    page_keys = keys[query.offset : query.offset + query.limit]
+    selected = {key: fetcher.selected(query, by_entity[key], iris) for key in page_keys}
+    rendered, content_range = _read(querier, fetcher, query, selected, iris, cap)
+    count = len(keys)
+    if whole:
+        empty = [key for key in page_keys if not rendered.get(key)]
+        if empty and content_range is not None:  # the cut may have emptied them: ask
+            alive = _alive(fetcher, query, by_entity, iris, empty)
+            living = fetcher.matching(
+                replace(query, q=None, geo=None), {k: by_entity[k] for k in empty}, iris, None, alive
+            )
+            empty = [key for key in empty if key not in living]
+        if empty:
+            gone = set(empty)
+            page_keys = [key for key in page_keys if key not in gone]
+            count -= len(gone)
+    return TemporalResult(_entities(query, page_keys, rendered, terms), count, content_range)
+
+
+def _retrieve(fetcher: Fetcher, query: TemporalQuery, by_entity, cap: int, terms: TermMap) -> TemporalResult:
+    """One entity (``GET /temporal/entities/{id}``): 404 when it has no
+    series, none of the attributes asked for, nothing left to show after
+    ``pick``/``omit``, or no instance at all (it was deleted)."""
+    what = f"no temporal evolution of entity {query.entity_id!r}"
+    if not by_entity:
+        raise ResourceNotFound(what)
     all_refs = [r for refs in by_entity.values() for r in refs]
     iris = fetcher.attr_iris(all_refs)
-    keys = _matching(fetcher, query, by_entity, iris, None if located is None else located[1])
-    page_keys = keys if query.entity_id is not None else keys[query.offset : query.offset + query.limit]
-    selected = {key: fetcher.selected(query, by_entity[key], iris) for key in page_keys}
+    if query.attrs is not None and not any(iris[r.sid] in query.attrs for r in all_refs):
+        raise ResourceNotFound(f"entity {query.entity_id!r} has none of the attributes {', '.join(query.attrs)}")
+    keys = sorted(by_entity)
+    if query.geo is not None or query.q is not None:
+        keys = sorted(fetcher.matching(query, by_entity, iris))
+    selected = {key: fetcher.selected(query, by_entity[key], iris) for key in keys}
+    shown = {m for m in ("id", "type") if _shows(query, m)} | {iris[r.sid] for refs in selected.values() for r in refs}
+    if not shown:
+        raise ResourceNotFound(f"{what}: pick and omit leave no member of it")
+    rendered, content_range = _read(fetcher.q, fetcher, query, selected, iris, cap)
+    if not any(rendered.values()) and not fetcher.q.sids_with_samples([r.sid for r in all_refs]):
+        raise ResourceNotFound(what)
+    return TemporalResult(_entities(query, keys, rendered, terms), len(keys), content_range)
+
+
+def _shows(query: TemporalQuery, member: str) -> bool:
+    """Does the projection keep ``id`` or ``type``?"""
+    return (query.pick is None or member in query.pick) and member not in (query.omit or ())
+
+
+def _alive_implied(query: TemporalQuery) -> bool:
+    """Does matching ``q`` or the geo-query already prove an instance in the
+    window of a series ``_alive`` would ask about? ``q`` has no negation,
+    so a holding ``q`` has a holding term, which an instance of its
+    attribute in the window satisfied; a geo-query, a location instance."""
+    if query.dataset_ids is not None or (query.q is None and query.geo is None):
+        return False
+    attrs = None if query.attrs is None else set(query.attrs)
+    if query.q is not None and (attrs is None or all(t.attr in attrs for t in qlang.terms(query.q))):
+        return True
+    return query.geo is not None and (attrs is None or query.geo.geoproperty in attrs)
+
+
+def _alive(fetcher: Fetcher, query: TemporalQuery, by_entity, iris, keys) -> tuple[list[int], ValueTest]:
+    """The series whose instances in the window make an entity part of a
+    query's answer (those of ``attrs`` and ``datasetId``; ``pick`` and
+    ``omit`` only shape it), and the test an instance must pass: any
+    instance, or for aggregation one with a value (deletions are not
+    aggregated)."""
+    shaped = replace(query, pick=None, omit=None)
+    sids = [r.sid for key in keys for r in fetcher.selected(shaped, by_entity[key], iris)]
+    return sids, ValueTest(ANY_INSTANCE) if query.format is not Format.AGGREGATED else ValueTest()
+
+
+def _read(querier: TemporalReads, fetcher: Fetcher, query: TemporalQuery, selected, iris, cap: int):
+    """The page's instances or aggregates, rendered per entity (an entity
+    without any in the window maps to ``{}``), and the 206 range."""
     sids = [r.sid for refs in selected.values() for r in refs]
-    content_range = None
     if query.format is Format.AGGREGATED:
         agg = query.aggregation
         assert agg is not None, "the parser gives format=aggregated its aggregation"
         periods = Aggregator(fetcher).run(sids, query.window, agg)
-        rendered = _aggregated(agg.methods, selected, iris, periods)
-    else:
-        rows, content_range = _instances(querier, query, sids, cap)
-        rendered = _instances_rendered(query, selected, iris, rows)
-    entities = _entities(query, page_keys, rendered, terms)
-    return TemporalResult(entities, len(keys), content_range)
+        return _aggregated(agg.methods, selected, iris, periods), None
+    rows, content_range = _instances(querier, query, sids, cap)
+    return _instances_rendered(query, selected, iris, rows), content_range
 
 
-def _matching(fetcher: Fetcher, query: TemporalQuery, by_entity, iris, located: list[int] | None) -> list[EntityKey]:
-    keys = set(by_entity)
-    if query.attrs is not None and query.entity_id is None:
-        wanted = set(query.attrs)
-        keys = {k for k in keys if any(iris[r.sid] in wanted for r in by_entity[k])}
-    if (query.geo is not None or query.q is not None) and keys:
-        keys = fetcher.matching(query, {k: by_entity[k] for k in keys}, iris, located)
-    return sorted(keys)
+def _with_attrs(query: TemporalQuery, by_entity, iris) -> list[EntityKey]:
+    """The entities in the query's order; with ``attrs``, those that have one of them."""
+    keys = by_entity if query.attrs is None else _having(by_entity, iris, set(query.attrs))
+    return sorted(keys, reverse=query.descending)
+
+
+def _having(by_entity, iris, wanted: set[str]) -> list[EntityKey]:
+    return [k for k, refs in by_entity.items() if any(iris[r.sid] in wanted for r in refs)]
 
 
 def _instances(
