@@ -7,7 +7,7 @@ from datetime import UTC, datetime
 
 import pytest
 
-from tsdb_service.core.errors import BadRequestData, OperationNotSupported, TooManyResults
+from tsdb_service.core.errors import BadRequestData, InvalidRequest, OperationNotSupported, TooManyResults
 from tsdb_service.faces.ngsild.context import DEFAULT_VOCAB, ContextStore
 from tsdb_service.faces.ngsild.params import parse_duration, parse_types, query_from_body, query_from_params
 from tsdb_service.faces.ngsild.query import Duration, Format, TimeProperty, TypeAnd, TypeName, TypeOr
@@ -46,11 +46,16 @@ def test_timerel_windows_are_half_open():
         {"type": "V", "lastN": "0"},
         {"type": "V", "lastN": "-1"},
         {"type": "V", "limit": "x"},
-        {"type": "V", "options": "fancy"},
-        {"type": "V", "format": "keyValues"},
         {"type": "V", "format": "aggregatedValues"},
         {"type": "V", "format": "aggregatedValues", "aggrMethods": "median"},
-        {"type": "V", "aggrMethods": "sum"},
+        {"type": "V", "aggrMethods": "median"},
+        {"type": "V", "aggrPeriodDuration": "1 hour"},
+        {"type": "V", "timerel": "after", "timeAt": "2018-08-01"},
+        {"type": "V", "attrs": "speed", "pick": "id"},
+        {"type": "V", "attrs": "speed", "omit": "name"},
+        {"type": "V", "pick": "id,speed", "omit": "speed"},
+        {"type": "V", "orderBy": "id;up"},
+        {"type": "V", "orderBy": "id,name"},
         {"type": "V", "q": "speed>"},
         {"type": "(V"},
         {"type": "V;;W"},
@@ -71,6 +76,26 @@ def test_timerel_windows_are_half_open():
 def test_bad_requests(params):
     with pytest.raises(BadRequestData):
         q(**params)
+
+
+@pytest.mark.parametrize("params", [{"options": "fancy"}, {"format": "keyValues"}, {"options": "temporalValues,x"}])
+def test_unknown_representations_are_invalid_requests(params):
+    """Clause 6.3.6: a parameter value outside its grammar is an InvalidRequest."""
+    with pytest.raises(InvalidRequest):
+        q(type="V", **params)
+
+
+def test_aggregation_parameters_wait_for_aggregation():
+    """``format`` wins over ``options``; aggrMethods without aggregation are
+    checked, not used (the ETSI suite's 021_19_02)."""
+    query = q(type="V", options="aggregatedValues", format="temporalValues", aggrMethods="sum")
+    assert query.format is Format.TEMPORAL_VALUES and query.aggregation is None
+
+
+def test_order_by_id_either_way():
+    assert q(type="V", orderBy="id").descending is False
+    assert q(type="V", orderBy="id;asc").descending is False
+    assert q(type="V", orderBy="id;desc").descending is True
 
 
 def test_limits_and_unsupported():
@@ -135,9 +160,9 @@ def test_bad_durations(bad):
 
 
 def test_pick_omit_attrs_dataset_paging():
+    assert q(type="V", attrs="speed,name").wanted_attrs == (V + "speed", V + "name")
     query = q(
         type="V",
-        attrs="speed,name",
         pick="id,speed",
         omit="name",
         datasetId="urn:ds:1,@none",

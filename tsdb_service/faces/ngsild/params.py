@@ -15,8 +15,9 @@ from collections.abc import Mapping
 from dataclasses import replace
 from decimal import Decimal, InvalidOperation
 from typing import Any
+from urllib.parse import unquote
 
-from tsdb_service.core.errors import BadRequest, BadRequestData, OperationNotSupported, TooManyResults
+from tsdb_service.core.errors import BadRequest, BadRequestData, InvalidRequest, OperationNotSupported, TooManyResults
 from tsdb_service.faces.ngsild import qlang
 from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.geoquery import parse_ld_geo
@@ -35,10 +36,12 @@ from tsdb_service.faces.ngsild.query import (
     TypeOr,
     Window,
 )
+from tsdb_service.parse.names import name_problem
 from tsdb_service.parse.request_context import MAX_IDS, id_pattern, int_param, parse_time
 
 MAX_LIST = 1000
 MAX_ID_LENGTH = 2048
+_URI = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*:\S+\Z")
 _DURATION = re.compile(
     r"^P(?:(\d+)Y)?(?:(\d+)M)?(?:(\d+)W)?(?:(\d+)D)?(?:T(?:(\d+)H)?(?:(\d+)M)?(?:(\d+(?:[.,]\d+)?)S)?)?$"
 )
@@ -77,6 +80,7 @@ def query_from_params(
     )
     if query.last_n is not None and query.first_n is not None:
         raise BadRequestData("lastN and firstN exclude each other")
+    check_projection(query)
     query = _representation(query, get("options"), get("format"), get("aggrMethods"), get("aggrPeriodDuration"))
     query = _paging(query, params, limits)
     _refuse_unsupported(params)
@@ -139,12 +143,31 @@ def query_from_body(
         last_n=_positive(_text(temporal.get("lastN", body.get("lastN", params.get("lastN")))), "lastN"),
         local=_flag(_text(body.get("local", params.get("local"))), "local"),
     )
-    methods = _joined(body.get("aggrMethods"), "aggrMethods") or params.get("aggrMethods")
-    period = body.get("aggrPeriodDuration") or params.get("aggrPeriodDuration")
-    query = _representation(query, params.get("options"), params.get("format"), methods, period)
+    check_projection(query)
+    methods = (
+        _joined(temporal.get("aggrMethods"), "aggrMethods")
+        or _joined(body.get("aggrMethods"), "aggrMethods")
+        or params.get("aggrMethods")
+    )
+    period = temporal.get("aggrPeriodDuration") or body.get("aggrPeriodDuration") or params.get("aggrPeriodDuration")
+    options, fmt = params.get("options"), params.get("format")
+    if methods not in (None, "") and options in (None, "") and fmt in (None, ""):
+        fmt = Format.AGGREGATED.value  # a TemporalQuery's aggrMethods ask for aggregation (clause 5.2.21)
+    query = _representation(query, options, fmt, methods, period)
     query = _paging(query, params, limits)
     require_filter(query)
     return query
+
+
+def check_projection(query: TemporalQuery) -> None:
+    """Clause 4.21: ``pick`` and ``omit`` name no member in common, and
+    neither goes with ``attrs`` (which they replace)."""
+    if query.attrs is not None and (query.pick is not None or query.omit is not None):
+        raise BadRequestData("attrs cannot be combined with pick or omit: pick and omit replace it")
+    if query.pick is not None and query.omit is not None:
+        both = [m for m in query.pick if m in query.omit]
+        if both:
+            raise BadRequestData(f"pick and omit both name {both[0][:80]!r}")
 
 
 def require_filter(query: TemporalQuery) -> None:
@@ -153,6 +176,29 @@ def require_filter(query: TemporalQuery) -> None:
     has_type = any(s.types is not None for s in query.selectors)
     if not (has_type or query.attrs is not None or query.q is not None or query.geo is not None or query.local):
         raise BadRequestData("a temporal query needs at least one of type, attrs, q, a geo-query or local=true")
+
+
+# --- ids and names in a URL path -------------------------------------------------
+
+
+def uri(value: Any, what: str) -> str:
+    """An entity id or instanceId: a URI (clause 4.5.1), else BadRequestData."""
+    if type(value) is not str or len(value) > MAX_ID_LENGTH or not _URI.match(value):
+        raise BadRequestData(f"{what} must be a URI, not {str(value)[:200]!r}")
+    return value
+
+
+def attribute_name(value: str) -> str:
+    """An attribute name from a URL path segment, else BadRequestData
+    (clause 5.6.13.4): one the ingest could have stored (``parse.names``),
+    and no dot segment even once its percent triplets are decoded (a
+    relative reference would resolve it to another resource)."""
+    problem = name_problem(value)
+    if problem is None and unquote(value).strip() in (".", ".."):
+        problem = "is a dot segment"
+    if problem is not None:
+        raise BadRequestData(f"attribute name {value[:200]!r} {problem}")
+    return value
 
 
 # --- the temporal query -----------------------------------------------------------
@@ -192,6 +238,9 @@ def window(timerel, time_at, end_time_at, timeproperty) -> Window:
 def _time(raw: Any, name: str):
     if not isinstance(raw, str):
         raise BadRequestData(f"{name} must be a date-time string")
+    text = raw.strip().strip('"')
+    if len(text) < 11 or text[10] not in "Tt":
+        raise BadRequestData(f"{name} must be a DateTime (clause 4.6.3) such as 2024-05-01T10:00:00Z, not {raw[:80]!r}")
     try:
         return parse_time(raw, name)
     except BadRequest as exc:
@@ -322,11 +371,14 @@ def geo_query(georel, geometry, coordinates, geoproperty, terms: TermMap) -> Geo
 
 def _representation(query: TemporalQuery, options, fmt, methods, period) -> TemporalQuery:
     """``format`` wins over ``options``; ``temporalValues,aggregatedValues``
-    together mean aggregation (a common Grafana plugin sends both)."""
+    together mean aggregation (a common Grafana plugin sends both). An
+    unknown ``format`` or option is an InvalidRequest (a parameter value
+    outside its grammar); ``aggrMethods`` and ``aggrPeriodDuration`` are
+    checked, and used only when aggregating."""
     opts = _list(options, "options") or ()
     unknown = [o for o in opts if o not in OPTIONS]
     if unknown:
-        raise BadRequestData(f"unknown options: {', '.join(o[:40] for o in unknown)}")
+        raise InvalidRequest(f"unknown options: {', '.join(o[:40] for o in unknown)}; use {', '.join(OPTIONS)}")
     if "concise" in opts or fmt == "concise":
         raise OperationNotSupported(
             "the concise temporal representation is not supported: use normalized, temporalValues or aggregatedValues"
@@ -334,9 +386,9 @@ def _representation(query: TemporalQuery, options, fmt, methods, period) -> Temp
     chosen = Format.NORMALIZED
     if fmt not in (None, ""):
         try:
-            chosen = Format(fmt) if fmt != "normalized" else Format.NORMALIZED
+            chosen = Format(fmt)
         except ValueError:
-            raise BadRequestData(
+            raise InvalidRequest(
                 f"format must be normalized, temporalValues or aggregatedValues, not {str(fmt)[:40]!r}"
             ) from None
     elif "aggregatedValues" in opts:
@@ -346,8 +398,10 @@ def _representation(query: TemporalQuery, options, fmt, methods, period) -> Temp
     aggregation = None
     if chosen is Format.AGGREGATED:
         aggregation = Aggregation(_methods(methods), parse_duration(period))
-    elif methods not in (None, "") or period not in (None, ""):
-        raise BadRequestData("aggrMethods and aggrPeriodDuration need format=aggregatedValues")
+    else:
+        if methods not in (None, ""):
+            _methods(methods)
+        parse_duration(period)
     return replace(
         query,
         format=chosen,
@@ -396,12 +450,29 @@ def _paging(query: TemporalQuery, params: Mapping[str, str], limits: tuple[int, 
         raise TooManyResults(f"limit must be at most {max_limit}")
     offset = _non_negative(params.get("offset"), "offset") or 0
     count = _flag(params.get("count"), "count") or query.count
-    order = params.get("orderBy")
-    if order not in (None, "", "id"):
-        raise BadRequestData(f"orderBy supports only id, not {order[:40]!r}")
+    descending = _order(params.get("orderBy"))
     if limit == 0 and not count:
         raise BadRequestData("limit=0 needs count=true")
-    return replace(query, limit=default_limit if limit is None else limit, offset=offset, count=count)
+    limit = default_limit if limit is None else limit
+    return replace(query, limit=limit, offset=offset, count=count, descending=descending)
+
+
+def _order(raw: str | None) -> bool:
+    """``orderBy`` (clause 4.23): the temporal query orders by ``id`` only
+    (clause 5.7.4.4: any other member is a BadRequestData), ascending or,
+    with ``id;desc``, descending. True: descending."""
+    if raw in (None, ""):
+        return False
+    items = [item.strip() for item in str(raw).split(",")]
+    directions = set()
+    for item in items:
+        member, _, direction = item.partition(";")
+        if member.strip() != "id" or direction.strip() not in ("", "asc", "desc"):
+            raise BadRequestData(f"orderBy orders temporal entities by id only (id, id;asc, id;desc), not {raw[:80]!r}")
+        directions.add(direction.strip() == "desc")
+    if len(directions) > 1:
+        raise BadRequestData(f"orderBy names id twice in two directions: {raw[:80]!r}")
+    return directions.pop()
 
 
 def _refuse_unsupported(params: Mapping[str, str]) -> None:
