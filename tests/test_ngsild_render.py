@@ -37,7 +37,7 @@ def test_simplified_temporal_values(vehicles):
         ],
     }
     assert got["isParked"]["objects"][0] == ["urn:ngsi-ld:OffStreetParking:0", "2018-08-01T12:12:00Z"]
-    assert got["name"]["languageMaps"][2] == [{"en": "car 2", "es": "coche 2"}, "2018-08-01T12:16:00Z"]
+    assert got["name"]["languageMaps"][2] == [{"languageMap": {"en": "car 2", "es": "coche 2"}}, "2018-08-01T12:16:00Z"]
     assert got["location"]["type"] == "GeoProperty" and len(got["location"]["values"]) == 3
     same = get(vehicles, path=f"{ENTITIES}/{A8311}", params={"format": "temporalValues", "options": "normalized"})
     assert same.json() == got

@@ -23,7 +23,7 @@ from typing import Any
 
 import orjson
 
-from tsdb_service.core.model import instance_urn
+from tsdb_service.core.model import client_instance_id, instance_urn
 from tsdb_service.faces.ngsild.aggregate import iso, type_name
 from tsdb_service.history.service import decode
 
@@ -39,6 +39,11 @@ MEMBERS = {
     "VocabProperty": ("vocab", "vocabs"),
     "JsonProperty": ("json", "jsons"),
 }
+# In the simplified form these values keep their member (Stellio's form, the
+# one the ETSI suite checks): [{"languageMap": {...}}, time], [{"json": ...},
+# time], [{"vocab": "..."}, time]; a bare object could not be told from a
+# Property's value.
+WRAPPED = frozenset({"LanguageProperty", "JsonProperty", "VocabProperty"})
 _OWN_MEMBERS = frozenset(
     {"type", "observedAt", "createdAt", "modifiedAt", "deletedAt", "datasetId", "instanceId"}
     | {m for pair in MEMBERS.values() for m in pair}
@@ -85,7 +90,7 @@ def normalized_instance(row, sys_attrs: bool) -> dict:
     attr_type = ld_type(row)
     out: dict[str, Any] = {"type": attr_type, MEMBERS[attr_type][0]: value_of(row, attr_type)}
     out.update(sub_properties(row))
-    out["instanceId"] = instance_urn(row.iid)
+    out["instanceId"] = client_instance_id(row.md) or instance_urn(row.iid)
     out["observedAt"] = _time(row.observed_at or row.t)
     if row.dataset_id is not None:
         out["datasetId"] = row.dataset_id
@@ -110,10 +115,12 @@ def simplified(rows: list) -> dict | list[dict]:
     out = []
     for dataset, group in _by_dataset(rows):
         attr_type = ld_type(group[0])
-        item: dict[str, Any] = {
-            "type": attr_type,
-            MEMBERS[attr_type][1]: [[value_of(r, attr_type), iso(r.at)] for r in group],
-        }
+        member = MEMBERS[attr_type][0]
+        if attr_type in WRAPPED:
+            pairs = [[{member: value_of(r, attr_type)}, iso(r.at)] for r in group]
+        else:
+            pairs = [[value_of(r, attr_type), iso(r.at)] for r in group]
+        item: dict[str, Any] = {"type": attr_type, MEMBERS[attr_type][1]: pairs}
         if dataset is not None:
             item["datasetId"] = dataset
         out.append(item)
