@@ -103,9 +103,18 @@ def test_limits_and_unsupported():
         q(type="V", limit=1001)
     with pytest.raises(OperationNotSupported):
         q(type="V", scopeQ="/Madrid")
-    for unsupported in ({"options": "concise"}, {"format": "concise"}, {"offsetN": "5"}):
-        with pytest.raises(OperationNotSupported):
-            q(type="V", **unsupported)
+    with pytest.raises(OperationNotSupported):
+        q(type="V", offsetN="5")
+    assert q(type="V", options="concise").format is q(type="V", format="concise").format is Format.CONCISE
+
+
+def test_lang_ranges_best_first():
+    assert q(type="V", lang="fr").lang == (("fr", 1.0),)
+    assert q(type="V", lang="en-GB;q=0.5, NL, *;q=0.1, de;q=0").lang == (("nl", 1.0), ("en-gb", 0.5), ("*", 0.1))
+    for bad in ("", "fr;q=2", "*x", "en_GB", "fr;quality=1"):
+        if bad:
+            with pytest.raises(BadRequestData):
+                q(type="V", lang=bad)
 
 
 def test_one_of_the_required_filters_is_enough():

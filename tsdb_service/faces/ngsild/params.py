@@ -77,6 +77,7 @@ def query_from_params(
         last_n=_positive(get("lastN"), "lastN"),
         first_n=_positive(get("firstN"), "firstN"),
         local=_flag(get("local"), "local"),
+        lang=languages(get("lang")),
     )
     if query.last_n is not None and query.first_n is not None:
         raise BadRequestData("lastN and firstN exclude each other")
@@ -142,6 +143,7 @@ def query_from_body(
         dataset_ids=_list(_joined(body.get("datasetId"), "datasetId"), "datasetId"),
         last_n=_positive(_text(temporal.get("lastN", body.get("lastN", params.get("lastN")))), "lastN"),
         local=_flag(_text(body.get("local", params.get("local"))), "local"),
+        lang=languages(_string(body.get("lang"), "lang") or params.get("lang")),
     )
     check_projection(query)
     methods = (
@@ -368,6 +370,26 @@ def geo_query(georel, geometry, coordinates, geoproperty, terms: TermMap) -> Geo
 
 # --- representation, paging --------------------------------------------------------
 
+_LANGUAGE_RANGE = re.compile(r"(?:\*|[A-Za-z]{1,8}(?:-[A-Za-z0-9]{1,8})*)\Z")
+_QUALITY = re.compile(r"q=(?:0(?:\.\d{0,3})?|1(?:\.0{0,3})?)\Z")
+
+
+def languages(raw: str | None) -> tuple[tuple[str, float], ...] | None:
+    """``lang`` (clause 4.15): language ranges (RFC 4647, as in
+    Accept-Language: ``fr``, ``en-GB;q=0.8``, ``*``), best first."""
+    if raw in (None, ""):
+        return None
+    ranges = []
+    for i, item in enumerate(str(raw).split(",")):
+        tag, _, quality = (part.strip() for part in item.partition(";"))
+        if not _LANGUAGE_RANGE.match(tag) or (quality and not _QUALITY.match(quality)):
+            raise BadRequestData(f"lang must list language tags such as fr or en-GB;q=0.8, not {str(raw)[:80]!r}")
+        q = float(quality[2:]) if quality else 1.0
+        if q > 0:
+            ranges.append((tag.lower(), q, i))
+    ranges.sort(key=lambda r: (-r[1], r[2]))
+    return tuple((tag, q) for tag, q, _ in ranges)
+
 
 def _representation(query: TemporalQuery, options, fmt, methods, period) -> TemporalQuery:
     """``format`` wins over ``options``; ``temporalValues,aggregatedValues``
@@ -379,22 +401,20 @@ def _representation(query: TemporalQuery, options, fmt, methods, period) -> Temp
     unknown = [o for o in opts if o not in OPTIONS]
     if unknown:
         raise InvalidRequest(f"unknown options: {', '.join(o[:40] for o in unknown)}; use {', '.join(OPTIONS)}")
-    if "concise" in opts or fmt == "concise":
-        raise OperationNotSupported(
-            "the concise temporal representation is not supported: use normalized, temporalValues or aggregatedValues"
-        )
     chosen = Format.NORMALIZED
     if fmt not in (None, ""):
         try:
             chosen = Format(fmt)
         except ValueError:
             raise InvalidRequest(
-                f"format must be normalized, temporalValues or aggregatedValues, not {str(fmt)[:40]!r}"
+                f"format must be normalized, concise, temporalValues or aggregatedValues, not {str(fmt)[:40]!r}"
             ) from None
     elif "aggregatedValues" in opts:
         chosen = Format.AGGREGATED
     elif "temporalValues" in opts:
         chosen = Format.TEMPORAL_VALUES
+    elif "concise" in opts:
+        chosen = Format.CONCISE
     aggregation = None
     if chosen is Format.AGGREGATED:
         aggregation = Aggregation(_methods(methods), parse_duration(period))

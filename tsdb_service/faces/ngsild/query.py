@@ -30,6 +30,7 @@ class Format(str, Enum):
     NORMALIZED = "normalized"
     TEMPORAL_VALUES = "temporalValues"  # the simplified temporal representation
     AGGREGATED = "aggregatedValues"
+    CONCISE = "concise"  # normalized, without the types the value members say
 
 
 AGGR_METHODS = ("totalCount", "distinctCount", "sum", "avg", "min", "max", "stddev", "sumsq")
@@ -152,6 +153,7 @@ class TemporalQuery:
     format: Format = Format.NORMALIZED
     aggregation: Aggregation | None = None
     sys_attrs: bool = False
+    lang: tuple[tuple[str, float], ...] | None = None  # language ranges, best first (lowercase)
     limit: int = 20
     offset: int = 0
     count: bool = False

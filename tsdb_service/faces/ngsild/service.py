@@ -17,7 +17,7 @@ from tsdb_service.faces.ngsild.aggregate import Aggregator
 from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.fetch import EntityKey, Fetcher
 from tsdb_service.faces.ngsild.query import Format, TemporalQuery
-from tsdb_service.faces.ngsild.render import aggregated, entity, normalized, simplified
+from tsdb_service.faces.ngsild.render import Shape, aggregated, entity, normalized, simplified
 from tsdb_service.read import TemporalReads
 from tsdb_service.read.requests import InstancesRead
 
@@ -196,9 +196,10 @@ def _instances_rendered(query: TemporalQuery, selected, iris, rows) -> dict[Enti
             if ref.sid in by_sid:
                 attrs.setdefault(iris[ref.sid], []).extend(by_sid[ref.sid])
         if query.format is Format.TEMPORAL_VALUES:
-            out[key] = {iri: simplified(group) for iri, group in attrs.items()}
+            out[key] = {iri: simplified(group, query.lang) for iri, group in attrs.items()}
         else:
-            out[key] = {iri: normalized(group, query.sys_attrs) for iri, group in attrs.items()}
+            shape = Shape(query.sys_attrs, query.format is Format.CONCISE, query.lang)
+            out[key] = {iri: normalized(group, shape) for iri, group in attrs.items()}
     return out
 
 
