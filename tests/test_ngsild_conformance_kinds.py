@@ -401,3 +401,40 @@ def test_names_mean_what_the_writes_context_says(with_context):
         a["attrName"] for a in client.get(f"/v2/entities/{A}", params={"type": VOCAB + "Vehicle"}).json()["attributes"]
     }
     assert attrs == {"fuelLevel"}
+
+
+# --- scope and scopeQ ----------------------------------------------------------------
+
+
+def test_scope_is_stored_and_scope_q_selects_by_the_current_scope(client):
+    create(client, {**vehicle(A), "scope": "/Madrid/Gardens/ParqueNorte"})
+    create(client, {**vehicle(B), "scope": ["/Madrid/Centro", "/Company/Fleet"]})
+    create(client, vehicle(BUS, etype="Bus"))
+    scope = client.get(f"{BASE}/{A}", params={"attrs": "scope"}).json()["scope"]
+    assert [(i["type"], i["value"]) for i in scope] == [("Property", "/Madrid/Gardens/ParqueNorte")]
+    everything = {"type": "Vehicle,Bus", "timerel": "after", "timeAt": "2020-01-01T00:00:00Z"}
+    cases = {
+        "/Madrid/#": [A, B],
+        "/Madrid": [],
+        "/Madrid/+": [B],
+        "/+/Gardens/#": [A],
+        "/Madrid/#;/Company/#": [B],
+        "/Company/Fleet,/Madrid/Gardens/ParqueNorte": [A, B],
+        "(/Nowhere,/Company/#);/Madrid/Centro": [B],
+        "/#": [A, B],
+    }
+    for query, expected in cases.items():
+        assert ids(client.get(BASE, params={**everything, "scopeQ": query})) == expected, query
+    body = {"type": "Query", "entities": [{"type": "Vehicle"}], "scopeQ": "/Company/#"}
+    assert ids(client.post(QUERY, json=body, headers=JSON)) == [B]
+    # The scope now is the latest one.
+    assert client.post(f"{BASE}/{B}/attrs", json={"scope": "/Elsewhere"}, headers=JSON).status_code == 204
+    assert ids(client.get(BASE, params={**everything, "scopeQ": "/Company/#"})) == []
+    for bad in ("Madrid", "/Madrid/#/x", "/a;;/b", "(/a", "/a/#)"):
+        problem(client.get(BASE, params={**everything, "scopeQ": bad}), 400, "BadRequestData")
+    for bad_scope in ("Madrid", ["/ok", "/no#"], [], 5):
+        problem(
+            client.post(BASE, json={**vehicle("urn:ngsi-ld:Vehicle:s"), "scope": bad_scope}, headers=JSON),
+            400,
+            "BadRequestData",
+        )

@@ -101,8 +101,9 @@ def test_order_by_id_either_way():
 def test_limits_and_unsupported():
     with pytest.raises(TooManyResults):
         q(type="V", limit=1001)
+    assert q(type="V", scopeQ="/Madrid/#").scope_q is not None
     with pytest.raises(OperationNotSupported):
-        q(type="V", scopeQ="/Madrid")
+        q(type="V", csf="x")
     with pytest.raises(OperationNotSupported):
         q(type="V", offsetN="5")
     assert q(type="V", options="concise").format is q(type="V", format="concise").format is Format.CONCISE

@@ -18,7 +18,7 @@ from typing import Any
 from urllib.parse import unquote
 
 from tsdb_service.core.errors import BadRequest, BadRequestData, InvalidRequest, OperationNotSupported, TooManyResults
-from tsdb_service.faces.ngsild import qlang
+from tsdb_service.faces.ngsild import qlang, scope
 from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.geoquery import parse_ld_geo
 from tsdb_service.faces.ngsild.query import (
@@ -72,6 +72,7 @@ def query_from_params(
         pick=_projection(get("pick"), "pick", terms),
         omit=_projection(get("omit"), "omit", terms),
         q=parse_q(get("q"), terms),
+        scope_q=_scope_q(get("scopeQ")),
         geo=geo_query(get("georel"), get("geometry"), get("coordinates"), get("geoproperty"), terms),
         dataset_ids=_list(get("datasetId"), "datasetId"),
         last_n=_positive(get("lastN"), "lastN"),
@@ -121,8 +122,6 @@ def query_from_body(
     unknown = sorted(set(body) - known)
     if unknown:
         raise BadRequestData(f"unknown Query members: {', '.join(u[:40] for u in unknown[:5])}")
-    if body.get("scopeQ") not in (None, ""):
-        raise OperationNotSupported("scopeQ is not supported: scopes are not stored")
     temporal = body.get("temporalQ", {})
     if not isinstance(temporal, dict):
         raise BadRequestData("temporalQ must be an object")
@@ -139,6 +138,7 @@ def query_from_body(
         pick=_projection(_joined(body.get("pick"), "pick"), "pick", terms),
         omit=_projection(_joined(body.get("omit"), "omit"), "omit", terms),
         q=parse_q(_string(body.get("q"), "q"), terms),
+        scope_q=_scope_q(_string(body.get("scopeQ"), "scopeQ")),
         geo=geo_query(geo.get("georel"), geo.get("geometry"), geo.get("coordinates"), geo.get("geoproperty"), terms),
         dataset_ids=_list(_joined(body.get("datasetId"), "datasetId"), "datasetId"),
         last_n=_positive(_text(temporal.get("lastN", body.get("lastN", params.get("lastN")))), "lastN"),
@@ -358,6 +358,10 @@ def parse_q(raw: str | None, terms: TermMap) -> qlang.Node | None:
     return qlang.map_attrs(node, expanded.__getitem__)
 
 
+def _scope_q(raw: str | None) -> scope.ScopeExpr | None:
+    return None if raw in (None, "") else scope.parse(str(raw))
+
+
 def geo_query(georel, geometry, coordinates, geoproperty, terms: TermMap) -> GeoQuery | None:
     geo = parse_ld_geo(georel, geometry, coordinates)
     if geo is None:
@@ -496,8 +500,6 @@ def _order(raw: str | None) -> bool:
 
 
 def _refuse_unsupported(params: Mapping[str, str]) -> None:
-    if params.get("scopeQ") not in (None, ""):
-        raise OperationNotSupported("scopeQ is not supported: scopes are not stored")
     if params.get("csf") not in (None, ""):
         raise OperationNotSupported("csf is not supported: there are no context sources here")
     if params.get("offsetN") not in (None, ""):

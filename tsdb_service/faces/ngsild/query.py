@@ -15,6 +15,7 @@ from enum import Enum
 from typing import Any
 
 from tsdb_service.faces.ngsild.qlang import Node
+from tsdb_service.faces.ngsild.scope import ScopeExpr
 
 DEFAULT_DATASET = "@none"  # how a request names the default instance in datasetId
 
@@ -146,6 +147,7 @@ class TemporalQuery:
     pick: tuple[str, ...] | None = None
     omit: tuple[str, ...] | None = None
     q: Node | None = None
+    scope_q: ScopeExpr | None = None
     geo: GeoQuery | None = None
     dataset_ids: tuple[str, ...] | None = None
     last_n: int | None = None

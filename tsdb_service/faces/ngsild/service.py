@@ -12,14 +12,16 @@ from dataclasses import dataclass, replace
 from tsdb_service.core.errors import NonexistentTenant, ResourceNotFound
 from tsdb_service.core.query import ANY_INSTANCE, InstanceRow, InstanceWindow, ValueTest
 from tsdb_service.core.timefmt import ld_iso as iso
-from tsdb_service.faces.ngsild import qlang
+from tsdb_service.faces.ngsild import qlang, scope
 from tsdb_service.faces.ngsild.aggregate import Aggregator
 from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.fetch import EntityKey, Fetcher
 from tsdb_service.faces.ngsild.query import Format, TemporalQuery
-from tsdb_service.faces.ngsild.render import Shape, aggregated, entity, normalized, simplified
+from tsdb_service.faces.ngsild.render import Shape, aggregated, entity, normalized, simplified, value_of
 from tsdb_service.read import TemporalReads
 from tsdb_service.read.requests import InstancesRead
+
+SCOPE_IRI = "https://uri.etsi.org/ngsi-ld/scope"  # the core context's scope
 
 
 @dataclass
@@ -39,6 +41,8 @@ def run(querier: TemporalReads, terms: TermMap, query: TemporalQuery, cap: int) 
         return _retrieve(fetcher, query, by_entity, cap, terms)
     iris = fetcher.attr_iris([r for refs in by_entity.values() for r in refs])
     keys = _with_attrs(query, by_entity, iris)
+    if query.scope_q is not None:
+        keys = _in_scope(querier, query.scope_q, keys, by_entity, iris)
     # Whether each entity has an instance in the window is learnt from its
     # page's read when the page holds every match and shows every series
     # that decides it; otherwise it is asked first, with q's reads.
@@ -139,6 +143,24 @@ def _with_attrs(query: TemporalQuery, by_entity, iris) -> list[EntityKey]:
     """The entities in the query's order; with ``attrs``, those that have one of them."""
     keys = by_entity if query.attrs is None else _having(by_entity, iris, set(query.attrs))
     return sorted(keys, reverse=query.descending)
+
+
+def _in_scope(querier: TemporalReads, expr, keys: list[EntityKey], by_entity, iris) -> list[EntityKey]:
+    """Those of ``keys`` whose current scopes (their latest ``scope``
+    instance, whatever the window) satisfy ``scopeQ``."""
+    owner = {r.sid: key for key in keys for r in by_entity[key] if iris[r.sid] == SCOPE_IRI}
+    latest: dict[EntityKey, InstanceRow] = {}
+    for row in querier.temporal_instances(InstancesRead(list(owner), last_n=1)) if owner else ():
+        key = owner[row.sid]
+        if key not in latest or (row.at, row.iid) > (latest[key].at, latest[key].iid):
+            latest[key] = row
+    current = {key: value_of(row, "Property") for key, row in latest.items() if row.deleted_at is None}
+    return [
+        key
+        for key in keys
+        if isinstance(found := current.get(key), (str, list))
+        and scope.holds(expr, [found] if isinstance(found, str) else found)
+    ]
 
 
 def _having(by_entity, iris, wanted: set[str]) -> list[EntityKey]:

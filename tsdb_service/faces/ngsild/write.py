@@ -66,6 +66,7 @@ from tsdb_service.faces.ngsild import openapi as ld_oa
 from tsdb_service.faces.ngsild.context import TermMap, link_context
 from tsdb_service.faces.ngsild.params import attribute_name, uri
 from tsdb_service.faces.ngsild.routes_read import contexts
+from tsdb_service.faces.ngsild.scope import scopes
 from tsdb_service.http.store import store_of
 from tsdb_service.http.tenancy import tenant_echo, tenant_of
 from tsdb_service.parse.notification import parse_ld_instance
@@ -246,11 +247,16 @@ class _Names:
 
     def attributes(self, doc: dict) -> dict[str, Any]:
         """The body's attributes by stored name (two spellings of one
-        attribute have their instances joined)."""
+        attribute have their instances joined); the entity's ``scope``
+        (clause 4.18) as an instance of its ``scope`` Property, at the time
+        of the write (``faces.ngsild.scope``)."""
         out: dict[str, list] = {}
         for name, raw in doc.items():
             if name not in _ENTITY_KEYS:
                 out.setdefault(self.stored(name), []).extend(raw if type(raw) is list else [raw])
+        if "scope" in doc:
+            scopes(doc["scope"])  # checked, stored as sent (a string or an array)
+            out.setdefault("scope", []).append({"type": "Property", "value": doc["scope"]})
         return out
 
 
