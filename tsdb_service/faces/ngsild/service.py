@@ -8,6 +8,7 @@ Runs in the threadpool (database calls, maybe a context fetch).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from datetime import datetime
 
 from tsdb_service.core.errors import NonexistentTenant, ResourceNotFound
 from tsdb_service.core.query import ANY_INSTANCE, InstanceRow, InstanceWindow, ValueTest
@@ -24,11 +25,24 @@ from tsdb_service.read.requests import InstancesRead
 SCOPE_IRI = "https://uri.etsi.org/ngsi-ld/scope"  # the core context's scope
 
 
+@dataclass(frozen=True)
+class Cut:
+    """An answer cut at the instance cap (206): ``content_range`` (clause
+    6.3.10), and the window that continues it, ``(timerel, timeAt,
+    endTimeAt)`` (None when more than the cap share one instant), named by
+    the newer drafts' ``Link`` relation ``rel``: ``intervalafter``
+    forwards, ``intervalbefore`` backwards with ``lastN``."""
+
+    content_range: str
+    rel: str
+    window: tuple[str, datetime, datetime | None] | None
+
+
 @dataclass
 class TemporalResult:
     entities: list[dict]
     count: int  # entities matched, before paging
-    content_range: str | None = None  # set: the instances were cut (206)
+    cut: Cut | None = None  # set: the instances were cut (206)
 
 
 def run(querier: TemporalReads, terms: TermMap, query: TemporalQuery, cap: int) -> TemporalResult:
@@ -56,11 +70,11 @@ def run(querier: TemporalReads, terms: TermMap, query: TemporalQuery, cap: int) 
         )
     page_keys = keys[query.offset : query.offset + query.limit]
     selected = {key: fetcher.selected(query, by_entity[key], iris) for key in page_keys}
-    rendered, content_range = _read(querier, fetcher, query, selected, iris, cap)
+    rendered, cut = _read(querier, fetcher, query, selected, iris, cap)
     count = len(keys)
     if whole:
         empty = [key for key in page_keys if not rendered.get(key)]
-        if empty and content_range is not None:  # the cut may have emptied them: ask
+        if empty and cut is not None:  # the cut may have emptied them: ask
             alive = _alive(fetcher, query, by_entity, iris, empty)
             living = fetcher.matching(
                 replace(query, q=None, geo=None), {k: by_entity[k] for k in empty}, iris, None, alive
@@ -70,7 +84,7 @@ def run(querier: TemporalReads, terms: TermMap, query: TemporalQuery, cap: int) 
             gone = set(empty)
             page_keys = [key for key in page_keys if key not in gone]
             count -= len(gone)
-    return TemporalResult(_entities(query, page_keys, rendered, terms), count, content_range)
+    return TemporalResult(_entities(query, page_keys, rendered, terms), count, cut)
 
 
 def _retrieve(fetcher: Fetcher, query: TemporalQuery, by_entity, cap: int, terms: TermMap) -> TemporalResult:
@@ -91,10 +105,10 @@ def _retrieve(fetcher: Fetcher, query: TemporalQuery, by_entity, cap: int, terms
     shown = {m for m in ("id", "type") if _shows(query, m)} | {iris[r.sid] for refs in selected.values() for r in refs}
     if not shown:
         raise ResourceNotFound(f"{what}: pick and omit leave no member of it")
-    rendered, content_range = _read(fetcher.q, fetcher, query, selected, iris, cap)
+    rendered, cut = _read(fetcher.q, fetcher, query, selected, iris, cap)
     if not any(rendered.values()) and not fetcher.q.sids_with_samples([r.sid for r in all_refs]):
         raise ResourceNotFound(what)
-    return TemporalResult(_entities(query, keys, rendered, terms), len(keys), content_range)
+    return TemporalResult(_entities(query, keys, rendered, terms), len(keys), cut)
 
 
 def _shows(query: TemporalQuery, member: str) -> bool:
@@ -128,15 +142,15 @@ def _alive(fetcher: Fetcher, query: TemporalQuery, by_entity, iris, keys) -> tup
 
 def _read(querier: TemporalReads, fetcher: Fetcher, query: TemporalQuery, selected, iris, cap: int):
     """The page's instances or aggregates, rendered per entity (an entity
-    without any in the window maps to ``{}``), and the 206 range."""
+    without any in the window maps to ``{}``), and where they were cut."""
     sids = [r.sid for refs in selected.values() for r in refs]
     if query.format is Format.AGGREGATED:
         agg = query.aggregation
         assert agg is not None, "the parser gives format=aggregated its aggregation"
         periods = Aggregator(fetcher).run(sids, query.window, agg)
         return _aggregated(agg.methods, selected, iris, periods), None
-    rows, content_range = _instances(querier, query, sids, cap)
-    return _instances_rendered(query, selected, iris, rows), content_range
+    rows, cut = _instances(querier, query, sids, cap)
+    return _instances_rendered(query, selected, iris, rows), cut
 
 
 def _with_attrs(query: TemporalQuery, by_entity, iris) -> list[EntityKey]:
@@ -169,7 +183,7 @@ def _having(by_entity, iris, wanted: set[str]) -> list[EntityKey]:
 
 def _instances(
     querier: TemporalReads, query: TemporalQuery, sids: list[int], cap: int
-) -> tuple[list[InstanceRow], str | None]:
+) -> tuple[list[InstanceRow], Cut | None]:
     """The page's instances, at most ``cap``; past it, cut at one instant
     so no attribute is left with a gap, and say which span was served."""
     w = query.window
@@ -186,14 +200,18 @@ def _instances(
     first_out = ordered[cap].at
     kept = [r for r in ordered[:cap] if r.at != first_out] or ordered[:cap]
     edge = kept[-1].at
+    whole = edge != first_out  # no instant was split: the rest is a window of its own
     if newest_first:
         start = w.end if w.end is not None else max(r.at for r in kept)
         size = str(query.last_n)
+        rest = (("before", edge, None) if w.start is None else ("between", w.start, edge)) if whole else None
+        rel = "intervalbefore"
     else:
         start = w.start if w.start is not None else min(r.at for r in kept)
         size = "*"
-    content_range = f"date-time {iso(start)}-{iso(edge)}/{size}"
-    return kept, content_range
+        rest = (("after", first_out, None) if w.end is None else ("between", first_out, w.end)) if whole else None
+        rel = "intervalafter"
+    return kept, Cut(f"date-time {iso(start)}-{iso(edge)}/{size}", rel, rest)
 
 
 def _first_n(rows, n: int) -> list:
