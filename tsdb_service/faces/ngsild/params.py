@@ -18,7 +18,7 @@ from typing import Any
 from urllib.parse import unquote
 
 from tsdb_service.core.errors import BadRequest, BadRequestData, InvalidRequest, OperationNotSupported, TooManyResults
-from tsdb_service.faces.ngsild import qlang, scope
+from tsdb_service.faces.ngsild import boolexpr, qlang, scope
 from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.geoquery import parse_ld_geo
 from tsdb_service.faces.ngsild.query import (
@@ -30,10 +30,8 @@ from tsdb_service.faces.ngsild.query import (
     Selector,
     TemporalQuery,
     TimeProperty,
-    TypeAnd,
     TypeExpr,
     TypeName,
-    TypeOr,
     Window,
 )
 from tsdb_service.parse.names import name_problem
@@ -46,7 +44,6 @@ _DURATION = re.compile(
     r"^P(?:(\d+)Y)?(?:(\d+)M)?(?:(\d+)W)?(?:(\d+)D)?(?:T(?:(\d+)H)?(?:(\d+)M)?(?:(\d+(?:[.,]\d+)?)S)?)?$"
 )
 OPTIONS = ("temporalValues", "aggregatedValues", "sysAttrs", "keyValues", "normalized", "concise", "count")
-_TYPE_TOKEN = re.compile(r"\s*([(),;|]|[^(),;|\s]+)")
 
 
 def query_from_params(
@@ -257,53 +254,12 @@ def parse_types(raw: str | None, terms: TermMap) -> TypeExpr | None:
     AND, parentheses group; ``;`` binds tighter."""
     if raw in (None, ""):
         return None
-    tokens = _TYPE_TOKEN.findall(raw)
-    if "".join(tokens) != re.sub(r"\s+", "", raw):
-        raise BadRequestData(f"bad type expression {raw[:80]!r}")
-    names = [t for t in tokens if t not in "(),;|"]
+    found = boolexpr.tokens(raw, ",|", "type expression")
+    names = [t for t in found if t not in "(),;|"]
     if len(names) > MAX_LIST:
         raise BadRequestData(f"type lists more than {MAX_LIST} types")
     expanded = dict(zip(names, terms.expand_all(names), strict=True))
-    pos = 0
-
-    def disjunction(depth: int) -> TypeExpr:
-        nonlocal pos
-        if depth > 16:
-            raise BadRequestData("type expression nests too deeply")
-        parts = [conjunction(depth)]
-        while pos < len(tokens) and tokens[pos] in (",", "|"):
-            pos += 1
-            parts.append(conjunction(depth))
-        return parts[0] if len(parts) == 1 else TypeOr(tuple(parts))
-
-    def conjunction(depth: int) -> TypeExpr:
-        nonlocal pos
-        parts = [atom(depth)]
-        while pos < len(tokens) and tokens[pos] == ";":
-            pos += 1
-            parts.append(atom(depth))
-        return parts[0] if len(parts) == 1 else TypeAnd(tuple(parts))
-
-    def atom(depth: int) -> TypeExpr:
-        nonlocal pos
-        if pos >= len(tokens):
-            raise BadRequestData(f"type expression {raw[:80]!r} ends early")
-        token = tokens[pos]
-        pos += 1
-        if token == "(":
-            inner = disjunction(depth + 1)
-            if pos >= len(tokens) or tokens[pos] != ")":
-                raise BadRequestData(f"missing ')' in type expression {raw[:80]!r}")
-            pos += 1
-            return inner
-        if token in "),;|":
-            raise BadRequestData(f"unexpected {token!r} in type expression {raw[:80]!r}")
-        return TypeName(expanded[token], token)
-
-    expr = disjunction(0)
-    if pos != len(tokens):
-        raise BadRequestData(f"unexpected {tokens[pos]!r} in type expression {raw[:80]!r}")
-    return expr
+    return boolexpr.parse(raw, found, ",|", "type expression", lambda name: TypeName(expanded[name], name))
 
 
 def _selectors(raw: Any, terms: TermMap) -> tuple[Selector, ...]:

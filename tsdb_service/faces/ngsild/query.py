@@ -14,6 +14,7 @@ from datetime import datetime
 from enum import Enum
 from typing import Any
 
+from tsdb_service.faces.ngsild import boolexpr
 from tsdb_service.faces.ngsild.qlang import Node
 from tsdb_service.faces.ngsild.scope import ScopeExpr
 
@@ -85,32 +86,18 @@ class TypeName:
     term: str = ""  # as the request wrote it (stored names may be that term)
 
 
-@dataclass(frozen=True, slots=True)
-class TypeAnd:
-    parts: tuple[TypeExpr, ...]
-
-
-@dataclass(frozen=True, slots=True)
-class TypeOr:
-    parts: tuple[TypeExpr, ...]
-
-
-TypeExpr = TypeName | TypeAnd | TypeOr
+TypeAnd = boolexpr.All  # every part
+TypeOr = boolexpr.AnyOf  # one part
+TypeExpr = TypeName | boolexpr.All | boolexpr.AnyOf
 
 
 def type_matches(expr: TypeExpr, has: Callable[[TypeName], bool]) -> bool:
     """Does an entity satisfy ``expr``? ``has(name)`` says whether it has one type."""
-    if isinstance(expr, TypeName):
-        return has(expr)
-    if isinstance(expr, TypeAnd):
-        return all(type_matches(p, has) for p in expr.parts)
-    return any(type_matches(p, has) for p in expr.parts)
+    return boolexpr.holds(expr, has)
 
 
 def type_names(expr: TypeExpr) -> list[TypeName]:
-    if isinstance(expr, TypeName):
-        return [expr]
-    return [name for p in expr.parts for name in type_names(p)]
+    return boolexpr.leaves(expr)
 
 
 @dataclass(frozen=True, slots=True)

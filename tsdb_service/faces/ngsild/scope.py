@@ -16,17 +16,17 @@ matches, the entity's scope now) matches it.
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
 from tsdb_service.core.errors import BadRequestData
+from tsdb_service.faces.ngsild import boolexpr
 
 MAX_TERMS = 100
 _LEVEL = r"[^/#+,;()\s]{1,256}"
 _SCOPE = re.compile(rf"(?:/{_LEVEL})+\Z")
 _TERM = re.compile(rf"/#|(?:/(?:{_LEVEL}|\+))+(?:/#)?")
-_TOKEN = re.compile(r"\s*([(),;]|[^(),;\s]+)")
 
 
 def scopes(value: Any) -> list[str]:
@@ -54,79 +54,26 @@ class Term:
         return all(want in ("+", have) for want, have in zip(self.levels, levels, strict=False))
 
 
-@dataclass(frozen=True, slots=True)
-class All:
-    parts: tuple[ScopeExpr, ...]
-
-
-@dataclass(frozen=True, slots=True)
-class Any_:
-    parts: tuple[ScopeExpr, ...]
-
-
-ScopeExpr = Term | All | Any_
+ScopeExpr = Term | boolexpr.All | boolexpr.AnyOf
 
 
 def parse(raw: str) -> ScopeExpr:
     """``scopeQ``; BadRequestData when it is not one."""
-    tokens = _TOKEN.findall(raw)
-    if not tokens or "".join(tokens) != re.sub(r"\s+", "", raw):
-        raise BadRequestData(f"bad scopeQ {raw[:80]!r}")
-    if sum(t not in "(),;" for t in tokens) > MAX_TERMS:
+    found = boolexpr.tokens(raw, ",", "scopeQ")
+    if sum(t not in "(),;" for t in found) > MAX_TERMS:
         raise BadRequestData(f"scopeQ has more than {MAX_TERMS} terms")
-    pos = 0
+    return boolexpr.parse(raw, found, ",", "scopeQ", _term)
 
-    def either(depth: int) -> ScopeExpr:
-        nonlocal pos
-        if depth > 16:
-            raise BadRequestData("scopeQ nests too deeply")
-        parts = [both(depth)]
-        while pos < len(tokens) and tokens[pos] == ",":
-            pos += 1
-            parts.append(both(depth))
-        return parts[0] if len(parts) == 1 else Any_(tuple(parts))
 
-    def both(depth: int) -> ScopeExpr:
-        nonlocal pos
-        parts = [atom(depth)]
-        while pos < len(tokens) and tokens[pos] == ";":
-            pos += 1
-            parts.append(atom(depth))
-        return parts[0] if len(parts) == 1 else All(tuple(parts))
-
-    def atom(depth: int) -> ScopeExpr:
-        nonlocal pos
-        if pos >= len(tokens):
-            raise BadRequestData(f"scopeQ {raw[:80]!r} ends early")
-        token = tokens[pos]
-        pos += 1
-        if token == "(":
-            inner = either(depth + 1)
-            if pos >= len(tokens) or tokens[pos] != ")":
-                raise BadRequestData(f"missing ')' in scopeQ {raw[:80]!r}")
-            pos += 1
-            return inner
-        if not _TERM.fullmatch(token):
-            raise BadRequestData(f"bad scopeQ term {token[:80]!r}: /level/level, + for one level, /# for all below")
-        below = token.endswith("/#")
-        path = token[:-2] if below else token
-        return Term(tuple(path.split("/")[1:]) if path else (), below)
-
-    expr = either(0)
-    if pos != len(tokens):
-        raise BadRequestData(f"unexpected {tokens[pos][:40]!r} in scopeQ {raw[:80]!r}")
-    return expr
+def _term(token: str) -> Term:
+    if not _TERM.fullmatch(token):
+        raise BadRequestData(f"bad scopeQ term {token[:80]!r}: /level/level, + for one level, /# for all below")
+    below = token.endswith("/#")
+    path = token[:-2] if below else token
+    return Term(tuple(path.split("/")[1:]) if path else (), below)
 
 
 def holds(expr: ScopeExpr, entity_scopes: Iterable[str]) -> bool:
     """Does an entity with these scopes satisfy ``expr``?"""
     have = list(entity_scopes)
-    return _eval(expr, lambda term: any(term.matches(s) for s in have))
-
-
-def _eval(expr: ScopeExpr, test: Callable[[Term], bool]) -> bool:
-    if isinstance(expr, Term):
-        return test(expr)
-    if isinstance(expr, All):
-        return all(_eval(p, test) for p in expr.parts)
-    return any(_eval(p, test) for p in expr.parts)
+    return boolexpr.holds(expr, lambda term: any(term.matches(s) for s in have))
