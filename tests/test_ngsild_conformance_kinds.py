@@ -277,6 +277,11 @@ def test_answers_hold_only_the_entities_asked_for(fleet):
     counted = fleet.get(BASE, params={"type": "Vehicle,Bus", "count": "true", **everything})
     assert ids(counted) == [BUS, B] and counted.headers["NGSILD-Results-Count"] == "2"
     assert ids(fleet.get(BASE, params={"type": "Vehicle", "limit": "1", **everything})) == [B]
+    # Past one page: the entities are asked about first (all of them to count).
+    first = fleet.get(BASE, params={"type": "Vehicle,Bus", "limit": "1", **everything})
+    assert ids(first) == [BUS] and 'rel="next"' in first.headers["Link"]
+    last = fleet.get(BASE, params={"type": "Vehicle,Bus", "limit": "1", "offset": "1", "count": "true", **everything})
+    assert ids(last) == [B] and last.headers["NGSILD-Results-Count"] == "2" and 'rel="next"' not in last.headers["Link"]
     # An attribute deleted everywhere takes its entities out of attrs queries.
     assert fleet.delete(f"{BASE}/{BUS}/attrs/fuelLevel").status_code == 204
     assert ids(fleet.get(BASE, params={"attrs": "fuelLevel", **everything})) == [B]

@@ -59,11 +59,17 @@ def run(querier: TemporalReads, terms: TermMap, query: TemporalQuery, cap: int) 
         keys = _in_scope(querier, query.scope_q, keys, by_entity, iris)
     # Whether each entity has an instance in the window is learnt from its
     # page's read when the page holds every match and shows every series
-    # that decides it; otherwise it is asked first, with q's reads.
+    # that decides it; otherwise it is asked first: with q's reads, or
+    # without q and geo a few entities at a time, in order, until the page
+    # and one more are found (all of them only for count=true).
     whole = query.offset == 0 and len(keys) <= query.limit and query.pick is None and query.omit is None
-    alive = None if whole or _alive_implied(query) else _alive(fetcher, query, by_entity, iris, keys)
-    if keys and (query.geo is not None or query.q is not None or alive is not None):
+    ask = not whole and not _alive_implied(query)
+    count = None
+    if ask and query.q is None and query.geo is None and not query.count:
+        keys, count = _first_alive(fetcher, query, keys, by_entity, iris)
+    elif keys and (query.geo is not None or query.q is not None or ask):
         located_sids = None if located is None else located[1]
+        alive = _alive(fetcher, query, by_entity, iris, keys) if ask else None
         keys = sorted(
             fetcher.matching(query, {k: by_entity[k] for k in keys}, iris, located_sids, alive),
             reverse=query.descending,
@@ -71,7 +77,7 @@ def run(querier: TemporalReads, terms: TermMap, query: TemporalQuery, cap: int) 
     page_keys = keys[query.offset : query.offset + query.limit]
     selected = {key: fetcher.selected(query, by_entity[key], iris) for key in page_keys}
     rendered, cut = _read(querier, fetcher, query, selected, iris, cap)
-    count = len(keys)
+    count = len(keys) if count is None else count
     if whole:
         empty = [key for key in page_keys if not rendered.get(key)]
         if empty and cut is not None:  # the cut may have emptied them: ask
@@ -85,6 +91,29 @@ def run(querier: TemporalReads, terms: TermMap, query: TemporalQuery, cap: int) 
             page_keys = [key for key in page_keys if key not in gone]
             count -= len(gone)
     return TemporalResult(_entities(query, page_keys, rendered, terms), count, cut)
+
+
+FIRST_PROBE = 64  # entities asked about at first by _first_alive; doubled each round
+
+
+def _first_alive(fetcher: Fetcher, query: TemporalQuery, keys: list[EntityKey], by_entity, iris):
+    """The first ``offset + limit + 1`` of ``keys`` (in order) with an
+    instance in the window, asked of a few entities at a time rather than
+    of every entity of a type (a page of a 100,000-entity type would scan
+    every instance of the window), and a count that is exact when every
+    key was asked, else just past the page (so a next page is linked)."""
+    need = query.offset + query.limit + 1
+    found: list[EntityKey] = []
+    start, size = 0, max(FIRST_PROBE, need)
+    while start < len(keys) and len(found) < need:
+        part = keys[start : start + size]
+        start += size
+        size *= 2
+        living = fetcher.matching(
+            query, {k: by_entity[k] for k in part}, iris, None, _alive(fetcher, query, by_entity, iris, part)
+        )
+        found.extend(k for k in part if k in living)
+    return found, len(found)
 
 
 def _retrieve(fetcher: Fetcher, query: TemporalQuery, by_entity, cap: int, terms: TermMap) -> TemporalResult:
