@@ -124,6 +124,8 @@ def test_what_is_not_there_is_404(fleet):
     problem(fleet.get(f"{BASE}/{A}", params={"attrs": "unknownAttribute"}), 404, "ResourceNotFound")
     problem(fleet.get(f"{BASE}/{A}", params={"pick": "unknown"}), 404, "ResourceNotFound")
     problem(fleet.get(f"{BASE}/{A}", params={"omit": "id,type,speed,fuelLevel"}), 404, "ResourceNotFound")
+    problem(fleet.get(f"{BASE}/{A}", params={"q": "speed>1000"}), 404, "ResourceNotFound")  # was a 500
+    assert fleet.get(f"{BASE}/{A}", params={"q": "speed>100"}).status_code == 200
     assert fleet.delete(f"{BASE}/{A}").status_code == 204
     problem(fleet.get(f"{BASE}/{A}"), 404, "ResourceNotFound")  # deleted: no instance left
     problem(fleet.delete(f"{BASE}/{B}/attrs/speed/urn:ngsi-ld:Instance:unknown"), 404, "ResourceNotFound")

@@ -130,6 +130,8 @@ def _retrieve(fetcher: Fetcher, query: TemporalQuery, by_entity, cap: int, terms
     keys = sorted(by_entity)
     if query.geo is not None or query.q is not None:
         keys = sorted(fetcher.matching(query, by_entity, iris))
+        if not keys:
+            raise ResourceNotFound(f"{what} matches q and the geo-query in the window")
     selected = {key: fetcher.selected(query, by_entity[key], iris) for key in keys}
     shown = {m for m in ("id", "type") if _shows(query, m)} | {iris[r.sid] for refs in selected.values() for r in refs}
     if not shown:
