@@ -119,6 +119,17 @@ def test_ids_and_names_no_endpoint_could_hold_are_bad_request_data(fleet, method
     problem(response, 400, "BadRequestData")
 
 
+def test_ngsiv2_ids_that_are_no_uris_still_name_their_entities(client, notify):
+    """An id that is no URI is a 400 only when no entity has it: NGSIv2
+    data keeps its ids (``Room1``) in this API too."""
+    room = {"id": "Room1", "type": "Room", "temperature": {"type": "Number", "value": 21.5, "metadata": {}}}
+    notify(client, {"subscriptionId": "s", "data": [room]})
+    assert client.get(f"{BASE}/Room1").json()["temperature"][0]["value"] == 21.5
+    problem(client.get(f"{BASE}/Room2"), 400, "BadRequestData")
+    assert client.delete(f"{BASE}/Room1").status_code == 204
+    problem(client.get(f"{BASE}/Room1"), 404, "ResourceNotFound")  # it was one: deleted
+
+
 def test_what_is_not_there_is_404(fleet):
     problem(fleet.get(f"{BASE}/urn:ngsi-ld:Vehicle:nobody"), 404, "ResourceNotFound")
     problem(fleet.get(f"{BASE}/{A}", params={"attrs": "unknownAttribute"}), 404, "ResourceNotFound")

@@ -29,7 +29,7 @@ from tsdb_service.faces.ngsild.context import (
     link_context,
     parse_local_contexts,
 )
-from tsdb_service.faces.ngsild.params import query_from_body, query_from_params, uri
+from tsdb_service.faces.ngsild.params import query_from_body, query_from_params
 from tsdb_service.faces.ngsild.query import TemporalQuery
 from tsdb_service.faces.ngsild.service import Cut, TemporalResult, run
 from tsdb_service.http.store import store_of
@@ -102,7 +102,8 @@ async def query_entities(request: Request) -> Response:
 @router.get("/temporal/entities/{entity_id}", summary="Retrieve one temporal entity", **ld_oa.ld_read_spec())
 async def retrieve_entity(entity_id: str, request: Request) -> Response:
     media = accepted(request.headers.get("accept"))
-    uri(entity_id, "the entity id")
+    if not entity_id or len(entity_id) > 2048:
+        raise BadRequestData("the entity id must be 1 to 2048 characters")
     params = dict(request.query_params)
     return await _answer(
         request,

@@ -17,6 +17,7 @@ from tsdb_service.faces.ngsild import qlang, scope
 from tsdb_service.faces.ngsild.aggregate import Aggregator
 from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.fetch import EntityKey, Fetcher
+from tsdb_service.faces.ngsild.params import uri
 from tsdb_service.faces.ngsild.query import Format, TemporalQuery
 from tsdb_service.faces.ngsild.render import Shape, aggregated, entity, normalized, simplified, value_of
 from tsdb_service.read import TemporalReads
@@ -122,6 +123,7 @@ def _retrieve(fetcher: Fetcher, query: TemporalQuery, by_entity, cap: int, terms
     ``pick``/``omit``, or no instance at all (it was deleted)."""
     what = f"no temporal evolution of entity {query.entity_id!r}"
     if not by_entity:
+        uri(query.entity_id, "the entity id")  # an id no entity has: a 400 when it is no URI
         raise ResourceNotFound(what)
     all_refs = [r for refs in by_entity.values() for r in refs]
     iris = fetcher.attr_iris(all_refs)

@@ -133,7 +133,6 @@ async def upsert_temporal(request: Request) -> Response:
 )
 async def append_temporal(entity_id: str, request: Request) -> Response:
     tenant = tenant_of(request)
-    uri(entity_id, "the entity id")
     doc, names = await _document(request)
     existing = await _existing(request, tenant, entity_id)
     body_id = doc.get("id")
@@ -158,7 +157,6 @@ async def append_temporal(entity_id: str, request: Request) -> Response:
 )
 async def delete_temporal(entity_id: str, request: Request) -> Response:
     tenant = tenant_of(request)
-    uri(entity_id, "the entity id")
     existing = await _existing(request, tenant, entity_id)
     await store_of(request).write(DeleteSamples(tuple(r.sid for r in existing)))
     return Response(status_code=204, headers=tenant_echo(request))
@@ -174,7 +172,6 @@ async def delete_attr_temporal(
     entity_id: str, attr_id: str, request: Request, datasetId: str | None = None, deleteAll: str | None = None
 ) -> Response:
     tenant = tenant_of(request)
-    uri(entity_id, "the entity id")
     attribute_name(attr_id)
     every = _flag(deleteAll, "deleteAll")
     existing = await _existing(request, tenant, entity_id)
@@ -225,7 +222,6 @@ async def delete_instance(entity_id: str, attr_id: str, instance_id: str, reques
 
 
 def _check_instance_path(entity_id: str, attr_id: str, instance_id: str) -> None:
-    uri(entity_id, "the entity id")
     attribute_name(attr_id)
     uri(instance_id, "the instanceId")
 
@@ -403,6 +399,7 @@ async def _existing(request: Request, tenant: str, entity_id: str) -> list[Serie
 
     refs = await store_of(request).read(look, memory_first=False)
     if not refs:
+        uri(entity_id, "the entity id")  # what no entity has is a 400 when it is no id at all
         raise ResourceNotFound(f"entity {entity_id[:200]!r} has no temporal representation")
     return refs
 
