@@ -13,6 +13,7 @@ from datetime import UTC, datetime, timedelta
 import pytest
 from ngsild_fixtures import TENANT, load_vehicles
 
+from tsdb_service.core.model import instance_urn
 from tsdb_service.core.query import (
     AggBranch,
     Aggregation,
@@ -255,8 +256,8 @@ def test_instance_aggregate(pair, periods):
 def test_instance_lookup(pair):
     backend, _ = pair
     [row, *_] = backend.temporal_instances(InstancesRead(_sids(backend, Scope(TENANT))))
-    same(pair, lambda q: q.instance_series(InstanceLookup(_sids(q, Scope(TENANT)), row.iid)))
-    same(pair, lambda q: q.instance_series(InstanceLookup(_sids(q, Scope(TENANT)), -1)))
+    same(pair, lambda q: q.instance_at(InstanceLookup(_sids(q, Scope(TENANT)), instance_urn(row.iid))))
+    same(pair, lambda q: q.instance_at(InstanceLookup(_sids(q, Scope(TENANT)), "urn:ngsi-ld:Instance:unknown")))
 
 
 def test_bulk_reads(pair):

@@ -73,7 +73,7 @@ def _ids(etype: str | None = None) -> str:
     [
         {},
         {"attrs": "temperature"},
-        {"attrs": "location", "datasetId": "urn:ngsi-ld:Dataset:gps"},
+        {"attrs": "location", "datasetId": "urn:ngsi-ld:Dataset:gps"},  # the Sensors have no gps instances
         {"q": "temperature>21", "count": "true"},
         {"timerel": "between", "timeAt": TIMES[1], "endTimeAt": TIMES[2]},  # the Sensors have no place then
         {"lastN": "1", "limit": "1", "offset": "1", "count": "true"},
@@ -82,8 +82,8 @@ def _ids(etype: str | None = None) -> str:
 )
 def test_whole_type_matches_what_naming_every_entity_matches(sites, extra):
     found = _both(sites, {"type": "Sensor", **NEAR, **extra}, {"id": _ids("Sensor"), **NEAR, **extra})
-    if "timeAt" in extra:
-        assert found == []
+    if "timeAt" in extra or "datasetId" in extra:
+        assert found == []  # no instance of what is asked in the window: not part of the answer
     elif "offset" not in extra and "q" not in extra:
         assert [e["id"] for e in found] == ["urn:ngsi-ld:Sensor:near1", "urn:ngsi-ld:Sensor:near2"]
 

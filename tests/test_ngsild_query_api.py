@@ -30,9 +30,10 @@ def speeds(entity: dict) -> list:
 
 def test_timerel_before_after_between_are_half_open(vehicles):
     before = get(vehicles, {"type": "Vehicle", "attrs": "speed", "timerel": "before", "timeAt": "2018-08-01T12:05:00Z"})
-    assert [speeds(e) for e in before.json()] == [[], [(120, "2018-08-01T12:03:00.000Z")]]
+    # An entity without an instance of what is asked in the window is not part of the answer.
+    assert [speeds(e) for e in before.json()] == [[(120, "2018-08-01T12:03:00Z")]]
     after = get(vehicles, {"type": "Vehicle", "attrs": "speed", "timerel": "after", "timeAt": "2018-08-01T12:14:00Z"})
-    assert [[v for v, _ in speeds(e)] for e in after.json()] == [[60, 50], []]
+    assert [[v for v, _ in speeds(e)] for e in after.json()] == [[60, 50]]
     between = get(
         vehicles,
         {
@@ -51,7 +52,7 @@ def test_normalized_instances_carry_instance_id_observed_at_and_sub_properties(v
     assert entity["id"] == B9211 and entity["type"] == "Vehicle"
     first = entity["speed"][0]
     assert first["type"] == "Property" and first["value"] == 120 and first["unitCode"] == "KMH"
-    assert first["observedAt"] == "2018-08-01T12:03:00.000Z"
+    assert first["observedAt"] == "2018-08-01T12:03:00Z"
     assert first["instanceId"].startswith("urn:ngsi-ld:attribute:instance:")
     assert len({i["instanceId"] for i in entity["speed"]}) == 3
     again = get(vehicles, path=f"{ENTITIES}/{B9211}", params={"attrs": "speed"}).json()
@@ -159,10 +160,10 @@ def test_dataset_ids(client):
     assert [i["value"] for i in default] == [10]
     simplified = get(client, {"type": "Vehicle", "format": "temporalValues"}).json()[0]["speed"]
     assert simplified == [
-        {"type": "Property", "values": [[10, "2018-08-01T12:00:00.000Z"]]},
+        {"type": "Property", "values": [[10, "2018-08-01T12:00:00Z"]]},
         {
             "type": "Property",
-            "values": [[11, "2018-08-01T12:01:00.000Z"], [12, "2018-08-01T12:02:00.000Z"]],
+            "values": [[11, "2018-08-01T12:01:00Z"], [12, "2018-08-01T12:02:00Z"]],
             "datasetId": "urn:ngsi-ld:Dataset:gps",
         },
     ]
@@ -197,9 +198,9 @@ def test_time_properties_and_sys_attrs(client):
     )
     plain = get(client, {"type": "Vehicle"}).json()[0]["speed"]
     assert "createdAt" not in plain[0] and plain[-1]["value"] == "urn:ngsi-ld:null"
-    assert plain[-1]["deletedAt"] == "2018-08-01T13:00:00.000Z"
+    assert plain[-1]["deletedAt"] == "2018-08-01T13:00:00Z"
     sys = get(client, {"type": "Vehicle", "options": "sysAttrs"}).json()[0]["speed"][0]
-    assert (sys["createdAt"], sys["modifiedAt"]) == ("2018-08-01T11:00:00.000Z", "2018-08-01T12:00:01.000Z")
+    assert (sys["createdAt"], sys["modifiedAt"]) == ("2018-08-01T11:00:00Z", "2018-08-01T12:00:01Z")
     created = get(
         client, {"type": "Vehicle", "timeproperty": "createdAt", "timerel": "before", "timeAt": "2018-08-01T11:30:00Z"}
     ).json()[0]["speed"]
@@ -236,7 +237,7 @@ def test_ngsiv2_data_reads_as_plain_properties(client, notify):
         "value": 12.5,
         "accuracy": {"type": "Property", "value": 0.5},
         "instanceId": got["altitude"][0]["instanceId"],
-        "observedAt": "2024-05-01T10:00:00.000Z",
+        "observedAt": "2024-05-01T10:00:00Z",
     }
     assert got["owner"][0]["type"] == "Relationship" and got["owner"][0]["object"] == "Company:1"
     assert got["location"][0]["type"] == "GeoProperty"
@@ -260,8 +261,8 @@ def test_post_entity_operations_query(vehicles):
     )
     assert response.status_code == 200, response.text
     assert [(e["id"], e["speed"]["values"]) for e in response.json()] == [
-        (A8311, [[50, "2018-08-01T12:16:00.000Z"]]),
-        (B9211, [[100, "2018-08-01T12:07:00.000Z"]]),
+        (A8311, [[50, "2018-08-01T12:16:00Z"]]),
+        (B9211, [[100, "2018-08-01T12:07:00Z"]]),
     ]
     bad = vehicles.post("/ngsi-ld/v1/temporal/entityOperations/query", content=b"{", headers=H)
     assert bad.status_code == 400 and error_type(bad) == "InvalidRequest"
@@ -300,7 +301,7 @@ def test_temporal_writes_read_back(client):
     created = client.post(ENTITIES, json=entity, headers=H)
     assert created.status_code == 201, created.text  # a new entity
     got = get(client, path=f"{ENTITIES}/urn:ngsi-ld:Vehicle:W1", params={"format": "temporalValues"}).json()
-    assert got["speed"]["values"] == [[7, "2020-01-01T00:00:00.000Z"], [8, "2020-01-01T00:01:00.000Z"]]
+    assert got["speed"]["values"] == [[7, "2020-01-01T00:00:00Z"], [8, "2020-01-01T00:01:00Z"]]
 
 
 def test_q_and_geo_over_scattered_series(client):

@@ -7,7 +7,7 @@ from datetime import UTC, datetime
 
 import pytest
 
-from tsdb_service.core.errors import BadRequestData, OperationNotSupported, TooManyResults
+from tsdb_service.core.errors import BadRequestData, InvalidRequest, OperationNotSupported, TooManyResults
 from tsdb_service.faces.ngsild.context import DEFAULT_VOCAB, ContextStore
 from tsdb_service.faces.ngsild.params import parse_duration, parse_types, query_from_body, query_from_params
 from tsdb_service.faces.ngsild.query import Duration, Format, TimeProperty, TypeAnd, TypeName, TypeOr
@@ -46,11 +46,16 @@ def test_timerel_windows_are_half_open():
         {"type": "V", "lastN": "0"},
         {"type": "V", "lastN": "-1"},
         {"type": "V", "limit": "x"},
-        {"type": "V", "options": "fancy"},
-        {"type": "V", "format": "keyValues"},
         {"type": "V", "format": "aggregatedValues"},
         {"type": "V", "format": "aggregatedValues", "aggrMethods": "median"},
-        {"type": "V", "aggrMethods": "sum"},
+        {"type": "V", "aggrMethods": "median"},
+        {"type": "V", "aggrPeriodDuration": "1 hour"},
+        {"type": "V", "timerel": "after", "timeAt": "2018-08-01"},
+        {"type": "V", "attrs": "speed", "pick": "id"},
+        {"type": "V", "attrs": "speed", "omit": "name"},
+        {"type": "V", "pick": "id,speed", "omit": "speed"},
+        {"type": "V", "orderBy": "id;up"},
+        {"type": "V", "orderBy": "id,name"},
         {"type": "V", "q": "speed>"},
         {"type": "(V"},
         {"type": "V;;W"},
@@ -73,14 +78,44 @@ def test_bad_requests(params):
         q(**params)
 
 
+@pytest.mark.parametrize("params", [{"options": "fancy"}, {"format": "keyValues"}, {"options": "temporalValues,x"}])
+def test_unknown_representations_are_invalid_requests(params):
+    """Clause 6.3.6: a parameter value outside its grammar is an InvalidRequest."""
+    with pytest.raises(InvalidRequest):
+        q(type="V", **params)
+
+
+def test_aggregation_parameters_wait_for_aggregation():
+    """``format`` wins over ``options``; aggrMethods without aggregation are
+    checked, not used (the ETSI suite's 021_19_02)."""
+    query = q(type="V", options="aggregatedValues", format="temporalValues", aggrMethods="sum")
+    assert query.format is Format.TEMPORAL_VALUES and query.aggregation is None
+
+
+def test_order_by_id_either_way():
+    assert q(type="V", orderBy="id").descending is False
+    assert q(type="V", orderBy="id;asc").descending is False
+    assert q(type="V", orderBy="id;desc").descending is True
+
+
 def test_limits_and_unsupported():
     with pytest.raises(TooManyResults):
         q(type="V", limit=1001)
+    assert q(type="V", scopeQ="/Madrid/#").scope_q is not None
     with pytest.raises(OperationNotSupported):
-        q(type="V", scopeQ="/Madrid")
-    for unsupported in ({"options": "concise"}, {"format": "concise"}, {"offsetN": "5"}):
-        with pytest.raises(OperationNotSupported):
-            q(type="V", **unsupported)
+        q(type="V", csf="x")
+    with pytest.raises(OperationNotSupported):
+        q(type="V", offsetN="5")
+    assert q(type="V", options="concise").format is q(type="V", format="concise").format is Format.CONCISE
+
+
+def test_lang_ranges_best_first():
+    assert q(type="V", lang="fr").lang == (("fr", 1.0),)
+    assert q(type="V", lang="en-GB;q=0.5, NL, *;q=0.1, de;q=0").lang == (("nl", 1.0), ("en-gb", 0.5), ("*", 0.1))
+    for bad in ("", "fr;q=2", "*x", "en_GB", "fr;quality=1"):
+        if bad:
+            with pytest.raises(BadRequestData):
+                q(type="V", lang=bad)
 
 
 def test_one_of_the_required_filters_is_enough():
@@ -135,9 +170,9 @@ def test_bad_durations(bad):
 
 
 def test_pick_omit_attrs_dataset_paging():
+    assert q(type="V", attrs="speed,name").wanted_attrs == (V + "speed", V + "name")
     query = q(
         type="V",
-        attrs="speed,name",
         pick="id,speed",
         omit="name",
         datasetId="urn:ds:1,@none",

@@ -5,7 +5,7 @@ Content past the instance cap, paging forwards or, with lastN, backwards."""
 from __future__ import annotations
 
 import pytest
-from ngsild_fixtures import A8311, B9211, ENTITIES, get, load_vehicles
+from ngsild_fixtures import A8311, B9211, ENTITIES, H, get, load_vehicles
 
 
 @pytest.fixture
@@ -31,13 +31,13 @@ def test_simplified_temporal_values(vehicles):
     assert got["speed"] == {
         "type": "Property",
         "values": [
-            [40, "2018-08-01T12:12:00.000Z"],
-            [60, "2018-08-01T12:14:00.000Z"],
-            [50, "2018-08-01T12:16:00.000Z"],
+            [40, "2018-08-01T12:12:00Z"],
+            [60, "2018-08-01T12:14:00Z"],
+            [50, "2018-08-01T12:16:00Z"],
         ],
     }
-    assert got["isParked"]["objects"][0] == ["urn:ngsi-ld:OffStreetParking:0", "2018-08-01T12:12:00.000Z"]
-    assert got["name"]["languageMaps"][2] == [{"en": "car 2", "es": "coche 2"}, "2018-08-01T12:16:00.000Z"]
+    assert got["isParked"]["objects"][0] == ["urn:ngsi-ld:OffStreetParking:0", "2018-08-01T12:12:00Z"]
+    assert got["name"]["languageMaps"][2] == [{"languageMap": {"en": "car 2", "es": "coche 2"}}, "2018-08-01T12:16:00Z"]
     assert got["location"]["type"] == "GeoProperty" and len(got["location"]["values"]) == 3
     same = get(vehicles, path=f"{ENTITIES}/{A8311}", params={"format": "temporalValues", "options": "normalized"})
     assert same.json() == got
@@ -49,14 +49,27 @@ def test_partial_content_forwards(client_factory, store_url):
         response = get(client, path=f"{ENTITIES}/{B9211}", params={"attrs": "speed,brandName"}, status=206)
         got = response.json()
         assert [i["value"] for i in got["speed"]] == [120, 80] and len(got["brandName"]) == 2
-        assert response.headers["Content-Range"] == "date-time 2018-08-01T12:03:00.000Z-2018-08-01T12:05:00.000Z/*"
+        assert response.headers["Content-Range"] == "date-time 2018-08-01T12:03:00Z-2018-08-01T12:05:00Z/*"
+        # The newer drafts' link to the rest: from the first instant not served, nothing twice.
+        rest = _link(response, "intervalafter")
+        assert rest.startswith(f"{ENTITIES}/{B9211}?") and "timerel=after&timeAt=2018-08-01T12%3A07%3A00Z" in rest
+        assert [i["value"] for i in client.get(rest, headers=H).json()["speed"]] == [100]
         windowed = get(
             client,
             path=f"{ENTITIES}/{B9211}",
             status=206,
             params={"attrs": "speed,brandName", "timerel": "after", "timeAt": "2018-08-01T12:00:00Z"},
         )
-        assert windowed.headers["Content-Range"] == "date-time 2018-08-01T12:00:00.000Z-2018-08-01T12:05:00.000Z/*"
+        assert windowed.headers["Content-Range"] == "date-time 2018-08-01T12:00:00Z-2018-08-01T12:05:00Z/*"
+        between = get(
+            client,
+            path=f"{ENTITIES}/{B9211}",
+            status=206,
+            params={"attrs": "speed,brandName", "timerel": "before", "timeAt": "2018-08-01T12:30:00Z"},
+        )
+        assert "timerel=between&timeAt=2018-08-01T12%3A07%3A00Z&endTimeAt=2018-08-01T12%3A30%3A00Z" in _link(
+            between, "intervalafter"
+        )
         whole = get(client, path=f"{ENTITIES}/{B9211}", params={"attrs": "speed"})
         assert "Content-Range" not in whole.headers
 
@@ -69,4 +82,15 @@ def test_partial_content_backwards_with_last_n(client_factory, store_url):
         )
         got = response.json()
         assert [i["value"] for i in got["speed"]] == [80, 100]
-        assert response.headers["Content-Range"] == "date-time 2018-08-01T12:07:00.000Z-2018-08-01T12:05:00.000Z/3"
+        assert response.headers["Content-Range"] == "date-time 2018-08-01T12:07:00Z-2018-08-01T12:05:00Z/3"
+        rest = _link(response, "intervalbefore")
+        assert "lastN=3" in rest and "timerel=before&timeAt=2018-08-01T12%3A05%3A00Z" in rest
+        assert [i["value"] for i in client.get(rest, headers=H).json()["speed"]] == [120]
+
+
+def _link(response, rel: str) -> str:
+    """The target of the ``Link`` with relation ``rel``."""
+    for part in response.headers["Link"].split(", <"):
+        if f'rel="{rel}"' in part:
+            return part.lstrip("<").split(">;")[0]
+    raise AssertionError(f"no {rel} link in {response.headers['Link']}")

@@ -7,6 +7,7 @@ their own.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from datetime import datetime
 from enum import IntEnum
@@ -139,6 +140,19 @@ def instance_urn(iid: int) -> str:
     """The NGSI-LD ``instanceId`` of the sample with instance id ``iid``:
     derived from the stored id, so it survives compaction and restarts."""
     return f"{INSTANCE_URN_PREFIX}{iid:016x}"
+
+
+def client_instance_id(md: str | None) -> str | None:
+    """The ``instanceId`` a client gave an NGSI-LD instance, kept with its
+    other members in ``md`` (JSON text), or None."""
+    if not md or '"instanceId"' not in md:
+        return None
+    try:
+        meta = json.loads(md)
+    except ValueError:
+        return None
+    found = meta.get("instanceId") if isinstance(meta, dict) else None
+    return found if isinstance(found, str) else None
 
 
 def instance_iid(urn: str) -> int | None:

@@ -454,7 +454,8 @@ class ValueTest:
     """A test on an instance's plain value that the database can make (a
     ``q`` term without sub-property or value path, ``ngsild.fetch``).
     ``op`` None: the instance has a value (it is no deletion or null);
-    otherwise ``value`` compared by ``op`` (``==``, ``>``, ``>=``, ``<``,
+    ``ANY_INSTANCE``: any instance, deletions too (is there one in the
+    window?); otherwise ``value`` compared by ``op`` (``==``, ``>``, ``>=``, ``<``,
     ``<=``): a float against number instances (Number, Integer), a str
     (``==`` only) against text and relationship instances."""
 
@@ -462,7 +463,7 @@ class ValueTest:
     value: float | str | None = None
 
     def __post_init__(self) -> None:
-        if self.op is None:
+        if self.op is None or self.op == ANY_INSTANCE:
             return
         if isinstance(self.value, str) and self.op != "==":
             raise ValueError("a text test compares with == only")
@@ -471,6 +472,7 @@ class ValueTest:
 
 
 VALUE_TEST_OPS = ("==", ">", ">=", "<", "<=")
+ANY_INSTANCE = "any"  # ``ValueTest.op``: any instance passes
 
 # An instance's value as ``Querier.instance_values`` reads it: (sid, kind,
 # num, txt, js, md), distinct; the columns as in ``InstanceRow``.

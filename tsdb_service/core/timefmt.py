@@ -8,8 +8,10 @@ own way; all of those writers live here, so a format is defined once:
   renderer's ``Dialect.iso_ms`` writes the same text in the database; the
   DuckDB tail cache formats its in-memory rows with ``iso_ms_us``.
 * ``iso_z`` / ``z_of``: Grafana's ``2024-05-01T10:00:00.123Z``.
-* ``ld_iso`` / ``ld_iso_us``: NGSI-LD, ``Z`` and milliseconds, or
-  microseconds when the time is not a whole millisecond.
+* ``ld_iso`` / ``ld_iso_us``: NGSI-LD, ``Z`` and as many fractional
+  digits as the time needs: none on a whole second, milliseconds, or
+  microseconds (Stellio's ``ISO_INSTANT``), so ``12:03:00Z`` sent comes
+  back ``12:03:00Z``.
 * ``epoch_ms`` / ``ms_of``: back to epoch milliseconds (Grafana's unit).
 
 Why the querier keeps answering ISO text rather than epoch microseconds
@@ -88,10 +90,17 @@ def ms_of(moment: datetime | None) -> int | None:
 
 
 def ld_iso(moment: datetime) -> str:
-    """A UTC datetime (naive or aware) → ``YYYY-MM-DDTHH:MM:SS.sssZ``,
-    microseconds when they are not whole milliseconds (NGSI-LD)."""
-    text = moment.strftime("%Y-%m-%dT%H:%M:%S")
+    """A UTC datetime (naive or aware) → ``YYYY-MM-DDTHH:MM:SSZ`` on a whole
+    second, ``...SS.sssZ`` on a whole millisecond, else ``...SS.ssssssZ``
+    (NGSI-LD: what was sent comes back as sent when it had at most
+    millisecond precision; Java's ``ISO_INSTANT``, as Stellio writes)."""
+    text = (
+        f"{moment.year:04d}-{moment.month:02d}-{moment.day:02d}T"
+        f"{moment.hour:02d}:{moment.minute:02d}:{moment.second:02d}"
+    )
     micro = moment.microsecond
+    if micro == 0:
+        return f"{text}Z"
     return f"{text}.{micro // 1000:03d}Z" if micro % 1000 == 0 else f"{text}.{micro:06d}Z"
 
 

@@ -96,8 +96,10 @@ class TemporalReader(Protocol):
         instances with a value), or None when there is none."""
         ...
 
-    def instance_series(self, ask: InstanceLookup) -> int | None:
-        """The one of ``ask.sids`` that holds instance ``ask.iid``, or None."""
+    def instance_at(self, ask: InstanceLookup) -> tuple[int, int] | None:
+        """(sid, iid) of the instance of ``ask.sids`` that ``ask.instance_id``
+        names, or None: the instance ``model.instance_iid`` reads from it,
+        or the one whose client-given ``instanceId`` (a member of ``md``) it is."""
         ...
 
 

@@ -25,8 +25,9 @@ import orjson
 import pyarrow as pa
 
 from tsdb_service.core.idpattern import compiled
-from tsdb_service.core.model import Kind
+from tsdb_service.core.model import Kind, client_instance_id, instance_iid
 from tsdb_service.core.query import (
+    ANY_INSTANCE,
     AggBranch,
     AggregateRow,
     AggrMethod,
@@ -417,8 +418,12 @@ class MemoryQuerier(SeparateScans, Querier):
         times = [_micros(at) for at, s in self._window(ask.sids, ask.window) if s.kind != Kind.NULL]
         return (min(times), max(times)) if times else None
 
-    def instance_series(self, ask: InstanceLookup) -> int | None:
-        return next((s.sid for s in self._of(ask.sids) if s.iid == ask.iid), None)
+    def instance_at(self, ask: InstanceLookup) -> tuple[int, int] | None:
+        iid = instance_iid(ask.instance_id)
+        for s in self._of(ask.sids):
+            if (s.iid == iid) if iid is not None else client_instance_id(s.md) == ask.instance_id:
+                return s.sid, s.iid
+        return None
 
     # -- bulk reads ------------------------------------------------------------------------------
 
@@ -555,6 +560,8 @@ def _instance_row(at: datetime, s: MemorySample, ref: SeriesRef | None) -> Insta
 def _test(test: ValueTest, s: MemorySample) -> bool:
     if test.op is None:
         return s.kind != Kind.NULL
+    if test.op == ANY_INSTANCE:
+        return True
     if isinstance(test.value, str):
         have: Any = s.txt if s.kind in _TEXT else None
     else:

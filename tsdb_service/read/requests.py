@@ -170,10 +170,11 @@ class InstanceAggregateRead:
 
 @dataclass(frozen=True, slots=True)
 class InstanceLookup:
-    """Which of ``sids`` holds instance ``iid``."""
+    """Which of ``sids`` holds the instance an ``instanceId`` names: one of
+    ours (``model.instance_urn``) or one a client gave (kept in ``md``)."""
 
     sids: Sequence[int]
-    iid: int
+    instance_id: str
 
 
 @dataclass(frozen=True, slots=True)

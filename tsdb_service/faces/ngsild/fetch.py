@@ -114,10 +114,13 @@ class Fetcher:
         by_entity: dict[EntityKey, list[SeriesRef]],
         iris: dict[int, str],
         located: Sequence[int] | None = None,
+        alive: tuple[Sequence[int], ValueTest] | None = None,
     ) -> set[EntityKey]:
         """The entities of ``by_entity`` for which the geo-query and ``q``
         hold, each judged on the instances in the window (a ``q`` term holds
-        when some instance of its attribute satisfies it).
+        when some instance of its attribute satisfies it), and, given
+        ``alive`` (series, test), which have an instance of one of those
+        series in the window that passes the test (asked with ``q``'s reads).
 
         What the database can decide is asked through ``Querier.
         window_scan``: the location instances whose stored box passes the
@@ -144,20 +147,25 @@ class Fetcher:
                 rows, _ = self.q.window_scan(WindowScan(window, locations, []))
                 keys = {owner[sid] for sid in self._passing(geo, rows)}
                 locations = None
-        if query.q is None or not keys:
+        if (query.q is None and alive is None) or not keys:
             return keys
-        terms = list(dict.fromkeys(qlang.terms(query.q)))
+        terms = list(dict.fromkeys(qlang.terms(query.q))) if query.q is not None else []
         sids_of: dict[str, list[int]] = {}
         for sid, key in owner.items():
             if key in keys:
                 sids_of.setdefault(iris[sid], []).append(sid)
         tested = [(term, test) for term in terms if (test := value_test(term)) is not None]
         probes = [(sids_of.get(t.attr, []), test) for t, test in tested]
+        if alive is not None:
+            probes.append(([sid for sid in alive[0] if owner.get(sid) in keys], alive[1]))
         rows, found = self.q.window_scan(WindowScan(window, locations, probes))
+        if alive is not None:
+            keys &= {owner[sid] for sid in found[-1]}
+            found = found[:-1]
         if locations is not None:
-            keys = {owner[sid] for sid in self._passing(geo, rows)}
-            if not keys:
-                return keys
+            keys &= {owner[sid] for sid in self._passing(geo, rows)}
+        if query.q is None or not keys:
+            return keys
         holding = {term: {owner[sid] for sid in sids} for (term, _), sids in zip(tested, found, strict=True)}
         for term in terms:
             if term not in holding:

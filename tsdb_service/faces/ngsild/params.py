@@ -15,9 +15,10 @@ from collections.abc import Mapping
 from dataclasses import replace
 from decimal import Decimal, InvalidOperation
 from typing import Any
+from urllib.parse import unquote
 
-from tsdb_service.core.errors import BadRequest, BadRequestData, OperationNotSupported, TooManyResults
-from tsdb_service.faces.ngsild import qlang
+from tsdb_service.core.errors import BadRequest, BadRequestData, InvalidRequest, OperationNotSupported, TooManyResults
+from tsdb_service.faces.ngsild import boolexpr, qlang, scope
 from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.geoquery import parse_ld_geo
 from tsdb_service.faces.ngsild.query import (
@@ -29,21 +30,20 @@ from tsdb_service.faces.ngsild.query import (
     Selector,
     TemporalQuery,
     TimeProperty,
-    TypeAnd,
     TypeExpr,
     TypeName,
-    TypeOr,
     Window,
 )
+from tsdb_service.parse.names import name_problem
 from tsdb_service.parse.request_context import MAX_IDS, id_pattern, int_param, parse_time
 
 MAX_LIST = 1000
 MAX_ID_LENGTH = 2048
+_URI = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*:\S+\Z")
 _DURATION = re.compile(
     r"^P(?:(\d+)Y)?(?:(\d+)M)?(?:(\d+)W)?(?:(\d+)D)?(?:T(?:(\d+)H)?(?:(\d+)M)?(?:(\d+(?:[.,]\d+)?)S)?)?$"
 )
 OPTIONS = ("temporalValues", "aggregatedValues", "sysAttrs", "keyValues", "normalized", "concise", "count")
-_TYPE_TOKEN = re.compile(r"\s*([(),;|]|[^(),;|\s]+)")
 
 
 def query_from_params(
@@ -69,14 +69,17 @@ def query_from_params(
         pick=_projection(get("pick"), "pick", terms),
         omit=_projection(get("omit"), "omit", terms),
         q=parse_q(get("q"), terms),
+        scope_q=_scope_q(get("scopeQ")),
         geo=geo_query(get("georel"), get("geometry"), get("coordinates"), get("geoproperty"), terms),
         dataset_ids=_list(get("datasetId"), "datasetId"),
         last_n=_positive(get("lastN"), "lastN"),
         first_n=_positive(get("firstN"), "firstN"),
         local=_flag(get("local"), "local"),
+        lang=languages(get("lang")),
     )
     if query.last_n is not None and query.first_n is not None:
         raise BadRequestData("lastN and firstN exclude each other")
+    check_projection(query)
     query = _representation(query, get("options"), get("format"), get("aggrMethods"), get("aggrPeriodDuration"))
     query = _paging(query, params, limits)
     _refuse_unsupported(params)
@@ -116,8 +119,6 @@ def query_from_body(
     unknown = sorted(set(body) - known)
     if unknown:
         raise BadRequestData(f"unknown Query members: {', '.join(u[:40] for u in unknown[:5])}")
-    if body.get("scopeQ") not in (None, ""):
-        raise OperationNotSupported("scopeQ is not supported: scopes are not stored")
     temporal = body.get("temporalQ", {})
     if not isinstance(temporal, dict):
         raise BadRequestData("temporalQ must be an object")
@@ -134,17 +135,38 @@ def query_from_body(
         pick=_projection(_joined(body.get("pick"), "pick"), "pick", terms),
         omit=_projection(_joined(body.get("omit"), "omit"), "omit", terms),
         q=parse_q(_string(body.get("q"), "q"), terms),
+        scope_q=_scope_q(_string(body.get("scopeQ"), "scopeQ")),
         geo=geo_query(geo.get("georel"), geo.get("geometry"), geo.get("coordinates"), geo.get("geoproperty"), terms),
         dataset_ids=_list(_joined(body.get("datasetId"), "datasetId"), "datasetId"),
         last_n=_positive(_text(temporal.get("lastN", body.get("lastN", params.get("lastN")))), "lastN"),
         local=_flag(_text(body.get("local", params.get("local"))), "local"),
+        lang=languages(_string(body.get("lang"), "lang") or params.get("lang")),
     )
-    methods = _joined(body.get("aggrMethods"), "aggrMethods") or params.get("aggrMethods")
-    period = body.get("aggrPeriodDuration") or params.get("aggrPeriodDuration")
-    query = _representation(query, params.get("options"), params.get("format"), methods, period)
+    check_projection(query)
+    methods = (
+        _joined(temporal.get("aggrMethods"), "aggrMethods")
+        or _joined(body.get("aggrMethods"), "aggrMethods")
+        or params.get("aggrMethods")
+    )
+    period = temporal.get("aggrPeriodDuration") or body.get("aggrPeriodDuration") or params.get("aggrPeriodDuration")
+    options, fmt = params.get("options"), params.get("format")
+    if methods not in (None, "") and options in (None, "") and fmt in (None, ""):
+        fmt = Format.AGGREGATED.value  # a TemporalQuery's aggrMethods ask for aggregation (clause 5.2.21)
+    query = _representation(query, options, fmt, methods, period)
     query = _paging(query, params, limits)
     require_filter(query)
     return query
+
+
+def check_projection(query: TemporalQuery) -> None:
+    """Clause 4.21: ``pick`` and ``omit`` name no member in common, and
+    neither goes with ``attrs`` (which they replace)."""
+    if query.attrs is not None and (query.pick is not None or query.omit is not None):
+        raise BadRequestData("attrs cannot be combined with pick or omit: pick and omit replace it")
+    if query.pick is not None and query.omit is not None:
+        both = [m for m in query.pick if m in query.omit]
+        if both:
+            raise BadRequestData(f"pick and omit both name {both[0][:80]!r}")
 
 
 def require_filter(query: TemporalQuery) -> None:
@@ -153,6 +175,29 @@ def require_filter(query: TemporalQuery) -> None:
     has_type = any(s.types is not None for s in query.selectors)
     if not (has_type or query.attrs is not None or query.q is not None or query.geo is not None or query.local):
         raise BadRequestData("a temporal query needs at least one of type, attrs, q, a geo-query or local=true")
+
+
+# --- ids and names in a URL path -------------------------------------------------
+
+
+def uri(value: Any, what: str) -> str:
+    """An entity id or instanceId: a URI (clause 4.5.1), else BadRequestData."""
+    if type(value) is not str or len(value) > MAX_ID_LENGTH or not _URI.match(value):
+        raise BadRequestData(f"{what} must be a URI, not {str(value)[:200]!r}")
+    return value
+
+
+def attribute_name(value: str) -> str:
+    """An attribute name from a URL path segment, else BadRequestData
+    (clause 5.6.13.4): one the ingest could have stored (``parse.names``),
+    and no dot segment even once its percent triplets are decoded (a
+    relative reference would resolve it to another resource)."""
+    problem = name_problem(value)
+    if problem is None and unquote(value).strip() in (".", ".."):
+        problem = "is a dot segment"
+    if problem is not None:
+        raise BadRequestData(f"attribute name {value[:200]!r} {problem}")
+    return value
 
 
 # --- the temporal query -----------------------------------------------------------
@@ -192,6 +237,9 @@ def window(timerel, time_at, end_time_at, timeproperty) -> Window:
 def _time(raw: Any, name: str):
     if not isinstance(raw, str):
         raise BadRequestData(f"{name} must be a date-time string")
+    text = raw.strip().strip('"')
+    if len(text) < 11 or text[10] not in "Tt":
+        raise BadRequestData(f"{name} must be a DateTime (clause 4.6.3) such as 2024-05-01T10:00:00Z, not {raw[:80]!r}")
     try:
         return parse_time(raw, name)
     except BadRequest as exc:
@@ -206,53 +254,12 @@ def parse_types(raw: str | None, terms: TermMap) -> TypeExpr | None:
     AND, parentheses group; ``;`` binds tighter."""
     if raw in (None, ""):
         return None
-    tokens = _TYPE_TOKEN.findall(raw)
-    if "".join(tokens) != re.sub(r"\s+", "", raw):
-        raise BadRequestData(f"bad type expression {raw[:80]!r}")
-    names = [t for t in tokens if t not in "(),;|"]
+    found = boolexpr.tokens(raw, ",|", "type expression")
+    names = [t for t in found if t not in "(),;|"]
     if len(names) > MAX_LIST:
         raise BadRequestData(f"type lists more than {MAX_LIST} types")
     expanded = dict(zip(names, terms.expand_all(names), strict=True))
-    pos = 0
-
-    def disjunction(depth: int) -> TypeExpr:
-        nonlocal pos
-        if depth > 16:
-            raise BadRequestData("type expression nests too deeply")
-        parts = [conjunction(depth)]
-        while pos < len(tokens) and tokens[pos] in (",", "|"):
-            pos += 1
-            parts.append(conjunction(depth))
-        return parts[0] if len(parts) == 1 else TypeOr(tuple(parts))
-
-    def conjunction(depth: int) -> TypeExpr:
-        nonlocal pos
-        parts = [atom(depth)]
-        while pos < len(tokens) and tokens[pos] == ";":
-            pos += 1
-            parts.append(atom(depth))
-        return parts[0] if len(parts) == 1 else TypeAnd(tuple(parts))
-
-    def atom(depth: int) -> TypeExpr:
-        nonlocal pos
-        if pos >= len(tokens):
-            raise BadRequestData(f"type expression {raw[:80]!r} ends early")
-        token = tokens[pos]
-        pos += 1
-        if token == "(":
-            inner = disjunction(depth + 1)
-            if pos >= len(tokens) or tokens[pos] != ")":
-                raise BadRequestData(f"missing ')' in type expression {raw[:80]!r}")
-            pos += 1
-            return inner
-        if token in "),;|":
-            raise BadRequestData(f"unexpected {token!r} in type expression {raw[:80]!r}")
-        return TypeName(expanded[token], token)
-
-    expr = disjunction(0)
-    if pos != len(tokens):
-        raise BadRequestData(f"unexpected {tokens[pos]!r} in type expression {raw[:80]!r}")
-    return expr
+    return boolexpr.parse(raw, found, ",|", "type expression", lambda name: TypeName(expanded[name], name))
 
 
 def _selectors(raw: Any, terms: TermMap) -> tuple[Selector, ...]:
@@ -307,6 +314,10 @@ def parse_q(raw: str | None, terms: TermMap) -> qlang.Node | None:
     return qlang.map_attrs(node, expanded.__getitem__)
 
 
+def _scope_q(raw: str | None) -> scope.ScopeExpr | None:
+    return None if raw in (None, "") else scope.parse(str(raw))
+
+
 def geo_query(georel, geometry, coordinates, geoproperty, terms: TermMap) -> GeoQuery | None:
     geo = parse_ld_geo(georel, geometry, coordinates)
     if geo is None:
@@ -319,35 +330,58 @@ def geo_query(georel, geometry, coordinates, geoproperty, terms: TermMap) -> Geo
 
 # --- representation, paging --------------------------------------------------------
 
+_LANGUAGE_RANGE = re.compile(r"(?:\*|[A-Za-z]{1,8}(?:-[A-Za-z0-9]{1,8})*)\Z")
+_QUALITY = re.compile(r"q=(?:0(?:\.\d{0,3})?|1(?:\.0{0,3})?)\Z")
+
+
+def languages(raw: str | None) -> tuple[tuple[str, float], ...] | None:
+    """``lang`` (clause 4.15): language ranges (RFC 4647, as in
+    Accept-Language: ``fr``, ``en-GB;q=0.8``, ``*``), best first."""
+    if raw in (None, ""):
+        return None
+    ranges = []
+    for i, item in enumerate(str(raw).split(",")):
+        tag, _, quality = (part.strip() for part in item.partition(";"))
+        if not _LANGUAGE_RANGE.match(tag) or (quality and not _QUALITY.match(quality)):
+            raise BadRequestData(f"lang must list language tags such as fr or en-GB;q=0.8, not {str(raw)[:80]!r}")
+        q = float(quality[2:]) if quality else 1.0
+        if q > 0:
+            ranges.append((tag.lower(), q, i))
+    ranges.sort(key=lambda r: (-r[1], r[2]))
+    return tuple((tag, q) for tag, q, _ in ranges)
+
 
 def _representation(query: TemporalQuery, options, fmt, methods, period) -> TemporalQuery:
     """``format`` wins over ``options``; ``temporalValues,aggregatedValues``
-    together mean aggregation (a common Grafana plugin sends both)."""
+    together mean aggregation (a common Grafana plugin sends both). An
+    unknown ``format`` or option is an InvalidRequest (a parameter value
+    outside its grammar); ``aggrMethods`` and ``aggrPeriodDuration`` are
+    checked, and used only when aggregating."""
     opts = _list(options, "options") or ()
     unknown = [o for o in opts if o not in OPTIONS]
     if unknown:
-        raise BadRequestData(f"unknown options: {', '.join(o[:40] for o in unknown)}")
-    if "concise" in opts or fmt == "concise":
-        raise OperationNotSupported(
-            "the concise temporal representation is not supported: use normalized, temporalValues or aggregatedValues"
-        )
+        raise InvalidRequest(f"unknown options: {', '.join(o[:40] for o in unknown)}; use {', '.join(OPTIONS)}")
     chosen = Format.NORMALIZED
     if fmt not in (None, ""):
         try:
-            chosen = Format(fmt) if fmt != "normalized" else Format.NORMALIZED
+            chosen = Format(fmt)
         except ValueError:
-            raise BadRequestData(
-                f"format must be normalized, temporalValues or aggregatedValues, not {str(fmt)[:40]!r}"
+            raise InvalidRequest(
+                f"format must be normalized, concise, temporalValues or aggregatedValues, not {str(fmt)[:40]!r}"
             ) from None
     elif "aggregatedValues" in opts:
         chosen = Format.AGGREGATED
     elif "temporalValues" in opts:
         chosen = Format.TEMPORAL_VALUES
+    elif "concise" in opts:
+        chosen = Format.CONCISE
     aggregation = None
     if chosen is Format.AGGREGATED:
         aggregation = Aggregation(_methods(methods), parse_duration(period))
-    elif methods not in (None, "") or period not in (None, ""):
-        raise BadRequestData("aggrMethods and aggrPeriodDuration need format=aggregatedValues")
+    else:
+        if methods not in (None, ""):
+            _methods(methods)
+        parse_duration(period)
     return replace(
         query,
         format=chosen,
@@ -396,17 +430,32 @@ def _paging(query: TemporalQuery, params: Mapping[str, str], limits: tuple[int, 
         raise TooManyResults(f"limit must be at most {max_limit}")
     offset = _non_negative(params.get("offset"), "offset") or 0
     count = _flag(params.get("count"), "count") or query.count
-    order = params.get("orderBy")
-    if order not in (None, "", "id"):
-        raise BadRequestData(f"orderBy supports only id, not {order[:40]!r}")
+    descending = _order(params.get("orderBy"))
     if limit == 0 and not count:
         raise BadRequestData("limit=0 needs count=true")
-    return replace(query, limit=default_limit if limit is None else limit, offset=offset, count=count)
+    limit = default_limit if limit is None else limit
+    return replace(query, limit=limit, offset=offset, count=count, descending=descending)
+
+
+def _order(raw: str | None) -> bool:
+    """``orderBy`` (clause 4.23): the temporal query orders by ``id`` only
+    (clause 5.7.4.4: any other member is a BadRequestData), ascending or,
+    with ``id;desc``, descending. True: descending."""
+    if raw in (None, ""):
+        return False
+    items = [item.strip() for item in str(raw).split(",")]
+    directions = set()
+    for item in items:
+        member, _, direction = item.partition(";")
+        if member.strip() != "id" or direction.strip() not in ("", "asc", "desc"):
+            raise BadRequestData(f"orderBy orders temporal entities by id only (id, id;asc, id;desc), not {raw[:80]!r}")
+        directions.add(direction.strip() == "desc")
+    if len(directions) > 1:
+        raise BadRequestData(f"orderBy names id twice in two directions: {raw[:80]!r}")
+    return directions.pop()
 
 
 def _refuse_unsupported(params: Mapping[str, str]) -> None:
-    if params.get("scopeQ") not in (None, ""):
-        raise OperationNotSupported("scopeQ is not supported: scopes are not stored")
     if params.get("csf") not in (None, ""):
         raise OperationNotSupported("csf is not supported: there are no context sources here")
     if params.get("offsetN") not in (None, ""):

@@ -14,7 +14,9 @@ from datetime import datetime
 from enum import Enum
 from typing import Any
 
+from tsdb_service.faces.ngsild import boolexpr
 from tsdb_service.faces.ngsild.qlang import Node
+from tsdb_service.faces.ngsild.scope import ScopeExpr
 
 DEFAULT_DATASET = "@none"  # how a request names the default instance in datasetId
 
@@ -30,6 +32,7 @@ class Format(str, Enum):
     NORMALIZED = "normalized"
     TEMPORAL_VALUES = "temporalValues"  # the simplified temporal representation
     AGGREGATED = "aggregatedValues"
+    CONCISE = "concise"  # normalized, without the types the value members say
 
 
 AGGR_METHODS = ("totalCount", "distinctCount", "sum", "avg", "min", "max", "stddev", "sumsq")
@@ -83,32 +86,18 @@ class TypeName:
     term: str = ""  # as the request wrote it (stored names may be that term)
 
 
-@dataclass(frozen=True, slots=True)
-class TypeAnd:
-    parts: tuple[TypeExpr, ...]
-
-
-@dataclass(frozen=True, slots=True)
-class TypeOr:
-    parts: tuple[TypeExpr, ...]
-
-
-TypeExpr = TypeName | TypeAnd | TypeOr
+TypeAnd = boolexpr.All  # every part
+TypeOr = boolexpr.AnyOf  # one part
+TypeExpr = TypeName | boolexpr.All | boolexpr.AnyOf
 
 
 def type_matches(expr: TypeExpr, has: Callable[[TypeName], bool]) -> bool:
     """Does an entity satisfy ``expr``? ``has(name)`` says whether it has one type."""
-    if isinstance(expr, TypeName):
-        return has(expr)
-    if isinstance(expr, TypeAnd):
-        return all(type_matches(p, has) for p in expr.parts)
-    return any(type_matches(p, has) for p in expr.parts)
+    return boolexpr.holds(expr, has)
 
 
 def type_names(expr: TypeExpr) -> list[TypeName]:
-    if isinstance(expr, TypeName):
-        return [expr]
-    return [name for p in expr.parts for name in type_names(p)]
+    return boolexpr.leaves(expr)
 
 
 @dataclass(frozen=True, slots=True)
@@ -145,6 +134,7 @@ class TemporalQuery:
     pick: tuple[str, ...] | None = None
     omit: tuple[str, ...] | None = None
     q: Node | None = None
+    scope_q: ScopeExpr | None = None
     geo: GeoQuery | None = None
     dataset_ids: tuple[str, ...] | None = None
     last_n: int | None = None
@@ -152,9 +142,11 @@ class TemporalQuery:
     format: Format = Format.NORMALIZED
     aggregation: Aggregation | None = None
     sys_attrs: bool = False
+    lang: tuple[tuple[str, float], ...] | None = None  # language ranges, best first (lowercase)
     limit: int = 20
     offset: int = 0
     count: bool = False
+    descending: bool = False  # orderBy=id;desc
     local: bool = False
 
     @property

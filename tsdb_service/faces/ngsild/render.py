@@ -18,12 +18,13 @@ sub-properties.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
 import orjson
 
-from tsdb_service.core.model import instance_urn
+from tsdb_service.core.model import client_instance_id, instance_urn
 from tsdb_service.faces.ngsild.aggregate import iso, type_name
 from tsdb_service.history.service import decode
 
@@ -39,6 +40,12 @@ MEMBERS = {
     "VocabProperty": ("vocab", "vocabs"),
     "JsonProperty": ("json", "jsons"),
 }
+# In the simplified form these values keep their member (Stellio's form, the
+# one the ETSI suite checks): [{"languageMap": {...}}, time], [{"json": ...},
+# time], [{"vocab": "..."}, time]; a bare object could not be told from a
+# Property's value.
+WRAPPED = frozenset({"LanguageProperty", "JsonProperty", "VocabProperty"})
+_CONCISE_DROPS = frozenset(MEMBERS) - {"GeoProperty"}
 _OWN_MEMBERS = frozenset(
     {"type", "observedAt", "createdAt", "modifiedAt", "deletedAt", "datasetId", "instanceId"}
     | {m for pair in MEMBERS.values() for m in pair}
@@ -81,17 +88,43 @@ def _time(moment: datetime | None) -> str | None:
     return None if moment is None else iso(moment)
 
 
-def normalized_instance(row, sys_attrs: bool) -> dict:
+@dataclass(frozen=True, slots=True)
+class Shape:
+    """How instances are written: ``sys_attrs`` adds createdAt/modifiedAt;
+    ``concise`` leaves out the ``type`` a value member already says
+    (clause 4.5.8; a GeoProperty keeps it, its ``value`` alone would read
+    as a Property's); ``lang`` (clause 4.15, RFC 4647 ranges) turns each
+    LanguageProperty instance into a Property of its best-matching
+    language, with ``lang`` naming it (Stellio's rule: else ``@none``,
+    else the first tag in order)."""
+
+    sys_attrs: bool = False
+    concise: bool = False
+    lang: tuple[tuple[str, float], ...] | None = None
+
+
+def normalized_instance(row, shape: Shape) -> dict:
     attr_type = ld_type(row)
-    out: dict[str, Any] = {"type": attr_type, MEMBERS[attr_type][0]: value_of(row, attr_type)}
-    out.update(sub_properties(row))
-    out["instanceId"] = instance_urn(row.iid)
+    value = value_of(row, attr_type)
+    out: dict[str, Any] = {}
+    if shape.lang is not None and attr_type == "LanguageProperty" and isinstance(value, dict) and value:
+        tag = best_language(value, shape.lang)
+        attr_type, value = "Property", value[tag]
+        out["lang"] = tag
+    member = MEMBERS[attr_type][0]
+    if shape.concise and attr_type != "GeoProperty":
+        out = {member: value, **out}
+    else:
+        out = {"type": attr_type, member: value, **out}
+    subs = sub_properties(row)
+    out.update(concise_members(subs) if shape.concise else subs)
+    out["instanceId"] = client_instance_id(row.md) or instance_urn(row.iid)
     out["observedAt"] = _time(row.observed_at or row.t)
     if row.dataset_id is not None:
         out["datasetId"] = row.dataset_id
     if row.deleted_at is not None:
         out["deletedAt"] = _time(row.deleted_at)
-    if sys_attrs:
+    if shape.sys_attrs:
         if row.created_at is not None:
             out["createdAt"] = _time(row.created_at)
         if row.modified_at is not None:
@@ -99,21 +132,50 @@ def normalized_instance(row, sys_attrs: bool) -> dict:
     return out
 
 
-def normalized(rows: list, sys_attrs: bool) -> list[dict]:
+def normalized(rows: list, shape: Shape) -> list[dict]:
     """One attribute's instances (all datasetIds), oldest first."""
     ordered = sorted(rows, key=lambda r: (r.at, r.iid))
-    return [normalized_instance(r, sys_attrs) for r in ordered]
+    return [normalized_instance(r, shape) for r in ordered]
 
 
-def simplified(rows: list) -> dict | list[dict]:
+def concise_members(members: dict) -> dict:
+    """Sub-properties and sub-relationships without the ``type`` their value member says."""
+    out = {}
+    for name, item in members.items():
+        if isinstance(item, dict) and item.get("type") in _CONCISE_DROPS and MEMBERS[item["type"]][0] in item:
+            item = {k: v for k, v in item.items() if k != "type"}
+        out[name] = item
+    return out
+
+
+def best_language(language_map: dict, ranges: tuple[tuple[str, float], ...]) -> str:
+    """The tag of ``language_map`` the ``lang`` ranges prefer (RFC 4647
+    basic filtering, highest ``q`` first; ``*`` takes any), else ``@none``,
+    else the first tag in order."""
+    tags = sorted(language_map)
+    for wanted, _ in ranges:
+        for tag in tags:
+            low = tag.lower()
+            if wanted == "*" or low == wanted or low.startswith(wanted + "-"):
+                return tag
+    return tags[0]
+
+
+def simplified(rows: list, lang: tuple[tuple[str, float], ...] | None = None) -> dict | list[dict]:
     """One attribute's instances as ``[value, time]`` pairs per datasetId."""
     out = []
     for dataset, group in _by_dataset(rows):
         attr_type = ld_type(group[0])
-        item: dict[str, Any] = {
-            "type": attr_type,
-            MEMBERS[attr_type][1]: [[value_of(r, attr_type), iso(r.at)] for r in group],
-        }
+        member = MEMBERS[attr_type][0]
+        values = [value_of(r, attr_type) for r in group]
+        if lang is not None and attr_type == "LanguageProperty":
+            attr_type, member = "Property", "value"
+            values = [v[best_language(v, lang)] if isinstance(v, dict) and v else v for v in values]
+        if attr_type in WRAPPED:
+            pairs = [[{member: v}, iso(r.at)] for v, r in zip(values, group, strict=True)]
+        else:
+            pairs = [[v, iso(r.at)] for v, r in zip(values, group, strict=True)]
+        item: dict[str, Any] = {"type": attr_type, MEMBERS[attr_type][1]: pairs}
         if dataset is not None:
             item["datasetId"] = dataset
         out.append(item)

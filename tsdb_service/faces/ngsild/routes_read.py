@@ -20,11 +20,12 @@ from fastapi import APIRouter, Request
 from starlette.responses import Response
 
 from tsdb_service.core.errors import BadRequestData, InvalidRequest, NotAcceptable
+from tsdb_service.core.timefmt import ld_iso as iso
 from tsdb_service.faces.ngsild import openapi as ld_oa
 from tsdb_service.faces.ngsild.context import JSONLD_CONTEXT_REL, ContextStore, TermMap, link_context
 from tsdb_service.faces.ngsild.params import query_from_body, query_from_params
 from tsdb_service.faces.ngsild.query import TemporalQuery
-from tsdb_service.faces.ngsild.service import TemporalResult, run
+from tsdb_service.faces.ngsild.service import Cut, TemporalResult, run
 from tsdb_service.http.store import store_of
 from tsdb_service.http.tenancy import caller_of, tenant_echo, tenant_of
 
@@ -179,15 +180,27 @@ def _respond(request: Request, media: str, terms: TermMap, result: TemporalResul
         if query.count:
             headers["NGSILD-Results-Count"] = str(result.count)
         links += _page_links(request, query, result.count)
+    status = 200
+    if result.cut is not None:
+        status = 206
+        headers["Content-Range"] = result.cut.content_range
+        if result.cut.window is not None and request.method == "GET":
+            links.append(_continuation(request, result.cut))
     if links:
         headers["Link"] = ", ".join(links)
-    status = 200
-    if result.content_range is not None:
-        status = 206
-        headers["Content-Range"] = result.content_range
     body = result.entities if many else result.entities[0]
     content = orjson.dumps(body, option=orjson.OPT_NON_STR_KEYS)
     return Response(content, status_code=status, media_type=media, headers=headers)
+
+
+def _continuation(request: Request, cut: Cut) -> str:
+    """The rest of a cut answer, as the newer drafts (ETSI TS 104 176) link
+    it: the same request over the window the cut left (``Cut.window``)."""
+    assert cut.window is not None
+    timerel, at, end = cut.window
+    params = [(k, v) for k, v in request.query_params.multi_items() if k not in ("timerel", "timeAt", "endTimeAt")]
+    params += [("timerel", timerel), ("timeAt", iso(at))] + ([("endTimeAt", iso(end))] if end is not None else [])
+    return f'<{request.url.path}?{urlencode(params)}>; rel="{cut.rel}"'
 
 
 def _page_links(request: Request, query, total: int) -> list[str]:

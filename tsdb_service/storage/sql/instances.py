@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import orjson
+
+from tsdb_service.core.model import client_instance_id, instance_iid
 from tsdb_service.core.query import TIME_PROPERTIES, InstanceAggregateRow, InstanceRow, InstanceValueRow, InstanceWindow
 from tsdb_service.read.instances import SeparateScans, TemporalReader
 from tsdb_service.read.requests import (
@@ -85,17 +88,27 @@ class SqlInstances(SqlReads, SeparateScans, TemporalReader):
         rows.sort(key=_instance_order)
         return rows
 
-    def instance_series(self, ask: InstanceLookup) -> int | None:
+    def instance_at(self, ask: InstanceLookup) -> tuple[int, int] | None:
         """See ``TemporalReader``."""
-        sids, iid = ask.sids, ask.iid
+        sids = ask.sids
         if not sids:
             return None
         d = self.dialect
         where, params = d.sid_filter(sids)
+        iid = instance_iid(ask.instance_id)
+        if iid is not None:
+            rows = self._fetch(
+                f"SELECT sid, iid FROM {d.samples('sid, iid')} WHERE {where} AND iid = {d.placeholder}", [*params, iid]
+            )
+            return (rows[0][0], rows[0][1]) if rows else None
+        # A client's instanceId is a member of md: the rows whose text holds
+        # it, then the member itself (a sub-property could hold the text).
         rows = self._fetch(
-            f"SELECT sid FROM {d.samples('sid, iid')} WHERE {where} AND iid = {d.placeholder}", [*params, iid]
+            f"SELECT sid, iid, md FROM {d.samples('sid, iid, md')} WHERE {where} "
+            f"AND md LIKE {d.placeholder} ESCAPE '\\'",
+            [*params, f"%{_like_escaped(orjson.dumps({'instanceId': ask.instance_id}).decode()[1:-1])}%"],
         )
-        return rows[0][0] if rows else None
+        return next(((sid, iid) for sid, iid, md in rows if client_instance_id(md) == ask.instance_id), None)
 
     def instances_matching(self, ask: InstancesMatching) -> set[int]:
         """See ``TemporalReader``."""
@@ -149,6 +162,11 @@ class SqlInstances(SqlReads, SeparateScans, TemporalReader):
         """``{head} WHERE <sid in sids> AND {where}``, all rows."""
         where_s, params_s = self.dialect.sid_filter(sids)
         return self._fetch(f"{head} WHERE {where_s} AND {where}", [*params_s, *params])
+
+
+def _like_escaped(text: str) -> str:
+    """``text`` as a literal in a LIKE pattern with ESCAPE '\\'."""
+    return text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_")
 
 
 # NGSI-LD time properties → the SQL that reads them (``storage.sql.temporal``).

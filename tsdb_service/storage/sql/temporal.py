@@ -18,7 +18,15 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from tsdb_service.core.model import Kind
-from tsdb_service.core.query import InstancePeriods, InstanceWindow, LocationProbe, Prefilter, ValueProbe, ValueTest
+from tsdb_service.core.query import (
+    ANY_INSTANCE,
+    InstancePeriods,
+    InstanceWindow,
+    LocationProbe,
+    Prefilter,
+    ValueProbe,
+    ValueTest,
+)
 from tsdb_service.storage.common import box_sql
 
 if TYPE_CHECKING:
@@ -89,6 +97,8 @@ def value_test_sql(d: SqlDialect, test: ValueTest) -> tuple[str, list]:
     """SQL: one instance passes ``test`` (see ``query.ValueTest``)."""
     if test.op is None:
         return f"kind <> {_NULL}", []
+    if test.op == ANY_INSTANCE:
+        return "TRUE", []
     op = _SQL_OPS[test.op]
     if isinstance(test.value, str):
         return f"kind IN ({_TEXT}) AND txt {op} {d.placeholder}", [test.value]
