@@ -19,6 +19,9 @@ import pytest
 from tsdb_service.app import create_app
 from tsdb_service.core.config import Settings
 
+# Fixture modules every test module can use, without importing them.
+pytest_plugins = ["tests.grafana_fixtures"]
+
 with warnings.catch_warnings():
     warnings.simplefilter("ignore")  # starlette's note about httpx2
     from fastapi.testclient import TestClient
@@ -34,7 +37,7 @@ def _backends() -> list[str]:
 def pg_cluster():
     """A private PostgreSQL cluster for the whole run (initdb + pg_ctl on a
     temporary directory and a free port), stopped at the end."""
-    from pg_cluster import PgCluster, find_bin
+    from tests.pg_cluster import PgCluster, find_bin
 
     if not (find_bin("initdb") and find_bin("pg_ctl")):
         pytest.skip("PostgreSQL server binaries (initdb, pg_ctl) are not installed")

@@ -18,7 +18,7 @@ the diff by hand: they are the specification).
 ``feed_live`` sends the same bursts live, ending at a given wall-clock
 moment, for the browser tests whose dashboards look at "now".
 
-Import with ``from tests.grafana_fixtures import grafana_http, grafana_server  # noqa: F401``.
+A plugin of ``tests/conftest.py`` (``pytest_plugins``): every test module can ask for the fixtures.
 """
 
 from __future__ import annotations
@@ -162,22 +162,7 @@ async def feed_live(url: str, end_ms: int) -> dict:
     return stats
 
 
-@dataclass
-class _Running:
-    service: LoadedService
-    server: _ThreadedServer
-    thread: threading.Thread
-    users: int = 0
-
-
-# One loaded server per backend for the whole session. Each test module that
-# imports ``grafana_server`` gets its own (session-scoped) fixture definition,
-# so the servers are shared here, keyed by the backend's store-URL factory,
-# and each is stopped when its last user is done.
-_RUNNING: dict[int, _Running] = {}
-
-
-def _start(app_factory, store_url_factory) -> _Running:
+def _start(app_factory, store_url_factory) -> tuple[LoadedService, _ThreadedServer, threading.Thread]:
     app = app_factory(store_url_factory("grafana"))
     port = free_port()
     server = _ThreadedServer(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on"))
@@ -196,7 +181,7 @@ def _start(app_factory, store_url_factory) -> _Running:
         _stop(server, thread)
         raise
     client = httpx.Client(base_url=url, timeout=30.0)
-    return _Running(LoadedService(url, stats, int(RECORDED_END.timestamp() * 1000), client), server, thread)
+    return LoadedService(url, stats, int(RECORDED_END.timestamp() * 1000), client), server, thread
 
 
 def _stop(server: _ThreadedServer, thread: threading.Thread) -> None:
@@ -206,19 +191,14 @@ def _stop(server: _ThreadedServer, thread: threading.Thread) -> None:
 
 @pytest.fixture(scope="session")
 def grafana_server(app_factory, store_url_factory):
-    key = id(store_url_factory)
-    running = _RUNNING.get(key)
-    if running is None:
-        running = _RUNNING[key] = _start(app_factory, store_url_factory)
-    running.users += 1
+    """One loaded server per backend for the whole session (this module is a
+    plugin of ``tests/conftest.py``: one fixture definition for every module)."""
+    service, server, thread = _start(app_factory, store_url_factory)
     try:
-        yield running.service
+        yield service
     finally:
-        running.users -= 1
-        if running.users == 0:
-            del _RUNNING[key]
-            running.service.client.close()
-            _stop(running.server, running.thread)
+        service.client.close()
+        _stop(server, thread)
 
 
 _GOLDEN_FILES: dict[str, GoldenFile] = {}

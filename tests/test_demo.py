@@ -35,11 +35,7 @@ from typing import ClassVar
 import httpx
 import pytest
 
-try:
-    from support.server import ServerProcess, free_port
-except ImportError:  # tests/ imported as a package
-    from tests.support.server import ServerProcess, free_port
-
+from tests.support.server import ServerProcess, free_port
 from tsdb_service.broker.subscriptions import broker_headers, subscription, write_examples
 from tsdb_service.demo.runner import Progress, RunConfig, Stats, _Clock, live_window, run
 from tsdb_service.usecases import enums, orion, sites

@@ -9,10 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-try:
-    from support.imports import import_graph
-except ImportError:  # run from the repository root as a package
-    from tests.support.imports import import_graph
+from tests.support.imports import import_graph
 
 # Layer 1: what both sides of the seams speak; imports only itself.
 VOCABULARY = {"model", "query", "errors", "timefmt", "config", "retention_policy"}

@@ -9,7 +9,8 @@ from __future__ import annotations
 import math
 
 import pytest
-from ngsild_fixtures import get, ids, ld_notify
+
+from tests.ngsild_fixtures import get, ids, ld_notify
 
 EARLY, LATE = "2024-01-01T00:00:00Z", "2024-01-01T01:00:00Z"
 CENTRE = [0.03, 0.0]

@@ -5,7 +5,8 @@ NGSI-LD notifications, on both backends."""
 from __future__ import annotations
 
 import pytest
-from ngsild_fixtures import (
+
+from tests.ngsild_fixtures import (
     A8311,
     B9211,
     ENTITIES,

@@ -18,11 +18,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-try:
-    from support.server import ServerProcess
-except ImportError:  # tests/ imported as a package
-    from tests.support.server import ServerProcess
-
+from tests.support.server import ServerProcess
 from tsdb_service.demo import collection
 from tsdb_service.demo.collection import QUERIES, Query, by_name, execute
 from tsdb_service.demo.commands import write_collection

@@ -11,8 +11,8 @@ import random
 from datetime import UTC, datetime
 
 import pytest
-from ngsild_fixtures import TENANT, ld_notify
 
+from tests.ngsild_fixtures import TENANT, ld_notify
 from tsdb_service.core.query import EntityFilter, InstanceWindow, Scope, ValueTest
 from tsdb_service.geo.filter import BBox
 from tsdb_service.storage.base import Querier
