@@ -15,8 +15,9 @@ test gets, in order, with ``tests/golden/grafana/<module>.json`` (the same
 file for both backends); ``UPDATE_GOLDEN=1`` rewrites those files (review
 the diff by hand: they are the specification).
 
-``feed_live`` sends the same bursts live, ending at a given wall-clock
-moment, for the browser tests whose dashboards look at "now".
+``feed_live`` sends the same bursts through the demo's runner on virtual
+time, ending at a given wall-clock moment, for the browser tests whose
+pages look at "now".
 
 A plugin of ``tests/conftest.py`` (``pytest_plugins``): every test module can ask for the fixtures.
 """
@@ -39,7 +40,7 @@ import uvicorn
 
 from tests.support.golden_http import GoldenFile, GoldenHttp, golden_key
 from tests.support.server import free_port
-from tsdb_service.demo.runner import RunConfig, rng_for, run
+from tsdb_service.demo.runner import RunConfig, VirtualTime, rng_for, run
 from tsdb_service.usecases import orion
 from tsdb_service.usecases.registry import SIMULATORS
 
@@ -119,10 +120,11 @@ async def _post_all(url: str, notes: list[tuple[dict, bytes]]) -> int:
     for note in notes:
         queue.put_nowait(note)
     acked = 0
+    tls = httpx.create_ssl_context()  # one for every client: building one loads the CA bundle
 
     async def sender() -> None:
         nonlocal acked
-        async with httpx.AsyncClient(base_url=url, timeout=30.0) as client:
+        async with httpx.AsyncClient(base_url=url, timeout=30.0, verify=tls) as client:
             while not queue.empty():
                 headers, body = queue.get_nowait()
                 response = await client.post("/v2/notify", content=body, headers=headers)
@@ -140,7 +142,9 @@ async def _feed_recorded(url: str) -> dict[str, int]:
 
 
 async def feed_live(url: str, end_ms: int) -> dict:
-    """Every burst, live through the demo's runner; each simulated span ends at ``end_ms``."""
+    """Every burst through the demo's runner, each on its own virtual clock
+    (no waiting: the bursts' wall durations are tiny anyway); each simulated
+    span ends at ``end_ms``."""
     end = datetime.fromtimestamp(end_ms / 1000, tz=UTC)
     runs = [
         run(
@@ -153,6 +157,7 @@ async def feed_live(url: str, end_ms: int) -> dict:
                 concurrency=CONCURRENCY,
                 start=end - timedelta(seconds=speedup * seconds),
             ),
+            timer=VirtualTime(),
         )
         for name, (speedup, seconds) in BURSTS.items()
     ]
