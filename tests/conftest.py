@@ -36,12 +36,14 @@ def _backends() -> list[str]:
 @pytest.fixture(scope="session")
 def pg_cluster():
     """A private PostgreSQL cluster for the whole run (initdb + pg_ctl on a
-    temporary directory and a free port), stopped at the end."""
+    temporary directory and a free port), stopped at the end. Not durable
+    (no fsync): it is thrown away, and the tests crash the service, never
+    the cluster."""
     from tests.pg_cluster import PgCluster, find_bin
 
     if not (find_bin("initdb") and find_bin("pg_ctl")):
         pytest.skip("PostgreSQL server binaries (initdb, pg_ctl) are not installed")
-    cluster = PgCluster().start()
+    cluster = PgCluster(durable=False).start()
     try:
         yield cluster
     finally:
