@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import json
 import re
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import httpx
@@ -22,7 +23,7 @@ from tests.support.server import ServerProcess
 from tsdb_service.demo import collection
 from tsdb_service.demo.collection import QUERIES, Query, by_name, execute
 from tsdb_service.demo.commands import write_collection
-from tsdb_service.demo.runner import RunConfig, run
+from tsdb_service.demo.runner import RunConfig, VirtualTime, run
 from tsdb_service.usecases import sites
 from tsdb_service.usecases.registry import SIMULATORS
 
@@ -43,8 +44,21 @@ REQUIRED = (
 
 
 async def _feed(url: str) -> None:
+    """Each phase through the demo's runner on virtual time, ending now."""
+    now = datetime.now(UTC)
     runs = [
-        run([SIMULATORS[name]], RunConfig(url, speedup=speedup, duration=seconds, seed=SEED, concurrency=4))
+        run(
+            [SIMULATORS[name]],
+            RunConfig(
+                url,
+                speedup=speedup,
+                duration=seconds,
+                seed=SEED,
+                concurrency=16,
+                start=now - timedelta(seconds=speedup * seconds),
+            ),
+            timer=VirtualTime(),
+        )
         for name, (speedup, seconds) in PHASES.items()
     ]
     for stats in await asyncio.gather(*runs):
