@@ -55,18 +55,51 @@ def backend(request) -> str:
     return request.param
 
 
+class _PgDatabases:
+    """``make(name)`` → a fresh, empty database on the suite's cluster.
+
+    A database a test gave back (``release``) is emptied, its ``public``
+    schema dropped and created again as a new database has it (owner,
+    privileges, comment), and handed out next: what the service finds is
+    the same empty database, in a few milliseconds instead of a copy of
+    template1 (7 MB, ~0.1-0.3 s here) plus its deletion at the end. A
+    database something is still connected to is never handed out again."""
+
+    def __init__(self, cluster) -> None:
+        self.cluster = cluster
+        self.counter = itertools.count(1)
+        self.emptied: list[str] = []
+
+    def __call__(self, name: str = "db") -> str:
+        if self.emptied:
+            return self.emptied.pop()
+        safe = re.sub(r"[^a-z0-9_]", "_", name.lower())[:40]
+        return self.cluster.database(f"{safe}_{next(self.counter)}")
+
+    def release(self, url: str) -> None:
+        import psycopg
+
+        try:
+            with psycopg.connect(url, autocommit=True) as conn:
+                others = "SELECT count(*) FROM pg_stat_activity WHERE datname = current_database() AND pid <> %s"
+                if conn.execute(others, [conn.info.backend_pid]).fetchone()[0]:
+                    return
+                conn.execute("SET lock_timeout = '5s'")
+                with conn.transaction():
+                    conn.execute("DROP SCHEMA public CASCADE")
+                    conn.execute("CREATE SCHEMA public AUTHORIZATION pg_database_owner")
+                    conn.execute("GRANT USAGE ON SCHEMA public TO PUBLIC")
+                    conn.execute("COMMENT ON SCHEMA public IS 'standard public schema'")
+        except psycopg.Error:
+            return
+        self.emptied.append(url)
+
+
 @pytest.fixture(scope="session")
 def store_url_factory(backend, tmp_path_factory, request) -> Callable[[str], str]:
     """``make(name)`` → a fresh, empty store location on the backend under test."""
     if backend == "postgresql":
-        cluster = request.getfixturevalue("pg_cluster")
-        counter = itertools.count(1)
-
-        def make_pg(name: str = "db") -> str:
-            safe = re.sub(r"[^a-z0-9_]", "_", name.lower())[:40]
-            return cluster.database(f"{safe}_{next(counter)}")
-
-        return make_pg
+        return _PgDatabases(request.getfixturevalue("pg_cluster"))
 
     def make(name: str = "db") -> str:
         return str(tmp_path_factory.mktemp(name) / "tsdb.duckdb")
@@ -75,8 +108,12 @@ def store_url_factory(backend, tmp_path_factory, request) -> Callable[[str], str
 
 
 @pytest.fixture
-def store_url(store_url_factory) -> str:
-    return store_url_factory("db")
+def store_url(store_url_factory) -> Iterator[str]:
+    """A fresh, empty store for one test (on PostgreSQL, emptied afterwards for the next one)."""
+    url = store_url_factory("db")
+    yield url
+    if isinstance(store_url_factory, _PgDatabases):
+        store_url_factory.release(url)
 
 
 @pytest.fixture(scope="session")
