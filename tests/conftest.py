@@ -11,6 +11,7 @@ from __future__ import annotations
 import itertools
 import os
 import re
+import subprocess
 import warnings
 from collections.abc import Callable, Iterator
 
@@ -43,7 +44,15 @@ def pg_cluster():
 
     if not (find_bin("initdb") and find_bin("pg_ctl")):
         pytest.skip("PostgreSQL server binaries (initdb, pg_ctl) are not installed")
-    cluster = PgCluster(durable=False).start()
+    for attempt in range(3):  # each xdist worker starts one: another may take the free port first
+        cluster = PgCluster(durable=False)
+        try:
+            cluster.start()
+            break
+        except subprocess.CalledProcessError:
+            cluster.stop()
+            if attempt == 2:
+                raise
     try:
         yield cluster
     finally:
@@ -96,10 +105,17 @@ class _PgDatabases:
 
 
 @pytest.fixture(scope="session")
+def pg_databases(pg_cluster) -> _PgDatabases:
+    """The cluster's databases for the whole run, whatever the order of the
+    backends (``store_url_factory`` is made again at each change of backend)."""
+    return _PgDatabases(pg_cluster)
+
+
+@pytest.fixture(scope="session")
 def store_url_factory(backend, tmp_path_factory, request) -> Callable[[str], str]:
     """``make(name)`` → a fresh, empty store location on the backend under test."""
     if backend == "postgresql":
-        return _PgDatabases(request.getfixturevalue("pg_cluster"))
+        return request.getfixturevalue("pg_databases")
 
     def make(name: str = "db") -> str:
         return str(tmp_path_factory.mktemp(name) / "tsdb.duckdb")
@@ -153,3 +169,51 @@ def post_notification(client, body: dict, headers: dict | None = None):
 def notify():
     """``notify(client, body, headers)``: POST a notification, assert 200."""
     return post_notification
+
+
+# -- pytest-xdist: what runs together ----------------------------------------------------------
+
+
+def _work_unit(nodeid: str) -> str:
+    """A test module on one backend (``tests/test_x.py[duckdb]``), or the module
+    alone for tests that take no backend. Modules that share a session
+    fixture share a unit, so the fixture is set up once."""
+    path, _, name = nodeid.partition("::")
+    stem = path.rsplit("/", 1)[-1].removesuffix(".py")
+    if stem in _BOTH_BACKENDS:
+        return path
+    module = _SHARED_UNITS.get(stem, path)
+    params = name.partition("[")[2].rstrip("]").split("-")
+    backends = [b for b in _backends() if b in params]
+    return f"{module}[{backends[0]}]" if len(backends) == 1 else module
+
+
+# Modules whose backends run together: the fuzzing replays on the second
+# backend the cases generated for the first (generating is most of its time).
+_BOTH_BACKENDS = {"test_fuzz_schemathesis"}
+# The modules of the loaded Grafana server (``grafana_server``, session scope).
+_SHARED_UNITS = dict.fromkeys(
+    ("test_grafana_contract", "test_grafana_contract_ld", "test_grafana_simplejson", "test_grafana_schema"), "grafana"
+)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """With ``-n N`` (and no other ``--dist``): each worker takes whole units
+    (see ``_work_unit``) in the collection's order, which pytest sorts by
+    backend. A worker then runs the DuckDB tests, then the PostgreSQL ones,
+    then those that take no backend: the session fixtures of one backend
+    (its store factory, the loaded Grafana server) are set up once per
+    worker, and each module's module fixtures once. xdist's default would
+    send single tests: module fixtures (a loaded store, a served process)
+    set up on every worker, and the backend changing back and forth."""
+    if config.getoption("dist") != "load":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class _ByUnit(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return _work_unit(nodeid)
+
+    config.option.loadscopereorder = False  # keep pytest's order: one change of backend per worker
+    return _ByUnit(config, log)
