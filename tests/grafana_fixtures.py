@@ -38,9 +38,10 @@ import httpx
 import pytest
 import uvicorn
 
+from tests.support.demo_feed import feed_phases
 from tests.support.golden_http import GoldenFile, GoldenHttp, golden_key
 from tests.support.server import free_port
-from tsdb_service.demo.runner import RunConfig, VirtualTime, rng_for, run
+from tsdb_service.demo.runner import rng_for
 from tsdb_service.usecases import orion
 from tsdb_service.usecases.registry import SIMULATORS
 
@@ -161,25 +162,7 @@ async def feed_live(url: str, end_ms: int) -> dict:
     (no waiting: the bursts' wall durations are tiny anyway); each simulated
     span ends at ``end_ms``."""
     end = datetime.fromtimestamp(end_ms / 1000, tz=UTC)
-    runs = [
-        run(
-            [SIMULATORS[name]],
-            RunConfig(
-                url,
-                speedup=speedup,
-                duration=seconds,
-                seed=SEED,
-                concurrency=CONCURRENCY,
-                start=end - timedelta(seconds=speedup * seconds),
-            ),
-            timer=VirtualTime(),
-        )
-        for name, (speedup, seconds) in BURSTS.items()
-    ]
-    stats = {}
-    for result in await asyncio.gather(*runs):
-        stats.update(result)
-    return stats
+    return await feed_phases(url, BURSTS, seed=SEED, end=end, concurrency=CONCURRENCY)
 
 
 def _start(app_factory, store_url_factory) -> tuple[LoadedService, _ThreadedServer, threading.Thread]:

@@ -38,6 +38,7 @@ from typing import ClassVar
 import httpx
 import pytest
 
+from tests.support.demo_feed import feed_phases
 from tests.support.server import ServerProcess, free_port
 from tsdb_service.broker.subscriptions import broker_headers, subscription, write_examples
 from tsdb_service.demo.runner import Progress, RunConfig, Stats, VirtualTime, WallTime, _Clock, live_window, run
@@ -234,35 +235,11 @@ def test_subscribe_reports_a_broker_refusal(broker, capsys):
 # -- through HTTP: a bounded, seeded demo run -----------------------------------------
 
 
-async def _feed(url: str) -> dict:
-    """Every phase at once, each on its own virtual clock, ending now."""
-    now = datetime.now(UTC)
-    runs = [
-        run(
-            [SIMULATORS[name]],
-            RunConfig(
-                url,
-                speedup=speedup,
-                duration=seconds,
-                seed=SEED,
-                concurrency=16,
-                start=now - timedelta(seconds=speedup * seconds),
-            ),
-            timer=VirtualTime(),
-        )
-        for name, (speedup, seconds) in PHASES.items()
-    ]
-    stats = {}
-    for result in await asyncio.gather(*runs):
-        stats.update(result)
-    return stats
-
-
 @pytest.fixture(scope="module")
 def demo(store_url_factory):
     """A server on a fresh store (each backend), fed by the three simulators; yields (client, stats)."""
     with ServerProcess(store_url_factory("demo")) as server:
-        stats = asyncio.run(_feed(server.url))
+        stats = asyncio.run(feed_phases(server.url, PHASES, seed=SEED, end=datetime.now(UTC)))
         with httpx.Client(base_url=server.url, timeout=30.0) as client:
             yield client, stats
 

@@ -13,19 +13,18 @@ from __future__ import annotations
 import asyncio
 import json
 import re
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime
 from pathlib import Path
 
 import httpx
 import pytest
 
+from tests.support.demo_feed import feed_phases
 from tests.support.server import ServerProcess
 from tsdb_service.demo import collection
 from tsdb_service.demo.collection import QUERIES, Query, by_name, execute
 from tsdb_service.demo.commands import write_collection
-from tsdb_service.demo.runner import RunConfig, VirtualTime, run
 from tsdb_service.usecases import sites
-from tsdb_service.usecases.registry import SIMULATORS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,25 +44,9 @@ REQUIRED = (
 
 async def _feed(url: str) -> None:
     """Each phase through the demo's runner on virtual time, ending now."""
-    now = datetime.now(UTC)
-    runs = [
-        run(
-            [SIMULATORS[name]],
-            RunConfig(
-                url,
-                speedup=speedup,
-                duration=seconds,
-                seed=SEED,
-                concurrency=16,
-                start=now - timedelta(seconds=speedup * seconds),
-            ),
-            timer=VirtualTime(),
-        )
-        for name, (speedup, seconds) in PHASES.items()
-    ]
-    for stats in await asyncio.gather(*runs):
-        for row in stats.values():
-            assert row.failed == 0, row
+    stats = await feed_phases(url, PHASES, seed=SEED, end=datetime.now(UTC))
+    for row in stats.values():
+        assert row.failed == 0, row
 
 
 @pytest.fixture(scope="module")
