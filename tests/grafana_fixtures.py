@@ -15,10 +15,11 @@ test gets, in order, with ``tests/golden/grafana/<module>.json`` (the same
 file for both backends); ``UPDATE_GOLDEN=1`` rewrites those files (review
 the diff by hand: they are the specification).
 
-``feed_live`` sends the same bursts live, ending at a given wall-clock
-moment, for the browser tests whose dashboards look at "now".
+``feed_live`` sends the same bursts through the demo's runner on virtual
+time, ending at a given wall-clock moment, for the browser tests whose
+pages look at "now".
 
-Import with ``from tests.grafana_fixtures import grafana_http, grafana_server  # noqa: F401``.
+A plugin of ``tests/conftest.py`` (``pytest_plugins``): every test module can ask for the fixtures.
 """
 
 from __future__ import annotations
@@ -37,9 +38,10 @@ import httpx
 import pytest
 import uvicorn
 
+from tests.support.demo_feed import feed_phases
 from tests.support.golden_http import GoldenFile, GoldenHttp, golden_key
 from tests.support.server import free_port
-from tsdb_service.demo.runner import RunConfig, rng_for, run
+from tsdb_service.demo.runner import rng_for
 from tsdb_service.usecases import orion
 from tsdb_service.usecases.registry import SIMULATORS
 
@@ -114,20 +116,36 @@ def recorded() -> dict[str, list[tuple[dict, bytes]]]:
 async def _post_all(url: str, notes: list[tuple[dict, bytes]]) -> int:
     """POST every notification over CONCURRENCY keep-alive connections; returns
     how many were acknowledged. Each (entity, time index) occurs once, so the
-    stored data does not depend on the order in which they arrive."""
-    queue: asyncio.Queue = asyncio.Queue()
-    for note in notes:
-        queue.put_nowait(note)
+    stored data does not depend on the order in which they arrive.
+
+    Plain HTTP/1.1 on asyncio streams: the server runs in this process, and
+    an HTTP client library's own work (about 0.7 ms a request with httpx)
+    would take the interpreter from it for as long as the server's."""
+    host, port = httpx.URL(url).host, httpx.URL(url).port
+    queue = list(reversed(notes))
     acked = 0
 
     async def sender() -> None:
         nonlocal acked
-        async with httpx.AsyncClient(base_url=url, timeout=30.0) as client:
-            while not queue.empty():
-                headers, body = queue.get_nowait()
-                response = await client.post("/v2/notify", content=body, headers=headers)
-                assert response.status_code == 200, response.text
+        reader, writer = await asyncio.open_connection(host, port)
+        try:
+            while queue:
+                headers, body = queue.pop()
+                fields = {"Host": f"{host}:{port}", **headers, "Content-Length": str(len(body))}
+                head = "POST /v2/notify HTTP/1.1\r\n" + "".join(f"{k}: {v}\r\n" for k, v in fields.items())
+                writer.write(head.encode("latin-1") + b"\r\n" + body)
+                status = await reader.readline()
+                length = 0
+                while (line := await reader.readline()) not in (b"\r\n", b""):
+                    name, _, value = line.partition(b":")
+                    if name.strip().lower() == b"content-length":
+                        length = int(value)
+                answer = await reader.readexactly(length)
+                assert status.split(b" ", 2)[1] == b"200", status + answer
                 acked += 1
+        finally:
+            writer.close()
+            await writer.wait_closed()
 
     await asyncio.gather(*(sender() for _ in range(CONCURRENCY)))
     return acked
@@ -140,44 +158,14 @@ async def _feed_recorded(url: str) -> dict[str, int]:
 
 
 async def feed_live(url: str, end_ms: int) -> dict:
-    """Every burst, live through the demo's runner; each simulated span ends at ``end_ms``."""
+    """Every burst through the demo's runner, each on its own virtual clock
+    (no waiting: the bursts' wall durations are tiny anyway); each simulated
+    span ends at ``end_ms``."""
     end = datetime.fromtimestamp(end_ms / 1000, tz=UTC)
-    runs = [
-        run(
-            [SIMULATORS[name]],
-            RunConfig(
-                url,
-                speedup=speedup,
-                duration=seconds,
-                seed=SEED,
-                concurrency=CONCURRENCY,
-                start=end - timedelta(seconds=speedup * seconds),
-            ),
-        )
-        for name, (speedup, seconds) in BURSTS.items()
-    ]
-    stats = {}
-    for result in await asyncio.gather(*runs):
-        stats.update(result)
-    return stats
+    return await feed_phases(url, BURSTS, seed=SEED, end=end, concurrency=CONCURRENCY)
 
 
-@dataclass
-class _Running:
-    service: LoadedService
-    server: _ThreadedServer
-    thread: threading.Thread
-    users: int = 0
-
-
-# One loaded server per backend for the whole session. Each test module that
-# imports ``grafana_server`` gets its own (session-scoped) fixture definition,
-# so the servers are shared here, keyed by the backend's store-URL factory,
-# and each is stopped when its last user is done.
-_RUNNING: dict[int, _Running] = {}
-
-
-def _start(app_factory, store_url_factory) -> _Running:
+def _start(app_factory, store_url_factory) -> tuple[LoadedService, _ThreadedServer, threading.Thread]:
     app = app_factory(store_url_factory("grafana"))
     port = free_port()
     server = _ThreadedServer(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on"))
@@ -196,7 +184,7 @@ def _start(app_factory, store_url_factory) -> _Running:
         _stop(server, thread)
         raise
     client = httpx.Client(base_url=url, timeout=30.0)
-    return _Running(LoadedService(url, stats, int(RECORDED_END.timestamp() * 1000), client), server, thread)
+    return LoadedService(url, stats, int(RECORDED_END.timestamp() * 1000), client), server, thread
 
 
 def _stop(server: _ThreadedServer, thread: threading.Thread) -> None:
@@ -206,19 +194,14 @@ def _stop(server: _ThreadedServer, thread: threading.Thread) -> None:
 
 @pytest.fixture(scope="session")
 def grafana_server(app_factory, store_url_factory):
-    key = id(store_url_factory)
-    running = _RUNNING.get(key)
-    if running is None:
-        running = _RUNNING[key] = _start(app_factory, store_url_factory)
-    running.users += 1
+    """One loaded server per backend for the whole session (this module is a
+    plugin of ``tests/conftest.py``: one fixture definition for every module)."""
+    service, server, thread = _start(app_factory, store_url_factory)
     try:
-        yield running.service
+        yield service
     finally:
-        running.users -= 1
-        if running.users == 0:
-            del _RUNNING[key]
-            running.service.client.close()
-            _stop(running.server, running.thread)
+        service.client.close()
+        _stop(server, thread)
 
 
 _GOLDEN_FILES: dict[str, GoldenFile] = {}

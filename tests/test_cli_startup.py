@@ -16,14 +16,10 @@ import time
 from pathlib import Path
 
 import pytest
-from pg_cluster import free_port
 
+from tests.pg_cluster import free_port
+from tests.test_cli_settings import run_cli
 from tsdb_service import __version__
-
-try:
-    from test_cli_settings import run_cli
-except ImportError:  # tests/ imported as a package
-    from tests.test_cli_settings import run_cli
 
 
 def assert_one_line(done: subprocess.CompletedProcess, *needles: str, status: int = 2) -> str:

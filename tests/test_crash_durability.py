@@ -22,10 +22,7 @@ import time
 
 import duckdb
 
-try:
-    from support.server import ServerProcess
-except ImportError:  # tests/ imported as a package
-    from tests.support.server import ServerProcess
+from tests.support.server import ServerProcess
 
 TENANT = "crashtest"
 THREADS = 16

@@ -12,12 +12,8 @@ import os
 import psycopg
 import pytest
 
-try:
-    from support.server import ServerProcess
-except ImportError:  # tests/ imported as a package
-    from tests.support.server import ServerProcess
-
-from test_crash_durability import (
+from tests.support.server import ServerProcess
+from tests.test_crash_durability import (
     ACK,
     FAILED,
     KILL_AFTER_ACKS,

@@ -1,9 +1,12 @@
 """The one-command demo: simulators, Orion-faithful notifications, subscriptions.
 
 Offline tests check what the simulators emit and what the files say. The
-HTTP tests feed a real server subprocess (temporary DuckDB file) with a
-bounded, seeded run of the three simulators, then read everything back
-through the history API only, as a user would:
+HTTP tests feed a real server subprocess (each backend) with a bounded,
+seeded run of the three simulators through the demo's runner on virtual
+time (the notifications of a wall-clock run, as fast as the server
+acknowledges them; the wall-clock runs are the ``demo`` command's tests
+below), then read everything back through the history API only, as a user
+would:
 
 * each use case has its entities, with ROS messages of the right shape;
 * the time axis is the simulated one (1 Hz odometry stays 1 s apart);
@@ -35,20 +38,18 @@ from typing import ClassVar
 import httpx
 import pytest
 
-try:
-    from support.server import ServerProcess, free_port
-except ImportError:  # tests/ imported as a package
-    from tests.support.server import ServerProcess, free_port
-
+from tests.support.demo_feed import feed_phases
+from tests.support.server import ServerProcess, free_port
 from tsdb_service.broker.subscriptions import broker_headers, subscription, write_examples
-from tsdb_service.demo.runner import Progress, RunConfig, Stats, _Clock, live_window, run
+from tsdb_service.demo.runner import Progress, RunConfig, Stats, VirtualTime, WallTime, _Clock, live_window, run
 from tsdb_service.usecases import enums, orion, sites
 from tsdb_service.usecases.registry import SIMULATORS
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 20240611
 # (speedup, wall seconds) per simulator: each phase is seeded and bounded in
-# simulated time (speedup x seconds), so the data does not depend on speed.
+# simulated time (speedup x seconds), so the data does not depend on speed
+# (nor on the clock: the fixture runs them on virtual time).
 PHASES = {
     "lawnmower": (120.0, 10.0),  # 20 simulated minutes: a few mowing cycles
     "warehouse": (40.0, 10.0),  # ~7 minutes: a dozen door passes
@@ -234,22 +235,11 @@ def test_subscribe_reports_a_broker_refusal(broker, capsys):
 # -- through HTTP: a bounded, seeded demo run -----------------------------------------
 
 
-async def _feed(url: str) -> dict:
-    runs = [
-        run([SIMULATORS[name]], RunConfig(url, speedup=speedup, duration=seconds, seed=SEED, concurrency=6))
-        for name, (speedup, seconds) in PHASES.items()
-    ]
-    stats = {}
-    for result in await asyncio.gather(*runs):
-        stats.update(result)
-    return stats
-
-
 @pytest.fixture(scope="module")
 def demo(store_url_factory):
     """A server on a fresh store (each backend), fed by the three simulators; yields (client, stats)."""
     with ServerProcess(store_url_factory("demo")) as server:
-        stats = asyncio.run(_feed(server.url))
+        stats = asyncio.run(feed_phases(server.url, PHASES, seed=SEED, end=datetime.now(UTC)))
         with httpx.Client(base_url=server.url, timeout=30.0) as client:
             yield client, stats
 
@@ -541,6 +531,71 @@ def test_the_expected_end_follows_the_pace_so_far():
     assert clock.expected_end([row]) == pytest.approx(150.0, abs=0.5), "40 planned s in 100 s: 20 more take 50"
     line = Progress.summary({"drone": row}, clock)
     assert "BEHIND by 60.0 s" in line and "ends in ~50 s" in line and "90 s after --duration 60" in line
+
+
+# -- virtual time: the same notifications, without the waiting ------------------------------------
+
+
+class _Recorder(http.server.BaseHTTPRequestHandler):
+    """Acknowledges every notification and keeps its body, in arrival order."""
+
+    protocol_version = "HTTP/1.1"  # keep-alive, as the service
+    bodies: ClassVar[list] = []
+
+    def do_POST(self):
+        self.bodies.append(json.loads(self.rfile.read(int(self.headers["Content-Length"]))))
+        self.send_response(200)
+        self.send_header("Content-Length", "0")
+        self.end_headers()
+
+    def log_message(self, *args):
+        pass
+
+
+def _recorded_run(names: list[str], timer, concurrency: int = 1) -> tuple[list[dict], dict[str, Stats], float]:
+    """(bodies in arrival order, stats, wall seconds) of a bounded run against a stand-in."""
+    _Recorder.bodies = []
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _Recorder)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        config = RunConfig(
+            f"http://127.0.0.1:{server.server_port}",
+            speedup=200.0,
+            duration=0.3,
+            seed=4,
+            concurrency=concurrency,
+            start=T0,
+        )
+        began = time.monotonic()
+        stats = asyncio.run(run([SIMULATORS[name] for name in names], config, timer=timer))
+        return list(_Recorder.bodies), stats, time.monotonic() - began
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def _stamp(body: dict) -> str:
+    return body["data"][0]["TimeInstant"]["value"]
+
+
+def test_virtual_time_sends_what_the_wall_clock_sends():
+    wall, wall_stats, _ = _recorded_run(["warehouse"], WallTime())
+    virtual, virtual_stats, _ = _recorded_run(["warehouse"], VirtualTime())
+    assert len(wall) > 100 and wall_stats["warehouse"].acked == len(wall)
+    assert virtual == wall, "same bodies, same order"
+    assert virtual_stats["warehouse"].sent == wall_stats["warehouse"].sent
+    assert virtual_stats["warehouse"].lag == 0.0 and virtual_stats["warehouse"].done
+
+
+def test_virtual_time_interleaves_simulators_in_time_order():
+    bodies, stats, _ = _recorded_run(["lawnmower", "warehouse", "drone"], VirtualTime())
+    stamps = [_stamp(body) for body in bodies]
+    assert stamps == sorted(stamps), "one clock for every simulator: emissions leave in time order"
+    assert {body["data"][0]["id"] for body in bodies} >= {sites.LAWNMOWER_ID, sites.WAREHOUSE_ID, sites.DRONE_ID}
+    assert stamps[-1] <= orion.iso(T0 + timedelta(seconds=60.0)), "bounded by the simulated span"
+    assert all(row.done and row.failed == 0 and row.acked == row.sent for row in stats.values())
+    assert sum(row.sent for row in stats.values()) == len(bodies)
 
 
 # -- live runs: the command -------------------------------------------------------------------------

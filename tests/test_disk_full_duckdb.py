@@ -16,31 +16,17 @@ import time
 
 import pytest
 
-try:
-    from support.disk_full import (
-        ENTITY,
-        HEADERS,
-        READ_HEADERS,
-        Outcomes,
-        check_exactly_once,
-        health,
-        stored_seqs,
-        wait_healthy,
-    )
-    from support.tmpfs import fill, small_tmpfs
-except ImportError:  # tests/ imported as a package
-    from tests.support.disk_full import (
-        ENTITY,
-        HEADERS,
-        READ_HEADERS,
-        Outcomes,
-        check_exactly_once,
-        health,
-        stored_seqs,
-        wait_healthy,
-    )
-    from tests.support.tmpfs import fill, small_tmpfs
-
+from tests.support.disk_full import (
+    ENTITY,
+    HEADERS,
+    READ_HEADERS,
+    Outcomes,
+    check_exactly_once,
+    health,
+    stored_seqs,
+    wait_healthy,
+)
+from tests.support.tmpfs import fill, small_tmpfs
 from tsdb_service.storage.duckdb import store as duckdb_store
 
 CHECKPOINT_BYTES = 64 * 1024  # the WAL is folded into the file every ~60 notifications

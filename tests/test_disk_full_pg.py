@@ -18,30 +18,17 @@ from pathlib import Path
 
 import pytest
 
-try:
-    from support.disk_full import (
-        ENTITY,
-        HEADERS,
-        READ_HEADERS,
-        Outcomes,
-        check_exactly_once,
-        health,
-        stored_seqs,
-        wait_healthy,
-    )
-    from support.tmpfs import fill, small_tmpfs
-except ImportError:  # tests/ imported as a package
-    from tests.support.disk_full import (
-        ENTITY,
-        HEADERS,
-        READ_HEADERS,
-        Outcomes,
-        check_exactly_once,
-        health,
-        stored_seqs,
-        wait_healthy,
-    )
-    from tests.support.tmpfs import fill, small_tmpfs
+from tests.support.disk_full import (
+    ENTITY,
+    HEADERS,
+    READ_HEADERS,
+    Outcomes,
+    check_exactly_once,
+    health,
+    stored_seqs,
+    wait_healthy,
+)
+from tests.support.tmpfs import fill, small_tmpfs
 
 MAX_POSTS = 3000
 

@@ -14,26 +14,15 @@ import json
 import threading
 import time
 
-try:
-    from support.disk_full import (
-        HEADERS,
-        READ_HEADERS,
-        Outcomes,
-        check_exactly_once,
-        stored_seqs,
-    )
-    from support.server import ServerProcess
-    from support.tmpfs import fill, small_tmpfs
-except ImportError:  # tests/ imported as a package
-    from tests.support.disk_full import (
-        HEADERS,
-        READ_HEADERS,
-        Outcomes,
-        check_exactly_once,
-        stored_seqs,
-    )
-    from tests.support.server import ServerProcess
-    from tests.support.tmpfs import fill, small_tmpfs
+from tests.support.disk_full import (
+    HEADERS,
+    READ_HEADERS,
+    Outcomes,
+    check_exactly_once,
+    stored_seqs,
+)
+from tests.support.server import ServerProcess
+from tests.support.tmpfs import fill, small_tmpfs
 
 CLIENTS = 4
 LEAVE_BYTES = 160 * 1024

@@ -37,7 +37,7 @@ def test_the_readme_opens_with_the_two_commands():
     assert README.index("```sh") < README.index("\n## "), "the commands come before anything else"
     assert first.startswith("python3 -m venv .venv && .venv/bin/pip install -q -e '.[test]'")
     assert first.endswith("&& .venv/bin/tsdb-service demo")
-    assert ".venv/bin/mkdocs build --strict" in second and second.endswith(".venv/bin/python -m pytest -q")
+    assert ".venv/bin/mkdocs build --strict" in second and second.endswith(".venv/bin/python -m pytest -q -n 2")
     ci = (ROOT / ".ci" / "run").read_text().strip().splitlines()[-1]
     assert ci == second, "the CI script runs exactly the README's test command"
 

@@ -42,10 +42,12 @@ SELECTIONS = [
 ]
 
 
-@pytest.fixture
-def loaded(client):
-    load(client)
-    return client
+@pytest.fixture(scope="module")
+def loaded(client_factory, store_url_factory):
+    """One loaded store per backend; every test here only reads it."""
+    with client_factory(store_url_factory("export")) as client:
+        load(client)
+        yield client
 
 
 def _export(client, fmt: str, params: dict, headers: dict):

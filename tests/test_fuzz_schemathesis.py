@@ -14,10 +14,13 @@ time index, before the delete operations run last.
 
 Bounded and deterministic: a fixed number of examples per operation and mode
 (``TSDB_FUZZ_EXAMPLES``, default 10; notify twice that), derandomized, no example database.
+Derandomized generation gives both backends the same cases, so the second
+backend replays the first one's instead of generating them again.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from dataclasses import dataclass, field
@@ -154,27 +157,20 @@ def test_fuzz_the_openapi_description(fuzz_app):
     assert not tally.failures, "\n\n".join(tally.failures)
 
 
+# The cases generated per (method, path, mode). Generation is derandomized, so
+# every backend gets the same cases, and generating them is most of the
+# fuzzing's time: the first backend's complete runs are replayed on the next.
+_GENERATED: dict[tuple[str, str, str], list] = {}
+
+
 def _fuzz(operation, app, client, tally: Tally) -> None:
     """Positive and negative examples of one operation; a failure is
     recorded (not raised) so one run reports every operation's problems."""
     tally.operations += 1
     for mode in (GenerationMode.POSITIVE, GenerationMode.NEGATIVE):
-        strategy = _strategy(operation, mode)
-        if strategy is None:
-            continue
+        key = (operation.method.upper(), operation.path, mode.value)
 
-        @hypothesis.settings(
-            max_examples=EXAMPLES * (2 if operation.path in NOTIFY_PATHS else 1),
-            derandomize=True,
-            database=None,
-            deadline=None,
-            phases=[Phase.explicit, Phase.generate],
-            suppress_health_check=list(HealthCheck),
-            report_multiple_bugs=False,
-            verbosity=hypothesis.Verbosity.quiet,
-        )
-        @hypothesis.given(case=strategy)
-        def run(case):
+        def check(case):
             tally.examples += 1
             response = case.call(session=client)
             tally.statuses[response.status_code] = tally.statuses.get(response.status_code, 0) + 1
@@ -184,13 +180,44 @@ def _fuzz(operation, app, client, tally: Tally) -> None:
 
         t0 = time.monotonic()
         try:
-            run()
-        except hypothesis.errors.Unsatisfiable:
-            pass  # nothing to break in this operation (no parameters, no body)
+            if key in _GENERATED:
+                for case in _GENERATED[key]:
+                    check(case)
+            else:
+                _GENERATED.update(_generate(operation, mode, key, check))
         except (Exception, BaseExceptionGroup) as exc:
             tally.failures.append(f"{operation.method.upper()} {operation.path} ({mode.value}): {exc}")
         if os.environ.get("TSDB_FUZZ_TRACE"):
             print(f"{time.monotonic() - t0:6.2f}s {operation.method.upper()} {operation.path} {mode.value}")
+
+
+def _generate(operation, mode: GenerationMode, key: tuple[str, str, str], check) -> dict:
+    """Generate and ``check`` the cases of one operation and mode; returns
+    ``{key: cases}`` for a complete run (nothing when nothing can be
+    generated), raises at the first failing case."""
+    strategy = _strategy(operation, mode)
+    if strategy is None:
+        return {}
+    generated: list = []
+
+    @hypothesis.settings(
+        max_examples=EXAMPLES * (2 if operation.path in NOTIFY_PATHS else 1),
+        derandomize=True,
+        database=None,
+        deadline=None,
+        phases=[Phase.explicit, Phase.generate],
+        suppress_health_check=list(HealthCheck),
+        report_multiple_bugs=False,
+        verbosity=hypothesis.Verbosity.quiet,
+    )
+    @hypothesis.given(case=strategy)
+    def run(case):
+        generated.append(case)
+        check(case)
+
+    with contextlib.suppress(hypothesis.errors.Unsatisfiable):  # nothing to break (no parameters, no body)
+        run()
+    return {key: generated}
 
 
 def _strategy(operation, mode: GenerationMode):

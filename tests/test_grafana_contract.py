@@ -30,7 +30,7 @@ import httpx
 import pytest
 import yaml
 
-from tests.grafana_fixtures import ROOT, grafana_http, grafana_server  # noqa: F401
+from tests.grafana_fixtures import ROOT
 from tests.grafana_fixtures import panels_of as _panels
 from tests.support.golden_http import GoldenFile, GoldenHttp
 from tsdb_service.faces.grafana import dashboards
@@ -173,7 +173,7 @@ def _check_panel_fields(where: str, panel: dict, declared: dict[str, str], rows:
 
 
 @pytest.fixture(scope="module")
-def views(grafana_server):  # noqa: F811
+def views(grafana_server):
     """Every (where, panel, target, range, max points) a dashboard would query."""
     now = grafana_server.fed_at_ms + 1000
     out = []
@@ -201,7 +201,7 @@ def test_every_dashboard_has_panels_and_annotations(views):
 
 
 @pytest.mark.parametrize("use_case", USE_CASES)
-def test_every_panel_query_returns_the_fields_it_reads(use_case, views, grafana_server, grafana_http):  # noqa: F811
+def test_every_panel_query_returns_the_fields_it_reads(use_case, views, grafana_server, grafana_http):
     checked = 0
     for where, panel, target, time_range, max_points in views:
         if not where.startswith(use_case + " "):
@@ -222,7 +222,7 @@ def test_every_panel_query_returns_the_fields_it_reads(use_case, views, grafana_
     assert checked >= 6, f"{use_case}: only {checked} queries"
 
 
-def test_the_drone_map_shows_the_drone_and_the_8_sensors_with_readings(views, grafana_server, grafana_http):  # noqa: F811
+def test_the_drone_map_shows_the_drone_and_the_8_sensors_with_readings(views, grafana_server, grafana_http):
     where, _panel, target, time_range, max_points = next(
         v for v in views if v[1] and v[1]["type"] == "geomap" and v[1]["options"]["layers"][0]["type"] == "markers"
     )
@@ -234,7 +234,7 @@ def test_the_drone_map_shows_the_drone_and_the_8_sensors_with_readings(views, gr
     assert all(row["temperature"] is not None and row["humidity"] is not None for row in by_type["RemoteSensor"])
 
 
-def test_the_heatmap_has_many_drone_positions(views, grafana_server, grafana_http):  # noqa: F811
+def test_the_heatmap_has_many_drone_positions(views, grafana_server, grafana_http):
     where, _panel, target, time_range, max_points = next(
         v for v in views if v[1] and v[1]["type"] == "geomap" and v[1]["options"]["layers"][0]["type"] == "heatmap"
     )
@@ -242,7 +242,7 @@ def test_the_heatmap_has_many_drone_positions(views, grafana_server, grafana_htt
     assert len(rows) > 500 and {row["entity"] for row in rows} == {"urn:ngsiv2:ROS2System:Drone01"}, where
 
 
-def test_the_contract_catches_a_panel_without_data(views, grafana_server, grafana_http):  # noqa: F811
+def test_the_contract_catches_a_panel_without_data(views, grafana_server, grafana_http):
     """A typo in a value path, or the wrong tenant, leaves a panel empty: the check fails."""
     where, _panel, target, time_range, max_points = next(v for v in views if v[1] and v[1]["type"] == "stat")
     broken = dict(
@@ -277,7 +277,7 @@ def _get(http, path, params, headers=LAWNMOWER, status=200):
     return response.json()
 
 
-def test_series_downsamples_avg_for_numbers_and_last_for_states(grafana_server, grafana_http):  # noqa: F811
+def test_series_downsamples_avg_for_numbers_and_last_for_states(grafana_server, grafana_http):
     start, end = grafana_server.range_ms
     cols = "speed=odom(twist.twist.linear.x),state=navigationState(data)"
     raw = _get(grafana_http, "/series", {"id": MOWER, "attrs": cols, "from": start, "to": end, "max_points": 100000})
@@ -306,7 +306,7 @@ def _iso(ms: int) -> str:
     return datetime.fromtimestamp(ms / 1000).astimezone().isoformat()
 
 
-def test_tenant_as_query_parameters(grafana_http):  # noqa: F811
+def test_tenant_as_query_parameters(grafana_http):
     by_headers = _get(grafana_http, "/latest", {"attrs": "s=navigationState(data)"})
     by_params = _get(
         grafana_http,
@@ -318,7 +318,7 @@ def test_tenant_as_query_parameters(grafana_http):  # noqa: F811
     assert _get(grafana_http, "/latest", {"attrs": "s=navigationState(data)", "servicepath": "/piap"}) == []
 
 
-def test_states_are_changes_only(grafana_server, grafana_http):  # noqa: F811
+def test_states_are_changes_only(grafana_server, grafana_http):
     start, end = grafana_server.range_ms
     rows = _get(grafana_http, "/states", {"id": MOWER, "attrs": "s=navigationState(data)", "from": start, "to": end})
     codes = [r["s"] for r in rows]
@@ -326,7 +326,7 @@ def test_states_are_changes_only(grafana_server, grafana_http):  # noqa: F811
     assert len(rows) < 200
 
 
-def test_events_with_equals_and_positions_with_a_geo_query(grafana_server, grafana_http):  # noqa: F811
+def test_events_with_equals_and_positions_with_a_geo_query(grafana_server, grafana_http):
     start, end = grafana_server.range_ms
     reading = _get(
         grafana_http,
@@ -365,7 +365,7 @@ def test_events_with_equals_and_positions_with_a_geo_query(grafana_server, grafa
     assert all(r["name"] == "Drone01" for r in near)
 
 
-def test_aggregate_per_entity(grafana_server, grafana_http):  # noqa: F811
+def test_aggregate_per_entity(grafana_server, grafana_http):
     counts = _get(
         grafana_http,
         "/aggregate",
@@ -409,12 +409,12 @@ def test_aggregate_per_entity(grafana_server, grafana_http):  # noqa: F811
         ("/events", {"attrs": "perimeterLeft(data)", "limit": "-1"}),
     ],
 )
-def test_bad_parameters_are_400_in_the_ngsi_shape(grafana_http, path, params):  # noqa: F811
+def test_bad_parameters_are_400_in_the_ngsi_shape(grafana_http, path, params):
     doc = _get(grafana_http, path, params, status=400)
     assert set(doc) == {"error", "description"} and doc["description"]
 
 
-def test_odd_but_valid_requests_are_answered(grafana_http):  # noqa: F811
+def test_odd_but_valid_requests_are_answered(grafana_http):
     assert _get(grafana_http, "/series", {"attrs": "nothing_here"}) == []
     assert _get(grafana_http, "/latest", {"attrs": "x=odom(no.such.path)"}) == []
     assert _get(grafana_http, "/entities", {}, headers={"Fiware-Service": "empty"}) == []

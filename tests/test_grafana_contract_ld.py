@@ -23,7 +23,7 @@ from urllib.parse import urljoin
 import pytest
 import yaml
 
-from tests.grafana_fixtures import ROOT, grafana_http, grafana_server, panels_of  # noqa: F401
+from tests.grafana_fixtures import ROOT, panels_of
 from tsdb_service.faces.grafana import dashboards
 from tsdb_service.usecases import enums, sites
 
@@ -153,14 +153,14 @@ def _check(where: str, panel: dict, target: dict, rows: list[dict]) -> None:
             assert declared.get(location["latitude"]) == "number" and declared.get(location["longitude"]) == "number"
 
 
-def test_every_panel_reads_the_temporal_api_and_shows_its_fields(grafana_server, grafana_http):  # noqa: F811
+def test_every_panel_reads_the_temporal_api_and_shows_its_fields(grafana_server, grafana_http):
     views = _views(grafana_server)
     assert len({where.split(" target")[0] for where, *_ in views}) >= 6
     for where, panel, target, time_range in views:
         _check(where, panel, target, _run(grafana_http, grafana_server, target, time_range))
 
 
-def test_what_the_panels_show(grafana_server, grafana_http):  # noqa: F811
+def test_what_the_panels_show(grafana_server, grafana_http):
     """The numbers are the drone's: states are known codes, the sensors are the 8 sites, positions near home."""
     views = {panel["title"]: (target, time_range) for _, panel, target, time_range in _views(grafana_server)}
 
@@ -182,7 +182,7 @@ def test_what_the_panels_show(grafana_server, grafana_http):  # noqa: F811
     )
 
 
-def test_the_contract_catches_a_wrong_selector(grafana_server, grafana_http):  # noqa: F811
+def test_the_contract_catches_a_wrong_selector(grafana_server, grafana_http):
     where, panel, target, time_range = next(v for v in _views(grafana_server) if v[1]["type"] == "timeseries")
     broken = dict(target, columns=[dict(c, selector=c["selector"].replace("data", "dta")) for c in target["columns"]])
     with pytest.raises(AssertionError, match="missing or always null"):

@@ -1,11 +1,11 @@
 """The shipped dashboards, checked offline.
 
-* JSON Schema (``../shared/grafana-jsonschema``, draft-07): the whole
-  dashboard, each panel against ``Panel`` / ``RowPanel`` (readable errors),
-  each panel's ``options`` and ``fieldConfig.defaults.custom`` against its
-  panel schema. Only the quirks that folder's README lists are relaxed, in
-  memory: geomap numbers typed as integers. Where the folder is absent (a
-  user's clone) these tests skip and say why.
+* JSON Schema (``tests/vendor/grafana-jsonschema``, draft-07, vendored with
+  its licence and provenance): the whole dashboard, each panel against
+  ``Panel`` / ``RowPanel`` (readable errors), each panel's ``options`` and
+  ``fieldConfig.defaults.custom`` against its panel schema. Only the quirks
+  that folder's README lists are relaxed, in memory: geomap numbers typed as
+  integers.
 * SDK round trip: ``Dashboard.from_json`` then re-encode must give the same
   JSON (a misspelt or unknown key is lost on the way and shows up here).
 * Structure: unique panel ids, every ``gridPos`` inside 24 columns without
@@ -29,15 +29,9 @@ from tests.grafana_fixtures import panels_of as _panels
 from tsdb_service.faces.grafana import dashboards
 from tsdb_service.faces.grafana.dashboards import kit, service
 
-SCHEMAS = ROOT.parent / "shared" / "grafana-jsonschema"
+SCHEMAS = ROOT / "tests" / "vendor" / "grafana-jsonschema"
 USE_CASES = list(dashboards.BUILDERS)
 ALL = list(dashboards.DASHBOARDS)  # the use cases and the service's own
-
-needs_schemas = pytest.mark.skipif(
-    not (SCHEMAS / "dashboard.jsonschema.json").exists(),
-    reason=f"Grafana JSON Schemas not found at {SCHEMAS} (they sit beside the repository in the "
-    "development workspace, not in a user's clone); schema validation skipped",
-)
 
 
 @pytest.fixture(scope="module", params=ALL)
@@ -81,13 +75,11 @@ def _errors(validator: jsonschema.Draft7Validator, doc, where: str) -> list[str]
     ]
 
 
-@needs_schemas
 def test_the_whole_dashboard_matches_the_schema(board):
     name, doc = board
     assert _errors(_validator("dashboard.jsonschema.json", "Dashboard"), doc, name) == []
 
 
-@needs_schemas
 def test_each_panel_matches_the_panel_schemas(board):
     name, doc = board
     problems = []
@@ -106,7 +98,6 @@ def test_each_panel_matches_the_panel_schemas(board):
     assert problems == []
 
 
-@needs_schemas
 def test_the_schema_check_catches_a_misspelt_option():
     doc = dashboards.build("lawnmower")
     stat = next(p for p in _panels(doc) if p["type"] == "stat")

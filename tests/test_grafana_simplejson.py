@@ -15,7 +15,6 @@ from datetime import UTC, datetime
 
 import pytest
 
-from tests.grafana_fixtures import grafana_http, grafana_server  # noqa: F401
 from tsdb_service.usecases import enums, sites
 
 PREFIX = "/grafana/simplejson"
@@ -30,7 +29,7 @@ def _iso(ms: int) -> str:
 
 
 @pytest.fixture(scope="module")
-def span(grafana_server):  # noqa: F811
+def span(grafana_server):
     return grafana_server.range_ms
 
 
@@ -92,7 +91,7 @@ def _post(http, path: str, body, headers=LAWNMOWER, status: int = 200):
     return response.json()
 
 
-def test_test_connection(grafana_http):  # noqa: F811
+def test_test_connection(grafana_http):
     for path in (PREFIX, PREFIX + "/"):
         response = grafana_http.get(path, headers=LAWNMOWER)
         assert response.status_code == 200 and response.json()["tenant"] == "lawnmower"
@@ -101,7 +100,7 @@ def test_test_connection(grafana_http):  # noqa: F811
 # --- classic SimpleJSON ---------------------------------------------------------------------------------
 
 
-def test_search_lists_metrics_and_variable_values(grafana_http):  # noqa: F811
+def test_search_lists_metrics_and_variable_values(grafana_http):
     metrics = _post(grafana_http, "/search", {"target": ""})
     assert f"{MOWER}/odom" in metrics and f"{MOWER}/navigationState" in metrics
     assert _post(grafana_http, "/search", {"type": "timeserie", "target": "perimeter"}) == [
@@ -115,7 +114,7 @@ def test_search_lists_metrics_and_variable_values(grafana_http):  # noqa: F811
     assert "odom" in _post(grafana_http, "/search", {"target": f"attrs:{MOWER}"})
 
 
-def test_timeserie_target_downsampled_to_max_data_points(grafana_http, span):  # noqa: F811
+def test_timeserie_target_downsampled_to_max_data_points(grafana_http, span):
     body = _classic_query(span, [{"target": SPEED, "refId": "A", "type": "timeserie", "hide": False}], max_points=50)
     (series,) = _post(grafana_http, "/query", body)
     assert series["target"].endswith("odom(twist.twist.linear.x)")
@@ -127,7 +126,7 @@ def test_timeserie_target_downsampled_to_max_data_points(grafana_http, span):  #
     assert all(isinstance(v, float) and -0.3 < v < 0.6 for v, _ in points), "averages of the speed"
 
 
-def test_table_target(grafana_http, span):  # noqa: F811
+def test_table_target(grafana_http, span):
     body = _classic_query(span, [{"target": f"{MOWER}/navigationState(data)", "refId": "B", "type": "table"}])
     (table,) = _post(grafana_http, "/query", body)
     assert table["type"] == "table"
@@ -139,12 +138,12 @@ def test_table_target(grafana_http, span):  # noqa: F811
     )
 
 
-def test_hidden_and_empty_targets_are_skipped(grafana_http, span):  # noqa: F811
+def test_hidden_and_empty_targets_are_skipped(grafana_http, span):
     body = _classic_query(span, [{"target": SPEED, "refId": "A", "hide": True}, {"refId": "B"}])
     assert _post(grafana_http, "/query", body) == []
 
 
-def test_classic_annotations(grafana_http, span):  # noqa: F811
+def test_classic_annotations(grafana_http, span):
     start, end = span
     body = {
         "range": {"from": _iso(start), "to": _iso(end)},
@@ -168,7 +167,7 @@ def test_classic_annotations(grafana_http, span):  # noqa: F811
     assert _post(grafana_http, "/annotations", {**body, "annotation": {"query": ""}}) == []
 
 
-def test_ad_hoc_filters(grafana_http, span):  # noqa: F811
+def test_ad_hoc_filters(grafana_http, span):
     assert _post(grafana_http, "/tag-keys", {}) == [
         {"type": "string", "text": "entity"},
         {"type": "string", "text": "type"},
@@ -191,7 +190,7 @@ def test_ad_hoc_filters(grafana_http, span):  # noqa: F811
 # --- simPod JSON -------------------------------------------------------------------------------------------
 
 
-def test_simpod_query_with_payload_and_grafanas_whole_request(grafana_http, span):  # noqa: F811
+def test_simpod_query_with_payload_and_grafanas_whole_request(grafana_http, span):
     body = _simpod_query(
         span,
         [
@@ -206,7 +205,7 @@ def test_simpod_query_with_payload_and_grafanas_whole_request(grafana_http, span
     assert any(row[2] is True for row in table["rows"])
 
 
-def test_simpod_data_frames(grafana_http, span):  # noqa: F811
+def test_simpod_data_frames(grafana_http, span):
     body = _simpod_query(span, [_simpod_target("*/humidity", "C", format="dataframe", type=sites.SENSOR_TYPE)])
     frames = _post(grafana_http, "/query", body, headers=DRONE)
     assert len(frames) == 8
@@ -218,7 +217,7 @@ def test_simpod_data_frames(grafana_http, span):  # noqa: F811
         assert len(time_field["values"]) == len(value_field["values"]) > 0
 
 
-def test_simpod_annotations_through_query(grafana_http, span):  # noqa: F811
+def test_simpod_annotations_through_query(grafana_http, span):
     body = _simpod_query(span, [_simpod_target(f"{MOWER}/perimeterRight(data)", "A", format="annotations")])
     (frame,) = _post(grafana_http, "/query", body)
     names = [f["name"] for f in frame["fields"]]
@@ -226,7 +225,7 @@ def test_simpod_annotations_through_query(grafana_http, span):  # noqa: F811
     assert frame["fields"][0]["values"], "the mower detects the wire on its right"
 
 
-def test_simpod_variable(grafana_http, span):  # noqa: F811
+def test_simpod_variable(grafana_http, span):
     start, end = span
     rng = {"from": _iso(start), "to": _iso(end), "raw": {"from": "now-6h", "to": "now"}}
     values = _post(
@@ -237,7 +236,7 @@ def test_simpod_variable(grafana_http, span):  # noqa: F811
     assert [v["__value"] for v in as_text] == ["ROS2System", "RemoteSensor"]
 
 
-def test_simpod_metrics_and_payload_options(grafana_http):  # noqa: F811
+def test_simpod_metrics_and_payload_options(grafana_http):
     metrics = _post(grafana_http, "/metrics", {})
     odom = next(m for m in metrics if m["value"] == f"{MOWER}/odom")
     assert odom["label"] == "Lawnmower01 odom"
@@ -276,7 +275,7 @@ def test_simpod_metrics_and_payload_options(grafana_http):  # noqa: F811
         ),
     ],
 )
-def test_bad_requests_are_400_in_the_ngsi_shape(grafana_http, path, body):  # noqa: F811
+def test_bad_requests_are_400_in_the_ngsi_shape(grafana_http, path, body):
     doc = _post(grafana_http, path, body, status=400)
     assert set(doc) == {"error", "description"} and doc["description"]
 
@@ -295,7 +294,7 @@ def test_bad_requests_are_400_in_the_ngsi_shape(grafana_http, path, body):  # no
         "/tag-values",
     ],
 )
-def test_odd_bodies_are_read_as_an_empty_request(grafana_http, path, body):  # noqa: F811
+def test_odd_bodies_are_read_as_an_empty_request(grafana_http, path, body):
     """Grafana's plugins post what they have: a body that is not an object, or whose
     keys hold the wrong kind of value, is answered as the empty request ``{}`` is."""
     response = grafana_http.post(PREFIX + path, json=body, headers=LAWNMOWER)
@@ -303,7 +302,7 @@ def test_odd_bodies_are_read_as_an_empty_request(grafana_http, path, body):  # n
     assert response.json() == _post(grafana_http, path, {}), f"{path} {body!r}"
 
 
-def test_malformed_json_and_bad_tenant_are_400(grafana_http):  # noqa: F811
+def test_malformed_json_and_bad_tenant_are_400(grafana_http):
     response = grafana_http.post(
         PREFIX + "/query", content=b"{not json", headers={**LAWNMOWER, "Content-Type": "application/json"}
     )

@@ -12,6 +12,7 @@ endpoint; whatever is stored is reached on every endpoint by its exact name,
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 from urllib.parse import quote
@@ -46,6 +47,24 @@ def seg(text: str) -> str:
 
 
 # --- refused at ingest, kept ----------------------------------------------------------------------
+#
+# One store per backend for the refusals and the query-side rules: each
+# refusal is sent for a tenant of its own, so what it finds kept is its own.
+
+
+@pytest.fixture(scope="module")
+def rules(client_factory, store_url_factory):
+    with client_factory(store_url_factory("rules")) as client:
+        yield client
+
+
+_TENANTS = itertools.count(1)
+
+
+@pytest.fixture
+def client(rules):
+    """The module's store (this module's ``client``), read-only or on a tenant of the test's own."""
+    return rules
 
 
 REFUSED_IDS = ["x" * 1025, "a,b", " a", "a ", "a\u3000", "a\x00b", "a\x1fb", "a\x85", ".", ".."]
@@ -79,15 +98,16 @@ def test_values_layout_refuses_an_unaddressable_entity(client):
 
 
 def _refused(client, body: dict, headers: dict, what: str) -> None:
-    headers = {"Fiware-Service": "rules", **headers}
+    tenant = f"rules{next(_TENANTS)}"
+    headers = {"Fiware-Service": tenant, **headers}
     response = client.post(
         "/v2/notify", content=orjson.dumps(body), headers={"Content-Type": "application/json", **headers}
     )
     assert response.status_code == 400, response.text
     assert what in response.json()["description"]
-    [kept] = client.get("/v2/notify/rejected", headers={"Fiware-Service": "rules"}).json()
+    [kept] = client.get("/v2/notify/rejected", headers={"Fiware-Service": tenant}).json()
     assert orjson.loads(kept["body"]) == body
-    assert client.get("/v2/entities", headers={"Fiware-Service": "rules"}).json() == []
+    assert client.get("/v2/entities", headers={"Fiware-Service": tenant}).json() == []
 
 
 # --- the query side applies the same rule ---------------------------------------------------------

@@ -7,10 +7,7 @@ import httpx
 import orjson
 from prometheus_client.parser import text_string_to_metric_families
 
-try:
-    from support.server import ServerProcess
-except ImportError:  # tests/ imported as a package
-    from tests.support.server import ServerProcess
+from tests.support.server import ServerProcess
 
 GOOD, BAD, QUERIES = 6, 2, 3
 

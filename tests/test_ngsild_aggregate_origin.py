@@ -7,7 +7,8 @@ PostgreSQL's float epoch is exact and beyond it."""
 from __future__ import annotations
 
 import pytest
-from ngsild_fixtures import B9211, ENTITIES, TENANT, get, ld_notify
+
+from tests.ngsild_fixtures import B9211, ENTITIES, TENANT, get, ld_notify
 
 
 def speeds(client, values_at: list[tuple[float, str]]) -> None:

@@ -6,8 +6,8 @@ from the first instance of any of them."""
 from __future__ import annotations
 
 import pytest
-from ngsild_fixtures import ENTITIES, get, ld_notify
 
+from tests.ngsild_fixtures import ENTITIES, get, ld_notify
 from tsdb_service.storage.postgres.querier import AGGREGATE_SPLIT_FROM
 
 ROBOTS = AGGREGATE_SPLIT_FROM + 9

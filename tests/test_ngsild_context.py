@@ -9,8 +9,8 @@ import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
-from ngsild_fixtures import B9211, ENTITIES, H, error_type, get, ld_notify
 
+from tests.ngsild_fixtures import B9211, ENTITIES, H, error_type, get, ld_notify
 from tsdb_service.core.errors import BadRequestData, LdContextNotAvailable
 from tsdb_service.faces.ngsild.context import (
     CORE_CONTEXT_URL,

@@ -9,7 +9,8 @@ whole-type path by ``type=`` (or by no type at all: a geo-query alone)."""
 from __future__ import annotations
 
 import pytest
-from ngsild_fixtures import H, get, ld_notify
+
+from tests.ngsild_fixtures import H, get, ld_notify
 
 SITES = {  # id: (type, lon, lat); Madrid's centre is -3.7038, 40.4168
     "urn:ngsi-ld:Sensor:near1": ("Sensor", -3.7040, 40.4170),

@@ -9,7 +9,8 @@ from __future__ import annotations
 import math
 
 import pytest
-from ngsild_fixtures import get, ids, ld_notify
+
+from tests.ngsild_fixtures import get, ids, ld_notify
 
 EARLY, LATE = "2024-01-01T00:00:00Z", "2024-01-01T01:00:00Z"
 CENTRE = [0.03, 0.0]
@@ -37,26 +38,28 @@ def robot_id(name: str) -> str:
     return f"urn:ngsi-ld:Robot:{name}"
 
 
-@pytest.fixture
-def robots(client):
-    for at, side in ((EARLY, 0), (LATE, 1)):
-        ld_notify(
-            client,
-            [
-                {
-                    "id": robot_id(name),
-                    "type": "Robot",
-                    "speed": {"type": "Property", "value": robot[2 + side], "observedAt": at},
-                    "location": {
-                        "type": "GeoProperty",
-                        "observedAt": at,
-                        "value": {"type": "Point", "coordinates": robot[side]},
-                    },
-                }
-                for name, robot in ROBOTS.items()
-            ],
-        )
-    return client
+@pytest.fixture(scope="module")
+def robots(client_factory, store_url_factory):
+    """One store per backend holding the robots; the tests only read it."""
+    with client_factory(store_url_factory("robots")) as client:
+        for at, side in ((EARLY, 0), (LATE, 1)):
+            ld_notify(
+                client,
+                [
+                    {
+                        "id": robot_id(name),
+                        "type": "Robot",
+                        "speed": {"type": "Property", "value": robot[2 + side], "observedAt": at},
+                        "location": {
+                            "type": "GeoProperty",
+                            "observedAt": at,
+                            "value": {"type": "Point", "coordinates": robot[side]},
+                        },
+                    }
+                    for name, robot in ROBOTS.items()
+                ],
+            )
+        yield client
 
 
 def test_q_and_near_hold_together(robots):
@@ -117,11 +120,13 @@ def crowd_robot(n: int, side: int) -> dict:
     }
 
 
-@pytest.fixture
-def crowd(client):
-    for side in (0, 1):
-        ld_notify(client, [crowd_robot(n, side) for n in range(CROWD)])
-    return client
+@pytest.fixture(scope="module")
+def crowd(client_factory, store_url_factory):
+    """One store per backend holding the crowd; the tests only read it."""
+    with client_factory(store_url_factory("crowd")) as client:
+        for side in (0, 1):
+            ld_notify(client, [crowd_robot(n, side) for n in range(CROWD)])
+        yield client
 
 
 @pytest.mark.parametrize("geo", [NEAR, AWAY, WITHIN, DISJOINT], ids=["near", "min-distance", "within", "disjoint"])

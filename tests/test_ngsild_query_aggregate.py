@@ -4,8 +4,8 @@
 from __future__ import annotations
 
 import pytest
-from ngsild_fixtures import B9211, ENTITIES, error_type, get, ld_notify
 
+from tests.ngsild_fixtures import B9211, ENTITIES, error_type, get, ld_notify
 from tsdb_service.faces.ngsild.aggregate import add_months, boundaries
 from tsdb_service.faces.ngsild.params import parse_duration
 

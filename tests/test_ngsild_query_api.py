@@ -5,7 +5,8 @@ NGSI-LD notifications, on both backends."""
 from __future__ import annotations
 
 import pytest
-from ngsild_fixtures import (
+
+from tests.ngsild_fixtures import (
     A8311,
     B9211,
     ENTITIES,
@@ -18,10 +19,12 @@ from ngsild_fixtures import (
 )
 
 
-@pytest.fixture
-def vehicles(client):
-    load_vehicles(client)
-    return client
+@pytest.fixture(scope="module")
+def vehicles(client_factory, store_url_factory):
+    """The vehicles, one store per backend; the tests that take it only read."""
+    with client_factory(store_url_factory("vehicles")) as client:
+        load_vehicles(client)
+        yield client
 
 
 def speeds(entity: dict) -> list:

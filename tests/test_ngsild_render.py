@@ -5,7 +5,8 @@ Content past the instance cap, paging forwards or, with lastN, backwards."""
 from __future__ import annotations
 
 import pytest
-from ngsild_fixtures import A8311, B9211, ENTITIES, H, get, load_vehicles
+
+from tests.ngsild_fixtures import A8311, B9211, ENTITIES, H, get, load_vehicles
 
 
 @pytest.fixture

@@ -13,22 +13,18 @@ from __future__ import annotations
 import asyncio
 import json
 import re
+from datetime import UTC, datetime
 from pathlib import Path
 
 import httpx
 import pytest
 
-try:
-    from support.server import ServerProcess
-except ImportError:  # tests/ imported as a package
-    from tests.support.server import ServerProcess
-
+from tests.support.demo_feed import feed_phases
+from tests.support.server import ServerProcess
 from tsdb_service.cli.demo import write_collection
 from tsdb_service.demo import collection
 from tsdb_service.demo.collection import QUERIES, Query, by_name, execute
-from tsdb_service.demo.runner import RunConfig, run
 from tsdb_service.usecases import sites
-from tsdb_service.usecases.registry import SIMULATORS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,13 +43,10 @@ REQUIRED = (
 
 
 async def _feed(url: str) -> None:
-    runs = [
-        run([SIMULATORS[name]], RunConfig(url, speedup=speedup, duration=seconds, seed=SEED, concurrency=4))
-        for name, (speedup, seconds) in PHASES.items()
-    ]
-    for stats in await asyncio.gather(*runs):
-        for row in stats.values():
-            assert row.failed == 0, row
+    """Each phase through the demo's runner on virtual time, ending now."""
+    stats = await feed_phases(url, PHASES, seed=SEED, end=datetime.now(UTC))
+    for row in stats.values():
+        assert row.failed == 0, row
 
 
 @pytest.fixture(scope="module")

@@ -8,12 +8,8 @@ from __future__ import annotations
 import httpx
 import pytest
 
-try:
-    from support.jwks_server import ISSUER, Issuer
-    from support.server import ServerProcess
-except ImportError:  # tests/ imported as a package
-    from tests.support.jwks_server import ISSUER, Issuer
-    from tests.support.server import ServerProcess
+from tests.support.jwks_server import ISSUER, Issuer
+from tests.support.server import ServerProcess
 
 ORION_KEY = "orion-subscription-key-0123456789"
 ADMIN_KEY = "operator-admin-key-0123456789"

@@ -15,10 +15,7 @@ import jwt
 import pytest
 from cryptography.hazmat.primitives import serialization
 
-try:
-    from support.jwks_server import ISSUER, Issuer
-except ImportError:  # tests/ imported as a package
-    from tests.support.jwks_server import ISSUER, Issuer
+from tests.support.jwks_server import ISSUER, Issuer
 
 AUD = "tsdb-service"
 KEYCLOAK = {"jwt_audience": AUD, "jwt_issuer": ISSUER, "jwt_tenants_claim": "tenants"}

@@ -13,10 +13,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-try:
-    from support.imports import PACKAGE, module_imports
-except ImportError:  # run from the repository root as a package
-    from tests.support.imports import PACKAGE, module_imports
+from tests.support.imports import PACKAGE, module_imports
 
 RENDERERS = ("tsdb_service.storage.sql", "tsdb_service.storage.temporal")
 BACKENDS = ("tsdb_service.storage.duckdb", "tsdb_service.storage.postgres")

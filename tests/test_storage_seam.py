@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.imports import module_imports
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Geometry, Kind
 from tsdb_service.core.query import (
@@ -50,10 +51,7 @@ from tsdb_service.storage import open_store
 from tsdb_service.storage.store import Store
 from tsdb_service.write.ops import AppendSamples
 
-try:
-    from support.imports import module_imports
-except ImportError:  # run from the repository root as a package
-    from tests.support.imports import module_imports
+from tests.support.imports import module_imports
 from tsdb_service.storage.copy import copy_history
 
 T0 = datetime(2024, 5, 1, tzinfo=UTC)

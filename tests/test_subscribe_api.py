@@ -128,6 +128,19 @@ def broker():
         yield stand_in
 
 
+@pytest.fixture(scope="module")
+def subscribing(client_factory, store_url_factory):
+    with client_factory(store_url_factory("subscribe")) as client:
+        yield client
+
+
+@pytest.fixture
+def client(subscribing):
+    """This module's client: one app per backend for every test, since
+    ``POST /v2/subscribe`` stores nothing (it only talks to the broker)."""
+    return subscribing
+
+
 @pytest.fixture(autouse=True)
 def _fresh_broker(broker):
     broker.subscriptions.clear()

@@ -94,8 +94,16 @@ QUERIES = [
 ]
 
 
+@pytest.fixture(scope="module")
+def refusing(client_factory, store_url_factory):
+    """One store per backend for the refusals below: nothing reaches it."""
+    with client_factory(store_url_factory("refusing")) as client:
+        yield client
+
+
 @pytest.mark.parametrize(("method", "url"), QUERIES)
-def test_every_endpoint_refuses_conflicting_selectors(client, method, url):
+def test_every_endpoint_refuses_conflicting_selectors(refusing, method, url):
+    client = refusing
     body = {"entities": [{"id": "E1"}]} if url == "/v2/op/query" else {"attrs": ["id", "x"]}
     kwargs = {"json": body} if method in ("post", "put") else {}
     response = client.request(method.upper(), url, headers=CONFLICT, **kwargs)

@@ -11,8 +11,8 @@ from __future__ import annotations
 from datetime import UTC, datetime
 
 import pytest
-from ngsild_fixtures import TENANT, get, ld_notify
 
+from tests.ngsild_fixtures import TENANT, get, ld_notify
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.core.query import EntityFilter, InstanceWindow, Scope

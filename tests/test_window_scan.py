@@ -11,8 +11,8 @@ import random
 from datetime import UTC, datetime
 
 import pytest
-from ngsild_fixtures import TENANT, ld_notify
 
+from tests.ngsild_fixtures import TENANT, ld_notify
 from tsdb_service.core.query import EntityFilter, InstanceWindow, Scope, ValueTest
 from tsdb_service.geo.filter import BBox
 from tsdb_service.read.instances import SeparateScans
@@ -29,8 +29,8 @@ BOX = BBox(0.0, 0.0, 0.05, 0.05)  # min_lon, min_lat, max_lon, max_lat
 TESTS = [ValueTest(">=", 5.0), ValueTest("<", 2.0), ValueTest("==", "r1"), ValueTest()]
 
 
-@pytest.fixture
-def stored(client):
+def _store_robots(client) -> None:
+    """150 series (50 robots x 3 attributes) at three instants."""
     rng = random.Random(3)
     for at in TIMES:
         robots = []
@@ -50,6 +50,29 @@ def stored(client):
                 }
             )
         ld_notify(client, robots)
+
+
+@pytest.fixture(scope="module")
+def hot(client_factory, store_url_factory):
+    """The robots as ingested (hot tables), one store per backend; read only."""
+    with client_factory(store_url_factory("scan_hot")) as client:
+        _store_robots(client)
+        yield client.app.state.store
+
+
+@pytest.fixture(scope="module")
+def compacted(client_factory, store_url_factory):
+    """The robots after a full compaction (DuckDB sorts them), one store per backend; read only."""
+    with client_factory(store_url_factory("scan_sorted")) as client:
+        _store_robots(client)
+        _compacted(client.app.state.store)
+        yield client.app.state.store
+
+
+@pytest.fixture
+def stored(client):
+    """The robots on a store of the test's own (it writes)."""
+    _store_robots(client)
     return client.app.state.store
 
 
@@ -67,10 +90,8 @@ def _compacted(store) -> None:
 @pytest.mark.parametrize(
     "prefilter", [None, ("intersects", BOX), ("within", BOX)], ids=["none", "intersects", "within"]
 )
-def test_one_scan_answers_as_one_statement_each(stored, compact, window, prefilter):
-    if compact:
-        _compacted(stored)
-    q = stored.querier()
+def test_one_scan_answers_as_one_statement_each(hot, compacted, compact, window, prefilter):
+    q = (compacted if compact else hot).querier()
     locations = (_sids(q, "location"), prefilter)
     tests = [(_sids(q, "speed"), TESTS[0]), (_sids(q, "speed"), TESTS[1]), (_sids(q, "name"), TESTS[2]), ([], TESTS[3])]
     rows, found = q.window_scan(WindowScan(window, locations, tests))
@@ -80,8 +101,8 @@ def test_one_scan_answers_as_one_statement_each(stored, compact, window, prefilt
     assert rows and any(found) and not found[3]
 
 
-def test_without_locations_or_with_one_question(stored):
-    q = stored.querier()
+def test_without_locations_or_with_one_question(hot):
+    q = hot.querier()
     window = WINDOWS[1]
     for locations, tests in [
         (None, [(_sids(q, "speed"), TESTS[0]), (_sids(q, "name"), TESTS[2])]),
@@ -96,8 +117,8 @@ def test_without_locations_or_with_one_question(stored):
 @pytest.mark.parametrize(
     "prefilter", [None, ("intersects", BOX), ("within", BOX)], ids=["none", "intersects", "within"]
 )
-def test_located_series_are_those_the_extents_keep(stored, prefilter):
-    q = stored.querier()
+def test_located_series_are_those_the_extents_keep(hot, prefilter):
+    q = hot.querier()
     got = q.located_series(LocatedSelect(SCOPE, ["Robot"], ["location"], prefilter))
     want = _located_by_catalogue(q, prefilter)
     assert sorted(r.sid for r in got) == sorted(r.sid for r in want)

@@ -18,6 +18,12 @@ Orion (NGSIv2) or, with ``ngsi_ld``, Orion-LD as entity updates
 (``broker.updates``), and the broker notifies the service through its
 subscriptions.
 
+Wall time comes from a ``Timer``: ``WallTime`` (the default) follows the
+machine's clock; ``VirtualTime`` jumps to the next emission due as soon as
+every simulator waits for one, so a bounded run sends exactly the
+notifications of a wall-clock run, as fast as the service acknowledges them
+(tests and recorded feeds).
+
 HTTP: ``concurrency`` sender tasks, each one keep-alive ``httpx.AsyncClient``
 connection, fed by a small bounded queue: at most that many requests are in
 flight, the way a broker's notification worker pool behaves. A non-2xx
@@ -27,14 +33,18 @@ answer or a transport error counts as failed; Orion would not retry it.
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import heapq
 import importlib.util
+import itertools
 import random
+import ssl
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from typing import TextIO
+from typing import Protocol, TextIO
 
 import httpx
 
@@ -87,19 +97,113 @@ class RunConfig:
         return (self.broker or self.url).rstrip("/")
 
 
+class Timer(Protocol):
+    """Where a run's wall time comes from."""
+
+    def monotonic(self) -> float:
+        """Seconds on this timer's clock (only differences count)."""
+        ...
+
+    async def wait(self, stop: asyncio.Event, seconds: float) -> bool:
+        """Let ``seconds`` pass; True if ``stop`` was set meanwhile."""
+        ...
+
+    def pacing(self) -> contextlib.AbstractContextManager[object]:
+        """A simulator's hold on the clock, taken when called (before any
+        simulator starts) and released when its ``with`` block ends."""
+        ...
+
+
+class WallTime:
+    """The machine's clock: emissions are sent when they are due."""
+
+    def monotonic(self) -> float:
+        return time.monotonic()
+
+    async def wait(self, stop: asyncio.Event, seconds: float) -> bool:
+        if stop.is_set():
+            return True
+        if seconds <= 0:
+            await asyncio.sleep(0)  # let the senders and the display run while catching up
+            return stop.is_set()
+        try:
+            await asyncio.wait_for(stop.wait(), timeout=seconds)
+        except TimeoutError:
+            return False
+        return True
+
+    def pacing(self) -> contextlib.AbstractContextManager[object]:
+        return contextlib.nullcontext()
+
+
+class VirtualTime:
+    """A clock that never waits: when every simulator holding ``pacing()``
+    waits, it jumps to the earliest wake-up (so every hold is taken before
+    any simulator starts). Emissions keep their order and
+    their schedule (no run is ever late on it), and one that waits for a free
+    sender (backpressure) holds the clock, so the run goes exactly as fast as
+    the service acknowledges."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+        self._pacing = 0  # simulators not waiting on this clock
+        self._sleepers: list[tuple[float, int, asyncio.Future[None]]] = []
+        self._order = itertools.count()
+
+    def monotonic(self) -> float:
+        return self.now
+
+    async def wait(self, stop: asyncio.Event, seconds: float) -> bool:
+        if stop.is_set() or seconds <= 0:
+            await asyncio.sleep(0)
+            return stop.is_set()
+        woken = asyncio.get_running_loop().create_future()
+        heapq.heappush(self._sleepers, (self.now + seconds, next(self._order), woken))
+        self._pacing -= 1
+        self._advance()
+        await woken
+        return stop.is_set()
+
+    def pacing(self) -> contextlib.AbstractContextManager[object]:
+        self._pacing += 1
+        hold = contextlib.ExitStack()
+        hold.callback(self._release)
+        return hold
+
+    def _release(self) -> None:
+        self._pacing -= 1
+        self._advance()
+
+    def _advance(self) -> None:
+        if self._pacing == 0 and self._sleepers:
+            at, _, woken = heapq.heappop(self._sleepers)
+            self.now = max(self.now, at)
+            self._pacing += 1  # counted from now, not from when its task resumes
+            woken.set_result(None)
+
+
+WALL_TIME = WallTime()
+
+
 @dataclass
 class _Clock:
     sim_start: datetime
     speedup: float
     duration: float | None = None  # planned wall seconds
-    wall_start: float = field(default_factory=time.monotonic)
+    wall_start: float | None = None  # on ``timer``; default: now
+    timer: Timer = WALL_TIME
+
+    def __post_init__(self) -> None:
+        if self.wall_start is None:
+            self.wall_start = self.timer.monotonic()
 
     def due(self, at: datetime) -> float:
         """Wall seconds after the start at which ``at`` is to be sent."""
         return (at - self.sim_start).total_seconds() / self.speedup
 
     def elapsed(self) -> float:
-        return time.monotonic() - self.wall_start
+        assert self.wall_start is not None  # set by __post_init__
+        return self.timer.monotonic() - self.wall_start
 
     def lag(self, row: Stats) -> float:
         """Wall seconds ``row`` is behind its schedule (0 when on time or done)."""
@@ -171,18 +275,27 @@ async def run(
     *,
     progress: Progress | None = None,
     stop: asyncio.Event | None = None,
+    timer: Timer = WALL_TIME,
 ) -> dict[str, Stats]:
     """Send every simulator's notifications until the duration ends or ``stop`` is set."""
     if config.speedup <= 0 or config.concurrency < 1:
         raise ValueError("speedup and concurrency must be positive")
     stop = stop or asyncio.Event()
-    clock = _Clock(config.start or default_start(config.speedup, config.duration), config.speedup, config.duration)
+    start = config.start or default_start(config.speedup, config.duration)
+    clock = _Clock(start, config.speedup, config.duration, timer=timer)
     stats = {sim.name: Stats(sim.name) for sim in simulators}
     outbox: asyncio.Queue = asyncio.Queue(maxsize=2 * config.concurrency)
-    senders = [asyncio.create_task(_sender(config.target, outbox)) for _ in range(config.concurrency)]
+    tls = _client_tls()
+    senders = [asyncio.create_task(_sender(config.target, outbox, tls)) for _ in range(config.concurrency)]
     reporter = asyncio.create_task(progress.follow(stats, clock)) if progress else None
     try:
-        await asyncio.gather(*(_drive(sim, clock, config, stats[sim.name], outbox, stop) for sim in simulators))
+        holds = [timer.pacing() for _ in simulators]
+        await asyncio.gather(
+            *(
+                _drive(sim, clock, config, stats[sim.name], outbox, stop, hold)
+                for sim, hold in zip(simulators, holds, strict=True)
+            )
+        )
     finally:
         for _ in senders:
             await outbox.put(None)
@@ -194,45 +307,38 @@ async def run(
     return stats
 
 
-async def _drive(sim, clock, config, stats: Stats, outbox: asyncio.Queue, stop: asyncio.Event) -> None:
-    """Pace one simulator's emissions onto the wall clock and queue them for the senders."""
+async def _drive(sim, clock: _Clock, config, stats: Stats, outbox: asyncio.Queue, stop: asyncio.Event, hold) -> None:
+    """Pace one simulator's emissions onto the clock and queue them for the senders."""
     physics, wire = rng_for(config.seed, sim.name), rng_for(config.seed, sim.name, "orion")
     subscription = orion.subscription_id(wire)
-    for emission in sim.emissions(clock.sim_start, physics):
-        due = clock.due(emission.at)
-        if config.duration is not None and due > config.duration:
-            break
-        wait = due - clock.elapsed()
-        stats.lag = max(0.0, -wait)
-        if await _wait_or_stop(stop, wait):
-            break
-        if config.broker:
-            path, headers, body = update_request(sim, emission.entity, config.ngsi_ld)
-        else:
-            path = NOTIFY_PATH
-            headers = orion.notification_headers(sim.tenancy.service, sim.tenancy.service_path, orion.correlator(wire))
-            body = orion.notification_body(subscription, emission.entity)
-        await outbox.put((stats, path, headers, body))  # blocks while every sender is busy: backpressure
-        stats.sent += 1
-        stats.sim_time = emission.at
-    stats.done = True
+    with hold:
+        for emission in sim.emissions(clock.sim_start, physics):
+            due = clock.due(emission.at)
+            if config.duration is not None and due > config.duration:
+                break
+            wait = due - clock.elapsed()
+            stats.lag = max(0.0, -wait)
+            if await clock.timer.wait(stop, wait):
+                break
+            if config.broker:
+                path, headers, body = update_request(sim, emission.entity, config.ngsi_ld)
+            else:
+                path = NOTIFY_PATH
+                headers = orion.notification_headers(sim.tenancy.service, sim.tenancy.service_path, orion.correlator(wire))
+                body = orion.notification_body(subscription, emission.entity)
+            await outbox.put((stats, path, headers, body))  # blocks while every sender is busy: backpressure
+            stats.sent += 1
+            stats.sim_time = emission.at
+        stats.done = True
 
 
-async def _wait_or_stop(stop: asyncio.Event, seconds: float) -> bool:
-    """Sleep until an emission is due; True if the run was stopped meanwhile."""
-    if stop.is_set():
-        return True
-    if seconds <= 0:
-        await asyncio.sleep(0)  # let the senders and the display run while catching up
-        return stop.is_set()
-    try:
-        await asyncio.wait_for(stop.wait(), timeout=seconds)
-    except TimeoutError:
-        return False
-    return True
+def _client_tls() -> ssl.SSLContext:
+    """One TLS context for every sender: httpx builds one per client
+    otherwise, loading the CA bundle each time (tens of ms apiece)."""
+    return httpx.create_ssl_context()
 
 
-async def _sender(url: str, outbox: asyncio.Queue) -> None:
+async def _sender(url: str, outbox: asyncio.Queue, tls: ssl.SSLContext) -> None:
     """One keep-alive connection posting queued notifications until it gets ``None``.
 
     A client per connection rather than one shared pool: httpcore's pool
@@ -240,7 +346,7 @@ async def _sender(url: str, outbox: asyncio.Queue) -> None:
     per notification at 16 connections.
     """
     limits = httpx.Limits(max_connections=1, max_keepalive_connections=1)
-    async with httpx.AsyncClient(base_url=url, timeout=30.0, limits=limits) as client:
+    async with httpx.AsyncClient(base_url=url, timeout=30.0, limits=limits, verify=tls) as client:
         while (item := await outbox.get()) is not None:
             await _post(client, *item)
 
