@@ -208,8 +208,7 @@ def test_ngsi_ld_without_a_broker_is_refused(tmp_path):
 
 
 def test_an_unreachable_broker_is_one_line(tmp_path):
-    from pg_cluster import free_port
-
+    from tests.pg_cluster import free_port
     from tests.test_cli_settings import assert_usage_error, run_cli
 
     url = f"http://127.0.0.1:{free_port()}"

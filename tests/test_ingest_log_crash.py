@@ -16,8 +16,8 @@ import urllib.request
 from datetime import UTC, datetime, timedelta
 
 import duckdb
-from support.server import ServerProcess
 
+from tests.support.server import ServerProcess
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage.duckdb.store import LOG_SUFFIX, DuckDBStore
 from tsdb_service.write import codec

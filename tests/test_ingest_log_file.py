@@ -7,8 +7,8 @@ from __future__ import annotations
 from datetime import UTC, datetime, timedelta
 
 import pytest
-from support.tmpfs import fill, small_tmpfs
 
+from tests.support.tmpfs import fill, small_tmpfs
 from tsdb_service.core.model import AttrSample, EntitySample, Geometry, Kind
 from tsdb_service.write import codec
 from tsdb_service.write.log import HEADER, IngestLog, LogError

@@ -11,8 +11,8 @@ from __future__ import annotations
 from datetime import UTC, datetime, timedelta
 
 import pytest
-from ngsild_fixtures import TENANT, load_vehicles
 
+from tests.ngsild_fixtures import TENANT, load_vehicles
 from tsdb_service.core.model import instance_urn
 from tsdb_service.core.query import (
     AggBranch,

@@ -19,15 +19,10 @@ import tracemalloc
 import anyio
 import httpx
 import pytest
-from ngsild_fixtures import ENTITIES, H, error_type, ld_notify
 
-try:
-    from support.hostile import Hostile
-    from support.server import ServerProcess
-except ImportError:  # tests/ imported as a package
-    from tests.support.hostile import Hostile
-    from tests.support.server import ServerProcess
-
+from tests.ngsild_fixtures import ENTITIES, H, error_type, ld_notify
+from tests.support.hostile import Hostile
+from tests.support.server import ServerProcess
 from tsdb_service.faces.ngsild.context import CORE_CONTEXT_URL, ContextStore
 from tsdb_service.http.outbound import FetchFailed, FetchPolicy, fetch, is_public
 

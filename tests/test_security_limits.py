@@ -17,10 +17,7 @@ import httpx
 import psutil
 import pytest
 
-try:
-    from support.server import ServerProcess
-except ImportError:  # tests/ imported as a package
-    from tests.support.server import ServerProcess
+from tests.support.server import ServerProcess
 
 MIB = 1 << 20
 BAD = b'{"not": "a notification"}'

@@ -8,8 +8,8 @@ from __future__ import annotations
 import time
 
 import pytest
-from ngsild_fixtures import ENTITIES, H, error_type, ld_notify
 
+from tests.ngsild_fixtures import ENTITIES, H, error_type, ld_notify
 from tsdb_service.faces.ngsild import qlang
 
 EVIL = "a" * 30 + "!"

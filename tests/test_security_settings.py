@@ -6,15 +6,11 @@ says that keys given as a flag show in ``ps``."""
 from __future__ import annotations
 
 import pytest
-from pg_cluster import free_port
 
+from tests.pg_cluster import free_port
+from tests.test_cli_settings import run_cli
 from tsdb_service.app import create_app
 from tsdb_service.core.config import Settings
-
-try:
-    from test_cli_settings import run_cli
-except ImportError:  # tests/ imported as a package
-    from tests.test_cli_settings import run_cli
 
 
 def _one_line(done, *needles: str) -> str:

@@ -48,11 +48,9 @@ from tsdb_service.read.requests import (
     SeriesSelect,
 )
 from tsdb_service.storage import open_store
+from tsdb_service.storage.copy import copy_history
 from tsdb_service.storage.store import Store
 from tsdb_service.write.ops import AppendSamples
-
-from tests.support.imports import module_imports
-from tsdb_service.storage.copy import copy_history
 
 T0 = datetime(2024, 5, 1, tzinfo=UTC)
 SCOPE = Scope("acme")

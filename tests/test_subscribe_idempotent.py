@@ -14,11 +14,11 @@ from __future__ import annotations
 from urllib.parse import urlsplit
 
 import pytest
-from pg_cluster import free_port
 from starlette.requests import Request
 from starlette.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Route
 
+from tests.pg_cluster import free_port
 from tests.test_subscribe_api import StandInBroker, served
 from tsdb_service.broker.subscriptions import default_notify_url, subscription
 from tsdb_service.cli.main import main

@@ -324,7 +324,9 @@ async def _drive(sim, clock: _Clock, config, stats: Stats, outbox: asyncio.Queue
                 path, headers, body = update_request(sim, emission.entity, config.ngsi_ld)
             else:
                 path = NOTIFY_PATH
-                headers = orion.notification_headers(sim.tenancy.service, sim.tenancy.service_path, orion.correlator(wire))
+                headers = orion.notification_headers(
+                    sim.tenancy.service, sim.tenancy.service_path, orion.correlator(wire)
+                )
                 body = orion.notification_body(subscription, emission.entity)
             await outbox.put((stats, path, headers, body))  # blocks while every sender is busy: backpressure
             stats.sent += 1
