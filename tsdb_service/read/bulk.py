@@ -54,6 +54,11 @@ class BulkReader(Protocol):
         """Stored samples per tenant (a full scan: for commands, not routes)."""
         ...
 
+    def type_counts(self) -> dict[tuple[str, str], tuple[int, int]]:
+        """(entity notifications, samples) stored per (tenant, entity type): a
+        full scan, for an import's check (``tsdb-service import quantumleap``)."""
+        ...
+
     def stored_samples(self, batch_rows: int) -> Iterator[list[StoredSample]]:
         """Every stored sample in (row, instance) order, in lists of at most
         ``batch_rows``: what a copy reads. The iterator holds a cursor of its

@@ -65,6 +65,16 @@ class SqlBulk(SqlReads):
         )
         return {tenant: int(n) for tenant, n in rows}
 
+    def type_counts(self) -> dict[tuple[str, str], tuple[int, int]]:
+        rows = self._fetch(
+            f"SELECT s.tenant, s.entity_type, count(DISTINCT x.rid), count(*) "
+            f"FROM (SELECT sid, rid FROM {self.dialect.samples('sid, rid')}) x "
+            "JOIN series s ON s.sid = x.sid "
+            "GROUP BY s.tenant, s.entity_type",
+            [],
+        )
+        return {(tenant, etype): (int(n_rows), int(n)) for tenant, etype, n_rows, n in rows}
+
     def stored_samples(self, batch_rows: int) -> Iterator[list[StoredSample]]:
         sql = f"SELECT {_STORED_COLUMNS} FROM {self.dialect.samples(_STORED_COLUMNS + ', iid')} ORDER BY rid, iid"
         for rows in self._batches(sql, [], batch_rows):
