@@ -39,13 +39,17 @@ def register(subparsers, command) -> None:
         help="QuantumLeap's database: postgresql://user:pass@host:5432/quantumleap (TimescaleDB), or "
         "postgresql://crate@host:5432/doc (CrateDB's PostgreSQL port)",
     )
-    ql.add_argument("--db", metavar="PATH|URL", help="our store to import into (default: TSDB_DB, else the default)")
+    ql.add_argument(
+        "--db",
+        metavar="PATH|URL",
+        help="our store to import into: a DuckDB file or a postgresql:// URL (default ./data/tsdb.duckdb; env TSDB_DB)",
+    )
     ql.add_argument(
         "--tenant",
         action="append",
         default=[],
         metavar="TENANT",
-        help="only this tenant (FIWARE service; '' for the default tenant); repeat for several",
+        help="only this tenant (FIWARE service; '' for the default tenant); repeat for several (default: every tenant)",
     )
     ql.add_argument(
         "--type",
@@ -53,10 +57,18 @@ def register(subparsers, command) -> None:
         action="append",
         default=[],
         metavar="TYPE",
-        help="only this entity type; repeat for several",
+        help="only this entity type; repeat for several (default: every type)",
     )
-    ql.add_argument("--from-date", metavar="TIME", help="only rows with time_index at or after TIME (ISO 8601)")
-    ql.add_argument("--to-date", metavar="TIME", help="only rows with time_index before TIME (ISO 8601, exclusive)")
+    ql.add_argument(
+        "--from-date",
+        metavar="TIME",
+        help="only rows with time_index at or after TIME (ISO 8601; default: from the first)",
+    )
+    ql.add_argument(
+        "--to-date",
+        metavar="TIME",
+        help="only rows with time_index before TIME (ISO 8601, exclusive; default: to the last)",
+    )
     ql.add_argument("--append", action="store_true", help="add to a target that already holds history")
     ql.add_argument("--dry-run", action="store_true", help="report per table what would be imported; write nothing")
     ql.add_argument(
