@@ -12,6 +12,8 @@ not from QuantumLeap's code:
   ``fiware_servicepath``, ``__original_ngsi_entity__`` (``jsonb``),
   ``instanceid`` (a fresh URN per row), and a lower-cased column per
   attribute, typed by its NGSI type (``TYPES``);
+* an index on ``time_index`` (TimescaleDB's hypertable has one) and on
+  ``(entity_id, time_index)``;
 * ``md_ets_metadata(table_name text primary key, entity_attrs jsonb)``
   mapping each column to ``[original name, NGSI type]``.
 
@@ -153,6 +155,12 @@ def _ensure(conn, tenant: str, entity_type: str, attrs: dict[str, dict]) -> dict
         conn.execute(f"CREATE SCHEMA IF NOT EXISTS {quote_ident(schema)}")
     fixed = ", ".join(f"{quote_ident(c)} {t}" for c, t in _FIXED.items())
     conn.execute(f"CREATE TABLE IF NOT EXISTS {where} ({fixed})")
+    # TimescaleDB's hypertable index, and QuantumLeap's own on (entity_id, time_index).
+    for index, columns in (
+        (f"{table}_time_index_idx", "time_index DESC"),
+        (f"ix_{table}_eid_and_tx", "entity_id, time_index DESC"),
+    ):
+        conn.execute(f"CREATE INDEX IF NOT EXISTS {quote_ident(index)} ON {where} ({columns})")
     row = conn.execute(
         f"SELECT entity_attrs FROM {quote_ident(METADATA_TABLE)} WHERE table_name = %s", [name]
     ).fetchone()

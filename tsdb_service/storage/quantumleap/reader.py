@@ -102,6 +102,8 @@ class QuantumLeapReader:
                 f"{self.where} holds no QuantumLeap tables (no {METADATA_TABLE} table): "
                 "give the database QuantumLeap writes to"
             )
+        if "doc" in schemas and "public" not in schemas:
+            self.dialect = Dialect.CRATE  # whatever version() said: only CrateDB has a schema "doc" by default
         schema = self.dialect.default_schema if self.dialect.default_schema in schemas else schemas[0]
         rows = self._fetch(f"SELECT table_name, entity_attrs FROM {quote_ident(schema)}.{quote_ident(METADATA_TABLE)}")
         existing = {
