@@ -23,9 +23,11 @@ import pytest
 
 from tsdb_service.cli.main import main
 from tsdb_service.core.config import Settings
+from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage import open_store
 from tsdb_service.storage.quantumleap.importer import ImportRefused, Selection, import_quantumleap
 from tsdb_service.storage.quantumleap.layout import insert_rows, table_name, write_entities
+from tsdb_service.storage.quantumleap.reader import Window
 from tsdb_service.write.ops import AppendSamples
 
 T0 = datetime(2024, 5, 1, 10, tzinfo=UTC)
@@ -131,6 +133,43 @@ def test_a_site_moves_in_steps_without_gap_or_overlap(ql, tmp_path, capsys):
     assert _run(capsys, "--from", ql, "--db", db, "--tenant", "acme", "--from-date", cut, "--append")[0] == 0
     assert _run(capsys, "--from", ql, "--db", db, "--type", "Lamp", "--append")[0] == 0
     assert _counts(db) == EXPECTED
+
+
+class _Serving:
+    """The real target while it serves: every batch the import commits, a
+    live notification (timed after the cut) is committed too."""
+
+    def __init__(self, store, live_from: datetime):
+        self._store, self._live = store, itertools.count()
+        self._live_from = live_from
+
+    def __getattr__(self, name):
+        return getattr(self._store, name)
+
+    def write_sync(self, ops):
+        self._store.write_sync(ops)
+        moment = self._live_from + timedelta(seconds=next(self._live))
+        live = EntitySample(
+            "acme", "/site", "Room0", "Room", moment, [AttrSample("temperature", "Number", Kind.NUMBER, num=1.0)]
+        )
+        self._store.write_sync([AppendSamples([live])])
+
+
+def test_the_gap_is_imported_into_a_serving_target(ql, tmp_path):
+    """After the switch the target receives notifications while the gap is
+    imported: the check counts what is timed before --to-date."""
+    db = str(tmp_path / "t.duckdb")
+    cut, switch = T0 + timedelta(minutes=10), T0 + timedelta(minutes=20)
+    store = open_store(Settings(db=db))
+    try:
+        import_quantumleap(ql, store, selection=Selection(window=Window(end=cut)))
+        serving = _Serving(store, switch)
+        gap = Selection(window=Window(cut, switch))
+        report = import_quantumleap(ql, serving, selection=gap, append=True, batch_samples=10)  # type: ignore[arg-type]
+        assert report.totals[("acme", "Room")] == (20, 40)
+        assert store.querier().type_counts(switch) == {("acme", "Room"): (20, 40), ("", "Lamp"): (LAMPS, LAMPS)}
+    finally:
+        store.close()
 
 
 class _Interrupted(Exception):

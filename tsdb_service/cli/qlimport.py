@@ -149,8 +149,9 @@ def cmd_import(args: argparse.Namespace) -> int:
     finally:
         target.close()
     _print_tables(report, "imported")
+    timed = f" timed before {window.end.isoformat()}" if window.end else ""
     for (tenant, etype), (rows, samples) in sorted(report.totals.items()):
-        print(f"tenant {tenant or '(default)'} type {etype}: the target holds {rows} rows, {samples} samples")
+        print(f"tenant {tenant or '(default)'} type {etype}: the target holds {rows} rows, {samples} samples{timed}")
     if report.resumed_from:
         print(f"resumed an interrupted import: {report.resumed_from} samples were already there")
     print(f"import verified: {report.samples} samples imported")

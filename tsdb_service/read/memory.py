@@ -442,10 +442,12 @@ class MemoryQuerier(SeparateScans, Querier):
                 counts[self._series[sid][0]] += len(rows)
         return dict(counts)
 
-    def type_counts(self) -> dict[tuple[str, str], tuple[int, int]]:
+    def type_counts(self, before: datetime | None = None) -> dict[tuple[str, str], tuple[int, int]]:
         rids: dict[tuple[str, str], set[int]] = defaultdict(set)
         counts: dict[tuple[str, str], int] = defaultdict(int)
-        for sid, rows in self._samples.items():
+        end = _naive(before)
+        for sid, every in self._samples.items():
+            rows = every if end is None else [s for s in every if s.t < end]
             if rows and sid in self._series:
                 tenant, ref = self._series[sid]
                 rids[tenant, ref.entity_type].update(s.rid for s in rows)
