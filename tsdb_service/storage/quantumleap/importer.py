@@ -31,6 +31,7 @@ import sys
 import time
 from collections import defaultdict
 from collections.abc import Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import datetime
 
@@ -49,6 +50,7 @@ from tsdb_service.write.ops import AppendSamples
 
 BATCH_SAMPLES = 50_000
 SHOWN_PROBLEMS = 5
+PROGRESS_EVERY_S = 0.5
 _SEP = "\t"
 
 
@@ -204,24 +206,31 @@ class _Job:
         self.skip = 0
         self.seen = 0  # samples passed, skipped or written
         self.batch: list[EntitySample] = []
+        self.writer = ThreadPoolExecutor(1, thread_name_prefix="ql-import")
+        self.pending: Future | None = None
         self.batch_n = 0
         self.rows_done = 0
         self.rows_total = 0
         self.started = time.monotonic()
+        self.shown = 0.0
 
     def run(self, tables: Sequence[TableMeta], source_rows: dict[str, int], window: Window) -> list[TableReport]:
         if self.target is not None and self.run_record is not None:
             self.skip = _already(self.target, self.run_record, self.before)
         self.rows_total = sum(source_rows.values())
         reports = []
-        for meta in tables:
-            report = TableReport(meta.name, meta.tenant, source_rows[meta.name])
-            columns = self._columns(meta)
-            for group in _instants(self.reader.pages(meta, columns, window, self.page_rows)):
-                self._group(meta, group, report)
-            reports.append(report)
-        self._flush()
+        try:
+            for meta in tables:
+                report = TableReport(meta.name, meta.tenant, source_rows[meta.name])
+                columns = self._columns(meta)
+                for group in _instants(self.reader.pages(meta, columns, window, self.page_rows)):
+                    self._group(meta, group, report)
+                reports.append(report)
+            self._flush(last=True)
+        finally:
+            self.writer.shutdown()  # a batch in flight (e.g. at Ctrl-C) ends committed or not, never half
         if self.progress:
+            self._show(final=True)
             print(file=sys.stderr)
         if self.seen < self.skip:
             raise ImportNotVerified(
@@ -279,15 +288,24 @@ class _Job:
         if self.batch_n >= self.batch_samples:
             self._flush()
 
-    def _flush(self) -> None:
-        if self.batch and self.target is not None:
-            self.target.write_sync([AppendSamples(self.batch, dedup=False)])
-        self.batch, self.batch_n = [], 0
+    def _flush(self, last: bool = False) -> None:
+        """Commit the batch in the background while the next one is read
+        (one at a time, in order: the target always holds a prefix)."""
+        if self.pending is not None:
+            pending, self.pending = self.pending, None
+            pending.result()  # the previous batch is committed (or its failure raised) first
+        batch, self.batch, self.batch_n = self.batch, [], 0
+        if batch and self.target is not None:
+            self.pending = self.writer.submit(self.target.write_sync, [AppendSamples(batch, dedup=False)])
+        if last and self.pending is not None:
+            self._flush()
         self._show()
 
-    def _show(self) -> None:
-        if not self.progress:
+    def _show(self, final: bool = False) -> None:
+        now = time.monotonic()
+        if not self.progress or (now < self.shown + PROGRESS_EVERY_S and not final):
             return
+        self.shown = now
         rate = (self.seen - self.skip) / max(time.monotonic() - self.started, 1e-9)
         pct = 100.0 * self.rows_done / self.rows_total if self.rows_total else 100.0
         print(
