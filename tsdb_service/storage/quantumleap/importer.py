@@ -299,7 +299,8 @@ class _Job:
             self.pending = self.writer.submit(self.target.write_sync, [AppendSamples(batch, dedup=False)])
         if last and self.pending is not None:
             self._flush()
-        self._show()
+        if not last:
+            self._show()
 
     def _show(self, final: bool = False) -> None:
         now = time.monotonic()
