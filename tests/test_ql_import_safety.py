@@ -223,6 +223,15 @@ def test_a_half_migrated_target_is_one_line(ql, tmp_path, capsys):
         store.close()
     code, _, err = _run(capsys, "--from", ql, "--db", db, "--tenant", "acme")
     assert "interrupted import" in _one_error(code, err)
+    other = str(tmp_path / "other.duckdb")
+    store = open_store(Settings(db=other))
+    try:
+        one = [AttrSample("temperature", "Number", Kind.NUMBER, num=1.0)]
+        store.write_sync([AppendSamples([EntitySample("acme", "/", "Room0", "Room", T0, one)])])
+    finally:
+        store.close()
+    code = main(["copy", "--from", other, "--to", db, "--quiet"])
+    assert "tsdb-service import quantumleap" in _one_error(code, capsys.readouterr().err), "copy says which command"
 
 
 def test_a_wrong_url_is_one_line(tmp_path, capsys, pg_cluster):

@@ -16,6 +16,12 @@ notification would have made (``rows``) and goes through the write seam
   type must equal what it held before plus what the import read: totals,
   not what this run believes it wrote.
 
+With ``--to-date``, resuming and the check count only samples timed before
+it, so the gap after switching Orion can be imported into a serving
+target. Without it they count everything: the target must then be written
+by nobody else while the import runs (a resume would otherwise skip as
+many samples as others wrote).
+
 ``copy_runs.base_counts`` holds ``{"rows<TAB>tenant<TAB>type": n,
 "samples<TAB>tenant<TAB>type": n}`` for an import.
 
@@ -139,8 +145,7 @@ def import_quantumleap(
                 raise ValueError("a target store is needed unless dry_run")
             source_id = _source_id(reader.where, selection, keep_duplicates)
             run = _resume_or_start(target, source_id, sum(source_rows.values()), append, selection.window.end)
-        job = _Job(reader, target, run, keep_duplicates, progress, batch_samples, page_rows)
-        job.before = selection.window.end
+        job = _Job(reader, target, run, selection.window.end, keep_duplicates, progress, batch_samples, page_rows)
         reports = job.run(tables, source_rows, selection.window)
     finally:
         reader.close()
@@ -195,6 +200,7 @@ class _Job:
         reader: QuantumLeapReader,
         target: Store | None,
         run: CopyRun | None,
+        before: datetime | None,
         keep_duplicates: bool,
         progress: bool,
         batch_samples: int,
@@ -202,7 +208,7 @@ class _Job:
     ):
         self.reader, self.target, self.run_record, self.keep_duplicates = reader, target, run, keep_duplicates
         self.progress, self.batch_samples, self.page_rows = progress, batch_samples, page_rows
-        self.before: datetime | None = None
+        self.before = before  # --to-date: what is timed later is not this import's
         self.skip = 0
         self.seen = 0  # samples passed, skipped or written
         self.batch: list[EntitySample] = []
