@@ -110,7 +110,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         Selection,
         import_quantumleap,
     )
-    from tsdb_service.storage.quantumleap.reader import Window
+    from tsdb_service.storage.quantumleap.reader import SourceUnavailable, Window
 
     if not args.source.startswith(("postgresql://", "postgres://")):
         raise SettingsError(f"--from: {args.source!r} is not a postgresql:// URL (CrateDB: its PostgreSQL port, 5432)")
@@ -143,6 +143,9 @@ def cmd_import(args: argparse.Namespace) -> int:
     except ImportNotVerified as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    except SourceUnavailable as exc:  # e.g. the connection lost midway: what is committed stays
+        print(f"error: {exc}; run the same command again to resume", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"\ninterrupted: run the same command again to resume the import into {db}", file=sys.stderr)
         return 130

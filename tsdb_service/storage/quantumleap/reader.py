@@ -81,12 +81,22 @@ class QuantumLeapReader:
         self._conn.close()
 
     def _fetch(self, sql: str, params: Sequence[Any] = ()) -> list[dict[str, Any]]:
-        with self._conn.cursor() as cur:
-            cur.execute(sql, list(params))  # our own SQL: identifiers quoted, values bound
-            return list(cur.fetchall()) if cur.description else []
+        import psycopg
+
+        try:
+            with self._conn.cursor() as cur:
+                cur.execute(sql, list(params))  # our own SQL: identifiers quoted, values bound
+                return list(cur.fetchall()) if cur.description else []
+        except psycopg.Error as exc:  # a lost connection, a table we may not read: one line
+            text = " ".join(str(exc).split())
+            raise SourceUnavailable(f"reading QuantumLeap's database at {self.where} failed: {text}") from None
 
     def _dialect(self) -> Dialect:
-        row = self._fetch("SELECT version() AS v")
+        """CrateDB names itself in ``version()``; ``tables`` also tells it by its ``doc`` schema."""
+        try:
+            row = self._fetch("SELECT version() AS v")
+        except SourceUnavailable:
+            return Dialect.POSTGRESQL
         return Dialect.CRATE if "crate" in str(row[0]["v"]).lower() else Dialect.POSTGRESQL
 
     def tables(self) -> list[TableMeta]:
