@@ -154,9 +154,10 @@ def _feature_modules() -> tuple[ModuleType, ...]:
     from tsdb_service.cli import dashboards as grafana_commands
     from tsdb_service.cli import demo as demo_commands
     from tsdb_service.cli import export as export_commands
+    from tsdb_service.cli import qlimport as import_commands
     from tsdb_service.storage import copy
 
-    return (demo_commands, grafana_commands, copy, export_commands)
+    return (demo_commands, grafana_commands, copy, export_commands, import_commands)
 
 
 @command("serve")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack
+from datetime import datetime
 from typing import Protocol
 
 import pyarrow as pa
@@ -52,6 +53,12 @@ class BulkReader(Protocol):
 
     def sample_counts(self) -> dict[str, int]:
         """Stored samples per tenant (a full scan: for commands, not routes)."""
+        ...
+
+    def type_counts(self, before: datetime | None = None) -> dict[tuple[str, str], tuple[int, int]]:
+        """(entity notifications, samples) stored per (tenant, entity type),
+        only those timed before ``before`` when given: a full scan, for an
+        import's check (``tsdb-service import quantumleap``)."""
         ...
 
     def stored_samples(self, batch_rows: int) -> Iterator[list[StoredSample]]:

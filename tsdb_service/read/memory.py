@@ -442,6 +442,18 @@ class MemoryQuerier(SeparateScans, Querier):
                 counts[self._series[sid][0]] += len(rows)
         return dict(counts)
 
+    def type_counts(self, before: datetime | None = None) -> dict[tuple[str, str], tuple[int, int]]:
+        rids: dict[tuple[str, str], set[int]] = defaultdict(set)
+        counts: dict[tuple[str, str], int] = defaultdict(int)
+        end = _naive(before)
+        for sid, every in self._samples.items():
+            rows = every if end is None else [s for s in every if s.t < end]
+            if rows and sid in self._series:
+                tenant, ref = self._series[sid]
+                rids[tenant, ref.entity_type].update(s.rid for s in rows)
+                counts[tenant, ref.entity_type] += len(rows)
+        return {key: (len(rids[key]), n) for key, n in counts.items()}
+
     def stored_samples(self, batch_rows: int) -> Iterator[list[StoredSample]]:
         every = sorted((s for rows in self._samples.values() for s in rows), key=lambda s: (s.rid, s.iid))
         for i in range(0, len(every), batch_rows):

@@ -190,6 +190,11 @@ def _resume_or_start(target: Store, source_id: str, src_total: int, append: bool
     """The unfinished run from this source to resume, or a new one recorded now."""
     for run in target.copy_runs_open():
         source, source_samples = run.source, run.source_samples
+        if source.startswith("quantumleap "):
+            raise CopyRefused(
+                f"the target holds an interrupted import ({source}): finish it by running that "
+                "`tsdb-service import quantumleap` again, or copy into a new, empty target"
+            )
         if source != source_id:
             raise CopyRefused(
                 f"the target holds an interrupted copy from {source}: resume it with `tsdb-service copy "

@@ -9,6 +9,7 @@ server-side cursor.
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from datetime import datetime
 
 import pyarrow as pa
 
@@ -64,6 +65,17 @@ class SqlBulk(SqlReads):
             [],
         )
         return {tenant: int(n) for tenant, n in rows}
+
+    def type_counts(self, before: datetime | None = None) -> dict[tuple[str, str], tuple[int, int]]:
+        where, params = ("", []) if before is None else (f" WHERE t < {self.dialect.placeholder}", [before])
+        rows = self._fetch(
+            f"SELECT s.tenant, s.entity_type, count(DISTINCT x.rid), count(*) "
+            f"FROM (SELECT sid, rid FROM {self.dialect.samples('sid, rid, t')}{where}) x "
+            "JOIN series s ON s.sid = x.sid "
+            "GROUP BY s.tenant, s.entity_type",
+            [self.dialect.time_value(p) for p in params],
+        )
+        return {(tenant, etype): (int(n_rows), int(n)) for tenant, etype, n_rows, n in rows}
 
     def stored_samples(self, batch_rows: int) -> Iterator[list[StoredSample]]:
         sql = f"SELECT {_STORED_COLUMNS} FROM {self.dialect.samples(_STORED_COLUMNS + ', iid')} ORDER BY rid, iid"
