@@ -4,7 +4,7 @@ QuantumLeap on TimescaleDB stores every geo attribute in a PostGIS
 ``geometry`` column and answers ``geo:json`` as GeoJSON and the simple
 location types as ``"lat, lon"`` text (lists of them for lines, polygons
 and boxes). Needs PostGIS in the test PostgreSQL; skipped with the reason
-when it is not installed (the conversion itself is covered without a
+when it is not installed and cannot be (the conversion itself is covered without a
 database by test_ql_import_rows.py).
 """
 
@@ -15,6 +15,7 @@ from datetime import UTC, datetime
 import psycopg
 import pytest
 
+from tests.support.apt import apt_install
 from tsdb_service.cli.main import main
 from tsdb_service.storage.quantumleap.layout import has_postgis, write_entities
 
@@ -28,14 +29,26 @@ VALUES = {
 }
 
 
+def _create_postgis(conn: psycopg.Connection) -> None:
+    """PostGIS in this database: Debian's package for the server's major
+    version is installed when it is missing and we may (root, apt-get)."""
+    try:
+        conn.execute("CREATE EXTENSION IF NOT EXISTS postgis")
+        return
+    except psycopg.Error as exc:
+        missing = exc.diag.message_primary
+    major = int(conn.execute("SHOW server_version_num").fetchone()[0]) // 10000
+    why = apt_install(f"postgresql-{major}-postgis-3")
+    if why is not None:
+        pytest.skip(f"PostGIS is not installed in the test PostgreSQL ({missing}); {why}")
+    conn.execute("CREATE EXTENSION IF NOT EXISTS postgis")
+
+
 @pytest.fixture
 def postgis_source(pg_cluster) -> str:
     url = pg_cluster.database("ql_geo_source")
     with psycopg.connect(url, autocommit=True) as conn:
-        try:
-            conn.execute("CREATE EXTENSION IF NOT EXISTS postgis")
-        except psycopg.Error as exc:
-            pytest.skip(f"PostGIS is not installed in the test PostgreSQL ({exc.diag.message_primary})")
+        _create_postgis(conn)
         assert has_postgis(conn)
         entity = {"id": "Mower:1", "type": "Mower", **{k: {"type": t, "value": v} for k, (t, v) in VALUES.items()}}
         write_entities(conn, "geo", [(entity, T0, "/")])

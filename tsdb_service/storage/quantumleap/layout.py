@@ -109,18 +109,19 @@ def write_entities(
             "instanceid": f"urn:ngsi-ld:{uuid.uuid4()}",
         }
         for attr, body in attrs.items():
-            row[attr.lower()] = column_value(described[attr.lower()][1], body.get("value"))
+            row[attr.lower()] = column_value(described[attr.lower()][1], body.get("value"), body.get("type"))
         insert_rows(conn, name, [row])
 
 
-def column_value(col_type: str, value: Any) -> Any:
-    """What a column of ``col_type`` holds for an NGSI value (None: does not fit)."""
+def column_value(col_type: str, value: Any, ngsi_type: Any = None) -> Any:
+    """What a column of ``col_type`` holds for an NGSI value of ``ngsi_type``
+    (None: does not fit)."""
     if value is None:
         return None
     if col_type == "jsonb":
         return json.dumps(value)
     if col_type == "geometry":
-        return _ewkt(value)
+        return _ewkt(value, str(ngsi_type or "").lower())
     if col_type == "float":
         return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
     if col_type == "bigint":
@@ -130,15 +131,33 @@ def column_value(col_type: str, value: Any) -> Any:
     return value if col_type == "timestamptz" else str(value)
 
 
-def _ewkt(value: Any) -> str | None:
+def _ewkt(value: Any, ngsi_type: str) -> str | None:
+    """The geometry QuantumLeap's PostGIS column holds for a value (EWKT).
+
+    A ``geo:box`` ([bottom right, top left]) is kept as QuantumLeap keeps it:
+    the closed ring top left, top right, bottom right, bottom left, which its
+    reader turns back into the two corners."""
     import shapely
 
     from tsdb_service.geo.encodings import from_ngsi
 
-    geometry = from_ngsi("geo:point" if isinstance(value, str) else "geo:json", value)  # str: "lat, lon"
+    if ngsi_type == "geo:box" and isinstance(value, list) and len(value) == 2:
+        return _box_ewkt(value)
+    if ngsi_type not in {"geo:point", "geo:line", "geo:polygon"}:
+        ngsi_type = "geo:point" if isinstance(value, str) else "geo:json"  # str: "lat, lon"
+    geometry = from_ngsi(ngsi_type, value)
     if geometry is None:
         return None
     return "SRID=4326;" + shapely.from_geojson(geometry.geojson).wkt
+
+
+def _box_ewkt(corners: list[Any]) -> str | None:
+    try:
+        (bottom, right), (top, left) = ([float(x) for x in str(c).split(",")] for c in corners)
+    except ValueError:
+        return None
+    ring = [(left, top), (right, top), (right, bottom), (left, bottom), (left, top)]
+    return "SRID=4326;POLYGON((" + ", ".join(f"{lon!r} {lat!r}" for lon, lat in ring) + "))"
 
 
 def _ensure(conn, tenant: str, entity_type: str, attrs: dict[str, dict]) -> dict[str, tuple[str, str]]:
