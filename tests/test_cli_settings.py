@@ -161,3 +161,17 @@ def test_a_local_context_file_that_is_not_json_is_refused(tmp_path):
     done = run_cli("serve", "--ngsild-contexts", f"https://ex.org/c.jsonld={tmp_path / 'c.jsonld'}", cwd=tmp_path)
     assert_usage_error(done, "--ngsild-contexts", "is not JSON")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.jsonld"]
+
+
+def test_a_setting_on_by_default_can_be_turned_off_by_its_flag(monkeypatch):
+    """``--no-ingest-log`` exists: a bool setting that defaults to true had
+    only its ``--ingest-log`` form, so only ``TSDB_INGEST_LOG`` could turn it off."""
+    from tsdb_service.cli.main import _settings, build_parser
+
+    monkeypatch.delenv("TSDB_INGEST_LOG", raising=False)
+    parse = build_parser().parse_args
+    assert _settings(parse(["serve", "--no-ingest-log"])).ingest_log is False
+    assert _settings(parse(["serve", "--ingest-log"])).ingest_log is True
+    assert _settings(parse(["serve", "--access-log"])).access_log is True
+    with pytest.raises(SystemExit):
+        parse(["serve", "--no-access-log"])  # off by default: no --no- form

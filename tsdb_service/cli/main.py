@@ -100,7 +100,9 @@ def _add_settings(p: argparse.ArgumentParser) -> None:
         if name == "db":
             _add_db(p)
         elif field.annotation is bool:
-            p.add_argument(flag, dest=name, action="store_true", default=None, help=setting_help(name))
+            # a setting on by default needs its --no- form to be turned off by a flag
+            action = argparse.BooleanOptionalAction if field.default is True else "store_true"
+            p.add_argument(flag, dest=name, action=action, default=None, help=setting_help(name))
         elif name == "log_level":
             p.add_argument(flag, dest=name, metavar="{" + ",".join(LOG_LEVELS) + "}", help=setting_help(name))
         else:
