@@ -77,6 +77,19 @@ def pg_cluster():
         cluster.stop()
 
 
+@pytest.fixture(scope="session")
+def mosquitto(tmp_path_factory):
+    """A private MQTT broker for the whole run (Debian's mosquitto on a free
+    port, installed when missing and we are root; skipped otherwise)."""
+    from tests.support.mosquitto import broker
+
+    started = broker(tmp_path_factory.mktemp("mosquitto"))
+    try:
+        yield started
+    finally:
+        started.close()
+
+
 @pytest.fixture(scope="session", params=_backends())
 def backend(request) -> str:
     return request.param

@@ -82,9 +82,7 @@ class StandInOrion:
                     "Fiware-ServicePath": tenancy[1],
                     "Ngsiv2-AttrsFormat": "normalized",
                 }
-                await self._send(
-                    sub["notification"]["http"]["url"], {"subscriptionId": sub["id"], "data": [whole]}, headers
-                )
+                await self.deliver(sub, tenancy, {"subscriptionId": sub["id"], "data": [whole]}, headers)
         return Response(status_code=204)
 
     async def upsert_ld(self, request: Request) -> Response:
@@ -107,7 +105,7 @@ class StandInOrion:
                     "notifiedAt": datetime.now(UTC).isoformat().replace("+00:00", "Z"),
                     "data": [whole],
                 }
-                await self._send(endpoint["uri"], note, headers)
+                await self.deliver(sub, tenancy, note, headers)
         return Response(status_code=204)
 
     def _merge(self, tenancy, entity: dict) -> dict:
@@ -122,6 +120,12 @@ class StandInOrion:
             if any(s["type"] == entity["type"] and re.search(s["idPattern"], entity["id"]) for s in selectors):
                 found.append(sub)
         return found
+
+    async def deliver(self, sub: dict, tenancy, body: dict, headers: dict) -> None:
+        """Send a notification where the subscription says (over HTTP here)."""
+        notification = sub["notification"]
+        target = notification["endpoint"]["uri"] if "endpoint" in notification else notification["http"]["url"]
+        await self._send(target, body, headers)
 
     async def _send(self, url: str, body: dict, headers: dict) -> None:
         async with httpx.AsyncClient(timeout=30) as client:

@@ -1,4 +1,4 @@
-"""Dockerfile, docker-compose.yml and its Orion-LD variant agree with the repository.
+"""Dockerfile, docker-compose.yml and its Orion-LD and MQTT variants agree with the repository.
 
 No container engine runs here, so the images are never built in the test
 suite; what can drift without one is checked instead: both compose files,
@@ -24,7 +24,7 @@ import jsonschema
 import pytest
 import yaml
 
-from tsdb_service.broker.subscriptions import COMPOSE_NOTIFY_URL
+from tsdb_service.broker.subscriptions import COMPOSE_NOTIFY_URL, MQTT_TOPIC
 from tsdb_service.cli.main import build_parser
 from tsdb_service.core.config import Settings
 
@@ -32,6 +32,7 @@ ROOT = Path(__file__).resolve().parent.parent
 COMPOSE = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
 SERVICES = COMPOSE["services"]
 ORION_LD = yaml.safe_load((ROOT / "docker-compose.orion-ld.yml").read_text())
+MQTT = yaml.safe_load((ROOT / "docker-compose.mqtt.yml").read_text())
 DOCKERFILE = (ROOT / "Dockerfile").read_text()
 SCHEMA = json.loads((ROOT / "tests/support/compose-spec/compose-spec.json").read_text())
 
@@ -46,6 +47,7 @@ def merged(base: dict, override: dict) -> dict:
 
 
 STACK_LD = merged(COMPOSE, ORION_LD)
+STACK_MQTT = merged(COMPOSE, MQTT)
 
 
 def _problems(document: dict) -> list[str]:
@@ -54,7 +56,9 @@ def _problems(document: dict) -> list[str]:
 
 
 @pytest.mark.parametrize(
-    "document", [COMPOSE, ORION_LD, STACK_LD], ids=["docker-compose.yml", "orion-ld override", "the Orion-LD stack"]
+    "document",
+    [COMPOSE, ORION_LD, STACK_LD, MQTT, STACK_MQTT],
+    ids=["docker-compose.yml", "orion-ld override", "the Orion-LD stack", "mqtt override", "the MQTT stack"],
 )
 def test_compose_files_follow_the_compose_specification(document):
     assert _problems(document) == []
@@ -86,9 +90,9 @@ def test_the_stack_has_its_services():
     assert set(SERVICES) == {"mongo", "orion", "tsdb-service", "subscriptions", "feeder", "prometheus", "grafana"}
 
 
-@pytest.mark.parametrize("service", sorted(SERVICES))
+@pytest.mark.parametrize("service", sorted(STACK_MQTT["services"]))
 def test_images_are_pinned(service):
-    image = SERVICES[service]["image"]
+    image = STACK_MQTT["services"][service]["image"]
     name, _, tag = image.rpartition(":")
     assert name and tag and tag != "latest" and re.search(r"\d", tag), image
 
@@ -252,3 +256,34 @@ def test_the_feeder_updates_orion_once_subscribed(stack):
     assert (urlsplit(args.broker).hostname, urlsplit(args.broker).port) == ("orion", 1026)
     assert urlsplit(args.url).hostname == "tsdb-service"
     assert args.ngsi_ld == build_parser().parse_args(services["subscriptions"]["command"]).ngsi_ld
+
+
+def test_the_mqtt_variant_puts_mosquitto_between_orion_and_the_service():
+    """Orion publishes to Mosquitto (the subscriptions say so), the service
+    consumes the same broker under a fixed client id (its session holds what
+    arrives while it is away), and the topics agree: what ``subscribe --mqtt``
+    has Orion publish on is what the service's default template reads."""
+    assert set(MQTT) == {"services", "volumes"} and set(MQTT["services"]) - set(SERVICES) == {"mosquitto"}
+    services = STACK_MQTT["services"]
+    broker = services["mosquitto"]
+    assert broker["image"].startswith("eclipse-mosquitto:2.")
+    assert {int(p.split(":")[1]) for p in broker["ports"]} == {1883}
+    mounts = dict(volume.split(":")[1::-1] for volume in broker["volumes"])
+    assert mounts["/mosquitto/data"] in MQTT["volumes"]  # sessions and queues outlive the container
+    config = ROOT / mounts["/mosquitto/config/mosquitto.conf"]
+    lines = {tuple(line.split()) for line in config.read_text().splitlines() if line and not line.startswith("#")}
+    assert {("listener", "1883"), ("persistence", "true"), ("persistence_location", "/mosquitto/data/")} <= lines
+    assert ("max_queued_messages", "0") in lines  # not the default 1,000, past which QoS 1 messages are dropped
+    assert "mosquitto_sub" in broker["healthcheck"]["test"]
+
+    tsdb = services["tsdb-service"]
+    settings = Settings(**{k.removeprefix("TSDB_").lower(): v for k, v in tsdb["environment"].items()})
+    url = urlsplit(settings.mqtt_url)
+    assert (url.scheme, url.hostname, url.port) == ("mqtt", "mosquitto", 1883)
+    assert settings.mqtt_client_id and tsdb["depends_on"] == {"mosquitto": {"condition": "service_healthy"}}
+
+    args = build_parser().parse_args(services["subscriptions"]["command"])
+    assert (args.command, args.use_case, args.force, args.notify_url) == ("subscribe", "all", False, None)
+    assert args.mqtt == settings.mqtt_url and args.mqtt_topic is None
+    assert settings.mqtt_topic_template == MQTT_TOPIC  # what Orion publishes on is what the service reads
+    assert services["feeder"] == SERVICES["feeder"]  # the data still goes through Orion

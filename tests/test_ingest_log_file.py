@@ -12,7 +12,7 @@ from tests.support.tmpfs import fill, small_tmpfs
 from tsdb_service.core.model import AttrSample, EntitySample, Geometry, Kind
 from tsdb_service.write import codec
 from tsdb_service.write.log import HEADER, IngestLog, LogError
-from tsdb_service.write.ops import AppendSamples
+from tsdb_service.write.ops import AppendSamples, Delivery
 
 T0 = datetime(2024, 5, 1, 10, 0, 0, 123456, tzinfo=UTC)
 
@@ -123,7 +123,23 @@ def test_the_codec_round_trips_every_field():
     assert back == op
 
 
+def test_the_codec_round_trips_mqtt_deliveries():
+    deliveries = (
+        Delivery("tsdb-a", 7, 65535, bytes(range(16)), T0, prune_below=0),
+        Delivery("tsdb-a", 8, 1, b"\xff" * 16, T0 + timedelta(microseconds=1), prune_below=3),
+    )
+    op = AppendSamples(_entities(), deliveries=deliveries)
+    assert codec.decode(codec.encode(op)) == op
+
+
+def test_a_record_of_version_1_still_reads():
+    """Written before MQTT deliveries: the same layout without them."""
+    op = AppendSamples(_entities(), dedup=False)
+    old = codec.encode(op).replace(f'"v":{codec.VERSION}'.encode(), b'"v":1')
+    assert codec.decode(old) == op
+
+
 def test_a_record_of_another_version_is_refused():
-    payload = codec.encode(AppendSamples(_entities())).replace(b'"v":1', b'"v":99')
+    payload = codec.encode(AppendSamples(_entities())).replace(f'"v":{codec.VERSION}'.encode(), b'"v":99')
     with pytest.raises(codec.RecordError):
         codec.decode(payload)

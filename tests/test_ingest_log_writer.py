@@ -139,10 +139,10 @@ def test_replay_applies_only_what_the_database_lacks(tmp_path):
     db = ListDatabase()
     w = db.writer(tmp_path)
     db.gate.clear()
-    for i in range(1, 4):
+    for i in range(1, 4):  # one after the other: e1 gets row id 1, e2 2, e3 3
         acknowledge_in_background(w, AppendSamples([entity(i)]))
-    while w.acked_seq < 3:
-        threading.Event().wait(0.01)
+        while w.acked_seq < i:
+            threading.Event().wait(0.01)
     # A crash: the log holds three records, the first database none (its
     # applier stays stuck, as a dead process's would). The next database
     # holds the first, as if it had been applied before the crash.

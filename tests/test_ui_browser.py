@@ -18,15 +18,13 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
-import shutil
-import subprocess
 import time
 from pathlib import Path
 
 import pytest
 
 from tests.grafana_fixtures import feed_live
+from tests.support.apt import apt_install
 from tests.support.server import ServerProcess
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -47,28 +45,11 @@ READY_TIMEOUT_S = 30
 LOAD_BUDGET_MS = 10_000  # generous: 2 shared cores; the figure itself is printed
 
 
-def _install_chromium() -> str | None:
-    """apt-get the browser and its driver; the reason it could not, or None."""
-    if not hasattr(os, "geteuid") or os.geteuid() != 0:
-        return "chromium / chromium-driver are not installed and we are not root to apt-get them"
-    if shutil.which("apt-get") is None:
-        return "chromium / chromium-driver are not installed and there is no apt-get"
-    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-    for command in (["apt-get", "update", "-qq"], ["apt-get", "install", "-y", "-qq", "chromium", "chromium-driver"]):
-        try:
-            done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=900)
-        except (OSError, subprocess.TimeoutExpired) as exc:
-            return f"{' '.join(command)} failed: {exc}"
-        if done.returncode != 0:
-            return f"{' '.join(command)} failed ({done.returncode}): {(done.stderr or done.stdout)[-500:]}"
-    return None
-
-
 @pytest.fixture(scope="session")
 def chromium_binaries():
     """/usr/bin/chromium and /usr/bin/chromedriver, installed here if missing."""
     if not (CHROMIUM.exists() and CHROMEDRIVER.exists()):
-        reason = _install_chromium()
+        reason = apt_install("chromium", "chromium-driver")
         if reason is not None:
             pytest.skip(reason)
     if not (CHROMIUM.exists() and CHROMEDRIVER.exists()):

@@ -13,7 +13,7 @@ from starlette.types import ASGIApp
 
 from tsdb_service import __version__, telemetry
 from tsdb_service.core.budget import ReadLimits
-from tsdb_service.core.config import Settings, get_settings
+from tsdb_service.core.config import Settings, SettingsError, flag_named, get_settings
 from tsdb_service.faces import export, grafana, ngsild, operator, quantumleap, ui
 from tsdb_service.faces.grafana import openapi as grafana_oa
 from tsdb_service.faces.operator import openapi as operator_oa
@@ -73,18 +73,21 @@ def create_app(
     route tests) instead of opening ``settings.db``; the caller closes it."""
     settings = settings or get_settings()
     metrics = metrics or telemetry.Metrics()
+    mqtt = mqtt_config(settings)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         if store is not None:
             app.state.store = store
-            yield
+            async with consuming(app, mqtt, metrics):
+                yield
             return
         app.state.store = await run_in_threadpool(open_store, settings, background=True)
         metrics.attach(app.state.store)
         log.info("tsdb-service %s opened the %s", __version__, describe_database(settings))
         try:
-            yield
+            async with consuming(app, mqtt, metrics):
+                yield
         finally:
             metrics.detach()
             await run_in_threadpool(app.state.store.close)
@@ -128,6 +131,40 @@ FEATURE_SCHEMAS = {
     **quantumleap_oa.SCHEMAS,
     **grafana_oa.SCHEMAS,
 }
+
+
+def mqtt_config(settings: Settings):
+    """The MQTT consumer's settings (``ingest.mqtt``), None when it is off;
+    a bad one is a ``SettingsError`` naming its flag (``serve`` checked it
+    already, in ``check_serve``)."""
+    if not settings.mqtt_url:
+        return None
+    from tsdb_service.ingest.mqtt.config import MqttConfig
+
+    try:
+        return MqttConfig.from_settings(settings)
+    except ValueError as exc:
+        raise SettingsError(flag_named(str(exc))) from None
+
+
+@asynccontextmanager
+async def consuming(app: FastAPI, config, metrics: telemetry.Metrics):
+    """Run the MQTT consumer beside the HTTP listener while the app runs
+    (once the store is open, stopped before it closes); nothing when off."""
+    if config is None:
+        yield
+        return
+    from tsdb_service.ingest.mqtt.consumer import MqttConsumer
+
+    consumer = MqttConsumer(config, app.state.store)
+    await consumer.start()
+    app.state.mqtt = consumer
+    metrics.attach_mqtt(consumer)
+    try:
+        yield
+    finally:
+        metrics.detach_mqtt()
+        await consumer.stop()
 
 
 def describe_database(settings: Settings) -> str:

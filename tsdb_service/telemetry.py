@@ -368,6 +368,46 @@ def _ingest_log_metrics(logged) -> Iterable:
     )
 
 
+class MqttCollector(Collector):
+    """The MQTT consumer (``ingest.mqtt``), from memory at scrape time:
+    anything with ``snapshot()`` giving the numbers below."""
+
+    _COUNTERS = (
+        ("received", "tsdb_mqtt_messages_received", "MQTT messages delivered to us (redeliveries included)."),
+        ("connects", "tsdb_mqtt_connects", "Connections made to the MQTT broker (the first and every reconnection)."),
+        ("write_retries", "tsdb_mqtt_write_retries", "Failed attempts to store an MQTT message (it is retried)."),
+    )
+    _GAUGES = (
+        ("connected", "tsdb_mqtt_connected", "1 while connected to the MQTT broker."),
+        ("inflight", "tsdb_mqtt_inflight_messages", "MQTT messages received and not yet acknowledged."),
+        ("buffered_bytes", "tsdb_mqtt_buffered_bytes", "Bytes of MQTT messages received and not yet stored."),
+        (
+            "oldest_unacked_s",
+            "tsdb_mqtt_lag_seconds",
+            "Age of the oldest MQTT message received and not yet acknowledged (0: none).",
+        ),
+    )
+
+    def __init__(self, source):
+        self._source = source
+
+    def collect(self):
+        numbers = self._source.snapshot()
+        outcomes = CounterMetricFamily(
+            "tsdb_mqtt_messages",
+            "MQTT messages settled, by outcome: stored (samples written), rejected (kept in the rejected "
+            "store), redelivered (a redelivery of one stored already: acknowledged, not stored again).",
+            labels=["outcome"],
+        )
+        for outcome in ("stored", "rejected", "redelivered"):
+            outcomes.add_metric([outcome], numbers[outcome])
+        yield outcomes
+        for key, name, text in self._COUNTERS:
+            yield CounterMetricFamily(name, text, value=numbers[key])
+        for key, name, text in self._GAUGES:
+            yield GaugeMetricFamily(name, text, value=numbers[key])
+
+
 class _OtherOps:
     """An observer that passes on all but samples (counted at the ingest log)."""
 
@@ -409,6 +449,7 @@ class Metrics:
         self._store_collector: StoreCollector | None = None
         self.retention = RetentionMetrics(self.registry, self.tenants)
         self._retention_collector: RetentionLagCollector | None = None
+        self._mqtt_collector: MqttCollector | None = None
 
     def attach(self, store: Store) -> None:
         """Observe ``store``'s writers and report its sizes (called once the store is open).
@@ -431,6 +472,16 @@ class Metrics:
             worker.observer = self.retention
             self._retention_collector = RetentionLagCollector(worker)
             self.registry.register(self._retention_collector)
+
+    def attach_mqtt(self, consumer) -> None:
+        """Report the MQTT consumer (``ingest.mqtt``) while it runs."""
+        self._mqtt_collector = MqttCollector(consumer)
+        self.registry.register(self._mqtt_collector)
+
+    def detach_mqtt(self) -> None:
+        if self._mqtt_collector is not None:
+            self.registry.unregister(self._mqtt_collector)
+            self._mqtt_collector = None
 
     def detach(self) -> None:
         if self._store_collector is not None:

@@ -146,6 +146,71 @@ NGSIV2 = BrokerApi("NGSIv2", "/v2/subscriptions", "/v2/notify", subscription, br
 NGSI_LD = BrokerApi("NGSI-LD", "/ngsi-ld/v1/subscriptions", "/ngsi-ld/v1/notify", ld_subscription, ld_broker_headers)
 
 
+# --- over MQTT (issue 31; docs/mqtt.md) ---------------------------------------------------
+
+# The topic our MQTT consumer reads tenant and service path from by default
+# (TSDB_MQTT_TOPIC_TEMPLATE); Orion's mqttCustom fills the macros in.
+MQTT_TOPIC = "tsdb/${service}${servicePath}"
+_LD_MACROS = ("${service}", "${servicePath}")
+
+
+def mqtt_subscription(sim: Simulator, broker: str, topic: str = MQTT_TOPIC) -> dict:
+    """``subscription``, notifying over MQTT: Orion publishes each
+    notification (the same body, no headers) to ``broker`` at QoS 1, on
+    ``topic`` with its macros filled in (``mqttCustom``; a topic without
+    macros works too)."""
+    document = subscription(sim)
+    notification = document["notification"]
+    del notification["http"]
+    notification["mqttCustom"] = {"url": broker.rstrip("/"), "topic": topic, "qos": 1}
+    return document
+
+
+def ld_mqtt_subscription(sim: Simulator, broker: str, topic: str = MQTT_TOPIC) -> dict:
+    """``ld_subscription``, notifying over MQTT (Orion-LD): the endpoint is
+    ``broker`` with the topic as its path, at QoS 1. Orion-LD has no topic
+    macros: ``${service}`` and ``${servicePath}`` are filled in here, with
+    the use case's tenant and service path (which Orion-LD's envelope also
+    says, in its ``metadata``)."""
+    document = ld_subscription(sim, broker)
+    endpoint = document["notification"]["endpoint"]
+    endpoint["uri"] = f"{broker.rstrip('/')}/{topic_of(sim, topic)}"
+    endpoint["notifierInfo"] = [{"key": "MQTT-QoS", "value": "1"}]
+    return document
+
+
+def topic_of(sim: Simulator, topic: str) -> str:
+    """``topic`` with the use case's tenant and service path filled in, as
+    Orion would publish its notifications; ValueError for any other macro
+    (Orion-LD fills in none)."""
+    filled = topic.replace("${service}", sim.tenancy.service.lower()).replace(
+        "${servicePath}", sim.tenancy.service_path
+    )
+    if "${" in filled:
+        raise ValueError(f"Orion-LD fills in no topic macros, and only {' and '.join(_LD_MACROS)} can be done here")
+    return filled
+
+
+def mqtt_api(ld: bool, topic: str = MQTT_TOPIC) -> BrokerApi:
+    """The API to subscribe with so the broker notifies over MQTT (the
+    'notify URL' it is given is then the MQTT broker's URL)."""
+    if ld:
+        return BrokerApi(
+            "NGSI-LD over MQTT",
+            NGSI_LD.subscriptions_path,
+            NGSI_LD.notify_path,
+            lambda sim, broker: ld_mqtt_subscription(sim, broker, topic),
+            ld_broker_headers,
+        )
+    return BrokerApi(
+        "NGSIv2 over MQTT",
+        NGSIV2.subscriptions_path,
+        NGSIV2.notify_path,
+        lambda sim, broker: mqtt_subscription(sim, broker, topic),
+        broker_headers,
+    )
+
+
 @dataclass(frozen=True, slots=True)
 class BrokerAnswer:
     """What a broker answered to ``POST /v2/subscriptions``; ``status`` is
@@ -234,7 +299,8 @@ def list_subscriptions(
 
 def notify_url_of(document: dict) -> str | None:
     """Where a subscription sends its notifications (NGSIv2 ``http`` or
-    ``httpCustom``, NGSI-LD ``endpoint``)."""
+    ``httpCustom``, NGSI-LD ``endpoint``; over MQTT, NGSIv2 ``mqtt`` or
+    ``mqttCustom``: the broker's URL and the topic)."""
     notification = document.get("notification")
     if not isinstance(notification, dict):
         return None
@@ -242,6 +308,10 @@ def notify_url_of(document: dict) -> str | None:
         target = notification.get(key)
         if isinstance(target, dict) and isinstance(target.get(field), str):
             return target[field]
+    for key in ("mqtt", "mqttCustom"):
+        target = notification.get(key)
+        if isinstance(target, dict) and isinstance(target.get("url"), str):
+            return f"{target['url'].rstrip('/')} topic {target.get('topic')}"
     return None
 
 

@@ -73,6 +73,20 @@ def _add_demo(sub) -> None:
         "the simulators notify the service directly)",
     )
     _add_ngsi_ld(p, "the broker is Orion-LD: NGSI-LD entity updates (with --broker)")
+    p.add_argument(
+        "--via",
+        choices=("http", "mqtt"),
+        default="http",
+        help="how notifications reach the service: http (POST /v2/notify) or mqtt (published to an MQTT broker "
+        "on tsdb/SERVICE/PATH, as Orion's mqttCustom does, and consumed by the service; with --broker, Orion "
+        "publishes them through `tsdb-service subscribe --mqtt` subscriptions) (default http)",
+    )
+    p.add_argument(
+        "--mqtt-url",
+        metavar="URL",
+        help="with --via mqtt, the MQTT broker (default: a Mosquitto the demo starts on this machine, when one "
+        "is installed; needed with --broker or --no-serve, where the service and Orion must reach the same broker)",
+    )
 
 
 def _add_subscribe(sub) -> None:
@@ -88,6 +102,20 @@ def _add_subscribe(sub) -> None:
         "reaches it by; printed)",
     )
     _add_ngsi_ld(p, "an NGSI-LD subscription (Orion-LD), notifying /ngsi-ld/v1/notify")
+    p.add_argument(
+        "--mqtt",
+        metavar="URL",
+        help="notify over MQTT instead of HTTP: publish to this MQTT broker (e.g. mqtt://mosquitto:1883, as the "
+        "broker reaches it) at QoS 1, for the service to consume (serve --mqtt-url); instead of --notify-url "
+        "(default: notify over HTTP)",
+    )
+    p.add_argument(
+        "--mqtt-topic",
+        default=None,
+        metavar="TEMPLATE",
+        help="with --mqtt, the topic, with Orion's macros (default tsdb/${service}${servicePath}: the service's "
+        "default --mqtt-topic-template); with --ngsi-ld the use case's tenant and service path are filled in here",
+    )
     p.add_argument(
         "--force",
         action="store_true",
@@ -148,6 +176,29 @@ def _port(text: str) -> int:
 # -- demo
 
 
+def _check_via(args: argparse.Namespace) -> None:
+    """``--via mqtt``: a broker to use, or one the demo can start; ValueError otherwise."""
+    if args.via != "mqtt":
+        if args.mqtt_url:
+            raise ValueError("--mqtt-url needs --via mqtt")
+        return
+    from tsdb_service.core.config import check_mqtt_url
+    from tsdb_service.demo.mosquitto import find_mosquitto
+
+    if args.mqtt_url:
+        args.mqtt_url = check_mqtt_url(args.mqtt_url)
+        return
+    if args.broker or args.no_serve:
+        who = "Orion" if args.broker else "the service at --url"
+        flag = "--broker" if args.broker else "--no-serve"
+        raise ValueError(f"--via mqtt with {flag} needs --mqtt-url: the broker {who} and this demo both reach")
+    if find_mosquitto() is None:
+        raise ValueError(
+            "--via mqtt needs an MQTT broker: give --mqtt-url, or install Mosquitto (Debian: apt-get install "
+            "mosquitto) for the demo to start one"
+        )
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     import httpx
 
@@ -160,6 +211,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         check_db(args.db)
         if args.ngsi_ld and not args.broker:
             raise ValueError("--ngsi-ld needs --broker: it says what kind of broker the entities are sent to")
+        _check_via(args)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -168,13 +220,37 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if unreachable:
         print(f"error: cannot reach the broker at {broker}: {unreachable}", file=sys.stderr)
         return 2
+    if args.via == "mqtt" and args.mqtt_url and (unreachable := _mqtt_unreachable(args.mqtt_url)):
+        print(f"error: cannot reach the MQTT broker at {args.mqtt_url}: {unreachable}", file=sys.stderr)
+        return 2
     seed = args.seed if args.seed is not None else random.SystemRandom().randrange(1_000_000)
-    service = None
+    service = mosquitto = None
+    if args.via == "mqtt" and not args.mqtt_url:
+        from tsdb_service.demo.mosquitto import LocalMosquitto
+
+        # Its state next to the demo's file: a second run finds its session and queue again.
+        state = Path(args.db).with_suffix(".demo-mosquitto")
+        try:
+            mosquitto = LocalMosquitto(directory=state).start()
+        except RuntimeError as exc:
+            first = str(exc).splitlines()[0]
+            print(
+                f"error: cannot start Mosquitto for --via mqtt ({first}; its log: {state}/mosquitto.log)",
+                file=sys.stderr,
+            )
+            return 2
+        args.mqtt_url = mosquitto.url
     if args.no_serve:
         url = (args.url or "http://localhost:8668").rstrip("/")
     else:
         log_path = Path(args.db).with_suffix(".demo-server.log")
-        service = LocalService(args.db, args.host, args.port, log_path).start()
+        consume = ("--mqtt-url", args.mqtt_url, "--mqtt-client-id", "tsdb-service-demo") if args.via == "mqtt" else ()
+        try:
+            service = LocalService(args.db, args.host, args.port, log_path, consume).start()
+        except BaseException:
+            if mosquitto is not None:
+                mosquitto.close()
+            raise
         url = service.url
     try:
         try:
@@ -187,9 +263,16 @@ def cmd_demo(args: argparse.Namespace) -> int:
             return 2
         _print_banner(args, url, seed, service, start, speedup)
         stats = asyncio.run(_run_demo(simulators, url, args, seed, start, speedup))
+        if service is not None and args.via == "mqtt" and not args.broker:
+            published = sum(row.acked for row in stats.values())
+            consumed = service.wait_consumed(published)  # the broker holds them until then
+            if consumed < published:
+                print(f"the service has taken {consumed} of the {published} published; the broker keeps the rest")
     finally:
         if service is not None:
             service.stop()
+        if mosquitto is not None:
+            mosquitto.stop()  # its state stays next to the demo's file
     failed = sum(row.failed for row in stats.values())
     sent = sum(row.sent for row in stats.values())
     print(f"\n{sent} notifications sent, {sent - failed} acknowledged, {failed} failed (seed {seed}).")
@@ -241,6 +324,7 @@ async def _run_demo(simulators, url: str, args: argparse.Namespace, seed: int, s
         start=start,
         broker=args.broker,
         ngsi_ld=args.ngsi_ld,
+        mqtt=args.mqtt_url if args.via == "mqtt" else None,
     )
     try:
         return await run(simulators, config, progress=Progress(), stop=stop)
@@ -264,6 +348,8 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start,
             "  through its subscriptions: `tsdb-service subscribe` creates them"
             + (" (--ngsi-ld)" if args.ngsi_ld else "")
         )
+    elif args.via == "mqtt":
+        print(f"tsdb-service demo: publishing to the MQTT broker {args.mqtt_url}, consumed by {url} {where}")
     else:
         print(f"tsdb-service demo: feeding {url} {where}")
     print(f"  explorer     {url}/ui  (charts, maps and the three use cases in a browser)")
@@ -295,20 +381,58 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start,
 
 
 def cmd_subscribe(args: argparse.Namespace) -> int:
-    from tsdb_service.broker.subscriptions import NGSI_LD, NGSIV2, default_notify_url, ensure_subscription
+    from tsdb_service.broker.subscriptions import (
+        MQTT_TOPIC,
+        NGSI_LD,
+        NGSIV2,
+        default_notify_url,
+        ensure_subscription,
+        mqtt_api,
+        topic_of,
+    )
+    from tsdb_service.core.config import check_mqtt_url
     from tsdb_service.usecases.registry import SIMULATORS
 
     names = USE_CASE_NAMES if args.use_case == "all" else (args.use_case,)
-    api = NGSI_LD if args.ngsi_ld else NGSIV2
-    notify_url = args.notify_url or default_notify_url(args.broker, path=api.notify_path)
-    given = "" if args.notify_url else " (this machine as the broker reaches it; --notify-url to choose)"
-    print(f"notify URL: {notify_url}{given}")
+    if args.mqtt:
+        topic = args.mqtt_topic or MQTT_TOPIC
+        try:
+            if args.notify_url:
+                raise ValueError("--mqtt and --notify-url: the broker notifies over one or the other")
+            check_mqtt_url(args.mqtt)
+            if args.ngsi_ld:
+                topic_of(SIMULATORS[names[0]], topic)
+        except ValueError as exc:
+            print(f"error: --mqtt: {exc}" if "--" not in str(exc) else f"error: {exc}", file=sys.stderr)
+            return 2
+        api = mqtt_api(args.ngsi_ld, topic)
+        notify_url = args.mqtt.rstrip("/")
+        print(f"notify over MQTT: {notify_url}, topic {topic} (the service consumes it with --mqtt-url)")
+    elif args.mqtt_topic:
+        print("error: --mqtt-topic needs --mqtt", file=sys.stderr)
+        return 2
+    else:
+        api = NGSI_LD if args.ngsi_ld else NGSIV2
+        notify_url = args.notify_url or default_notify_url(args.broker, path=api.notify_path)
+        given = "" if args.notify_url else " (this machine as the broker reaches it; --notify-url to choose)"
+        print(f"notify URL: {notify_url}{given}")
     all_ok = True
     for name in names:
         ok, answer = ensure_subscription(args.broker, SIMULATORS[name], notify_url, force=args.force, api=api)
-        print(f"{name}: {answer}")
+        print(f"{name}: {answer}{_published_on(SIMULATORS[name], topic) if args.mqtt else ''}")
         all_ok &= ok
     return 0 if all_ok else 1
+
+
+def _published_on(sim, topic: str) -> str:
+    """Where the broker will publish the use case's notifications (for the
+    operator to match with the service's topics), when the macros say."""
+    from tsdb_service.broker.subscriptions import topic_of
+
+    try:
+        return f"; published on topic {topic_of(sim, topic)}"
+    except ValueError:  # another Orion macro (${id}, ...): known only per notification
+        return ""
 
 
 # -- queries
@@ -360,6 +484,22 @@ def _queries_run(args: argparse.Namespace) -> int:
     failed = sum(not o.ok for o in outcomes)
     print(f"{len(outcomes) - failed} of {len(outcomes)} requests passed")
     return 1 if failed else 0
+
+
+def _mqtt_unreachable(url: str) -> str | None:
+    """Why nothing accepts a connection at the MQTT broker ``url``, or None:
+    checked first, so the demo says so in one line instead of failing later."""
+    import socket
+    from urllib.parse import urlsplit
+
+    from tsdb_service.core.config import MQTT_SCHEMES
+
+    parts = urlsplit(url)
+    try:
+        socket.create_connection((parts.hostname, parts.port or MQTT_SCHEMES[parts.scheme]), timeout=5).close()
+    except OSError as exc:
+        return str(exc) or type(exc).__name__
+    return None
 
 
 def _unreachable(url: str) -> str | None:

@@ -5,13 +5,12 @@ from __future__ import annotations
 import argparse
 import gc
 import os
-import re
 import sys
 from collections.abc import Callable, Sequence
 from types import ModuleType
 
 from tsdb_service import __version__
-from tsdb_service.core.config import LOG_LEVELS, Settings, SettingsError, load_settings
+from tsdb_service.core.config import LOG_LEVELS, Settings, SettingsError, flag_named, load_settings
 
 Command = Callable[[argparse.Namespace], int]
 COMMANDS: dict[str, Command] = {}
@@ -61,6 +60,17 @@ _TEXT_METAVARS = {
     "cors_origins": "ORIGINS",
     "retention": "RULES",
     "rollup_retention": "RULES",
+    "mqtt_url": "URL",
+    "mqtt_topics": "FILTERS",
+    "mqtt_topic_template": "TEMPLATES",
+    "mqtt_default_tenant": "NAME",
+    "mqtt_client_id": "ID",
+    "mqtt_username": "USER",
+    "mqtt_password": "PASSWORD",
+    "mqtt_ca_file": "FILE",
+    "mqtt_cert_file": "FILE",
+    "mqtt_key_file": "FILE",
+    "mqtt_share_group": "GROUP",
 }
 _SECONDS = ("_s", "_seconds", "_timeout", "_interval", "_pause")
 
@@ -176,6 +186,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    if settings.workers > 1 and settings.mqtt_url:
+        print(
+            "error: --mqtt-url with --workers > 1: each worker would be its own MQTT client, and a session "
+            "needs a client id of its own that stays the same across restarts. Run one worker per replica "
+            "(each with its --mqtt-client-id, on one --mqtt-share-group) instead.",
+            file=sys.stderr,
+        )
+        return 2
     check_serve(settings)  # one line each, before anything is created
     check_store(settings)  # a wrong --db is one line here, before uvicorn starts
     # Workers are separate processes: hand them the settings through the environment.
@@ -232,23 +250,15 @@ def check_serve(settings: Settings) -> None:
     from tsdb_service import security
     from tsdb_service.faces.ngsild.context import check_local_contexts
     from tsdb_service.http.server import check_bind
+    from tsdb_service.ingest.mqtt.config import MqttConfig
 
     try:
         security.check(settings)  # keys, tokens, a weak secret, an open CORS
         check_local_contexts(settings.ngsild_contexts)
+        MqttConfig.from_settings(settings)  # topics, templates, credentials, TLS files
         check_bind(settings.host, settings.port)
     except ValueError as exc:
-        raise SettingsError(_flag_named(str(exc))) from None
-
-
-def _flag_named(message: str) -> str:
-    """``TSDB_API_KEYS entry 1: ...`` as ``--api-keys (TSDB_API_KEYS) entry 1: ...``: a
-    message that opens with a variable names its flag too, as every setting's error does."""
-    variable = re.match(r"TSDB_[A-Z_]*[A-Z]", message)
-    if variable is None or variable[0].removeprefix("TSDB_").lower() not in Settings.model_fields:
-        return message
-    flag = "--" + variable[0].removeprefix("TSDB_").lower().replace("_", "-")
-    return f"{flag} ({variable[0]}){message[variable.end() :]}"
+        raise SettingsError(flag_named(str(exc))) from None
 
 
 def serve_app():

@@ -327,6 +327,99 @@ class Settings(BaseSettings):
 
     # --- end of retention and rollups ---
 
+    # --- MQTT (issue 31; ingest.mqtt, docs/mqtt.md): off unless --mqtt-url ---
+    mqtt_url: str = Field(
+        "",
+        description="Also take notifications from this MQTT broker: mqtt://HOST[:1883] or mqtts://HOST[:8883] "
+        "(TLS); empty: no MQTT.",
+    )
+    mqtt_topics: str = Field(
+        "",
+        description="Topic filters to subscribe to, comma list (+ and # wildcards); default: from "
+        "--mqtt-topic-template, e.g. tsdb/#.",
+    )
+    mqtt_topic_template: str = Field(
+        "tsdb/${service}${servicePath}",
+        description="How a topic names the tenant and service path, with Orion's mqttCustom macros "
+        "${service} and ${servicePath} (any other ${...} matches one topic level); comma list, first match wins.",
+    )
+    mqtt_default_tenant: str = Field(
+        "",
+        description="Tenant of a message that names none (its topic matches no template and it carries no "
+        "tenant header): a tenant, or '-' for the default tenant; empty: such a message is rejected (kept "
+        "with its topic).",
+    )
+    mqtt_client_id: str = Field(
+        "",
+        description="MQTT client id: names our session on the broker, so it must stay the same across "
+        "restarts and differ between replicas; default tsdb-service-HOSTNAME.",
+    )
+    mqtt_username: str = Field("", description="User name for the MQTT broker.")
+    mqtt_password: str = Field(
+        "",
+        repr=False,
+        description="Password for the MQTT broker. Given as a flag it shows in ps: prefer the variable.",
+    )
+    mqtt_ca_file: str = Field(
+        "", description="mqtts://: CA certificates to verify the broker by (default: the system's)."
+    )
+    mqtt_cert_file: str = Field("", description="mqtts://: our client certificate (PEM), with --mqtt-key-file.")
+    mqtt_key_file: str = Field("", description="mqtts://: the private key of --mqtt-cert-file (PEM).")
+    mqtt_qos: int = Field(
+        1,
+        ge=0,
+        le=1,
+        description="QoS we subscribe with: 1, at least once (acknowledged once stored; a redelivery is not "
+        "stored twice), or 0, at most once.",
+    )
+    mqtt_share_group: str = Field(
+        "",
+        description="Subscribe as a member of this MQTT 5 shared subscription ($share/GROUP/FILTER): "
+        "replicas with the same group split the messages.",
+    )
+    mqtt_session_expiry_s: int = Field(
+        7 * 86400,
+        ge=0,
+        le=0xFFFFFFFF,
+        description="How long the broker keeps our session, with the messages it queues for us, while we "
+        "are away (MQTT 5 Session Expiry Interval).",
+    )
+    mqtt_inflight: int = Field(
+        64,
+        ge=1,
+        le=65535,
+        description="Messages the broker may send us before we acknowledge the first (MQTT 5 Receive Maximum).",
+    )
+    mqtt_reconnect_max_s: int = Field(
+        30,
+        ge=1,
+        le=3600,
+        description="Longest wait between attempts to reach the broker again (the wait doubles from 1 s).",
+    )
+
+    @field_validator("mqtt_url")
+    @classmethod
+    def _mqtt_url(cls, value: str) -> str:
+        return check_mqtt_url(value)
+
+    @field_validator("mqtt_default_tenant")
+    @classmethod
+    def _mqtt_default_tenant(cls, value: str) -> str:
+        tenant = value.strip()
+        if tenant not in ("", "-") and not re.fullmatch(r"[A-Za-z0-9_]{1,50}", tenant):
+            raise ValueError(f"{value[:60]!r} is not a tenant: 1 to 50 letters, digits or underscores, or '-'")
+        return tenant
+
+    @field_validator("mqtt_client_id", "mqtt_share_group")
+    @classmethod
+    def _mqtt_name(cls, value: str) -> str:
+        name = value.strip()
+        if any(c in name for c in "+#/") or len(name.encode()) > 256:
+            raise ValueError(f"{value[:60]!r}: up to 256 bytes without '+', '#' or '/'")
+        return name
+
+    # --- end of MQTT ---
+
     @property
     def backend(self) -> str:
         return "postgresql" if self.db.startswith(("postgresql://", "postgres://")) else "duckdb"
@@ -370,8 +463,43 @@ def check_db(value: str) -> str:
     )
 
 
+MQTT_SCHEMES = {"mqtt": 1883, "mqtts": 8883}
+
+
+def check_mqtt_url(value: str) -> str:
+    """Empty, or ``mqtt://host[:port]`` / ``mqtts://host[:port]``; else ValueError.
+    Credentials go in their own settings, not in the URL (which logs show)."""
+    url = value.strip()
+    if not url:
+        return ""
+    parts = urlsplit(url)
+    if parts.scheme not in MQTT_SCHEMES:
+        raise ValueError(f"{url[:80]!r}: give mqtt://host:1883 or mqtts://host:8883")
+    if "@" in parts.netloc:
+        raise ValueError("holds credentials: give them as --mqtt-username and TSDB_MQTT_PASSWORD instead")
+    try:
+        port = parts.port
+    except ValueError:
+        raise ValueError(f"{url[:80]!r}: the port must be a number from 1 to 65535") from None
+    if not parts.hostname or port == 0:
+        raise ValueError(f"{url[:80]!r}: give a host (and a port from 1 to 65535), e.g. mqtt://broker:1883")
+    if parts.path not in ("", "/") or parts.query or parts.fragment:
+        raise ValueError(f"{url[:80]!r}: only a host and port; topics go in --mqtt-topics")
+    return url
+
+
 class SettingsError(ValueError):
     """A setting is invalid; the message is one line naming the flag and its variable."""
+
+
+def flag_named(message: str) -> str:
+    """``TSDB_API_KEYS entry 1: ...`` as ``--api-keys (TSDB_API_KEYS) entry 1: ...``: a
+    message that opens with a variable names its flag too, as every setting's error does."""
+    variable = re.match(r"TSDB_[A-Z_]*[A-Z]", message)
+    if variable is None or variable[0].removeprefix("TSDB_").lower() not in Settings.model_fields:
+        return message
+    flag = "--" + variable[0].removeprefix("TSDB_").lower().replace("_", "-")
+    return f"{flag} ({variable[0]}){message[variable.end() :]}"
 
 
 def load_settings(**overrides) -> Settings:

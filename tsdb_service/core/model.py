@@ -131,6 +131,7 @@ class RejectedNotification:
     body: bytes  # as received, or its first bytes when body_truncated
     body_size: int | None = None  # bytes as received; None: len(body)
     body_truncated: bool = False
+    topic: str | None = None  # the MQTT topic it came on; None: over HTTP
 
 
 INSTANCE_URN_PREFIX = "urn:ngsi-ld:attribute:instance:"

@@ -13,8 +13,10 @@ the duration, never on how fast the service answers: a slow service makes
 the run late (the progress display says by how much), not different.
 
 Where: by default the notifications go to the service's ``/v2/notify``,
-exactly as Orion would send them. With ``broker`` the entities go to that
-Orion (NGSIv2) or, with ``ngsi_ld``, Orion-LD as entity updates
+exactly as Orion would send them. With ``mqtt`` they are published to that
+MQTT broker instead, as Orion's ``mqttCustom`` would (``demo.mqtt``), for
+the service to consume. With ``broker`` the entities go to that Orion
+(NGSIv2) or, with ``ngsi_ld``, Orion-LD as entity updates
 (``broker.updates``), and the broker notifies the service through its
 subscriptions.
 
@@ -48,6 +50,7 @@ from typing import Protocol, TextIO
 
 import httpx
 
+from tsdb_service.broker.subscriptions import MQTT_TOPIC, topic_of
 from tsdb_service.broker.updates import update_request
 from tsdb_service.usecases import orion
 from tsdb_service.usecases.base import Simulator
@@ -90,6 +93,7 @@ class RunConfig:
     start: datetime | None = None  # simulated start; default per the module docstring
     broker: str | None = None  # update the entities in this broker instead of notifying ``url``
     ngsi_ld: bool = False  # the broker is Orion-LD: NGSI-LD updates
+    mqtt: str | None = None  # without ``broker``: publish the notifications to this MQTT broker
 
     @property
     def target(self) -> str:
@@ -285,8 +289,15 @@ async def run(
     clock = _Clock(start, config.speedup, config.duration, timer=timer)
     stats = {sim.name: Stats(sim.name) for sim in simulators}
     outbox: asyncio.Queue = asyncio.Queue(maxsize=2 * config.concurrency)
-    tls = _client_tls()
-    senders = [asyncio.create_task(_sender(config.target, outbox, tls)) for _ in range(config.concurrency)]
+    publisher = None
+    if config.mqtt and not config.broker:
+        from tsdb_service.demo.mqtt import MqttPublisher
+
+        publisher = MqttPublisher(config.mqtt)
+        senders = [asyncio.create_task(_mqtt_sender(publisher, outbox)) for _ in range(config.concurrency)]
+    else:
+        tls = _client_tls()
+        senders = [asyncio.create_task(_sender(config.target, outbox, tls)) for _ in range(config.concurrency)]
     reporter = asyncio.create_task(progress.follow(stats, clock)) if progress else None
     try:
         holds = [timer.pacing() for _ in simulators]
@@ -300,6 +311,8 @@ async def run(
         for _ in senders:
             await outbox.put(None)
         await asyncio.gather(*senders, return_exceptions=True)
+        if publisher is not None:
+            publisher.close()
         if progress is not None and reporter is not None:
             reporter.cancel()
             await asyncio.gather(reporter, return_exceptions=True)
@@ -322,6 +335,9 @@ async def _drive(sim, clock: _Clock, config, stats: Stats, outbox: asyncio.Queue
                 break
             if config.broker:
                 path, headers, body = update_request(sim, emission.entity, config.ngsi_ld)
+            elif config.mqtt:  # the topic, and no headers: MQTT has none
+                path, headers = topic_of(sim, MQTT_TOPIC), {}
+                body = orion.notification_body(subscription, emission.entity)
             else:
                 path = NOTIFY_PATH
                 headers = orion.notification_headers(
@@ -351,6 +367,18 @@ async def _sender(url: str, outbox: asyncio.Queue, tls: ssl.SSLContext) -> None:
     async with httpx.AsyncClient(base_url=url, timeout=30.0, limits=limits, verify=tls) as client:
         while (item := await outbox.get()) is not None:
             await _post(client, *item)
+
+
+async def _mqtt_sender(publisher, outbox: asyncio.Queue) -> None:
+    """Publish queued notifications until ``None``; acknowledged: the broker has it."""
+    while (item := await outbox.get()) is not None:
+        stats, topic, _, body = item
+        try:
+            await publisher.publish(topic, body)
+            stats.acked += 1
+        except Exception as exc:
+            stats.failed += 1
+            stats.last_error = f"{type(exc).__name__}: {exc}"
 
 
 async def _post(client: httpx.AsyncClient, stats: Stats, path: str, headers: dict, body: bytes) -> None:

@@ -22,8 +22,9 @@ import httpx
 class LocalService:
     """The demo's own service on ``db``; its output goes to ``log_path``."""
 
-    def __init__(self, db: str, host: str, port: int, log_path: Path):
+    def __init__(self, db: str, host: str, port: int, log_path: Path, args: tuple[str, ...] = ()):
         self.db, self.host, self.port, self.log_path = db, host, port, log_path
+        self.args = args  # more ``serve`` flags (the demo's MQTT consumer)
         self.proc: subprocess.Popen | None = None
 
     @property
@@ -47,6 +48,7 @@ class LocalService:
             self.host,
             "--port",
             str(self.port),
+            *self.args,
         ]
         with open(self.log_path, "ab") as log:
             # Own session: a Ctrl-C reaches the demo, which drains and then stops us in order.
@@ -71,6 +73,25 @@ class LocalService:
             os.killpg(self.proc.pid, signal.SIGKILL)
             return self.proc.wait()
 
+    def wait_consumed(self, count: int, timeout: float = 30.0) -> int:
+        """Wait until its MQTT consumer settled ``count`` messages (stored,
+        rejected or known redeliveries, by ``/metrics``); how many it had."""
+        deadline = time.monotonic() + timeout
+        settled = 0
+        while True:
+            try:
+                metrics = httpx.get(self.url + "/metrics", timeout=5.0).text
+                settled = sum(
+                    int(float(line.rsplit(" ", 1)[1]))
+                    for line in metrics.splitlines()
+                    if line.startswith("tsdb_mqtt_messages_total{")
+                )
+            except (httpx.HTTPError, ValueError, IndexError):
+                pass
+            if settled >= count or time.monotonic() > deadline:
+                return settled
+            time.sleep(0.1)
+
     def _check_port_free(self) -> None:
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
             try:
@@ -89,9 +110,11 @@ class LocalService:
             if proc.poll() is not None:
                 raise RuntimeError(f"the service exited with code {proc.returncode}:\n{self.log_tail()}")
             try:
-                if httpx.get(self.url + "/health", timeout=2.0).status_code == 200:
+                health = httpx.get(self.url + "/health", timeout=2.0)
+                # "warn" while its MQTT consumer subscribes: what is published before is not kept for it
+                if health.status_code == 200 and health.json().get("status") == "pass":
                     return
-            except httpx.HTTPError:
+            except (httpx.HTTPError, ValueError):
                 pass
             time.sleep(0.1)
         raise RuntimeError(f"the service was not healthy after {timeout:g} s:\n{self.log_tail()}")

@@ -51,6 +51,9 @@ class MemoryStore:
     ) -> tuple[list[dict[str, Any]], int | None]:
         return [], None
 
+    def deliveries(self, client_id: str, limit: int) -> list[tuple[int, int, bytes]]:
+        return []  # no MQTT message is recorded in memory
+
     def health(self) -> dict[str, Any]:
         return {"status": "pass", "backend": self.backend}
 

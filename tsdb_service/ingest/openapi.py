@@ -190,6 +190,7 @@ SCHEMAS: dict[str, dict] = {
             "bodyEncoding",
             "bodySize",
             "bodyTruncated",
+            "topic",
         ),
         {
             "id": {"type": "integer"},
@@ -202,6 +203,7 @@ SCHEMAS: dict[str, dict] = {
             "bodyEncoding": {"enum": ["utf-8", "base64"]},
             "bodySize": {"type": "integer"},
             "bodyTruncated": {"type": "boolean"},
+            "topic": {**NULLABLE_STR, "description": "the MQTT topic it came on; null: over HTTP"},
         },
     ),
 }

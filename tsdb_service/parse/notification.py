@@ -127,8 +127,19 @@ def parse_notification(
     values_layout: Callable[[str, str], ValuesLayout | None] | None = None,
 ) -> list[EntitySample]:
     """Every entity in one notification, ready to store."""
+    return parse_document(load_document(body), headers, received_at=received_at, values_layout=values_layout)
+
+
+def parse_document(
+    doc: dict,
+    headers: Mapping[str, str],
+    *,
+    received_at: datetime,
+    values_layout: Callable[[str, str], ValuesLayout | None] | None = None,
+) -> list[EntitySample]:
+    """``parse_notification`` of a body already decoded (``load_document``),
+    e.g. the ``body`` member of an MQTT envelope (``ingest.mqtt``)."""
     hdrs = _lower_headers(headers)
-    doc = _load(body)
     format_header = hdrs.get("ngsiv2-attrsformat")
     layout = _layout(doc, format_header, hdrs.get("ngsild-attribute-format"))
     tenant = notification_tenant((str(k), _header_text(v)) for k, v in headers.items())
@@ -157,7 +168,8 @@ def _header_text(value: Any) -> str:
     return str(value)
 
 
-def _load(body: bytes) -> dict:
+def load_document(body: bytes) -> dict:
+    """A notification body as JSON: an object, else ``ParseError``."""
     try:
         doc = orjson.loads(body)
     except (orjson.JSONDecodeError, TypeError) as exc:

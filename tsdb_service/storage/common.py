@@ -28,6 +28,7 @@ from tsdb_service.write.ops import (
     AppendSamples,
     DeleteInstance,
     DeleteSamples,
+    Delivery,
     PutLayout,
     RecordRejected,
     ReplaceInstance,
@@ -127,13 +128,57 @@ def upsert_layout_sql(p: str) -> str:
     )
 
 
-REJECTED_INSERT_COLUMNS = "tenant, received_at, error, description, headers, body, body_size, body_truncated"
+REJECTED_INSERT_COLUMNS = "tenant, received_at, error, description, headers, body, body_size, body_truncated, topic"
 
 
 def rejected_values(r: RejectedNotification) -> tuple:
     """A ``rejected_notifications`` row (``REJECTED_INSERT_COLUMNS``)."""
     size = len(r.body) if r.body_size is None else r.body_size
-    return (r.tenant, naive_utc(r.received_at), r.error, r.description, r.headers, r.body, size, r.body_truncated)
+    return (
+        r.tenant,
+        naive_utc(r.received_at),
+        r.error,
+        r.description,
+        r.headers,
+        r.body,
+        size,
+        r.body_truncated,
+        r.topic,
+    )
+
+
+# -- MQTT deliveries (``ingest.mqtt``; migration 0012) ----------------------------------
+
+_DELIVERY_ROWS = 500  # rows per INSERT statement
+DELIVERY_COLUMNS = "client_id, seq, packet_id, digest, received_at"
+
+
+def delivery_statements(p: str, deliveries: Sequence[Delivery]) -> list[tuple[str, list]]:
+    """Record ``deliveries`` (in the caller's transaction, with what they
+    stored): INSERTs that skip a delivery recorded already (an ingest-log
+    replay may apply one twice), then the DELETEs their ``prune_below`` ask for."""
+    out: list[tuple[str, list]] = []
+    row = f"({p}, {p}, {p}, {p}, {p})"
+    for start in range(0, len(deliveries), _DELIVERY_ROWS):
+        chunk = deliveries[start : start + _DELIVERY_ROWS]
+        params: list = []
+        for d in chunk:
+            params += [d.client_id, d.seq, d.packet_id, d.digest, naive_utc(d.received_at)]
+        values = ", ".join([row] * len(chunk))
+        out.append((f"INSERT INTO mqtt_deliveries ({DELIVERY_COLUMNS}) VALUES {values} ON CONFLICT DO NOTHING", params))
+    prune: dict[str, int] = {}
+    for d in deliveries:
+        if d.prune_below:
+            prune[d.client_id] = max(prune.get(d.client_id, 0), d.prune_below)
+    for client_id, below in sorted(prune.items()):
+        out.append((f"DELETE FROM mqtt_deliveries WHERE client_id = {p} AND seq < {p}", [client_id, below]))
+    return out
+
+
+# The newest deliveries of one client id, newest first: (seq, packet id, digest).
+RECENT_DELIVERIES_SQL = (
+    "SELECT seq, packet_id, digest FROM mqtt_deliveries WHERE client_id = ? ORDER BY seq DESC LIMIT ?"
+)
 
 
 def without_dropped(entities: Sequence[EntitySample], keep: Iterable[bool]) -> list[EntitySample]:
@@ -259,9 +304,17 @@ class CommittingStore(Store):
     def rejected_notifications(self) -> list[RejectedNotification]:
         return [
             RejectedNotification(
-                tenant, received_at.replace(tzinfo=UTC), error, description, headers, bytes(body), size, bool(cut)
+                tenant,
+                received_at.replace(tzinfo=UTC),
+                error,
+                description,
+                headers,
+                bytes(body),
+                size,
+                bool(cut),
+                topic,
             )
-            for tenant, received_at, error, description, headers, body, size, cut in self._rows(
+            for tenant, received_at, error, description, headers, body, size, cut, topic in self._rows(
                 f"SELECT {REJECTED_INSERT_COLUMNS} FROM rejected_notifications ORDER BY id"
             )
         ]
@@ -269,6 +322,12 @@ class CommittingStore(Store):
     def rejected_count(self) -> int:
         rows = self._rows("SELECT count(*) FROM rejected_notifications")
         return int(rows[0][0])
+
+    def deliveries(self, client_id: str, limit: int) -> list[tuple[int, int, bytes]]:
+        return [
+            (int(seq), int(pid), bytes(digest))
+            for seq, pid, digest in self._rows(RECENT_DELIVERIES_SQL, [client_id, limit])
+        ]
 
     def copy_runs_open(self) -> list[CopyRun]:
         rows = self._rows(
@@ -304,12 +363,16 @@ class StagingAppender(Appender):
 
     _layouts: list[PutLayout]
     _instance_ops: list[DeleteInstance | ReplaceInstance]
+    _deliveries: list[Delivery]  # committed with the samples or rejections staged beside them
 
     def stage(self, op: WriteOp) -> None:
         if isinstance(op, AppendSamples):
             self._stage_samples(op.entities, op.dedup)
+            self._deliveries.extend(op.deliveries)
         elif isinstance(op, RecordRejected):
             self._stage_rejected(op.rejected)
+            if op.delivery is not None:
+                self._deliveries.append(op.delivery)
         elif isinstance(op, PutLayout):
             self._layouts.append(op)
         elif isinstance(op, DeleteSamples):

@@ -37,7 +37,7 @@ from tsdb_service.core.timefmt import received_at_z
 
 REASONS = ("count", "bytes", "age")
 # What the listing shows, in ``rejected_row``'s argument order.
-COLUMNS = "id, tenant, received_at, error, description, headers, body, body_size, body_truncated"
+COLUMNS = "id, tenant, received_at, error, description, headers, body, body_size, body_truncated, topic"
 
 
 @dataclass(frozen=True, slots=True)
@@ -172,11 +172,12 @@ def count_dropped(totals: dict[str, int], dropped: dict[str, int]) -> None:
 
 
 def rejected_row(
-    rid, tenant, received_at, error, description, headers, body, body_size, body_truncated
+    rid, tenant, received_at, error, description, headers, body, body_size, body_truncated, topic=None
 ) -> dict[str, Any]:
     """One rejected notification as the listing shows it: the body as text
     when it is UTF-8, else base64; its size as received and whether only its
-    first bytes were kept (rows from before migration 0002 have no size)."""
+    first bytes were kept (rows from before migration 0002 have no size);
+    the MQTT topic it came on (null over HTTP)."""
     body = bytes(body)
     try:
         text, encoding = body.decode("utf-8"), "utf-8"
@@ -193,4 +194,5 @@ def rejected_row(
         "bodyEncoding": encoding,
         "bodySize": len(body) if body_size is None else int(body_size),
         "bodyTruncated": bool(body_truncated),
+        "topic": topic,
     }

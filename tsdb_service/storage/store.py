@@ -85,6 +85,13 @@ class Store(ABC):
         """How many rejected notifications are stored, in every tenant."""
 
     @abstractmethod
+    def deliveries(self, client_id: str, limit: int) -> list[tuple[int, int, bytes]]:
+        """The newest ``limit`` MQTT deliveries recorded for ``client_id``,
+        newest first, as ``(seq, packet id, digest)`` (``ingest.mqtt``).
+        Queries the database; run it through ``read``, which first waits
+        for every acknowledged write."""
+
+    @abstractmethod
     def health(self) -> dict[str, Any]:
         """The ``/health`` report: ``status`` pass/fail, ``backend``, counters."""
 

@@ -1,7 +1,9 @@
 """Accepted notifications as ingest-log records, and back.
 
 A record is one ``AppendSamples``: its entities as parsed and validated
-(``core.model``), each with the row id the log gave it. orjson writes the
+(``core.model``), each with the row id the log gave it, and the identities
+of the MQTT messages they came from (``deliveries``, version 2 on; a
+version 1 record has none). orjson writes the
 dataclasses in C (times as ISO 8601 with microseconds, kinds as their codes),
 so encoding costs the request path a few microseconds; decoding only happens
 when a log is replayed after a crash. ``VERSION`` changes whenever the
@@ -16,9 +18,10 @@ from typing import Any
 import orjson
 
 from tsdb_service.core.model import AttrSample, EntitySample, Geometry, Kind
-from tsdb_service.write.ops import AppendSamples
+from tsdb_service.write.ops import AppendSamples, Delivery
 
-VERSION = 1
+VERSION = 2
+READABLE = (1, 2)  # 1: before MQTT deliveries
 
 
 class RecordError(ValueError):
@@ -26,14 +29,23 @@ class RecordError(ValueError):
 
 
 def encode(op: AppendSamples) -> bytes:
-    return orjson.dumps({"v": VERSION, "dedup": op.dedup, "entities": op.entities})
+    doc: dict[str, Any] = {"v": VERSION, "dedup": op.dedup, "entities": op.entities}
+    if op.deliveries:
+        doc["deliveries"] = [
+            (d.client_id, d.seq, d.packet_id, d.digest.hex(), d.received_at, d.prune_below) for d in op.deliveries
+        ]
+    return orjson.dumps(doc)
 
 
 def decode(payload: bytes) -> AppendSamples:
     doc = orjson.loads(payload)
-    if not isinstance(doc, dict) or doc.get("v") != VERSION:
+    if not isinstance(doc, dict) or doc.get("v") not in READABLE:
         raise RecordError(f"an ingest-log record of version {doc.get('v') if isinstance(doc, dict) else '?'}")
-    return AppendSamples([_entity(e) for e in doc["entities"]], dedup=bool(doc["dedup"]))
+    deliveries = tuple(
+        Delivery(client, seq, packet, bytes.fromhex(digest), datetime.fromisoformat(at), prune)
+        for client, seq, packet, digest, at, prune in doc.get("deliveries", ())
+    )
+    return AppendSamples([_entity(e) for e in doc["entities"]], dedup=bool(doc["dedup"]), deliveries=deliveries)
 
 
 def _entity(e: dict[str, Any]) -> EntitySample:

@@ -131,10 +131,10 @@ class LoggedWriter:
         for seq, payload in self.log.records(after_seq=0):
             op = codec.decode(payload)
             highest = max([highest, *(e.rid for e in op.entities if e.rid is not None)])
-            entities = [e for e in op.entities if e.rid is None or e.rid > stored]
-            if entities:
-                self._queue(seq, AppendSamples(entities, op.dedup), len(payload))
-                replayed += len(entities)
+            kept = _unstored_part(op, stored)
+            if kept is not None:
+                self._queue(seq, kept, len(payload))
+                replayed += len(kept.entities)
         self._seen_rid(highest)
         self.acked_seq = self.log.last_seq
         if self._pending:
@@ -310,8 +310,7 @@ class LoggedWriter:
             stored = self._stored_rid()
         except Exception:
             return ops  # the database is away: the same ops again, later
-        kept = [AppendSamples([e for e in op.entities if e.rid is None or e.rid > stored], op.dedup) for op in ops]
-        return [op for op in kept if op.entities]
+        return [kept for op in ops if (kept := _unstored_part(op, stored)) is not None]
 
     def _without_poison(self, ops: list[AppendSamples]) -> list[AppendSamples]:
         """Try each entity alone; keep the ones the database refuses in the
@@ -325,6 +324,11 @@ class LoggedWriter:
                 except Exception as exc:
                     log.error("entity %s (row %s) cannot be applied, kept: %s", entity.entity_id, entity.rid, exc)
                     self._reject(entity, str(exc))
+            if op.deliveries:
+                try:
+                    self._apply([AppendSamples([], op.dedup, op.deliveries)])
+                except Exception as exc:  # a redelivery of these messages may then be stored again
+                    log.error("the MQTT deliveries of %d entities cannot be recorded: %s", len(op.entities), exc)
         return []
 
 
@@ -369,7 +373,20 @@ def _merged(ops: list[AppendSamples]) -> list[AppendSamples]:
     out: list[AppendSamples] = []
     for op in ops:
         if out and out[-1].dedup == op.dedup:
-            out[-1] = AppendSamples([*out[-1].entities, *op.entities], op.dedup)
+            last = out[-1]
+            out[-1] = AppendSamples([*last.entities, *op.entities], op.dedup, last.deliveries + op.deliveries)
         else:
             out.append(op)
     return out
+
+
+def _unstored_part(op: AppendSamples, stored: int) -> AppendSamples | None:
+    """What of ``op`` the database lacks when it holds every row id up to
+    ``stored``; None: all of it is there. An op's MQTT deliveries commit
+    with its entities, so they go (or stay) with them; an op without
+    entities cannot tell, and its deliveries are applied again (recording
+    one twice is harmless: ``ON CONFLICT DO NOTHING``)."""
+    entities = [e for e in op.entities if e.rid is None or e.rid > stored]
+    if entities or (not op.entities and op.deliveries):
+        return AppendSamples(entities, op.dedup, op.deliveries)
+    return None

@@ -17,18 +17,39 @@ from tsdb_service.parse import ValuesLayout
 
 
 @dataclass(frozen=True, slots=True)
+class Delivery:
+    """The identity of one MQTT message (``ingest.mqtt``), stored in the same
+    transaction as what the message stored, so that a broker's redelivery of
+    a message already stored can be told (migration 0012). ``prune_below``:
+    also forget this client's deliveries numbered below it (0: none)."""
+
+    client_id: str
+    seq: int
+    packet_id: int
+    digest: bytes
+    received_at: datetime
+    prune_below: int = 0
+
+
+@dataclass(frozen=True, slots=True)
 class AppendSamples:
     """Store samples. ``dedup``: drop NGSI-LD instances that repeat their
     series' latest stored one (see ``storage.ld_ingest``); off for copies,
-    which must reproduce the source exactly."""
+    which must reproduce the source exactly. ``deliveries``: the MQTT
+    messages these samples came from, recorded atomically with them."""
 
     entities: Sequence[EntitySample]
     dedup: bool = True
+    deliveries: tuple[Delivery, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
 class RecordRejected:
+    """Keep a refused notification; ``delivery``: the MQTT message it was,
+    recorded atomically with it."""
+
     rejected: RejectedNotification
+    delivery: Delivery | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -9,7 +9,10 @@ VERSION = obj(("version",), {"version": STR})
 
 HEALTH = spec(
     ok_={
-        200: {"description": "Healthy", "content": {"application/health+json": {"schema": ref("Health")}}},
+        200: {
+            "description": "Healthy (pass), or serving with a concern (warn: the MQTT broker is away)",
+            "content": {"application/health+json": {"schema": ref("Health")}},
+        },
         503: {
             "description": "Failing: restart or fix the store",
             "content": {"application/health+json": {"schema": ref("Health")}},

@@ -24,6 +24,7 @@ from tsdb_service.storage.common import (
     REJECTED_INSERT_COLUMNS,
     SAMPLE_COLUMNS,
     StagingAppender,
+    delivery_statements,
     first_line,
     layout_values,
     naive_timestamps,
@@ -53,7 +54,7 @@ from tsdb_service.storage.ld_ingest import (
 from tsdb_service.storage.partials import HourlyPartials
 from tsdb_service.storage.rejected import RejectedLimits
 from tsdb_service.storage.sql.writes import delete_statements, instance_statements
-from tsdb_service.write.ops import DeleteInstance, DeleteSamples, PutLayout, ReplaceInstance
+from tsdb_service.write.ops import DeleteInstance, DeleteSamples, Delivery, PutLayout, ReplaceInstance
 
 log = logging.getLogger(__name__)
 
@@ -179,6 +180,7 @@ class DuckDBAppender(StagingAppender):
         self._layouts: list[PutLayout] = []
         self._deletes: list[tuple[DeleteSamples, int]] = []
         self._instance_ops: list[DeleteInstance | ReplaceInstance] = []
+        self._deliveries: list[Delivery] = []
 
     def _stage_delete(self, op: DeleteSamples) -> None:
         # Rows allocated after this op was staged (by any writer) survive it.
@@ -401,6 +403,11 @@ class DuckDBAppender(StagingAppender):
                         store._pending_series.pop(key, None)
             self._new_series = {}
         if self._cols["rid"]:
+            # MQTT deliveries commit with the samples they came with: then one
+            # explicit transaction around both (the appender joins it).
+            deliveries, self._deliveries = self._deliveries, []
+            if deliveries:
+                cur.execute("BEGIN")
             if len(self._cols["rid"]) <= ARROW_MIN_ROWS:
                 # Only columns that carry a value: converting the all-NULL
                 # ones (geometry, metadata...) would hold the GIL for nothing.
@@ -410,10 +417,14 @@ class DuckDBAppender(StagingAppender):
                 self._append_rows(cur, names)
             else:
                 self._insert_arrow(cur)
+            if deliveries:
+                for sql, params in delivery_statements("?", deliveries):
+                    cur.execute(sql, params)
+                self._durable(cur, "COMMIT")
             self._store.tail.publish(self._cols)
             self._store.latest_geo.publish(self._cols)
             self._store.partials.publish(self._cols)
-        if self._rejected or self._layouts or self._deletes or self._instance_ops:
+        if self._rejected or self._layouts or self._deletes or self._instance_ops or self._deliveries:
             # A delete must not race the compactor moving or rewriting the
             # same rows (its copy could resurrect them): hold its lock.
             changes = self._deletes or self._instance_ops
@@ -472,7 +483,7 @@ class DuckDBAppender(StagingAppender):
         for row in self._rejected:
             cur.execute(
                 f"INSERT INTO rejected_notifications (id, {REJECTED_INSERT_COLUMNS}) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 list(row),
             )
         dropped = None
@@ -493,6 +504,8 @@ class DuckDBAppender(StagingAppender):
         for instance_op in self._instance_ops:
             for sql, params in instance_statements(_DIALECT, SAMPLE_TABLES, instance_op):
                 cur.execute(sql, params)
+        for sql, params in delivery_statements("?", self._deliveries):
+            cur.execute(sql, params)
         self._durable(cur, "COMMIT")
         if dropped:
             rejected_store.count_dropped(self._store.rejected_dropped, dropped)

@@ -44,6 +44,7 @@ from tsdb_service.storage.common import (
     SAMPLE_COLUMNS,
     CommittingStore,
     StagingAppender,
+    delivery_statements,
     layout_values,
     layouts_from_rows,
     naive_utc,
@@ -61,7 +62,7 @@ from tsdb_service.storage.postgres.untimed import UntimedLedger
 from tsdb_service.storage.rejected import RejectedLimits
 from tsdb_service.storage.sql.writes import delete_statements, instance_statements
 from tsdb_service.write.committer import GroupCommitter
-from tsdb_service.write.ops import DeleteInstance, DeleteSamples, PutLayout, ReplaceInstance
+from tsdb_service.write.ops import DeleteInstance, DeleteSamples, Delivery, PutLayout, ReplaceInstance
 
 log = logging.getLogger(__name__)
 
@@ -410,6 +411,7 @@ class PostgresAppender(StagingAppender):
         self._layouts: list[PutLayout] = []
         self._deletes: list[DeleteSamples] = []
         self._instance_ops: list[DeleteInstance | ReplaceInstance] = []
+        self._deliveries: list[Delivery] = []
 
     def _stage_samples(self, entities: Sequence[EntitySample], dedup: bool) -> None:
         self._entities.extend(entities)
@@ -440,6 +442,8 @@ class PostgresAppender(StagingAppender):
         the same transaction (deleted entities, NGSI-LD instances to
         de-duplicate, rejections, layouts, deletes, series to create)."""
         if not self._entities or self._rejected or self._layouts or self._deletes or self._instance_ops:
+            return False
+        if self._deliveries:  # recorded in the samples' transaction
             return False
         cache = self._store._series
         for e in self._entities:
@@ -489,7 +493,7 @@ class PostgresAppender(StagingAppender):
             for r in self._rejected:
                 cur.execute(
                     f"INSERT INTO rejected_notifications ({REJECTED_INSERT_COLUMNS}) "
-                    "VALUES (%s, %s, %s, %s, %s, %s, %s, %s)",
+                    "VALUES (%s, %s, %s, %s, %s, %s, %s, %s, %s)",
                     rejected_values(r),
                 )
             dropped = None
@@ -507,6 +511,8 @@ class PostgresAppender(StagingAppender):
             for op in self._instance_ops:
                 for sql, params in instance_statements(_DIALECT, ("samples",), op):
                     cur.execute(sql, params)
+            for sql, params in delivery_statements("%s", self._deliveries):
+                cur.execute(sql, params)
         self._send_commit(conn)
         if extents_stored is not None:
             extents_stored()
