@@ -26,8 +26,11 @@ class MqttPublisher:
         self._client = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=client_id, protocol=paho.MQTTv5)
         if parts.scheme == "mqtts":
             self._client.tls_set()
+        # Never held while calling paho: paho calls on_publish holding its own
+        # lock, which publish() takes too (the other order deadlocks).
         self._lock = threading.Lock()
         self._waiting: dict[int, tuple[asyncio.AbstractEventLoop, asyncio.Future]] = {}
+        self._early: dict[int, object] = {}  # acknowledged before publish() registered its waiter
         self._client.on_publish = self._on_publish
         self._client.reconnect_delay_set(1, 5)
         self._client.connect(parts.hostname or "localhost", parts.port or MQTT_SCHEMES.get(parts.scheme, 1883))
@@ -36,6 +39,8 @@ class MqttPublisher:
     def _on_publish(self, client, userdata, mid, reason_code, properties) -> None:
         with self._lock:
             waiter = self._waiting.pop(mid, None)
+            if waiter is None:
+                self._early[mid] = reason_code
         if waiter is not None:
             loop, future = waiter
             loop.call_soon_threadsafe(_settle, future, reason_code)
@@ -46,9 +51,12 @@ class MqttPublisher:
         broker gone for good must not hang the demo, which counts it failed)."""
         loop = asyncio.get_running_loop()
         future = loop.create_future()
-        with self._lock:  # the acknowledgement may arrive before publish() returns
-            info = self._client.publish(topic, payload, qos=1)
-            self._waiting[info.mid] = (loop, future)
+        info = self._client.publish(topic, payload, qos=1)
+        with self._lock:  # its acknowledgement may have come already
+            if info.mid in self._early:
+                _settle(future, self._early.pop(info.mid))
+            else:
+                self._waiting[info.mid] = (loop, future)
         try:
             await asyncio.wait_for(future, timeout)
         finally:
