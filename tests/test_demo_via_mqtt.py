@@ -81,3 +81,31 @@ def test_via_mqtt_without_a_broker_or_mosquitto_is_one_error_line(tmp_path, caps
     assert len(err) == 2 and all(line.startswith("error: ") for line in err), err
     assert "install Mosquitto" in err[0] and "cannot reach the MQTT broker" in err[1]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_demo_publisher_keeps_up_with_concurrent_publications(mosquitto):
+    """Eight senders, 4,000 publications, each awaited until acknowledged:
+    paho acknowledges on its own thread while the senders publish, which
+    once deadlocked (our lock held around paho's publish, paho's around our
+    callback)."""
+    import asyncio
+    import threading
+
+    from tsdb_service.demo.mqtt import MqttPublisher
+
+    publisher = MqttPublisher(mosquitto.url)
+
+    async def sender() -> None:
+        for _ in range(500):
+            await publisher.publish("demo-stress/x", b"{}")
+
+    async def all_senders() -> None:
+        await asyncio.gather(*(sender() for _ in range(8)))
+
+    # On a thread of its own: a deadlock blocks the event loop, which no
+    # asyncio timeout can then interrupt; it fails here instead of hanging.
+    done = threading.Thread(target=asyncio.run, args=(all_senders(),), daemon=True)
+    done.start()
+    done.join(60)
+    assert not done.is_alive(), "the senders are stuck"
+    publisher.close()

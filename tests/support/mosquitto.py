@@ -95,10 +95,12 @@ class Publisher:
         if user_properties:
             properties = Properties(PacketTypes.PUBLISH)
             properties.UserProperty = user_properties
+        # Not under our lock: paho calls on_publish (which takes it) holding
+        # its own, which publish() takes too; _acked keeps an early PUBACK.
+        info = self.client.publish(topic, payload, qos=qos, properties=properties)
+        if qos == 0:
+            return
         with self._lock:
-            info = self.client.publish(topic, payload, qos=qos, properties=properties)
-            if qos == 0:
-                return
             if not self._lock.wait_for(lambda: info.mid in self._acked, timeout):
                 raise TimeoutError(f"the broker did not acknowledge a message on {topic} within {timeout:g} s")
             self._acked.discard(info.mid)

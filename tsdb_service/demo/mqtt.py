@@ -26,9 +26,11 @@ class MqttPublisher:
         self._client = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=client_id, protocol=paho.MQTTv5)
         if parts.scheme == "mqtts":
             self._client.tls_set()
-        self._lock = threading.Lock()  # never held while calling into paho (see publish)
+        # Never held while calling paho: paho calls on_publish holding its own
+        # lock, which publish() takes too (the other order deadlocks).
+        self._lock = threading.Lock()
         self._waiting: dict[int, tuple[asyncio.AbstractEventLoop, asyncio.Future]] = {}
-        self._early: dict[int, object] = {}  # acknowledgements that came before their waiter
+        self._early: dict[int, object] = {}  # acknowledged before publish() registered its waiter
         self._client.on_publish = self._on_publish
         self._client.reconnect_delay_set(1, 5)
         self._client.connect(parts.hostname or "localhost", parts.port or MQTT_SCHEMES.get(parts.scheme, 1883))
@@ -49,12 +51,8 @@ class MqttPublisher:
         broker gone for good must not hang the demo, which counts it failed)."""
         loop = asyncio.get_running_loop()
         future = loop.create_future()
-        # paho calls on_publish holding its own lock; holding ours around
-        # paho's publish (which takes that lock) would deadlock the two
-        # threads. The acknowledgement may so arrive before the waiter: it
-        # waits in ``_early``.
         info = self._client.publish(topic, payload, qos=1)
-        with self._lock:
+        with self._lock:  # its acknowledgement may have come already
             if info.mid in self._early:
                 _settle(future, self._early.pop(info.mid))
             else:
