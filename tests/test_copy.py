@@ -18,6 +18,7 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
+from tests.support.interrupt import Interrupted, InterruptedTarget
 from tsdb_service.cli.main import main
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
@@ -179,35 +180,13 @@ def test_append_verifies_the_totals(pair):
     assert _counts(target) == {"already": before["already"], "copyland": before["copyland"] + src["copyland"]}
 
 
-class _Interrupt(Exception):
-    pass
-
-
-class _InterruptedTarget:
-    """The real target store, interrupted (like Ctrl-C or a crash) after
-    ``batches`` sample batches were committed."""
-
-    def __init__(self, store, batches: int):
-        self._store, self._left = store, batches
-
-    def __getattr__(self, name):
-        return getattr(self._store, name)
-
-    def write_sync(self, ops):
-        if any(isinstance(op, AppendSamples) for op in ops):
-            if self._left == 0:
-                raise _Interrupt
-            self._left -= 1
-        self._store.write_sync(ops)
-
-
 @pytest.mark.parametrize("pair", DIRECTIONS, indirect=True)
 def test_an_interrupted_copy_resumes_without_duplicates(pair):
     source, target = pair
     src, tgt = open_store(Settings(db=source)), open_store(Settings(db=target))
     try:
-        with pytest.raises(_Interrupt):
-            copy_history(src, _InterruptedTarget(tgt, 2), source_id=store_identity(source), batch_rows=30)
+        with pytest.raises(Interrupted):
+            copy_history(src, InterruptedTarget(tgt, 2), source_id=store_identity(source), batch_rows=30)
     finally:
         src.close()
         tgt.close()
@@ -226,8 +205,8 @@ def test_an_interrupted_copy_is_not_mistaken_for_another_source(pair, tmp_path):
     source, target = pair
     src, tgt = open_store(Settings(db=source)), open_store(Settings(db=target))
     try:
-        with pytest.raises(_Interrupt):
-            copy_history(src, _InterruptedTarget(tgt, 1), source_id=store_identity(source), batch_rows=30)
+        with pytest.raises(Interrupted):
+            copy_history(src, InterruptedTarget(tgt, 1), source_id=store_identity(source), batch_rows=30)
     finally:
         src.close()
         tgt.close()

@@ -21,6 +21,7 @@ from pathlib import Path
 import psycopg
 import pytest
 
+from tests.support.interrupt import Interrupted, InterruptedTarget
 from tsdb_service.cli.main import main
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
@@ -172,34 +173,13 @@ def test_the_gap_is_imported_into_a_serving_target(ql, tmp_path):
         store.close()
 
 
-class _Interrupted(Exception):
-    pass
-
-
-class _InterruptedTarget:
-    """The real target, interrupted (like Ctrl-C or a crash) after ``batches`` committed batches."""
-
-    def __init__(self, store, batches: int):
-        self._store, self._left = store, batches
-
-    def __getattr__(self, name):
-        return getattr(self._store, name)
-
-    def write_sync(self, ops):
-        if any(isinstance(op, AppendSamples) for op in ops):
-            if self._left == 0:
-                raise _Interrupted
-            self._left -= 1
-        self._store.write_sync(ops)
-
-
 @pytest.mark.parametrize("backend", ["duckdb", "postgresql"])
 def test_an_interrupted_import_resumes_without_duplicates(ql, tmp_path, pg_cluster, backend, capsys):
     db = str(tmp_path / "t.duckdb") if backend == "duckdb" else pg_cluster.database(f"ql_target_{next(_names)}")
     store = open_store(Settings(db=db))
     try:
-        with pytest.raises(_Interrupted):
-            import_quantumleap(ql, _InterruptedTarget(store, 2), batch_samples=10, page_rows=7)  # type: ignore[arg-type]
+        with pytest.raises(Interrupted):
+            import_quantumleap(ql, InterruptedTarget(store, 2), batch_samples=10, page_rows=7)  # type: ignore[arg-type]
         partial = sum(n for _, n in store.querier().type_counts().values())
         assert 0 < partial < 81
         with pytest.raises(ImportRefused, match="interrupted import"):
@@ -217,8 +197,8 @@ def test_a_half_migrated_target_is_one_line(ql, tmp_path, capsys):
     db = str(tmp_path / "t.duckdb")
     store = open_store(Settings(db=db))
     try:
-        with pytest.raises(_Interrupted):
-            import_quantumleap(ql, _InterruptedTarget(store, 1), batch_samples=10)  # type: ignore[arg-type]
+        with pytest.raises(Interrupted):
+            import_quantumleap(ql, InterruptedTarget(store, 1), batch_samples=10)  # type: ignore[arg-type]
     finally:
         store.close()
     code, _, err = _run(capsys, "--from", ql, "--db", db, "--tenant", "acme")
