@@ -27,6 +27,7 @@ from starlette.routing import Route
 from tests.support.server import free_port
 
 QL = "http://tsdb-service:8668/v2"
+LOCAL = "http://127.0.0.1:"  # the stand-in broker is on loopback: allowed by TSDB_SUBSCRIBE_BROKER_ALLOW
 METADATA = ["dateCreated", "dateModified", "TimeInstant", "timestamp"]
 
 
@@ -42,6 +43,7 @@ class StandInBroker:
                 Route("/v2/subscriptions", self.create, methods=["POST"]),
                 Route("/v2/subscriptions", self.list, methods=["GET"]),
                 Route("/broken/v2/subscriptions", self.broken, methods=["POST"]),
+                Route("/moved/v2/subscriptions", self.moved, methods=["POST"]),
             ]
         )
 
@@ -65,6 +67,9 @@ class StandInBroker:
 
     async def list(self, request: Request) -> Response:
         return JSONResponse(self.subscriptions.get(self.tenant(request), []))
+
+    async def moved(self, request: Request) -> Response:
+        return Response(status_code=307, headers={"Location": "/v2/subscriptions"})
 
     async def broken(self, request: Request) -> Response:
         return PlainTextResponse("database down", status_code=500)
@@ -130,7 +135,7 @@ def broker():
 
 @pytest.fixture(scope="module")
 def subscribing(client_factory, store_url_factory):
-    with client_factory(store_url_factory("subscribe")) as client:
+    with client_factory(store_url_factory("subscribe"), subscribe_broker_allow=LOCAL) as client:
         yield client
 
 
@@ -276,6 +281,30 @@ def test_unreachable_broker_is_quantumleaps_400(client):
     assert r.json()["description"].startswith(f"Orion is not reachable at {orion}: ")
 
 
+# --- outbound rules: the client names the URL, so it may not aim us anywhere -----------------------
+
+
+def test_a_broker_on_a_non_public_address_is_refused_unless_allowed(client_factory, store_url, broker):
+    """Without TSDB_SUBSCRIBE_BROKER_ALLOW, loopback (and private, link-local,
+    e.g. 169.254.169.254) brokers are never called, and the answer says
+    nothing about what is there."""
+    with client_factory(store_url) as client:
+        for orion in (broker.url + "/v2", "http://169.254.169.254/v2", "http://10.0.0.1:1026/v2"):
+            r = client.post("/v2/subscribe", params={"orionUrl": orion, "quantumleapUrl": QL})
+            assert r.status_code == 400, r.text
+            assert r.json()["description"] == (
+                f"Orion is not reachable at {orion}: no answer (or the address is not allowed: "
+                "TSDB_SUBSCRIBE_BROKER_ALLOW)"
+            )
+    assert broker.subscriptions == {}
+
+
+def test_a_redirecting_broker_is_not_followed(client, broker):
+    r = client.post("/v2/subscribe", params={"orionUrl": broker.url + "/moved/v2", "quantumleapUrl": QL})
+    assert r.status_code == 502 and "307" in r.json()["description"]
+    assert broker.subscriptions == {}
+
+
 def test_broker_refusal_is_passed_on(client, broker):
     r = subscribe(client, broker, idPattern="(")
     assert (r.status_code, r.json()) == (
@@ -303,7 +332,7 @@ def test_broker_failure_is_502(client, broker):
 
 def test_subscription_feeds_the_service(app_factory, store_url, broker):
     tenant = {"Fiware-Service": "Building", "Fiware-ServicePath": "/floor1"}
-    with serving(app_factory(store_url)) as service:
+    with serving(app_factory(store_url, subscribe_broker_allow=LOCAL)) as service:
         r = httpx.post(
             f"{service}/v2/subscribe",
             headers=tenant,

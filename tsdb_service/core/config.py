@@ -259,6 +259,11 @@ class Settings(BaseSettings):
         "'http://127.0.0.1:' for a conformance run on one machine); any other @context host must resolve "
         "to public addresses only.",
     )
+    subscribe_broker_allow: str = Field(
+        "",
+        description="URL prefixes of brokers POST /v2/subscribe may reach at any address, comma list (e.g. "
+        "'http://orion:1026/'); any other orionUrl host must resolve to public addresses only.",
+    )
     ld_context_offline: bool = Field(
         False,
         description="Never fetch a remote @context: only the built-in core context and the files of "
@@ -311,7 +316,7 @@ class Settings(BaseSettings):
     )
     retention_pause: float = Field(0.05, ge=0, description="Seconds to pause between retention batches.")
 
-    @field_validator("ld_context_allow")
+    @field_validator("ld_context_allow", "subscribe_broker_allow")
     @classmethod
     def _url_prefixes(cls, value: str) -> str:
         url_prefixes(value)  # raises ValueError

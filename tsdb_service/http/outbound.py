@@ -25,6 +25,11 @@ network, and the error texts a port scanner. So ``fetch``:
   compressed bomb costs no more than ``max_bytes``;
 * ignores proxy variables (a proxy would connect where we never checked).
 
+``post`` sends a request body (``POST /v2/subscribe``'s subscription to the
+broker a client names) under the same rules, following no redirect: what
+is sent goes to the URL named, and the answer (its status, headers and at
+most ``max_bytes`` of its body) is the caller's to judge.
+
 It runs on the event loop (httpx's async client): a slow server costs a
 waiting coroutine, never a worker thread. Failures raise ``FetchFailed``
 whose message is for the operator's log only; callers answer clients with a
@@ -125,6 +130,47 @@ async def fetch(url: str, policy: FetchPolicy) -> bytes:
         raise FetchFailed(f"{url[:200]!r}: not complete within {policy.deadline} s") from None
 
 
+@dataclass(frozen=True, slots=True)
+class Answer:
+    """What a server answered to ``post``."""
+
+    status: int
+    reason: str
+    headers: httpx.Headers
+    body: bytes
+
+
+async def post(url: str, content: bytes, headers: dict[str, str], policy: FetchPolicy) -> Answer:
+    """POST ``content`` to ``url`` under ``policy`` (no redirect followed);
+    ``FetchFailed`` if refused, unreachable, late or answered too long."""
+    try:
+        with anyio.fail_after(policy.deadline):
+            async with policy.semaphore:
+                return await _post(url, content, headers, policy)
+    except TimeoutError:
+        raise FetchFailed(f"{url[:200]!r}: not complete within {policy.deadline} s") from None
+
+
+async def _post(url: str, content: bytes, headers: dict[str, str], policy: FetchPolicy) -> Answer:
+    async with httpx.AsyncClient(trust_env=False, follow_redirects=False, timeout=None) as client:
+        target = _checked(url)
+        addresses = await _addresses(target, _allowed(str(target), policy.allow))
+        sent = _Sent("POST", {**headers, "Accept": policy.accept}, content)
+        response = await _connect(client, target, addresses, policy.accept, sent)
+        try:
+            body = await _body(response, policy.max_bytes, url)
+            return Answer(response.status_code, response.reason_phrase, response.headers, body)
+        finally:
+            await response.aclose()
+
+
+@dataclass(frozen=True, slots=True)
+class _Sent:
+    method: str = "GET"
+    headers: dict[str, str] = field(default_factory=dict)
+    content: bytes | None = None
+
+
 async def _follow(url: str, policy: FetchPolicy) -> bytes:
     async with httpx.AsyncClient(trust_env=False, follow_redirects=False, timeout=None) as client:
         for _ in range(policy.max_redirects + 1):
@@ -143,15 +189,21 @@ async def _follow(url: str, policy: FetchPolicy) -> bytes:
     raise FetchFailed(f"more than {policy.max_redirects} redirects from {url[:200]!r}")
 
 
-async def _connect(client: httpx.AsyncClient, target: httpx.URL, addresses: list[str], accept: str) -> httpx.Response:
-    """GET ``target`` from the first of the checked ``addresses`` that
-    accepts a connection (the name stays in Host and SNI)."""
+async def _connect(
+    client: httpx.AsyncClient, target: httpx.URL, addresses: list[str], accept: str, sent: _Sent | None = None
+) -> httpx.Response:
+    """Send ``sent`` (a GET by default) to ``target`` at the first of the
+    checked ``addresses`` that accepts a connection (the name stays in Host
+    and SNI)."""
+    sent = sent or _Sent()
     failure: Exception | None = None
     for address in addresses:
+        fixed = {"Host": target.netloc.decode("ascii"), "Accept": accept, "Accept-Encoding": "gzip, deflate"}
         request = client.build_request(
-            "GET",
+            sent.method,
             target.copy_with(host=address),
-            headers={"Host": target.netloc.decode("ascii"), "Accept": accept, "Accept-Encoding": "gzip, deflate"},
+            headers={**sent.headers, **fixed},
+            content=sent.content,
             extensions={"sni_hostname": target.host} if target.scheme == "https" else {},
         )
         try:

@@ -23,27 +23,35 @@ subscription's URL at the broker in ``Location``); its 4xx is passed on; an
 unreachable broker is QuantumLeap's ``400 Orion is not reachable``; a 5xx or
 anything unexpected is ``502``.
 
-The request makes this service send HTTP requests to a URL the client
-chooses: expose it only where clients may create subscriptions anyway.
+The request makes this service send an HTTP request to a URL the client
+chooses, so it goes out under the outbound rules (``http.outbound``): a
+broker whose host resolves to a loopback, private or otherwise non-public
+address is refused unless its URL starts with a prefix of
+``TSDB_SUBSCRIBE_BROKER_ALLOW`` (a deliberate difference from QuantumLeap,
+which posts anywhere); no redirect is followed; the whole exchange has a
+deadline and the answer a byte bound; and a refusal or failure reads the
+same to the client ("not reachable"), whatever the network said.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping
-from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 import orjson
 from fastapi import APIRouter, Request
 
+from tsdb_service.broker.subscriptions import BrokerAnswer
+from tsdb_service.core.config import url_prefixes
 from tsdb_service.core.errors import BadRequest, TsdbError
 from tsdb_service.faces.quantumleap import openapi as ql_oa
+from tsdb_service.http.outbound import FetchFailed, FetchPolicy, post
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.tenancy import tenant_of
 from tsdb_service.parse.request_context import service_paths
 
-if TYPE_CHECKING:
-    from tsdb_service.broker.subscriptions import BrokerAnswer
+log = logging.getLogger(__name__)
 
 router = APIRouter(tags=["subscribe"])
 
@@ -53,6 +61,8 @@ DEFAULT_THROTTLING = 1
 _MAX_URL = 2048
 _MAX_NAME = 256
 _MAX_ERROR_TEXT = 500
+BROKER_DEADLINE = 10.0  # seconds for the whole exchange with the broker
+BROKER_ANSWER_BYTES = 64 * 1024  # a subscription's answer is a few hundred bytes
 
 
 @router.post(
@@ -61,17 +71,33 @@ _MAX_ERROR_TEXT = 500
     summary="Create the Orion subscription that feeds this service",
     **ql_oa.SUBSCRIBE_SPEC,
 )
-def subscribe(request: Request) -> JSON:
-    """Runs in the threadpool (a plain ``def``): the broker call blocks.
-    The sender lives with the ``subscribe`` command (imported on first use:
-    the demo package is not part of serving)."""
-    from tsdb_service.broker.subscriptions import send_subscription
-
+async def subscribe(request: Request) -> JSON:
+    """Everything is checked before the broker is called; the call waits on
+    the event loop (a slow broker costs a coroutine, not a thread)."""
     params = request.query_params
     orion = _base_url(params.get("orionUrl"), "orionUrl")
     document = build_subscription(_base_url(params.get("quantumleapUrl"), "quantumleapUrl"), params)
-    answer = send_subscription(orion + "/subscriptions", document, _broker_headers(request))
+    answer = await _send(orion + "/subscriptions", document, _broker_headers(request), request.app.state.settings)
     return _answer(orion, document, answer)
+
+
+async def _send(url: str, document: dict, headers: dict[str, str], settings) -> BrokerAnswer:
+    """POST the subscription under the outbound rules; why it failed goes
+    to the log only (the client learns nothing about our network)."""
+    policy = FetchPolicy(
+        deadline=BROKER_DEADLINE,
+        max_bytes=BROKER_ANSWER_BYTES,
+        max_redirects=0,
+        allow=url_prefixes(settings.subscribe_broker_allow),
+        accept="application/json",
+    )
+    try:
+        answer = await post(url, orjson.dumps(document), headers, policy)
+    except FetchFailed as exc:
+        log.warning("POST /v2/subscribe: the broker was not reached: %s", exc)
+        return BrokerAnswer(None, problem="no answer (or the address is not allowed: TSDB_SUBSCRIBE_BROKER_ALLOW)")
+    text = answer.body.decode("utf-8", "replace")
+    return BrokerAnswer(answer.status, answer.reason, answer.headers.get("location", ""), text)
 
 
 def build_subscription(service_url: str, params: Mapping[str, str]) -> dict:
