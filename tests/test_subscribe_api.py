@@ -299,6 +299,15 @@ def test_a_broker_on_a_non_public_address_is_refused_unless_allowed(client_facto
     assert broker.subscriptions == {}
 
 
+def test_broker_calls_share_one_policy_and_its_bound(client, broker):
+    """One outbound policy per app: its semaphore bounds the broker calls of
+    all requests together, not of each request alone."""
+    assert subscribe(client, broker).status_code == 201
+    policy = client.app.state.subscribe_policy
+    assert subscribe(client, broker, entityType="Room").status_code == 201
+    assert client.app.state.subscribe_policy is policy
+
+
 def test_a_redirecting_broker_is_not_followed(client, broker):
     r = client.post("/v2/subscribe", params={"orionUrl": broker.url + "/moved/v2", "quantumleapUrl": QL})
     assert r.status_code == 502 and "307" in r.json()["description"]

@@ -77,20 +77,29 @@ async def subscribe(request: Request) -> JSON:
     params = request.query_params
     orion = _base_url(params.get("orionUrl"), "orionUrl")
     document = build_subscription(_base_url(params.get("quantumleapUrl"), "quantumleapUrl"), params)
-    answer = await _send(orion + "/subscriptions", document, _broker_headers(request), request.app.state.settings)
+    answer = await _send(orion + "/subscriptions", document, _broker_headers(request), _broker_policy(request))
     return _answer(orion, document, answer)
 
 
-async def _send(url: str, document: dict, headers: dict[str, str], settings) -> BrokerAnswer:
+def _broker_policy(request: Request) -> FetchPolicy:
+    """The app's outbound policy for brokers, made on first use and kept, so
+    its semaphore bounds the broker calls of every request together."""
+    state = request.app.state
+    policy = getattr(state, "subscribe_policy", None)
+    if policy is None:
+        policy = state.subscribe_policy = FetchPolicy(
+            deadline=BROKER_DEADLINE,
+            max_bytes=BROKER_ANSWER_BYTES,
+            max_redirects=0,
+            allow=url_prefixes(state.settings.subscribe_broker_allow),
+            accept="application/json",
+        )
+    return policy
+
+
+async def _send(url: str, document: dict, headers: dict[str, str], policy: FetchPolicy) -> BrokerAnswer:
     """POST the subscription under the outbound rules; why it failed goes
     to the log only (the client learns nothing about our network)."""
-    policy = FetchPolicy(
-        deadline=BROKER_DEADLINE,
-        max_bytes=BROKER_ANSWER_BYTES,
-        max_redirects=0,
-        allow=url_prefixes(settings.subscribe_broker_allow),
-        accept="application/json",
-    )
     try:
         answer = await post(url, orjson.dumps(document), headers, policy)
     except FetchFailed as exc:
