@@ -13,7 +13,7 @@ import itertools
 import random
 import socket
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -193,22 +193,10 @@ def topic_of(sim: Simulator, topic: str) -> str:
 
 def mqtt_api(ld: bool, topic: str = MQTT_TOPIC) -> BrokerApi:
     """The API to subscribe with so the broker notifies over MQTT (the
-    'notify URL' it is given is then the MQTT broker's URL)."""
-    if ld:
-        return BrokerApi(
-            "NGSI-LD over MQTT",
-            NGSI_LD.subscriptions_path,
-            NGSI_LD.notify_path,
-            lambda sim, broker: ld_mqtt_subscription(sim, broker, topic),
-            ld_broker_headers,
-        )
-    return BrokerApi(
-        "NGSIv2 over MQTT",
-        NGSIV2.subscriptions_path,
-        NGSIV2.notify_path,
-        lambda sim, broker: mqtt_subscription(sim, broker, topic),
-        broker_headers,
-    )
+    'notify URL' it is given is then the MQTT broker's URL): the HTTP one
+    with the MQTT subscription document."""
+    base, document = (NGSI_LD, ld_mqtt_subscription) if ld else (NGSIV2, mqtt_subscription)
+    return replace(base, name=f"{base.name} over MQTT", document=lambda sim, broker: document(sim, broker, topic))
 
 
 @dataclass(frozen=True, slots=True)
