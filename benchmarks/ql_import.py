@@ -5,7 +5,7 @@
     .venv/bin/python benchmarks/ql_import.py --target postgresql [--samples N] [--json FILE]
 
 1. Starts a private PostgreSQL (``pgutil.BenchCluster``) and fills one
-   QuantumLeap-layout table (``storage.quantumleap.layout``: schema
+   QuantumLeap-layout table (``commands.quantumleap.layout``: schema
    ``mtbench``, table ``etdevice``, ``md_ets_metadata``) with ``--samples``
    samples: 1,000 devices, rows of 5 attributes (Number, Integer, Text,
    Boolean, DateTime), one row every second per device, loaded with COPY
@@ -40,7 +40,7 @@ def fill(url: str, samples: int) -> int:
     """A QuantumLeap table of ``samples`` samples (rows of ``ATTRS``); the rows written."""
     import psycopg
 
-    from tsdb_service.storage.quantumleap.layout import copy_rows, table_name, write_entities
+    from tsdb_service.commands.quantumleap.layout import copy_rows, table_name, write_entities
 
     rows = max(1, samples // ATTRS)
     first = {
@@ -81,9 +81,9 @@ def _rows(n: int):
 
 
 def run(samples: int, target_kind: str) -> dict:
+    from tsdb_service.commands.quantumleap.importer import import_quantumleap
     from tsdb_service.core.config import Settings
     from tsdb_service.storage import open_store
-    from tsdb_service.storage.quantumleap.importer import import_quantumleap
 
     with BenchCluster("ql_source") as pg, tempfile.TemporaryDirectory() as tmp:
         assert pg.url is not None

@@ -7,7 +7,7 @@
 -- every committed statement that inserted, updated or deleted samples of a
 -- series in it. The triggers below add to it in that statement's
 -- transaction, whatever wrote it (the writers' COPY, NGSI-LD instance
--- edits, deletes, retention, storage.copy, a bulk load by hand). A reader
+-- edits, deletes, retention, commands.copy, a bulk load by hand). A reader
 -- that finds the sum it saw when it loaded a series' partials knows
 -- nothing of the block changed since (storage.postgres.querier,
 -- ``_series_versions``). Rows are never decremented; a rolled-back write

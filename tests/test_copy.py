@@ -20,10 +20,10 @@ import pytest
 
 from tests.support.interrupt import Interrupted, InterruptedTarget
 from tsdb_service.cli.main import main
+from tsdb_service.commands.copy import copy_history, store_identity
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage import open_store
-from tsdb_service.storage.copy import copy_history, store_identity
 from tsdb_service.write.ops import AppendSamples
 
 H = {"Content-Type": "application/json", "Fiware-Service": "copyland", "Fiware-ServicePath": "/site/a"}

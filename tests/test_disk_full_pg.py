@@ -110,7 +110,7 @@ def test_the_writer_reconnects_when_its_connection_is_killed(backend, store_url,
         pytest.skip("PostgreSQL writer connections")
     import psycopg
 
-    from tsdb_service.storage.postgres.store import WRITER_APPLICATION_NAME
+    from tsdb_service.storage.postgres.appender import WRITER_APPLICATION_NAME
 
     with client_factory(store_url) as client:
         post = poster(client)

@@ -7,8 +7,8 @@
     storage, history                      the backends behind the seams; history over the read seam
     http                                  the HTTP kit every feature leans on
     security, ingest, faces.*             who may call; notifications in; each API out
-    telemetry, demo                       metrics wired to a store; the demo's simulators
-    app, cli                              the application factory and the commands
+    telemetry, demo, commands             metrics wired to a store; the demo's simulators; copy, imports
+    app, cli                              the application factory and the command line
 
 Every package may import only the packages its row allows, so a new import
 that goes up, or sideways between two faces, fails here with the module and
@@ -38,6 +38,7 @@ ALLOWED: dict[str, set[str]] = {
     "faces": {*SEAMS, "usecases", "broker", "history", "http"},
     "telemetry": {"core", "parse", "write", "storage"},
     "demo": {"core", "usecases", "broker"},
+    "commands": {*SEAMS, "storage"},
     "client": set(),
 }
 TOP = {"app", "cli", "__main__"}  # may import anything below them
@@ -107,3 +108,28 @@ def test_routes_see_only_the_seams():
         if rule_of(source) in {"faces", "ingest", "http", "history"} and dest in {"storage", "telemetry"}
     )
     assert offenders == []
+
+
+WRITE_MACHINERY = {"tsdb_service.write.committer", "tsdb_service.write.logged", "tsdb_service.write.log"}
+
+
+def reached(module: str) -> set[str]:
+    """Every module ``module`` imports, directly or through others (lazy imports too)."""
+    seen: set[str] = set()
+    todo = [module]
+    while todo:
+        name = todo.pop()
+        if name in seen or name not in GRAPH:
+            continue
+        seen.add(name)
+        todo.extend(GRAPH[name])
+    return seen
+
+
+def test_the_lowest_sql_reaches_no_write_machinery():
+    """``storage.sql`` and the columns it reads sit under the writers: they
+    reach neither the group committer nor the ingest log, not even through a
+    module they share with the writers (``storage.committing`` wires those)."""
+    lowest = [m for m in GRAPH if m.startswith("tsdb_service.storage.sql") or m == "tsdb_service.storage.columns"]
+    offenders = {m: sorted(reached(m) & WRITE_MACHINERY) for m in lowest if reached(m) & WRITE_MACHINERY}
+    assert lowest and offenders == {}

@@ -162,8 +162,8 @@ def _downgrade_to_0001(url: str, backend: str) -> None:
 
 def test_rejected_rows_survive_copy_with_size(client_factory, store_url_factory):
     # The size and truncation flag travel with `tsdb-service copy`.
+    from tsdb_service.commands.copy import copy_history
     from tsdb_service.storage import open_store
-    from tsdb_service.storage.copy import copy_history
 
     source_url, target_url = store_url_factory("copy_source"), store_url_factory("copy_target")
     with client_factory(source_url, max_body_bytes=1024, rejected_body_max_bytes=3000) as client:

@@ -287,9 +287,9 @@ def test_unknown_time_property_is_refused():
 def test_copy_keeps_instances(client_factory, store_url, store_url_factory):
     """``tsdb-service copy`` carries observedAt, datasets and deletions, and
     keeps instances that repeat (the copy is not a re-notification)."""
+    from tsdb_service.commands.copy import copy_history
     from tsdb_service.core.config import Settings
     from tsdb_service.storage import open_store
-    from tsdb_service.storage.copy import copy_history
 
     with client_factory(store_url) as client:
         notify_ld(

@@ -1,5 +1,5 @@
 """PostgreSQL row ids come from blocks reserved from ``sample_rid_seq``
-(tsdb_service/storage/postgres/store.py, ``RowIds``), and a group of plain
+(tsdb_service/storage/postgres/ids.py, ``RowIds``), and a group of plain
 samples of known series is one autocommit COPY.
 
 Reads group a notification's attributes into one row by ``rid`` and order
@@ -21,7 +21,8 @@ import threading
 import psycopg
 import pytest
 
-from tsdb_service.storage.postgres.store import RowIds, migrate_url
+from tsdb_service.storage.postgres.ids import RowIds
+from tsdb_service.storage.postgres.store import migrate_url
 
 pytestmark = pytest.mark.skipif(
     "postgresql" not in os.environ.get("TSDB_TEST_BACKENDS", "postgresql"),

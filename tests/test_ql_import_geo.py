@@ -17,7 +17,7 @@ import pytest
 
 from tests.support.apt import apt_install
 from tsdb_service.cli.main import main
-from tsdb_service.storage.quantumleap.layout import has_postgis, write_entities
+from tsdb_service.commands.quantumleap.layout import has_postgis, write_entities
 
 T0 = datetime(2024, 5, 1, 10, tzinfo=UTC)
 VALUES = {

@@ -13,8 +13,8 @@ from datetime import UTC, datetime, timedelta
 
 import psycopg
 
-from tsdb_service.storage.quantumleap.layout import write_entities
-from tsdb_service.storage.quantumleap.reader import QuantumLeapReader, Window
+from tsdb_service.commands.quantumleap.layout import write_entities
+from tsdb_service.commands.quantumleap.reader import QuantumLeapReader, Window
 
 T0 = datetime(2024, 5, 1, 10, tzinfo=UTC)
 

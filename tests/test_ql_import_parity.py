@@ -1,7 +1,7 @@
 """After ``import quantumleap``, our QuantumLeap API answers as QuantumLeap did.
 
 The golden ``main`` dataset (tests/golden/notifications/main) is written in
-QuantumLeap's PostgreSQL layout (``storage.quantumleap.layout``: a table per
+QuantumLeap's PostgreSQL layout (``commands.quantumleap.layout``: a table per
 tenant and type, lower-cased columns, ``md_ets_metadata``), imported, and
 every read case recorded for it (tests/golden/cases: QuantumLeap's
 documented answers for that data) is asked of the imported store. The
@@ -21,8 +21,8 @@ import psycopg
 import pytest
 
 from tsdb_service.cli.main import main
+from tsdb_service.commands.quantumleap.layout import has_postgis, write_entities
 from tsdb_service.parse.timeindex import parse_time
-from tsdb_service.storage.quantumleap.layout import has_postgis, write_entities
 
 GOLDEN = Path(__file__).parent / "golden"
 GEO_TYPES = {"geo:json", "geo:point", "geo:line", "geo:polygon", "geo:box", "GeoProperty"}

@@ -1,6 +1,6 @@
 """QuantumLeap's stored rows become the entity samples their notifications made.
 
-Unit tests of ``storage.quantumleap.rows``, no database: rows are given as
+Unit tests of ``commands.quantumleap.rows``, no database: rows are given as
 the PostgreSQL driver (psycopg) returns them from each QuantumLeap backend.
 The CrateDB cases are built from CrateDB's documented types and
 QuantumLeap's CrateDB translator (``geo_point`` as [lon, lat], or
@@ -18,8 +18,7 @@ from datetime import UTC, datetime
 import pytest
 import shapely
 
-from tsdb_service.core.model import EntitySample, Kind
-from tsdb_service.storage.quantumleap.rows import (
+from tsdb_service.commands.quantumleap.rows import (
     Dialect,
     Unreadable,
     duplicate_key,
@@ -28,6 +27,7 @@ from tsdb_service.storage.quantumleap.rows import (
     split_table_name,
     table_meta,
 )
+from tsdb_service.core.model import EntitySample, Kind
 
 T = datetime(2024, 5, 1, 10, 0, 0, 123456, tzinfo=UTC)
 BASE = {"entity_type": ["type", "Text"], "entity_id": ["id", "Text"], "time_index": ["time_index", "DateTime"]}

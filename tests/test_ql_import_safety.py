@@ -1,7 +1,7 @@
 """``import quantumleap`` is as safe as ``copy``: it refuses, resumes and checks.
 
 A QuantumLeap database is built in the test PostgreSQL in QuantumLeap's
-layout (``storage.quantumleap.layout``), with the odd rows QuantumLeap
+layout (``commands.quantumleap.layout``), with the odd rows QuantumLeap
 itself writes: a duplicate (it does not deduplicate), a failed batch's rows
 (only ``__original_ngsi_entity__`` filled), one of them unparseable, and a
 row whose attribute columns are all NULL. Then: a non-empty target is
@@ -23,12 +23,12 @@ import pytest
 
 from tests.support.interrupt import Interrupted, InterruptedTarget
 from tsdb_service.cli.main import main
+from tsdb_service.commands.quantumleap.importer import ImportRefused, Selection, import_quantumleap
+from tsdb_service.commands.quantumleap.layout import insert_rows, table_name, write_entities
+from tsdb_service.commands.quantumleap.reader import Window
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage import open_store
-from tsdb_service.storage.quantumleap.importer import ImportRefused, Selection, import_quantumleap
-from tsdb_service.storage.quantumleap.layout import insert_rows, table_name, write_entities
-from tsdb_service.storage.quantumleap.reader import Window
 from tsdb_service.write.ops import AppendSamples
 
 T0 = datetime(2024, 5, 1, 10, tzinfo=UTC)

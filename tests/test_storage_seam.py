@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from tests.support.imports import module_imports
+from tsdb_service.commands.copy import copy_history
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Geometry, Kind
 from tsdb_service.core.query import (
@@ -48,7 +49,6 @@ from tsdb_service.read.requests import (
     SeriesSelect,
 )
 from tsdb_service.storage import open_store
-from tsdb_service.storage.copy import copy_history
 from tsdb_service.storage.store import Store
 from tsdb_service.write.ops import AppendSamples
 

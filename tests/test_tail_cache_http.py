@@ -49,6 +49,6 @@ def test_cached_and_uncached_answers_agree(client_factory, store_url_factory):
                 path = rnd.choice([f"/v2/entities/R{rnd.randint(0, 2)}/attrs/speed", "/v2/types/Robot/attrs/speed"])
                 a, b = cached.get(path, params=params, headers=H), plain.get(path, params=params, headers=H)
                 assert (a.status_code, a.json()) == (b.status_code, b.json()), (path, params)
-        tail = getattr(cached.app.state.store, "tail", None)  # DuckDB only
+        tail = getattr(cached.app.state.store.memory, "tail", None)  # DuckDB only
         if tail is not None:
             assert tail.hits > 20, "the cached app never answered from its tail"

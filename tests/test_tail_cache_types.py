@@ -58,7 +58,7 @@ def test_deep_type_lastn_agrees_with_the_database(client_factory, store_url_fact
                 path = "/v2/types/Robot/attrs/speed"
                 a, b = cached.get(path, params=params, headers=H), plain.get(path, params=params, headers=H)
                 assert (a.status_code, a.json()) == (b.status_code, b.json()), params
-        tail = getattr(cached.app.state.store, "tail", None)  # DuckDB only
+        tail = getattr(cached.app.state.store.memory, "tail", None)  # DuckDB only
         if tail is not None:
             assert tail.hits > 100, "the cached app never answered from its tails"
 
@@ -74,7 +74,7 @@ def test_deep_type_lastn_is_answered_from_memory(client_factory, store_url_facto
         assert first.status_code == 200
         values = sorted(v for e in first.json()["entities"] for v in e["values"])
         assert values == list(range(30, 60))
-        if getattr(client.app.state.store, "tail", None) is None:
+        if getattr(client.app.state.store.memory, "tail", None) is None:
             return  # PostgreSQL: no tails
         querier = client.app.state.store.querier()
         reads = []

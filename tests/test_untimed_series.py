@@ -64,7 +64,7 @@ def test_a_new_series_without_observed_at(client):
     ld_notify(client, [speed(3)])
     assert listed(store) in (None, {speed_sid(store)})
     if store.backend == "postgresql":  # remembered: the next instances send no listing
-        assert store.untimed._known == {speed_sid(store)}
+        assert store.memory.untimed._known == {speed_sid(store)}
     ld_notify(client, [speed(4, "2024-01-01T10:00:00Z")])
     assert speeds(client) == [3, 4]
 

@@ -306,7 +306,7 @@ class StoreCollector(Collector):
             yield GaugeMetricFamily(
                 "tsdb_write_queue_depth", "Write ops queued, not yet taken by a writer.", value=depth
             )
-        yield from _ingest_log_metrics(getattr(self._store, "_logged", None))
+        yield from _ingest_log_metrics(getattr(self._store, "ingest_log", None))
         dropped = getattr(self._store, "rejected_dropped", None)
         if dropped is not None:
             family = CounterMetricFamily(
@@ -428,9 +428,9 @@ class _OtherOps:
 
 
 def _committer(store: Store):
-    # Both stores keep their group committer here; the seam has no accessor
-    # because nothing but metrics needs one.
-    return getattr(store, "_committer", None)
+    # Both stores show their group committer (``CommittingStore.committer``);
+    # the seam has no accessor because nothing but metrics needs one.
+    return getattr(store, "committer", None)
 
 
 class Metrics:
@@ -458,7 +458,7 @@ class Metrics:
         timed) when the log acknowledges them; the database writer then
         reports only the other ops, which go to it directly."""
         committer = _committer(store)
-        logged = getattr(store, "_logged", None)
+        logged = getattr(store, "ingest_log", None)
         if logged is not None:
             logged.observe(self.writer)
             if committer is not None:

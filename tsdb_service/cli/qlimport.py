@@ -1,6 +1,6 @@
 """``tsdb-service import quantumleap --from URL --db OUR_DB``: move off QuantumLeap.
 
-The command around ``storage.quantumleap.importer.import_quantumleap`` (the
+The command around ``commands.quantumleap.importer.import_quantumleap`` (the
 library call): flags, the checks made before anything is created, and the
 printed report. Every refusal is one ``error:`` line and exit status 2.
 """
@@ -104,13 +104,13 @@ def _time(text: str | None, flag: str) -> datetime | None:
 
 
 def cmd_import(args: argparse.Namespace) -> int:
-    from tsdb_service.storage import open_store, redact
-    from tsdb_service.storage.quantumleap.importer import (
+    from tsdb_service.commands.quantumleap.importer import (
         ImportNotVerified,
         Selection,
         import_quantumleap,
     )
-    from tsdb_service.storage.quantumleap.reader import SourceUnavailable, Window
+    from tsdb_service.commands.quantumleap.reader import SourceUnavailable, Window
+    from tsdb_service.storage import open_store, redact
 
     if not args.source.startswith(("postgresql://", "postgres://")):
         raise SettingsError(f"--from: {args.source!r} is not a postgresql:// URL (CrateDB: its PostgreSQL port, 5432)")
@@ -162,7 +162,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 
 
 def _check_source(url: str) -> None:
-    from tsdb_service.storage.quantumleap.reader import QuantumLeapReader
+    from tsdb_service.commands.quantumleap.reader import QuantumLeapReader
 
     reader = QuantumLeapReader(url)
     try:

@@ -172,3 +172,10 @@ class LdContextNotAvailable(TsdbError):
     status = 503
     error = "LdContextNotAvailable"
     ld_type = "LdContextNotAvailable"
+
+
+def first_line(exc: BaseException) -> str:
+    """A failure in one line of at most 300 characters, for ``/health`` and
+    logs: a driver's message without the lines of context it appends."""
+    text = str(exc).strip()
+    return text.splitlines()[0][:300] if text else type(exc).__name__

@@ -426,7 +426,7 @@ Prefilter = tuple[str, Bounds]
 # A stored sample keeps its geometry's box (min_lon, min_lat, max_lon,
 # max_lat). A geo-query's ``Prefilter`` says what that box must do to
 # possibly match: "within" lie inside the query box, "intersects" overlap
-# it. The same two tests run in SQL (``storage.common.box_sql``) and in memory
+# it. The same two tests run in SQL (``storage.sql.dialect.box_sql``) and in memory
 # (``box_passes``: DuckDB's latest locations and extents, the in-memory querier).
 
 WITHIN = "within"

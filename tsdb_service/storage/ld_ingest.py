@@ -129,6 +129,25 @@ def drop_renotified(
     return keep
 
 
+def without_dropped(entities: Sequence[EntitySample], keep: Iterable[bool]) -> list[EntitySample]:
+    """``entities`` without the attributes ``keep`` (one flag per attribute,
+    in order, as ``drop_renotified`` gives them) drops; an entity left
+    without attributes goes too."""
+    flags = iter(keep)
+    out = []
+    for e in entities:
+        attrs = [a for a in e.attrs if next(flags)]
+        if attrs:
+            out.append(
+                e
+                if len(attrs) == len(e.attrs)
+                else EntitySample(
+                    e.tenant, e.service_path, e.entity_id, e.entity_type, e.time_index, attrs, e.deleted_at, e.rid
+                )
+            )
+    return out
+
+
 def publish_staged(cache: LatestInstances, staged: dict[tuple, InstanceKey], sid_of: Callable[[tuple], int | None]):
     """After a commit: the staged keys become the cache's."""
     if staged:

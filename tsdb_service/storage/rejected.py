@@ -19,7 +19,8 @@ listing must not hand out gigabytes. So:
   page starts.
 
 Backends differ only in placeholders and how a string's byte length is
-written (``RejectedSpelling``); every value is a bound parameter.
+written (``RejectedSpelling``); every value is a bound parameter. The rows
+a writer inserts (``INSERT_COLUMNS``, ``insert_values``) are the same too.
 """
 
 from __future__ import annotations
@@ -33,11 +34,31 @@ from typing import Any
 
 import orjson
 
+from tsdb_service.core.model import RejectedNotification
 from tsdb_service.core.timefmt import received_at_z
+from tsdb_service.storage.columns import naive_utc
 
 REASONS = ("count", "bytes", "age")
 # What the listing shows, in ``rejected_row``'s argument order.
 COLUMNS = "id, tenant, received_at, error, description, headers, body, body_size, body_truncated, topic"
+# What a writer inserts (the id is the column's default, or the store's own).
+INSERT_COLUMNS = "tenant, received_at, error, description, headers, body, body_size, body_truncated, topic"
+
+
+def insert_values(r: RejectedNotification) -> tuple:
+    """A ``rejected_notifications`` row (``INSERT_COLUMNS``)."""
+    size = len(r.body) if r.body_size is None else r.body_size
+    return (
+        r.tenant,
+        naive_utc(r.received_at),
+        r.error,
+        r.description,
+        r.headers,
+        r.body,
+        size,
+        r.body_truncated,
+        r.topic,
+    )
 
 
 @dataclass(frozen=True, slots=True)

@@ -112,7 +112,7 @@ class LoggedWriter:
         self.failure: str | None = None  # why the applier is retrying, for /health
         self._waiters: list[tuple[int, asyncio.AbstractEventLoop, asyncio.Future]] = []
         self._closing = False
-        self._writer = GroupCommitter(lambda: _LogAppender(self), name="tsdb-log", threads=1)
+        self._writer = GroupCommitter(lambda: _LogAppender(self._log_group), name="tsdb-log", threads=1)
         self._applier = threading.Thread(target=self._apply_loop, name="tsdb-apply", daemon=True)
 
     # -- life -----------------------------------------------------------------------------
@@ -172,6 +172,26 @@ class LoggedWriter:
         """Log ``ops`` and return once they are applied (bulk loads, copies)."""
         self._writer.submit_sync(ops)
         self.sync()
+
+    def _log_group(self, ops: Sequence[AppendSamples]) -> None:
+        """The log writer's commit: row ids for every entity of the group, in
+        order, then one durable record per op; each queued for the applier."""
+        self._wait_for_room()
+        entities = sum(len(op.entities) for op in ops)
+        first = self._allocate_rids(entities)
+        for op in ops:
+            for entity in op.entities:
+                entity.rid = first
+                first += 1
+        records = [(op, codec.encode(op)) for op in ops]
+        try:
+            last = self.log.append([payload for _, payload in records])
+        except LogError as exc:
+            raise Unavailable(f"{exc}; nothing was stored") from None
+        seq = last - len(records)
+        for op, payload in records:
+            seq += 1
+            self._queue(seq, op, len(payload))
 
     def _queue(self, seq: int, op: AppendSamples, nbytes: int) -> None:
         samples = sum(len(e.attrs) for e in op.entities)
@@ -333,10 +353,11 @@ class LoggedWriter:
 
 
 class _LogAppender(Appender):
-    """The log writer's appender: a group is one log record, durable on commit."""
+    """The log writer's appender: a group is one log append, durable on commit
+    (``LoggedWriter._log_group``)."""
 
-    def __init__(self, writer: LoggedWriter):
-        self._writer = writer
+    def __init__(self, log_group: Callable[[Sequence[AppendSamples]], None]):
+        self._log_group = log_group
         self._staged: list[AppendSamples] = []
 
     def stage(self, op: WriteOp) -> None:
@@ -345,23 +366,7 @@ class _LogAppender(Appender):
         self._staged.append(op)
 
     def commit(self) -> None:
-        writer = self._writer
-        writer._wait_for_room()
-        entities = sum(len(op.entities) for op in self._staged)
-        first = writer._allocate_rids(entities)
-        for op in self._staged:
-            for entity in op.entities:
-                entity.rid = first
-                first += 1
-        records = [(op, codec.encode(op)) for op in self._staged]
-        try:
-            last = writer.log.append([payload for _, payload in records])
-        except LogError as exc:
-            raise Unavailable(f"{exc}; nothing was stored") from None
-        seq = last - len(records)
-        for op, payload in records:
-            seq += 1
-            writer._queue(seq, op, len(payload))
+        self._log_group(self._staged)
         self._staged = []
 
     def rollback(self) -> None:

@@ -1,12 +1,17 @@
 """The DuckDB writer: stages a group's operations as columns and commits
 them in one transaction (a DuckDB appender flushed in autocommit mode, or an
-Arrow batch for bulk loads), then publishes what it wrote to memory."""
+Arrow batch for bulk loads), then publishes what it wrote to memory.
+
+The shape is ``storage.staging``'s, shared with the PostgreSQL writer. The
+store is reached through ``DuckDBTarget``: its ids (``ids.SeriesIds``), its
+memory (``memory.DuckDBMemory``), and the connection's public life (a
+cursor of the current generation, used under ``writing``).
+"""
 
 from __future__ import annotations
 
 import contextlib
 import logging
-import threading
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from typing import Any, Protocol
@@ -14,46 +19,32 @@ from typing import Any, Protocol
 import duckdb
 import pyarrow as pa
 
-from tsdb_service.core.errors import Unavailable
+from tsdb_service.core.errors import Unavailable, first_line
 from tsdb_service.core.model import EntitySample, RejectedNotification
 from tsdb_service.core.query import TimeRange
-from tsdb_service.parse import ValuesLayout
 from tsdb_service.storage import rejected as rejected_store
-from tsdb_service.storage.common import (
-    LD_TIME_COLUMNS,
-    REJECTED_INSERT_COLUMNS,
-    SAMPLE_COLUMNS,
-    StagingAppender,
-    delivery_statements,
-    first_line,
-    layout_values,
-    naive_timestamps,
-    rejected_values,
-    to_micros,
-    upsert_layout_sql,
-    without_dropped,
-)
+from tsdb_service.storage.columns import LD_TIME_COLUMNS, SAMPLE_COLUMNS, naive_timestamps, to_micros
+from tsdb_service.storage.deliveries import delivery_statements
 from tsdb_service.storage.duckdb.connection import (
     MAYBE_STORED,
     NOTHING_STORED,
     SAMPLE_TABLES,
-    Gate,
     fatal_kind,
 )
 from tsdb_service.storage.duckdb.dialect import DuckDBDialect
-from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL, LatestGeo
-from tsdb_service.storage.duckdb.tail_cache import TailCache
+from tsdb_service.storage.duckdb.ids import SeriesIds, SeriesKey
+from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL
+from tsdb_service.storage.duckdb.memory import DuckDBMemory
+from tsdb_service.storage.layouts import layout_values, upsert_layout_sql
 from tsdb_service.storage.ld_ingest import (
     LATEST_INSTANCE_SQL,
-    LatestInstances,
     drop_renotified,
     latest_keys,
-    publish_staged,
     with_deletions,
+    without_dropped,
 )
-from tsdb_service.storage.partials import HourlyPartials
-from tsdb_service.storage.rejected import RejectedLimits
 from tsdb_service.storage.sql.writes import delete_statements, instance_statements
+from tsdb_service.storage.staging import StagingAppender, WriteTarget
 from tsdb_service.write.ops import DeleteInstance, DeleteSamples, Delivery, PutLayout, ReplaceInstance
 
 log = logging.getLogger(__name__)
@@ -86,9 +77,6 @@ SAMPLE_SCHEMA = pa.schema(
 )
 
 
-SeriesKey = tuple[str, str, str, str, str]  # tenant, service path, id, type, attr
-
-
 REQUIRED = frozenset({"rid", "sid", "t", "kind", "iid"})
 
 
@@ -115,48 +103,38 @@ def micros_or_none(moment: datetime | None) -> int | None:
     return None if moment is None else to_micros(moment)
 
 
-class AppendTarget(Protocol):
-    """What a writer shares with its store (``storage.duckdb.store``): the
-    connection and its generation, the id counters and series map it
-    allocates from under ``_alloc_lock``, and the in-memory views a commit
-    publishes to (tails, partials, latest locations and instances, layouts)."""
+class DuckDBTarget(WriteTarget, Protocol):
+    """What a DuckDB writer needs of its store (``DuckDBStore`` is one)."""
 
-    _con: duckdb.DuckDBPyConnection
-    _generation: int
-    _gate: Gate
-    _broken: str | None
-    _alloc_lock: threading.Lock
-    _series_lock: threading.Lock
-    _series: dict[SeriesKey, int]
-    _pending_series: dict[SeriesKey, int]
-    _layouts: dict[tuple[str, str], ValuesLayout]
-    _next_sid: int
-    _next_rid: int
-    _next_iid: int
-    _next_rejected: int
-    tail: TailCache
-    partials: HourlyPartials
-    latest_geo: LatestGeo
-    latest_instances: LatestInstances
-    rejected_limits: RejectedLimits
-    rejected_dropped: dict[str, int]
+    ids: SeriesIds
+    memory: DuckDBMemory
+
+    @property
+    def generation(self) -> int:
+        """Grows with every reopen; cursors of an older one are closed."""
+        ...
+
+    @property
+    def invalid(self) -> bool:
+        """The database instance is invalid until a reopen (nothing to recompute)."""
+        ...
+
+    def new_cursor(self) -> duckdb.DuckDBPyConnection: ...
+
+    def writing(self) -> contextlib.AbstractContextManager[None]: ...
 
     def notice(self, exc: BaseException) -> str | None: ...
 
-    def forget(self, sids) -> None: ...
-
     def compactor_lock(self) -> contextlib.AbstractContextManager[Any]: ...
-
-    def _note_write(self, exc: BaseException | None) -> None: ...
 
 
 class DuckDBAppender(StagingAppender):
     """Turns staged ops into columnar batches; only the writer thread uses it."""
 
-    def __init__(self, store: AppendTarget):
+    def __init__(self, store: DuckDBTarget):
         self._store = store
-        self._cur = store._con.cursor()
-        self._generation = store._generation
+        self._generation = store.generation
+        self._cur = store.new_cursor()
         # DuckDB appenders on self._cur, one per set of columns a group fills
         self._row_appenders: dict[tuple[str, ...], Any] = {}
         self._reset()
@@ -165,15 +143,15 @@ class DuckDBAppender(StagingAppender):
         """This writer's cursor on the store's current connection (a reopen
         closed the one made on the previous connection)."""
         store = self._store
-        if self._generation != store._generation:
-            self._cur = store._con.cursor()
-            self._generation = store._generation
+        if self._generation != store.generation:
+            self._generation = store.generation
+            self._cur = store.new_cursor()
             self._row_appenders = {}
         return self._cur
 
     def _reset(self) -> None:
         self._cols: dict[str, list] = {name: [] for name in SAMPLE_SCHEMA.names}
-        self._new_series: dict[SeriesKey, int] = {}
+        self._new_series: dict[SeriesKey, int] = {}  # series this group stages first (``ids.allocate``)
         self._new_datasets: dict[SeriesKey, str] = {}  # new series of non-default datasetIds
         self._latest: dict[SeriesKey, tuple | None] = {}  # this transaction's latest instance keys
         self._rejected: list[tuple] = []
@@ -184,35 +162,13 @@ class DuckDBAppender(StagingAppender):
 
     def _stage_delete(self, op: DeleteSamples) -> None:
         # Rows allocated after this op was staged (by any writer) survive it.
-        self._deletes.append((op, self._store._next_rid - 1))
-
-    def _sid(self, key: SeriesKey) -> int:
-        """The series id for ``key``; caller holds the store's allocation lock.
-
-        Several writers share one id space: an id not yet committed is kept
-        in ``_pending_series`` so every writer uses the same id for a key,
-        and each writer that uses it inserts the series row itself (OR
-        IGNORE), so no sample can outlive a failed series insert.
-        """
-        store = self._store
-        sid = store._series.get(key)
-        if sid is not None:
-            return sid
-        sid = self._new_series.get(key)
-        if sid is None:
-            sid = store._pending_series.get(key)
-            if sid is None:
-                sid = store._pending_series[key] = store._next_sid
-                store._next_sid += 1
-            self._new_series[key] = sid
-        return sid
+        self._deletes.append((op, self._store.ids.newest_rid()))
 
     def _stage_samples(self, entities: Sequence[EntitySample], dedup: bool) -> None:
-        store = self._store
         entities = with_deletions(entities, self._entity_attrs)
-        with store._alloc_lock:
-            entities = self._without_renotified(entities, dedup)
-            self._stage_locked(entities)
+        entities = self._without_renotified(entities, dedup)
+        rids, sids, first_iid = self._store.ids.allocate(entities, self._new_series)
+        self._stage_columns(entities, rids, sids, first_iid)
 
     def _entity_attrs(self, entity: EntitySample) -> list[tuple[str, str | None]]:
         """Stored attributes (name, datasetId) of a deleted entity."""
@@ -227,16 +183,15 @@ class DuckDBAppender(StagingAppender):
         (``dedup``; else only note them as the latest)."""
         if not any(a.observed_at is not None for e in entities for a in e.attrs):
             return list(entities)
-        series = self._store._series
+        sid_of = self._store.ids.sid_of
         items = []
         for e in entities:
             prefix = (e.tenant, e.service_path, e.entity_id, e.entity_type)
             for a in e.attrs:
                 key = (*prefix, a.name)
-                items.append((key, series.get(key) or self._new_series.get(key), a, dedup))
-        return without_dropped(
-            entities, drop_renotified(items, self._store.latest_instances, self._latest, self._latest_of)
-        )
+                items.append((key, sid_of(key) or self._new_series.get(key), a, dedup))
+        latest_instances = self._store.memory.latest_instances
+        return without_dropped(entities, drop_renotified(items, latest_instances, self._latest, self._latest_of))
 
     def _latest_of(self, sids: list[int]) -> dict:
         return latest_keys(
@@ -245,11 +200,15 @@ class DuckDBAppender(StagingAppender):
             ).fetchall()
         )
 
-    def _stage_locked(self, entities: Sequence[EntitySample]) -> None:
+    def _stage_columns(
+        self, entities: Sequence[EntitySample], rids: list[int], sids: list[int], first_iid: int
+    ) -> None:
+        """Append the entities' samples to the staged columns, with the ids
+        ``ids.allocate`` gave them (a row id per entity; a series id and an
+        instance id per attribute, in order)."""
         c = self._cols
-        rid_, sid_, t_, kind_, atype_, num_, txt_, js_, md_ = (
+        rid_, t_, kind_, atype_, num_, txt_, js_, md_ = (
             c["rid"],
-            c["sid"],
             c["t"],
             c["kind"],
             c["atype"],
@@ -260,21 +219,13 @@ class DuckDBAppender(StagingAppender):
         )
         geo_, lon_, lat_ = c["geo"], c["lon"], c["lat"]
         mnlon, mnlat, mxlon, mxlat = c["min_lon"], c["min_lat"], c["max_lon"], c["max_lat"]
-        iid_, obs_, cre_, mod_, del_ = c["iid"], c["observed_at"], c["created_at"], c["modified_at"], c["deleted_at"]
-        store = self._store
-        for entity in entities:
-            rid = entity.rid
-            if rid is None:
-                rid = store._next_rid
-                store._next_rid += 1
+        obs_, cre_, mod_, del_ = c["observed_at"], c["created_at"], c["modified_at"], c["deleted_at"]
+        c["sid"].extend(sids)
+        c["iid"].extend(range(first_iid, first_iid + len(sids)))
+        for entity, rid in zip(entities, rids, strict=True):
             micros = to_micros(entity.time_index)
-            prefix = (entity.tenant, entity.service_path, entity.entity_id, entity.entity_type)
             for attr in entity.attrs:
-                key = (*prefix, attr.name)
                 rid_.append(rid)
-                sid_.append(self._sid(key))
-                iid_.append(store._next_iid)
-                store._next_iid += 1
                 t_.append(micros)
                 kind_.append(int(attr.kind))
                 atype_.append(attr.ngsi_type)
@@ -298,8 +249,10 @@ class DuckDBAppender(StagingAppender):
                     cre_.append(micros_or_none(attr.created_at))
                     mod_.append(micros_or_none(attr.modified_at))
                     del_.append(micros_or_none(attr.deleted_at))
-                    if attr.dataset_id is not None and key in self._new_series:
-                        self._new_datasets[key] = attr.dataset_id
+                    if attr.dataset_id is not None:
+                        key = (entity.tenant, entity.service_path, entity.entity_id, entity.entity_type, attr.name)
+                        if key in self._new_series:
+                            self._new_datasets[key] = attr.dataset_id
                 g = attr.geo
                 if g is None:
                     geo_.append(None)
@@ -319,11 +272,7 @@ class DuckDBAppender(StagingAppender):
                     mxlat.append(g.max_lat)
 
     def _stage_rejected(self, r: RejectedNotification) -> None:
-        store = self._store
-        with store._alloc_lock:
-            rejected_id = store._next_rejected
-            store._next_rejected += 1
-        self._rejected.append((rejected_id, *rejected_values(r)))
+        self._rejected.append((self._store.ids.rejected_id(), *rejected_store.insert_values(r)))
 
     def commit(self) -> None:
         """Commit the staged ops, or raise ``Unavailable`` saying whether
@@ -334,20 +283,18 @@ class DuckDBAppender(StagingAppender):
         published and acknowledged like any other, and the store reopens.
         """
         store = self._store
-        if store._broken is not None:
-            raise Unavailable(NOTHING_STORED)
-        with store._gate.use(NOTHING_STORED):
+        with store.writing():
             try:
                 self._commit(self._current_cursor())
             except duckdb.Error as exc:
-                store._note_write(exc)
+                store.note_write(exc)
                 kind = store.notice(exc)
                 if kind == "refused":
                     raise Unavailable(NOTHING_STORED) from exc
                 if kind is not None:
                     raise Unavailable(MAYBE_STORED) from exc
                 raise
-        store._note_write(None)
+        store.note_write(None)
 
     def _durable(self, cur: duckdb.DuckDBPyConnection, sql: str, params=None) -> None:
         """Execute a statement that commits (autocommit, or COMMIT itself).
@@ -378,52 +325,15 @@ class DuckDBAppender(StagingAppender):
         batches (bulk loads) go through Arrow instead, where the per-row
         conversion cost matters more than the GIL. New series
         rows are committed first; if the samples then fail, an unused series
-        row is harmless.
+        row is harmless. Each transaction's samples reach memory right after
+        it (``publish_samples``), the rest once the last one is in (``_publish``).
         """
         if self._new_series:
-            store = self._store
-            # Series rows are written one writer at a time, each skipping the
-            # keys another writer has committed meanwhile: a plain INSERT that
-            # cannot conflict (OR IGNORE is several times slower in DuckDB).
-            with store._series_lock:
-                keys = [k for k in self._new_series if k not in store._series]
-                if keys:
-                    self._durable(
-                        cur,
-                        INSERT_SERIES,
-                        [
-                            [self._new_series[k] for k in keys],
-                            *([k[i] for k in keys] for i in range(5)),
-                            [self._new_datasets.get(k) for k in keys],
-                        ],
-                    )
-                with store._alloc_lock:
-                    store._series.update(self._new_series)
-                    for key in self._new_series:
-                        store._pending_series.pop(key, None)
+            self._store.ids.commit_series(self._new_series, lambda keys: self._insert_series(cur, keys))
             self._new_series = {}
         if self._cols["rid"]:
-            # MQTT deliveries commit with the samples they came with: then one
-            # explicit transaction around both (the appender joins it).
-            deliveries, self._deliveries = self._deliveries, []
-            if deliveries:
-                cur.execute("BEGIN")
-            if len(self._cols["rid"]) <= ARROW_MIN_ROWS:
-                # Only columns that carry a value: converting the all-NULL
-                # ones (geometry, metadata...) would hold the GIL for nothing.
-                names = tuple(
-                    n for n in SAMPLE_SCHEMA.names if n in REQUIRED or any(v is not None for v in self._cols[n])
-                )
-                self._append_rows(cur, names)
-            else:
-                self._insert_arrow(cur)
-            if deliveries:
-                for sql, params in delivery_statements("?", deliveries):
-                    cur.execute(sql, params)
-                self._durable(cur, "COMMIT")
-            self._store.tail.publish(self._cols)
-            self._store.latest_geo.publish(self._cols)
-            self._store.partials.publish(self._cols)
+            self._commit_samples(cur)
+            self._store.memory.publish_samples(self._cols)
         if self._rejected or self._layouts or self._deletes or self._instance_ops or self._deliveries:
             # A delete must not race the compactor moving or rewriting the
             # same rows (its copy could resurrect them): hold its lock.
@@ -431,8 +341,37 @@ class DuckDBAppender(StagingAppender):
             guard = self._store.compactor_lock() if changes else contextlib.nullcontext()
             with guard:
                 self._commit_other(cur)
-        publish_staged(self._store.latest_instances, self._latest, self._store._series.get)
         self._publish()
+
+    def _insert_series(self, cur: duckdb.DuckDBPyConnection, keys: list[SeriesKey]) -> None:
+        """The rows of new series ``keys`` (``ids.commit_series`` holds the series lock)."""
+        self._durable(
+            cur,
+            INSERT_SERIES,
+            [
+                [self._new_series[k] for k in keys],
+                *([k[i] for k in keys] for i in range(5)),
+                [self._new_datasets.get(k) for k in keys],
+            ],
+        )
+
+    def _commit_samples(self, cur: duckdb.DuckDBPyConnection) -> None:
+        # MQTT deliveries commit with the samples they came with: then one
+        # explicit transaction around both (the appender joins it).
+        deliveries, self._deliveries = self._deliveries, []
+        if deliveries:
+            cur.execute("BEGIN")
+        if len(self._cols["rid"]) <= ARROW_MIN_ROWS:
+            # Only columns that carry a value: converting the all-NULL
+            # ones (geometry, metadata...) would hold the GIL for nothing.
+            names = tuple(n for n in SAMPLE_SCHEMA.names if n in REQUIRED or any(v is not None for v in self._cols[n]))
+            self._append_rows(cur, names)
+        else:
+            self._insert_arrow(cur)
+        if deliveries:
+            for sql, params in delivery_statements("?", deliveries):
+                cur.execute(sql, params)
+            self._durable(cur, "COMMIT")
 
     def _append_rows(self, cur: duckdb.DuckDBPyConnection, names: tuple[str, ...]) -> None:
         """The staged rows of ``names`` through a DuckDB appender, flushed in
@@ -482,7 +421,7 @@ class DuckDBAppender(StagingAppender):
         cur.execute("BEGIN")
         for row in self._rejected:
             cur.execute(
-                f"INSERT INTO rejected_notifications (id, {REJECTED_INSERT_COLUMNS}) "
+                f"INSERT INTO rejected_notifications (id, {rejected_store.INSERT_COLUMNS}) "
                 "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 list(row),
             )
@@ -509,15 +448,6 @@ class DuckDBAppender(StagingAppender):
         self._durable(cur, "COMMIT")
         if dropped:
             rejected_store.count_dropped(self._store.rejected_dropped, dropped)
-        store = self._store
-        for op, upto_rid in self._deletes:
-            store.forget(op.sids)
-            if store._broken is None:  # else the reopen rebuilds every location
-                store.latest_geo.recompute(op.sids, upto_rid, self._latest_geo_of)
-        for instance_op in self._instance_ops:
-            store.forget([instance_op.sid])
-            if store._broken is None:
-                store.latest_geo.recompute([instance_op.sid], store._next_rid, self._latest_geo_of)
 
     def _latest_geo_of(self, sids: list[int]) -> list[tuple]:
         return self._cur.execute(
@@ -525,18 +455,30 @@ class DuckDBAppender(StagingAppender):
         ).fetchall()
 
     def _publish(self) -> None:
-        """Expose only what is durable."""
-        self._store._series.update(self._new_series)
-        for put in self._layouts:
-            self._store._layouts[(put.tenant, put.subscription_id)] = put.layout
+        """Expose only what is durable: series a delete or an instance edit
+        touched are forgotten (and relocated, unless the reopen rebuilds
+        every location), then the group's latest instances and layouts."""
+        store = self._store
+        memory, ids = store.memory, store.ids
+        for op, upto_rid in self._deletes:
+            memory.forget(op.sids)
+            if not store.invalid:
+                memory.relocate(op.sids, upto_rid, self._latest_geo_of)
+        for instance_op in self._instance_ops:
+            memory.forget([instance_op.sid])
+            if not store.invalid:
+                memory.relocate([instance_op.sid], ids.newest_rid(), self._latest_geo_of)
+        memory.publish_instances(self._latest, ids.sid_of)
+        memory.publish_layouts(self._layouts)
         self._reset()
 
     def rollback(self) -> None:
-        # Ids staged for new series stay reserved in _pending_series: the
-        # next writer to see those keys inserts their rows.
+        # Ids staged for new series stay pending (``ids``): the next writer
+        # to see those keys inserts their rows.
+        store = self._store
         try:
-            if self._store._broken is None and self._generation == self._store._generation:
-                with self._store._gate.use(NOTHING_STORED):
+            with store.writing():
+                if self._generation == store.generation:
                     self._cur.execute("ROLLBACK")
         except (duckdb.Error, Unavailable):
             pass  # no transaction was open, or the connection is being replaced

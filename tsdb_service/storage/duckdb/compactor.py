@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import logging
 import threading
+from contextlib import AbstractContextManager
 
 import duckdb
 
-from tsdb_service.storage.common import first_line
+from tsdb_service.core.errors import first_line
 from tsdb_service.storage.duckdb.connection import rollback_quietly, scalar
 
 log = logging.getLogger(__name__)
@@ -37,6 +38,11 @@ class Compactor:
 
     def start(self) -> None:
         self._thread.start()
+
+    def holding(self) -> AbstractContextManager[bool]:
+        """Hold while deleting rows (deletes, retention): no move or rewrite
+        runs meanwhile, so its copy cannot resurrect them (``_lock``)."""
+        return self._lock
 
     def stop(self) -> None:
         self._stop.set()

@@ -231,7 +231,7 @@ class LatestGeo:
 
     def ever_near(self, sids: Iterable[int], prefilter: Prefilter | None) -> list[int]:
         """Those of ``sids`` with a geo sample whose box may pass ``prefilter``
-        (``common.extent_prefilter``). Without a prefilter: every located one."""
+        (``core.query.extent_prefilter``). Without a prefilter: every located one."""
         extents = self._extents.boxes
         test = extent_prefilter(prefilter)
         if test is None:

@@ -37,9 +37,10 @@ from tsdb_service.read.off_loop import check_database_allowed
 from tsdb_service.read.requests import ExportRead, ExtentsNear, LocationsIn, RowsRead
 from tsdb_service.read.requests import WindowScan as WindowScanRead
 from tsdb_service.storage.catalog import SeriesCatalog
-from tsdb_service.storage.common import to_micros
+from tsdb_service.storage.columns import to_micros
 from tsdb_service.storage.duckdb.dialect import DuckDBDialect
-from tsdb_service.storage.duckdb.latest_geo import LatestGeo, Position, position
+from tsdb_service.storage.duckdb.latest_geo import Position, position
+from tsdb_service.storage.duckdb.memory import DuckDBMemory
 from tsdb_service.storage.duckdb.tail_cache import TailCache, TailRow
 from tsdb_service.storage.partials import HourlyPartials
 from tsdb_service.storage.sql import temporal
@@ -50,12 +51,11 @@ from tsdb_service.storage.sql.querier import SqlQuerier
 
 
 class DuckDBSource(Protocol):
-    """What the querier reads through (``DuckDBStore`` is one). ``tail`` and
-    ``latest_geo`` are read at each use: a reopen replaces them."""
+    """What the querier reads through (``DuckDBStore`` is one). The pieces of
+    ``memory`` (tails, latest locations, partials) are looked up at each
+    use: a reopen replaces them."""
 
-    tail: TailCache
-    latest_geo: LatestGeo
-    partials: HourlyPartials
+    memory: DuckDBMemory
 
     def cursor(self) -> duckdb.DuckDBPyConnection: ...
 
@@ -111,7 +111,7 @@ class DuckDBQuerier(SqlQuerier):
         rows order by (time, rid) as in SQL (rid is global)."""
         start = None if time.start is None else to_micros(time.start)
         end = None if time.end is None else to_micros(time.end)
-        tail = self._store.tail
+        tail = self._store.memory.tail
         if len(sids) == 1:
             got = tail.rows(sids[0], self._load_tail, start, end, newest_first, limit, offset)
             if got is None:
@@ -179,7 +179,7 @@ class DuckDBQuerier(SqlQuerier):
                 ask.append(sid)
             else:
                 merged.extend((row[0], row[1], sid, row) for row in kept)
-        if ask and newest_first and wanted <= self._store.tail.capacity:
+        if ask and newest_first and wanted <= self._store.memory.tail.capacity:
             ask = self._kept_from_new_tails(ask, time, wanted, mask, merged)
         if ask:
             for row in self._masked_firsts(ask, time, newest_first, wanted, mask):
@@ -189,7 +189,7 @@ class DuckDBQuerier(SqlQuerier):
     def _kept_from_tail(self, sid: int, time: TimeRange, wanted: int, mask: RowMask) -> list[tuple] | None:
         """The newest ``wanted`` rows ``mask`` keeps of a cached tail, when the
         tail provably holds them. None when not cached or not provable."""
-        tail = self._store.tail
+        tail = self._store.memory.tail
         start = None if time.start is None else to_micros(time.start)
         end = None if time.end is None else to_micros(time.end)
         try:
@@ -203,7 +203,7 @@ class DuckDBQuerier(SqlQuerier):
     ) -> list[int]:
         """Load the tails of ``sids`` at once; the newest ``wanted`` kept rows
         of those that provably answer go to ``merged``. Returns the others."""
-        tail = self._store.tail
+        tail = self._store.memory.tail
         start = None if time.start is None else to_micros(time.start)
         end = None if time.end is None else to_micros(time.end)
         rest = []
@@ -275,7 +275,7 @@ class DuckDBQuerier(SqlQuerier):
 
     def location_extents(self, ask: ExtentsNear) -> list[ExtentRow]:
         """Memory only: where each series has ever been."""
-        return self._store.latest_geo.extents(ask.sids, ask.prefilter)
+        return self._store.memory.latest_geo.extents(ask.sids, ask.prefilter)
 
     def location_samples(self, ask: LocationsIn) -> list[LocationRow]:
         """From the tracks memory holds where they answer (``LatestGeo.
@@ -287,7 +287,7 @@ class DuckDBQuerier(SqlQuerier):
             return super().location_samples(ask)
         start = None if time.start is None else to_micros(time.start)
         end = None if time.end is None else to_micros(time.end)
-        tracks = self._store.latest_geo.positions(sorted(sids), start, self._load_positions)
+        tracks = self._store.memory.latest_geo.positions(sorted(sids), start, self._load_positions)
         if tracks is None:
             return super().location_samples(ask)
         out: list[LocationRow] = []
@@ -364,7 +364,7 @@ class DuckDBQuerier(SqlQuerier):
     def latest_geometries(self, ask: LocationsIn) -> list[GeometryRow]:
         """The latest locations come from memory unless bounded by ``toDate``."""
         if ask.time.start is None and ask.time.end is None:
-            return self._store.latest_geo.matching(ask.sids, ask.prefilter)
+            return self._store.memory.latest_geo.matching(ask.sids, ask.prefilter)
         return super().latest_geometries(ask)
 
     def _per_series(self, head: str, where: str, params: list, sids: Sequence[int]) -> list:
@@ -475,7 +475,7 @@ class DuckDBQuerier(SqlQuerier):
         """The store's hourly partials (``storage.partials``), kept current by
         its writer; off with several writer threads (row ids then do not grow
         in commit order, which a load's race check relies on)."""
-        partials = self._store.partials
+        partials = self._store.memory.partials
         return partials if partials.enabled else None
 
     def _load_tail(self, sid: int, n: int) -> list[TailRow]:

@@ -3,8 +3,8 @@
 A batch holds the compactor's lock (as a user's delete does), so it never
 races the compactor moving or rewriting the same rows; it picks at most N
 expired rows by ``rowid``, folds them into rollups, deletes them, and drops
-the touched series from the in-memory per-series memories (``forget``) and
-recomputes their latest locations.
+the touched series from the in-memory per-series memories and recomputes
+their latest locations (``DuckDBMemory.forget``, ``relocate``).
 """
 
 from __future__ import annotations
@@ -17,9 +17,10 @@ from typing import Any, Protocol
 import duckdb
 
 from tsdb_service.core.model import Kind
-from tsdb_service.storage.common import naive_utc
+from tsdb_service.storage.columns import naive_utc
 from tsdb_service.storage.duckdb.dialect import DuckDBDialect
-from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL, LatestGeo
+from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL
+from tsdb_service.storage.duckdb.memory import DuckDBMemory
 from tsdb_service.storage.retention import SAVE_WATERMARK, rollup_delete_sql
 from tsdb_service.storage.rollups import fold_sql
 from tsdb_service.storage.sql.dialect import quote_ident
@@ -35,9 +36,7 @@ def _one(cur: duckdb.DuckDBPyConnection, sql: str, params: object = None) -> tup
 class RetainedStore(Protocol):
     """What a batch needs of the store (``DuckDBStore`` is one)."""
 
-    latest_geo: LatestGeo
-
-    def forget(self, sids) -> None: ...
+    memory: DuckDBMemory
 
     def compactor_lock(self) -> contextlib.AbstractContextManager[Any]: ...
 
@@ -84,17 +83,17 @@ class DuckDBSession:
     def _forget(self, upto_rid: int) -> None:
         """The in-memory per-series memories and latest locations must not
         show deleted rows."""
-        store = self._store
+        memory = self._store.memory
         cur = self._cur
         sids = [r[0] for r in cur.execute("SELECT DISTINCT sid FROM retention_batch").fetchall()]
-        store.forget(sids)
+        memory.forget(sids)
         geo = [
             r[0]
             for r in cur.execute(f"SELECT DISTINCT sid FROM retention_batch WHERE kind = {int(Kind.GEO)}").fetchall()
         ]
         if geo:
             query = LATEST_GEO_SQL.format(where="AND sid IN (SELECT unnest(?::INTEGER[]))")
-            store.latest_geo.recompute(geo, upto_rid, lambda s: cur.execute(query, [s]).fetchall())
+            memory.relocate(geo, upto_rid, lambda s: cur.execute(query, [s]).fetchall())
 
     def delete_rollups(self, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
         sql, params = rollup_delete_sql(self._d, sids, cutoff, limit)

@@ -1,8 +1,11 @@
 """The embedded DuckDB backend: one file, one writer, many readers.
 
-This module is the store's life: opening the file and what memory keeps of
-it, reads through per-thread cursors, and the reopen after a storage failure.
-The writer is ``appender``, the sorter ``compactor``, the file ``connection``.
+This module is the store's life: opening the file and loading what memory
+keeps of it, reads through per-thread cursors, and the reopen after a storage
+failure. The writer is ``appender``, the sorter ``compactor``, the file
+``connection``; the writer's shared state has two owners, the ids it hands
+out (``ids``) and what memory keeps (``memory``), which the store, the
+writer, retention and the ingest log all use through their public methods.
 
 Writes are appended to ``samples_hot`` in arrival order by the group
 committer. A compactor thread moves the hot rows into ``samples`` sorted by
@@ -32,19 +35,15 @@ import duckdb
 import orjson
 
 from tsdb_service.core.config import WAL_CHECKPOINT_BYTES
-from tsdb_service.core.errors import Unavailable
+from tsdb_service.core.errors import Unavailable, first_line
 from tsdb_service.core.model import EntitySample, RejectedNotification
 from tsdb_service.parse import ValuesLayout
 from tsdb_service.storage import rejected as rejected_store
-from tsdb_service.storage.common import (
-    LOAD_LAYOUTS_SQL,
-    CommittingStore,
-    first_line,
-    layouts_from_rows,
-)
-from tsdb_service.storage.duckdb.appender import DuckDBAppender, SeriesKey
+from tsdb_service.storage.committing import CommittingStore
+from tsdb_service.storage.duckdb.appender import DuckDBAppender
 from tsdb_service.storage.duckdb.compactor import Compactor
 from tsdb_service.storage.duckdb.connection import (
+    NOTHING_STORED,
     REOPEN_DELAY_S,
     REOPEN_MAX_DELAY_S,
     Gate,
@@ -56,14 +55,12 @@ from tsdb_service.storage.duckdb.connection import (
     scalar,
     tables_max,
 )
+from tsdb_service.storage.duckdb.ids import SeriesIds
 from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL, LatestGeo
+from tsdb_service.storage.duckdb.memory import DuckDBMemory
 from tsdb_service.storage.duckdb.querier import DuckDBQuerier
 from tsdb_service.storage.duckdb.retention import DuckDBSession
-from tsdb_service.storage.duckdb.tail_cache import TailCache
-from tsdb_service.storage.ld_ingest import (
-    LatestInstances,
-)
-from tsdb_service.storage.partials import HourlyPartials
+from tsdb_service.storage.layouts import LOAD_LAYOUTS_SQL, layouts_from_rows
 from tsdb_service.storage.rejected import RejectedLimits
 from tsdb_service.write.committer import GroupCommitter
 from tsdb_service.write.log import IngestLog
@@ -76,6 +73,7 @@ LOG_SUFFIX = ".ingest-log"  # the ingest log's directory, next to the file
 
 class DuckDBStore(CommittingStore):
     backend = "duckdb"
+    memory: DuckDBMemory
 
     def __init__(
         self,
@@ -101,7 +99,6 @@ class DuckDBStore(CommittingStore):
         self.rejected_dropped = dict.fromkeys(rejected_store.REASONS, 0)
         self._checkpoint_bytes = checkpoint_bytes
         self._compact_args = (compact_rows, major_compact_runs)
-        self._tail_args = (tail_series, tail_rows, tail_samples)
         self._reopen_delays = (reopen_delay or REOPEN_DELAY_S, reopen_max_delay or REOPEN_MAX_DELAY_S)
         self._local = threading.local()
         self._gate = Gate()
@@ -113,18 +110,10 @@ class DuckDBStore(CommittingStore):
         self._stop_reopen = threading.Event()
         self.reopens = 0
         self._generation = 0  # grows with every reopen: cursors of older ones are closed
-        self._pending_series: dict[SeriesKey, int] = {}
-        self._series: dict[SeriesKey, int] = {}
-        self._layouts: dict[tuple[str, str], ValuesLayout] = {}
-        self._next_sid = self._next_rid = self._next_rejected = 1
-        # Writers allocate series ids, row ids and rejection ids under this.
-        self._alloc_lock = threading.Lock()
-        self._series_lock = threading.Lock()
-        self.tail = TailCache(*self._tail_args)
+        self.ids = SeriesIds()
         # Aggregate partials (storage.partials) need row ids growing in commit order: one writer.
-        self.partials = HourlyPartials(agg_partials_hours if writer_threads == 1 else 0)
-        self.latest_instances = LatestInstances()
-        self._next_iid = 1
+        partials_hours = agg_partials_hours if writer_threads == 1 else 0
+        self.memory = DuckDBMemory(tail_series, tail_rows, tail_samples, partials_hours)
         self._con = connect(path, checkpoint_bytes=checkpoint_bytes)
         migrate_duckdb(self._con)
         self._load_state(self._con)
@@ -143,11 +132,11 @@ class DuckDBStore(CommittingStore):
         logged = LoggedWriter(
             IngestLog(directory),
             apply=self._committer.submit_sync,
-            allocate_rids=self._allocate_rids,
+            allocate_rids=self.ids.take_rids,
             stored_rid=self._stored_rid,
             reject=self._keep_unappliable,
             healthy=lambda: self._broken is None and self._write_failure is None,
-            seen_rid=self._rids_above,
+            seen_rid=self.ids.saw_rid,
             max_lag_bytes=max_lag_bytes,
         )
         try:
@@ -156,17 +145,6 @@ class DuckDBStore(CommittingStore):
             self.close()
             raise
         return logged
-
-    def _allocate_rids(self, n: int) -> int:
-        """The first of ``n`` consecutive row ids, for the log to hand out."""
-        with self._alloc_lock:
-            first = self._next_rid
-            self._next_rid += n
-        return first
-
-    def _rids_above(self, rid: int) -> None:
-        with self._alloc_lock:
-            self._next_rid = max(self._next_rid, rid + 1)
 
     def _stored_rid(self) -> int:
         """The largest row id the file holds: what of the log it has applied."""
@@ -188,7 +166,8 @@ class DuckDBStore(CommittingStore):
     def _load_state(self, con: duckdb.DuckDBPyConnection) -> None:
         """What the store keeps in memory, from the file: the series ids, the
         next ids to hand out (never lower than ones already handed out), the
-        'values' layouts and each series' latest location."""
+        'values' layouts and each series' latest location; no tails,
+        partials or latest instances yet (they load on demand)."""
         series = {
             tuple(row[1:]): row[0]
             for row in con.execute(
@@ -200,14 +179,8 @@ class DuckDBStore(CommittingStore):
         max_rejected = scalar(con, "SELECT max(id) FROM rejected_notifications") or 0
         layouts = layouts_from_rows(con.execute(LOAD_LAYOUTS_SQL).fetchall())
         latest_geo = LatestGeo(con.execute(LATEST_GEO_SQL.format(where="")).fetchall())
-        with self._alloc_lock:
-            self._series = series
-            self._next_sid = max(self._next_sid, max(series.values(), default=0) + 1)
-            self._next_rid = max(self._next_rid, max_rid + 1)
-            self._next_iid = max(self._next_iid, max_iid + 1)
-            self._next_rejected = max(self._next_rejected, max_rejected + 1)
-        self._layouts = layouts
-        self.latest_geo = latest_geo
+        self.ids.load(series, max_rid, max_iid, max_rejected)
+        self.memory.fresh(latest_geo, layouts)
 
     # -- history reads (storage.duckdb.querier) ------------------------------------
 
@@ -218,7 +191,7 @@ class DuckDBStore(CommittingStore):
 
     def series_generation(self) -> int:
         """Grows whenever the writer publishes new series (after commit)."""
-        return len(self._series)
+        return self.ids.series_count()
 
     # -- reads ---------------------------------------------------------------
 
@@ -242,6 +215,33 @@ class DuckDBStore(CommittingStore):
         with self._gate.use(self._unavailable_reason()):
             yield
 
+    # -- the writers' side of the connection (``appender.DuckDBTarget``) -------------
+
+    @property
+    def generation(self) -> int:
+        """Grows with every reopen: a writer's cursor of an older one is closed."""
+        return self._generation
+
+    @property
+    def invalid(self) -> bool:
+        """The database instance is invalid (a reopen is due or running)."""
+        return self._broken is not None
+
+    def new_cursor(self) -> duckdb.DuckDBPyConnection:
+        """A cursor of the writer's own on the current connection (readers
+        use ``cursor()``); make and use it under ``writing``."""
+        return self._con.cursor()
+
+    @contextlib.contextmanager
+    def writing(self) -> Iterator[None]:
+        """Hold while a writer uses its cursor: a reopen waits for it.
+        ``Unavailable`` (nothing was stored) while the instance is invalid or
+        being reopened."""
+        if self._broken is not None:
+            raise Unavailable(NOTHING_STORED)
+        with self._gate.use(NOTHING_STORED):
+            yield
+
     def notice(self, exc: BaseException) -> str | None:
         """Look at a DuckDB error for news of an invalidated database; start
         reopening it if so. Returns ``fatal_kind(exc)``."""
@@ -254,7 +254,7 @@ class DuckDBStore(CommittingStore):
         return "the database is being reopened after a storage failure (disk full?); retry later"
 
     def values_layout(self, tenant: str, subscription_id: str) -> ValuesLayout | None:
-        return self._layouts.get((tenant, subscription_id))
+        return self.memory.layouts.get(tenant, subscription_id)
 
     def rejected(self, tenant: str | None, limit: int, offset: int) -> list[dict[str, Any]]:
         where, params = ("", []) if tenant is None else ("WHERE tenant = ? ", [tenant])
@@ -318,15 +318,6 @@ class DuckDBStore(CommittingStore):
             self._reopener = threading.Thread(target=self._reopen_loop, name="tsdb-reopen", daemon=True)
             self._reopener.start()
 
-    def forget(self, sids) -> None:
-        """Series whose stored samples were deleted or changed: every
-        per-series memory (tails, hourly partials, latest NGSI-LD instance)
-        lets go of them and reloads them from the database when next asked.
-        Latest locations are recomputed by the callers, which know the rows."""
-        self.tail.drop(sids)
-        self.partials.drop(sids)
-        self.latest_instances.drop(sids)
-
     def _reopen_loop(self) -> None:
         """Try to reopen, doubling the wait after each failure, until the
         store is healthy again (or closed)."""
@@ -351,9 +342,10 @@ class DuckDBStore(CommittingStore):
         same instance while one is open), open the file again (which replays
         the WAL) and rebuild what memory holds from it.
 
-        The in-memory tails are dropped (they reload on demand); the series
-        catalog, ids, layouts and latest locations are read back from the
-        file, so memory matches exactly what is durable.
+        The in-memory tails, partials and latest instances are dropped (they
+        reload on demand); the series catalog, ids, layouts and latest
+        locations are read back from the file, so memory matches exactly
+        what is durable.
         """
         with self._gate.alone():
             if self._closed:
@@ -370,9 +362,6 @@ class DuckDBStore(CommittingStore):
                 raise
             self._con = con
             self._generation += 1
-            self.tail = TailCache(*self._tail_args)
-            self.partials = HourlyPartials(self.partials.max_hours)
-            self.latest_instances = LatestInstances()
             self._querier = None
             self._compactor = Compactor(con, *self._compact_args, on_error=self.notice)
             self._compactor.start()
@@ -397,7 +386,7 @@ class DuckDBStore(CommittingStore):
     def compactor_lock(self) -> contextlib.AbstractContextManager[Any]:
         """Hold while deleting rows (deletes, retention): the compactor must
         not move or rewrite them meanwhile (its copy could resurrect them)."""
-        return self._compactor._lock
+        return self._compactor.holding()
 
     def sizes(self) -> tuple[int, int, int]:
         # fetchall, not fetchone: an unread result keeps this thread's cursor in

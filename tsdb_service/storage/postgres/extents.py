@@ -27,8 +27,8 @@ import threading
 from collections.abc import Callable, Sequence
 
 from tsdb_service.core.model import EntitySample
+from tsdb_service.storage.postgres.ids import SeriesKey
 
-SeriesKey = tuple[str, str, str, str, str]  # tenant, service path, entity id, entity type, attr
 Box = tuple[float, float, float, float]  # min_lon, min_lat, max_lon, max_lat
 
 UPSERT = (

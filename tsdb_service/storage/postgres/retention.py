@@ -14,7 +14,7 @@ from datetime import UTC, datetime
 
 import psycopg
 
-from tsdb_service.storage.common import naive_utc
+from tsdb_service.storage.columns import naive_utc
 from tsdb_service.storage.postgres.dialect import PostgresDialect, int_array
 from tsdb_service.storage.retention import SAVE_WATERMARK, rollup_delete_sql
 from tsdb_service.storage.rollups import fold_sql

@@ -22,7 +22,7 @@ import threading
 from collections.abc import Callable, Mapping, Sequence
 
 from tsdb_service.core.model import EntitySample
-from tsdb_service.storage.postgres.extents import SeriesKey
+from tsdb_service.storage.postgres.ids import SeriesKey
 
 INSERT = (
     "INSERT INTO untimed_series (sid) "
@@ -43,8 +43,8 @@ def _nothing(ids: Mapping[SeriesKey, int]) -> None:
 class UntimedLedger:
     """The series this process knows are listed in ``untimed_series``."""
 
-    def __init__(self, sids: Mapping[SeriesKey, int]) -> None:
-        self._sids = sids  # the store's series ids by key (committed series)
+    def __init__(self, sid_of: Callable[[SeriesKey], int | None]) -> None:
+        self._sid_of = sid_of  # the store's committed series' ids (``ids.PostgresIds.sid_of``)
         self._known: set[int] = set()
         self._lock = threading.Lock()
 
@@ -53,14 +53,14 @@ class UntimedLedger:
         batch gives an instance without observedAt, unless known listed.
         Returns what to call, with the batch's series ids (new series'
         too), once that committed."""
-        sids, known = self._sids, self._known
+        sid_of, known = self._sid_of, self._known
         new: dict[SeriesKey, None] = {}
         for e in entities:
             prefix = (e.tenant, e.service_path, e.entity_id, e.entity_type)
             for a in e.attrs:
                 if a.observed_at is None:
                     key = (*prefix, a.name)
-                    if sids.get(key) not in known:
+                    if sid_of(key) not in known:
                         new[key] = None
         if not new:
             return _nothing

@@ -10,7 +10,7 @@ from functools import partial
 from tsdb_service.core import budget
 from tsdb_service.core.query import AggBranch, AggregateRow, Aggregation, AggrMethod, AggrPeriod, RowMask, TimeRange
 from tsdb_service.read.requests import AggregateRead
-from tsdb_service.storage.common import to_micros
+from tsdb_service.storage.columns import to_micros
 from tsdb_service.storage.partials import (
     ALL_INT,
     HOUR_US,

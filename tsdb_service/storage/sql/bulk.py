@@ -16,7 +16,7 @@ import pyarrow as pa
 from tsdb_service.core.model import Kind
 from tsdb_service.core.query import StoredSample, TimeRange
 from tsdb_service.read.bulk import Columns
-from tsdb_service.storage.common import SAMPLE_COLUMNS
+from tsdb_service.storage.columns import SAMPLE_COLUMNS
 from tsdb_service.storage.sql.dialect import SqlDialect, rows_as, series_time_filter
 from tsdb_service.storage.sql.reads import SqlReads
 

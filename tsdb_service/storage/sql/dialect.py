@@ -16,8 +16,7 @@ from functools import partial
 from typing import TypeVar
 
 from tsdb_service.core.model import Kind
-from tsdb_service.core.query import Prefilter, RowMask, TimeRange
-from tsdb_service.storage.common import box_sql
+from tsdb_service.core.query import WITHIN, Prefilter, RowMask, TimeRange
 
 NUMERIC_KINDS = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
 NULL_KIND = int(Kind.NULL)
@@ -129,8 +128,22 @@ def mask_filter(dialect: SqlDialect, mask: RowMask) -> tuple[str, list]:
     )
 
 
+def box_sql(placeholder: str, prefilter: Prefilter | None) -> tuple[str, list]:
+    """SQL over the columns min_lon... : the stored box passes ``prefilter``
+    (None passes everything; ``core.query.box_passes`` is the same test in memory)."""
+    if prefilter is None:
+        return "TRUE", []
+    how, box = prefilter
+    p = placeholder
+    if how == WITHIN:
+        sql = f"(min_lon >= {p} AND max_lon <= {p} AND min_lat >= {p} AND max_lat <= {p})"
+    else:
+        sql = f"(max_lon >= {p} AND min_lon <= {p} AND max_lat >= {p} AND min_lat <= {p})"
+    return sql, [box.min_lon, box.max_lon, box.min_lat, box.max_lat]
+
+
 def box_test(dialect: SqlDialect, prefilter: Prefilter | None) -> tuple[str, list]:
-    """SQL: a sample's stored bounding box passes ``prefilter`` (``common.box_sql``)."""
+    """SQL: a sample's stored bounding box passes ``prefilter`` (``box_sql``)."""
     return box_sql(dialect.placeholder, prefilter)
 
 

@@ -27,7 +27,7 @@ from tsdb_service.core.query import (
     ValueProbe,
     ValueTest,
 )
-from tsdb_service.storage.common import box_sql
+from tsdb_service.storage.sql.dialect import box_sql
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

@@ -6,7 +6,7 @@ from collections.abc import Sequence
 from datetime import datetime
 
 from tsdb_service.core.query import TimeRange
-from tsdb_service.storage.common import VALUE_COLUMNS, content_values
+from tsdb_service.storage.columns import VALUE_COLUMNS, content_values
 from tsdb_service.storage.rollups import delete_sql as rollup_delete_sql
 from tsdb_service.storage.sql.dialect import SqlDialect, quote_ident, series_time_filter
 from tsdb_service.write.ops import DeleteInstance, ReplaceInstance

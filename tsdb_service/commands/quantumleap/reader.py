@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from tsdb_service.storage.quantumleap.rows import (
+from tsdb_service.commands.quantumleap.rows import (
     METADATA_TABLE,
     TIME_INDEX,
     Dialect,

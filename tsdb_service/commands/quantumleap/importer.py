@@ -3,7 +3,7 @@
 Every row of QuantumLeap's tables becomes the ``EntitySample`` its
 notification would have made (``rows``) and goes through the write seam
 (``AppendSamples``), as ``/v2/notify`` and ``copy`` write. Safe the way
-``copy`` is (``storage.copy``), and with its bookkeeping (``copy_runs``):
+``copy`` is (``commands.copy``), and with its bookkeeping (``copy_runs``):
 
 * a target that holds history is refused unless ``append``;
 * tables are read in (tenant, table) order, each in ``time_index`` order,
@@ -41,9 +41,8 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import datetime
 
-from tsdb_service.core.model import EntitySample
-from tsdb_service.storage.quantumleap.reader import PAGE_ROWS, QuantumLeapReader, Window
-from tsdb_service.storage.quantumleap.rows import (
+from tsdb_service.commands.quantumleap.reader import PAGE_ROWS, QuantumLeapReader, Window
+from tsdb_service.commands.quantumleap.rows import (
     HOUSEKEEPING,
     ORIGINAL_ENTITY,
     TableMeta,
@@ -51,6 +50,7 @@ from tsdb_service.storage.quantumleap.rows import (
     duplicate_key,
     row_to_entity,
 )
+from tsdb_service.core.model import EntitySample
 from tsdb_service.storage.store import CopyRun, Store
 from tsdb_service.write.ops import AppendSamples
 

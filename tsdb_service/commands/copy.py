@@ -1,4 +1,4 @@
-"""``tsdb-service copy --from URL --to URL``: move all history between backends.
+"""``copy_history``: move all history between backends (``tsdb-service copy``).
 
 Samples are streamed from the source in row-id order, regrouped into the
 entity notifications they came from (one ``rid`` = one entity in one
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from datetime import UTC
 from pathlib import Path
 
-from tsdb_service.core.config import Settings, check_db
+from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Geometry, Kind, RejectedNotification
 from tsdb_service.core.query import EntityFilter, Scope, StoredSample
 from tsdb_service.read.requests import SeriesSelect
@@ -47,100 +47,6 @@ class CopyRefused(RuntimeError):
 
 class CopyNotVerified(CopyRefused):
     """The copy ran but the target's totals are not what they must be."""
-
-
-def register(subparsers, command) -> None:
-    p = subparsers.add_parser(
-        "copy",
-        help="copy all history from one backend to another",
-        description="Copy every sample, 'values' layout and rejected notification from --from into --to, "
-        "then check the totals. The target must be empty unless --append is given. An interrupted copy "
-        "resumes when the same command is run again.",
-    )
-    p.add_argument(
-        "--from",
-        dest="source",
-        required=True,
-        metavar="PATH|URL",
-        help="DuckDB file or postgresql:// URL to read; must exist and hold tsdb-service history",
-    )
-    p.add_argument(
-        "--to",
-        dest="target",
-        required=True,
-        metavar="PATH|URL",
-        help="DuckDB file or postgresql:// URL to write (created if it is a new DuckDB file)",
-    )
-    p.add_argument(
-        "--append",
-        action="store_true",
-        help="add to a target that already holds history (default: refuse a non-empty target)",
-    )
-    p.add_argument(
-        "--batch-rows",
-        type=_positive_int,
-        default=BATCH_ROWS,
-        metavar="ROWS",
-        help=f"samples committed per batch; an interruption loses at most one (default {BATCH_ROWS})",
-    )
-    p.add_argument("--quiet", action="store_true", help="no progress line (default: progress on stderr)")
-    command("copy")(cmd_copy)
-
-
-def cmd_copy(args) -> int:
-    from tsdb_service.storage import open_store, require_history
-
-    source_db, target_db = _checked(args.source, "--from"), _checked(args.target, "--to")
-    if store_identity(source_db) == store_identity(target_db):
-        raise CopyRefused("--from and --to are the same store")
-    require_history(source_db)
-    source = open_store(Settings(db=source_db))
-    try:
-        target = open_store(Settings(db=target_db))
-        try:
-            report = copy_history(
-                source,
-                target,
-                source_id=store_identity(source_db),
-                append=args.append,
-                progress=not args.quiet,
-                batch_rows=args.batch_rows,
-            )
-        except CopyNotVerified as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 1
-        except KeyboardInterrupt:
-            print(f"\ninterrupted: run the same command again to resume the copy into {target_db}", file=sys.stderr)
-            return 130
-        finally:
-            target.close()
-    finally:
-        source.close()
-    for tenant, (src, dst) in sorted(report.tenants.items()):
-        print(f"tenant {tenant or '(default)'}: {src} samples in source, {dst} copied into target")
-    if report.resumed_from:
-        print(f"resumed an interrupted copy: {report.resumed_from} samples were already there")
-    print(
-        f"copy verified: the target holds {report.target_total} samples, "
-        f"{report.target_rejected} rejected notifications"
-    )
-    return 0
-
-
-def _positive_int(text: str) -> int:
-    import argparse
-
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError("must be at least 1")
-    return value
-
-
-def _checked(db: str, flag: str) -> str:
-    try:
-        return check_db(db)
-    except ValueError as exc:
-        raise CopyRefused(f"{flag}: {exc}") from None
 
 
 def store_identity(db: str) -> str:

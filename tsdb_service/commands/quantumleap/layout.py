@@ -28,7 +28,7 @@ from collections.abc import Iterable, Sequence
 from datetime import datetime
 from typing import Any
 
-from tsdb_service.storage.quantumleap.rows import (
+from tsdb_service.commands.quantumleap.rows import (
     METADATA_TABLE,
     ORIGINAL_ENTITY,
     SERVICE_PATH,
