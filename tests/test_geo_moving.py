@@ -1,6 +1,6 @@
 """Moving entities: what a geo-query keeps over time (issues 4 and 10).
 
-Default, sample semantics (QuantumLeap's; tsdb_service/geo/matching.py): a
+Default, sample semantics (QuantumLeap's; tsdb_service/history/geo_matching.py): a
 stored sample matches when the location its entity had at that sample's
 time matches: the latest location sample at or before it by (time, row id),
 so a notification's own location counts for its other attributes and a

@@ -58,7 +58,7 @@ def service(store_url_factory):
 
 
 # Requests that need a geo filter applied to each sample, not to the entity.
-# Issue 4 chose entity semantics (tsdb_service/geo/matching.py: an entity
+# Issue 4 chose entity semantics (tsdb_service/history/geo_matching.py: an entity
 # matches by its *latest* location), so a georel on the moving drone returns
 # its whole recent track when it is over the field now, and nothing otherwise.
 PER_SAMPLE_GEO: set[str] = set()

@@ -1,4 +1,4 @@
-"""The request-context precedence table (``ngsi.request_context``), on every API.
+"""The request-context precedence table (``parse.request_context``), on every API.
 
 One rule for the tenant on notify, the /v2 history routes, ``/v2/op/query``,
 Grafana and the NGSI-LD temporal reads: every non-blank selector must name

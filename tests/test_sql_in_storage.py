@@ -2,7 +2,7 @@
 
 Routes, the read side (history, geo, grafana, ngsild, export) and the
 commands see the seams (``read``, ``write``, ``storage.store``), never the
-SQL renderers (``storage.sql``, ``storage.temporal``) or a backend package,
+SQL renderers (``storage.sql``) or a backend package,
 and never reach into a querier's private ``_fetch`` / ``_batches`` or its
 ``dialect``. Checked on the source (AST), so a lazy import inside a function
 counts too.
@@ -24,7 +24,7 @@ from pathlib import Path
 
 from tests.support.imports import PACKAGE, module_imports
 
-RENDERERS = ("tsdb_service.storage.sql", "tsdb_service.storage.temporal")
+RENDERERS = ("tsdb_service.storage.sql",)
 BACKENDS = ("tsdb_service.storage.duckdb", "tsdb_service.storage.postgres")
 PRIVATE_READS = ("_fetch", "_batches")
 FOREIGN_SQL = "commands/quantumleap"  # SQL of QuantumLeap's database (see above)

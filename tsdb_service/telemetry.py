@@ -24,7 +24,7 @@ Tenant labels are capped at ``max_tenants`` distinct values per app; later
 tenants are counted under ``other``, and a tenant header the API refused
 (kept as received with a refused notification, so chosen by whoever sent
 it) under ``invalid``: labels carry only validated tenants. With ``--workers N`` every worker
-process has its own counters (see the README's *Metrics*).
+process has its own counters (docs/operations.md, "Metrics").
 """
 
 from __future__ import annotations

@@ -204,7 +204,7 @@ class Settings(BaseSettings):
             raise ValueError(f"unknown log level {value!r}: choose from {', '.join(LOG_LEVELS)}")
         return level
 
-    # -- security: everything off unless configured (see README "Security") --
+    # -- security: everything off unless configured (docs/security.md) --
     # Plain strings, not lists: `serve` hands settings to workers as TSDB_*
     # variables via str(), and a comma list survives that round trip.
     api_keys: str = Field(
@@ -237,7 +237,7 @@ class Settings(BaseSettings):
     jwt_scope_prefix: str = Field("", description="Only claim values with this prefix count (e.g. 'tsdb:').")
     jwt_tenants_claim: str = Field("", description="Claim listing the tenants a token may touch; empty: all.")
     jwt_jwks_cache_seconds: int = Field(300, ge=1, le=86_400, description="How long fetched JWKS keys are kept.")
-    # -- NGSI-LD temporal API reads (see README "NGSI-LD temporal API") --
+    # -- NGSI-LD temporal API reads (docs/ngsi-ld.md) --
     ngsild_default_limit: int = Field(100, ge=1, description="Entities per page when a temporal query gives no limit.")
     ngsild_max_limit: int = Field(1000, ge=1, description="Largest limit a temporal query may ask for.")
     ngsild_max_instances: int = Field(
@@ -293,7 +293,7 @@ class Settings(BaseSettings):
     )
 
     # --- Retention and rollups (retention_policy.py, storage/retention.py, storage/rollups.py;
-    # README "Retention and rollups") ---
+    # docs/operations.md, "Retention and rollups") ---
     retention: str = Field(
         "",
         description="How long raw samples are kept, per tenant and entity type: "

@@ -11,7 +11,7 @@ more than a scan of the ids. The price is RE2's syntax: no backreferences
 using them is refused with a 400 that says so.
 
 Every ``idPattern`` a request carries (history, export, op/query, Grafana,
-NGSI-LD) is validated by ``ngsi.request_context.id_pattern``, which calls
+NGSI-LD) is validated by ``parse.request_context.id_pattern``, which calls
 ``compile_pattern`` (answers 400); matching uses ``compiled`` on an already
 validated pattern (Grafana's ad hoc ``=~`` filters call both directly), so
 there is one engine and one rule everywhere.

@@ -103,7 +103,7 @@ class EntitySample:
 # NGSI-LD keeps several instances of one attribute apart by datasetId; the
 # NGSIv2 API needs one value per attribute per row, so a non-default
 # instance is stored as its own attribute ``name~datasetId``, as NGSIv1
-# attributes with an ``ID`` metadata are (``ngsi.notification.V1_ID_SEPARATOR``).
+# attributes with an ``ID`` metadata are (``parse.notification.V1_ID_SEPARATOR``).
 DATASET_SEPARATOR = "~"
 
 

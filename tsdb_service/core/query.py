@@ -1,8 +1,8 @@
 """The query vocabulary: what a read asks for, parsed and validated, before any SQL.
 
-Both sides of the read seam speak it. Request parsers (``history.params``,
+Both sides of the read seam speak it. Request parsers (``faces.quantumleap.params``,
 ``grafana.params``, ``ngsild.params``) turn HTTP into these frozen values;
-storage backends render them to SQL (``storage.sql``); ``history.shape``,
+storage backends render them to SQL (``storage.sql``); ``faces.quantumleap.shape``,
 ``grafana`` and ``ngsild.render`` turn the rows back into JSON. Nothing here
 knows about HTTP or a database, so neither side imports the other.
 """

@@ -2,7 +2,7 @@
 
 The flow for every read is the same: resolve the request's series ids on the
 catalog (no sample is touched), read samples by those ids through the
-``Querier``, then build per-entity results that ``history.shape`` renders.
+``Querier``, then build per-entity results that ``faces.quantumleap.shape`` renders.
 Everything here is backend-neutral.
 """
 

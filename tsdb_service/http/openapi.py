@@ -1,7 +1,7 @@
 """The OpenAPI description's shared pieces: parameters, bodies, answers.
 
 Routes read their query parameters and headers from the request on purpose
-(``history.params`` and friends parse them once, in plain Python, and are the
+(``faces.quantumleap.params`` and friends parse them once, in plain Python, and are the
 one source of validation and of the NGSI error answers), so FastAPI cannot
 infer them from the signatures. Each route instead declares them here,
 through ``openapi_extra`` and ``responses``: the description is generated
@@ -152,7 +152,7 @@ SERVICE_PATH_QUERY = header(
 )
 TENANCY = [FIWARE_SERVICE, NGSILD_TENANT, SERVICE_PATH_QUERY]
 
-INT_MAX = 10**18 - 1  # history.params: at most 18 digits
+INT_MAX = 10**18 - 1  # faces/quantumleap/params.py: at most 18 digits
 POSITIVE = {"type": "integer", "minimum": 1, "maximum": INT_MAX}
 TIME = {"type": "string", "format": "date-time"}
 
@@ -272,7 +272,7 @@ def _is_validation_error(response: dict | None) -> bool:
 
 
 def install(app, api_key_header: str = "X-Api-Key", schemas: dict[str, dict] | None = None) -> None:
-    """Make ``app.openapi()`` return the completed document (built once);
+    """Make ``FastAPI.openapi()`` return the completed document (built once);
     ``schemas``: the features' component schemas (each feature's ``openapi.SCHEMAS``)."""
     generate = app.openapi
     done: list[dict] = []

@@ -10,8 +10,8 @@ route of entity ``urn:a``.
 So for the history and delete routes (``HISTORY_PREFIXES``) the path is
 rebuilt from the raw request path before routing: each raw segment is
 decoded, then only ``%`` and ``/`` are escaped again (``%25``, ``%2F``).
-Routing then splits on real separators only, and ``unescape_segment`` (in
-``history.params``, for every path segment those routes take) restores
+Routing then splits on real separators only, and ``unescape_segment`` (below,
+called by the route parsers for every path segment those routes take) restores
 the exact name. Other routes are left alone.
 """
 

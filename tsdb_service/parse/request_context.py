@@ -45,7 +45,7 @@ query              ``?servicepath=``                                     optiona
                                                                          NGSI-LD has no service paths.
 entity ids, types  ``id``, ``type`` (comma lists), path segments,        each item trimmed, blanks dropped,
                    ``/v2/op/query``'s ``entities``, NGSI-LD              duplicates dropped; each follows the
-                   ``EntitySelector``                                    ingest's rule (``ngsi.names``); at most
+                   ``EntitySelector``                                    ingest's rule (``parse.names``); at most
                                                                          ``MAX_IDS`` per list. A list left empty
                                                                          is no filter.
 id pattern         ``idPattern`` (every API), SimpleJSON                 RE2 (``tsdb_service.core.idpattern``), at most
@@ -267,7 +267,7 @@ def grafana_scope(params: Mapping[str, str], headers: Mapping[str, str]) -> Scop
 
 
 def check_id(value: str, name: str) -> None:
-    """An entity id or type as the ingest accepts them (``ngsi.names``)."""
+    """An entity id or type as the ingest accepts them (``parse.names``)."""
     problem = id_problem(value)
     if problem is not None:
         raise BadRequest(f"{name} {value[:80]!r} {problem}: {ID_RULE}")

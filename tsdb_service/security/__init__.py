@@ -3,7 +3,7 @@ tenants, and CORS for browser clients (``core.credentials`` keeps credentials
 out of storage).
 
 Everything is off unless configured (see ``Settings``' security block and
-the README's "Security" section): ``protect`` then returns the app as is.
+docs/security.md): ``protect`` then returns the app as is.
 """
 
 from __future__ import annotations

@@ -114,7 +114,7 @@ SAVE_WATERMARK = (
 
 
 class RetentionObserver(Protocol):
-    """Told about each batch that deleted rows (``metrics.RetentionMetrics``)."""
+    """Told about each batch that deleted rows (``telemetry.RetentionMetrics``)."""
 
     def batch(self, table: str, tenant: str, rows: int, seconds: float) -> None: ...
 

@@ -154,7 +154,7 @@ class Store(ABC):
         layout, and reports about the service itself, read without waiting.
 
         The rule: **no database call on the event loop**. A read runs first
-        on the loop with ``storage.memory_only.MEMORY_ONLY`` set, where it
+        on the loop with ``read.off_loop.MEMORY_ONLY`` set, where it
         may use only what is in memory (series catalog, tails, latest
         locations, ``values`` layouts); its first database access raises
         ``NeedsDatabase`` instead, and the read runs again from the start in

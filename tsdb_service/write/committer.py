@@ -17,7 +17,7 @@ the log's fsync, for the GIL held by the event loop), so while one writer
 waits another can build and send the next group: throughput scales with
 writers until the disk or a core is busy.
 
-An optional ``observer`` (``metrics.WriterMetrics``) hears about each group
+An optional ``observer`` (``telemetry.WriterMetrics``) hears about each group
 as it is taken and settled, from the writer thread: once per group, so
 counting costs the request path nothing.
 """

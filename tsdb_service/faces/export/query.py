@@ -1,7 +1,7 @@
 """What an export asks for: parameters and headers → a frozen ``ExportQuery``.
 
 The same parameters as the history API, parsed by the same request-context
-parser (``ngsi.request_context``: service paths, ids, id pattern, types,
+parser (``parse.request_context``: service paths, ids, id pattern, types,
 time bounds), so an export selects exactly the samples a history query
 with those parameters would. Unlike the history routes, unknown parameters
 are refused: a mistyped ``fromdate`` would otherwise silently export the

@@ -2,7 +2,7 @@
 
 Series are resolved on the querier's catalog, exactly as history queries
 resolve them; the samples are then read through the read seam
-(``Querier.export_batches``, rendered in ``storage.export``: by series id,
+(``Querier.export_batches``, rendered in ``storage.sql.bulk``: by series id,
 bound values only, joined with ``series`` for the names). Rows come oldest
 first (time, then the notification, then the series), ``BATCH_ROWS`` at a
 time, so memory stays bounded whatever the export's size: DuckDB sorts one
@@ -30,7 +30,7 @@ BATCH_ROWS = 131_072
 WINDOW_ROWS = 1_000_000  # DuckDB: samples sorted at once (``Querier.export_batches``)
 UTC_MICROS = pa.timestamp("us", tz="UTC")
 
-# The export layout (README, "Export"). Exactly one value column is set per
+# The export layout (docs/operations.md, "Export"). Exactly one value column is set per
 # sample, chosen by how the sample is stored; all four are null for null.
 SCHEMA = pa.schema(
     [

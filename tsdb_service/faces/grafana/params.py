@@ -4,7 +4,7 @@ Grafana datasources speak in query parameters (Infinity) or JSON bodies
 (SimpleJSON); both end up here, so every endpoint validates the same way and
 no input can reach the history layer unchecked. Tenant, service path,
 entity filter, counts, aggregation and time range follow the rules every API
-shares (``ngsi.request_context``, where their precedence is written down);
+shares (``parse.request_context``, where their precedence is written down);
 this module adds what only Grafana has: columns (aliased value paths) and
 its lenient flags and choices. Errors are ``BadRequest``s, rendered in the
 NGSI shape by the app's one error handler.

@@ -1,6 +1,6 @@
 """The aggregated temporal representation (``format=aggregatedValues``),
 computed in the database by grouped SQL (``Querier.instance_aggregate``,
-rendered by ``storage.temporal``): on DuckDB one statement per request,
+rendered by ``storage.sql.temporal``): on DuckDB one statement per request,
 which also finds the start of the periods when the window has none; on
 PostgreSQL an index probe finds that start first, and many series are
 grouped in parts at once. Calendar periods over a window missing an end

@@ -23,7 +23,7 @@ Steps:
    window through ``Querier.temporal_instances`` (``lastN`` per series, at
    most ``cap + 1`` so a cut is detected: 206), or one grouped aggregation
    statement (``ngsild.aggregate``, ``Querier.instance_aggregate``). The
-   SQL of each is rendered in storage (``storage.temporal``).
+   SQL of each is rendered in storage (``storage.sql.temporal``).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ and ``GET /temporal/entities/{id}``, or a ``Query`` body of ``POST
 /temporal/entityOperations/query``. Every name is expanded with the
 request's @context (a ``TermMap``); every bad value is a BadRequestData.
 The pieces every API shares (tenant, ``idPattern``, integer ranges, date-time
-parsing, ``MAX_IDS``) come from ``ngsi.request_context``; what is NGSI-LD's
+parsing, ``MAX_IDS``) come from ``parse.request_context``; what is NGSI-LD's
 own (type expressions, ``timerel``, ``aggrMethods``, ISO 8601 durations,
 paging with ``count``) is here.
 """
@@ -515,7 +515,7 @@ def _non_negative(raw: str | None, name: str) -> int | None:
 
 
 def _ld(parse, *args):
-    """A shared parser's (``ngsi.request_context``) 400 as this API's
+    """A shared parser's (``parse.request_context``) 400 as this API's
     BadRequestData: the same ProblemDetails, and the class NGSI-LD callers
     expect."""
     try:

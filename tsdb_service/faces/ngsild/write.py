@@ -13,7 +13,7 @@
   replace or delete one instance.
 
 The written data is the notified data: each instance becomes a sample read
-exactly as a notified NGSI-LD attribute (``ngsi.notification``), so the
+exactly as a notified NGSI-LD attribute (``parse.notification``), so the
 NGSIv2/QuantumLeap API and Grafana see it too (instances with one
 observedAt share one NGSIv2 row; one without observedAt gets the time it
 was written). ``createdAt`` and ``modifiedAt`` of written instances are

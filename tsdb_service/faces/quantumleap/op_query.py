@@ -41,7 +41,7 @@ async def op_query(request: Request) -> JSON:
 
 def last_value_query(body: bytes, tenant: str, service_path: str | None) -> LastValueQuery:
     """The body, checked by the request-context rules every API shares
-    (``ngsi.request_context``: ids, types, idPattern, service paths)."""
+    (``parse.request_context``: ids, types, idPattern, service paths)."""
     try:
         doc = orjson.loads(body)
     except orjson.JSONDecodeError as exc:

@@ -3,7 +3,7 @@
 Every parameter is checked here, once, so storage never sees a value it
 cannot handle and no parameter combination can end in a 500. The request
 context (tenant, service paths, entity filter, limits, aggregation, time
-range) is read by ``ngsi.request_context``, the parser every API shares;
+range) is read by ``parse.request_context``, the parser every API shares;
 this module assembles the history API's queries from it. Parsing is
 deliberately plain Python (no pydantic): it runs on every read request.
 """

@@ -1,4 +1,4 @@
-"""How PostgreSQL spells the shared SQL renderer's pieces (``storage.sql.Dialect``)."""
+"""How PostgreSQL spells the shared SQL renderer's pieces (``storage.sql.dialect.SqlDialect``)."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@ PostgreSQL (``untimed_series``, migration 0009).
 
 A window on observedAt reads an instance by its observedAt, or by its row
 time when it has none. Those are two index scans per selected series
-(``storage.temporal.window_filter``); the second finds nothing for series
+(``storage.sql.temporal.window_filter``); the second finds nothing for series
 whose instances all carry observedAt, yet costs as much as the first. Readers
 ask this table which of their series can have such instances and scan the
 row time only for those (``PostgresQuerier._untimed``).

@@ -2,7 +2,7 @@
 
 ``ngsild`` decides what to ask (which series, which window, which test a
 ``q`` term makes, how aggregation periods are laid out); this module spells
-it as SQL over the ``samples`` columns, and ``storage.sql.SqlQuerier`` runs
+it as SQL over the ``samples`` columns, and ``storage.sql.querier.SqlQuerier`` runs
 it (``instances_matching``, ``instance_values``, ``location_instances``,
 ``instance_aggregate``, ``instance_span`` on ``base.Querier``). Values are
 bound parameters; the only text put into SQL is our own.
