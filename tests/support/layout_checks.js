@@ -59,3 +59,44 @@ for (const cell of table.querySelectorAll("td, th"))
   if (cell.scrollWidth > cell.clientWidth + 1) problems.push(`'${cell.textContent}' is cut (${cell.scrollWidth} > ${cell.clientWidth})`);
 return problems;
 }
+
+/** Time tick labels of every chart and state timeline: each inside its chart's box (the last
+ * one was cut by the right edge). uPlot's labels are centred on their tick. */
+function edgeLabelProblems() {
+const problems = [];
+const ctx = document.createElement("canvas").getContext("2d");
+for (const box of document.querySelectorAll(".chart")) {
+  const u = box.uplot;
+  if (!u) continue;
+  const axis = u.axes[0];
+  ctx.font = axis.font[0];
+  const left = u.bbox.left / devicePixelRatio;
+  (axis._values || []).forEach((v, i) => String(v).split("\n").forEach((line) => {
+    if (!line) return;
+    const centre = left + u.valToPos(axis._splits[i], "x"), half = ctx.measureText(line).width / 2;
+    if (centre + half > u.width + 0.5 || centre - half < -0.5)
+      problems.push(`${box.id || box.dataset.attr}: '${line}' is cut (${(centre - half).toFixed(1)} to ${(centre + half).toFixed(1)} of ${u.width})`);
+  }));
+}
+for (const svg of document.querySelectorAll("svg.bands")) {
+  const frame = svg.getBoundingClientRect();
+  for (const text of svg.querySelectorAll(".axis text")) {
+    const r = text.getBoundingClientRect();
+    if (r.right > frame.right + 0.5 || r.left < frame.left - 0.5) problems.push(`timeline: '${text.textContent}' is cut`);
+  }
+}
+return problems;
+}
+
+/** Legend rows reading "Time: --" (or any value "--") while the cursor is on no chart. */
+function idleLegendProblems() {
+const problems = [];
+for (const legend of document.querySelectorAll(".chart .u-legend")) {
+  for (const row of legend.querySelectorAll("tr")) {
+    if (row.offsetParent === null) continue; // not shown
+    const text = row.innerText.replace(/\s+/g, " ").trim();
+    if (/--/.test(text) || /^Time\b/.test(text)) problems.push(`${legend.closest(".chart").id || legend.closest(".chart").dataset.attr}: '${text}'`);
+  }
+}
+return problems;
+}
