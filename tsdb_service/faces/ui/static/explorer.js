@@ -884,29 +884,32 @@
   }
 
   /** Copy what ``url`` answers; the button says how it went. The clipboard API needs a secure
-   * context (https or localhost): elsewhere a hidden text area and execCommand do it. */
+   * context (https or localhost) and may be refused: then a hidden text area and execCommand. */
   async function copyText(url, button) {
     const said = button.textContent;
     try {
       const resp = await fetch(url);
       if (!resp.ok) throw new Error(`HTTP ${resp.status}`);
       const text = await resp.text();
-      if (window.isSecureContext && navigator.clipboard) await navigator.clipboard.writeText(text);
-      else {
-        const area = h("textarea", { class: "offscreen", readonly: true });
-        area.value = text;
-        document.body.append(area);
-        area.select();
-        const done = document.execCommand("copy");
-        area.remove();
-        if (!done) throw new Error("the browser refused");
-      }
+      const viaApi = window.isSecureContext && navigator.clipboard
+        ? await navigator.clipboard.writeText(text).then(() => true, () => false) : false;
+      if (!viaApi && !copyByCommand(text)) throw new Error("the browser refused to copy");
       button.textContent = "Copied";
     } catch (err) {
       button.textContent = "Copy failed: use Download";
       console.warn(err);
     }
     setTimeout(() => { button.textContent = said; }, 2500);
+  }
+
+  function copyByCommand(text) {
+    const area = h("textarea", { class: "offscreen", readonly: true });
+    area.value = text;
+    document.body.append(area);
+    area.select();
+    const done = document.execCommand("copy");
+    area.remove();
+    return done;
   }
 
   // -- routing ----------------------------------------------------------------------------
