@@ -261,6 +261,8 @@
     return PALETTE[(Number.isInteger(value) ? value : index) % PALETTE.length];
   }
 
+  const BAND_LABEL_PX = 6; // a timeline tick label character at 10 px ("HH:MM:SS" is 8)
+
   /**
    * Horizontal bands, one per state column: rows [{time, ...}] of state changes
    * (the /states endpoint), each band coloured by value, named by an enumeration.
@@ -299,8 +301,6 @@
     box.replaceChildren(svg, legend);
     box.dataset.segments = String(segments);
   }
-
-  const BAND_LABEL_PX = 6; // a timeline tick label character at 10 px ("HH:MM:SS" is 8)
 
   function timeAxis(x, xRange, y, x0, x1) {
     const seconds = (xRange[1] - xRange[0]) / 1000;
