@@ -274,7 +274,7 @@ PROVISIONING = spec(
         "(default http://tsdb-service:8668).",
         {"type": "string", "maxLength": 200},
     ),
-    ok_=ok({"type": "string"}, "A Grafana provisioning file (YAML)", "application/yaml"),
+    ok_=ok({"type": "object"}, "A Grafana provisioning file: YAML, one mapping (apiVersion, ...)", "application/yaml"),
     errors_=(400, *AUTH, 404),
 )
 

@@ -89,21 +89,20 @@ def _datasources(node, found: list[dict] | None = None) -> list[dict]:
 
 
 @router.get(
-    "/dashboards/provisioning/{name}",
+    "/dashboards/provisioning/{file}",
     summary="Grafana provisioning files for the dashboards' datasources and folder",
-    response_class=PlainTextResponse,
     **grafana_oa.PROVISIONING,
 )
-def provisioning_file(name: str, request: Request) -> PlainTextResponse:
+def provisioning_file(file: str, request: Request) -> PlainTextResponse:
     """``datasources.yaml``: the datasources the dashboards refer to by uid,
     pointing at ``?url=`` (default ``http://tsdb-service:8668``, the compose
     name); ``dashboards.yaml``: the file provider for the JSON files."""
     from tsdb_service.faces.grafana import dashboards
     from tsdb_service.faces.grafana.dashboards import kit
 
-    if name not in PROVISIONING_FILES:
-        raise NotFound(f"no provisioning file {name[:60]!r}: choose from {', '.join(PROVISIONING_FILES)}")
-    if name == "datasources.yaml":
+    if file not in PROVISIONING_FILES:
+        raise NotFound(f"no provisioning file {file[:60]!r}: choose from {', '.join(PROVISIONING_FILES)}")
+    if file == "datasources.yaml":
         text = dashboards.datasources_yaml(service_url(request.query_params.get("url"), kit.SERVICE_URL))
     else:
         text = dashboards.dashboards_yaml()
