@@ -1,6 +1,7 @@
 """``GET /dashboards`` lists every shipped dashboard: the three use cases and
 the service's own (which reads a Prometheus datasource, not Infinity), each
-with the datasources its panels use; ``GET /dashboards/service`` serves it."""
+with what it shows (its description, its panels under their rows) and the
+datasources its panels use; ``GET /dashboards/service`` serves it."""
 
 from __future__ import annotations
 
@@ -32,3 +33,13 @@ def test_the_service_dashboard_is_served(client):
         assert one.status_code == 200 and one.json() == dashboards.build("service"), url
     missing = client.get("/dashboards/nope")
     assert missing.status_code == 404 and "service" in missing.json()["description"]
+
+
+def test_each_dashboard_says_what_it_shows(client):
+    for entry in client.get("/dashboards").json():
+        doc = dashboards.build(entry["name"])
+        assert entry["description"] == doc["description"] and entry["description"]
+        rows = [panel["title"] for panel in doc["panels"] if panel["type"] == "row"]
+        assert [section["title"] for section in entry["sections"]] == rows, entry["name"]
+        shown = [title for section in entry["sections"] for title in section["panels"]]
+        assert shown == [panel["title"] for panel in doc["panels"] if panel["type"] != "row"], entry["name"]

@@ -435,8 +435,11 @@ def test_demo_command_serves_feeds_and_prints_where_to_look(tmp_path):
     assert done.returncode == 0, done.stdout + done.stderr
     out = done.stdout
     url = f"http://127.0.0.1:{port}"
-    for where in (f"{url}/docs", f"{url}/dashboards", f"curl -s '{url}/v2/", "-H 'Fiware-Service: "):
+    for where in (f"{url}/docs", f"{url}/ui/#/dashboards", f"curl -s '{url}/v2/", "-H 'Fiware-Service: "):
         assert where in out, out
+    # It says it listens on this machine only, and how another one reaches it.
+    assert f"listening    127.0.0.1:{port} only" in out and f"ssh -L {port}:127.0.0.1:{port}" in out, out
+    assert "--host 0.0.0.0" in out and "no authentication" in out, out
     assert ", 0 failed (seed 1)" in out, out
     for name in SIMULATORS:
         assert f"  {name}" in out, out

@@ -100,6 +100,7 @@ KNOWN_PATH = {
     "entity_type": "Room",
     "attr_name": "temperature",
     "use_case": "lawnmower",
+    "file": "datasources.yaml",
     "subscription_id": "s1",
     "attr_id": "temperature",
     "instance_id": "urn:ngsi-ld:attribute:instance:0000000000000001",

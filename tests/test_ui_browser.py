@@ -12,6 +12,10 @@ both backends (``test_grafana_*``); this module is DuckDB only.
 
 Screenshots go to the session's temporary directory (never the repository);
 their paths and the page load times are printed (``pytest -s`` shows them).
+
+Besides the use cases, the server holds one small entity of its own (tenant
+``edge``) whose newest sample falls on a whole hour, so a chart's last time
+tick sits at the very right end of its axis: where its label used to be cut.
 """
 
 from __future__ import annotations
@@ -19,8 +23,10 @@ from __future__ import annotations
 import asyncio
 import json
 import time
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+import httpx
 import pytest
 
 from tests.grafana_fixtures import feed_live
@@ -65,6 +71,7 @@ def demo_server(tmp_path_factory):
         stats = asyncio.run(feed_live(server.url, int(time.time() * 1000)))
         for name, row in stats.items():
             assert row.sent > 100 and row.failed == 0, f"{name}: {row}"
+        _feed_edge(server.url)
         yield server
     finally:
         server.terminate()
@@ -94,6 +101,26 @@ def browser(chromium_binaries, tmp_path_factory):
 @pytest.fixture(scope="module")
 def shots(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("ui-screenshots")
+
+
+EDGE_END = datetime.fromtimestamp((int(time.time()) // 3600 - 48) * 3600, tz=UTC)  # a whole hour, 2 days ago
+
+
+def _feed_edge(url: str) -> None:
+    """Tenant ``edge``: one temperature every 10 s for the 5 minutes up to EDGE_END."""
+    with httpx.Client(base_url=url, timeout=30) as client:
+        for i in range(31):
+            at = EDGE_END - timedelta(seconds=10 * (30 - i))
+            entity = {
+                "id": "Probe1",
+                "type": "Probe",
+                "temperature": {"type": "Number", "value": 20 + i % 5},
+                "TimeInstant": {"type": "DateTime", "value": at.isoformat().replace("+00:00", "Z")},
+            }
+            sent = client.post(
+                "/v2/notify", json={"subscriptionId": "edge", "data": [entity]}, headers={"Fiware-Service": "edge"}
+            )
+            assert sent.status_code == 200, sent.text
 
 
 # -- helpers ----------------------------------------------------------------------------
@@ -234,6 +261,9 @@ def test_docs_render_from_the_package(browser, demo_server, shots):
         lambda d: d.find_elements("css selector", ".swagger-ui .opblock"), message="Swagger UI drew no operation"
     )
     assert "tsdb-service" in browser.find_element("css selector", ".swagger-ui .info .title").text
+    # Authentication is off: no lock on any operation and no Authorize button.
+    assert browser.find_elements("css selector", ".swagger-ui .authorization__btn") == []
+    assert browser.find_elements("css selector", ".swagger-ui .btn.authorize") == []
     assert _console_errors(browser) == []
     urls = _check_stayed_local(browser, demo_server)
     assert demo_server.url + "/openapi.json" in urls
@@ -272,7 +302,9 @@ def test_map_labels_stay_apart_and_inside(browser, demo_server, shots, wide, wid
 
 @pytest.mark.parametrize("width", WIDTHS)
 def test_time_labels_never_overlap(browser, demo_server, wide, width):
-    """Date labels collided on the half-width charts (uPlot's two-line first label)."""
+    """Date labels collided on the half-width charts (uPlot's two-line first label); the
+    last one could be cut by the chart's right edge; every legend began with a row
+    reading "Time: --" and every value read "--" while the cursor was elsewhere."""
     wide(width)
     for view, hash_ in (
         ("explore", "#/explore?tenant=lawnmower"),
@@ -284,6 +316,8 @@ def test_time_labels_never_overlap(browser, demo_server, wide, width):
         for span in RANGES:  # from the default window to a week, where labels become dates
             _choose_range(browser, span, view)
             assert _layout(browser, "timeLabelProblems") == [], f"{view} at {width} px, range {span}"
+            assert _layout(browser, "edgeLabelProblems") == [], f"{view} at {width} px, range {span}"
+            assert _layout(browser, "idleLegendProblems") == [], f"{view} at {width} px, range {span}"
 
 
 RANGES = ("auto", "3600", "604800")
@@ -336,3 +370,159 @@ def demo_server_usecases(server) -> dict:
     import httpx
 
     return httpx.get(server.url + "/ui/usecases", timeout=10).json()
+
+
+# -- the first hour: loading, failures, legends, edges, wide screens, the range, dashboards ----------
+
+
+def _go(browser, hash_: str, view: str) -> None:
+    """Another view of the page already open (no reload), drawn; ``hash_`` is not the current one."""
+    browser.execute_script("delete document.body.dataset.ready; location.hash = arguments[0];", hash_)
+    _wait_ready(browser, view)
+
+
+def _wait_ready(browser, view: str) -> None:
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    WebDriverWait(browser, READY_TIMEOUT_S).until(
+        lambda d: d.execute_script("return document.body.dataset.ready") == view, message=f"{view} was not drawn"
+    )
+
+
+def test_a_view_says_it_is_loading_until_its_data_is_drawn(browser, demo_server):
+    _open(browser, demo_server.url + "/ui/#/lawnmower", "lawnmower")
+    assert browser.find_elements("css selector", "#loading") == []
+    # Changing the range starts the view again; until its first answer arrives, it says it is loading.
+    loading, flag = browser.execute_script(
+        """const r = document.getElementById('range'); r.value = '3600'; r.dispatchEvent(new Event('change'));
+        const line = document.getElementById('loading');
+        return [line && line.offsetParent !== null ? line.textContent : null, document.body.dataset.loading];"""
+    )
+    assert loading == "Loading the lawnmower's data…" and flag == "lawnmower"
+    _wait_ready(browser, "lawnmower")
+    assert browser.find_elements("css selector", "#loading") == []
+    assert browser.execute_script("return document.body.dataset.loading") is None
+    assert _attr(browser, "#lawnmower-obstacle", "points") > 100
+
+
+def test_a_failed_request_is_said_where_the_view_would_be(browser, demo_server, shots):
+    _open(browser, demo_server.url + "/ui/#/lawnmower", "lawnmower")
+    browser.execute_cdp_cmd("Network.enable", {})
+    browser.execute_cdp_cmd("Network.setBlockedURLs", {"urls": ["*/grafana/infinity/states*"]})
+    try:
+        browser.execute_script("location.hash = '#/warehouse'")
+        _wait_ready(browser, "warehouse")
+        error = browser.find_element("css selector", "main #error").text
+        assert "Could not load this view" in error and "/grafana/infinity/states" in error, error
+        assert browser.find_elements("css selector", "#loading") == []
+        _shot(browser, shots, "warehouse-failed")
+    finally:
+        browser.execute_cdp_cmd("Network.setBlockedURLs", {"urls": []})
+    browser.execute_script("delete document.body.dataset.ready")
+    browser.find_element("css selector", "#error button.retry").click()
+    _wait_ready(browser, "warehouse")
+    assert browser.find_elements("css selector", "#error") == []
+    assert _attr(browser, "#warehouse-states", "segments") > 8
+    _drain_logs(browser)
+
+
+def test_legends_show_the_time_and_values_under_the_cursor(browser, demo_server):
+    """Away from the charts a legend only names the series (test_time_labels_never_overlap
+    checks every view); on one, every chart of the view shows its values at that time."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    legends = "return [...document.querySelectorAll('.chart .u-legend')].map((l) => l.innerText)"
+    _open(browser, demo_server.url + "/ui/#/warehouse", "warehouse")
+    assert _layout(browser, "idleLegendProblems") == []
+    ActionChains(browser).move_to_element(browser.find_element("css selector", "#warehouse-laser .u-over")).perform()
+    hovered = browser.execute_script(legends)
+    assert len(hovered) == 3 and all(text.startswith("Time") for text in hovered), hovered  # the cursors are synced
+    assert "--" not in hovered[0], hovered[0]
+    ActionChains(browser).move_to_element(browser.find_element("css selector", "header h1")).perform()
+    assert _layout(browser, "idleLegendProblems") == []
+
+
+@pytest.mark.parametrize("width", (1280, 2560))
+def test_the_last_time_label_stays_inside_its_chart(browser, demo_server, wide, width):
+    """The label of a tick at the axis' right end was cut in half (the use cases' views
+    are checked at every range by test_time_labels_never_overlap)."""
+    wide(width)
+    _open(browser, demo_server.url + "/ui/#/explore?tenant=edge", "explore")
+    for span in ("auto", "300"):
+        _choose_range(browser, span, "explore")
+        at_the_end = browser.execute_script(
+            """const u = document.querySelector('.chart[data-attr="temperature"]').uplot, splits = u.axes[0]._splits;
+            return u.valToPos(splits[splits.length - 1], 'x') >= u.bbox.width / devicePixelRatio - 1;"""
+        )
+        assert at_the_end, "the edge entity's last tick should sit at the axis' right end"
+        assert _layout(browser, "edgeLabelProblems") == [], f"edge at {width} px, range {span}"
+
+
+def test_wide_screens_are_filled(browser, demo_server, shots, wide):
+    """The page stopped at 1400 px: half of a 2560 px screen stayed empty."""
+    wide(1280)
+    _open(browser, demo_server.url + "/ui/#/warehouse", "warehouse")
+    narrow = browser.execute_script("return document.getElementById('warehouse-laser').uplot.height")
+    wide(2560)
+    _open(browser, demo_server.url + "/ui/#/warehouse", "warehouse")
+    main, laser, robot, tall = browser.execute_script(
+        """const w = (id) => document.getElementById(id).getBoundingClientRect().width;
+        const laser = document.getElementById('warehouse-laser').uplot;
+        return [w('main'), w('warehouse-laser'), w('warehouse-robot'), laser.height];"""
+    )
+    assert main > 2500 and laser > 2400 and robot > 1150, (main, laser, robot)
+    assert tall > narrow, (tall, narrow)  # wider charts are taller too
+    _shot(browser, shots, "warehouse-2560")
+
+
+def test_the_time_range_says_what_auto_picks(browser, demo_server):
+    _open(browser, demo_server.url + "/ui/#/dashboards", "dashboards")
+    assert not browser.find_element("css selector", "label.range").is_displayed()  # no time on that page
+    for view, hash_, auto in (
+        ("explore", "#/explore?tenant=lawnmower", "auto (all data)"),
+        ("lawnmower", "#/lawnmower", "auto (last hour of data)"),
+        ("warehouse", "#/warehouse", "auto (last 10 min of data)"),
+        ("drone", "#/drone", "auto (last 6 h of data)"),
+    ):
+        _go(browser, hash_, view)
+        label = browser.find_element("css selector", "label.range")
+        assert label.is_displayed() and label.find_element("css selector", "option").text == auto
+        tip = label.get_attribute("title")
+        assert "newest sample" in tip and "Warehouse, the last 10 minutes" in tip, tip
+
+
+def test_the_dashboards_page_lists_every_dashboard_with_its_json(browser, demo_server, shots):
+    """The header's dashboards link opened raw JSON."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    listed = httpx.get(demo_server.url + "/dashboards", timeout=10).json()
+    _open(browser, demo_server.url + "/ui/#/lawnmower", "lawnmower")
+    browser.execute_script("delete document.body.dataset.ready")
+    browser.find_element("css selector", "header .links a[data-view='dashboards']").click()
+    _wait_ready(browser, "dashboards")
+    cards = browser.find_elements("css selector", "#dashboards .dashboard")
+    assert [card.get_attribute("data-dashboard") for card in cards] == [entry["name"] for entry in listed]
+    for card, entry in zip(cards, listed, strict=True):
+        assert entry["title"] in card.text and entry["description"] in card.text
+        assert entry["sections"][0]["panels"][0] in card.text
+        opened = card.find_element("css selector", "a.json").get_attribute("href")
+        download = card.find_element("css selector", "a.download")
+        assert (
+            download.get_attribute("href") == opened and download.get_attribute("download") == f"{entry['name']}.json"
+        )
+        doc = httpx.get(opened, timeout=10)
+        assert doc.status_code == 200 and doc.json()["uid"] == entry["uid"], opened
+    steps = browser.find_element("css selector", "ol.steps").text
+    assert "yesoreyeram-infinity-datasource" in steps and "Dashboards → New → Import" in steps
+    url = browser.find_element("css selector", "#service-url")
+    url.clear()
+    url.send_keys("http://tsdb-service.lan:8668")
+    yaml = httpx.get(browser.find_element("css selector", "#datasources-yaml").get_attribute("href"), timeout=10)
+    assert yaml.status_code == 200 and "    url: http://tsdb-service.lan:8668\n" in yaml.text
+    copy = cards[0].find_element("css selector", "button.copy")
+    copy.click()
+    WebDriverWait(browser, 10).until(lambda d: copy.text != "Copy JSON", message="the copy button said nothing")
+    assert copy.text == "Copied"
+    assert _console_errors(browser) == []
+    _check_stayed_local(browser, demo_server)
+    _shot(browser, shots, "dashboards")

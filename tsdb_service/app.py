@@ -29,7 +29,7 @@ from tsdb_service.http.responses import JSON
 from tsdb_service.http.store import ServiceStore
 from tsdb_service.ingest import http_notify as notify
 from tsdb_service.ingest import openapi as notify_oa
-from tsdb_service.security import protect
+from tsdb_service.security import authenticates, protect
 from tsdb_service.storage import open_store, redact
 
 log = logging.getLogger("tsdb_service")
@@ -106,7 +106,7 @@ def create_app(
     app.request_metrics = metrics.requests
     app.front = protect(app.dispatch, settings)
     install_error_handlers(app)
-    install_openapi(app, settings.api_key_header, FEATURE_SCHEMAS)
+    install_openapi(app, settings.api_key_header if authenticates(settings) else None, FEATURE_SCHEMAS)
     app.add_middleware(ReadBudgetMiddleware, limits=ReadLimits.from_settings(settings))
     app.add_middleware(
         BodyLimit,

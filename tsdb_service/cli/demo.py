@@ -354,9 +354,11 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start,
         print(f"tsdb-service demo: feeding {url} {where}")
     print(f"  explorer     {url}/ui  (charts, maps and the three use cases in a browser)")
     print(f"  API docs     {url}/docs")
-    print(f"  dashboards   {url}/dashboards")
+    print(f"  dashboards   {url}/ui/#/dashboards  (Grafana dashboards: their JSON and how to import them)")
     print(f"  history API  {url}/v2/entities  (headers Fiware-Service / Fiware-ServicePath)")
     print("  requests     queries/tsdb-service.postman_collection.json, queries/tsdb-service.http")
+    if service is not None:
+        _print_reach(args.host, args.port)
     print("Try:")
     for name in DEMO_EXAMPLES:
         print(f"  # {name}\n  {curl(by_name(name), url)}")
@@ -375,6 +377,20 @@ def _print_banner(args: argparse.Namespace, url: str, seed: int, service, start,
             " give --duration to end the replay at the present instead)"
         )
     sys.stdout.flush()
+
+
+def _print_reach(host: str, port: int) -> None:
+    """Where the demo's service listens, and how another machine reaches it."""
+    pad = " " * 15
+    if host in ("127.0.0.1", "localhost", "::1"):
+        bound = f"[{host}]" if ":" in host else host
+        print(f"  listening    {bound}:{port} only, this machine. From another machine, a tunnel:")
+        print(f"{pad}ssh -L {port}:{bound}:{port} USER@THIS_HOST, then http://localhost:{port}/ui over there;")
+        print(f"{pad}or rerun with --host 0.0.0.0 on a network you trust: the demo has no authentication,")
+        print(f"{pad}so whoever reaches port {port} can read, write and delete the history.")
+    else:
+        print(f"  listening    {host}:{port}, with no authentication: whoever reaches port {port} can read,")
+        print(f"{pad}write and delete the history (the default --host 127.0.0.1 keeps it to this machine).")
 
 
 # -- subscribe

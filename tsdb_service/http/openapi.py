@@ -8,8 +8,9 @@ through ``openapi_extra`` and ``responses``: the description is generated
 from the same code that is served, and nothing here runs per request.
 
 ``install`` completes the document once, when it is first asked for: the
-component schemas the routes refer to, the optional security schemes, and
-no trace of FastAPI's own 422 validation answer (our handler answers 400).
+component schemas the routes refer to, the security schemes when
+authentication is on (and none, nor any 401 or 403 answer, when it is off),
+and no trace of FastAPI's own 422 validation answer (our handler answers 400).
 Bounds and enumerations mirror the parsers; where a parser is more lenient
 (case-insensitive keywords, say), the description documents the canonical
 spelling.
@@ -70,7 +71,7 @@ SCHEMAS: dict[str, dict] = {
 
 _ERROR_TEXT = {
     400: "Bad request: a parameter, header or body is invalid",
-    401: "No or invalid credential (only when API keys or tokens are configured)",
+    401: "No or invalid credential",
     403: "The credential lacks the scope or tenant this request needs",
     404: "Nothing matched, or no such resource",
     409: "Ambiguous: the entity id exists in several types",
@@ -221,7 +222,7 @@ def security_schemes(api_key_header: str) -> dict:
             "type": "apiKey",
             "in": "header",
             "name": api_key_header,
-            "description": "An API key (TSDB_API_KEYS), when keys are configured.",
+            "description": "An API key (TSDB_API_KEYS, TSDB_API_KEYS_FILE).",
         },
         "Bearer": {
             "type": "http",
@@ -232,19 +233,24 @@ def security_schemes(api_key_header: str) -> dict:
     }
 
 
-def complete(doc: dict, api_key_header: str, schemas_of_features: dict[str, dict] | None = None) -> dict:
-    """Add the component schemas (the kit's and each feature's) and the
-    optional security; drop FastAPI's 422 validation answer, which this
-    service never sends."""
+def complete(doc: dict, api_key_header: str | None, schemas_of_features: dict[str, dict] | None = None) -> dict:
+    """Add the component schemas (the kit's and each feature's) and, when
+    authentication is on (``api_key_header`` names the key header), the
+    security schemes every route but the open ones requires; drop FastAPI's
+    422 validation answer, which this service never sends.
+
+    With authentication off the document declares no security at all, so
+    Swagger UI shows no lock and no *Authorize* button for a credential the
+    service would not ask for."""
     components = doc.setdefault("components", {})
     schemas = components.setdefault("schemas", {})
     for name in ("HTTPValidationError", "ValidationError"):
         schemas.pop(name, None)
     schemas.update(SCHEMAS)
     schemas.update(schemas_of_features or {})
-    components["securitySchemes"] = security_schemes(api_key_header)
-    # Optional: {} means "no credential", which is the default configuration.
-    doc["security"] = [{}, {"ApiKeyHeader": []}, {"Bearer": []}]
+    if api_key_header is not None:
+        components["securitySchemes"] = security_schemes(api_key_header)
+        doc["security"] = [{"ApiKeyHeader": []}, {"Bearer": []}]
     for path, item in doc.get("paths", {}).items():
         for operation in item.values():
             responses = operation.get("responses", {})
@@ -252,7 +258,10 @@ def complete(doc: dict, api_key_header: str, schemas_of_features: dict[str, dict
                 del responses["422"]
             for response in responses.values():
                 _drop_placeholder(response.get("content"))
-            if path in OPEN:
+            if api_key_header is None:
+                for code in AUTH:
+                    responses.pop(str(code), None)
+            elif path in OPEN:
                 operation["security"] = [{}]
     return doc
 
@@ -271,9 +280,11 @@ def _is_validation_error(response: dict | None) -> bool:
     return schema.get("$ref", "").endswith("/HTTPValidationError")
 
 
-def install(app, api_key_header: str = "X-Api-Key", schemas: dict[str, dict] | None = None) -> None:
+def install(app, api_key_header: str | None, schemas: dict[str, dict] | None = None) -> None:
     """Make ``FastAPI.openapi()`` return the completed document (built once);
-    ``schemas``: the features' component schemas (each feature's ``openapi.SCHEMAS``)."""
+    ``api_key_header``: the API key header when authentication is on, None
+    when it is off; ``schemas``: the features' component schemas (each
+    feature's ``openapi.SCHEMAS``)."""
     generate = app.openapi
     done: list[dict] = []
 

@@ -24,6 +24,7 @@ __all__ = [
     "Forbidden",
     "Principal",
     "Unauthorized",
+    "authenticates",
     "check",
     "protect",
     "required_scope",
@@ -37,8 +38,7 @@ def protect(app, settings):
     credential is configured, CORS (outermost, so preflights need no
     credential and refusals still reach the browser) when origins are.
     ValueError for settings that would leave the service open (see ``check``)."""
-    keys = KeyRing.from_settings(settings.api_keys, settings.api_keys_file)
-    tokens = TokenVerifier.from_settings(settings)
+    keys, tokens = _credentials(settings)
     origins = [o.strip().rstrip("/") for o in settings.cors_origins.split(",") if o.strip()]
     if "*" in origins and keys is None and tokens is None and not settings.cors_allow_unauthenticated:
         raise ValueError(
@@ -58,6 +58,17 @@ def protect(app, settings):
             max_age=CORS_MAX_AGE_S,
         )
     return app
+
+
+def authenticates(settings) -> bool:
+    """Whether every request but the open paths needs a credential: some API
+    key or token setting is configured, so ``protect`` installs the guard."""
+    keys, tokens = _credentials(settings)
+    return keys is not None or tokens is not None
+
+
+def _credentials(settings) -> tuple[KeyRing | None, TokenVerifier | None]:
+    return KeyRing.from_settings(settings.api_keys, settings.api_keys_file), TokenVerifier.from_settings(settings)
 
 
 def check(settings) -> None:

@@ -233,12 +233,25 @@ DASHBOARDS = spec(
     ok_=ok(
         array(
             obj(
-                ("name", "use_case", "uid", "title", "tags", "url", "datasource_uid", "datasources"),
+                (
+                    "name",
+                    "use_case",
+                    "uid",
+                    "title",
+                    "description",
+                    "sections",
+                    "tags",
+                    "url",
+                    "datasource_uid",
+                    "datasources",
+                ),
                 {
                     "name": STR,
                     "use_case": NULLABLE_STR,
                     "uid": STR,
                     "title": STR,
+                    "description": STR,
+                    "sections": array(obj(("title", "panels"), {"title": NULLABLE_STR, "panels": STRS})),
                     "tags": STRS,
                     "url": STR,
                     "datasource_uid": NULLABLE_STR,
@@ -252,6 +265,18 @@ DASHBOARDS = spec(
 
 
 DASHBOARD = spec(ok_=ok(ref("Dashboard")), errors_=(*AUTH, 404))
+
+
+PROVISIONING = spec(
+    query(
+        "url",
+        "datasources.yaml: where Grafana reaches this service, http(s)://host[:port][/path] "
+        "(default http://tsdb-service:8668).",
+        {"type": "string", "maxLength": 200},
+    ),
+    ok_=ok({"type": "object"}, "A Grafana provisioning file: YAML, one mapping (apiVersion, ...)", "application/yaml"),
+    errors_=(400, *AUTH, 404),
+)
 
 
 SCHEMAS: dict[str, dict] = {

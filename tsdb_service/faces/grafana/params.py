@@ -33,6 +33,7 @@ __all__ = [
     "flag",
     "moment",
     "positive_int",
+    "service_url",
     "time_range",
 ]
 
@@ -115,3 +116,33 @@ def choice(raw: str | None, name: str, allowed: tuple[str, ...], default: str) -
     if low not in allowed:
         raise BadRequest(f"{name} must be one of {', '.join(allowed)}, not {raw[:40]!r}")
     return low
+
+
+# Characters a service URL may hold in the provisioning YAML we write it into:
+# no quote, space, '#', newline or anything YAML would read as syntax.
+_URL_CHARS = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-._~:/[]%")
+_URL_MAX = 200
+
+
+def service_url(raw: str | None, default: str) -> str:
+    """``url``: where Grafana reaches this service, ``http(s)://host[:port][/path]``
+    (no user info, query or fragment), without a trailing ``/``; ``default`` when absent."""
+    if raw is None or not raw.strip():
+        return default
+    url = raw.strip().rstrip("/")
+    problem = None
+    if len(url) > _URL_MAX or not set(url) <= _URL_CHARS:
+        problem = f"at most {_URL_MAX} characters of A-Z a-z 0-9 - . _ ~ : / [ ] %"
+    else:
+        from urllib.parse import urlsplit
+
+        parts = urlsplit(url)
+        try:
+            port_ok = parts.port is None or parts.port > 0
+        except ValueError:
+            port_ok = False
+        if parts.scheme not in ("http", "https") or not parts.hostname or not port_ok:
+            problem = "http(s)://host[:port][/path]"
+    if problem:
+        raise BadRequest(f"url: {raw[:80]!r} is not a service URL: {problem}")
+    return url

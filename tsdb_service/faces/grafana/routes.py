@@ -1,18 +1,27 @@
-"""``GET /dashboards`` and ``GET /dashboards/{name}``: the shipped dashboards as JSON.
+"""``GET /dashboards`` and ``GET /dashboards/{name}``: the shipped dashboards as JSON;
+``GET /dashboards/provisioning/{file}``: Grafana's provisioning files for them.
 
 The JSON is what ``dashboards/<name>.json`` holds (the three use cases and
 ``service``, the service's own; built by the same code); import it in
-Grafana, or provision ``dashboards/`` (see its README).
+Grafana, or provision ``dashboards/`` (see its README). People read the
+list on the explorer's dashboards page (``/ui/#/dashboards``), which links
+here. The datasources file names this service at the URL Grafana reaches it
+by (``?url=``), since the dashboards refer to their datasources by uid and
+Grafana's form cannot set one.
 The dashboard builder is imported on first use, so ``serve`` starts fast.
 """
 
 from __future__ import annotations
 
 from fastapi import APIRouter, Request
+from fastapi.responses import PlainTextResponse
 
 from tsdb_service.core.errors import NotFound
 from tsdb_service.faces.grafana import openapi as grafana_oa
+from tsdb_service.faces.grafana.params import service_url
 from tsdb_service.http.responses import JSON
+
+PROVISIONING_FILES = ("datasources.yaml", "dashboards.yaml")
 
 router = APIRouter(tags=["grafana"])
 
@@ -20,9 +29,11 @@ router = APIRouter(tags=["grafana"])
 @router.get("/dashboards", summary="The use-case dashboards", **grafana_oa.DASHBOARDS)
 def list_dashboards(request: Request) -> JSON:
     """Every shipped dashboard: the use cases' (``use_case`` names it) and the
-    service's own (``use_case`` null). ``datasources`` are the ``{"type",
-    "uid"}`` its panels read, taken from the dashboard itself: the use cases
-    read Infinity, the service dashboard Prometheus."""
+    service's own (``use_case`` null), with what it shows (``description``,
+    and ``sections``: its panels' titles under each row's).
+    ``datasources`` are the ``{"type", "uid"}`` its panels read, taken from
+    the dashboard itself: the use cases read Infinity, the service dashboard
+    Prometheus."""
     from tsdb_service.faces.grafana import dashboards
 
     out = []
@@ -35,6 +46,8 @@ def list_dashboards(request: Request) -> JSON:
                 "use_case": name if name in dashboards.BUILDERS else None,
                 "uid": doc["uid"],
                 "title": doc["title"],
+                "description": doc.get("description", ""),
+                "sections": _sections(doc),
                 "tags": doc.get("tags", []),
                 "url": f"{request.url.path.rstrip('/')}/{name}",
                 "datasources": sources,
@@ -42,6 +55,20 @@ def list_dashboards(request: Request) -> JSON:
             }
         )
     return JSON(out)
+
+
+def _sections(doc: dict) -> list[dict]:
+    """``[{"title": row title or None, "panels": [titles]}]``, in the dashboard's order."""
+    sections: list[dict] = []
+    for panel in doc.get("panels", []):
+        if panel.get("type") == "row":  # a collapsed row holds its panels
+            inner = [one.get("title") or one.get("type") for one in panel.get("panels", [])]
+            sections.append({"title": panel.get("title"), "panels": inner})
+            continue
+        if not sections:
+            sections.append({"title": None, "panels": []})
+        sections[-1]["panels"].append(panel.get("title") or panel.get("type"))
+    return [section for section in sections if section["panels"]]
 
 
 def _datasources(node, found: list[dict] | None = None) -> list[dict]:
@@ -59,6 +86,27 @@ def _datasources(node, found: list[dict] | None = None) -> list[dict]:
         for value in node:
             _datasources(value, found)
     return found
+
+
+@router.get(
+    "/dashboards/provisioning/{file}",
+    summary="Grafana provisioning files for the dashboards' datasources and folder",
+    **grafana_oa.PROVISIONING,
+)
+def provisioning_file(file: str, request: Request) -> PlainTextResponse:
+    """``datasources.yaml``: the datasources the dashboards refer to by uid,
+    pointing at ``?url=`` (default ``http://tsdb-service:8668``, the compose
+    name); ``dashboards.yaml``: the file provider for the JSON files."""
+    from tsdb_service.faces.grafana import dashboards
+    from tsdb_service.faces.grafana.dashboards import kit
+
+    if file not in PROVISIONING_FILES:
+        raise NotFound(f"no provisioning file {file[:60]!r}: choose from {', '.join(PROVISIONING_FILES)}")
+    if file == "datasources.yaml":
+        text = dashboards.datasources_yaml(service_url(request.query_params.get("url"), kit.SERVICE_URL))
+    else:
+        text = dashboards.dashboards_yaml()
+    return PlainTextResponse(text, media_type="application/yaml")
 
 
 @router.get("/dashboards/{use_case}", summary="One dashboard's JSON (schemaVersion 42)", **grafana_oa.DASHBOARD)

@@ -7,9 +7,13 @@
  * Nothing is fetched from anywhere but this service.
  *
  * Views (hash routes): #/explore?tenant=&path=&entity=  any entity's attributes;
- * #/lawnmower, #/warehouse, #/drone  the three demo use cases.
- * When a view has drawn its data it sets <body data-ready="VIEW"> and
- * window.explorerReady = {view, ms} (ms since navigation start).
+ * #/lawnmower, #/warehouse, #/drone  the three demo use cases; #/dashboards
+ * the Grafana dashboards and how to import them.
+ * While a view loads, a status line under what it has drawn says so
+ * (#loading, and <body data-loading="VIEW">); a failure replaces it with the
+ * error (#error). When a view has drawn its data it sets
+ * <body data-ready="VIEW"> and window.explorerReady = {view, ms} (ms since
+ * navigation start).
  */
 "use strict";
 (function () {
@@ -21,6 +25,17 @@
   const METRES_PER_DEG = 111320;
   const main = document.getElementById("main");
   const rangeSelect = document.getElementById("range");
+  const rangeLabel = rangeSelect.closest("label");
+  /** What "auto" shows in each view: a window ending at the newest sample (seconds; null: all). */
+  const AUTO = {
+    explore: { seconds: null, text: "all data" },
+    lawnmower: { seconds: 3600, text: "last hour of data" },
+    warehouse: { seconds: 600, text: "last 10 min of data" },
+    drone: { seconds: 6 * 3600, text: "last 6 h of data" },
+  };
+  const AUTO_TIP = "Every range ends at the newest sample stored, not at the present, so an old database shows " +
+    "its data too. auto picks a window that suits the view: Explore, all the entity's data (each series thinned " +
+    "to at most 800 points); Lawnmower, the last hour; Warehouse, the last 10 minutes; Drone, the last 6 hours.";
   let charts = []; // live uPlot instances of the current view
   let generation = 0; // bumps on every navigation; stale async work stops drawing
 
@@ -46,10 +61,12 @@
     return h("section", { class: "panel" }, h("h2", {}, title, note ? h("small", {}, note) : null), ...body);
   }
 
-  function showError(err) {
-    const box = document.getElementById("error");
-    box.hidden = false;
-    box.textContent = String(err && err.message ? err.message : err);
+  /** The status line under a loading view becomes the error: the reader sees why nothing came. */
+  function showError(status, err) {
+    const message = String(err && err.message ? err.message : err);
+    status.replaceWith(h("div", { id: "error", role: "alert" }, h("b", {}, "Could not load this view: "), message,
+      h("div", { class: "caption" }, h("button", { type: "button", class: "retry", onclick: route }, "Try again"),
+        " The browser console has the details.")));
     console.error(err);
   }
 
@@ -60,7 +77,12 @@
     for (const [key, value] of Object.entries(params || {})) {
       if (value !== undefined && value !== null && value !== "") url.searchParams.set(key, value);
     }
-    const resp = await fetch(url, { headers: { Accept: "application/json" } });
+    let resp;
+    try {
+      resp = await fetch(url, { headers: { Accept: "application/json" } });
+    } catch (err) { // no answer at all: the service stopped, or the network is down
+      throw new Error(`the service did not answer ${url.pathname} (${err.message}): is it still running?`);
+    }
     const body = await resp.json().catch(() => null);
     if (!resp.ok) {
       const why = body && body.description ? `: ${body.description}` : "";
@@ -78,9 +100,9 @@
   const scopeOf = (service, servicePath) => ({ service, servicepath: servicePath || "" });
 
   /** {from, to} (epoch ms) ending at the newest sample, or {} for all data. */
-  function timeWindow(newestMs, autoSeconds) {
+  function timeWindow(newestMs, view) {
     const choice = rangeSelect.value;
-    const seconds = choice === "auto" ? autoSeconds : choice === "all" ? null : Number(choice);
+    const seconds = choice === "auto" ? AUTO[view].seconds : choice === "all" ? null : Number(choice);
     if (seconds === null || !Number.isFinite(newestMs)) return {};
     return { from: Math.round(newestMs - seconds * 1000), to: Math.round(newestMs) };
   }
@@ -136,6 +158,8 @@
     }
     return { xs: times.map((t) => t / 1000), columns: [...out.values()] };
   }
+  /** One column's values (of the first entity that has it); [] when no row had any. */
+  const valuesOf = (data, key) => (data.columns.find((c) => c.key === key) || { values: [] }).values;
 
   /** Time tick labels of one kind for a whole axis: dates, clock times, or both. */
   function timeLabel(ms, stepSeconds, spanSeconds) {
@@ -146,13 +170,19 @@
   const LABEL_PX = 7; // width of a tick label character at the axes' 12 px, with room to spare
 
   /** The x axis: one label format per axis, and ticks far enough apart for it (uPlot's
-   * default puts a two-line date under the first tick, which collides on half-width charts). */
+   * default puts a two-line date under the first tick, which collides on half-width charts).
+   * ``edge``: the room a label centred on the plot's right end needs beyond it, so the last
+   * tick's label is never cut by the chart's edge. */
   function timeAxis0(xRange) {
     const spanSeconds = xRange ? (xRange[1] - xRange[0]) / 1000 : 3600;
     const sample = timeLabel(Date.now(), spanSeconds < 600 ? 1 : 60, spanSeconds);
-    return { space: sample.length * LABEL_PX + 18,
-      values: (u, splits, axisIdx, space, incr) => splits.map((v) => timeLabel(v * 1000, incr, spanSeconds)) };
+    return { edge: edgeRoom(sample.length * LABEL_PX), axis: { space: sample.length * LABEL_PX + 18,
+      values: (u, splits, axisIdx, space, incr) => splits.map((v) => timeLabel(v * 1000, incr, spanSeconds)) } };
   }
+  const edgeRoom = (labelPx) => Math.max(16, Math.ceil(labelPx / 2) + 4);
+
+  /** Taller charts on wider cards, so a chart on a wide screen is not a thin strip. */
+  const heightFor = (base, width) => Math.round(Math.min(base * 1.6, Math.max(base, width / 5)));
 
   /** A y axis naming the codes of an enumeration ({"0": "docked", ...}) instead of numbers. */
   function enumAxis(names) {
@@ -161,26 +191,41 @@
     return { size: widest * LABEL_PX + 14, splits: () => codes, values: (u, ticks) => ticks.map((v) => names[String(v)] || v) };
   }
 
+  /** The legend names the series; the time and the values show only while the cursor is on
+   * a chart of the view (uPlot's legend would read "Time: --" and "--" otherwise). */
+  function legendFollowsCursor(u) {
+    const legend = u.root.querySelector(".u-legend");
+    if (legend) legend.classList.toggle("u-live", u.cursor.idx !== null && u.cursor.idx !== undefined);
+  }
+
   /**
    * A time-series chart. series: [{label, values, color?, stepped?, dash?, points?, names?}];
    * ``names`` (an enumeration) labels the y axis and the legend's value with state names.
+   * ``height`` is the height on a narrow card; wider cards get taller charts.
    * The container gets data-series / data-points for whoever checks it was drawn, and
-   * ``box.uplot`` the chart.
+   * ``box.uplot`` the chart. No x values: a note says the range holds no samples.
    */
   function lineChart(box, { xs, series, xRange, height = 180, unit = "" }) {
+    if (!xs.length) {
+      box.replaceChildren(h("p", { class: "muted" }, "No samples in this time range."));
+      return null;
+    }
     const names = series.length === 1 ? series[0].names : null;
     const codes = names ? Object.keys(names).map(Number) : [];
+    const width = Math.max(box.clientWidth, 300);
+    const x = timeAxis0(xRange);
     const opts = {
-      width: Math.max(box.clientWidth, 300),
-      height,
-      padding: [8, 16, 0, 0],
+      width,
+      height: heightFor(height, width),
+      padding: [8, x.edge, 0, 0],
       cursor: { sync: { key: "view" } },
       legend: { live: true },
+      hooks: { init: [legendFollowsCursor], setCursor: [legendFollowsCursor] },
       scales: { x: { time: true, range: (u, lo, hi) => (xRange ? [xRange[0] / 1000, xRange[1] / 1000] : [lo, hi]) },
         y: names ? { range: [Math.min(...codes) - 0.5, Math.max(...codes) + 0.5] } : {} },
-      axes: [timeAxis0(xRange), names ? enumAxis(names)
+      axes: [x.axis, names ? enumAxis(names)
         : { size: 60, values: (u, ticks) => ticks.map((v) => `${+v.toPrecision(6)}${unit}`) }],
-      series: [{}].concat(series.map((one, i) => ({
+      series: [{ value: (u, v) => (v === null || v === undefined ? "" : stamp(v * 1000)) }].concat(series.map((one, i) => ({
         label: one.label,
         value: one.names ? (u, v) => (v === null || v === undefined ? "--" : one.names[String(v)] || String(v)) : undefined,
         stroke: one.color || PALETTE[i % PALETTE.length],
@@ -202,7 +247,10 @@
   }
 
   window.addEventListener("resize", () => {
-    for (const chart of charts) chart.setSize({ width: Math.max(chart.root.parentElement.clientWidth, 300), height: chart.tsdbHeight });
+    for (const chart of charts) {
+      const width = Math.max(chart.root.parentElement.clientWidth, 300);
+      chart.setSize({ width, height: heightFor(chart.tsdbHeight, width) });
+    }
   });
 
   // -- state timelines (SVG) -------------------------------------------------------------------
@@ -213,13 +261,15 @@
     return PALETTE[(Number.isInteger(value) ? value : index) % PALETTE.length];
   }
 
+  const BAND_LABEL_PX = 6; // a timeline tick label character at 10 px ("HH:MM:SS" is 8)
+
   /**
    * Horizontal bands, one per state column: rows [{time, ...}] of state changes
    * (the /states endpoint), each band coloured by value, named by an enumeration.
    * bands: [{key, label, names?}]. Aligned with the charts' 60 px y axis.
    */
   function stateBands(box, { rows, bands, xRange, entity }) {
-    const width = Math.max(box.clientWidth, 300), left = 60, right = 16, rowH = 20, gap = 18;
+    const width = Math.max(box.clientWidth, 300), left = 60, right = edgeRoom(BAND_LABEL_PX * 8), rowH = 20, gap = 18;
     const height = bands.length * (rowH + gap) + 22;
     const x = (t) => left + ((t - xRange[0]) / (xRange[1] - xRange[0])) * (width - left - right);
     const mine = rows.filter((r) => !entity || r.entity === entity);
@@ -254,7 +304,7 @@
 
   function timeAxis(x, xRange, y, x0, x1) {
     const seconds = (xRange[1] - xRange[0]) / 1000;
-    const most = Math.max(2, Math.min(8, Math.floor((x1 - x0) / 64))); // "HH:MM:SS" at 10 px is ~45 px wide
+    const most = Math.max(2, Math.min(16, Math.floor((x1 - x0) / 64))); // "HH:MM:SS" at 10 px is ~45 px wide
     const step = TICK_STEPS.find((st) => seconds / st <= most) || 86400 * Math.ceil(seconds / 86400 / most);
     const g = s("g", { class: "axis" }, s("line", { x1: x0, x2: x1, y1: y - 10, y2: y - 10 }));
     const offset = new Date(xRange[0]).getTimezoneOffset() * 60e3;
@@ -489,7 +539,7 @@
         plotted.push({ attr, keys, spec: keys.length ? `${attr}(${keys.join(".")})` : attr });
       }
     }
-    const win = timeWindow(newest, null);
+    const win = timeWindow(newest, "explore");
     const [rows, positions] = await Promise.all([fetchColumns(sel, plotted, win), Promise.all(geo.map((attr) =>
       api("grafana/infinity/positions", { ...sel, ...win, location: attr, max_points: 3000 })))]);
     if (stale()) return;
@@ -554,6 +604,7 @@
       const caption = constant.length ? h("div", { class: "caption" }, `constant: ${constant.join(", ")}`) : null;
       grid.append(panel(attr, `${varying.length} series`, box, caption));
       if (varying.length) draws.push(() => lineChart(box, { xs: data.xs, series: varying, xRange }));
+      else box.append(h("p", { class: "muted" }, "Nothing that changes in this time range."));
     }
     return draws;
   }
@@ -581,7 +632,7 @@
     const sel = { ...scopeOf(cfg.service, cfg.servicePath), id: cfg.entity };
     const newest = await newestOf(sel, "navigationState");
     if (newest === null) return noData(box, cfg);
-    const win = timeWindow(newest, 3600);
+    const win = timeWindow(newest, "lawnmower");
     const [positions, states, series] = await Promise.all([
       api("grafana/infinity/positions", { ...sel, ...win, attrs: "state=navigationState(data)", max_points: 5000 }),
       api("grafana/infinity/states", { ...sel, ...win,
@@ -619,12 +670,10 @@
       { key: "sub", label: "navigationSubState", names: cfg.enums.navigationSubState },
       { key: "left", label: "perimeterLeft" }, { key: "right", label: "perimeterRight" }] });
     const data = toColumns(series, ["obstacle", "speed", "yawRate"]);
-    const col = (key) => data.columns.find((c) => c.key === key).values;
-    if (data.xs.length) {
-      lineChart(obstacleBox, { xs: data.xs, xRange, series: [{ label: "obstacle distance (m)", values: col("obstacle") }] });
-      lineChart(speedBox, { xs: data.xs, xRange, series: [{ label: "linear x (m/s)", values: col("speed") },
-        { label: "angular z (rad/s)", values: col("yawRate") }] });
-    }
+    const col = (key) => valuesOf(data, key);
+    lineChart(obstacleBox, { xs: data.xs, xRange, series: [{ label: "obstacle distance (m)", values: col("obstacle") }] });
+    lineChart(speedBox, { xs: data.xs, xRange, series: [{ label: "linear x (m/s)", values: col("speed") },
+      { label: "angular z (rad/s)", values: col("yawRate") }] });
   }
 
   // -- use case: PIAP warehouse -----------------------------------------------------------------------
@@ -635,7 +684,7 @@
     const sel = { ...scope, id: cfg.entity };
     const newest = await newestOf(sel, "doorState");
     if (newest === null) return noData(box, cfg);
-    const win = timeWindow(newest, 600);
+    const win = timeWindow(newest, "warehouse");
     const [states, laser, robot, env] = await Promise.all([
       api("grafana/infinity/states", { ...sel, ...win,
         attrs: "door=doorState(data),command=doorCommand(data),light=warningLight(data),lightCommand=warningLightCommand(data)" }),
@@ -658,20 +707,18 @@
         panel("Robot position", `${cfg.robot}: odometry x, m (door at 0)`, robotBox),
         panel("Environment", "temperature °C, humidity %", envBox)));
     const l = toColumns(laser, ["laser"]);
-    if (l.xs.length) {
-      lineChart(laserBox, { xs: l.xs, xRange, height: 200, series: [
-        { label: "laser distance (m)", values: l.columns[0].values },
-        { label: `opening threshold ${cfg.doorOpenDistanceM} m`, values: l.xs.map(() => cfg.doorOpenDistanceM), color: "#d62728", dash: [6, 4], width: 1 }] });
-    }
+    lineChart(laserBox, { xs: l.xs, xRange, height: 200, series: [
+      { label: "laser distance (m)", values: valuesOf(l, "laser") },
+      { label: `opening threshold ${cfg.doorOpenDistanceM} m`, values: l.xs.map(() => cfg.doorOpenDistanceM), color: "#d62728", dash: [6, 4], width: 1 }] });
     stateBands(bandsBox, { rows: states, xRange, bands: [
       { key: "door", label: "doorState", names: cfg.enums.doorState },
       { key: "command", label: "doorCommand", names: cfg.enums.doorCommand },
       { key: "light", label: "warningLight", names: cfg.enums.warningLight },
       { key: "lightCommand", label: "warningLightCommand", names: cfg.enums.warningLightCommand }] });
     const r = toColumns(robot, ["x"]);
-    if (r.xs.length) lineChart(robotBox, { xs: r.xs, xRange, series: [{ label: "x (m)", values: r.columns[0].values }] });
+    lineChart(robotBox, { xs: r.xs, xRange, series: [{ label: "x (m)", values: valuesOf(r, "x") }] });
     const e = toColumns(env, ["temperature", "humidity"]);
-    if (e.xs.length) lineChart(envBox, { xs: e.xs, xRange, series: e.columns.map((c) => ({ label: c.key, values: c.values })) });
+    lineChart(envBox, { xs: e.xs, xRange, series: e.columns.map((c) => ({ label: c.key, values: c.values })) });
   }
 
   // -- use case: eProsima drone ----------------------------------------------------------------------
@@ -682,7 +729,7 @@
     const drone = { ...scope, id: cfg.entity };
     const newest = await newestOf(drone, "missionState");
     if (newest === null) return noData(box, cfg);
-    const win = timeWindow(newest, 6 * 3600);
+    const win = timeWindow(newest, "drone");
     const sensors = { ...scope, type: cfg.sensorType };
     const [route, placed, missions, readings, flight] = await Promise.all([
       api("grafana/infinity/positions", { ...drone, ...win, attrs: "state=missionState(data)", max_points: 5000 }),
@@ -738,12 +785,10 @@
     const order = (c) => cfg.sensors.findIndex((one) => one.id === c.entity);
     const perSensor = (key) => t.columns.filter((c) => c.key === key).sort((a, b) => order(a) - order(b)).map((c) =>
       ({ label: shortName(c.entity), values: c.values, points: true, color: stateColor(order(c) + 1, 0) }));
-    if (t.xs.length) {
-      lineChart(tempBox, { xs: t.xs, xRange, series: perSensor("temperature") });
-      lineChart(humBox, { xs: t.xs, xRange, series: perSensor("humidity") });
-    }
+    lineChart(tempBox, { xs: t.xs, xRange, series: perSensor("temperature") });
+    lineChart(humBox, { xs: t.xs, xRange, series: perSensor("humidity") });
     const f = toColumns(flight, ["altitude", "battery"]);
-    if (f.xs.length) lineChart(flightBox, { xs: f.xs, xRange, series: f.columns.map((c) => ({ label: c.key, values: c.values })) });
+    lineChart(flightBox, { xs: f.xs, xRange, series: f.columns.map((c) => ({ label: c.key, values: c.values })) });
   }
 
   const shortName = (id) => id.replace(/:+$/, "").split(":").pop() || id;
@@ -772,9 +817,115 @@
       h("tr", {}, h("td", { colspan: 7, class: "caption" }, "Bars: blue = share of visits in this range, gold = mission priority.")));
   }
 
+  // -- the Grafana dashboards ----------------------------------------------------------------------
+
+  const INFINITY = "yesoreyeram-infinity-datasource";
+  const code = (text) => h("code", {}, text);
+  const pre = (text) => h("pre", {}, h("code", {}, text));
+
+  /** Every shipped dashboard (GET /dashboards): what it shows, its JSON, and how to import it. */
+  async function viewDashboards(box) {
+    const list = await api("dashboards");
+    const serviceUrl = h("input", { id: "service-url", type: "url", size: 36, spellcheck: "false",
+      value: ROOT.href.replace(/\/$/, ""), "aria-label": "this service's URL as Grafana reaches it" });
+    const yaml = h("a", { id: "datasources-yaml", download: "tsdb-service-datasources.yaml" }, "datasources.yaml");
+    const pointYaml = () => {
+      const url = serviceUrl.value.trim();
+      const ok = /^https?:\/\/[^\s/?#@]+(\/[^\s?#]*)?$/.test(url);
+      serviceUrl.classList.toggle("invalid", !ok);
+      yaml.href = new URL(`dashboards/provisioning/datasources.yaml?url=${encodeURIComponent(ok ? url : "")}`, ROOT).href;
+    };
+    serviceUrl.addEventListener("input", pointYaml);
+    pointYaml();
+    const uids = [...new Set(list.flatMap((d) => d.datasources.map((ds) => ds.uid)))];
+    box.append(
+      h("p", { class: "muted" }, `${list.length} Grafana dashboards ship with tsdb-service: one per use case, the drone ` +
+        "again through the NGSI-LD temporal API, and one for the service itself. Each is plain dashboard JSON " +
+        "(schemaVersion 42, Grafana 12), served by this service."),
+      h("div", { class: "grid", id: "dashboards" }, list.map(dashboardCard)),
+      panel("Import them into Grafana", null, h("ol", { class: "steps" },
+        h("li", {}, h("b", {}, "Install the Infinity plugin"), " (the use-case dashboards read this service through it): ",
+          code(`grafana cli plugins install ${INFINITY}`), " and restart Grafana; with Docker, set ",
+          code(`GF_PLUGINS_PREINSTALL=${INFINITY}`), "."),
+        h("li", {}, h("b", {}, "Create the datasources. "), "The dashboards refer to them by uid (",
+          uids.map((uid, i) => [i ? ", " : "", code(uid)]), "), which Grafana's ", h("i", {}, "Add data source"),
+          " form cannot set, so provision them. Grafana reaches this service at ", serviceUrl,
+          " (in a Compose file next to Grafana: ", code("http://tsdb-service:8668"), "). Download ", yaml,
+          ": one Infinity datasource per use case, sending its tenant as the ", code("Fiware-Service"), " and ",
+          code("Fiware-ServicePath"), " headers, and a Prometheus one for the service dashboard (change its ",
+          code("url"), " to your Prometheus). Put it in Grafana's provisioning folder and restart Grafana:",
+          pre("cp tsdb-service-datasources.yaml /etc/grafana/provisioning/datasources/tsdb-service.yaml"),
+          "With Docker, mount it there instead."),
+        h("li", {}, h("b", {}, "Import a dashboard: "), "in Grafana, ", h("i", {}, "Dashboards → New → Import"),
+          "; upload the file ", h("i", {}, "Download"), " saved (or paste what ", h("i", {}, "Copy JSON"),
+          " copied), pick a folder, ", h("i", {}, "Import"), "."),
+        h("li", {}, h("b", {}, "Or load them all at every start: "), "put ",
+          h("a", { href: new URL("dashboards/provisioning/dashboards.yaml", ROOT).href, download: "tsdb-service-dashboards.yaml" }, "dashboards.yaml"),
+          " in ", code("/etc/grafana/provisioning/dashboards/"), " and the JSON files in ",
+          code("/var/lib/grafana/dashboards/tsdb-service/"), ". The repository's ", code("dashboards/"),
+          " folder holds them all, and its ", code("docker compose up"), " runs Grafana provisioned this way."))));
+  }
+
+  function dashboardCard(d) {
+    const json = new URL(`dashboards/${encodeURIComponent(d.name)}.json`, ROOT).href;
+    const copy = h("button", { type: "button", class: "copy" }, "Copy JSON");
+    copy.addEventListener("click", () => copyText(json, copy));
+    const kind = (type) => ({ [INFINITY]: "Infinity", prometheus: "Prometheus" })[type] || type;
+    const reads = d.datasources.map((ds, i) => [i ? ", " : "", kind(ds.type), " ", code(ds.uid)]);
+    return h("section", { class: "panel dashboard", "data-dashboard": d.name },
+      h("h2", {}, d.title, h("small", {}, `${d.name}.json`)),
+      h("p", {}, d.description),
+      h("ul", { class: "sections" }, (d.sections || []).map((one) =>
+        h("li", {}, one.title ? h("b", {}, `${one.title}: `) : null, one.panels.join(" · ")))),
+      h("p", { class: "caption" }, "Datasource: ", reads, d.tags.length ? ` · tags: ${d.tags.join(", ")}` : ""),
+      h("div", { class: "actions" },
+        h("a", { class: "button json", href: json, target: "_blank", rel: "noopener" }, "Open JSON"),
+        h("a", { class: "button download", href: json, download: `${d.name}.json` }, "Download"), copy));
+  }
+
+  /** Copy what ``url`` answers; the button says how it went. The clipboard API needs a secure
+   * context (https or localhost) and may be refused: then a hidden text area and execCommand. */
+  async function copyText(url, button) {
+    const said = button.textContent;
+    try {
+      const resp = await fetch(url);
+      if (!resp.ok) throw new Error(`HTTP ${resp.status}`);
+      const text = await resp.text();
+      const viaApi = window.isSecureContext && navigator.clipboard
+        ? await navigator.clipboard.writeText(text).then(() => true, () => false) : false;
+      if (!viaApi && !copyByCommand(text)) throw new Error("the browser refused to copy");
+      button.textContent = "Copied";
+    } catch (err) {
+      button.textContent = "Copy failed: use Download";
+      console.warn(err);
+    }
+    setTimeout(() => { button.textContent = said; }, 2500);
+  }
+
+  function copyByCommand(text) {
+    const area = h("textarea", { class: "offscreen", readonly: true });
+    area.value = text;
+    document.body.append(area);
+    area.select();
+    const done = document.execCommand("copy");
+    area.remove();
+    return done;
+  }
+
   // -- routing ----------------------------------------------------------------------------
 
-  const VIEWS = { explore: viewExplore, lawnmower: viewLawnmower, warehouse: viewWarehouse, drone: viewDrone };
+  const VIEWS = { explore: viewExplore, lawnmower: viewLawnmower, warehouse: viewWarehouse, drone: viewDrone,
+    dashboards: viewDashboards };
+  const LOADING = { explore: "Loading the stored entities…", lawnmower: "Loading the lawnmower's data…",
+    warehouse: "Loading the warehouse's data…", drone: "Loading the drone's data…", dashboards: "Loading the dashboards…" };
+
+  /** The time range control: what "auto" means here, in its text and its tooltip; off where no time is shown. */
+  function showRange(view) {
+    rangeLabel.hidden = !AUTO[view];
+    if (!AUTO[view]) return;
+    rangeSelect.options[0].textContent = `auto (${AUTO[view].text})`;
+    rangeLabel.title = AUTO_TIP;
+  }
 
   async function route() {
     const mine = ++generation;
@@ -782,19 +933,23 @@
     for (const chart of charts) chart.destroy();
     charts = [];
     delete document.body.dataset.ready;
-    document.getElementById("error").hidden = true;
     const [path, query] = location.hash.replace(/^#\/?/, "").split("?");
     const view = VIEWS[path] ? path : "explore";
     const params = Object.fromEntries(new URLSearchParams(query || ""));
-    for (const link of document.querySelectorAll("#nav a")) link.classList.toggle("active", link.dataset.view === view);
+    for (const link of document.querySelectorAll("header a[data-view]")) link.classList.toggle("active", link.dataset.view === view);
+    showRange(view);
     const box = h("div", { class: "stack", id: `view-${view}` });
-    main.replaceChildren(box);
+    const status = h("p", { id: "loading", role: "status" }, h("span", { class: "spinner" }), LOADING[view]);
+    main.replaceChildren(box, status);
+    document.body.dataset.loading = view;
     try {
       await VIEWS[view](box, params, stale);
+      if (!stale()) status.remove();
     } catch (err) {
-      if (!stale()) showError(err);
+      if (!stale()) showError(status, err);
     }
     if (stale()) return;
+    delete document.body.dataset.loading;
     window.explorerReady = { view, ms: performance.now() };
     document.body.dataset.ready = view;
   }
