@@ -59,6 +59,24 @@ FORMER_ROOTS = {
     "operator",
 }
 
+FILE_EXTENSIONS = {
+    "py",
+    "md",
+    "json",
+    "jsonld",
+    "yaml",
+    "yml",
+    "toml",
+    "sql",
+    "html",
+    "js",
+    "css",
+    "txt",
+    "csv",
+    "parquet",
+    "duckdb",
+}
+
 # Placeholders in examples, not names of files.
 EXAMPLE_FILES = {"file.py", "dir/file.py", "module.py", "path/to/module.py", "tests/test_x.py"}
 
@@ -185,7 +203,7 @@ def _dotted_names() -> Iterator[tuple[str, int, str]]:
     for where, line, text in _prose():
         for match in _DOTTED.finditer(text):
             name = match.group(1)
-            if name.split(".", 1)[0] in roots and not name.endswith((".py", ".md", ".json", ".jsonld")):
+            if name.split(".", 1)[0] in roots and name.rsplit(".", 1)[-1] not in FILE_EXTENSIONS:
                 yield where, line, name
 
 
