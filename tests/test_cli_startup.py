@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from tests.pg_cluster import free_port
-from tests.test_cli_settings import run_cli
+from tests.support.cli import run_cli
 from tsdb_service import __version__
 
 
