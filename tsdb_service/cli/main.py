@@ -7,10 +7,12 @@ import gc
 import os
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from types import ModuleType
 from typing import NoReturn
 
 from tsdb_service import __version__
+from tsdb_service.cli.messages import readable
 from tsdb_service.cli.parser import CommandParser, Formatter
 from tsdb_service.core.config import (
     LOG_LEVELS,
@@ -220,7 +222,16 @@ def cmd_serve(args: argparse.Namespace) -> int:
         )
         return 2
     check_serve(settings)  # one line each, before anything is created
+    created = new_duckdb_file(settings)
     check_store(settings)  # a wrong --db is one line here, before uvicorn starts
+    if created is not None:
+        import logging
+        import logging.config
+
+        from tsdb_service.http.server import log_config
+
+        logging.config.dictConfig(log_config(settings.log_level))  # uvicorn's format; uvicorn.run sets it again
+        logging.getLogger(__name__).info("created a new, empty DuckDB database at %s", created)
     # Workers are separate processes: hand them the settings through the environment.
     for name, value in settings.model_dump().items():
         if value is not None:  # unset: the backend's default applies
@@ -245,6 +256,16 @@ def cmd_serve(args: argparse.Namespace) -> int:
     )
     # --- end of limits ---
     return 0
+
+
+def new_duckdb_file(settings: Settings) -> Path | None:
+    """The DuckDB file ``settings.db`` names when it does not exist yet (the
+    store will create it), as an absolute path; None otherwise. Asked before
+    the store opens, so a mistyped path is said once: a new, empty database."""
+    if settings.backend != "duckdb" or settings.db == ":memory:":
+        return None
+    path = Path(settings.db).resolve()
+    return None if path.exists() else path
 
 
 WRITER_SWITCH_INTERVAL_S = 0.0002
@@ -307,7 +328,7 @@ def serve_app():
         async def send_short(message):
             failure = sys.exc_info()[1]
             if message["type"] == "lifespan.startup.failed" and isinstance(failure, StoreUnavailable | SettingsError):
-                message = {**message, "message": f"error: {failure}"}
+                message = {**message, "message": f"error: {readable(str(failure))}"}
             elif message["type"] == "lifespan.startup.complete":
                 tune_collector()
             await send(message)
@@ -325,7 +346,10 @@ def cmd_migrate(args: argparse.Namespace) -> int:
     from tsdb_service.storage import check_store, migrate
 
     settings = _settings(args)
+    created = new_duckdb_file(settings)
     check_store(settings)
+    if created is not None:
+        print(f"created a new, empty DuckDB database at {created}")
     applied = migrate(settings)
     print(f"applied migrations: {applied}" if applied else "schema is up to date")
     return 0
@@ -360,7 +384,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return COMMANDS[args.command](args)
     except (RuntimeError, SettingsError) as exc:  # operator errors: a bad setting, a locked DuckDB file
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {readable(str(exc))}", file=sys.stderr)
         return 2
 
 
