@@ -33,7 +33,8 @@ class CommandParser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
         self._given: list[str] = []
 
-    def parse_known_args(self, args: Sequence[str] | None = None, namespace: Any = None) -> Any:
+    # argparse types this method by three overloads; it is only wrapped here
+    def parse_known_args(self, args: Sequence[str] | None = None, namespace: Any = None) -> Any:  # type: ignore[override]
         # kept for the hint: argparse's "required" error does not name the flag that was mistyped
         self._given = list(sys.argv[1:] if args is None else args)
         return super().parse_known_args(args, namespace)
