@@ -10,12 +10,12 @@ DuckDB connection in another process, the real ``export`` command.
 from __future__ import annotations
 
 import subprocess
-import sys
 
 import httpx
 import pytest
 
 from tests.support.cli import run_cli
+from tests.support.duckdb_holder import held_duckdb
 from tests.support.server import ServerProcess
 
 NOTIFICATION = {
@@ -82,28 +82,10 @@ def test_a_service_that_wants_a_credential_says_where_it_goes(serving, tmp_path)
 def test_a_holder_that_is_no_service_is_one_line(tmp_path):
     """A process holding the file that listens nowhere: the line says how to export."""
     path = tmp_path / "held.duckdb"
-    subprocess.run(
-        [sys.executable, "-c", "import duckdb, sys; duckdb.connect(sys.argv[1]).close()", str(path)], check=True
-    )
-    holder = subprocess.Popen(
-        [
-            sys.executable,
-            "-c",
-            "import duckdb, sys, time; c = duckdb.connect(sys.argv[1]); print('held', flush=True); time.sleep(60)",
-            str(path),
-        ],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert holder.stdout.readline().strip() == "held"
-        out = tmp_path / "x.csv"
+    out = tmp_path / "x.csv"
+    with held_duckdb(path) as pid:
         line = _one_error(run_cli("export", "--db", str(path), "--out", str(out), "--type", "Robot"))
-    finally:
-        holder.kill()
-        holder.wait()
-        holder.stdout.close()
-    assert f"{path} is held by another process (PID {holder.pid})" in line, line
+    assert f"{path} is held by another process (PID {pid})" in line, line
     assert "tsdb-service export --url http://HOST:PORT" in line, line
     assert "GET http://HOST:PORT/v2/export?type=Robot&format=csv" in line, line
     assert not out.exists()

@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import re
 from functools import lru_cache
-from typing import ClassVar
+from typing import Annotated, ClassVar
 from urllib.parse import urlsplit
 
-from pydantic import BaseModel, Field, ValidationError, field_validator
+from pydantic import AfterValidator, BaseModel, Field, ValidationError, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 MIB = 1024 * 1024
@@ -33,6 +33,15 @@ LOG_LEVELS = ("critical", "error", "warning", "info", "debug", "trace")
 POSTGRES_PREFIXES = ("postgresql://", "postgres://")
 # "scheme:" at the start of --db; one letter is a Windows drive ("C:\\data"), not a scheme.
 _SCHEME = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]+):")
+
+
+def _checked_prefixes(value: str) -> str:
+    url_prefixes(value)  # raises ValueError
+    return value
+
+
+# A comma list of http(s) URL prefixes (TSDB_LD_CONTEXT_ALLOW, TSDB_SUBSCRIBE_BROKER_ALLOW), kept as given.
+UrlPrefixes = Annotated[str, AfterValidator(_checked_prefixes)]
 
 
 class SettingsGroup(BaseModel):
@@ -288,17 +297,11 @@ class SecuritySettings(SettingsGroup):
         description="Accept TSDB_CORS_ORIGINS=* with no authentication configured: any web page a visitor "
         "opens may then read, write and delete history.",
     )
-    subscribe_broker_allow: str = Field(
+    subscribe_broker_allow: UrlPrefixes = Field(
         "",
         description="URL prefixes of brokers POST /v2/subscribe may reach at any address, comma list (e.g. "
         "'http://orion:1026/'); any other orionUrl host must resolve to public addresses only.",
     )
-
-    @field_validator("subscribe_broker_allow")
-    @classmethod
-    def _broker_prefixes(cls, value: str) -> str:
-        url_prefixes(value)  # raises ValueError
-        return value
 
 
 class NgsiLdSettings(SettingsGroup):
@@ -320,7 +323,7 @@ class NgsiLdSettings(SettingsGroup):
         description="Seconds a request may spend loading remote @contexts in all: name resolution, "
         "connections, redirects and whole bodies.",
     )
-    ld_context_allow: str = Field(
+    ld_context_allow: UrlPrefixes = Field(
         "",
         description="URL prefixes whose @contexts may be fetched from any address, comma list (e.g. "
         "'http://127.0.0.1:' for a conformance run on one machine); any other @context host must resolve "
@@ -343,12 +346,6 @@ class NgsiLdSettings(SettingsGroup):
     ld_inline_context_max_bytes: int = Field(
         64 * 1024, ge=1024, le=16 * MIB, description="Largest @context a request may carry inline (as JSON)."
     )
-
-    @field_validator("ld_context_allow")
-    @classmethod
-    def _context_prefixes(cls, value: str) -> str:
-        url_prefixes(value)  # raises ValueError
-        return value
 
 
 class MqttSettings(SettingsGroup):
