@@ -94,6 +94,10 @@ def test_help_opens_with_the_same_short_usage():
             ["import", "quantumleap", "--from", "postgresql://h/ql", "--batch-samples", "0"],
             "argument --batch-samples: 0 is too small: give 1 or more",
         ),
+        (
+            ["copy", "--from", "a.duckdb", "--to", "b.duckdb", "--batch-rows", "1e3"],
+            "argument --batch-rows: '1e3' is not a whole number: give 1 or more",
+        ),
         (["demo", "--speedup", "fast"], "argument --speedup: 'fast' is not a number: give one above 0, e.g. 2 or 0.5"),
         (["demo", "--duration", "inf"], "argument --duration: 'inf': give a finite number above 0, e.g. 2 or 0.5"),
         (["demo", "--concurrency", "many"], "argument --concurrency: 'many' is not a whole number: give 1 or more"),
