@@ -180,12 +180,15 @@ def _has_attributes(module: str, attributes: list[str]) -> bool:
     return True
 
 
+FILE_SUFFIXES = (".py", ".md", ".json", ".jsonld", ".yaml", ".yml")  # a file's name, not a module's
+
+
 def _dotted_names() -> Iterator[tuple[str, int, str]]:
     roots = _roots()
     for where, line, text in _prose():
         for match in _DOTTED.finditer(text):
             name = match.group(1)
-            if name.split(".", 1)[0] in roots and not name.endswith((".py", ".md", ".json", ".jsonld")):
+            if name.split(".", 1)[0] in roots and not name.endswith(FILE_SUFFIXES):
                 yield where, line, name
 
 
