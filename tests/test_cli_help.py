@@ -7,7 +7,7 @@ import argparse
 
 import pytest
 
-from tests.test_cli_settings import run_cli
+from tests.support.cli import run_cli
 from tsdb_service import __version__
 from tsdb_service.cli.main import build_parser
 

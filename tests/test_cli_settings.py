@@ -9,25 +9,12 @@ acknowledged into it); ``--port 99999`` used to listen on 34463.
 
 from __future__ import annotations
 
-import os
 import subprocess
-import sys
 
 import pytest
 
+from tests.support.cli import run_cli
 from tsdb_service.core.config import SettingsError, load_settings
-
-
-def run_cli(*args: str, env: dict | None = None, cwd=None, timeout: float = 60) -> subprocess.CompletedProcess:
-    clean = {k: v for k, v in os.environ.items() if not k.startswith("TSDB_")}
-    return subprocess.run(
-        [sys.executable, "-m", "tsdb_service", *args],
-        capture_output=True,
-        text=True,
-        env=clean | (env or {}),
-        cwd=cwd,
-        timeout=timeout,
-    )
 
 
 def assert_usage_error(done: subprocess.CompletedProcess, *needles: str) -> None:

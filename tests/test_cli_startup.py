@@ -18,7 +18,8 @@ from pathlib import Path
 import pytest
 
 from tests.pg_cluster import free_port
-from tests.test_cli_settings import run_cli
+from tests.support.cli import run_cli
+from tests.support.duckdb_holder import held_duckdb
 from tsdb_service import __version__
 
 
@@ -35,21 +36,8 @@ def assert_one_line(done: subprocess.CompletedProcess, *needles: str, status: in
 def locked_duckdb(tmp_path):
     """A DuckDB file held open by another process (its pid, its path)."""
     path = tmp_path / "held.duckdb"
-    holder = subprocess.Popen(
-        [
-            sys.executable,
-            "-c",
-            "import duckdb, sys, time; c = duckdb.connect(sys.argv[1]); print('held', flush=True); time.sleep(120)",
-            str(path),
-        ],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    assert holder.stdout.readline().strip() == "held"
-    yield holder.pid, path
-    holder.kill()
-    holder.wait()
-    holder.stdout.close()
+    with held_duckdb(path) as pid:
+        yield pid, path
 
 
 def test_a_duckdb_file_held_by_another_process(locked_duckdb):

@@ -108,10 +108,14 @@ def test_dockerfile_is_small_and_conventional():
     for base in bases:
         assert base.split()[0].startswith("python:3.11.") and "slim" in base
     build, runtime = _stages()
-    # Runtime dependencies only: no [test] or [bench] extras, pruned, then copied alone.
-    assert (
-        "pip install . " in build.replace("\\\n", " ") + " " and "[" not in build.split("pip install", 1)[1].split()[0]
-    )
+    # Runtime dependencies only, from the hash-locked list (tests/test_image_lock.py), the
+    # package without resolving anything (no [test] or [bench] extras), pruned, then copied alone.
+    installs = re.findall(r"/opt/tsdb/bin/pip install ([^&\n]*)", re.sub(r"\\\n\s*", " ", build))
+    assert [i.split() for i in installs] == [
+        ["--require-hashes", "--no-deps", "-r", "requirements.lock"],
+        ["--no-deps", "dist/*.whl"],
+    ]
+    assert "/opt/tsdb/bin/pip check" in build
     assert "prune-venv.sh /opt/tsdb/lib/python3.11/site-packages" in build
     assert re.findall(r"(?m)^COPY .*", runtime) == ["COPY --from=build /opt/tsdb /opt/tsdb"]
     assert "pip" not in runtime.replace("PIP_", "")
@@ -177,9 +181,11 @@ def test_the_prune_script_removes_only_what_the_service_never_loads(tmp_path):
 
 
 def test_dockerignore_keeps_local_state_out():
-    ignored = set((ROOT / ".dockerignore").read_text().split())
+    lines = (ROOT / ".dockerignore").read_text().splitlines()
+    ignored = {line.strip() for line in lines if line.strip() and not line.startswith("#")}
     assert {".git", ".venv", "data", "*.duckdb", "tests", "docs", "site", "benchmarks"} <= ignored
-    assert not ignored & {"tsdb_service", "migrations", "pyproject.toml", "README.md", "docker"}
+    assert not ignored & {"tsdb_service", "migrations", "pyproject.toml", "README.md", "docker", "*.lock"}
+    assert not any(name.startswith("requirements") for name in ignored)
 
 
 def test_tsdb_service_wiring():
@@ -201,9 +207,28 @@ def test_orion_and_mongo_wiring():
     assert "healthcheck" in SERVICES["mongo"] and "healthcheck" in orion
 
 
+INFINITY = "yesoreyeram-infinity-datasource@3.11.1"
+
+
+def test_the_infinity_plugin_is_pinned():
+    """Grafana installs ``id@version`` before it starts; an unpinned id took the newest release."""
+    environment = SERVICES["grafana"]["environment"]
+    assert environment["GF_PLUGINS_PREINSTALL_SYNC"] == INFINITY
+    assert not {"GF_PLUGINS_PREINSTALL", "GF_INSTALL_PLUGINS"} & set(environment)
+    readme = (ROOT / "dashboards" / "README.md").read_text()
+    assert f"GF_PLUGINS_PREINSTALL_SYNC: {INFINITY}" in readme and f"GF_PLUGINS_PREINSTALL_SYNC={INFINITY}" in readme
+
+
+@pytest.mark.parametrize("stack", [COMPOSE, STACK_LD, STACK_MQTT], ids=["base", "Orion-LD", "MQTT"])
+def test_every_long_running_service_restarts(stack):
+    """After a crash and with the Docker daemon; the one-shot subscriptions job stays done."""
+    for name, service in stack["services"].items():
+        expected = "no" if name == "subscriptions" else "unless-stopped"
+        assert service.get("restart") == expected, name
+
+
 def test_grafana_mounts_what_the_dashboards_readme_says():
     grafana = SERVICES["grafana"]
-    assert "yesoreyeram-infinity-datasource" in grafana["environment"]["GF_PLUGINS_PREINSTALL"]
     mounts = {}
     for volume in grafana["volumes"]:
         source, target = volume.split(":")[:2]

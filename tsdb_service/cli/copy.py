@@ -8,9 +8,9 @@ check out, status 1.
 
 from __future__ import annotations
 
-import argparse
 import sys
 
+from tsdb_service.cli.argtypes import positive_int
 from tsdb_service.commands.copy import BATCH_ROWS, CopyNotVerified, CopyRefused, copy_history, store_identity
 from tsdb_service.core.config import Settings, check_db
 
@@ -44,7 +44,7 @@ def register(subparsers, command) -> None:
     )
     p.add_argument(
         "--batch-rows",
-        type=_positive_int,
+        type=positive_int,
         default=BATCH_ROWS,
         metavar="ROWS",
         help=f"samples committed per batch; an interruption loses at most one (default {BATCH_ROWS})",
@@ -91,13 +91,6 @@ def cmd_copy(args) -> int:
         f"{report.target_rejected} rejected notifications"
     )
     return 0
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError("must be at least 1")
-    return value
 
 
 def _checked(db: str, flag: str) -> str:

@@ -14,6 +14,8 @@ import sys
 from datetime import datetime
 from pathlib import Path
 
+from tsdb_service.cli.argtypes import integer, port, positive_int, positive_number
+
 USE_CASE_NAMES = ("lawnmower", "warehouse", "drone")
 
 
@@ -46,25 +48,25 @@ def _add_demo(sub) -> None:
     )
     p.add_argument("--db", default="./data/tsdb.duckdb", help="DuckDB file (default ./data/tsdb.duckdb)")
     p.add_argument("--host", default="127.0.0.1", help="address the demo's service binds (default 127.0.0.1)")
-    p.add_argument("--port", type=_port, default=8668, help="port of the demo's service (default 8668)")
+    p.add_argument("--port", type=port, default=8668, help="port of the demo's service (default 8668)")
     p.add_argument("--no-serve", action="store_true", help="do not start a service; feed the one at --url")
     p.add_argument("--url", help="service to feed with --no-serve (default http://localhost:8668)")
-    p.add_argument("--speedup", type=_positive, default=1.0, help="simulated seconds per wall second (default 1)")
+    p.add_argument("--speedup", type=positive_number, default=1.0, help="simulated seconds per wall second (default 1)")
     p.add_argument(
         "--duration",
-        type=_positive,
+        type=positive_number,
         help="wall seconds to run (default: until Ctrl-C). A run can overrun: when the simulators cannot "
         "keep up with --speedup, every notification is still sent and the run ends late (the progress "
         "display says by how much and when it will end)",
     )
-    p.add_argument("--seed", type=int, help="make the run reproducible (default: a random seed, printed)")
+    p.add_argument("--seed", type=integer, help="make the run reproducible (default: a random seed, printed)")
     p.add_argument(
         "--use-case",
         action="append",
         metavar="NAME",
         help=f"only these simulators ({', '.join(USE_CASE_NAMES)}; repeat or comma-separate; default: all three)",
     )
-    p.add_argument("--concurrency", type=_positive_int, default=16, help="notifications in flight at most (default 16)")
+    p.add_argument("--concurrency", type=positive_int, default=16, help="notifications in flight at most (default 16)")
     p.add_argument(
         "--broker",
         metavar="URL",
@@ -152,27 +154,6 @@ def _add_notifications(sub) -> None:
     build.add_argument("--out", default="notifications", help="folder (default ./notifications)")
 
 
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError("must be a positive number")
-    return value
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError("must be at least 1")
-    return value
-
-
-def _port(text: str) -> int:
-    value = int(text)
-    if not 1 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"{value} is not a port: give 1-65535")
-    return value
-
-
 # -- demo
 
 
@@ -211,6 +192,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         check_db(args.db)
         if args.ngsi_ld and not args.broker:
             raise ValueError("--ngsi-ld needs --broker: it says what kind of broker the entities are sent to")
+        if args.broker:
+            check_http_url(args.broker, "--broker", "http://orion:1026", "--via mqtt --mqtt-url")
         _check_via(args)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -409,6 +392,14 @@ def cmd_subscribe(args: argparse.Namespace) -> int:
     from tsdb_service.core.config import check_mqtt_url
     from tsdb_service.usecases.registry import SIMULATORS
 
+    try:
+        # before anything reaches the network; Orion's API is HTTP even when it notifies over MQTT
+        check_http_url(args.broker, "--broker", "http://orion:1026", "--mqtt mqtt://HOST:1883")
+        if args.notify_url:
+            check_http_url(args.notify_url, "--notify-url", "http://tsdb-service:8668/v2/notify", "--mqtt")
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     names = USE_CASE_NAMES if args.use_case == "all" else (args.use_case,)
     if args.mqtt:
         topic = args.mqtt_topic or MQTT_TOPIC
@@ -438,6 +429,19 @@ def cmd_subscribe(args: argparse.Namespace) -> int:
         print(f"{name}: {answer}{_published_on(SIMULATORS[name], topic) if args.mqtt else ''}")
         all_ok &= ok
     return 0 if all_ok else 1
+
+
+def check_http_url(url: str, flag: str, example: str, mqtt_flag: str) -> None:
+    """``url`` is ``http(s)://HOST[:PORT][/PATH]``; else ValueError, one line
+    naming ``flag``. An MQTT URL is pointed to ``mqtt_flag``, where MQTT goes."""
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(url.strip())
+    scheme = parts.scheme.lower()
+    if scheme in ("http", "https") and parts.hostname:
+        return
+    mqtt = f" (MQTT goes in {mqtt_flag})" if scheme in ("mqtt", "mqtts") else ""
+    raise ValueError(f"{flag} {url[:80]!r} is not an http:// or https:// URL: give one like {example}{mqtt}")
 
 
 def _published_on(sim, topic: str) -> str:

@@ -2,8 +2,9 @@
 
 The flags are the HTTP endpoint's parameters and headers, and go through
 the same parser, so the command and ``GET /v2/export`` select the same
-samples. A DuckDB file belongs to one process: export from a file no
-service has open, or ask the running service over HTTP.
+samples. A DuckDB file belongs to one process: while the service has it
+open, the export goes through the service's ``GET /v2/export``
+(``export_service``), at ``--url`` or found as the file's holder.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import os
 import sys
 from pathlib import Path
 
+from tsdb_service.cli.export_service import ServiceExportError, download, export_url, lock_holder, service_url
 from tsdb_service.faces.export.query import ExportFormat
 from tsdb_service.parse.request_context import tenant_hint
 
@@ -57,6 +59,13 @@ def register(subparsers, command) -> None:
     )
     for flag, _, metavar, text in _FLAGS:
         p.add_argument(flag, metavar=metavar, help=text if "default" in text else f"{text} (default: all)")
+    p.add_argument(
+        "--url",
+        metavar="URL",
+        help="export through the running service at URL (GET /v2/export) instead of opening --db; a credential "
+        "comes from the variable TSDB_CLIENT_TOKEN (default: open --db, or, when a tsdb-service on this machine "
+        "holds the DuckDB file, export through it)",
+    )
     command("export")(cmd_export)
 
 
@@ -65,10 +74,13 @@ def cmd_export(args: argparse.Namespace) -> int:
     from tsdb_service.core.errors import TsdbError
     from tsdb_service.faces.export import export_query, open_export, write_file
     from tsdb_service.parse.request_context import tenant
-    from tsdb_service.storage import open_store
+    from tsdb_service.storage import StoreUnavailable, open_store
 
     settings = Settings(**({"db": args.db} if args.db else {}))
-    if settings.backend == "duckdb" and not Path(settings.db).is_file():
+    if args.url and not args.url.startswith(("http://", "https://")):
+        print(f"error: --url {args.url}: give the service's http:// or https:// URL", file=sys.stderr)
+        return 2
+    if not args.url and settings.backend == "duckdb" and not Path(settings.db).is_file():
         print(f"error: no database at {settings.db}", file=sys.stderr)
         return 2
     try:
@@ -88,7 +100,15 @@ def cmd_export(args: argparse.Namespace) -> int:
     except TsdbError as exc:
         print(f"error: {exc.description}", file=sys.stderr)
         return 2
-    store = open_store(settings)
+    if args.url:
+        return _through_service(args.url, params, headers, args.out)
+    try:
+        store = open_store(settings)
+    except StoreUnavailable:
+        holder = lock_holder(settings.db) if settings.backend == "duckdb" else None
+        if holder is None:
+            raise
+        return _through_holder(settings.db, holder, params, headers, args.out)
     try:
         with open_export(store, query) as stream:
             rows, size, seconds = write_file(stream, query.format, args.out, query.raw)
@@ -102,6 +122,32 @@ def cmd_export(args: argparse.Namespace) -> int:
     )
     if hint:
         print(f"hint: {hint} (--service TENANT)", file=sys.stderr)
+    return 0
+
+
+def _through_holder(db: str, pid: int, params: dict[str, str], headers: dict[str, str], out: str) -> int:
+    """The DuckDB file is held by process ``pid``: export through it when it
+    is a tsdb-service listening here, else say in one line how to."""
+    url = service_url(pid)
+    if url is None:
+        print(
+            f"error: {db} is held by another process (PID {pid}), the running service if it is one: DuckDB lets "
+            f"one process open a file. Export through the service: tsdb-service export --url http://HOST:PORT "
+            f"with the same flags, or GET {export_url('http://HOST:PORT', params)}",
+            file=sys.stderr,
+        )
+        return 2
+    print(f"{db} is held by the service at {url} (PID {pid}): exporting through it", file=sys.stderr)
+    return _through_service(url, params, headers, out)
+
+
+def _through_service(url: str, params: dict[str, str], headers: dict[str, str], out: str) -> int:
+    try:
+        size, seconds = download(url, params, headers, out)
+    except ServiceExportError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"exported {export_url(url, params)} to {out} ({size:,} bytes) in {seconds:.2f} s")
     return 0
 
 
@@ -123,8 +169,8 @@ def format_of(out: str) -> str:
     suffix (a ``.json`` file must not silently hold CSV)."""
     suffix = Path(out).suffix.lower()
     if suffix not in SUFFIXES:
-        named = f"its suffix {suffix!r}" if suffix else "it has no suffix"
-        raise ValueError(
-            f"--out {out}: {named} names no export format: end it in .csv or .parquet, or give --format csv|parquet"
+        problem = (
+            f"the suffix {suffix!r} names no export format" if suffix else "a name without a suffix says no format"
         )
+        raise ValueError(f"--out {out}: {problem}; end it in .csv or .parquet, or give --format csv|parquet")
     return SUFFIXES[suffix].value

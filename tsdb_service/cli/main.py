@@ -7,10 +7,22 @@ import gc
 import os
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from types import ModuleType
+from typing import NoReturn
 
 from tsdb_service import __version__
-from tsdb_service.core.config import LOG_LEVELS, Settings, SettingsError, flag_named, load_settings
+from tsdb_service.cli.messages import readable
+from tsdb_service.cli.parser import CommandParser, Formatter
+from tsdb_service.core.config import (
+    LOG_LEVELS,
+    MIB,
+    Settings,
+    SettingsError,
+    flag_named,
+    load_settings,
+    setting_groups,
+)
 
 Command = Callable[[argparse.Namespace], int]
 COMMANDS: dict[str, Command] = {}
@@ -32,14 +44,28 @@ def _settings(args: argparse.Namespace) -> Settings:
 
 def setting_help(name: str) -> str:
     """A flag's help from its setting: what it does, its default and its variable."""
-    field = Settings.model_fields[name]
-    what = (field.description or "").rstrip(".")
-    if field.default is None:  # the description says what applies when unset
+    what = (Settings.model_fields[name].description or "").rstrip(".")
+    default = setting_default(name)
+    if default is None:  # the description says what applies when unset
         return f"{what} (env TSDB_{name.upper()})"
-    if field.default == "":
+    if default == "":
         return f"{what} (not set by default; env TSDB_{name.upper()})"
-    default = str(field.default).lower() if isinstance(field.default, bool) else str(field.default)
     return f"{what} (default {default}; env TSDB_{name.upper()})"
+
+
+def setting_default(name: str) -> str | None:
+    """A setting's default as ``serve --help`` and the docs' settings table
+    say it: ``8668``, ``true``, ``9437184 = 9 MiB``; ``""`` when it is unset
+    by default, None when its description says what applies."""
+    default = Settings.model_fields[name].default
+    if default is None or isinstance(default, str):
+        return default
+    if isinstance(default, bool):
+        return str(default).lower()
+    if "_bytes" in name and default >= 1024 and default % 1024 == 0:
+        unit, size = ("MiB", default // MIB) if default % MIB == 0 else ("KiB", default // 1024)
+        return f"{default} = {size} {unit}"
+    return str(default)
 
 
 # The placeholder of a text setting's flag, where its name does not say it.
@@ -96,42 +122,43 @@ def setting_metavar(name: str) -> str:
     return "TEXT"
 
 
-def _add_db(p: argparse.ArgumentParser) -> None:
+def _add_db(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
     p.add_argument("--db", metavar="PATH|URL", help=setting_help("db"))
 
 
 def _add_settings(p: argparse.ArgumentParser) -> None:
-    """One flag per setting, e.g. ``--max-body-bytes``: every setting can be given
-    as a flag or a ``TSDB_*`` variable, and validation names both."""
-    for name, field in Settings.model_fields.items():
-        flag = "--" + name.replace("_", "-")
-        if field.annotation not in _SCALARS:
-            continue  # structured settings (if any) are variables only
-        if name == "db":
-            _add_db(p)
-        elif field.annotation is bool:
-            # a setting on by default needs its --no- form to be turned off by a flag
-            action = argparse.BooleanOptionalAction if field.default is True else "store_true"
-            p.add_argument(flag, dest=name, action=action, default=None, help=setting_help(name))
-        elif name == "log_level":
-            p.add_argument(flag, dest=name, metavar="{" + ",".join(LOG_LEVELS) + "}", help=setting_help(name))
-        else:
-            p.add_argument(flag, dest=name, metavar=setting_metavar(name), help=setting_help(name))
+    """One flag per setting, e.g. ``--max-body-bytes``, under its group's
+    heading: every setting can be given as a flag or a ``TSDB_*`` variable,
+    and validation names both."""
+    for group, names in setting_groups():
+        section = p.add_argument_group(group.title, group.about)
+        for name in names:
+            _add_setting(section, name)
+
+
+def _add_setting(section: argparse._ArgumentGroup, name: str) -> None:
+    field = Settings.model_fields[name]
+    flag = "--" + name.replace("_", "-")
+    if field.annotation not in _SCALARS:
+        return  # structured settings (if any) are variables only
+    if name == "db":
+        _add_db(section)
+    elif field.annotation is bool:
+        # a setting on by default needs its --no- form to be turned off by a flag
+        action = argparse.BooleanOptionalAction if field.default is True else "store_true"
+        section.add_argument(flag, dest=name, action=action, default=None, help=setting_help(name))
+    elif name == "log_level":
+        section.add_argument(flag, dest=name, metavar="{" + ",".join(LOG_LEVELS) + "}", help=setting_help(name))
+    else:
+        section.add_argument(flag, dest=name, metavar=setting_metavar(name), help=setting_help(name))
 
 
 _SCALARS = (str, int, float, bool, int | None, float | None, str | None)
 
 
-class _Formatter(argparse.RawDescriptionHelpFormatter):
-    """Wider help columns, so flag help with its default stays readable."""
-
-    def __init__(self, prog: str):
-        super().__init__(prog, max_help_position=32)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="tsdb-service", description="The history of a FIWARE deployment.", formatter_class=_Formatter
+    parser = CommandParser(
+        prog="tsdb-service", description="The history of a FIWARE deployment.", formatter_class=Formatter
     )
     parser.add_argument("--version", action="version", version=f"tsdb-service {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -139,17 +166,17 @@ def build_parser() -> argparse.ArgumentParser:
     serve = sub.add_parser(
         "serve",
         help="run the HTTP service",
-        formatter_class=_Formatter,
+        formatter_class=Formatter,
         description="Run the HTTP service. Every flag can also be given as the TSDB_* "
         "variable named in its help; flags win.",
     )
     _add_settings(serve)
 
-    migrate = sub.add_parser("migrate", help="apply pending schema migrations", formatter_class=_Formatter)
+    migrate = sub.add_parser("migrate", help="apply pending schema migrations", formatter_class=Formatter)
     _add_db(migrate)
 
     compact = sub.add_parser(
-        "compact", help="sort all stored samples now (offline; the file must exist)", formatter_class=_Formatter
+        "compact", help="sort all stored samples now (offline; the file must exist)", formatter_class=Formatter
     )
     _add_db(compact)
 
@@ -195,7 +222,16 @@ def cmd_serve(args: argparse.Namespace) -> int:
         )
         return 2
     check_serve(settings)  # one line each, before anything is created
+    created = new_duckdb_file(settings)
     check_store(settings)  # a wrong --db is one line here, before uvicorn starts
+    if created is not None:
+        import logging
+        import logging.config
+
+        from tsdb_service.http.server import log_config
+
+        logging.config.dictConfig(log_config(settings.log_level))  # uvicorn's format; uvicorn.run sets it again
+        logging.getLogger(__name__).info("created a new, empty DuckDB database at %s", created)
     # Workers are separate processes: hand them the settings through the environment.
     for name, value in settings.model_dump().items():
         if value is not None:  # unset: the backend's default applies
@@ -220,6 +256,16 @@ def cmd_serve(args: argparse.Namespace) -> int:
     )
     # --- end of limits ---
     return 0
+
+
+def new_duckdb_file(settings: Settings) -> Path | None:
+    """The DuckDB file ``settings.db`` names when it does not exist yet (the
+    store will create it), as an absolute path; None otherwise. Asked before
+    the store opens, so a mistyped path is said once: a new, empty database."""
+    if settings.backend != "duckdb" or settings.db == ":memory:":
+        return None
+    path = Path(settings.db).resolve()
+    return None if path.exists() else path
 
 
 WRITER_SWITCH_INTERVAL_S = 0.0002
@@ -282,7 +328,7 @@ def serve_app():
         async def send_short(message):
             failure = sys.exc_info()[1]
             if message["type"] == "lifespan.startup.failed" and isinstance(failure, StoreUnavailable | SettingsError):
-                message = {**message, "message": f"error: {failure}"}
+                message = {**message, "message": f"error: {readable(str(failure))}"}
             elif message["type"] == "lifespan.startup.complete":
                 tune_collector()
             await send(message)
@@ -300,7 +346,10 @@ def cmd_migrate(args: argparse.Namespace) -> int:
     from tsdb_service.storage import check_store, migrate
 
     settings = _settings(args)
+    created = new_duckdb_file(settings)
     check_store(settings)
+    if created is not None:
+        print(f"created a new, empty DuckDB database at {created}")
     applied = migrate(settings)
     print(f"applied migrations: {applied}" if applied else "schema is up to date")
     return 0
@@ -335,7 +384,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return COMMANDS[args.command](args)
     except (RuntimeError, SettingsError) as exc:  # operator errors: a bad setting, a locked DuckDB file
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {readable(str(exc))}", file=sys.stderr)
         return 2
 
 
@@ -349,17 +398,10 @@ def _chosen_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser = subparsers[0].choices[name]
 
 
-def _refuse_unknown(parser: argparse.ArgumentParser, unknown: list[str]) -> None:
-    """argparse's error for unrecognized arguments (usage, then one ``error:``
-    line, exit 2), from the subcommand's parser, with the flag meant when one
-    is close."""
-    import difflib
-
-    flags = [flag for action in parser._actions for flag in action.option_strings]
-    message = f"unrecognized arguments: {' '.join(unknown)}"
-    typo = next((arg.split("=", 1)[0] for arg in unknown if arg.startswith("--")), None)
-    close = difflib.get_close_matches(typo, flags, n=1) if typo else []
-    parser.error(message + (f" (did you mean {close[0]}?)" if close else ""))
+def _refuse_unknown(parser: argparse.ArgumentParser, unknown: list[str]) -> NoReturn:
+    """The subcommand's own error for arguments it does not know: one usage
+    line, then ``error: ...`` with the flag meant when one is close, exit 2."""
+    parser.error(f"unrecognized arguments: {' '.join(unknown)}")
 
 
 if __name__ == "__main__":

@@ -8,9 +8,13 @@ printed report. Every refusal is one ``error:`` line and exit status 2.
 from __future__ import annotations
 
 import argparse
+import re
 import sys
+from collections.abc import Callable
 from datetime import UTC, datetime
 
+from tsdb_service.cli.argtypes import positive_int
+from tsdb_service.cli.main import new_duckdb_file
 from tsdb_service.core.config import Settings, SettingsError, check_db, load_settings
 from tsdb_service.parse.timeindex import parse_time
 
@@ -78,20 +82,13 @@ def register(subparsers, command) -> None:
     )
     ql.add_argument(
         "--batch-samples",
-        type=_positive_int,
+        type=positive_int,
         default=50_000,
         metavar="N",
         help="samples committed per batch; an interruption loses at most one (default 50000)",
     )
     ql.add_argument("--quiet", action="store_true", help="no progress line (default: progress on stderr)")
-    command("import")(cmd_import)
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError("must be at least 1")
-    return value
+    command("import")(_source_explained(cmd_import))
 
 
 def _time(text: str | None, flag: str) -> datetime | None:
@@ -137,7 +134,10 @@ def cmd_import(args: argparse.Namespace) -> int:
         print(f"dry run: {report.samples} samples would be imported; nothing was written")
         return 0
     _check_source(args.source)  # a wrong URL or a database without QuantumLeap: before the target is created
+    created = new_duckdb_file(Settings(db=db))
     target = open_store(Settings(db=db))
+    if created is not None:
+        print(f"created a new, empty DuckDB database at {created}", file=sys.stderr)
     try:
         report = import_quantumleap(args.source, target, **options)
     except ImportNotVerified as exc:
@@ -159,6 +159,43 @@ def cmd_import(args: argparse.Namespace) -> int:
         print(f"resumed an interrupted import: {report.resumed_from} samples were already there")
     print(f"import verified: {report.samples} samples imported")
     return 0
+
+
+def _source_explained(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """``run`` with a QuantumLeap database that does not exist said in one
+    line naming it and how to list the databases there (libpq's words,
+    passed on by the importer, name neither the server nor what to do)."""
+
+    def explained(args: argparse.Namespace) -> int:
+        try:
+            return run(args)
+        except RuntimeError as exc:
+            line = missing_source_database(str(exc), args.source)
+            if line is None:
+                raise
+            print(f"error: {line}", file=sys.stderr)
+            return 2
+
+    return explained
+
+
+def missing_source_database(message: str, source: str) -> str | None:
+    """The one line for a failure to connect to ``source`` because its
+    database does not exist; None for any other failure."""
+    from urllib.parse import urlsplit
+
+    from tsdb_service.storage import redact
+
+    found = re.search(r'database "([^"]+)" does not exist', message)
+    if found is None or redact(source) not in message:
+        return None
+    parts = urlsplit(source)
+    host, port, user = parts.hostname or "localhost", parts.port or 5432, parts.username or "postgres"
+    return (
+        f"cannot connect to QuantumLeap's database {found[1]!r} on {host}:{port}: there is no database of that "
+        f"name. Name an existing one in --from (QuantumLeap's default: quantumleap); psql -h {host} -p {port} "
+        f"-U {user} -l lists them"
+    )
 
 
 def _check_source(url: str) -> None:

@@ -1,5 +1,12 @@
 """Settings from flags and ``TSDB_*`` environment variables.
 
+Each setting is declared once, in its group (``StorageSettings``,
+``HttpSettings``, ... ``LoggingSettings``); ``Settings`` inherits every
+group, so ``settings.port``, ``--port`` and ``TSDB_PORT`` do not say which
+group a setting is in, and the groups are the one source of the headings of
+``serve --help`` and of the docs' settings table (docs/settings.md, checked
+by tests/test_settings_groups.py).
+
 ``get_settings()`` is the one place the app reads configuration; tests and
 the CLI override it by passing a ``Settings`` to ``create_app``.
 """
@@ -8,9 +15,10 @@ from __future__ import annotations
 
 import re
 from functools import lru_cache
+from typing import Annotated, ClassVar
 from urllib.parse import urlsplit
 
-from pydantic import Field, ValidationError, field_validator
+from pydantic import AfterValidator, BaseModel, Field, ValidationError, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 MIB = 1024 * 1024
@@ -27,16 +35,91 @@ POSTGRES_PREFIXES = ("postgresql://", "postgres://")
 _SCHEME = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]+):")
 
 
-class Settings(BaseSettings):
-    model_config = SettingsConfigDict(env_prefix="TSDB_", extra="ignore")
+def _checked_prefixes(value: str) -> str:
+    url_prefixes(value)  # raises ValueError
+    return value
+
+
+# A comma list of http(s) URL prefixes (TSDB_LD_CONTEXT_ALLOW, TSDB_SUBSCRIBE_BROKER_ALLOW), kept as given.
+UrlPrefixes = Annotated[str, AfterValidator(_checked_prefixes)]
+
+
+class SettingsGroup(BaseModel):
+    """One group of settings: a title (a heading in ``serve --help`` and in
+    the docs' settings table) and the fields it declares. ``Settings``
+    inherits every group, so a field is ``settings.NAME``, ``--NAME`` and
+    ``TSDB_NAME`` whatever group it is in."""
+
+    title: ClassVar[str]
+    about: ClassVar[str]
+
+
+class StorageSettings(SettingsGroup):
+    title = "Storage"
+    about = "Where history is kept, and how the DuckDB file is maintained."
 
     db: str = Field(
         "./data/tsdb.duckdb",
         description="A DuckDB file path (embedded default) or a postgresql:// URL.",
     )
+    writer_threads: int | None = Field(
+        None,
+        ge=1,
+        le=16,
+        description="Group-commit writer threads; default 1 on DuckDB (more only contend for the GIL), "
+        "3 on PostgreSQL (commits wait on the network, so they overlap).",
+    )
+    compact_rows: int = Field(500_000, ge=1000, description="Move the hot table into the sorted one at this many rows.")
+    major_compact_runs: int = Field(
+        8, ge=1, description="Rewrite the sorted table after this many compactions into it."
+    )
+    wal_checkpoint_bytes: int = Field(
+        WAL_CHECKPOINT_BYTES,
+        ge=64 * 1024,
+        description="DuckDB: fold the write-ahead log into the database file once it is this big "
+        "(DuckDB's own default: 16 MiB).",
+    )
+
+    @field_validator("db")
+    @classmethod
+    def _db_is_a_file_or_a_postgres_url(cls, value: str) -> str:
+        """Only two kinds of --db exist. Anything else (``postgress://``,
+        ``mysql://``, ``postgresql:/x``) would otherwise become a DuckDB file
+        of that name, silently taking data meant for another database."""
+        return check_db(value)
+
+
+class HttpSettings(SettingsGroup):
+    title = "HTTP server"
+    about = "Where the service listens, and what one connection or request may cost."
+
     host: str = Field("0.0.0.0", description="Address to bind, as QuantumLeap does.")
     port: int = Field(8668, ge=1, le=65535, description="QuantumLeap's port.")
     workers: int = Field(1, ge=1, description="uvicorn workers; PostgreSQL only.")
+    max_connections: int = Field(
+        4096,
+        ge=1,
+        description="Open connections per process; past it a new connection gets 503 and is closed.",
+    )
+    keep_alive_s: int = Field(5, ge=1, description="Close a kept-alive connection idle this long between requests.")
+    header_timeout_s: float = Field(
+        10.0,
+        gt=0,
+        description="Close a connection whose request headers are not complete this long after it "
+        "opened (or after the request's first byte).",
+    )
+    body_timeout_s: float = Field(
+        60.0,
+        gt=0,
+        description="Cut off a request whose body is not complete this long after its headers.",
+    )
+    max_header_bytes: int = Field(
+        128 * 1024,
+        ge=8 * 1024,
+        le=16 * MIB,
+        description="Largest request head (request line and header fields); larger: 431 and the "
+        "connection is closed, counted while it arrives.",
+    )
     max_body_bytes: int = Field(
         9 * MIB,
         ge=1024,
@@ -50,24 +133,37 @@ class Settings(BaseSettings):
         description="Largest body of any other request (queries, Grafana, layouts); larger: 413, "
         "refused while it is read.",
     )
-    rejected_body_max_bytes: int = Field(
-        16 * MIB,
-        ge=0,
-        description="The rejected store keeps a rejected notification's body up to this many bytes "
-        "(its full size is recorded, and that it was truncated).",
+
+    @field_validator("host")
+    @classmethod
+    def _host_not_empty(cls, value: str) -> str:
+        if not value.strip():
+            raise ValueError("is empty: give an address to bind, e.g. 0.0.0.0 or 127.0.0.1")
+        return value.strip()
+
+
+class IngestLogSettings(SettingsGroup):
+    title = "Ingest log"
+    about = "DuckDB: notifications are acknowledged once in this log, and applied to the database behind it."
+
+    ingest_log: bool = Field(
+        True,
+        description="DuckDB: acknowledge notifications once they are in our own log next to the database "
+        "(FILE.ingest-log/), and apply them to the database in bulk behind it. Off: each group waits for "
+        "its own database commit. PostgreSQL has no ingest log (see the docs, Architecture).",
     )
-    default_limit: int = Field(10_000, ge=1, description="Rows returned when no limit is given.")
-    compact_rows: int = Field(500_000, ge=1000, description="Move the hot table into the sorted one at this many rows.")
-    major_compact_runs: int = Field(
-        8, ge=1, description="Rewrite the sorted table after this many compactions into it."
+    ingest_log_lag_bytes: int = Field(
+        64 * 1024 * 1024,
+        ge=1024 * 1024,
+        description="DuckDB: how far (encoded bytes) the ingest log may run ahead of the database before "
+        "ingest waits for it.",
     )
-    writer_threads: int | None = Field(
-        None,
-        ge=1,
-        le=16,
-        description="Group-commit writer threads; default 1 on DuckDB (more only contend for the GIL), "
-        "3 on PostgreSQL (commits wait on the network, so they overlap).",
-    )
+
+
+class CacheSettings(SettingsGroup):
+    title = "Caches"
+    about = "What reads keep in memory: the newest samples of each series, and aggregate partials."
+
     tail_cache_series: int = Field(
         8192, ge=0, description="DuckDB: sizes the in-memory tails (0: off); see tail_cache_samples."
     )
@@ -81,25 +177,13 @@ class Settings(BaseSettings):
         description="Series-hours of aggregate partials kept in memory for aggregated series "
         "(~400 bytes each, least recently aggregated out first; 0: off).",
     )
-    wal_checkpoint_bytes: int = Field(
-        WAL_CHECKPOINT_BYTES,
-        ge=64 * 1024,
-        description="DuckDB: fold the write-ahead log into the database file once it is this big "
-        "(DuckDB's own default: 16 MiB).",
-    )
-    ingest_log: bool = Field(
-        True,
-        description="DuckDB: acknowledge notifications once they are in our own log next to the database "
-        "(FILE.ingest-log/), and apply them to the database in bulk behind it. Off: each group waits for "
-        "its own database commit. PostgreSQL has no ingest log (see the docs, Architecture).",
-    )
-    ingest_log_lag_bytes: int = Field(
-        64 * 1024 * 1024,
-        ge=1024 * 1024,
-        description="DuckDB: how far (encoded bytes) the ingest log may run ahead of the database before "
-        "ingest waits for it.",
-    )
-    # --- limits (issue 12): read budgets, rejected-store bounds, slow clients ---
+
+
+class ReadSettings(SettingsGroup):
+    title = "Reads and budgets"
+    about = "How much one history query may select, read, render and take (past it: 422 QueryTooLarge)."
+
+    default_limit: int = Field(10_000, ge=1, description="Rows returned when no limit is given.")
     read_max_series: int = Field(
         50_000,
         ge=1,
@@ -119,6 +203,18 @@ class Settings(BaseSettings):
         20.0,
         gt=0,
         description="Wall time of one read, checked between its steps; past it: 422 QueryTooLarge.",
+    )
+
+
+class RejectedSettings(SettingsGroup):
+    title = "Rejected store"
+    about = "Notifications that were refused are kept, with their reason, within these bounds."
+
+    rejected_body_max_bytes: int = Field(
+        16 * MIB,
+        ge=0,
+        description="The rejected store keeps a rejected notification's body up to this many bytes "
+        "(its full size is recorded, and that it was truncated).",
     )
     rejected_max_per_tenant: int = Field(
         1000,
@@ -153,58 +249,12 @@ class Settings(BaseSettings):
         ge=1024,
         description="A rejected listing stops before this many bytes (at least one row) and points to the next page.",
     )
-    header_timeout_s: float = Field(
-        10.0,
-        gt=0,
-        description="Close a connection whose request headers are not complete this long after it "
-        "opened (or after the request's first byte).",
-    )
-    body_timeout_s: float = Field(
-        60.0,
-        gt=0,
-        description="Cut off a request whose body is not complete this long after its headers.",
-    )
-    max_connections: int = Field(
-        4096,
-        ge=1,
-        description="Open connections per process; past it a new connection gets 503 and is closed.",
-    )
-    keep_alive_s: int = Field(5, ge=1, description="Close a kept-alive connection idle this long between requests.")
-    max_header_bytes: int = Field(
-        128 * 1024,
-        ge=8 * 1024,
-        le=16 * MIB,
-        description="Largest request head (request line and header fields); larger: 431 and the "
-        "connection is closed, counted while it arrives.",
-    )
-    # --- end of limits ---
-    log_level: str = Field("info", description=f"One of {', '.join(LOG_LEVELS)}.")
-    access_log: bool = Field(False, description="Log every request (uvicorn's access log).")
 
-    @field_validator("db")
-    @classmethod
-    def _db_is_a_file_or_a_postgres_url(cls, value: str) -> str:
-        """Only two kinds of --db exist. Anything else (``postgress://``,
-        ``mysql://``, ``postgresql:/x``) would otherwise become a DuckDB file
-        of that name, silently taking data meant for another database."""
-        return check_db(value)
 
-    @field_validator("host")
-    @classmethod
-    def _host_not_empty(cls, value: str) -> str:
-        if not value.strip():
-            raise ValueError("is empty: give an address to bind, e.g. 0.0.0.0 or 127.0.0.1")
-        return value.strip()
+class SecuritySettings(SettingsGroup):
+    title = "Security"
+    about = "Authentication, CORS and the brokers POST /v2/subscribe may reach: off unless configured."
 
-    @field_validator("log_level")
-    @classmethod
-    def _known_log_level(cls, value: str) -> str:
-        level = value.strip().lower()
-        if level not in LOG_LEVELS:
-            raise ValueError(f"unknown log level {value!r}: choose from {', '.join(LOG_LEVELS)}")
-        return level
-
-    # -- security: everything off unless configured (docs/security.md) --
     # Plain strings, not lists: `serve` hands settings to workers as TSDB_*
     # variables via str(), and a comma list survives that round trip.
     api_keys: str = Field(
@@ -237,7 +287,27 @@ class Settings(BaseSettings):
     jwt_scope_prefix: str = Field("", description="Only claim values with this prefix count (e.g. 'tsdb:').")
     jwt_tenants_claim: str = Field("", description="Claim listing the tenants a token may touch; empty: all.")
     jwt_jwks_cache_seconds: int = Field(300, ge=1, le=86_400, description="How long fetched JWKS keys are kept.")
-    # -- NGSI-LD temporal API reads (docs/ngsi-ld.md) --
+    cors_origins: str = Field(
+        "",
+        description="Origins browsers may call us from, comma list ('*': any, refused without authentication "
+        "unless TSDB_CORS_ALLOW_UNAUTHENTICATED); none by default.",
+    )
+    cors_allow_unauthenticated: bool = Field(
+        False,
+        description="Accept TSDB_CORS_ORIGINS=* with no authentication configured: any web page a visitor "
+        "opens may then read, write and delete history.",
+    )
+    subscribe_broker_allow: UrlPrefixes = Field(
+        "",
+        description="URL prefixes of brokers POST /v2/subscribe may reach at any address, comma list (e.g. "
+        "'http://orion:1026/'); any other orionUrl host must resolve to public addresses only.",
+    )
+
+
+class NgsiLdSettings(SettingsGroup):
+    title = "NGSI-LD"
+    about = "The temporal API's pages and answers, and the @context documents it loads."
+
     ngsild_default_limit: int = Field(100, ge=1, description="Entities per page when a temporal query gives no limit.")
     ngsild_max_limit: int = Field(1000, ge=1, description="Largest limit a temporal query may ask for.")
     ngsild_max_instances: int = Field(
@@ -253,16 +323,11 @@ class Settings(BaseSettings):
         description="Seconds a request may spend loading remote @contexts in all: name resolution, "
         "connections, redirects and whole bodies.",
     )
-    ld_context_allow: str = Field(
+    ld_context_allow: UrlPrefixes = Field(
         "",
         description="URL prefixes whose @contexts may be fetched from any address, comma list (e.g. "
         "'http://127.0.0.1:' for a conformance run on one machine); any other @context host must resolve "
         "to public addresses only.",
-    )
-    subscribe_broker_allow: str = Field(
-        "",
-        description="URL prefixes of brokers POST /v2/subscribe may reach at any address, comma list (e.g. "
-        "'http://orion:1026/'); any other orionUrl host must resolve to public addresses only.",
     )
     ld_context_offline: bool = Field(
         False,
@@ -281,58 +346,12 @@ class Settings(BaseSettings):
     ld_inline_context_max_bytes: int = Field(
         64 * 1024, ge=1024, le=16 * MIB, description="Largest @context a request may carry inline (as JSON)."
     )
-    cors_origins: str = Field(
-        "",
-        description="Origins browsers may call us from, comma list ('*': any, refused without authentication "
-        "unless TSDB_CORS_ALLOW_UNAUTHENTICATED); none by default.",
-    )
-    cors_allow_unauthenticated: bool = Field(
-        False,
-        description="Accept TSDB_CORS_ORIGINS=* with no authentication configured: any web page a visitor "
-        "opens may then read, write and delete history.",
-    )
 
-    # --- Retention and rollups (retention_policy.py, storage/retention.py, storage/rollups.py;
-    # docs/operations.md, "Retention and rollups") ---
-    retention: str = Field(
-        "",
-        description="How long raw samples are kept, per tenant and entity type: "
-        "'*=365d,acme=30d,acme/Robot=7d' (or the same as a JSON object); empty: forever.",
-    )
-    rollups: bool = Field(
-        False,
-        description="Fold the samples retention deletes into hourly count/sum/min/max per series, "
-        "which aggregation queries (aggrPeriod hour or longer, or none) keep answering from.",
-    )
-    rollup_retention: str = Field(
-        "",
-        description="How long hourly rollups are kept, same syntax as retention; empty: forever.",
-    )
-    retention_interval: float = Field(300.0, gt=0, description="Seconds between retention passes.")
-    retention_batch_rows: int = Field(
-        50_000,
-        ge=1,
-        description="Rows deleted per batch and table, each batch its own short transaction.",
-    )
-    retention_pause: float = Field(0.05, ge=0, description="Seconds to pause between retention batches.")
 
-    @field_validator("ld_context_allow", "subscribe_broker_allow")
-    @classmethod
-    def _url_prefixes(cls, value: str) -> str:
-        url_prefixes(value)  # raises ValueError
-        return value
+class MqttSettings(SettingsGroup):
+    title = "MQTT"
+    about = "Notifications from an MQTT broker as well as over HTTP: off unless --mqtt-url."
 
-    @field_validator("retention", "rollup_retention")
-    @classmethod
-    def _retention_spec(cls, value: str, info) -> str:
-        from tsdb_service.core.retention_policy import RetentionPolicy
-
-        RetentionPolicy.parse(value, setting="TSDB_" + info.field_name.upper())  # raises ValueError
-        return value
-
-    # --- end of retention and rollups ---
-
-    # --- MQTT (issue 31; ingest.mqtt, docs/mqtt.md): off unless --mqtt-url ---
     mqtt_url: str = Field(
         "",
         description="Also take notifications from this MQTT broker: mqtt://HOST[:1883] or mqtts://HOST[:8883] "
@@ -423,11 +442,92 @@ class Settings(BaseSettings):
             raise ValueError(f"{value[:60]!r}: up to 256 bytes without '+', '#' or '/'")
         return name
 
-    # --- end of MQTT ---
+
+class RetentionSettings(SettingsGroup):
+    title = "Retention and rollups"
+    about = "How long raw samples and hourly rollups are kept."
+
+    retention: str = Field(
+        "",
+        description="How long raw samples are kept, per tenant and entity type: "
+        "'*=365d,acme=30d,acme/Robot=7d' (or the same as a JSON object); empty: forever.",
+    )
+    rollups: bool = Field(
+        False,
+        description="Fold the samples retention deletes into hourly count/sum/min/max per series, "
+        "which aggregation queries (aggrPeriod hour or longer, or none) keep answering from.",
+    )
+    rollup_retention: str = Field(
+        "",
+        description="How long hourly rollups are kept, same syntax as retention; empty: forever.",
+    )
+    retention_interval: float = Field(300.0, gt=0, description="Seconds between retention passes.")
+    retention_batch_rows: int = Field(
+        50_000,
+        ge=1,
+        description="Rows deleted per batch and table, each batch its own short transaction.",
+    )
+    retention_pause: float = Field(0.05, ge=0, description="Seconds to pause between retention batches.")
+
+    @field_validator("retention", "rollup_retention")
+    @classmethod
+    def _retention_spec(cls, value: str, info) -> str:
+        from tsdb_service.core.retention_policy import RetentionPolicy
+
+        RetentionPolicy.parse(value, setting="TSDB_" + info.field_name.upper())  # raises ValueError
+        return value
+
+
+class LoggingSettings(SettingsGroup):
+    title = "Logging"
+    about = "What the service writes to its log."
+
+    log_level: str = Field("info", description=f"One of {', '.join(LOG_LEVELS)}.")
+    access_log: bool = Field(False, description="Log every request (uvicorn's access log).")
+
+    @field_validator("log_level")
+    @classmethod
+    def _known_log_level(cls, value: str) -> str:
+        level = value.strip().lower()
+        if level not in LOG_LEVELS:
+            raise ValueError(f"unknown log level {value!r}: choose from {', '.join(LOG_LEVELS)}")
+        return level
+
+
+class Settings(
+    StorageSettings,
+    HttpSettings,
+    IngestLogSettings,
+    CacheSettings,
+    ReadSettings,
+    RejectedSettings,
+    SecuritySettings,
+    NgsiLdSettings,
+    MqttSettings,
+    RetentionSettings,
+    LoggingSettings,
+    BaseSettings,
+):
+    """Every setting, from keyword arguments (the CLI's flags) over ``TSDB_*``
+    variables over the defaults; each declared in its group above."""
+
+    model_config = SettingsConfigDict(env_prefix="TSDB_", extra="ignore")
 
     @property
     def backend(self) -> str:
         return "postgresql" if self.db.startswith(("postgresql://", "postgres://")) else "duckdb"
+
+
+# The groups in the order of Settings' bases: the order `serve --help` and the
+# docs' settings table show them in.
+SETTING_GROUPS: tuple[type[SettingsGroup], ...] = tuple(
+    base for base in Settings.__bases__ if issubclass(base, SettingsGroup)
+)
+
+
+def setting_groups() -> tuple[tuple[type[SettingsGroup], tuple[str, ...]], ...]:
+    """Each group with its settings' names, in declaration order."""
+    return tuple((group, tuple(group.model_fields)) for group in SETTING_GROUPS)
 
 
 def url_prefixes(spec: str) -> tuple[str, ...]:
