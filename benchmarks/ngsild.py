@@ -221,8 +221,9 @@ def main(argv: list[str] | None = None) -> int:
     cluster = None
     db = args.db
     if db is None and args.backend == "postgresql":
-        import pgutil  # noqa: F401 - puts tests/ (pg_cluster.py) on the path
-        from pg_cluster import PgCluster
+        import pgutil  # noqa: F401 - puts the repository root on the path
+
+        from tests.support.pg_cluster import PgCluster
 
         cluster = PgCluster().start()
         db = cluster.database("ngsild_bench")

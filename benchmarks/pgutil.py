@@ -1,6 +1,6 @@
 """PostgreSQL helpers shared by the benchmarks.
 
-A private, throwaway cluster (``tests/pg_cluster.py``'s ``PgCluster``, test and benchmark
+A private, throwaway cluster (``tests/support/pg_cluster.py``'s ``PgCluster``, test and benchmark
 infrastructure, not part of the package:
 ``initdb`` + ``pg_ctl`` on a temporary directory and a free port, listening on
 127.0.0.1 only), plus what the benchmarks read off it: the CPU time and the
@@ -15,9 +15,8 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-for _path in (ROOT, ROOT / "tests"):
-    if str(_path) not in sys.path:
-        sys.path.insert(0, str(_path))
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
 
 try:
     import psutil
@@ -29,7 +28,7 @@ class BenchCluster:
     """A started ``PgCluster`` and one fresh database on it."""
 
     def __init__(self, dbname: str = "bench"):
-        from pg_cluster import PgCluster
+        from tests.support.pg_cluster import PgCluster
 
         self.cluster = PgCluster()
         self.dbname = dbname

@@ -55,9 +55,10 @@ def _duckdb(rows: int, repeat: int) -> dict[str, float]:
 
 def _postgres(rows: int, repeat: int) -> dict[str, float] | None:
     try:
-        import pgutil  # noqa: F401  (puts tests/ on sys.path)
+        import pgutil  # noqa: F401  (puts the repository root on sys.path)
         import psycopg
-        from pg_cluster import PgCluster
+
+        from tests.support.pg_cluster import PgCluster
     except ImportError:
         return None
     d = PostgresDialect()

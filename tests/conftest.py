@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
+from tests.support.notify import post_notification
 from tsdb_service.app import create_app
 from tsdb_service.core.config import Settings
 
@@ -58,7 +59,7 @@ def pg_cluster():
     temporary directory and a free port), stopped at the end. Not durable
     (no fsync): it is thrown away, and the tests crash the service, never
     the cluster."""
-    from tests.pg_cluster import PgCluster, find_bin
+    from tests.support.pg_cluster import PgCluster, find_bin
 
     if not (find_bin("initdb") and find_bin("pg_ctl")):
         pytest.skip("PostgreSQL server binaries (initdb, pg_ctl) are not installed")
@@ -187,13 +188,6 @@ def client_factory(app_factory):
 def client(client_factory, store_url) -> Iterator[TestClient]:
     with client_factory(store_url) as c:
         yield c
-
-
-def post_notification(client, body: dict, headers: dict | None = None):
-    """POST one notification; fail the test unless it was stored."""
-    response = client.post("/v2/notify", json=body, headers={"Content-Type": "application/json", **(headers or {})})
-    assert response.status_code == 200, response.text
-    return response
 
 
 @pytest.fixture(scope="session")

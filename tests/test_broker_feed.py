@@ -16,121 +16,14 @@ runs the same two commands against real images (tests/test_containers.py).
 
 from __future__ import annotations
 
-import itertools
-import re
-from datetime import UTC, datetime
-
 import httpx
 import pytest
-from starlette.applications import Starlette
-from starlette.requests import Request
-from starlette.responses import JSONResponse, Response
-from starlette.routing import Route
 
 from tests.support.server import ServerProcess
-from tests.test_subscribe_api import served
+from tests.support.standins import StandInOrion, served
 from tsdb_service.broker.updates import ld_entity
 from tsdb_service.cli.main import main
 from tsdb_service.usecases.registry import SIMULATORS
-
-
-class StandInOrion:
-    """Subscriptions, entity updates and notifications of Orion and Orion-LD."""
-
-    def __init__(self) -> None:
-        self.subscriptions: dict[tuple[str, str], list[dict]] = {}
-        self.entities: dict[tuple[str, str, str], dict] = {}
-        self.notified: list[int] = []
-        self._ids = itertools.count(1)
-        self.app = Starlette(
-            routes=[
-                Route("/version", lambda request: JSONResponse({"orion": {"version": "stand-in"}})),
-                Route("/v2/subscriptions", self.create, methods=["POST"]),
-                Route("/v2/subscriptions", self.listing, methods=["GET"]),
-                Route("/ngsi-ld/v1/subscriptions", self.create, methods=["POST"]),
-                Route("/ngsi-ld/v1/subscriptions", self.listing, methods=["GET"]),
-                Route("/v2/op/update", self.update_v2, methods=["POST"]),
-                Route("/ngsi-ld/v1/entityOperations/upsert", self.upsert_ld, methods=["POST"]),
-            ]
-        )
-
-    @staticmethod
-    def tenancy(request: Request) -> tuple[str, str]:
-        if request.url.path.startswith("/ngsi-ld/"):
-            return (request.headers.get("ngsild-tenant", ""), "ld")
-        return (request.headers.get("fiware-service", ""), request.headers.get("fiware-servicepath", "/"))
-
-    async def create(self, request: Request) -> Response:
-        body = await request.json()
-        ld = request.url.path.startswith("/ngsi-ld/")
-        sub_id = f"urn:ngsi-ld:Subscription:{next(self._ids)}" if ld else f"{next(self._ids):024x}"
-        self.subscriptions.setdefault(self.tenancy(request), []).append({"id": sub_id, **body})
-        return Response(status_code=201, headers={"Location": f"{request.url.path}/{sub_id}"})
-
-    async def listing(self, request: Request) -> Response:
-        return JSONResponse(self.subscriptions.get(self.tenancy(request), []))
-
-    async def update_v2(self, request: Request) -> Response:
-        body = await request.json()
-        assert body["actionType"] == "append"
-        tenancy = self.tenancy(request)
-        for entity in body["entities"]:
-            whole = self._merge(tenancy, entity)
-            for sub in self._matching(tenancy, whole, sub_key="subject"):
-                headers = {
-                    "Fiware-Service": tenancy[0],
-                    "Fiware-ServicePath": tenancy[1],
-                    "Ngsiv2-AttrsFormat": "normalized",
-                }
-                await self.deliver(sub, tenancy, {"subscriptionId": sub["id"], "data": [whole]}, headers)
-        return Response(status_code=204)
-
-    async def upsert_ld(self, request: Request) -> Response:
-        assert request.query_params.get("options") == "update"
-        assert "@context" not in (await request.body()).decode()  # application/json: the core context
-        tenancy = self.tenancy(request)
-        for entity in await request.json():
-            assert all(a["type"] in ("Property", "GeoProperty") for k, a in entity.items() if k not in ("id", "type"))
-            whole = self._merge(tenancy, entity)
-            for sub in self._matching(tenancy, whole, sub_key=None):
-                endpoint = sub["notification"]["endpoint"]
-                headers = {
-                    "NGSILD-Tenant": tenancy[0],
-                    **{i["key"]: i["value"] for i in endpoint.get("receiverInfo", [])},
-                }
-                note = {
-                    "id": f"urn:ngsi-ld:Notification:{next(self._ids)}",
-                    "type": "Notification",
-                    "subscriptionId": sub["id"],
-                    "notifiedAt": datetime.now(UTC).isoformat().replace("+00:00", "Z"),
-                    "data": [whole],
-                }
-                await self.deliver(sub, tenancy, note, headers)
-        return Response(status_code=204)
-
-    def _merge(self, tenancy, entity: dict) -> dict:
-        key = (*tenancy, entity["id"])
-        self.entities[key] = {**self.entities.get(key, {}), **entity}
-        return self.entities[key]
-
-    def _matching(self, tenancy, entity: dict, sub_key: str | None) -> list[dict]:
-        found = []
-        for sub in self.subscriptions.get(tenancy, []):
-            selectors = sub[sub_key]["entities"] if sub_key else sub["entities"]
-            if any(s["type"] == entity["type"] and re.search(s["idPattern"], entity["id"]) for s in selectors):
-                found.append(sub)
-        return found
-
-    async def deliver(self, sub: dict, tenancy, body: dict, headers: dict) -> None:
-        """Send a notification where the subscription says (over HTTP here)."""
-        notification = sub["notification"]
-        target = notification["endpoint"]["uri"] if "endpoint" in notification else notification["http"]["url"]
-        await self._send(target, body, headers)
-
-    async def _send(self, url: str, body: dict, headers: dict) -> None:
-        async with httpx.AsyncClient(timeout=30) as client:
-            response = await client.post(url, json=body, headers=headers)
-        self.notified.append(response.status_code)
 
 
 @pytest.fixture
@@ -205,15 +98,15 @@ def test_ngsi_ld_entities_keep_observed_at_and_geometry():
 
 
 def test_ngsi_ld_without_a_broker_is_refused(tmp_path):
-    from tests.test_cli_settings import assert_usage_error, run_cli
+    from tests.support.cli import assert_usage_error, run_cli
 
     assert_usage_error(run_cli("demo", "--ngsi-ld", "--duration", "1", cwd=tmp_path), "--ngsi-ld needs --broker")
     assert list(tmp_path.iterdir()) == []
 
 
 def test_an_unreachable_broker_is_one_line(tmp_path):
-    from tests.pg_cluster import free_port
-    from tests.test_cli_settings import assert_usage_error, run_cli
+    from tests.support.cli import assert_usage_error, run_cli
+    from tests.support.server import free_port
 
     url = f"http://127.0.0.1:{free_port()}"
     done = run_cli("demo", "--no-serve", "--broker", url, "--duration", "1", cwd=tmp_path)

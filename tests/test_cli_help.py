@@ -65,7 +65,7 @@ def test_demo_help_says_a_run_can_overrun():
 
 
 def test_queries_run_against_an_unreachable_service_says_so_once():
-    from tests.pg_cluster import free_port
+    from tests.support.server import free_port
 
     url = f"http://127.0.0.1:{free_port()}"
     done = run_cli("queries", "run", "--url", url)
@@ -75,7 +75,7 @@ def test_queries_run_against_an_unreachable_service_says_so_once():
 
 
 def test_demo_feeding_an_unreachable_service_says_so_once():
-    from tests.pg_cluster import free_port
+    from tests.support.server import free_port
 
     url = f"http://127.0.0.1:{free_port()}"
     done = run_cli("demo", "--no-serve", "--url", url, "--duration", "1")

@@ -10,9 +10,8 @@ import subprocess
 
 import pytest
 
-from tests.pg_cluster import free_port
 from tests.support.cli import run_cli
-from tests.support.server import ServerProcess
+from tests.support.server import ServerProcess, free_port
 from tsdb_service.cli.messages import readable
 
 CREATED = "created a new, empty DuckDB database at"

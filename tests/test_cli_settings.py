@@ -9,20 +9,10 @@ acknowledged into it); ``--port 99999`` used to listen on 34463.
 
 from __future__ import annotations
 
-import subprocess
-
 import pytest
 
-from tests.support.cli import run_cli
+from tests.support.cli import assert_usage_error, run_cli
 from tsdb_service.core.config import SettingsError, load_settings
-
-
-def assert_usage_error(done: subprocess.CompletedProcess, *needles: str) -> None:
-    assert done.returncode == 2, done.stdout + done.stderr
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), done.stderr
-    for needle in needles:
-        assert needle in lines[0], lines[0]
 
 
 @pytest.mark.parametrize(

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import pytest
 
-from tests.pg_cluster import free_port
 from tests.support.cli import run_cli
 from tests.support.duckdb_holder import held_duckdb
+from tests.support.server import free_port
 from tsdb_service import __version__
 
 

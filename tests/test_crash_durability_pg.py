@@ -12,8 +12,7 @@ import os
 import psycopg
 import pytest
 
-from tests.support.server import ServerProcess
-from tests.test_crash_durability import (
+from tests.support.crash_load import (
     ACK,
     FAILED,
     KILL_AFTER_ACKS,
@@ -23,6 +22,7 @@ from tests.test_crash_durability import (
     entity_id,
     temperature,
 )
+from tests.support.server import ServerProcess
 
 
 def stored_temperatures(url: str) -> dict[str, set[float]]:

@@ -14,9 +14,8 @@ import re
 
 import pytest
 
+from tests.support.mqtt_service import ready, settled, stored_notifications
 from tests.support.server import ServerProcess
-from tests.test_mqtt_broker_feed import settled, stored_notifications
-from tests.test_mqtt_crash import ready
 from tsdb_service.cli.main import main
 from tsdb_service.demo.mosquitto import free_port
 from tsdb_service.usecases.registry import SIMULATORS

@@ -17,6 +17,9 @@ what it imported. Read from the source with ``ast`` (no import side effects).
 
 from __future__ import annotations
 
+import ast
+from pathlib import Path
+
 import pytest
 
 from tests.support.imports import import_graph
@@ -133,3 +136,18 @@ def test_the_lowest_sql_reaches_no_write_machinery():
     lowest = [m for m in GRAPH if m.startswith("tsdb_service.storage.sql") or m == "tsdb_service.storage.columns"]
     offenders = {m: sorted(reached(m) & WRITE_MACHINERY) for m in lowest if reached(m) & WRITE_MACHINERY}
     assert lowest and offenders == {}
+
+
+def test_tests_share_helpers_through_support_only():
+    """A test module imports helpers from ``tests/support/`` (or a fixture
+    module), never from another test module or ``conftest``: moving or
+    deleting a test must not break others."""
+    tests = Path(__file__).resolve().parent
+    offenders = []
+    for path in sorted(tests.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                tail = node.module.removeprefix("tests.")
+                if node.module.startswith("tests.") and (tail.startswith("test_") or tail == "conftest"):
+                    offenders.append(f"{path.name} imports {node.module}")
+    assert offenders == []

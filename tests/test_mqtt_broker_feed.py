@@ -14,15 +14,13 @@ from __future__ import annotations
 
 from urllib.parse import urlsplit
 
-import httpx
 import orjson
 import pytest
 
 from tests.support.mosquitto import Publisher
+from tests.support.mqtt_service import ready, settled
 from tests.support.server import ServerProcess
-from tests.test_broker_feed import StandInOrion
-from tests.test_mqtt_crash import ready
-from tests.test_subscribe_api import served
+from tests.support.standins import StandInOrion, served
 from tsdb_service.cli.main import main
 from tsdb_service.usecases.registry import SIMULATORS
 
@@ -72,25 +70,6 @@ def service(tmp_path_factory, mosquitto):
         yield server
     finally:
         server.terminate()
-
-
-def stored_notifications(service: ServerProcess, sim) -> int:
-    """Rows (one per notified entity) the service holds for the use case."""
-    headers = {"Fiware-Service": sim.tenancy.service, "Fiware-ServicePath": sim.tenancy.service_path}
-    total = 0
-    for entity in httpx.get(service.url + "/v2/entities", headers=headers, timeout=10).json():
-        history = httpx.get(f"{service.url}/v2/entities/{entity['id']}", params={"limit": 100_000}, headers=headers)
-        total += len(history.json()["index"])
-    return total
-
-
-def settled(service: ServerProcess, sim, expected: int) -> int:
-    import time
-
-    deadline = time.monotonic() + 30
-    while (got := stored_notifications(service, sim)) < expected and time.monotonic() < deadline:
-        time.sleep(0.2)
-    return got
 
 
 @pytest.mark.parametrize(("api", "use_case"), [("NGSIv2", "lawnmower"), ("NGSI-LD", "warehouse")])

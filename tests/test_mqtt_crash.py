@@ -29,6 +29,7 @@ import orjson
 import pytest
 
 from tests.support.mosquitto import Publisher, broker, unique_client_id
+from tests.support.mqtt_service import ready
 from tests.support.server import ServerProcess
 
 ENTITIES = 8
@@ -97,18 +98,6 @@ def mqtt_args(url: str, prefix: str, client_id: str, *extra: str) -> list[str]:
         f"{prefix}/${{service}}${{servicePath}}",
         *extra,
     ]
-
-
-def ready(server: ServerProcess, timeout: float = READY_TIMEOUT_S) -> ServerProcess:
-    """Wait until the service is subscribed (``/health`` passes): before
-    that the broker queues nothing for a new session."""
-    deadline = time.monotonic() + timeout
-    while True:
-        report = httpx.get(server.url + "/health", timeout=5).json()
-        if report["status"] == "pass":
-            return server
-        assert time.monotonic() < deadline, f"MQTT never came up: {report}\n{server.output()[-3000:]}"
-        time.sleep(0.05)
 
 
 def stored(server: ServerProcess) -> list[tuple[int, str, str]]:

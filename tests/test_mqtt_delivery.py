@@ -15,7 +15,7 @@ import orjson
 import pytest
 
 from tests.support.mosquitto import Publisher, unique_client_id
-from tests.test_mqtt_ingest import Feed, consuming, rejected_on, timed, v2
+from tests.support.mqtt_service import Feed, consuming, rejected_on, timed, v2
 from tsdb_service.demo.mosquitto import LocalMosquitto, free_port
 
 

@@ -13,25 +13,15 @@ with its topic. The broker is Debian's mosquitto (tests/support/mosquitto.py).
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
-from urllib.parse import quote
 
 import orjson
 import pytest
 
-from tests.support.mosquitto import Publisher, unique_client_id
+from tests.support.mosquitto import Publisher
+from tests.support.mqtt_service import Feed, T, consuming, rejected_on, timed, v2
 
 PAYLOADS = Path(__file__).parent / "payloads"
-T = "2025-02-03T04:05:06.789Z"
-
-
-def timed(value, kind: str = "Number") -> dict:
-    return {"type": kind, "value": value, "metadata": {"TimeInstant": {"type": "DateTime", "value": T}}}
-
-
-def v2(entity: dict) -> dict:
-    return {"subscriptionId": "57458eb60962ef754e7c0998", "data": [entity]}
 
 
 def envelope(headers: dict, body: dict) -> dict:
@@ -87,50 +77,6 @@ def tenants(case: str) -> tuple[str, str]:
     """(the MQTT copy's tenant, the HTTP copy's)."""
     slug = case.replace("/", "_").replace(".json", "").replace("-", "_").lower()
     return f"mq_{slug}", f"ht_{slug}"
-
-
-class Feed:
-    """One app consuming ``prefix/#`` of the session's broker."""
-
-    def __init__(self, client, app, publisher: Publisher, prefix: str):
-        self.client, self.app, self.publisher, self.prefix = client, app, publisher, prefix
-        self.published = 0  # by this feed: what the consumer is to settle in all
-        assert self.consumer.subscribed.wait(10), "the consumer never subscribed"
-
-    @property
-    def consumer(self):
-        return self.app.state.mqtt
-
-    def publish(self, topic: str, payload, **kw) -> None:
-        data = payload if isinstance(payload, bytes) else orjson.dumps(payload)
-        self.publisher.publish(f"{self.prefix}/{topic}", data, **kw)
-        self.published += 1
-
-    def settled(self, count: int, timeout: float = 20.0) -> None:
-        """Wait until ``count`` messages were stored or rejected in all."""
-        deadline = time.monotonic() + timeout
-        stats = self.consumer.stats
-        while stats.stored + stats.rejected + stats.redelivered < count:
-            assert time.monotonic() < deadline, f"only {stats} of {count} messages settled"
-            time.sleep(0.02)
-        self.app.state.store.sync()
-
-    def history(self, entity_id: str, tenant: str, path: str | None = None):
-        headers = {"Fiware-Service": tenant, **({"Fiware-ServicePath": path} if path else {})}
-        response = self.client.get(f"/v2/entities/{quote(entity_id, safe='')}", headers=headers)
-        return response.status_code, response.json()
-
-
-def consuming(client_factory, store_url, mosquitto, **settings):
-    prefix = unique_client_id("topic")
-    options = {
-        "mqtt_url": mosquitto.url,
-        "mqtt_client_id": unique_client_id("svc"),
-        "mqtt_topics": f"{prefix}/#",
-        "mqtt_topic_template": f"{prefix}/v2/${{service}}${{servicePath}}",
-        **settings,
-    }
-    return prefix, client_factory(store_url, **options)
 
 
 @pytest.fixture(scope="module")
@@ -211,13 +157,6 @@ def test_tenant_from_metadata_and_from_user_properties(feed):
     status, entity = feed.history("R:props", "from_props")
     assert status == 200 and {"attrName": "temperature", "values": [30]} in entity["attributes"]
     assert entity["index"] == ["2025-02-03T04:05:06.789+00:00"]  # keyValues, as the user property said
-
-
-def rejected_on(feed, topic: str) -> dict:
-    rows = feed.client.get("/v2/notify/rejected", params={"allTenants": "true", "limit": 1000}).json()
-    found = [row for row in rows if row["topic"] == f"{feed.prefix}/{topic}"]
-    assert len(found) == 1, rows
-    return found[0]
 
 
 def test_messages_we_cannot_use_are_kept_with_their_topic(feed):

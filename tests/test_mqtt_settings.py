@@ -9,7 +9,7 @@ import os
 
 import pytest
 
-from tests.test_cli_settings import assert_usage_error, run_cli
+from tests.support.cli import assert_usage_error, run_cli
 from tsdb_service.cli.main import main
 from tsdb_service.core.config import Settings
 from tsdb_service.ingest.mqtt.config import MqttConfig

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import pytest
 
-from tests.pg_cluster import free_port
-from tests.test_cli_settings import run_cli
+from tests.support.cli import run_cli
+from tests.support.server import free_port
 from tsdb_service.app import create_app
 from tsdb_service.core.config import Settings
 

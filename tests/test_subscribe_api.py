@@ -11,120 +11,15 @@ real HTTP into a real store.
 
 from __future__ import annotations
 
-import itertools
-import threading
-import time
-from contextlib import contextmanager
-
 import httpx
 import pytest
-import uvicorn
-from starlette.applications import Starlette
-from starlette.requests import Request
-from starlette.responses import JSONResponse, PlainTextResponse, Response
-from starlette.routing import Route
 
 from tests.support.server import free_port
+from tests.support.standins import StandInBroker, served, serving
 
 QL = "http://tsdb-service:8668/v2"
 LOCAL = "http://127.0.0.1:"  # the stand-in broker is on loopback: allowed by TSDB_SUBSCRIBE_BROKER_ALLOW
 METADATA = ["dateCreated", "dateModified", "TimeInstant", "timestamp"]
-
-
-class StandInBroker:
-    """What the helper needs of Orion: POST/GET /v2/subscriptions and notifying."""
-
-    def __init__(self) -> None:
-        self.subscriptions: dict[tuple[str, str], list[dict]] = {}
-        self._ids = itertools.count(0x65F0C3D7E3B8A4C1E9A57200)
-        self.app = Starlette(
-            routes=[
-                Route("/v2", self.index),
-                Route("/v2/subscriptions", self.create, methods=["POST"]),
-                Route("/v2/subscriptions", self.list, methods=["GET"]),
-                Route("/broken/v2/subscriptions", self.broken, methods=["POST"]),
-                Route("/moved/v2/subscriptions", self.moved, methods=["POST"]),
-            ]
-        )
-
-    @staticmethod
-    def tenant(request: Request) -> tuple[str, str]:
-        return (request.headers.get("fiware-service", "").lower(), request.headers.get("fiware-servicepath", "/"))
-
-    async def index(self, request: Request) -> Response:
-        return JSONResponse({"entities_url": "/v2/entities", "subscriptions_url": "/v2/subscriptions"})
-
-    async def create(self, request: Request) -> Response:
-        body = await request.json()
-        entities = body.get("subject", {}).get("entities")
-        if not entities:
-            return JSONResponse({"error": "BadRequest", "description": "no subject entities specified"}, 400)
-        if any(e.get("idPattern") == "(" for e in entities):
-            return JSONResponse({"error": "BadRequest", "description": "Invalid regex for entity idPattern"}, 400)
-        sub_id = f"{next(self._ids):024x}"
-        self.subscriptions.setdefault(self.tenant(request), []).append({"id": sub_id, **body})
-        return Response(status_code=201, headers={"Location": f"/v2/subscriptions/{sub_id}"})
-
-    async def list(self, request: Request) -> Response:
-        return JSONResponse(self.subscriptions.get(self.tenant(request), []))
-
-    async def moved(self, request: Request) -> Response:
-        return Response(status_code=307, headers={"Location": "/v2/subscriptions"})
-
-    async def broken(self, request: Request) -> Response:
-        return PlainTextResponse("database down", status_code=500)
-
-    def notify(self, entity: dict) -> list[int]:
-        """Notify ``entity`` (NGSIv2 normalized) to every subscription, as Orion would."""
-        statuses = []
-        for (service, path), subs in self.subscriptions.items():
-            for sub in subs:
-                target = sub["notification"].get("http") or sub["notification"]["httpCustom"]
-                headers = {
-                    "Content-Type": "application/json; charset=utf-8",
-                    "Fiware-ServicePath": path,
-                    "Ngsiv2-AttrsFormat": "normalized",
-                    **target.get("headers", {}),
-                }
-                if service:
-                    headers["Fiware-Service"] = service
-                wanted = sub["notification"].get("attrs")
-                data = {k: v for k, v in entity.items() if k in ("id", "type") or not wanted or k in wanted}
-                body = {"subscriptionId": sub["id"], "data": [data]}
-                statuses.append(httpx.post(target["url"], json=body, headers=headers, timeout=10).status_code)
-        return statuses
-
-
-class _Server(uvicorn.Server):
-    def install_signal_handlers(self) -> None:  # a test thread must not take pytest's signals
-        pass
-
-
-@contextmanager
-def serving(app):
-    """``app`` on a free 127.0.0.1 port with uvicorn, in a thread; yields its URL."""
-    port = free_port()
-    server = _Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30
-    while not server.started:
-        if not thread.is_alive() or time.monotonic() > deadline:
-            raise RuntimeError("the test server did not start")
-        time.sleep(0.02)
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        thread.join(timeout=30)
-
-
-@contextmanager
-def served(stand_in):
-    """A stand-in broker served by ``serving``, its URL set as ``stand_in.url``."""
-    with serving(stand_in.app) as url:
-        stand_in.url = url
-        yield stand_in
 
 
 @pytest.fixture(scope="module")

@@ -18,8 +18,8 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Route
 
-from tests.pg_cluster import free_port
-from tests.test_subscribe_api import StandInBroker, served
+from tests.support.server import free_port
+from tests.support.standins import StandInBroker, served
 from tsdb_service.broker.subscriptions import default_notify_url, subscription
 from tsdb_service.cli.main import main
 from tsdb_service.usecases.registry import SIMULATORS

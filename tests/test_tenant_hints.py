@@ -9,7 +9,7 @@ that hold data, only those the caller's credential may touch.
 
 from __future__ import annotations
 
-from tests.conftest import post_notification
+from tests.support.notify import post_notification
 from tsdb_service.faces.quantumleap import openapi as oa
 
 

@@ -19,3 +19,12 @@ def run_cli(*args: str, env: dict | None = None, cwd=None, timeout: float = 60) 
         cwd=cwd,
         timeout=timeout,
     )
+
+
+def assert_usage_error(done: subprocess.CompletedProcess, *needles: str) -> None:
+    """A refused setting: exit status 2 and one ``error: ...`` line holding every needle."""
+    assert done.returncode == 2, done.stdout + done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), done.stderr
+    for needle in needles:
+        assert needle in lines[0], lines[0]
