@@ -9,8 +9,11 @@ same, with the reason, and ``/metrics`` counts the failed writes.
 
 from __future__ import annotations
 
+import contextlib
 import re
 import subprocess
+from collections.abc import Iterator
+from pathlib import Path
 
 import httpx
 
@@ -52,13 +55,21 @@ def failures(client: httpx.Client) -> float:
     return float(found.group(1))
 
 
-def test_health_fails_while_the_log_disk_is_full_and_recovers(tmp_path):
-    db = tmp_path / "full.duckdb"
+@contextlib.contextmanager
+def served_with_its_log_on_a_tmpfs(tmp_path) -> Iterator[tuple[Path, httpx.Client]]:
+    """A server whose database is on the test's disk and whose ingest log
+    has a small tmpfs of its own (the disk, a client of the server)."""
+    db = tmp_path / "store.duckdb"
     with (
         small_tmpfs(log_dir(db), "2m") as disk,
         ServerProcess(db, log_dir=tmp_path) as server,
         httpx.Client(base_url=server.url, timeout=30) as client,
     ):
+        yield disk, client
+
+
+def test_health_fails_while_the_log_disk_is_full_and_recovers(tmp_path):
+    with served_with_its_log_on_a_tmpfs(tmp_path) as (disk, client):
         acked = [n for n in range(3) if notify(client, n).status_code == 200]
         assert acked == [0, 1, 2]
         filler = fill(disk, leave=0)
@@ -86,12 +97,7 @@ def test_health_fails_while_the_log_disk_is_full_and_recovers(tmp_path):
 
 
 def test_health_fails_while_the_log_directory_is_read_only_and_recovers(tmp_path):
-    db = tmp_path / "readonly.duckdb"
-    with (
-        small_tmpfs(log_dir(db), "2m") as disk,
-        ServerProcess(db, log_dir=tmp_path) as server,
-        httpx.Client(base_url=server.url, timeout=30) as client,
-    ):
+    with served_with_its_log_on_a_tmpfs(tmp_path) as (disk, client):
         assert health(client)[1]["status"] == "pass"
         subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
         try:

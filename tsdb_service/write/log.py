@@ -290,7 +290,8 @@ class IngestLog:
                 self.findings.legacy_segments += segment.legacy
                 last = scan.records[-1][0]
             if damage is not None:
-                self._set_aside(scans[i:], *damage, kept=kept, first_seq=last + 1 if last else int(path.name[:18]))
+                first = last + 1 if last else int(path.name[:18])
+                self._set_aside(scans[i:], *damage, kept=kept, first_seq=first, applied_seq=applied_seq)
                 break
             if scan.damage is not None:  # a torn last write: cut it off
                 self._cut(path, scan.end)
@@ -371,7 +372,7 @@ class IngestLog:
         self.findings.torn_bytes += size - end
 
     def _set_aside(
-        self, scans: list[tuple[Path, Scan]], offset: int, reason: str, *, kept: bool, first_seq: int
+        self, scans: list[tuple[Path, Scan]], offset: int, reason: str, *, kept: bool, first_seq: int, applied_seq: int
     ) -> None:
         """Move the damage and everything after it into the quarantine: the
         segment's bytes from ``offset`` (the whole file unless it ``kept``
@@ -389,7 +390,7 @@ class IngestLog:
         else:
             tail = folder / f"{path.name}.from-{offset}"
             tail.write_bytes(data[offset:])
-            _fsync_file(tail)
+            fsync_path(tail)
             with open(path, "r+b") as f:
                 f.truncate(offset)
                 os.fsync(f.fileno())
@@ -404,8 +405,9 @@ class IngestLog:
         self.findings.set_aside = found
         log.error(
             "the ingest log %s is damaged in segment %s at offset %d (%s): set aside %d records "
-            "(%d bytes, with %d later segments) in %s; records from sequence number %d on are not replayed. "
-            "Inspect them, then move the quarantine folder away (docs/operations.md, 'The ingest log')",
+            "(%d bytes, with %d later segments) in %s; records from sequence number %d on are not replayed "
+            "(the database holds every record up to %d). Inspect them, then move the quarantine folder away "
+            "(docs/operations.md, 'The ingest log')",
             self.directory,
             path.name,
             offset,
@@ -415,6 +417,7 @@ class IngestLog:
             found.later_segments,
             folder,
             first_seq,
+            applied_seq,
         )
 
     # -- reading ----------------------------------------------------------------------------
@@ -570,7 +573,8 @@ def _uuid(raw: bytes | None) -> str:
     return str(uuid.UUID(bytes=raw)) if raw is not None and len(raw) == 16 else "?"
 
 
-def _fsync_file(path: Path) -> None:
+def fsync_path(path: Path) -> None:
+    """Make a file's content, or a directory's entries, durable."""
     fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)
@@ -580,4 +584,4 @@ def _fsync_file(path: Path) -> None:
 
 def _fsync_directory(directory: Path) -> None:
     """Make a directory's entries durable (a new, renamed or deleted segment)."""
-    _fsync_file(directory)
+    fsync_path(directory)

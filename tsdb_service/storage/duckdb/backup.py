@@ -27,15 +27,17 @@ import os
 import shutil
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import duckdb
 
 from tsdb_service.core.backup import BackupNotVerified, BackupRefused, BackupReport, TableCount
+from tsdb_service.core.errors import Unavailable
 from tsdb_service.storage.duckdb.connection import LOG_SUFFIX
 from tsdb_service.storage.duckdb.state import NEW_IDENTITY_SQL, load_state
 from tsdb_service.storage.sql.dialect import quote_ident
+from tsdb_service.write.log import fsync_path
 
 SAMPLE_ROWS = 100  # rows per sampled table compared value by value
 # The tables sampled, by the columns that find a sampled row again.
@@ -54,15 +56,12 @@ def take_backup(cur: duckdb.DuckDBPyConnection, target: Path) -> BackupReport:
     check the copy; ``BackupRefused`` if ``target`` exists."""
     started = time.monotonic()
     _refuse_existing(target, "the backup's target")
-    partial = target.with_name(target.name + ".partial")
-    _remove(partial)
-    try:
+    if not target.parent.is_dir() or not os.access(target.parent, os.W_OK | os.X_OK):
+        raise BackupRefused(f"the backup's directory {target.parent} does not exist or is not writable")
+    with _partial(target, "backup") as partial:
         counts, sampled, database_id, log_seq = _copy(cur, partial)
         report = _checked(partial, counts, sampled, database_id, log_seq, target, started)
         _install(partial, target, report)
-    except BaseException:
-        _remove(partial)
-        raise
     return report
 
 
@@ -79,27 +78,37 @@ def restore_backup(backup: Path, target: Path) -> BackupReport:
         counts, sampled = _moment(source)
     finally:
         source.close()
-    partial = target.with_name(target.name + ".partial")
-    _remove(partial)
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with _partial(target, "restore") as partial:
         shutil.copyfile(backup, partial)
         con = duckdb.connect(str(partial))
         try:
-            if _has_table(con, "store_state"):
+            state = None
+            if _has_table(con, "store_state"):  # a backup of a store from before migration 0013 has none yet
                 con.execute(NEW_IDENTITY_SQL)
+                state = load_state(con)
             con.execute("CHECKPOINT")
-            state = load_state(con) if _has_table(con, "store_state") else None
         finally:
             con.close()
         database_id = str(state.database_id) if state else "(given at the first start)"
         log_seq = state.position.seq if state else 0
         report = _checked(partial, counts, sampled, database_id, log_seq, target, started)
         _install(partial, target, report)
-    except BaseException:
-        _remove(partial)
-        raise
     return report
+
+
+@contextlib.contextmanager
+def _partial(target: Path, what: str) -> Iterator[Path]:
+    """The temporary name a copy is made under, removed unless the copy
+    got its own; a file system error is a 503 (nothing was kept)."""
+    partial = target.with_name(target.name + ".partial")
+    _remove(partial)
+    try:
+        yield partial
+    except (OSError, duckdb.IOException) as exc:
+        raise Unavailable(f"the {what} could not be written ({exc}); nothing was kept") from exc
+    finally:
+        _remove(partial)
 
 
 # -- the copy ----------------------------------------------------------------------------
@@ -182,7 +191,7 @@ def _checked(
         )
     finally:
         con.close()
-    _fsync(partial)
+    fsync_path(partial)
     tables = tuple(
         TableCount(name, counts.get(name, -1), copy_counts.get(name, -1)) for name in sorted({*counts, *copy_counts})
     )
@@ -262,15 +271,7 @@ def _install(partial: Path, target: Path, report: BackupReport) -> None:
         if target.exists():
             raise appeared from None
         os.rename(partial, target)
-    _fsync(target.parent)
-
-
-def _fsync(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    fsync_path(target.parent)
 
 
 def _remove(path: Path) -> None:
