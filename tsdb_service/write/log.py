@@ -343,10 +343,9 @@ class IngestLog:
         """Where ``path``'s damage begins and why, or None. Where the segment
         has whole records before its damage they stay; else (a damaged
         header, a segment out of place, a damaged first record) the whole
-        segment goes. A
-        tear of the last write is not damage (the caller cuts it off); a
-        segment's first group is durable before the segment exists, so its
-        first record is never torn."""
+        segment goes. A tear of the last write is not damage (the caller
+        cuts it off); a segment's first group is durable before the segment
+        exists, so its first record is never torn."""
         first = int(path.name[:18])
         if scan.kind == "damaged":
             return 0, scan.damage or "it has no valid header"

@@ -145,7 +145,8 @@ class LoggedWriter:
         self.acked_seq = self.log.last_seq
         if self._pending:
             self.applied_seq = self._pending[0].seq - 1
-            log.warning("replaying %d notifications from the ingest log %s", replayed, self.log.directory)
+            if replayed:
+                log.warning("replaying %d notifications from the ingest log %s", replayed, self.log.directory)
         else:
             self.applied_seq = self.log.last_seq
             self.log.reset()  # every record is in the database
