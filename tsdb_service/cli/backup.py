@@ -28,8 +28,10 @@ def register(subparsers, command) -> None:
         "PostgreSQL: pg_dump or pg_basebackup (docs/operations.md, 'Backups').",
     )
     where = backup.add_mutually_exclusive_group(required=True)
-    where.add_argument("--db", metavar="FILE", help="the DuckDB file of a stopped store")
-    where.add_argument("--url", metavar="URL", help="the running service, e.g. http://localhost:8668")
+    where.add_argument("--db", metavar="FILE", help="the DuckDB file of a stopped store (no default: --db or --url)")
+    where.add_argument(
+        "--url", metavar="URL", help="the running service, e.g. http://localhost:8668 (no default: --db or --url)"
+    )
     backup.add_argument(
         "target",
         nargs="?",
