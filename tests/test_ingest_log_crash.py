@@ -17,11 +17,9 @@ from datetime import UTC, datetime, timedelta
 
 import duckdb
 
+from tests.support.ingest_log import leave_unapplied
 from tests.support.server import ServerProcess
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
-from tsdb_service.storage.duckdb.store import LOG_SUFFIX, DuckDBStore
-from tsdb_service.write import codec
-from tsdb_service.write.log import IngestLog
 from tsdb_service.write.ops import AppendSamples
 
 TENANT = "replay"
@@ -31,19 +29,14 @@ T0 = datetime(2024, 5, 1, tzinfo=UTC)
 
 
 def _leave_a_crashed_log(db_path) -> None:
-    DuckDBStore(str(db_path), ingest_log=False).close()  # the schema, no samples
-    log = IngestLog(str(db_path) + LOG_SUFFIX)
-    rid = 0
+    records = []
     for start in range(0, ENTITIES, PER_RECORD):
         entities = []
         for n in range(start, start + PER_RECORD):
-            rid += 1
             sample = AttrSample("level", "Number", Kind.NUMBER, num=n + 0.25)
-            entities.append(
-                EntitySample(TENANT, "/", f"Tank:{n}", "Tank", T0 + timedelta(seconds=n), [sample], rid=rid)
-            )
-        log.append([codec.encode(AppendSamples(entities))])
-    log.close()
+            entities.append(EntitySample(TENANT, "/", f"Tank:{n}", "Tank", T0 + timedelta(seconds=n), [sample]))
+        records.append(AppendSamples(entities))
+    leave_unapplied(db_path, records)
 
 
 def _metric(server: ServerProcess, name: str) -> float:

@@ -16,9 +16,10 @@ from tsdb_service.core.errors import Unavailable
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.write.log import IngestLog
 from tsdb_service.write.logged import LoggedWriter
-from tsdb_service.write.ops import AppendSamples
+from tsdb_service.write.ops import AppendSamples, LogPosition
 
 T0 = datetime(2024, 5, 1, tzinfo=UTC)
+DB = bytes(16)
 
 
 def synced(w: LoggedWriter, timeout: float = 30.0) -> None:
@@ -44,8 +45,9 @@ def entity(n: int, name: str = "speed") -> EntitySample:
 
 
 class ListDatabase:
-    """Holds applied entities; ``gate`` pauses application; ``refuse`` names
-    entity ids it refuses."""
+    """Holds applied entities and the log position, changed together as a
+    transaction would; ``gate`` pauses application; ``refuse`` names entity
+    ids it refuses."""
 
     def __init__(self):
         self.rows: list[tuple[int, str]] = []
@@ -54,6 +56,7 @@ class ListDatabase:
         self.gate.set()
         self.refuse: set[str] = set()
         self.next_rid = 1
+        self.position = LogPosition(0, 0)
 
     def apply(self, ops):
         self.gate.wait()
@@ -61,20 +64,24 @@ class ListDatabase:
         if any(e.entity_id in self.refuse for e in entities):
             raise RuntimeError("refused")
         self.rows += [(e.rid, e.entity_id) for e in entities]
+        for op in ops:
+            if op.log_position is not None:
+                p = op.log_position
+                self.position = LogPosition(max(self.position.seq, p.seq), max(self.position.rid, p.rid))
 
     def allocate(self, n: int) -> int:
         first, self.next_rid = self.next_rid, self.next_rid + n
         return first
 
-    def stored_rid(self) -> int:
-        return max((rid for rid, _ in self.rows), default=0)
+    def applied(self) -> LogPosition:
+        return self.position
 
     def writer(self, directory, **kw) -> LoggedWriter:
         w = LoggedWriter(
-            IngestLog(directory),
+            IngestLog(directory, DB, applied_seq=self.position.seq),
             self.apply,
             self.allocate,
-            self.stored_rid,
+            self.applied,
             lambda e, reason: self.rejected.append(e.entity_id),
             seen_rid=lambda rid: setattr(self, "next_rid", max(self.next_rid, rid + 1)),
             **kw,
@@ -149,6 +156,7 @@ def test_replay_applies_only_what_the_database_lacks(tmp_path):
     w._writer.close()
     again = ListDatabase()
     again.rows = [(1, "e1")]
+    again.position = LogPosition(1, 1)
     w2 = again.writer(tmp_path)
     w2.sync()
     assert [eid for _, eid in again.rows] == ["e1", "e2", "e3"]
@@ -179,7 +187,7 @@ def test_a_sick_database_never_sends_entities_to_the_rejected_store(tmp_path, mo
     db = ListDatabase()
     db.refuse = {"e1"}
     w = LoggedWriter(
-        IngestLog(tmp_path), db.apply, db.allocate, db.stored_rid, lambda e, r: db.rejected.append(e.entity_id),
+        IngestLog(tmp_path, DB), db.apply, db.allocate, db.applied, lambda e, r: db.rejected.append(e.entity_id),
         healthy=lambda: False,
     )  # fmt: skip
     w.start()
@@ -194,3 +202,78 @@ def test_a_sick_database_never_sends_entities_to_the_rejected_store(tmp_path, mo
     assert [eid for _, eid in db.rows] == ["e1"]
     assert w.failure is None
     w.close()
+
+
+def test_replay_honours_what_the_database_deleted(tmp_path):
+    """The rows of applied records may be gone (a delete, retention): the
+    position the database keeps, not its largest row id, says they were applied."""
+    db = ListDatabase()
+    w = db.writer(tmp_path)
+    for i in (1, 2):
+        asyncio.run(w.write(AppendSamples([entity(i)])))
+    w.sync()
+    db.rows = [row for row in db.rows if row[1] != "e2"]  # the newest entity deleted
+    w.close()  # a clean stop: the log keeps its last segment
+    w2 = db.writer(tmp_path)
+    w2.sync()
+    assert [eid for _, eid in db.rows] == ["e1"]
+    asyncio.run(w2.write(AppendSamples([entity(3)])))
+    w2.sync()
+    assert [eid for _, eid in db.rows] == ["e1", "e3"]
+    assert db.rows[-1][0] > 2  # row ids never reused
+    w2.close()
+
+
+def test_a_commit_that_landed_but_said_it_failed_is_not_applied_twice(tmp_path, monkeypatch):
+    monkeypatch.setattr("tsdb_service.write.logged.RETRY_DELAY_S", 0.001)
+    db = ListDatabase()
+    landed_once = []
+
+    def apply_then_fail(ops):
+        db.apply(ops)
+        if not landed_once:
+            landed_once.append(True)
+            raise RuntimeError("the connection broke during COMMIT")
+
+    w = LoggedWriter(IngestLog(tmp_path, DB), apply_then_fail, db.allocate, db.applied, lambda e, r: None)
+    w.start()
+    asyncio.run(w.write(AppendSamples([entity(1), entity(2)])))
+    synced(w)
+    assert [eid for _, eid in db.rows] == ["e1", "e2"]
+    w.close()
+
+
+def test_entities_applied_one_by_one_before_a_crash_are_not_applied_again(tmp_path, monkeypatch):
+    monkeypatch.setattr("tsdb_service.write.logged.RETRY_DELAY_S", 0.001)
+    db = ListDatabase()
+    db.refuse = {"e2"}
+    w = db.writer(tmp_path)
+    asyncio.run(w.write(AppendSamples([entity(1), entity(2), entity(3)])))
+    synced(w)
+    assert sorted(eid for _, eid in db.rows) == ["e1", "e3"] and db.rejected == ["e2"]
+    w.close()
+    # As if the process died after the single applies, before the final position:
+    db.position = LogPosition(0, db.position.rid)
+    again = db.writer(tmp_path)
+    again.sync()
+    assert sorted(eid for _, eid in db.rows) == ["e1", "e3"]  # none twice
+    again.close()
+
+
+def test_records_the_database_holds_wholly_still_move_the_position(tmp_path):
+    """A replayed record whose every entity the database holds must not
+    leave reads waiting for it."""
+    db = ListDatabase()
+    w = db.writer(tmp_path)
+    db.gate.clear()
+    acknowledge_in_background(w, AppendSamples([entity(1)]))
+    while w.acked_seq < 1:
+        threading.Event().wait(0.01)
+    w._writer.close()
+    again = ListDatabase()
+    again.rows = [(1, "e1")]
+    again.position = LogPosition(0, 1)  # its entity applied alone, the record not marked
+    w2 = again.writer(tmp_path)
+    w2.sync(timeout=10)
+    assert w2.applied_seq == w2.acked_seq == 1 and again.rows == [(1, "e1")]
+    w2.close()

@@ -366,6 +366,22 @@ def _ingest_log_metrics(logged) -> Iterable:
     yield CounterMetricFamily(
         "tsdb_ingest_log_applied_samples", "Samples applied from the log.", value=logged.applied_samples
     )
+    yield CounterMetricFamily(
+        "tsdb_ingest_log_write_failures",
+        "Groups of notifications the log could not write (disk full, directory not writable): each got 503.",
+        value=logged.write_failures,
+    )
+    set_aside = logged.log.findings.set_aside
+    yield CounterMetricFamily(
+        "tsdb_ingest_log_set_aside_records",
+        "Damaged ingest-log records (and every one after them) set aside in its quarantine folder at start.",
+        value=0 if set_aside is None else set_aside.records,
+    )
+    yield CounterMetricFamily(
+        "tsdb_ingest_log_set_aside_bytes",
+        "Bytes of the ingest log set aside in its quarantine folder at start.",
+        value=0 if set_aside is None else set_aside.bytes,
+    )
 
 
 class MqttCollector(Collector):

@@ -190,13 +190,14 @@ def _feature_modules() -> tuple[ModuleType, ...]:
     """The packages that add their own subcommands, each through
     ``register(subparsers, command)``; imported when the parser is built, so
     ``import tsdb_service.cli.main`` stays light."""
+    from tsdb_service.cli import backup as backup_commands
     from tsdb_service.cli import copy as copy_commands
     from tsdb_service.cli import dashboards as grafana_commands
     from tsdb_service.cli import demo as demo_commands
     from tsdb_service.cli import export as export_commands
     from tsdb_service.cli import qlimport as import_commands
 
-    return (demo_commands, grafana_commands, copy_commands, export_commands, import_commands)
+    return (demo_commands, grafana_commands, copy_commands, export_commands, import_commands, backup_commands)
 
 
 @command("serve")

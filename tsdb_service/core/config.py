@@ -513,6 +513,14 @@ class Settings(
 
     model_config = SettingsConfigDict(env_prefix="TSDB_", extra="ignore")
 
+    # --- Backups through the service (issue 37; commands/backup.py, faces/operator/backup.py) ---
+    backup_dir: str = Field(
+        "",
+        description="Directory where POST /admin/backup (tsdb-service backup --url) writes DuckDB backups; "
+        "a request names only a file in it. Empty: backups through the service are off.",
+    )
+    # --- end of backups ---
+
     @property
     def backend(self) -> str:
         return "postgresql" if self.db.startswith(("postgresql://", "postgres://")) else "duckdb"

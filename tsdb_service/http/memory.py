@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
+from tsdb_service.core.backup import BackupRefused, BackupReport
 from tsdb_service.parse import ValuesLayout
 from tsdb_service.read.memory import MemoryQuerier
 from tsdb_service.write.ops import WriteOp
@@ -56,6 +57,9 @@ class MemoryStore:
 
     def health(self) -> dict[str, Any]:
         return {"status": "pass", "backend": self.backend}
+
+    def backup(self, path: str) -> BackupReport:
+        raise BackupRefused("a store in memory has nothing to back up")
 
     def close(self) -> None:
         pass

@@ -24,6 +24,7 @@ from typing import Any, ParamSpec, Protocol, TypeVar, cast
 
 from starlette.requests import Request
 
+from tsdb_service.core.backup import BackupReport
 from tsdb_service.parse import ValuesLayout
 from tsdb_service.read import Reader
 from tsdb_service.write import Writer
@@ -53,6 +54,12 @@ class ServiceStore(Reader, Writer, Protocol):
 
     def health(self) -> dict[str, Any]:
         """The ``/health`` report."""
+        ...
+
+    def backup(self, path: str) -> BackupReport:
+        """A consistent, checked copy of the store in the new file ``path``
+        (blocking: run it off the loop); ``BackupRefused`` where a backend
+        has its own tools."""
         ...
 
 

@@ -21,6 +21,7 @@ DEFAULT_TENANT_TOKEN = "-"  # stands for "" (no Fiware-Service) in tenant lists
 # Reads that travel as POST (a query in a body) need read, not write.
 _READ_POSTS = ("/grafana/", "/v2/op/query", "/ngsi-ld/v1/temporal/entityOperations/query")  # queries in a body
 METRICS_PATH = "/metrics"
+ADMIN_PATH = "/admin"  # operations on the whole store (backups)
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,11 +47,14 @@ class Principal:
 def required_scope(method: str, path: str) -> str:
     """The scope a request needs: changing or deleting stored history
     (``DELETE``, and ``PATCH`` of an NGSI-LD instance), the rejected store
-    (which holds raw request bodies) and ``POST /v2/subscribe`` (which makes
-    this service call a URL the client names) need admin; ``/metrics`` needs
-    metrics; adding data needs write, everything else read."""
+    (which holds raw request bodies), ``POST /v2/subscribe`` (which makes
+    this service call a URL the client names) and ``/admin/`` (backups) need
+    admin; ``/metrics`` needs metrics; adding data needs write, everything
+    else read."""
     path = path.rstrip("/") or "/"
     if method in ("DELETE", "PATCH") or path == "/v2/notify/rejected" or path.startswith("/v2/notify/rejected/"):
+        return ADMIN
+    if path == ADMIN_PATH or path.startswith(ADMIN_PATH + "/"):
         return ADMIN
     if path == METRICS_PATH:
         return METRICS

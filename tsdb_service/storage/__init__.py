@@ -17,9 +17,11 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from tsdb_service.core.backup import BackupRefused, BackupReport
 from tsdb_service.core.config import Settings
 from tsdb_service.storage.rejected import RejectedLimits
 from tsdb_service.storage.store import Store
+from tsdb_service.write.log import LogRefused
 
 PG_CONNECT_TIMEOUT_S = 10
 
@@ -112,6 +114,16 @@ def _open(settings: Settings) -> Store:
     )
 
 
+def restore_backup(backup: str, db: str) -> BackupReport:
+    """Make the new store ``db`` from the backup file ``backup`` (DuckDB;
+    ``storage.duckdb.backup``), checked against it."""
+    if Settings(db=db).backend != "duckdb":
+        raise BackupRefused("restore makes a DuckDB file; PostgreSQL restores with pg_restore (docs/operations.md)")
+    from tsdb_service.storage.duckdb.backup import restore_backup as restore_duckdb
+
+    return restore_duckdb(Path(backup), Path(db))
+
+
 def check_store(settings: Settings) -> None:
     """Connect once and disconnect, raising ``StoreUnavailable`` on failure.
 
@@ -177,6 +189,8 @@ def _require_pg_schema(url: str) -> None:
 def explain(exc: BaseException, db: str) -> str | None:
     """One line for a failure to open ``db``, or None when it is not an
     operator's problem (then the traceback is wanted: it is a bug)."""
+    if isinstance(exc, LogRefused):  # another database's log, or one without identity: it says what to do
+        return str(exc)
     if isinstance(exc, OSError):
         return _explain_os(exc, db)
     module = type(exc).__module__

@@ -93,24 +93,27 @@ class CommittingStore(Store):
         return self.memory.layouts.of_tenant(tenant)
 
     def health(self) -> dict[str, Any]:
-        """``pass`` while the writers run and the database takes writes (and
-        whatever ``_health_problem`` checks)."""
+        """``fail`` unless the writers run and the database takes writes
+        (and whatever ``_health_problem`` checks), and, with an ingest log,
+        while it cannot be written or applied; ``warn`` while the log holds
+        damaged records set aside for an operator; else ``pass``."""
         problem = self._health_problem()
         if problem is None and self._write_failure is not None:
             problem = "the database refuses writes: " + self._write_failure
         logged = self._logged
-        if problem is None and logged is not None and logged.failure is not None:
-            problem = logged.failure
+        if problem is None and logged is not None:
+            problem = logged.problem()
         alive = self._committer.alive and (logged is None or logged.alive)
         ok = alive and problem is None and self._reachable()
+        warning = logged.warning() if ok and logged is not None else None
         report: dict[str, Any] = {
-            "status": "pass" if ok else "fail",
+            "status": "fail" if not ok else "warn" if warning is not None else "pass",
             "backend": self.backend,
             "commits": self._committer.commits,
             "writes": self._committer.ops,
         }
-        if problem is not None:
-            report["output"] = problem
+        if problem is not None or warning is not None:
+            report["output"] = problem or warning
         return report
 
     def _health_problem(self) -> str | None:

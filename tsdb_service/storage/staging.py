@@ -34,6 +34,7 @@ from tsdb_service.write.ops import (
     DeleteInstance,
     DeleteSamples,
     Delivery,
+    LogPosition,
     PutLayout,
     RecordRejected,
     ReplaceInstance,
@@ -64,6 +65,8 @@ class StagingAppender(Appender):
         if isinstance(op, AppendSamples):
             self._stage_samples(op.entities, op.dedup)
             self._deliveries.extend(op.deliveries)
+            if op.log_position is not None:
+                self._stage_log_position(op.log_position)
         elif isinstance(op, RecordRejected):
             self._stage_rejected(op.rejected)
             if op.delivery is not None:
@@ -85,6 +88,11 @@ class StagingAppender(Appender):
 
     @abstractmethod
     def _stage_delete(self, op: DeleteSamples) -> None: ...
+
+    def _stage_log_position(self, position: LogPosition) -> None:
+        """Record ``position`` with the samples staged beside it: only a
+        backend with an ingest log (DuckDB) has one to record."""
+        raise TypeError(f"{type(self).__name__} keeps no ingest log: {position!r}")
 
     @abstractmethod
     def _publish(self) -> None:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
+from tsdb_service.core.backup import BackupRefused, BackupReport
 from tsdb_service.core.model import RejectedNotification
 from tsdb_service.parse import ValuesLayout
 from tsdb_service.read import Querier
@@ -132,6 +133,14 @@ class Store(ABC):
     @abstractmethod
     def retention_watermarks(self) -> dict[tuple[str, str], datetime]:
         """Saved retention watermarks by (table, rule), timezone-aware."""
+
+    def backup(self, path: str) -> BackupReport:
+        """A consistent, checked copy of the store in the new file ``path``
+        (DuckDB); a backend with its own tools refuses."""
+        raise BackupRefused(
+            f"{self.backend} is backed up with its own tools (pg_dump, pg_basebackup): "
+            "see docs/operations.md, 'Backups'"
+        )
 
     @abstractmethod
     def close(self) -> None:

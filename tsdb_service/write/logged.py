@@ -19,10 +19,14 @@ Invariants:
   record is durable; the database holds a prefix of the log (the applier
   applies in log order, a batch is one transaction); on start the records
   past what the database holds are applied again (``replay``).
-* **Nothing is stored twice.** Row ids come from the log, in log order, so
-  the largest row id in the database says which records it holds; a replay,
-  and a retry after a failed or uncertain commit, skip every entity at or
-  below it (``stored_rid``).
+* **Nothing is stored twice, nothing deleted comes back.** The database
+  keeps the log position it holds (``LogPosition``: the last record applied,
+  and the largest row id applied), written in the same transaction as each
+  batch; a replay, and a retry after a failed or uncertain commit, apply
+  exactly the records past it (``applied``). The largest row id left in the
+  tables cannot say it: a delete removes rows. Deletes, instance edits and
+  retention only touch rows a committed batch made, and its position came
+  with it, so no replay brings their rows back.
 * **Reads see every acknowledged write.** ``caught_up`` waits until
   everything acknowledged before it was called is applied; the store's
   ``read`` awaits it first. Under no load it costs nothing; under load, at
@@ -33,8 +37,9 @@ Invariants:
   layouts and instance edits wait until everything acknowledged before them
   is applied (``barrier``), then go to the database writer directly.
 
-Failure modes: the log cannot be written (disk full): the group gets 503
-and nothing was stored, as before the log. The database refuses a batch
+Failure modes: the log cannot be written (disk full, a directory that is
+not writable): the group gets 503 and nothing was stored, as before the
+log, and ``problem`` says so (``/health`` fails) until a write succeeds. The database refuses a batch
 (disk full, an invalidated DuckDB being reopened): the applier retries with
 backoff, the log keeps the batch, ``/health`` fails with the reason, and
 ingest slows to a stop at the lag bound. An entity the database refuses on
@@ -58,8 +63,8 @@ from tsdb_service.core.model import EntitySample
 from tsdb_service.write import codec
 from tsdb_service.write.appender import Appender
 from tsdb_service.write.committer import CommitObserver, GroupCommitter, settle
-from tsdb_service.write.log import IngestLog, LogError
-from tsdb_service.write.ops import AppendSamples, WriteOp
+from tsdb_service.write.log import QUARANTINE, IngestLog, LogError
+from tsdb_service.write.ops import AppendSamples, LogPosition, WriteOp
 
 log = logging.getLogger(__name__)
 
@@ -86,7 +91,7 @@ class LoggedWriter:
         log_: IngestLog,
         apply: Callable[[Sequence[WriteOp]], None],
         allocate_rids: Callable[[int], int],
-        stored_rid: Callable[[], int],
+        applied: Callable[[], LogPosition],
         reject: Callable[[EntitySample, str], None],
         *,
         healthy: Callable[[], bool] = lambda: True,
@@ -97,7 +102,7 @@ class LoggedWriter:
         self.log = log_
         self._apply = apply
         self._allocate_rids = allocate_rids
-        self._stored_rid = stored_rid
+        self._applied = applied
         self._reject = reject
         self._healthy = healthy
         self._seen_rid = seen_rid
@@ -110,6 +115,8 @@ class LoggedWriter:
         self.applied_batches = 0
         self.applied_samples = 0
         self.failure: str | None = None  # why the applier is retrying, for /health
+        self.log_failure: str | None = None  # why the last append to the log failed, until one succeeds
+        self.write_failures = 0  # appends the log refused (disk full, not writable)
         self._waiters: list[tuple[int, asyncio.AbstractEventLoop, asyncio.Future]] = []
         self._closing = False
         self._writer = GroupCommitter(lambda: _LogAppender(self._log_group), name="tsdb-log", threads=1)
@@ -124,22 +131,22 @@ class LoggedWriter:
         self._applier.start()
 
     def _replay(self) -> None:
-        """Queue the entities the database does not hold yet; row ids go on
-        above every id the log ever gave."""
-        stored = self._stored_rid()
-        replayed, highest = 0, stored
-        for seq, payload in self.log.records(after_seq=0):
+        """Queue every record past the log position the database holds; row
+        ids go on above every id the log gave."""
+        held = self._applied()
+        replayed, highest = 0, held.rid
+        for seq, payload in self.log.records(after_seq=held.seq):
             op = codec.decode(payload)
             highest = max([highest, *(e.rid for e in op.entities if e.rid is not None)])
-            kept = _unstored_part(op, stored)
-            if kept is not None:
-                self._queue(seq, kept, len(payload))
-                replayed += len(kept.entities)
+            kept = _unapplied_part(op, held.rid)
+            self._queue(seq, kept, len(payload))  # even empty: the position must move past it
+            replayed += len(kept.entities)
         self._seen_rid(highest)
         self.acked_seq = self.log.last_seq
         if self._pending:
             self.applied_seq = self._pending[0].seq - 1
-            log.warning("replaying %d notifications from the ingest log %s", replayed, self.log.directory)
+            if replayed:
+                log.warning("replaying %d notifications from the ingest log %s", replayed, self.log.directory)
         else:
             self.applied_seq = self.log.last_seq
             self.log.reset()  # every record is in the database
@@ -187,7 +194,10 @@ class LoggedWriter:
         try:
             last = self.log.append([payload for _, payload in records])
         except LogError as exc:
+            self.write_failures += 1
+            self.log_failure = str(exc)
             raise Unavailable(f"{exc}; nothing was stored") from None
+        self.log_failure = None
         seq = last - len(records)
         for op, payload in records:
             seq += 1
@@ -206,6 +216,30 @@ class LoggedWriter:
         with self._cond:
             while self.lag_bytes > self.max_lag_bytes and not self._closing:
                 self._cond.wait(0.5)
+
+    # -- what /health says of the log ---------------------------------------------------------
+
+    def problem(self) -> str | None:
+        """Why the service cannot take notifications or show them (``/health``
+        fails): the database refuses the log, or the log cannot be written."""
+        if self.failure is not None:
+            return self.failure
+        if not self.log.writable():
+            return f"the ingest log's directory {self.log.directory} is not writable: notifications get 503"
+        if self.log_failure is not None:
+            return f"{self.log_failure}: notifications get 503 until a write succeeds"
+        return None
+
+    def warning(self) -> str | None:
+        """What an operator must look at while the service works (``/health``
+        warns): records set aside as damaged, until the quarantine folder is
+        moved away."""
+        if not self.log.quarantined():
+            return None
+        return (
+            f"the ingest log set aside damaged records in {self.log.directory / QUARANTINE}: "
+            "inspect them, then move that folder away"
+        )
 
     # -- waiting for the database -------------------------------------------------------------
 
@@ -273,7 +307,8 @@ class LoggedWriter:
                 return
 
     def _take(self) -> list[_Pending] | None:
-        """The next batch: consecutive records up to ``apply_rows`` samples."""
+        """The next batch: consecutive records of one ``dedup`` up to
+        ``apply_rows`` samples (one op, so one transaction)."""
         with self._cond:
             while not self._pending:
                 if self._closing:
@@ -282,21 +317,22 @@ class LoggedWriter:
             batch: list[_Pending] = []
             rows = 0
             for item in self._pending:
-                if batch and rows + item.samples > self.apply_rows:
+                if batch and (rows + item.samples > self.apply_rows or item.op.dedup != batch[0].op.dedup):
                     break
                 batch.append(item)
                 rows += item.samples
             return batch
 
     def _apply_batch(self, batch: list[_Pending]) -> bool:
-        """Apply one batch, retrying until it is in; False when the service
-        is closing meanwhile (the log keeps the batch for the next start)."""
-        ops = _merged([item.op for item in batch])
+        """Apply one batch with the log position it completes, retrying until
+        it is in; False when the service is closing meanwhile (the log keeps
+        the batch for the next start)."""
+        op: AppendSamples | None = _merged(batch)
         delay = RETRY_DELAY_S
         attempt = 0
-        while True:
+        while op is not None:
             try:
-                self._apply(ops)
+                self._apply([op])
                 break
             except Exception as exc:
                 attempt += 1
@@ -308,11 +344,9 @@ class LoggedWriter:
                     return False
                 time.sleep(delay)
                 delay = min(delay * 2, RETRY_MAX_DELAY_S)
-                ops = self._unstored(ops)  # a commit whose outcome was unknown may have landed
-                if attempt >= POISON_ATTEMPTS and self._healthy():
-                    ops = self._without_poison(ops)
-                if not ops:
-                    break
+                op = self._unapplied(op)  # a commit whose outcome was unknown may have landed
+                if op is not None and attempt >= POISON_ATTEMPTS and self._healthy():
+                    op = self._without_poison(op)
         self.failure = None
         self.applied_batches += 1
         self.applied_samples += sum(item.samples for item in batch)
@@ -325,31 +359,35 @@ class LoggedWriter:
         self._wake()
         return True
 
-    def _unstored(self, ops: list[AppendSamples]) -> list[AppendSamples]:
+    def _unapplied(self, op: AppendSamples) -> AppendSamples | None:
+        """What of ``op`` the database still lacks; None: all of it is in."""
         try:
-            stored = self._stored_rid()
+            held = self._applied()
         except Exception:
-            return ops  # the database is away: the same ops again, later
-        return [kept for op in ops if (kept := _unstored_part(op, stored)) is not None]
+            return op  # the database is away: the same op again, later
+        position = op.log_position
+        assert position is not None
+        if held.seq >= position.seq:
+            return None
+        return _unapplied_part(op, held.rid)
 
-    def _without_poison(self, ops: list[AppendSamples]) -> list[AppendSamples]:
-        """Try each entity alone; keep the ones the database refuses in the
-        rejected store, so one bad entity cannot stop all ingest. Only while
-        the database takes other writes: a full disk refuses every entity,
-        and must not send them all to the rejected store."""
-        for op in ops:
-            for entity in op.entities:
-                try:
-                    self._apply([AppendSamples([entity], op.dedup)])
-                except Exception as exc:
-                    log.error("entity %s (row %s) cannot be applied, kept: %s", entity.entity_id, entity.rid, exc)
-                    self._reject(entity, str(exc))
-            if op.deliveries:
-                try:
-                    self._apply([AppendSamples([], op.dedup, op.deliveries)])
-                except Exception as exc:  # a redelivery of these messages may then be stored again
-                    log.error("the MQTT deliveries of %d entities cannot be recorded: %s", len(op.entities), exc)
-        return []
+    def _without_poison(self, op: AppendSamples) -> AppendSamples:
+        """Try each entity alone, each moving the position's row id; keep the
+        ones the database refuses in the rejected store, so one bad entity
+        cannot stop all ingest. What is left: the deliveries and the position
+        itself. Only while the database takes other writes: a full disk
+        refuses every entity, and must not send them all to the rejected
+        store."""
+        position = op.log_position
+        assert position is not None
+        for entity in op.entities:
+            alone = LogPosition(self.applied_seq, entity.rid or 0)
+            try:
+                self._apply([AppendSamples([entity], op.dedup, log_position=alone)])
+            except Exception as exc:
+                log.error("entity %s (row %s) cannot be applied, kept: %s", entity.entity_id, entity.rid, exc)
+                self._reject(entity, str(exc))
+        return AppendSamples([], op.dedup, op.deliveries, log_position=position)
 
 
 class _LogAppender(Appender):
@@ -373,25 +411,18 @@ class _LogAppender(Appender):
         self._staged = []
 
 
-def _merged(ops: list[AppendSamples]) -> list[AppendSamples]:
-    """Consecutive ops with the same ``dedup`` as one (one staging pass each)."""
-    out: list[AppendSamples] = []
-    for op in ops:
-        if out and out[-1].dedup == op.dedup:
-            last = out[-1]
-            out[-1] = AppendSamples([*last.entities, *op.entities], op.dedup, last.deliveries + op.deliveries)
-        else:
-            out.append(op)
-    return out
+def _merged(batch: list[_Pending]) -> AppendSamples:
+    """A batch (one ``dedup``) as one op, with the log position it completes."""
+    entities = [e for item in batch for e in item.op.entities]
+    deliveries = tuple(d for item in batch for d in item.op.deliveries)
+    rid = max((e.rid for e in entities if e.rid is not None), default=0)
+    return AppendSamples(entities, batch[0].op.dedup, deliveries, LogPosition(batch[-1].seq, rid))
 
 
-def _unstored_part(op: AppendSamples, stored: int) -> AppendSamples | None:
-    """What of ``op`` the database lacks when it holds every row id up to
-    ``stored``; None: all of it is there. An op's MQTT deliveries commit
-    with its entities, so they go (or stay) with them; an op without
-    entities cannot tell, and its deliveries are applied again (recording
-    one twice is harmless: ``ON CONFLICT DO NOTHING``)."""
-    entities = [e for e in op.entities if e.rid is None or e.rid > stored]
-    if entities or (not op.entities and op.deliveries):
-        return AppendSamples(entities, op.dedup, op.deliveries)
-    return None
+def _unapplied_part(op: AppendSamples, held_rid: int) -> AppendSamples:
+    """``op`` without the entities the database holds (row ids up to
+    ``held_rid``: those an earlier attempt applied one by one). Its MQTT
+    deliveries commit with its last transaction, so they stay (recording one
+    twice is harmless: ``ON CONFLICT DO NOTHING``)."""
+    entities = [e for e in op.entities if e.rid is None or e.rid > held_rid]
+    return AppendSamples(entities, op.dedup, op.deliveries, op.log_position)

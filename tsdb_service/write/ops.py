@@ -32,15 +32,29 @@ class Delivery:
 
 
 @dataclass(frozen=True, slots=True)
+class LogPosition:
+    """How much of the ingest log (``write.logged``) a database holds: every
+    record up to sequence number ``seq``, and every entity up to row id
+    ``rid`` (row ids follow log order; an entity applied alone past ``seq``
+    moves ``rid`` only)."""
+
+    seq: int
+    rid: int
+
+
+@dataclass(frozen=True, slots=True)
 class AppendSamples:
     """Store samples. ``dedup``: drop NGSI-LD instances that repeat their
     series' latest stored one (see ``storage.ld_ingest``); off for copies,
     which must reproduce the source exactly. ``deliveries``: the MQTT
-    messages these samples came from, recorded atomically with them."""
+    messages these samples came from, recorded atomically with them.
+    ``log_position``: the ingest log's applier says what these samples
+    complete; the writer records it in the same transaction (DuckDB)."""
 
     entities: Sequence[EntitySample]
     dedup: bool = True
     deliveries: tuple[Delivery, ...] = ()
+    log_position: LogPosition | None = None
 
 
 @dataclass(frozen=True, slots=True)

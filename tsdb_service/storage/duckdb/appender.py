@@ -35,6 +35,7 @@ from tsdb_service.storage.duckdb.dialect import DuckDBDialect
 from tsdb_service.storage.duckdb.ids import SeriesIds, SeriesKey
 from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL
 from tsdb_service.storage.duckdb.memory import DuckDBMemory
+from tsdb_service.storage.duckdb.state import ADVANCE_SQL
 from tsdb_service.storage.layouts import layout_values, upsert_layout_sql
 from tsdb_service.storage.ld_ingest import (
     LATEST_INSTANCE_SQL,
@@ -45,7 +46,7 @@ from tsdb_service.storage.ld_ingest import (
 )
 from tsdb_service.storage.sql.writes import delete_statements, instance_statements
 from tsdb_service.storage.staging import StagingAppender, WriteTarget
-from tsdb_service.write.ops import DeleteInstance, DeleteSamples, Delivery, PutLayout, ReplaceInstance
+from tsdb_service.write.ops import DeleteInstance, DeleteSamples, Delivery, LogPosition, PutLayout, ReplaceInstance
 
 log = logging.getLogger(__name__)
 
@@ -159,6 +160,13 @@ class DuckDBAppender(StagingAppender):
         self._deletes: list[tuple[DeleteSamples, int]] = []
         self._instance_ops: list[DeleteInstance | ReplaceInstance] = []
         self._deliveries: list[Delivery] = []
+        self._position: LogPosition | None = None  # the ingest log's, recorded with the samples (``state``)
+
+    def _stage_log_position(self, position: LogPosition) -> None:
+        held = self._position
+        self._position = (
+            position if held is None else LogPosition(max(held.seq, position.seq), max(held.rid, position.rid))
+        )
 
     def _stage_delete(self, op: DeleteSamples) -> None:
         # Rows allocated after this op was staged (by any writer) survive it.
@@ -325,8 +333,11 @@ class DuckDBAppender(StagingAppender):
         batches (bulk loads) go through Arrow instead, where the per-row
         conversion cost matters more than the GIL. New series
         rows are committed first; if the samples then fail, an unused series
-        row is harmless. Each transaction's samples reach memory right after
-        it (``publish_samples``), the rest once the last one is in (``_publish``).
+        row is harmless. The ingest log's position goes in the samples'
+        transaction (or, with no sample left to store, in the other one):
+        never one without the other. Each transaction's samples reach memory
+        right after it (``publish_samples``), the rest once the last one is
+        in (``_publish``).
         """
         if self._new_series:
             self._store.ids.commit_series(self._new_series, lambda keys: self._insert_series(cur, keys))
@@ -334,7 +345,14 @@ class DuckDBAppender(StagingAppender):
         if self._cols["rid"]:
             self._commit_samples(cur)
             self._store.memory.publish_samples(self._cols)
-        if self._rejected or self._layouts or self._deletes or self._instance_ops or self._deliveries:
+        if (
+            self._rejected
+            or self._layouts
+            or self._deletes
+            or self._instance_ops
+            or self._deliveries
+            or self._position is not None
+        ):
             # A delete must not race the compactor moving or rewriting the
             # same rows (its copy could resurrect them): hold its lock.
             changes = self._deletes or self._instance_ops
@@ -356,10 +374,13 @@ class DuckDBAppender(StagingAppender):
         )
 
     def _commit_samples(self, cur: duckdb.DuckDBPyConnection) -> None:
-        # MQTT deliveries commit with the samples they came with: then one
-        # explicit transaction around both (the appender joins it).
+        # MQTT deliveries and the ingest log's position commit with the
+        # samples they came with: then one explicit transaction around them
+        # all (the appender joins it).
         deliveries, self._deliveries = self._deliveries, []
-        if deliveries:
+        position, self._position = self._position, None
+        explicit = bool(deliveries) or position is not None
+        if explicit:
             cur.execute("BEGIN")
         if len(self._cols["rid"]) <= ARROW_MIN_ROWS:
             # Only columns that carry a value: converting the all-NULL
@@ -368,15 +389,18 @@ class DuckDBAppender(StagingAppender):
             self._append_rows(cur, names)
         else:
             self._insert_arrow(cur)
-        if deliveries:
-            for sql, params in delivery_statements("?", deliveries):
-                cur.execute(sql, params)
+        for sql, params in delivery_statements("?", deliveries):
+            cur.execute(sql, params)
+        if position is not None:
+            cur.execute(ADVANCE_SQL, [position.seq, position.rid])
+        if explicit:
             self._durable(cur, "COMMIT")
 
     def _append_rows(self, cur: duckdb.DuckDBPyConnection, names: tuple[str, ...]) -> None:
         """The staged rows of ``names`` through a DuckDB appender, flushed in
-        autocommit mode: one statement, its own transaction, one WAL fsync,
-        as durable as an INSERT. A third cheaper in CPU than the INSERT ...
+        autocommit mode (one statement, its own transaction, one WAL fsync,
+        as durable as an INSERT), or inside the transaction that also records
+        the rows' MQTT deliveries and ingest-log position. A third cheaper in CPU than the INSERT ...
         SELECT unnest($1..$n) it replaces (binding and planning that
         statement was most of a small group's cost), at 8 to 100
         notifications a group (``benchmarks/README.md``).
@@ -445,6 +469,8 @@ class DuckDBAppender(StagingAppender):
                 cur.execute(sql, params)
         for sql, params in delivery_statements("?", self._deliveries):
             cur.execute(sql, params)
+        if self._position is not None:
+            cur.execute(ADVANCE_SQL, [self._position.seq, self._position.rid])
         self._durable(cur, "COMMIT")
         if dropped:
             rejected_store.count_dropped(self._store.rejected_dropped, dropped)

@@ -23,6 +23,7 @@ from tsdb_service.storage.migrations import applied_versions, load_migrations, s
 from tsdb_service.storage.sql.dialect import quote_ident
 
 SAMPLE_TABLES = ("samples", "samples_hot")
+LOG_SUFFIX = ".ingest-log"  # the ingest log's directory, next to the file (``write.log``)
 
 
 # After the database is invalidated: first reopen attempt, then doubling to at most.

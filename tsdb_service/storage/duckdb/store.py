@@ -29,11 +29,13 @@ import logging
 import threading
 from collections.abc import Iterator, Sequence
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 import duckdb
 import orjson
 
+from tsdb_service.core.backup import BackupRefused, BackupReport
 from tsdb_service.core.config import WAL_CHECKPOINT_BYTES
 from tsdb_service.core.errors import Unavailable, first_line
 from tsdb_service.core.model import EntitySample, RejectedNotification
@@ -41,8 +43,10 @@ from tsdb_service.parse import ValuesLayout
 from tsdb_service.storage import rejected as rejected_store
 from tsdb_service.storage.committing import CommittingStore
 from tsdb_service.storage.duckdb.appender import DuckDBAppender
+from tsdb_service.storage.duckdb.backup import take_backup
 from tsdb_service.storage.duckdb.compactor import Compactor
 from tsdb_service.storage.duckdb.connection import (
+    LOG_SUFFIX,
     NOTHING_STORED,
     REOPEN_DELAY_S,
     REOPEN_MAX_DELAY_S,
@@ -60,15 +64,15 @@ from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL, LatestGeo
 from tsdb_service.storage.duckdb.memory import DuckDBMemory
 from tsdb_service.storage.duckdb.querier import DuckDBQuerier
 from tsdb_service.storage.duckdb.retention import DuckDBSession
+from tsdb_service.storage.duckdb.state import NO_LEGACY_SQL, StoreState, load_state, log_position
 from tsdb_service.storage.layouts import LOAD_LAYOUTS_SQL, layouts_from_rows
 from tsdb_service.storage.rejected import RejectedLimits
 from tsdb_service.write.committer import GroupCommitter
 from tsdb_service.write.log import IngestLog
 from tsdb_service.write.logged import MAX_LAG_BYTES, LoggedWriter
-from tsdb_service.write.ops import RecordRejected
+from tsdb_service.write.ops import LogPosition, RecordRejected
 
 log = logging.getLogger(__name__)
-LOG_SUFFIX = ".ingest-log"  # the ingest log's directory, next to the file
 
 
 class DuckDBStore(CommittingStore):
@@ -109,8 +113,10 @@ class DuckDBStore(CommittingStore):
         self._reopener: threading.Thread | None = None
         self._stop_reopen = threading.Event()
         self.reopens = 0
+        self._backing_up = threading.Lock()  # one backup at a time
         self._generation = 0  # grows with every reopen: cursors of older ones are closed
         self.ids = SeriesIds()
+        self.state: StoreState  # the database's id and ingest-log position, as the file had them at open
         # Aggregate partials (storage.partials) need row ids growing in commit order: one writer.
         partials_hours = agg_partials_hours if writer_threads == 1 else 0
         self.memory = DuckDBMemory(tail_series, tail_rows, tail_samples, partials_hours)
@@ -129,29 +135,43 @@ class DuckDBStore(CommittingStore):
     # -- the ingest log (write.logged): samples acknowledged there, applied here ----------
 
     def _ingest_log(self, directory: str, max_lag_bytes: int) -> LoggedWriter:
-        logged = LoggedWriter(
-            IngestLog(directory),
-            apply=self._committer.submit_sync,
-            allocate_rids=self.ids.take_rids,
-            stored_rid=self._stored_rid,
-            reject=self._keep_unappliable,
-            healthy=lambda: self._broken is None and self._write_failure is None,
-            seen_rid=self.ids.saw_rid,
-            max_lag_bytes=max_lag_bytes,
-        )
+        """Open the log (refusing one that is not this database's: ``LogRefused``)
+        and queue what the database lacks of it."""
+        state = self.state
         try:
+            log_ = IngestLog(
+                directory,
+                state.database_id.bytes,
+                applied_seq=state.position.seq,
+                accept_legacy=state.legacy_log,
+            )
+            logged = LoggedWriter(
+                log_,
+                apply=self._committer.submit_sync,
+                allocate_rids=self.ids.take_rids,
+                applied=self._log_position,
+                reject=self._keep_unappliable,
+                healthy=lambda: self._broken is None and self._write_failure is None,
+                seen_rid=self.ids.saw_rid,
+                max_lag_bytes=max_lag_bytes,
+            )
             logged.start()
+            # Segments without identity are accepted until none is left: a
+            # replay that left any has records to apply (the applier is busy
+            # with them, and this waits for the next start); else it is idle.
+            if state.legacy_log and not log_.has_legacy():
+                self._rows(NO_LEGACY_SQL)
         except BaseException:
             self.close()
             raise
         return logged
 
-    def _stored_rid(self) -> int:
-        """The largest row id the file holds: what of the log it has applied."""
+    def _log_position(self) -> LogPosition:
+        """How much of the ingest log the file holds (``state``)."""
         with self.reading():
             cur = self._con.cursor()
             try:
-                return tables_max(cur, "rid")
+                return log_position(cur)
             finally:
                 cur.close()
 
@@ -164,9 +184,10 @@ class DuckDBStore(CommittingStore):
         self._committer.submit_sync([RecordRejected(rejected)])
 
     def _load_state(self, con: duckdb.DuckDBPyConnection) -> None:
-        """What the store keeps in memory, from the file: the series ids, the
-        next ids to hand out (never lower than ones already handed out), the
-        'values' layouts and each series' latest location; no tails,
+        """What the store keeps in memory, from the file: its identity and
+        ingest-log position, the series ids, the next ids to hand out (never
+        lower than ones already handed out or applied), the 'values' layouts
+        and each series' latest location; no tails,
         partials or latest instances yet (they load on demand)."""
         series = {
             tuple(row[1:]): row[0]
@@ -179,7 +200,9 @@ class DuckDBStore(CommittingStore):
         max_rejected = scalar(con, "SELECT max(id) FROM rejected_notifications") or 0
         layouts = layouts_from_rows(con.execute(LOAD_LAYOUTS_SQL).fetchall())
         latest_geo = LatestGeo(con.execute(LATEST_GEO_SQL.format(where="")).fetchall())
-        self.ids.load(series, max_rid, max_iid, max_rejected)
+        self.state = load_state(con)
+        # Row ids never go back below one applied, even if deletes removed its rows.
+        self.ids.load(series, max(max_rid, self.state.position.rid), max_iid, max_rejected)
         self.memory.fresh(latest_geo, layouts)
 
     # -- history reads (storage.duckdb.querier) ------------------------------------
@@ -382,6 +405,23 @@ class DuckDBStore(CommittingStore):
                     raise Unavailable(self._unavailable_reason()) from None
                 raise
         return "compacted"
+
+    def backup(self, path: str) -> BackupReport:
+        """A consistent copy of the store in the new file ``path``, with
+        everything acknowledged before the call, read back and checked
+        (``backup``). One at a time; readers and writers go on meanwhile."""
+        if not self._backing_up.acquire(blocking=False):
+            raise BackupRefused("a backup of this store is being taken; wait for it to finish")
+        try:
+            self.sync()  # everything acknowledged so far is applied: the copy holds it
+            with self.reading():
+                cur = self._con.cursor()
+                try:
+                    return take_backup(cur, Path(path))
+                finally:
+                    cur.close()
+        finally:
+            self._backing_up.release()
 
     def compactor_lock(self) -> contextlib.AbstractContextManager[Any]:
         """Hold while deleting rows (deletes, retention): the compactor must
