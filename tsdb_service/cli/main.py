@@ -97,6 +97,7 @@ _TEXT_METAVARS = {
     "mqtt_cert_file": "FILE",
     "mqtt_key_file": "FILE",
     "mqtt_share_group": "GROUP",
+    "backup_dir": "DIR",
 }
 _SECONDS = ("_s", "_seconds", "_timeout", "_interval", "_pause")
 

@@ -79,6 +79,11 @@ class StorageSettings(SettingsGroup):
         description="DuckDB: fold the write-ahead log into the database file once it is this big "
         "(DuckDB's own default: 16 MiB).",
     )
+    backup_dir: str = Field(
+        "",
+        description="Directory where POST /admin/backup (tsdb-service backup --url) writes DuckDB backups; "
+        "a request names only a file in it. Empty: backups through the service are off.",
+    )
 
     @field_validator("db")
     @classmethod
@@ -513,13 +518,6 @@ class Settings(
 
     model_config = SettingsConfigDict(env_prefix="TSDB_", extra="ignore")
 
-    # --- Backups through the service (issue 37; commands/backup.py, faces/operator/backup.py) ---
-    backup_dir: str = Field(
-        "",
-        description="Directory where POST /admin/backup (tsdb-service backup --url) writes DuckDB backups; "
-        "a request names only a file in it. Empty: backups through the service are off.",
-    )
-    # --- end of backups ---
 
     @property
     def backend(self) -> str:
