@@ -18,6 +18,7 @@ developer's shell cannot change what a test runs against), plus
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
 import signal
@@ -34,6 +35,18 @@ from pathlib import Path
 __all__ = ["ServerError", "ServerProcess", "free_port"]
 
 HOST = "127.0.0.1"
+
+# Every server a test started: one still running when the test process
+# exits (a failed assertion between start() and kill()) is killed then, so
+# no test leaves a service behind on the machine.
+_STARTED: list[ServerProcess] = []
+
+
+@atexit.register
+def _kill_leftovers() -> None:
+    for server in list(_STARTED):
+        if server.running():
+            server.kill()
 
 
 class ServerError(RuntimeError):
@@ -132,6 +145,8 @@ class ServerProcess:
         raise AssertionError("unreachable")
 
     def _spawn(self) -> None:
+        if self not in _STARTED:
+            _STARTED.append(self)
         self._close_log()
         self.log_dir.mkdir(parents=True, exist_ok=True)
         fd, name = tempfile.mkstemp(prefix=f"server-{self.db_path.stem}-", suffix=".log", dir=self.log_dir)
