@@ -9,13 +9,13 @@ run uses this interpreter, nothing installed by hand.
 A run:
 
 1. serves the vendored @context documents on 127.0.0.1 at a free port
-   (``harness/ctxserver.py``, a subprocess ended by its own handle);
+   (the harness's ``ctxserver``, a subprocess ended by its own handle);
 2. copies the suite to ``OUT/run/work`` with every @context URL that has a
-   local copy rewritten to that server (``harness/prepare_run.py``);
+   local copy rewritten to that server (the harness's ``prepare_run``);
 3. runs Robot Framework on the main set's files, less the ids of
-   ``drop`` (``harness/etsi_harness.py``: per-test timeout, id filter,
+   ``drop`` (the harness's ``etsi_harness``: per-test timeout, id filter,
    loopback-only HTTP guard, request log);
-4. summarizes ``output.xml`` (``harness/summarize.py``): the last line is
+4. summarizes ``output.xml`` (the harness's ``summarize``): the last line is
    ``etsi temporal: PASSED/TOTAL (failed F, skipped S)``.
 
 The service must reach @contexts on 127.0.0.1 (``TSDB_LD_CONTEXT_ALLOW``)
@@ -219,7 +219,7 @@ def _robot(
 
 
 class _ContextServer:
-    """``harness/ctxserver.py`` on a free port, serving ``root``."""
+    """The harness's ``ctxserver`` on a free port, serving ``root``."""
 
     def __init__(self, root: Path, log: Path):
         self.root = root
