@@ -34,7 +34,16 @@ from itertools import compress
 
 import orjson
 
-from tsdb_service.core.query import VALUE_TEST_OPS, EntityFilter, InstanceWindow, Scope, SeriesRef, ValueTest
+from tsdb_service.core.model import Kind
+from tsdb_service.core.query import (
+    ARRAY_INSTANCE,
+    VALUE_TEST_OPS,
+    EntityFilter,
+    InstanceWindow,
+    Scope,
+    SeriesRef,
+    ValueTest,
+)
 from tsdb_service.faces.ngsild import qlang
 from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.query import DEFAULT_DATASET, TemporalQuery, TypeExpr, TypeName, Window, type_matches
@@ -156,17 +165,28 @@ class Fetcher:
                 sids_of.setdefault(iris[sid], []).append(sid)
         tested = [(term, test) for term in terms if (test := value_test(term)) is not None]
         probes = [(sids_of.get(t.attr, []), test) for t, test in tested]
+        # An array instance matches a term when one of its elements does,
+        # which the database's test on plain values cannot see: the series
+        # with array instances are asked for too, and tested here.
+        compared = [t for t, test in tested if test.op is not None]
+        arrays = list({sid for t in compared for sid in sids_of.get(t.attr, [])})
+        if arrays:
+            probes.append((arrays, ValueTest(ARRAY_INSTANCE)))
         if alive is not None:
             probes.append(([sid for sid in alive[0] if owner.get(sid) in keys], alive[1]))
         rows, found = self.q.window_scan(WindowScan(window, locations, probes))
         if alive is not None:
             keys &= {owner[sid] for sid in found[-1]}
             found = found[:-1]
+        with_arrays = found.pop() if arrays else set()
         if locations is not None:
             keys &= {owner[sid] for sid in self._passing(geo, rows)}
         if query.q is None or not keys:
             return keys
         holding = {term: {owner[sid] for sid in sids} for (term, _), sids in zip(tested, found, strict=True)}
+        for term in compared:
+            among = [sid for sid in sids_of.get(term.attr, []) if sid in with_arrays and owner[sid] not in holding[term]]
+            holding[term] |= {owner[sid] for sid in self._values_passing(term, among, window)}
         for term in terms:
             if term not in holding:
                 sids = [sid for sid in sids_of.get(term.attr, []) if owner[sid] in keys]
@@ -179,8 +199,11 @@ class Fetcher:
         out: set[int] = set()
         if not sids:
             return out
+        ordering = term.op in qlang.ORDERING
         for sid, kind, num, txt, js, md in self.q.instance_values(InstancesIn(sids, window)):
-            if sid not in out and term.matches(term_value(term, kind, num, txt, js, md)):
+            if sid in out or (ordering and _relationship(term, kind, md)):
+                continue  # an ordering operator never matches a Relationship (clause 4.9)
+            if term.matches(term_value(term, kind, num, txt, js, md)):
                 out.add(sid)
         return out
 
@@ -276,11 +299,40 @@ def term_value(term: qlang.Term, kind, num, txt, js, md):
             value = next((node[k] for k in _VALUE_KEYS if k in node), node)
     else:
         value = decode(kind, num, txt, js)
-    for step in term.inner:
+    return _inside(value, term.inner)
+
+
+def _inside(value, steps: tuple[str, ...]):
+    """The member at ``steps`` inside ``value`` (None when missing); ``*``
+    is every member of an object or element of an array, as a list (which
+    ``Term.matches`` reads element by element)."""
+    for i, step in enumerate(steps):
+        if step == "*":
+            items = list(value.values()) if isinstance(value, dict) else value if isinstance(value, list) else None
+            if items is None:
+                return None
+            found = [_inside(item, steps[i + 1 :]) for item in items]
+            return [item for item in found if item is not None]
         if not isinstance(value, dict) or step not in value:
             return None
         value = value[step]
     return value
+
+
+def _relationship(term: qlang.Term, kind: int, md: str | None) -> bool:
+    """Is the value ``term`` looks at a Relationship's object (the
+    attribute itself, or the sub-attribute ``term.sub`` names)?"""
+    if not term.sub:
+        return kind == int(Kind.RELATIONSHIP) and not term.inner
+    try:
+        node = orjson.loads(md) if md else {}
+    except orjson.JSONDecodeError:
+        return False
+    for step in term.sub:
+        if not isinstance(node, dict) or step not in node:
+            return False
+        node = node[step]
+    return isinstance(node, dict) and ("object" in node or node.get("type") == "Relationship")
 
 
 def _by_entity(refs: Iterable[SeriesRef]) -> dict[EntityKey, list[SeriesRef]]:

@@ -156,13 +156,14 @@ def _shows(query: TemporalQuery, member: str) -> bool:
 
 def _alive_implied(query: TemporalQuery) -> bool:
     """Does matching ``q`` or the geo-query already prove an instance in the
-    window of a series ``_alive`` would ask about? ``q`` has no negation,
-    so a holding ``q`` has a holding term, which an instance of its
-    attribute in the window satisfied; a geo-query, a location instance."""
+    window of a series ``_alive`` would ask about? A ``q`` without ``!``
+    holds only through a holding term, which an instance of its attribute
+    in the window satisfied; a geo-query, a location instance."""
     if query.dataset_ids is not None or (query.q is None and query.geo is None):
         return False
     attrs = None if query.attrs is None else set(query.attrs)
-    if query.q is not None and (attrs is None or all(t.attr in attrs for t in qlang.terms(query.q))):
+    q = query.q
+    if q is not None and not qlang.negates(q) and (attrs is None or all(t.attr in attrs for t in qlang.terms(q))):
         return True
     return query.geo is not None and (attrs is None or query.geo.geoproperty in attrs)
 
