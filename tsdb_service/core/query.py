@@ -169,11 +169,13 @@ class EntityListQuery:
 
 @dataclass(frozen=True, slots=True)
 class LastValueQuery:
-    """``POST /v2/op/query``: the latest value of each attribute per entity."""
+    """``POST /v2/op/query``: the latest value of each attribute per entity,
+    or with ``as_of`` (our extension) the latest at or before that instant."""
 
     scope: Scope
     selectors: tuple[EntityFilter, ...]
     attrs: tuple[ValuePath, ...] | None = None
+    as_of: datetime | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -463,9 +465,10 @@ class ValueTest:
     ``op`` None: the instance has a value (it is no deletion or null);
     ``ANY_INSTANCE``: any instance, deletions too (is there one in the
     window?); ``ARRAY_INSTANCE``: an instance whose value is a JSON array
-    (whose elements a ``q`` term tests one by one, in Python); otherwise ``value`` compared by ``op`` (``==``, ``>``, ``>=``, ``<``,
-    ``<=``): a float against number instances (Number, Integer), a str
-    (``==`` only) against text and relationship instances."""
+    (whose elements a ``q`` term tests one by one, in Python); otherwise
+    ``value`` compared by ``op`` (``==``, ``>``, ``>=``, ``<``, ``<=``): a
+    float against number instances (Number, Integer), a str (``==`` only)
+    against text and relationship instances."""
 
     op: str | None = None
     value: float | str | None = None

@@ -374,9 +374,10 @@ class MemoryQuerier(SeparateScans, Querier):
         out = []
         for s in self._of(sids):
             at = _time_property(s, window.timeproperty)
-            if at is not None and (start is None or at >= start) and (end is None or at < end):
-                if s.sid not in spans or any((a is None or at >= a) and (b is None or at < b) for a, b in spans[s.sid]):
-                    out.append((at, s))
+            if at is None or (start is not None and at < start) or (end is not None and at >= end):
+                continue
+            if s.sid not in spans or any((a is None or at >= a) and (b is None or at < b) for a, b in spans[s.sid]):
+                out.append((at, s))
         return out
 
     def temporal_instances(self, ask: InstancesRead) -> list[InstanceRow]:

@@ -273,7 +273,9 @@ def _read(querier: TemporalReads, fetcher: Fetcher, query: TemporalQuery, select
         partial = bool(query.offset_n) or query.stored_through is not None
         return _Read(_instances_rendered(query, selected, iris, rows), pages=tuple(pages), partial=partial)
     rows, cut = _instances(querier, query, sids, cap)
-    pages = _earlier(querier, query, sids) if cut is None and query.last_n is not None else []
+    pages = []
+    if cut is None and query.last_n is not None and _filled(rows, query.last_n):
+        pages = _earlier(querier, query, sids)
     return _Read(_instances_rendered(query, selected, iris, rows), cut, tuple(pages), partial=cut is not None)
 
 
@@ -500,6 +502,11 @@ def _instances(
         rest = (("after", first_out, None) if w.end is None else ("between", first_out, w.end)) if whole else None
         rel = "intervalafter"
     return kept, Cut(f"date-time {iso(start)}-{iso(edge)}/{size}", rel, rest)
+
+
+def _filled(rows: list[InstanceRow], n: int) -> bool:
+    """Has some series ``n`` instances among ``rows`` (so it may have more)?"""
+    return any(len(list(group)) >= n for _, group in groupby(rows, key=attrgetter("sid")))
 
 
 def _earlier(querier: TemporalReads, query: TemporalQuery, sids: list[int]) -> list[PageLink]:
