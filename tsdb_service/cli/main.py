@@ -168,8 +168,9 @@ def _feature_modules() -> tuple[ModuleType, ...]:
     from tsdb_service.cli import demo as demo_commands
     from tsdb_service.cli import export as export_commands
     from tsdb_service.cli import qlimport as import_commands
+    from tsdb_service.cli import register as register_commands
 
-    return (demo_commands, grafana_commands, copy_commands, export_commands, import_commands)
+    return (demo_commands, grafana_commands, copy_commands, export_commands, import_commands, register_commands)
 
 
 @command("serve")
