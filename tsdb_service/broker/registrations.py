@@ -108,7 +108,12 @@ def list_registrations(broker: str, wanted: Registration, timeout: float = 10.0)
     url = broker.rstrip("/") + REGISTRATIONS_PATH
     found: list[dict] = []
     for _ in range(_MAX_PAGES):
-        params = {"type": ",".join(wanted.types), "limit": _PAGE, "offset": len(found), "count": "true"}
+        params: dict[str, str | int] = {
+            "type": ",".join(wanted.types),
+            "limit": _PAGE,
+            "offset": len(found),
+            "count": "true",
+        }
         try:
             response = httpx.get(url, params=params, headers=wanted.headers(), timeout=timeout)
         except httpx.HTTPError as exc:
