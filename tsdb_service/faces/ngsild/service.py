@@ -272,11 +272,13 @@ def _read(querier: TemporalReads, fetcher: Fetcher, query: TemporalQuery, select
         rows, pages = _ranked(querier, query, sids, cap)
         partial = bool(query.offset_n) or query.stored_through is not None
         return _Read(_instances_rendered(query, selected, iris, rows), pages=tuple(pages), partial=partial)
+    if query.last_n is not None:
+        newest = _newest(querier, query, sids, cap)
+        if newest is not None:
+            rows, pages = newest
+            return _Read(_instances_rendered(query, selected, iris, rows), pages=tuple(pages))
     rows, cut = _instances(querier, query, sids, cap)
-    pages = []
-    if cut is None and query.last_n is not None and _filled(rows, query.last_n):
-        pages = _earlier(querier, query, sids)
-    return _Read(_instances_rendered(query, selected, iris, rows), cut, tuple(pages), partial=cut is not None)
+    return _Read(_instances_rendered(query, selected, iris, rows), cut, partial=cut is not None)
 
 
 def _with_attrs(query: TemporalQuery, by_entity, iris) -> list[EntityKey]:
@@ -504,22 +506,30 @@ def _instances(
     return kept, Cut(f"date-time {iso(start)}-{iso(edge)}/{size}", rel, rest)
 
 
-def _filled(rows: list[InstanceRow], n: int) -> bool:
-    """Has some series ``n`` instances among ``rows`` (so it may have more)?"""
-    return any(len(list(group)) >= n for _, group in groupby(rows, key=attrgetter("sid")))
-
-
-def _earlier(querier: TemporalReads, query: TemporalQuery, sids: list[int]) -> list[PageLink]:
-    """A whole ``lastN`` answer's link to the instances before it, for
-    clients of the newer binding (TS 104 176 clause 6.4.7.3; V1.9.1
-    clients ignore a relation they do not know): when some attribute has
-    more than N in the window, ``offsetN=N`` from the instances stored now."""
+def _newest(
+    querier: TemporalReads, query: TemporalQuery, sids: list[int], cap: int
+) -> tuple[list[InstanceRow], list[PageLink]] | None:
+    """A ``lastN`` answer that fits the cap, read by rank (one statement:
+    each series' N newest and one more): the N newest of each series, and
+    when some series has more, the link to the earlier instances that the
+    newer binding gives (TS 104 176 clause 6.4.7.3: ``intervalbefore``,
+    ``offsetN=N``, held to the instances stored now; V1.9.1 clients ignore
+    a relation they do not know). None when the answer does not fit:
+    V1.9.1's cut (206) then reads by time."""
     assert query.last_n is not None
-    window = instance_window(query.window)
-    rows, top = querier.instance_page(InstancePage(sids, window, False, query.last_n, 1, 1))
-    if not rows or top is None:
-        return []
-    return [PageLink("intervalbefore", (("offsetN", str(query.last_n)), ("storedThrough", str(top))))]
+    n, series = query.last_n, len(set(sids))
+    if not series:
+        return [], []
+    limit = cap + series + 1
+    ask = InstancePage(sids, instance_window(query.window), False, 0, n + 1, limit)
+    rows, top = querier.instance_page(ask)
+    ranks = _ranks(rows, ascending=False)
+    kept = [row for row in rows if ranks[(row.sid, row.iid)] <= n]
+    if len(rows) >= limit or len(kept) > cap:
+        return None
+    if len(kept) == len(rows) or top is None:
+        return kept, []
+    return kept, [PageLink("intervalbefore", (("offsetN", str(n)), ("storedThrough", str(top))))]
 
 
 # -- instances, TS 104 176's way (clause 6.4.7.3) ---------------------------------------------------
