@@ -96,7 +96,7 @@ def test_language_property_members_and_the_wildcard(things):
 
 
 def test_linked_entity_projection_is_refused(things):
-    """The temporal API has no linked-entity retrieval (clause 4.5.23's
+    """The temporal API has no linked-entity retrieval (V1.9.1's
     ``{...}`` projection): 400 BadRequestData, not an empty answer, on the
     query, the retrieve and a Query body."""
     for params in ({"q": 'owner{name}=="x"'}, {"pick": "owner{name}"}, {"omit": "id,owner{name}"}):

@@ -41,7 +41,7 @@ def test_attrs_naming_only_system_members_is_bad_request_data(vehicle, attrs):
 
 @pytest.mark.parametrize("params", [{"pick": "owner{name}"}, {"omit": "owner{name}"}, {"attrs": "owner{name}"}])
 def test_linked_entity_projection_is_bad_request_data(vehicle, params):
-    """The temporal API has no linked-entity retrieval (clause 4.5.23)."""
+    """The temporal API has no linked-entity retrieval (V1.9.1 retrieves linked entities on the core API)."""
     bad(get(vehicle, {"type": "Vehicle", **params}, status=400))
     bad(get(vehicle, path=f"{ENTITIES}/{V}", params=params, status=400))
 

@@ -372,8 +372,9 @@ def _names(raw: str | None, name: str, terms: TermMap) -> tuple[str, ...] | None
 
 
 def _no_linked_entities(items: tuple[str, ...], name: str) -> None:
-    """Linked-entity projection (``owner{name}``, clause 4.5.23) is not part
-    of the temporal API: BadRequestData, not a name no attribute has."""
+    """Linked-entity projection (``owner{name}``, V1.9.1's linked-entity
+    retrieval) is not part of the temporal API: BadRequestData, not a name
+    no attribute has."""
     braced = next((item for item in items if "{" in item or "}" in item), None)
     if braced is not None:
         raise BadRequestData(

@@ -29,8 +29,8 @@ the caller (``Term.attr``).
 
 A value that is an array matches a term when one of its elements does;
 ``!=`` and ``!~=`` against an array hold only when no element is equal (or
-matches). Linked-entity projection (``owner{name}``, clause 4.5.23) is not
-part of the temporal API's ``q``: it is refused.
+matches). Linked-entity projection (``owner{name}``, V1.9.1's linked-entity
+retrieval) is not part of the temporal API's ``q``: it is refused.
 """
 
 from __future__ import annotations
