@@ -442,7 +442,7 @@ def _located(query: TemporalQuery, rows: list[InstanceRow | None]) -> bool:
 
 
 def _state(fetcher: Fetcher, query: TemporalQuery, by_entity, iris, keys: list[EntityKey]) -> _State:
-    """The latest instance at or before ``query.as_of`` of every series of
+    """The latest instance at or before the instant (``as_of``) of every series of
     ``keys`` (one statement; one row per series: bounded by the series
     budget)."""
     sids = [r.sid for key in keys for r in by_entity[key]]
@@ -455,7 +455,7 @@ def _state(fetcher: Fetcher, query: TemporalQuery, by_entity, iris, keys: list[E
 
 
 def _as_of(fetcher: Fetcher, query: TemporalQuery, keys, by_entity, iris, terms: TermMap) -> TemporalResult:
-    """Every matched entity as it was at ``query.as_of``: each attribute's
+    """Every matched entity as it was at the instant (``as_of``): each attribute's
     latest instance at or before it (the instance a ``lastN=1`` over
     ``timerel=before`` just past the instant gives), in the query's
     representation; the entities that had an instance by then, those
