@@ -34,11 +34,12 @@ from dataclasses import dataclass
 import httpx
 import orjson
 
+from tsdb_service.broker.listing import list_all
+
 REGISTRATIONS_PATH = "/ngsi-ld/v1/csourceRegistrations"
 TEMPORAL_OPERATIONS = ("retrieveTemporal", "queryTemporal")
 JSONLD_CONTEXT_REL = "http://www.w3.org/ns/json-ld#context"
-_PAGE = 100
-_MAX_PAGES = 100
+_PAGE = 100  # NGSI-LD brokers cap limit, often at 100 or 1000
 
 
 @dataclass(frozen=True, slots=True)
@@ -102,36 +103,11 @@ def _types(document: dict) -> set[str]:
 
 def list_registrations(broker: str, wanted: Registration, timeout: float = 10.0) -> tuple[list[dict] | None, str]:
     """The broker's registrations of the tenant for ``wanted``'s types
-    (``GET /csourceRegistrations?type=...``, paged with ``limit``/``offset``
-    and ``NGSILD-Results-Count``): ``(registrations, "")``, or ``(None,
-    why)`` when it could not tell."""
+    (``GET /csourceRegistrations?type=...``, paged: ``broker.listing``):
+    ``(registrations, "")``, or ``(None, why)`` when it could not tell."""
     url = broker.rstrip("/") + REGISTRATIONS_PATH
-    found: list[dict] = []
-    for _ in range(_MAX_PAGES):
-        params: dict[str, str | int] = {
-            "type": ",".join(wanted.types),
-            "limit": _PAGE,
-            "offset": len(found),
-            "count": "true",
-        }
-        try:
-            response = httpx.get(url, params=params, headers=wanted.headers(), timeout=timeout)
-        except httpx.HTTPError as exc:
-            return None, f"could not reach {url}: {type(exc).__name__}: {exc}"
-        if response.status_code != 200:
-            return None, f"listing {url} answered {response.status_code} {response.reason_phrase}: {_text(response)}"
-        try:
-            page = orjson.loads(response.content)
-        except orjson.JSONDecodeError:
-            page = None
-        if not isinstance(page, list):
-            return None, f"listing {url} did not answer a JSON array"
-        found.extend(item for item in page if isinstance(item, dict))
-        total = response.headers.get("ngsild-results-count", "")
-        more = len(found) < int(total) if total.isdigit() else len(page) >= _PAGE
-        if not page or not more:
-            return found, ""
-    return None, f"listing {url}: more than {_MAX_PAGES * _PAGE} registrations"
+    params = {"type": ",".join(wanted.types), "count": "true"}
+    return list_all(url, params, wanted.headers(), "registrations", timeout, page_size=_PAGE)
 
 
 def post_registration(broker: str, wanted: Registration, timeout: float = 10.0) -> tuple[bool, str]:

@@ -322,20 +322,25 @@ def term_value(term: qlang.Term, kind, num, txt, js, md):
     from tsdb_service.history.service import decode
 
     if term.sub:
-        try:
-            node = orjson.loads(md) if md else {}
-        except orjson.JSONDecodeError:
-            return None
-        for step in term.sub:
-            if not isinstance(node, dict) or step not in node:
-                return None
-            node = node[step]
-        value = node
-        if isinstance(node, dict):
-            value = next((node[k] for k in _VALUE_KEYS if k in node), node)
+        node = _sub_attribute(term, md)
+        value = next((node[k] for k in _VALUE_KEYS if k in node), node) if isinstance(node, dict) else node
     else:
         value = decode(kind, num, txt, js)
     return _inside(value, term.inner)
+
+
+def _sub_attribute(term: qlang.Term, md: str | None):
+    """The sub-attribute ``term.sub`` names in an instance's other members
+    (``md``, JSON text), or None."""
+    try:
+        node = orjson.loads(md) if md else {}
+    except orjson.JSONDecodeError:
+        return None
+    for step in term.sub:
+        if not isinstance(node, dict) or step not in node:
+            return None
+        node = node[step]
+    return node
 
 
 def _inside(value, steps: tuple[str, ...]):
@@ -360,14 +365,7 @@ def is_relationship(term: qlang.Term, kind: int, md: str | None) -> bool:
     attribute itself, or the sub-attribute ``term.sub`` names)?"""
     if not term.sub:
         return kind == int(Kind.RELATIONSHIP) and not term.inner
-    try:
-        node = orjson.loads(md) if md else {}
-    except orjson.JSONDecodeError:
-        return False
-    for step in term.sub:
-        if not isinstance(node, dict) or step not in node:
-            return False
-        node = node[step]
+    node = _sub_attribute(term, md)
     return isinstance(node, dict) and ("object" in node or node.get("type") == "Relationship")
 
 

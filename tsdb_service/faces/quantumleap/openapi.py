@@ -242,8 +242,19 @@ SCHEMAS: dict[str, dict] = {
     "LastValueEntity": obj(
         ("id", "type", "dateModified"),
         {"id": STR, "type": STR},
-        extra=obj(("type", "value"), {"type": STR, "value": ANY}),
-        description="An entity at its latest values, NGSIv2 normalized form",
+        extra=obj(
+            ("type", "value"),
+            {
+                "type": STR,
+                "value": ANY,
+                "metadata": obj(
+                    ("dateModified",),
+                    {"dateModified": obj(("type", "value"), {"type": STR, "value": STR})},
+                    description="with asOf: when the attribute took the value it had then",
+                ),
+            },
+        ),
+        description="An entity at its latest values (with asOf: at its values then), NGSIv2 normalized form",
     ),
 }
 
