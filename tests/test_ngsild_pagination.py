@@ -154,6 +154,9 @@ def test_always_200_past_the_cap(client_factory, store_url):
         assert query_of(links(page)["intervalafter"])["offsetN"] == "2"
         old = get(client, path=f"{ENTITIES}/{E1}", status=206)
         assert old.headers["Content-Range"].startswith("date-time ")
+    with client_factory(store_url, ngsild_max_instances=1) as client:
+        too_many = get(client, path=f"{ENTITIES}/{E1}", params={"firstN": "1"}, status=403)
+        assert error_type(too_many) == "TooManyResults"  # not even one instance of each attribute fits
 
 
 def test_a_last_n_answer_that_fits_links_the_earlier_instances(robots):
