@@ -242,3 +242,13 @@ def pytest_xdist_make_scheduler(config, log):
 
     config.option.loadscopereorder = False  # keep pytest's order: one change of backend per worker
     return _ByUnit(config, log)
+
+
+def pytest_terminal_summary(terminalreporter) -> None:
+    """The ETSI conformance figure (``test_ngsild_etsi_suite`` records it as
+    the property ``etsi``) as the last lines of pytest's output, whatever
+    the verbosity, with ``-n`` too (properties travel with the reports)."""
+    reports = [r for kind in ("passed", "failed") for r in terminalreporter.stats.get(kind, ())]
+    lines = [value for r in reports if r.when == "call" for name, value in r.user_properties if name == "etsi"]
+    for line in lines:
+        terminalreporter.write_line(line)

@@ -36,6 +36,7 @@ from tsdb_service.read.requests import (
     InstanceAggregateRead,
     InstanceLocations,
     InstanceLookup,
+    InstancePage,
     InstancesIn,
     InstancesMatching,
     InstancesRead,
@@ -44,6 +45,7 @@ from tsdb_service.read.requests import (
     RowsRead,
     SamplesIn,
     SeriesSelect,
+    ValuesAt,
     WindowScan,
 )
 
@@ -175,6 +177,8 @@ def test_latest_last_and_count(pair):
     time = TimeRange(None, T0 + timedelta(hours=1))
     same(pair, lambda q: q.latest_index(SamplesIn(_sids(q), time)), ordered=False)
     same(pair, lambda q: q.last_values(_sids(q)), ordered=False)
+    for at in (T0 - timedelta(days=1), T0 + timedelta(minutes=40), T0 + timedelta(days=1)):
+        same(pair, lambda q, at=at: q.values_at(ValuesAt(_sids(q), at)), ordered=False)
     assert same(pair, lambda q: q.count(SamplesIn(_sids(q), time))) > 0
 
 
@@ -208,9 +212,41 @@ def test_temporal_instances(pair, window, last_n, limit, newest):
 
 
 @pytest.mark.parametrize("window", WINDOWS)
+@pytest.mark.parametrize("ascending", [True, False])
+@pytest.mark.parametrize(("offset", "size", "limit"), [(0, 2, 100), (1, 2, 100), (0, None, 5), (2, 1, 3), (9, 3, 10)])
+def test_instance_pages(pair, window, ascending, offset, size, limit):
+    def read(q):
+        sids = _sids(q, Scope(TENANT)) + _sids(q, attrs={"speed", "location"})
+        first = q.instance_page(InstancePage(sids, window, ascending, offset, size, limit))
+        through = None if first[1] is None else first[1] - 3  # a walk that began before the last instances
+        return first, q.instance_page(InstancePage(sids, window, ascending, offset, size, limit, through))
+
+    assert same(pair, read)
+
+
+def test_spans_narrow_the_series_they_list(pair):
+    """``InstanceWindow.spans``: listed series keep the instances inside
+    their spans; the others keep the whole window."""
+
+    def read(q):
+        sids = _sids(q, Scope(TENANT))
+        spans = ((sids[0], datetime(2018, 8, 1, 12, 4, tzinfo=UTC), None), (sids[1], None, T0))
+        spans += ((sids[1], datetime(2018, 8, 1, 12, 13, tzinfo=UTC), datetime(2018, 8, 1, 12, 15, tzinfo=UTC)),)
+        window = InstanceWindow("observedAt", None, T0, spans)
+        return (
+            q.temporal_instances(InstancesRead(sids, window)),
+            q.instances_matching(InstancesMatching(sids, window, ValueTest())),
+            sorted(q.instance_values(InstancesIn(sids, window))),
+            q.instance_page(InstancePage(sids, window, True, 0, 1, 100)),
+        )
+
+    assert same(pair, read)
+
+
+@pytest.mark.parametrize("window", WINDOWS)
 def test_instance_filters(pair, window):
     vehicles = Scope(TENANT)
-    tests = [ValueTest(), ValueTest(">", 70.0), ValueTest("==", "brand1"), ValueTest("<=", 40.0)]
+    tests = [ValueTest(), ValueTest(">", 70.0), ValueTest("==", "brand1"), ValueTest("<=", 40.0), ValueTest("array")]
     for test in tests:
         same(pair, lambda q, test=test: q.instances_matching(InstancesMatching(_sids(q, vehicles), window, test)))
     assert same(pair, lambda q: q.instance_values(InstancesIn(_sids(q, vehicles), window)), ordered=False)

@@ -424,7 +424,9 @@ def test_names_mean_what_the_writes_context_says(with_context):
 # --- scope and scopeQ ----------------------------------------------------------------
 
 
-def test_scope_is_stored_and_scope_q_selects_by_the_current_scope(client):
+def test_scope_is_stored_and_scope_q_selects_by_the_scope_of_the_time(client):
+    """Clauses 4.18, 4.19: scopeQ selects entities by the scopes they had in
+    the window (a replaced scope still selects the history it held for)."""
     create(client, {**vehicle(A), "scope": "/Madrid/Gardens/ParqueNorte"})
     create(client, {**vehicle(B), "scope": ["/Madrid/Centro", "/Company/Fleet"]})
     create(client, vehicle(BUS, etype="Bus"))
@@ -445,9 +447,11 @@ def test_scope_is_stored_and_scope_q_selects_by_the_current_scope(client):
         assert ids(client.get(BASE, params={**everything, "scopeQ": query})) == expected, query
     body = {"type": "Query", "entities": [{"type": "Vehicle"}], "scopeQ": "/Company/#"}
     assert ids(client.post(QUERY, json=body, headers=JSON)) == [B]
-    # The scope now is the latest one.
+    # A scope replaced now leaves the history before it to the old one.
     assert client.post(f"{BASE}/{B}/attrs", json={"scope": "/Elsewhere"}, headers=JSON).status_code == 204
-    assert ids(client.get(BASE, params={**everything, "scopeQ": "/Company/#"})) == []
+    assert ids(client.get(BASE, params={**everything, "scopeQ": "/Company/#"})) == [B]
+    [now] = client.get(BASE, params={**everything, "scopeQ": "/Elsewhere"}).json()
+    assert set(now) == {"id", "type", "scope"}  # nothing of B's was observed under /Elsewhere but the scope itself
     for bad in ("Madrid", "/Madrid/#/x", "/a;;/b", "(/a", "/a/#)"):
         problem(client.get(BASE, params={**everything, "scopeQ": bad}), 400, "BadRequestData")
     for bad_scope in ("Madrid", ["/ok", "/no#"], [], 5):

@@ -7,7 +7,7 @@ from datetime import UTC, datetime
 
 import pytest
 
-from tsdb_service.core.errors import BadRequestData, InvalidRequest, OperationNotSupported, TooManyResults
+from tsdb_service.core.errors import BadRequestData, InvalidRequest, TooManyResults
 from tsdb_service.faces.ngsild.context import DEFAULT_VOCAB, ContextStore
 from tsdb_service.faces.ngsild.params import parse_duration, parse_types, query_from_body, query_from_params
 from tsdb_service.faces.ngsild.query import Duration, Format, TimeProperty, TypeAnd, TypeName, TypeOr
@@ -47,9 +47,6 @@ def test_timerel_windows_are_half_open():
         {"type": "V", "lastN": "-1"},
         {"type": "V", "limit": "x"},
         {"type": "V", "format": "aggregatedValues"},
-        {"type": "V", "format": "aggregatedValues", "aggrMethods": "median"},
-        {"type": "V", "aggrMethods": "median"},
-        {"type": "V", "aggrPeriodDuration": "1 hour"},
         {"type": "V", "timerel": "after", "timeAt": "2018-08-01"},
         {"type": "V", "attrs": "speed", "pick": "id"},
         {"type": "V", "attrs": "speed", "omit": "name"},
@@ -98,14 +95,30 @@ def test_order_by_id_either_way():
     assert q(type="V", orderBy="id;desc").descending is True
 
 
-def test_limits_and_unsupported():
+@pytest.mark.parametrize(
+    "params",
+    [
+        {"type": "V", "format": "aggregatedValues", "aggrMethods": "median"},
+        {"type": "V", "aggrMethods": "median"},
+        {"type": "V", "aggrPeriodDuration": "1 hour"},
+    ],
+)
+def test_aggregation_parameters_outside_their_grammar_are_invalid_requests(params):
+    """An unknown aggrMethods value or a duration that is none: a query
+    parameter outside its grammar, InvalidRequest as for format and options
+    (clauses 6.19, 6.20 with 4.5.19)."""
+    with pytest.raises(InvalidRequest):
+        q(**params)
+
+
+def test_limits_and_csf():
     with pytest.raises(TooManyResults):
         q(type="V", limit=1001)
     assert q(type="V", scopeQ="/Madrid/#").scope_q is not None
-    with pytest.raises(OperationNotSupported):
-        q(type="V", csf="x")
-    with pytest.raises(OperationNotSupported):
-        q(type="V", offsetN="5")
+    q(type="V", csf="x")  # a valid csf selects no registration here: the local history answers
+    with pytest.raises(BadRequestData):
+        q(type="V", csf="x==")
+    assert q(type="V", offsetN="5").offset_n == 5
     assert q(type="V", options="concise").format is q(type="V", format="concise").format is Format.CONCISE
 
 

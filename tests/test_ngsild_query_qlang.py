@@ -8,7 +8,7 @@ from datetime import UTC, datetime
 import pytest
 
 from tsdb_service.faces.ngsild import qlang
-from tsdb_service.faces.ngsild.qlang import And, Or, QueryError, Range, Term, parse
+from tsdb_service.faces.ngsild.qlang import And, Not, Or, QueryError, Range, Term, parse
 
 
 def test_comparison_and_logic_precedence():
@@ -58,6 +58,9 @@ def test_values():
         ("a>5", "text", False),
         ("a>2018-08-01T12:04:00Z", "2018-08-01T12:05:00Z", True),
         ("a==3", [1, 3], True),
+        ("a!=3", [1, 3], False),  # != against an array: no element equal (clause 4.9)
+        ("a!=4", [1, 3], True),
+        ('a!~="^x"', ["xa", "b"], False),
         ("a", None, False),
     ],
 )
@@ -78,5 +81,21 @@ def test_map_attrs_expands_names():
 
 @pytest.mark.parametrize("bad", ["", "a==", "(a==1", 'a=="open', "a>1,2", "a~=[", "a>true", "==1", "a==1)"])
 def test_invalid(bad):
+    with pytest.raises(QueryError):
+        parse(bad)
+
+
+def test_negation_wildcards_and_bracket_paths():
+    """Clause 4.9: !attr (existence negated), attr[*], attr[a][b]."""
+    assert parse("!a;b==1") == And((Not(Term("a")), Term("b", op="==", value=1)))
+    assert qlang.terms(parse("!a|b")) == [Term("a"), Term("b")]
+    assert qlang.negates(parse("c;(!a|b)")) and not qlang.negates(parse("c;(a|b)"))
+    assert not qlang.evaluate(parse("!a"), lambda t: True)
+    assert parse('name[*]=="x"') == Term("name", (), ("*",), "==", "x")
+    assert parse("a[b][c]>1") == parse("a[b.c]>1")
+
+
+@pytest.mark.parametrize("bad", ["!a==1", "!", "owner{name}", 'owner{name}=="x"', "a[", "a[b"])
+def test_refused(bad):
     with pytest.raises(QueryError):
         parse(bad)

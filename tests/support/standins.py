@@ -13,19 +13,16 @@ from __future__ import annotations
 
 import itertools
 import re
-import threading
-import time
 from contextlib import contextmanager
 from datetime import UTC, datetime
 
 import httpx
-import uvicorn
 from starlette.applications import Starlette
 from starlette.requests import Request
 from starlette.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Route
 
-from tests.support.server import free_port
+from tests.support.serving import serving
 
 
 class StandInBroker:
@@ -90,30 +87,6 @@ class StandInBroker:
                 body = {"subscriptionId": sub["id"], "data": [data]}
                 statuses.append(httpx.post(target["url"], json=body, headers=headers, timeout=10).status_code)
         return statuses
-
-
-class _Server(uvicorn.Server):
-    def install_signal_handlers(self) -> None:  # a test thread must not take pytest's signals
-        pass
-
-
-@contextmanager
-def serving(app):
-    """``app`` on a free 127.0.0.1 port with uvicorn, in a thread; yields its URL."""
-    port = free_port()
-    server = _Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30
-    while not server.started:
-        if not thread.is_alive() or time.monotonic() > deadline:
-            raise RuntimeError("the test server did not start")
-        time.sleep(0.02)
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        thread.join(timeout=30)
 
 
 @contextmanager

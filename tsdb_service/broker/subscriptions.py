@@ -21,6 +21,7 @@ from urllib.parse import urlsplit
 import httpx
 import orjson
 
+from tsdb_service.broker.listing import list_all
 from tsdb_service.usecases import orion
 from tsdb_service.usecases.base import Simulator
 from tsdb_service.usecases.registry import SIMULATORS
@@ -247,42 +248,17 @@ def post_subscription(
     return False, f"{answer.status} {answer.reason}: {answer.text.strip()[:500]}"
 
 
-# Orion pages GET /v2/subscriptions (20 by default, at most 1000 a page).
-_PAGE = 1000
-_MAX_PAGES = 100
-
-
 def list_subscriptions(
     broker: str, headers: dict[str, str], timeout: float = 10.0, path: str = NGSIV2.subscriptions_path
 ) -> tuple[list[dict] | None, str]:
     """Every subscription the broker has for the tenant and service path of
     ``headers``: ``(subscriptions, "")``, or ``(None, why)`` when it could not
-    tell. Follows Orion's paging (``Fiware-Total-Count``, Orion-LD's
-    ``NGSILD-Results-Count``, else short pages)."""
+    tell. Follows Orion's paging (20 a page by default, at most 1000;
+    ``Fiware-Total-Count``, Orion-LD's ``NGSILD-Results-Count``, else short
+    pages: ``broker.listing``)."""
     url = broker.rstrip("/") + path
     tenancy = {k: v for k, v in headers.items() if k.lower().startswith(("fiware-", "ngsild-"))}
-    found: list[dict] = []
-    for _ in range(_MAX_PAGES):
-        params: dict[str, str | int] = {"limit": _PAGE, "offset": len(found), "options": "count", "count": "true"}
-        try:
-            response = httpx.get(url, params=params, headers=tenancy, timeout=timeout)
-        except httpx.HTTPError as exc:
-            return None, f"could not reach {url}: {type(exc).__name__}: {exc}"
-        if response.status_code != 200:
-            answer = f"{response.status_code} {response.reason_phrase}: {response.text.strip()[:300]}"
-            return None, f"listing {url} answered {answer}"
-        try:
-            page = orjson.loads(response.content)
-        except orjson.JSONDecodeError:
-            page = None
-        if not isinstance(page, list):
-            return None, f"listing {url} did not answer a JSON array"
-        found.extend(sub for sub in page if isinstance(sub, dict))
-        total = response.headers.get("fiware-total-count", response.headers.get("ngsild-results-count", ""))
-        more = len(found) < int(total) if total.isdigit() else len(page) >= _PAGE
-        if not page or not more:
-            return found, ""
-    return None, f"listing {url}: more than {_MAX_PAGES * _PAGE} subscriptions"
+    return list_all(url, {"options": "count", "count": "true"}, tenancy, "subscriptions", timeout)
 
 
 def notify_url_of(document: dict) -> str | None:

@@ -197,8 +197,17 @@ def _feature_modules() -> tuple[ModuleType, ...]:
     from tsdb_service.cli import demo as demo_commands
     from tsdb_service.cli import export as export_commands
     from tsdb_service.cli import qlimport as import_commands
+    from tsdb_service.cli import register as register_commands
 
-    return (demo_commands, grafana_commands, copy_commands, export_commands, import_commands, backup_commands)
+    return (
+        demo_commands,
+        grafana_commands,
+        copy_commands,
+        export_commands,
+        import_commands,
+        backup_commands,
+        register_commands,
+    )
 
 
 @command("serve")

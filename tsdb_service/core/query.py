@@ -169,11 +169,13 @@ class EntityListQuery:
 
 @dataclass(frozen=True, slots=True)
 class LastValueQuery:
-    """``POST /v2/op/query``: the latest value of each attribute per entity."""
+    """``POST /v2/op/query``: the latest value of each attribute per entity,
+    or with ``as_of`` (our extension) the latest at or before that instant."""
 
     scope: Scope
     selectors: tuple[EntityFilter, ...]
     attrs: tuple[ValuePath, ...] | None = None
+    as_of: datetime | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -261,11 +263,18 @@ class InstanceWindow:
     """Which instances a temporal query selects: those whose ``timeproperty``
     lies in [start, end) (either bound optional; NGSI-LD's ``timerel``:
     ``after`` = start only, ``before`` = end only, ``between`` = both).
-    Times are timezone-aware."""
+    Times are timezone-aware.
+
+    ``spans`` narrows some series further: ``(sid, start, end)``, a listed
+    series keeps only its instances whose time property lies in one of its
+    spans [start, end) (either bound None: open); a series not listed keeps
+    every instance of the window. An entity's ``scopeQ`` matches during
+    spans of time (its scope changes), which bound its instances."""
 
     timeproperty: str = "observedAt"  # one of TIME_PROPERTIES
     start: datetime | None = None
     end: datetime | None = None
+    spans: tuple[tuple[int, datetime | None, datetime | None], ...] = ()
 
     def __post_init__(self) -> None:
         if self.timeproperty not in TIME_PROPERTIES:
@@ -455,15 +464,17 @@ class ValueTest:
     ``q`` term without sub-property or value path, ``ngsild.fetch``).
     ``op`` None: the instance has a value (it is no deletion or null);
     ``ANY_INSTANCE``: any instance, deletions too (is there one in the
-    window?); otherwise ``value`` compared by ``op`` (``==``, ``>``, ``>=``, ``<``,
-    ``<=``): a float against number instances (Number, Integer), a str
-    (``==`` only) against text and relationship instances."""
+    window?); ``ARRAY_INSTANCE``: an instance whose value is a JSON array
+    (whose elements a ``q`` term tests one by one, in Python); otherwise
+    ``value`` compared by ``op`` (``==``, ``>``, ``>=``, ``<``, ``<=``): a
+    float against number instances (Number, Integer), a str (``==`` only)
+    against text and relationship instances."""
 
     op: str | None = None
     value: float | str | None = None
 
     def __post_init__(self) -> None:
-        if self.op is None or self.op == ANY_INSTANCE:
+        if self.op is None or self.op in (ANY_INSTANCE, ARRAY_INSTANCE):
             return
         if isinstance(self.value, str) and self.op != "==":
             raise ValueError("a text test compares with == only")
@@ -473,6 +484,7 @@ class ValueTest:
 
 VALUE_TEST_OPS = ("==", ">", ">=", "<", "<=")
 ANY_INSTANCE = "any"  # ``ValueTest.op``: any instance passes
+ARRAY_INSTANCE = "array"  # ``ValueTest.op``: an instance whose value is a JSON array passes
 
 # An instance's value as ``Querier.instance_values`` reads it: (sid, kind,
 # num, txt, js, md), distinct; the columns as in ``InstanceRow``.

@@ -13,6 +13,7 @@ from tsdb_service.read.requests import (
     InstanceAggregateRead,
     InstanceLocations,
     InstanceLookup,
+    InstancePage,
     InstancesIn,
     InstancesMatching,
     InstancesRead,
@@ -56,6 +57,14 @@ class TemporalReader(Protocol):
         * ``model.instance_urn(iid)`` is the ``instanceId``; it never changes
           (compaction and restarts keep ``iid``); ``model.instance_iid``
           reads it back."""
+        ...
+
+    def instance_page(self, ask: InstancePage) -> tuple[list[InstanceRow], int | None]:
+        """One page of instances by rank (``requests.InstancePage``), rows as
+        ``temporal_instances``' (sorted by sid, time property, instance
+        id), and the largest instance id among the series' instances in the
+        window (``through_iid`` when given; None when no row is on the
+        page): what ``through_iid`` keeps the next pages to."""
         ...
 
     def instances_matching(self, ask: InstancesMatching) -> set[int]:
@@ -119,5 +128,13 @@ class SeparateScans:
 
 class _Probes(Protocol):
     def location_instances(self, ask: InstanceLocations) -> list[tuple[int, str]]: ...
+
+    def instance_page(self, ask: InstancePage) -> tuple[list[InstanceRow], int | None]:
+        """One page of instances by rank (``requests.InstancePage``), rows as
+        ``temporal_instances``' (sorted by sid, time property, instance
+        id), and the largest instance id among the series' instances in the
+        window (``through_iid`` when given; None when no row is on the
+        page): what ``through_iid`` keeps the next pages to."""
+        ...
 
     def instances_matching(self, ask: InstancesMatching) -> set[int]: ...

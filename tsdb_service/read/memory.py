@@ -28,6 +28,7 @@ from tsdb_service.core.idpattern import compiled
 from tsdb_service.core.model import Kind, client_instance_id, instance_iid
 from tsdb_service.core.query import (
     ANY_INSTANCE,
+    ARRAY_INSTANCE,
     AggBranch,
     AggregateRow,
     AggrMethod,
@@ -64,6 +65,7 @@ from tsdb_service.read.requests import (
     InstanceAggregateRead,
     InstanceLocations,
     InstanceLookup,
+    InstancePage,
     InstancesIn,
     InstancesMatching,
     InstancesRead,
@@ -72,6 +74,7 @@ from tsdb_service.read.requests import (
     RowsRead,
     SamplesIn,
     SeriesSelect,
+    ValuesAt,
 )
 
 T = TypeVar("T")
@@ -277,6 +280,16 @@ class MemoryQuerier(SeparateScans, Querier):
                 out.append(LastValueRow(sid, iso_ms(s.t), s.kind, s.atype, s.num, s.txt, s.js))
         return out
 
+    def values_at(self, ask: ValuesAt) -> list[LastValueRow]:
+        at = _naive(ask.at)
+        out = []
+        for sid in sorted(set(ask.sids)):
+            rows = [r for r in self._samples.get(sid, ()) if at is None or r.t <= at]
+            if rows:
+                s = max(rows, key=lambda r: (r.t, r.rid))
+                out.append(LastValueRow(sid, iso_ms(s.t), s.kind, s.atype, s.num, s.txt, s.js))
+        return out
+
     def count(self, ask: SamplesIn) -> int:
         return len(self._in(ask.sids, ask.time, ask.mask))
 
@@ -355,10 +368,15 @@ class MemoryQuerier(SeparateScans, Querier):
     def _window(self, sids: Sequence[int], window: InstanceWindow) -> list[tuple[datetime, MemorySample]]:
         """(time property, sample) of the instances in ``window``."""
         start, end = _naive(window.start), _naive(window.end)
+        spans: dict[int, list[tuple[datetime | None, datetime | None]]] = defaultdict(list)
+        for sid, span_start, span_end in window.spans:
+            spans[sid].append((_naive(span_start), _naive(span_end)))
         out = []
         for s in self._of(sids):
             at = _time_property(s, window.timeproperty)
-            if at is not None and (start is None or at >= start) and (end is None or at < end):
+            if at is None or (start is not None and at < start) or (end is not None and at >= end):
+                continue
+            if s.sid not in spans or any((a is None or at >= a) and (b is None or at < b) for a, b in spans[s.sid]):
                 out.append((at, s))
         return out
 
@@ -380,6 +398,26 @@ class MemoryQuerier(SeparateScans, Querier):
         rows = [_instance_row(at, s, refs.get(s.sid)) for at, s in found]
         rows.sort(key=lambda r: (r.sid, r.at, r.iid))
         return rows
+
+    def instance_page(self, ask: InstancePage) -> tuple[list[InstanceRow], int | None]:
+        found = [(at, s) for at, s in self._window(ask.sids, ask.window)]
+        if ask.through_iid is not None:
+            found = [(at, s) for at, s in found if s.iid <= ask.through_iid]
+        top = ask.through_iid if ask.through_iid is not None else max((s.iid for _, s in found), default=None)
+        per_sid: dict[int, list[tuple[datetime, MemorySample]]] = defaultdict(list)
+        for at, s in found:
+            per_sid[s.sid].append((at, s))
+        ranked = []
+        for sid, rows in per_sid.items():
+            rows.sort(key=lambda p: (p[0], p[1].iid), reverse=not ask.ascending)
+            end = None if ask.size is None else ask.offset + ask.size
+            ranked += [(rank, sid, pair) for rank, pair in enumerate(rows[ask.offset : end], start=ask.offset + 1)]
+        ranked.sort(key=lambda r: (r[0], r[1]))
+        page = ranked[: ask.limit]
+        refs = {sid: ref for sid, (_, ref) in self._series.items()}
+        rows_out = [_instance_row(at, s, refs.get(s.sid)) for _, _, (at, s) in page]
+        rows_out.sort(key=lambda r: (r.sid, r.at, r.iid))
+        return rows_out, top if page else ask.through_iid
 
     def instances_matching(self, ask: InstancesMatching) -> set[int]:
         return {s.sid for _, s in self._window(ask.sids, ask.window) if _test(ask.test, s)}
@@ -574,6 +612,8 @@ def _test(test: ValueTest, s: MemorySample) -> bool:
         return s.kind != Kind.NULL
     if test.op == ANY_INSTANCE:
         return True
+    if test.op == ARRAY_INSTANCE:
+        return _is_array(s)
     if isinstance(test.value, str):
         have: Any = s.txt if s.kind in _TEXT else None
     else:

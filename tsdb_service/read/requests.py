@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
+from datetime import datetime
 
 from tsdb_service.core.query import (
     AggBranch,
@@ -119,6 +120,35 @@ class InstancesRead:
     last_n: int | None = None
     limit: int | None = None
     newest_first: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class InstancePage:
+    """One page of each series' instances in ``window`` by rank (ETSI TS
+    104 176 clause 6.4.7.3): each series' instances ordered by time property
+    then instance id (``ascending``, as ``firstN``; else newest first, as
+    ``lastN``), those ranked after ``offset`` and at most ``size`` more
+    (None: all), taken rank by rank across the series (every series' first,
+    then every series' second...) up to ``limit`` rows in all. With
+    ``through_iid`` only the instances whose instance id is at most that:
+    the instances stored when a walk through the pages began (ids grow as
+    instances are stored), so a walk's ranks stay put while more arrive."""
+
+    sids: Sequence[int]
+    window: InstanceWindow
+    ascending: bool
+    offset: int
+    size: int | None
+    limit: int
+    through_iid: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ValuesAt:
+    """Each series' newest sample at or before ``at`` (by time, then row)."""
+
+    sids: Sequence[int]
+    at: datetime
 
 
 @dataclass(frozen=True, slots=True)

@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from typing import Protocol
 
 from tsdb_service.core.query import AggregateRow, LastValueRow, LatestRow, RawRow
-from tsdb_service.read.requests import AggregateRead, RowsRead, SamplesIn
+from tsdb_service.read.requests import AggregateRead, RowsRead, SamplesIn, ValuesAt
 
 
 class SampleReader(Protocol):
@@ -32,6 +32,12 @@ class SampleReader(Protocol):
 
     def last_values(self, sids: Sequence[int]) -> list[LastValueRow]:
         """Each series' newest sample (by time, then row)."""
+        ...
+
+    def values_at(self, ask: ValuesAt) -> list[LastValueRow]:
+        """Each series' newest sample at or before ``ask.at`` (by time, then
+        row; series without one: no row): the state as of an instant, as
+        ``last_values`` is the state now."""
         ...
 
     def count(self, ask: SamplesIn) -> int:

@@ -27,7 +27,11 @@ Methods by value type (the stored kind of each instance):
 * DateTime: ``min``, ``max`` and ``avg`` are date-times;
 * Relationships, objects, languageMaps, geometries: ``totalCount`` and
   ``distinctCount`` only;
-* any other combination, and one attribute mixing such families, is 400.
+* a method that does not apply to an attribute's values (``sum`` of text,
+  ``avg`` of a Relationship, or of an attribute mixing such families)
+  gives ``null`` for each of its periods: every combination clause 4.5.19
+  allows answers 200 (6.19, 6.20), each attribute with what applies to it
+  (Stellio's answer too).
 
 ``stddev`` is the *population* standard deviation (divides by n), so one
 instance gives 0; ``sumsq`` is the sum of squares. ``totalCount`` counts
@@ -254,9 +258,17 @@ def type_name(atype: str | None, kind: int) -> str:
     return "Property"
 
 
+_APPLIES = {
+    "number": frozenset({"sum", "avg", "min", "max", "stddev", "sumsq"}),
+    "array": frozenset({"sum", "avg", "min", "max", "stddev", "sumsq"}),
+    "text": frozenset({"min", "max"}),
+    "datetime": frozenset({"min", "max", "avg"}),
+}
+
+
 def _family(rows: list[tuple], methods) -> str | None:
     """The one value family of a series' instances ("number", "array",
-    "text", "datetime", or "other"), checked against the methods asked."""
+    "text", "datetime", "other", or "mixed"); None when only counts are asked."""
     value_methods = [m for m in methods if m not in _COUNTS]
     if not value_methods:
         return None
@@ -273,24 +285,7 @@ def _family(rows: list[tuple], methods) -> str | None:
             families.add("datetime")
         else:
             families.add("other")
-    if len(families) > 1:
-        raise BadRequestData(
-            f"cannot apply {', '.join(value_methods)} to an attribute whose instances mix "
-            f"{' and '.join(sorted(families))} values"
-        )
-    family = families.pop()
-    allowed = {
-        "number": {"sum", "avg", "min", "max", "stddev", "sumsq"},
-        "array": {"sum", "avg", "min", "max", "stddev", "sumsq"},
-        "text": {"min", "max"},
-        "datetime": {"min", "max", "avg"},
-        "other": set(),
-    }[family]
-    refused = [m for m in value_methods if m not in allowed]
-    if refused:
-        what = {"other": "relationships, objects, language maps or geometries"}.get(family, f"{family} values")
-        raise BadRequestData(f"aggrMethods {', '.join(refused)} cannot be applied to {what}")
-    return family
+    return families.pop() if len(families) == 1 else "mixed"
 
 
 def _one(rows: list[tuple]) -> tuple:
@@ -318,11 +313,14 @@ def _merged(rows: list[tuple]) -> tuple:
 
 
 def _picker(method: str, family: str | None) -> Callable[[tuple], object]:
-    """One method's value of a period's row."""
+    """One method's value of a period's row (None where the method does
+    not apply to the family)."""
     if method == "totalCount":
         return itemgetter(R_N)
     if method == "distinctCount":
         return itemgetter(R_DISTINCT)
+    if method not in _APPLIES.get(family or "", ()):
+        return _nothing
     if family == "text":
         return itemgetter(R_MIN_TXT if method == "min" else R_MAX_TXT)
     if method == "avg" and family != "datetime":
@@ -348,6 +346,10 @@ def _picker(method: str, family: str | None) -> Callable[[tuple], object]:
         return _value(method, family, integral, row[R_NX], row[R_SX], row[R_SXX], row[R_MIN], row[R_MAX])
 
     return general
+
+
+def _nothing(_row: tuple) -> None:
+    return None
 
 
 def _value(method: str, family: str | None, integral: bool, nx: int, sx, sxx, mn, mx):

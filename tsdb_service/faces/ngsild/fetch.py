@@ -34,10 +34,28 @@ from itertools import compress
 
 import orjson
 
-from tsdb_service.core.query import VALUE_TEST_OPS, EntityFilter, InstanceWindow, Scope, SeriesRef, ValueTest
+from tsdb_service.core.model import Kind
+from tsdb_service.core.query import (
+    ARRAY_INSTANCE,
+    VALUE_TEST_OPS,
+    EntityFilter,
+    InstanceWindow,
+    Scope,
+    SeriesRef,
+    ValueTest,
+)
 from tsdb_service.faces.ngsild import qlang
 from tsdb_service.faces.ngsild.context import TermMap
-from tsdb_service.faces.ngsild.query import DEFAULT_DATASET, TemporalQuery, TypeExpr, TypeName, Window, type_matches
+from tsdb_service.faces.ngsild.query import (
+    DEFAULT_DATASET,
+    TemporalQuery,
+    TypeAnd,
+    TypeExpr,
+    TypeName,
+    TypeOr,
+    Window,
+    type_matches,
+)
 from tsdb_service.read import TemporalReads
 from tsdb_service.read.requests import ExtentsNear, InstancesIn, LocatedSelect, SeriesSelect, WindowScan
 
@@ -50,27 +68,51 @@ class Fetcher:
     def __init__(self, querier: TemporalReads, terms: TermMap):
         self.q = querier
         self.terms = terms
+        self.types: dict[str, tuple[str, ...]] = {}  # entity id → its stored types, sorted
 
     # -- 1. series ---------------------------------------------------------------
 
     def series(self, query: TemporalQuery) -> dict[EntityKey, list[SeriesRef]]:
         """Every selected series, grouped by entity; attributes and datasetIds
         narrowed, entities kept even when none of their attributes is selected
-        (they still match; their attributes are empty)."""
+        (they still match; their attributes are empty). An entity is its id:
+        its types are every type it was stored under (clause 4.16), which a
+        type expression is judged on, and all its series are its own."""
         scope = Scope(query.tenant)
         refs: list[SeriesRef] = []
         for selector in query.selectors:
             ids = (query.entity_id,) if query.entity_id is not None else selector.ids
             found = self.q.series(SeriesSelect(scope, EntityFilter(ids=ids, id_pattern=selector.id_pattern)))
             if selector.types is not None:
-                types = {r.entity_type for r in found}
-                ok = self._types_taken(selector.types, types)
-                if ok != types:
-                    found = [r for r in found if r.entity_type in ok]
+                found = self._of_types(selector.types, found)
             refs.extend(found)
         if len(query.selectors) > 1:  # alternatives may select a series twice
             refs = list({ref.sid: ref for ref in refs}.values())
-        return _by_entity(refs)
+        return self._by_entity(refs)
+
+    def _of_types(self, expr: TypeExpr, refs: list[SeriesRef]) -> list[SeriesRef]:
+        """The series of the entities whose types (all their stored types)
+        satisfy ``expr``."""
+        stored = sorted({r.entity_type for r in refs})
+        iri = dict(zip(stored, self.terms.expand_all(stored), strict=True))
+        types_of: dict[str, set[str]] = {}
+        for ref in refs:
+            types_of.setdefault(ref.entity_id, set()).add(iri[ref.entity_type])
+        ok = {eid for eid, iris in types_of.items() if type_matches(expr, partial(_has_type, iris))}
+        return [r for r in refs if r.entity_id in ok]
+
+    def _by_entity(self, refs: Iterable[SeriesRef]) -> dict[EntityKey, list[SeriesRef]]:
+        """Series grouped by entity id, keyed (id, its first stored type); the
+        entity's types kept in ``types``."""
+        by_id: dict[str, list[SeriesRef]] = {}
+        for ref in refs:
+            by_id.setdefault(ref.entity_id, []).append(ref)
+        out: dict[EntityKey, list[SeriesRef]] = {}
+        for eid, group in by_id.items():
+            types = tuple(sorted({r.entity_type for r in group}))
+            self.types[eid] = types
+            out[(eid, types[0])] = group
+        return out
 
     def _types_taken(self, expr: TypeExpr | None, stored_types: Iterable[str]) -> set[str]:
         """Those of ``stored_types`` whose entities a type expression selects (None: all)."""
@@ -156,17 +198,29 @@ class Fetcher:
                 sids_of.setdefault(iris[sid], []).append(sid)
         tested = [(term, test) for term in terms if (test := value_test(term)) is not None]
         probes = [(sids_of.get(t.attr, []), test) for t, test in tested]
+        # An array instance matches a term when one of its elements does,
+        # which the database's test on plain values cannot see: the series
+        # with array instances are asked for too, and tested here.
+        compared = [t for t, test in tested if test.op is not None]
+        arrays = list({sid for t in compared for sid in sids_of.get(t.attr, [])})
+        if arrays:
+            probes.append((arrays, ValueTest(ARRAY_INSTANCE)))
         if alive is not None:
             probes.append(([sid for sid in alive[0] if owner.get(sid) in keys], alive[1]))
         rows, found = self.q.window_scan(WindowScan(window, locations, probes))
         if alive is not None:
             keys &= {owner[sid] for sid in found[-1]}
             found = found[:-1]
+        with_arrays = found.pop() if arrays else set()
         if locations is not None:
             keys &= {owner[sid] for sid in self._passing(geo, rows)}
         if query.q is None or not keys:
             return keys
         holding = {term: {owner[sid] for sid in sids} for (term, _), sids in zip(tested, found, strict=True)}
+        for term in compared:
+            passed = holding[term]
+            among = [sid for sid in sids_of.get(term.attr, []) if sid in with_arrays and owner[sid] not in passed]
+            holding[term] |= {owner[sid] for sid in self._values_passing(term, among, window)}
         for term in terms:
             if term not in holding:
                 sids = [sid for sid in sids_of.get(term.attr, []) if owner[sid] in keys]
@@ -179,8 +233,11 @@ class Fetcher:
         out: set[int] = set()
         if not sids:
             return out
+        ordering = term.op in qlang.ORDERING
         for sid, kind, num, txt, js, md in self.q.instance_values(InstancesIn(sids, window)):
-            if sid not in out and term.matches(term_value(term, kind, num, txt, js, md)):
+            if sid in out or (ordering and is_relationship(term, kind, md)):
+                continue  # an ordering operator never matches a Relationship (clause 4.9)
+            if term.matches(term_value(term, kind, num, txt, js, md)):
                 out.add(sid)
         return out
 
@@ -197,6 +254,8 @@ class Fetcher:
             return None
         if any(s.ids is not None or s.id_pattern is not None for s in query.selectors):
             return None
+        if any(s.types is not None and any(isinstance(n, TypeAnd) for n in _nodes(s.types)) for s in query.selectors):
+            return None  # an entity's types together decide an AND: ``series`` judges them
         scope = Scope(query.tenant)
         names = self.q.series_names(scope)
         types = set().union(*(self._types_taken(s.types, names) for s in query.selectors))
@@ -210,7 +269,7 @@ class Fetcher:
         if not keys:
             return {}, []
         found = self.q.series(SeriesSelect(scope, EntityFilter(ids=tuple(sorted({k[0] for k in keys})))))
-        return _by_entity(r for r in found if (r.entity_id, r.entity_type) in keys), [r.sid for r in near]
+        return self._by_entity(found), [r.sid for r in near]
 
     def _ever_near(self, geo, sids: list[int]) -> list[int]:
         """Those location series of ``sids`` whose stored extent passes the
@@ -233,7 +292,7 @@ class Fetcher:
 
 def instance_window(window: Window) -> InstanceWindow:
     """The seam's spelling of a temporal query's window."""
-    return InstanceWindow(window.timeproperty.value, window.start, window.end)
+    return InstanceWindow(window.timeproperty.value, window.start, window.end, window.spans)
 
 
 def value_test(term: qlang.Term) -> ValueTest | None:
@@ -263,36 +322,68 @@ def term_value(term: qlang.Term, kind, num, txt, js, md):
     from tsdb_service.history.service import decode
 
     if term.sub:
-        try:
-            node = orjson.loads(md) if md else {}
-        except orjson.JSONDecodeError:
-            return None
-        for step in term.sub:
-            if not isinstance(node, dict) or step not in node:
-                return None
-            node = node[step]
-        value = node
-        if isinstance(node, dict):
-            value = next((node[k] for k in _VALUE_KEYS if k in node), node)
+        node = _sub_attribute(term, md)
+        value = next((node[k] for k in _VALUE_KEYS if k in node), node) if isinstance(node, dict) else node
     else:
         value = decode(kind, num, txt, js)
-    for step in term.inner:
+    return _inside(value, term.inner)
+
+
+def _sub_attribute(term: qlang.Term, md: str | None):
+    """The sub-attribute ``term.sub`` names in an instance's other members
+    (``md``, JSON text), or None."""
+    try:
+        node = orjson.loads(md) if md else {}
+    except orjson.JSONDecodeError:
+        return None
+    for step in term.sub:
+        if not isinstance(node, dict) or step not in node:
+            return None
+        node = node[step]
+    return node
+
+
+def _inside(value, steps: tuple[str, ...]):
+    """The member at ``steps`` inside ``value`` (None when missing); ``*``
+    is every member of an object or element of an array, as a list (which
+    ``Term.matches`` reads element by element)."""
+    for i, step in enumerate(steps):
+        if step == "*":
+            items = list(value.values()) if isinstance(value, dict) else value if isinstance(value, list) else None
+            if items is None:
+                return None
+            found = [_inside(item, steps[i + 1 :]) for item in items]
+            return [item for item in found if item is not None]
         if not isinstance(value, dict) or step not in value:
             return None
         value = value[step]
     return value
 
 
-def _by_entity(refs: Iterable[SeriesRef]) -> dict[EntityKey, list[SeriesRef]]:
-    grouped: dict[EntityKey, list[SeriesRef]] = {}
-    for ref in refs:
-        grouped.setdefault((ref.entity_id, ref.entity_type), []).append(ref)
-    return grouped
+def is_relationship(term: qlang.Term, kind: int, md: str | None) -> bool:
+    """Is the value ``term`` looks at a Relationship's object (the
+    attribute itself, or the sub-attribute ``term.sub`` names)?"""
+    if not term.sub:
+        return kind == int(Kind.RELATIONSHIP) and not term.inner
+    node = _sub_attribute(term, md)
+    return isinstance(node, dict) and ("object" in node or node.get("type") == "Relationship")
 
 
 def _is_type(iri: str, name: TypeName) -> bool:
     """``type_matches``'s test for an entity of type ``iri``."""
     return name.iri == iri
+
+
+def _has_type(iris: set[str], name: TypeName) -> bool:
+    """``type_matches``'s test for an entity of the types ``iris``."""
+    return name.iri in iris
+
+
+def _nodes(expr) -> list:
+    """Every node of a type expression."""
+    if isinstance(expr, (TypeAnd, TypeOr)):
+        return [expr, *(n for part in expr.parts for n in _nodes(part))]
+    return [expr]
 
 
 def _holds(holding: dict[qlang.Term, set[EntityKey]], key: EntityKey, term: qlang.Term) -> bool:

@@ -17,7 +17,7 @@ from decimal import Decimal, InvalidOperation
 from typing import Any
 from urllib.parse import unquote
 
-from tsdb_service.core.errors import BadRequest, BadRequestData, InvalidRequest, OperationNotSupported, TooManyResults
+from tsdb_service.core.errors import BadRequest, BadRequestData, InvalidRequest, TooManyResults
 from tsdb_service.faces.ngsild import boolexpr, qlang, scope
 from tsdb_service.faces.ngsild.context import TermMap
 from tsdb_service.faces.ngsild.geoquery import parse_ld_geo
@@ -74,15 +74,20 @@ def query_from_params(
         dataset_ids=_list(get("datasetId"), "datasetId"),
         last_n=_positive(get("lastN"), "lastN"),
         first_n=_positive(get("firstN"), "firstN"),
+        offset_n=_non_negative(get("offsetN"), "offsetN"),
+        stored_through=_positive(get("storedThrough"), "storedThrough"),
+        as_of=_as_of(get("asOf")),
         local=_flag(get("local"), "local"),
         lang=languages(get("lang")),
     )
-    if query.last_n is not None and query.first_n is not None:
-        raise BadRequestData("lastN and firstN exclude each other")
+    check_instances(query)
     check_projection(query)
-    query = _representation(query, get("options"), get("format"), get("aggrMethods"), get("aggrPeriodDuration"))
+    query = _representation(
+        query, get("options"), get("format"), get("aggrMethods"), get("aggrPeriodDuration"), InvalidRequest
+    )
+    check_as_of(query, timerel=get("timerel"))
     query = _paging(query, params, limits)
-    _refuse_unsupported(params)
+    check_csf(get("csf"))
     if entity_id is None:
         require_filter(query)
     return query
@@ -139,10 +144,16 @@ def query_from_body(
         geo=geo_query(geo.get("georel"), geo.get("geometry"), geo.get("coordinates"), geo.get("geoproperty"), terms),
         dataset_ids=_list(_joined(body.get("datasetId"), "datasetId"), "datasetId"),
         last_n=_positive(_text(temporal.get("lastN", body.get("lastN", params.get("lastN")))), "lastN"),
+        first_n=_positive(_text(temporal.get("firstN", params.get("firstN"))), "firstN"),
+        offset_n=_non_negative(_text(temporal.get("offsetN", params.get("offsetN"))), "offsetN"),
+        stored_through=_positive(params.get("storedThrough"), "storedThrough"),
+        as_of=_as_of(params.get("asOf")),
         local=_flag(_text(body.get("local", params.get("local"))), "local"),
         lang=languages(_string(body.get("lang"), "lang") or params.get("lang")),
     )
+    check_instances(query)
     check_projection(query)
+    check_csf(_string(body.get("csf"), "csf") or params.get("csf"))
     methods = (
         _joined(temporal.get("aggrMethods"), "aggrMethods")
         or _joined(body.get("aggrMethods"), "aggrMethods")
@@ -152,10 +163,55 @@ def query_from_body(
     options, fmt = params.get("options"), params.get("format")
     if methods not in (None, "") and options in (None, "") and fmt in (None, ""):
         fmt = Format.AGGREGATED.value  # a TemporalQuery's aggrMethods ask for aggregation (clause 5.2.21)
-    query = _representation(query, options, fmt, methods, period)
+    query = _representation(query, options, fmt, methods, period, BadRequestData)
+    check_as_of(query, timerel=temporal.get("timerel"))
     query = _paging(query, params, limits)
     require_filter(query)
     return query
+
+
+def check_instances(query: TemporalQuery) -> None:
+    """``firstN`` (oldest first) and ``lastN`` (newest first) exclude each
+    other (TS 104 176 clause 6.4.7.3: a page runs one way)."""
+    if query.last_n is not None and query.first_n is not None:
+        raise BadRequestData("lastN and firstN exclude each other: firstN pages oldest first, lastN newest first")
+
+
+def check_as_of(query: TemporalQuery, timerel) -> None:
+    """``asOf`` (our extension: the state at an instant) is its own window
+    and its own instances: not with ``timerel``, ``lastN``, ``firstN``,
+    ``offsetN`` or aggregation."""
+    if query.as_of is None:
+        return
+    clashing = [
+        name
+        for name, given in (
+            ("timerel", timerel not in (None, "")),
+            ("lastN", query.last_n is not None),
+            ("firstN", query.first_n is not None),
+            ("offsetN", query.offset_n is not None or query.stored_through is not None),
+            ("aggregatedValues", query.format is Format.AGGREGATED),
+        )
+        if given
+    ]
+    if clashing:
+        raise BadRequestData(
+            f"asOf (the state at an instant: each attribute's latest instance at or before it) cannot be combined "
+            f"with {', '.join(clashing)}"
+        )
+
+
+def check_csf(raw: str | None) -> None:
+    """``csf`` (clause 4.9's grammar over registration members): checked,
+    and a query that is not one is a 400; one that is selects among
+    context source registrations, of which this service has none, so the
+    answer is the local history, as with ``local=true``."""
+    if raw in (None, ""):
+        return
+    try:
+        qlang.parse(str(raw))
+    except qlang.QueryError as exc:
+        raise BadRequestData(f"invalid csf: {exc}") from None
 
 
 def check_projection(query: TemporalQuery) -> None:
@@ -234,6 +290,11 @@ def window(timerel, time_at, end_time_at, timeproperty) -> Window:
     return Window("between", at, end, prop)
 
 
+def _as_of(raw: str | None):
+    """``asOf``: a DateTime (clause 4.6.3), or None."""
+    return None if raw in (None, "") else _time(raw, "asOf")
+
+
 def _time(raw: Any, name: str):
     if not isinstance(raw, str):
         raise BadRequestData(f"{name} must be a date-time string")
@@ -287,9 +348,38 @@ def _selectors(raw: Any, terms: TermMap) -> tuple[Selector, ...]:
 # --- attributes, q, geo -------------------------------------------------------------
 
 
+# Members the system keeps for every attribute or entity (clauses 4.8, 5.2.2):
+# no attribute of an entity is named so.
+SYSTEM_MEMBERS = frozenset({"createdAt", "modifiedAt", "deletedAt", "observedAt", "id", "type", "@id", "@type"})
+_CORE = "https://uri.etsi.org/ngsi-ld/"
+
+
 def _names(raw: str | None, name: str, terms: TermMap) -> tuple[str, ...] | None:
+    """``attrs``: attribute names, expanded; one naming only system members
+    (``attrs=createdAt``) asks for no attribute at all: BadRequestData."""
     items = _list(raw, name)
-    return None if items is None else tuple(dict.fromkeys(terms.expand_all(items)))
+    if items is None:
+        return None
+    _no_linked_entities(items, name)
+    iris = terms.expand_all(items)
+    system = {_CORE + member for member in SYSTEM_MEMBERS} | SYSTEM_MEMBERS
+    if all(item in SYSTEM_MEMBERS or iri in system for item, iri in zip(items, iris, strict=True)):
+        raise BadRequestData(
+            f"{name} names only system members ({', '.join(i[:40] for i in items[:5])}): they are no attributes; "
+            "ask for sysAttrs in options to see createdAt and modifiedAt"
+        )
+    return tuple(dict.fromkeys(iris))
+
+
+def _no_linked_entities(items: tuple[str, ...], name: str) -> None:
+    """Linked-entity projection (``owner{name}``, V1.9.1's linked-entity
+    retrieval) is not part of the temporal API: BadRequestData, not a name
+    no attribute has."""
+    braced = next((item for item in items if "{" in item or "}" in item), None)
+    if braced is not None:
+        raise BadRequestData(
+            f"{name} {braced[:80]!r}: linked-entity projection ({{...}}) is not supported by the temporal API"
+        )
 
 
 def _projection(raw: str | None, name: str, terms: TermMap) -> tuple[str, ...] | None:
@@ -297,6 +387,7 @@ def _projection(raw: str | None, name: str, terms: TermMap) -> tuple[str, ...] |
     items = _list(raw, name)
     if items is None:
         return None
+    _no_linked_entities(items, name)
     attrs = [i for i in items if i not in ("id", "type")]
     expanded = dict(zip(attrs, terms.expand_all(attrs), strict=True))
     return tuple(dict.fromkeys(i if i in ("id", "type") else expanded[i] for i in items))
@@ -351,12 +442,15 @@ def languages(raw: str | None) -> tuple[tuple[str, float], ...] | None:
     return tuple((tag, q) for tag, q, _ in ranges)
 
 
-def _representation(query: TemporalQuery, options, fmt, methods, period) -> TemporalQuery:
+def _representation(query: TemporalQuery, options, fmt, methods, period, invalid: type[BadRequest]) -> TemporalQuery:
     """``format`` wins over ``options``; ``temporalValues,aggregatedValues``
     together mean aggregation (a common Grafana plugin sends both). An
     unknown ``format`` or option is an InvalidRequest (a parameter value
     outside its grammar); ``aggrMethods`` and ``aggrPeriodDuration`` are
-    checked, and used only when aggregating."""
+    checked, and used only when aggregating: an unknown method or a
+    duration that is none is ``invalid``'s error (InvalidRequest in a query
+    string, as ``format`` and ``options``; BadRequestData in a ``Query``
+    body, a TemporalQuery member that does not meet clause 5.2.21)."""
     opts = _list(options, "options") or ()
     unknown = [o for o in opts if o not in OPTIONS]
     if unknown:
@@ -377,11 +471,11 @@ def _representation(query: TemporalQuery, options, fmt, methods, period) -> Temp
         chosen = Format.CONCISE
     aggregation = None
     if chosen is Format.AGGREGATED:
-        aggregation = Aggregation(_methods(methods), parse_duration(period))
+        aggregation = Aggregation(_methods(methods, invalid), parse_duration(period, invalid))
     else:
         if methods not in (None, ""):
-            _methods(methods)
-        parse_duration(period)
+            _methods(methods, invalid)
+        parse_duration(period, invalid)
     return replace(
         query,
         format=chosen,
@@ -391,17 +485,17 @@ def _representation(query: TemporalQuery, options, fmt, methods, period) -> Temp
     )
 
 
-def _methods(raw) -> tuple[str, ...]:
+def _methods(raw, invalid: type[BadRequest] = BadRequestData) -> tuple[str, ...]:
     items = _list(raw, "aggrMethods")
     if not items:
         raise BadRequestData("aggregatedValues needs aggrMethods")
     bad = [m for m in items if m not in AGGR_METHODS]
     if bad:
-        raise BadRequestData(f"unknown aggrMethods {', '.join(b[:40] for b in bad)}: use {', '.join(AGGR_METHODS)}")
+        raise invalid(f"unknown aggrMethods {', '.join(b[:40] for b in bad)}: use {', '.join(AGGR_METHODS)}")
     return tuple(dict.fromkeys(items))
 
 
-def parse_duration(raw) -> Duration:
+def parse_duration(raw, invalid: type[BadRequest] = BadRequestData) -> Duration:
     """ISO 8601 ``PnYnMnWnDTnHnMnS`` (weeks may mix with the rest, as many
     parsers allow); absent means ``PT0S``, the whole window."""
     if raw in (None, ""):
@@ -409,12 +503,12 @@ def parse_duration(raw) -> Duration:
     text = str(raw).strip()
     match = _DURATION.match(text)
     if not match or text in ("P", "PT") or text.endswith("T"):
-        raise BadRequestData(f"aggrPeriodDuration must be an ISO 8601 duration such as PT1H or P1M, not {text[:40]!r}")
+        raise invalid(f"aggrPeriodDuration must be an ISO 8601 duration such as PT1H or P1M, not {text[:40]!r}")
     y, mo, w, d, h, mi, s = match.groups()
     try:
         seconds = Decimal((s or "0").replace(",", "."))
     except InvalidOperation:
-        raise BadRequestData(f"bad seconds in aggrPeriodDuration {text[:40]!r}") from None
+        raise invalid(f"bad seconds in aggrPeriodDuration {text[:40]!r}") from None
     months = int(y or 0) * 12 + int(mo or 0)
     days = int(w or 0) * 7 + int(d or 0)
     micros = (int(h or 0) * 3600 + int(mi or 0) * 60) * 1_000_000 + int(seconds * 1_000_000)
@@ -453,16 +547,6 @@ def _order(raw: str | None) -> bool:
     if len(directions) > 1:
         raise BadRequestData(f"orderBy names id twice in two directions: {raw[:80]!r}")
     return directions.pop()
-
-
-def _refuse_unsupported(params: Mapping[str, str]) -> None:
-    if params.get("csf") not in (None, ""):
-        raise OperationNotSupported("csf is not supported: there are no context sources here")
-    if params.get("offsetN") not in (None, ""):
-        raise OperationNotSupported(
-            "offsetN is not supported: page through instances with firstN or lastN and "
-            "timerel, following the Content-Range of a 206 answer"
-        )
 
 
 # --- small parsers ------------------------------------------------------------------

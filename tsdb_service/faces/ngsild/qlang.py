@@ -10,17 +10,27 @@ Grammar (clause 4.9, with ``;`` binding tighter than ``|``)::
 
     query   = and *("|" and)
     and     = atom *(";" atom)
-    atom    = "(" query ")" / term
+    atom    = "(" query ")" / "!" path / term
     term    = path [op value]
-    path    = name *("." name) ["[" name *("." name) "]"]
+    path    = name *("." name) *("[" member *("." member) "]")
+    member  = name / "*"
     op      = "==" / "!=" / ">=" / ">" / "<=" / "<" / "~=" / "!~="
     value   = number / quoted string / date-time / true / false / URI
             / value "," value ... (a list, == and != only)
             / comparable ".." comparable (a range, == and != only)
 
-``a.b`` names sub-property ``b`` of attribute ``a``; ``a[k.l]`` the member
-``k.l`` inside ``a``'s value. Attribute names are terms, expanded with the
-request's @context by the caller (``Term.attr``).
+``a.b`` names sub-property ``b`` of attribute ``a``; ``a[k.l]`` (or
+``a[k][l]``) the member ``k.l`` inside ``a``'s value: for a
+LanguageProperty ``name[en]`` is its English string, ``name[*]`` any of
+its strings (clause 4.9); ``*`` is any member of an object, every element
+of an array. ``!a`` holds when ``a`` does not (the attribute has no
+value). Attribute names are terms, expanded with the request's @context by
+the caller (``Term.attr``).
+
+A value that is an array matches a term when one of its elements does;
+``!=`` and ``!~=`` against an array hold only when no element is equal (or
+matches). Linked-entity projection (``owner{name}``, V1.9.1's linked-entity
+retrieval) is not part of the temporal API's ``q``: it is refused.
 """
 
 from __future__ import annotations
@@ -39,7 +49,7 @@ MAX_DEPTH = 32
 OPERATORS = ("==", "!=", ">=", ">", "<=", "<", "~=", "!~=")
 _NUMBER = re.compile(r"-?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?$")
 _DATETIME = re.compile(r"\d{4}-\d{2}-\d{2}(?:T\d{2}:\d{2}(?::\d{2}(?:\.\d+)?)?(?:Z|[+-]\d{2}:?\d{2})?)?$")
-_NAME_STOP = set(';|()[].=!<>~",') | {" "}
+_NAME_STOP = set(';|()[].=!<>~",{}*') | {" "}
 
 
 class QueryError(ValueError):
@@ -69,7 +79,9 @@ class Term:
             return value is not None
         if value is None:
             return False
-        if isinstance(value, list):  # an array matches when one of its elements does
+        if isinstance(value, list):  # an array matches when one of its elements does;
+            if self.op in NEGATIONS:  # != (!~=) holds when none is equal (matches)
+                return all(self.matches(v) for v in value)
             return any(self.matches(v) for v in value)
         op = self.op
         if op in ("~=", "!~="):
@@ -98,19 +110,42 @@ class Or:
     parts: tuple[Node, ...]
 
 
-Node = Term | And | Or
+@dataclass(frozen=True, slots=True)
+class Not:
+    """``!a``: the term (an existence test) does not hold."""
+
+    part: Term
+
+
+Node = Term | And | Or | Not
+NEGATIONS = ("!=", "!~=")
+ORDERING = (">", ">=", "<", "<=")
 
 
 def terms(node: Node) -> list[Term]:
     """Every term of ``node``, left to right."""
     if isinstance(node, Term):
         return [node]
+    if isinstance(node, Not):
+        return [node.part]
     return [t for part in node.parts for t in terms(part)]
+
+
+def negates(node: Node) -> bool:
+    """Does ``node`` hold anywhere through a ``!``? (Then it may hold
+    without any instance of its attributes.)"""
+    if isinstance(node, Term):
+        return False
+    if isinstance(node, Not):
+        return True
+    return any(negates(part) for part in node.parts)
 
 
 def evaluate(node: Node, holds: Callable[[Term], bool]) -> bool:
     if isinstance(node, Term):
         return holds(node)
+    if isinstance(node, Not):
+        return not holds(node.part)
     if isinstance(node, And):
         return all(evaluate(p, holds) for p in node.parts)
     return any(evaluate(p, holds) for p in node.parts)
@@ -120,6 +155,8 @@ def map_attrs(node: Node, expand: Callable[[str], str]) -> Node:
     """``node`` with every term's attribute name passed through ``expand``."""
     if isinstance(node, Term):
         return replace(node, attr=expand(node.attr))
+    if isinstance(node, Not):
+        return Not(replace(node.part, attr=expand(node.part.attr)))
     return type(node)(tuple(map_attrs(p, expand) for p in node.parts))
 
 
@@ -167,6 +204,13 @@ class _Parser:
                 raise QueryError(f"missing ')' at position {self.pos}")
             self.pos += 1
             return node
+        if self.peek("!"):
+            self.pos += 1
+            where = self.pos
+            negated = self.term()
+            if negated.op is not None:
+                raise QueryError(f"'!' at position {where - 1} negates an attribute's existence only (!attr)")
+            return Not(negated)
         return self.term()
 
     def term(self) -> Term:
@@ -176,15 +220,19 @@ class _Parser:
             self.pos += 1
             names.append(self.name())
         inner: list[str] = []
-        if self.peek("["):
+        while self.peek("["):
             self.pos += 1
-            inner.append(self.name())
+            inner.append(self.member())
             while self.peek("."):
                 self.pos += 1
-                inner.append(self.name())
+                inner.append(self.member())
             if not self.peek("]"):
                 raise QueryError(f"missing ']' at position {self.pos}")
             self.pos += 1
+        if self.peek("{"):
+            raise QueryError(
+                f"linked-entity projection ({{...}}, at position {self.pos}) is not supported by the temporal API"
+            )
         op = next((o for o in sorted(OPERATORS, key=len, reverse=True) if self.peek(o)), None)
         if op is None:
             return Term(names[0], tuple(names[1:]), tuple(inner))
@@ -193,6 +241,13 @@ class _Parser:
         if not raw:
             raise QueryError(f"missing value after {op!r} at position {self.pos}")
         return Term(names[0], tuple(names[1:]), tuple(inner), op, _value(op, raw, start))
+
+    def member(self) -> str:
+        """A member name inside ``[...]``, or ``*``: any member."""
+        if self.peek("*"):
+            self.pos += 1
+            return "*"
+        return self.name()
 
     def name(self) -> str:
         start = self.pos

@@ -49,6 +49,8 @@ class Window:
     start: datetime | None = None
     end: datetime | None = None
     timeproperty: TimeProperty = TimeProperty.OBSERVED_AT
+    # (sid, start, end): series narrowed to spans of time (``InstanceWindow.spans``), from ``scopeQ``
+    spans: tuple[tuple[int, datetime | None, datetime | None], ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,7 +140,10 @@ class TemporalQuery:
     geo: GeoQuery | None = None
     dataset_ids: tuple[str, ...] | None = None
     last_n: int | None = None
-    first_n: int | None = None  # the firstN draft: the oldest N per attribute
+    first_n: int | None = None  # TS 104 176: the oldest N per attribute
+    offset_n: int | None = None  # TS 104 176: skip N instances per attribute (firstN/lastN order)
+    stored_through: int | None = None  # our links: the instances stored when a walk through pages began
+    as_of: datetime | None = None  # our extension: each attribute's latest instance at or before it
     format: Format = Format.NORMALIZED
     aggregation: Aggregation | None = None
     sys_attrs: bool = False
@@ -148,6 +153,14 @@ class TemporalQuery:
     count: bool = False
     descending: bool = False  # orderBy=id;desc
     local: bool = False
+
+    @property
+    def paged_by_rank(self) -> bool:
+        """Does the request use TS 104 176's temporal pagination (clause
+        6.4.7.3: ``firstN`` or ``offsetN``, or a link of ours that continues
+        one)? Then every answer is 200 with ``Link`` intervals; otherwise
+        V1.9.1's (clause 6.3.10): 206 and ``Content-Range`` past the cap."""
+        return self.first_n is not None or self.offset_n is not None or self.stored_through is not None
 
     @property
     def wanted_attrs(self) -> tuple[str, ...] | None:

@@ -25,7 +25,7 @@ from tsdb_service.faces.ngsild import openapi as ld_oa
 from tsdb_service.faces.ngsild.context import JSONLD_CONTEXT_REL, ContextStore, TermMap, link_context
 from tsdb_service.faces.ngsild.params import query_from_body, query_from_params
 from tsdb_service.faces.ngsild.query import TemporalQuery
-from tsdb_service.faces.ngsild.service import Cut, TemporalResult, run
+from tsdb_service.faces.ngsild.service import Cut, PageLink, TemporalResult, run
 from tsdb_service.http.store import store_of
 from tsdb_service.http.tenancy import caller_of, tenant_echo, tenant_of
 
@@ -186,6 +186,7 @@ def _respond(request: Request, media: str, terms: TermMap, result: TemporalResul
         headers["Content-Range"] = result.cut.content_range
         if result.cut.window is not None and request.method == "GET":
             links.append(_continuation(request, result.cut))
+    links += [_interval(request, page, media) for page in result.pages]
     if links:
         headers["Link"] = ", ".join(links)
     body = result.entities if many else result.entities[0]
@@ -201,6 +202,15 @@ def _continuation(request: Request, cut: Cut) -> str:
     params = [(k, v) for k, v in request.query_params.multi_items() if k not in ("timerel", "timeAt", "endTimeAt")]
     params += [("timerel", timerel), ("timeAt", iso(at))] + ([("endTimeAt", iso(end))] if end is not None else [])
     return f'<{request.url.path}?{urlencode(params)}>; rel="{cut.rel}"'
+
+
+def _interval(request: Request, page: PageLink, media: str) -> str:
+    """A page of TS 104 176's temporal pagination (clause 6.4.7.3): the same
+    request with the page's ``offsetN`` and ``storedThrough`` (a POST's
+    body is sent again to the link, whose query string carries them)."""
+    changed = {name for name, _ in page.params}
+    params = [(k, v) for k, v in request.query_params.multi_items() if k not in changed]
+    return f'<{request.url.path}?{urlencode([*params, *page.params])}>; rel="{page.rel}"; type="{media}"'
 
 
 def _page_links(request: Request, query, total: int) -> list[str]:

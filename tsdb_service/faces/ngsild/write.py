@@ -253,7 +253,11 @@ class _Names:
                 out.setdefault(self.stored(name), []).extend(raw if type(raw) is list else [raw])
         if "scope" in doc:
             scopes(doc["scope"])  # checked, stored as sent (a string or an array)
-            out.setdefault("scope", []).append({"type": "Property", "value": doc["scope"]})
+            scope: dict[str, Any] = {"type": "Property", "value": doc["scope"]}
+            first = _first_observed(out)
+            if first is not None:  # the scope holds for the instances it came with (faces.ngsild.service)
+                scope["observedAt"] = first
+            out.setdefault("scope", []).append(scope)
         return out
 
 
@@ -289,6 +293,41 @@ async def _body(request: Request) -> dict:
             "or send the body as application/ld+json"
         )
     return doc
+
+
+def _first_observed(attrs: dict[str, list]) -> str | None:
+    """The earliest ``observedAt`` among a write's instances, as sent."""
+    found = [
+        (moment, text)
+        for raw in attrs.values()
+        for instance in raw
+        if type(instance) is dict and isinstance(text := instance.get("observedAt"), str)
+        for moment in (_utc(text, "observedAt"),)
+        if moment is not None
+    ]
+    return min(found)[1] if found else None
+
+
+# The DateTimes of an instance that tell when (clause 4.8): UTC, like every
+# NGSI-LD DateTime (clause 4.6.3); an offset other than Z (or +00:00) is refused
+# on a write rather than silently moved to UTC.
+_UTC_MEMBERS = ("observedAt", "deletedAt")
+
+
+def _utc(text: str, member: str) -> datetime | None:
+    """``text`` as a UTC DateTime; BadRequestData for another offset. None
+    when it is no DateTime at all (the instance's own parser says why)."""
+    try:
+        moment = datetime.fromisoformat(text.replace("Z", "+00:00").replace("z", "+00:00"))
+    except ValueError:
+        return None
+    offset = moment.utcoffset()
+    if offset is not None and offset.total_seconds() != 0:
+        raise BadRequestData(
+            f"{member} {text[:60]!r} has the offset {moment.strftime('%z')}: NGSI-LD DateTimes are UTC "
+            "(clause 4.6.3), e.g. 2020-08-01T12:03:00Z"
+        )
+    return moment.replace(tzinfo=UTC) if offset is None else moment
 
 
 def _types(value: Any) -> tuple[str, ...]:
@@ -342,6 +381,10 @@ _SYSTEM_MEMBERS = ("@context", "createdAt", "modifiedAt")
 
 
 def _instance_sample(name: str, raw: Any, keep_instance_id: bool = True) -> AttrSample:
+    if type(raw) is dict:
+        for member in _UTC_MEMBERS:
+            if isinstance(raw.get(member), str):
+                _utc(raw[member], member)
     if type(raw) is dict and "instanceId" in raw:
         instance_id = raw["instanceId"]
         uri(instance_id, "an instanceId")
@@ -404,17 +447,19 @@ async def _existing(request: Request, tenant: str, entity_id: str) -> list[Serie
 
 
 def _entity_type(existing: Sequence[SeriesRef], types: Sequence[str], entity_id: str) -> str:
-    """The stored type: the one already stored (if the body names types, one
-    of them must be it), else the body's first."""
+    """The type the write's instances are stored under. An entity's types
+    are the union of those it was written with (clauses 4.16, 5.6.11: an
+    upsert unites the types): the reads take every stored type of an id as
+    its types. So a write naming a type the entity does not have yet is
+    stored under that type (the first such), one naming only known types
+    under its first, one naming none under the stored type."""
     stored = sorted({r.entity_type for r in existing})
-    if not stored:
-        if not types:
-            raise BadRequestData("the entity needs a type")
-        return types[0]
-    match = [t for t in stored if not types or t in types]
-    if not match:
-        raise BadRequestData(f"entity {entity_id[:200]!r} is stored with type {stored[0]!r}, not {types[0]!r}")
-    return match[0]
+    if not types:
+        if not stored:
+            raise BadRequestData(f"entity {entity_id[:200]!r} needs a type")
+        return stored[0]
+    new = [t for t in types if t not in stored]
+    return new[0] if new else types[0]
 
 
 async def _named(request: Request, existing: Sequence[SeriesRef], attr_id: str) -> list[SeriesRef]:

@@ -4,10 +4,17 @@ The body is Orion's query form: ``{"entities": [{"id" | "idPattern",
 "type"?}], "attrs": [...]}``. Each entity comes back as ``{"id", "type",
 attr: {"type", "value"}, ..., "dateModified": {"type": "DateTime", "value"}}``,
 with every attribute at its latest stored value.
+
+``?asOf=`` (our extension; QuantumLeap has no such read) answers the same
+entities as they were at that instant: each attribute at its latest value
+at or before it, with the time of that value as its ``dateModified``
+metadata; entities with no value by then are left out. Reconstructing a
+fleet at the moment of an incident is one request.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import partial
 
 import orjson
@@ -21,7 +28,7 @@ from tsdb_service.history.valuepath import parse_value_path
 from tsdb_service.http.responses import JSON
 from tsdb_service.http.store import store_of
 from tsdb_service.http.tenancy import tenant_of
-from tsdb_service.parse.request_context import MAX_IDS, check_id, id_pattern, service_paths
+from tsdb_service.parse.request_context import MAX_IDS, check_id, id_pattern, parse_time, service_paths
 
 router = APIRouter(tags=["op"])
 
@@ -34,6 +41,9 @@ router = APIRouter(tags=["op"])
 async def op_query(request: Request) -> JSON:
     body = await request.body()  # at most TSDB_MAX_REQUEST_BODY_BYTES (http.bodies)
     query = last_value_query(body, tenant_of(request), request.headers.get("fiware-servicepath"))
+    as_of = request.query_params.get("asOf")
+    if as_of not in (None, ""):
+        query = replace(query, as_of=parse_time(as_of, "asOf"))
     store = store_of(request)
     entities = await store.read(partial(run_last_values, store.querier(), query), memory_first=False)
     return JSON(entities)

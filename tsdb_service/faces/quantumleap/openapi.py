@@ -21,6 +21,7 @@ from tsdb_service.http.openapi import (
     STR,
     STRS,
     TENANCY,
+    TIME,
     TO_DATE,
     TYPE,
     array,
@@ -167,6 +168,12 @@ OP_QUERY = spec(
     FIWARE_SERVICE,
     NGSILD_TENANT,
     SERVICE_PATH_QUERY,
+    query(
+        "asOf",
+        "Our extension: the entities as they were at this instant (ISO 8601; naive means UTC), each attribute at "
+        "its latest value at or before it, with that value's time as its dateModified metadata.",
+        TIME,
+    ),
     ok_=ok(ref_array("LastValueEntity")),
     errors_=READ_ERRORS,
     body=json_body(
@@ -235,8 +242,19 @@ SCHEMAS: dict[str, dict] = {
     "LastValueEntity": obj(
         ("id", "type", "dateModified"),
         {"id": STR, "type": STR},
-        extra=obj(("type", "value"), {"type": STR, "value": ANY}),
-        description="An entity at its latest values, NGSIv2 normalized form",
+        extra=obj(
+            ("type", "value"),
+            {
+                "type": STR,
+                "value": ANY,
+                "metadata": obj(
+                    ("dateModified",),
+                    {"dateModified": obj(("type", "value"), {"type": STR, "value": STR})},
+                    description="with asOf: when the attribute took the value it had then",
+                ),
+            },
+        ),
+        description="An entity at its latest values (with asOf: at its values then), NGSIv2 normalized form",
     ),
 }
 

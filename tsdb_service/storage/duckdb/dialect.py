@@ -81,6 +81,13 @@ class DuckDBDialect(SqlDialect):
         # unnest() in a SELECT list zips arrays of equal length.
         return "(SELECT unnest(?::BIGINT[]) AS lo, unnest(?::BIGINT[]) AS hi) per"
 
+    def spans_relation(self) -> str:
+        # unnest() in a SELECT list zips arrays of equal length.
+        return (
+            "(SELECT unnest(?::INTEGER[]) AS s_sid, unnest(?::TIMESTAMP[]) AS s_start, "
+            "unnest(?::TIMESTAMP[]) AS s_end) AS sp"
+        )
+
     def mask_relation(self) -> str:
         # unnest() in a SELECT list zips arrays of equal length.
         return (

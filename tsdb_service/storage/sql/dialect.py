@@ -111,6 +111,12 @@ class SqlDialect:
     def json_array_length(self, col: str) -> str:
         """SQL: the length of the JSON array in text column ``col``."""
 
+    def spans_relation(self) -> str:
+        """A FROM item of three bound arrays zipped into rows ``(s_sid,
+        s_start, s_end)`` (``InstanceWindow.spans``)."""
+        p = self.placeholder
+        return f"unnest({p}::integer[], {p}::timestamp[], {p}::timestamp[]) AS sp(s_sid, s_start, s_end)"
+
     @abstractmethod
     def periods_relation(self) -> str:
         """A FROM item of two bound BIGINT arrays zipped into rows

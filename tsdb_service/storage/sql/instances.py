@@ -13,6 +13,7 @@ from tsdb_service.read.requests import (
     InstanceAggregateRead,
     InstanceLocations,
     InstanceLookup,
+    InstancePage,
     InstancesIn,
     InstancesMatching,
     InstancesRead,
@@ -63,6 +64,45 @@ class SqlInstances(SqlReads, SeparateScans, TemporalReader):
         if limit is not None:
             sql += f" ORDER BY {order} LIMIT {p}"
             params.append(min(limit, MAX_BIGINT))
+        return self._instance_rows(sids, self._fetch(sql, params))
+
+    def instance_page(self, ask: InstancePage) -> tuple[list[InstanceRow], int | None]:
+        """See ``TemporalReader``: each series' instances ranked in the
+        window (``row_number``), those of the page's ranks read rank by rank
+        (``ORDER BY rn``) up to the limit, with the window's largest
+        instance id (``max(iid) OVER ()``, before the ranks are cut)."""
+        sids = ask.sids
+        if not sids:
+            return [], ask.through_iid
+        d = self.dialect
+        p = d.placeholder
+        at, in_window, window_params = temporal.window_filter(d, ask.window, self._untimed(sids, ask.window))
+        where, params = d.sid_filter(sids)
+        where += f" AND {in_window}"
+        params += window_params
+        if ask.through_iid is not None:
+            where += f" AND iid <= {p}"
+            params.append(min(ask.through_iid, MAX_BIGINT))
+        direction = "ASC" if ask.ascending else "DESC"
+        inner = (
+            f"SELECT {_INSTANCE_SELECT.format(at=at)}, "
+            f"row_number() OVER (PARTITION BY sid ORDER BY {at} {direction}, iid {direction}) AS rn, "
+            f"max(iid) OVER () AS top FROM {d.samples(_INSTANCE_COLUMNS)} WHERE {where}"
+        )
+        ranks = f"rn > {p}"
+        params.append(min(ask.offset, MAX_BIGINT))
+        if ask.size is not None:
+            ranks += f" AND rn <= {p}"
+            params.append(min(ask.offset + ask.size, MAX_BIGINT))
+        sql = f"SELECT {_INSTANCE_NAMES}, top FROM ({inner}) ranked WHERE {ranks} ORDER BY rn, sid LIMIT {p}"
+        params.append(min(ask.limit, MAX_BIGINT))
+        fetched = self._fetch(sql, params)
+        top = ask.through_iid if ask.through_iid is not None else max((row[-1] for row in fetched), default=None)
+        return self._instance_rows(sids, [row[:-1] for row in fetched]), top
+
+    def _instance_rows(self, sids: Sequence[int], fetched: list[tuple]) -> list[InstanceRow]:
+        """Driver rows (``_INSTANCE_NAMES``) as ``InstanceRow``, sorted by
+        (sid, time property, instance id), with their series' datasetId."""
         refs = self.catalog.refs(sids)
         rows = [
             InstanceRow(
@@ -82,7 +122,7 @@ class SqlInstances(SqlReads, SeparateScans, TemporalReader):
                 js,
                 md,
             )
-            for sid, iid, at_, t, obs, cre, mod, dele, kind, atype, num, txt, js, md in self._fetch(sql, params)
+            for sid, iid, at_, t, obs, cre, mod, dele, kind, atype, num, txt, js, md in fetched
             for ref in (refs.get(sid),)
         ]
         rows.sort(key=_instance_order)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from tsdb_service.core.query import LastValueRow, LatestRow, RawRow
-from tsdb_service.read.requests import RowsRead, SamplesIn
+from tsdb_service.read.requests import RowsRead, SamplesIn, ValuesAt
 from tsdb_service.read.samples import SampleReader
 from tsdb_service.storage.rollups import rolled_up_count
 from tsdb_service.storage.sql.dialect import MAX_BIGINT, latest_per_series, rows_as
@@ -72,14 +72,26 @@ class SqlSamples(SqlReads, SampleReader):
         return as_latest(self._fetch(sql, params))
 
     def last_values(self, sids: Sequence[int]) -> list[LastValueRow]:
+        return self._latest(sids, "", [])
+
+    def values_at(self, ask: ValuesAt) -> list[LastValueRow]:
+        """See ``SampleReader``: ``last_values`` among the samples at or
+        before the instant (an index on (sid, t) serves it on PostgreSQL)."""
+        d = self.dialect
+        return self._latest(ask.sids, f" AND t <= {d.placeholder}", [d.time_value(ask.at)])
+
+    def _latest(self, sids: Sequence[int], where_more: str, params_more: list) -> list[LastValueRow]:
+        """Each series' newest sample among those matching ``where_more``."""
         if not sids:
             return []
         d = self.dialect
         where, params = d.sid_filter(sids)
         source = d.samples("sid, rid, t, kind, atype, num, txt, js")
         columns = "kind, atype, num, txt, js"
-        sql = latest_per_series(f"sid, {d.iso_ms('t')}, {columns}", source, where, inner=f"sid, t, {columns}")
-        return as_last_values(self._fetch(sql, params))
+        sql = latest_per_series(
+            f"sid, {d.iso_ms('t')}, {columns}", source, where + where_more, inner=f"sid, t, {columns}"
+        )
+        return as_last_values(self._fetch(sql, [*params, *params_more]))
 
     def count(self, ask: SamplesIn) -> int:
         """See ``SampleReader``; the rolled-up hours come from ``storage.rollups``."""

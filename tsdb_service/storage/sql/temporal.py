@@ -15,11 +15,13 @@ series, see ``storage.duckdb.querier``).
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
 from typing import TYPE_CHECKING
 
 from tsdb_service.core.model import Kind
 from tsdb_service.core.query import (
     ANY_INSTANCE,
+    ARRAY_INSTANCE,
     InstancePeriods,
     InstanceWindow,
     LocationProbe,
@@ -47,6 +49,7 @@ _NUMERIC = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
 _TEXT = f"{int(Kind.TEXT)}, {int(Kind.RELATIONSHIP)}"
 _NULL = int(Kind.NULL)
 _GEO = int(Kind.GEO)
+_STRUCTURED = int(Kind.STRUCTURED)
 _SQL_OPS = {"==": "=", ">": ">", ">=": ">=", "<": "<", "<=": "<="}
 _TIME_COLUMNS = "sid, t, observed_at, created_at, modified_at, deleted_at"
 _COUNTS = ("totalCount", "distinctCount")
@@ -63,7 +66,16 @@ def window_filter(d: SqlDialect, window: InstanceWindow, untimed: Sequence[int] 
     every instance of the selected series. ``untimed``: the only series
     that can hold instances without observedAt, when the backend knows
     them (PostgreSQL, migration 0009); the row time is tested for those
-    alone, and not at all when there are none. None: any series can."""
+    alone, and not at all when there are none. None: any series can.
+    The window's ``spans`` narrow the series they list (``spans_filter``)."""
+    expr, where, params = _window_only(d, window, untimed)
+    if window.spans:
+        narrowed, more = spans_filter(d, expr, window.spans)
+        where, params = f"{where} AND {narrowed}", [*params, *more]
+    return expr, where, params
+
+
+def _window_only(d: SqlDialect, window: InstanceWindow, untimed: Sequence[int] | None) -> tuple[str, str, list]:
     expr = TIME_PROPERTY_SQL[window.timeproperty]
     if window.timeproperty != "observedAt":
         in_window, params = _in_window(d, expr, window)
@@ -79,6 +91,28 @@ def window_filter(d: SqlDialect, window: InstanceWindow, untimed: Sequence[int] 
         row_time, params_t = f"{listed} AND {row_time}", [*params_u, *params_t]
     where = f"((observed_at IS NOT NULL AND {observed}) OR (observed_at IS NULL AND {row_time}))"
     return expr, where, [*params_o, *params_t]
+
+
+# Open ends of a span, as bound values: far outside any stored time.
+_SPAN_START = datetime(1, 1, 2, tzinfo=UTC)
+_SPAN_END = datetime(9999, 12, 30, tzinfo=UTC)
+
+
+def spans_filter(
+    d: SqlDialect, expr: str, spans: Sequence[tuple[int, datetime | None, datetime | None]]
+) -> tuple[str, list]:
+    """SQL: a series the spans do not list, or an instance (time property
+    ``expr``) inside one of its series' spans (``InstanceWindow.spans``).
+    ``sid`` is the enclosing query's column."""
+    listed, params_l = d.sid_filter(sorted({sid for sid, _, _ in spans}))
+    sids = [sid for sid, _, _ in spans]
+    starts = [d.time_value(start or _SPAN_START) for _, start, _ in spans]
+    ends = [d.time_value(end or _SPAN_END) for _, _, end in spans]
+    sql = (
+        f"(NOT ({listed}) OR EXISTS (SELECT 1 FROM {d.spans_relation()} "
+        f"WHERE s_sid = sid AND {expr} >= s_start AND {expr} < s_end))"
+    )
+    return sql, [*params_l, sids, starts, ends]
 
 
 def _in_window(d: SqlDialect, column: str, window: InstanceWindow) -> tuple[str, list]:
@@ -99,6 +133,8 @@ def value_test_sql(d: SqlDialect, test: ValueTest) -> tuple[str, list]:
         return f"kind <> {_NULL}", []
     if test.op == ANY_INSTANCE:
         return "TRUE", []
+    if test.op == ARRAY_INSTANCE:
+        return f"kind = {_STRUCTURED} AND substr(js, 1, 1) = '['", []
     op = _SQL_OPS[test.op]
     if isinstance(test.value, str):
         return f"kind IN ({_TEXT}) AND txt {op} {d.placeholder}", [test.value]
@@ -111,7 +147,7 @@ def matching_parts(
     """The series with an instance in ``window`` that passes ``test``."""
     _, where_t, params_t = window_filter(d, window, untimed)
     cond, params_c = value_test_sql(d, test)
-    table = d.samples(f"{_TIME_COLUMNS}, kind, num, txt")
+    table = d.samples(f"{_TIME_COLUMNS}, kind, num, txt, js")
     return f"SELECT DISTINCT sid FROM {table}", f"{where_t} AND {cond}", [*params_t, *params_c]
 
 
@@ -164,7 +200,7 @@ def scan_parts(
         params = [*params, *cond_params]
         sids.extend(test_sids)
         roles.extend([role] * len(test_sids))
-    columns = f"{_TIME_COLUMNS}, kind, num, txt, geo, min_lon, min_lat, max_lon, max_lat"
+    columns = f"{_TIME_COLUMNS}, kind, num, txt, js, geo, min_lon, min_lat, max_lon, max_lat"
     head = f"SELECT DISTINCT w_role, sid, CASE WHEN w_role = 0 THEN geo END FROM {d.samples(columns)}"
     return head, f"{where_t} AND ({' OR '.join(branches) or 'FALSE'})", params, sids, roles
 
