@@ -15,7 +15,8 @@ import httpx
 import pytest
 
 from tests.support.server import free_port
-from tests.support.standins import StandInBroker, served, serving
+from tests.support.serving import serving
+from tests.support.standins import StandInBroker, served
 
 QL = "http://tsdb-service:8668/v2"
 LOCAL = "http://127.0.0.1:"  # the stand-in broker is on loopback: allowed by TSDB_SUBSCRIBE_BROKER_ALLOW

@@ -6,7 +6,7 @@ subscriptions per tenant (201 + ``Location``), refuses a bad ``idPattern``
 with Orion's error shape and notifies like Orion; ``StandInOrion`` also takes
 entity updates (NGSIv2 ``op/update``, NGSI-LD batch upsert) and notifies every
 matching subscription with the whole entity. ``served`` runs one and sets its
-``url``; ``serving`` runs any ASGI app.
+``url`` (through ``tests.support.serving``).
 """
 
 from __future__ import annotations
