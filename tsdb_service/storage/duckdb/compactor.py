@@ -1,4 +1,5 @@
-"""The compactor: moves the hot rows into the table sorted by (series, time)."""
+"""The compactor: moves the hot rows into the table sorted by (series, time),
+and the hot rollup rows into their levels (``storage.rollups``)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,13 @@ import duckdb
 
 from tsdb_service.core.errors import first_line
 from tsdb_service.storage.duckdb.connection import rollback_quietly, scalar
+from tsdb_service.storage.duckdb.dialect import DuckDBDialect
+from tsdb_service.storage.rollups import HOT, merge_statements
+
+# Hot rollup rows are merged into their levels once there are this many
+# (readers combine them meanwhile; a few thousand cost a read nothing).
+MERGE_ROWS = 20_000
+_MERGE = merge_statements(DuckDBDialect(), 4 * MERGE_ROWS)
 
 log = logging.getLogger(__name__)
 
@@ -20,7 +28,9 @@ class Compactor:
     Moving hot rows is one transaction (insert sorted, delete moved), so a
     reader sees each sample exactly once. Only this thread touches
     ``samples``; the writer only appends to ``samples_hot``; the two never
-    conflict.
+    conflict. Likewise for rollups: the writer appends to ``rollups_hot``,
+    this thread merges those rows into the level tables (``_merge``), one
+    transaction at a time; deletes recompute rollups under its lock.
     """
 
     def __init__(
@@ -59,6 +69,8 @@ class Compactor:
                         self._move(cur)
                         if self._runs >= self._major_runs:
                             self._rewrite(cur)
+                    if scalar(cur, f"SELECT count(*) FROM {HOT}") >= MERGE_ROWS:
+                        self._merge(cur)
                 except Exception as exc:  # keep serving; compaction is an optimisation
                     rollback_quietly(cur)
                     if self._on_error is not None and self._on_error(exc) is not None:
@@ -74,8 +86,25 @@ class Compactor:
             self._move(cur)
             if full:
                 self._rewrite(cur)
+            while self._merge(cur):
+                pass
         finally:
             cur.close()
+
+    def _merge(self, cur: duckdb.DuckDBPyConnection) -> int:
+        """Hot rollup rows into their levels (``storage.rollups.merge_statements``);
+        how many moved."""
+        with self._lock:
+            cur.execute("BEGIN")
+            try:
+                for sql in _MERGE:
+                    cur.execute(sql)
+                moved = scalar(cur, "SELECT count(*) FROM rollups_moving")
+                cur.execute("COMMIT")
+            except Exception:
+                rollback_quietly(cur)
+                raise
+        return int(moved)
 
     def _move(self, cur: duckdb.DuckDBPyConnection) -> None:
         with self._lock:
