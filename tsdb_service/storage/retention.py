@@ -169,16 +169,17 @@ class RetentionWorker:
     def _apply(self, session, series, level: str, now: datetime, deleted: dict[str, int]) -> bool:
         """Every finite rule of one level; False when stopped midway."""
         kind = KINDS[level]
+        policy = self.config.policy
         groups: dict[str, dict[str, list[int]]] = {}
-        keeps: dict[str, timedelta] = {}
+        keeps: dict[str, timedelta] = {key: keep for key, named, keep in policy.rules if named == level and keep}
         for sid, tenant, entity_type in series:
-            rule, keep = self.config.policy.resolve(tenant, entity_type)[level]
+            rule, keep = policy.resolve(tenant, entity_type)[level]
             if rule is not None and keep is not None:
                 groups.setdefault(rule, {}).setdefault(tenant, []).append(sid)
                 keeps[rule] = keep
-        for rule in sorted(groups):
+        for rule in sorted(keeps):
             cutoff = (now - keeps[rule]).astimezone(UTC)
-            for tenant, sids in sorted(groups[rule].items()):
+            for tenant, sids in sorted(groups.get(rule, {}).items()):
                 tables = session.tables if level == RAW else (LEVEL_NAMED[level].table, HOT)
                 for table in tables:
                     if not self._drain(session, level, table, tenant, sids, cutoff, deleted):

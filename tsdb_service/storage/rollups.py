@@ -271,52 +271,66 @@ _COMPLETE = f"NOT EXISTS (SELECT 1 FROM {EXPIRED} e WHERE e.sid = r.sid AND e.up
 
 @dataclass(frozen=True, slots=True)
 class Redo:
-    """Which buckets of ``sids`` a recompute takes up: those meeting
-    ``time`` (inclusive, None: open) or holding the instance ``(sid, iid)``.
-    Of those, complete buckets are recomputed always; ``whole`` also
-    recomputes incomplete ones wholly inside ``time`` (a delete: from what
-    is left in them), ``every`` every one (a rebuild that drops what only
-    rollups held)."""
+    """Which buckets of ``sids`` a recompute takes up: those of their
+    rollup rows (and, ``from_raw``, of their raw samples) meeting ``time``
+    (inclusive, None: open), or holding the instance ``(sid, iid)``. Of
+    those, complete buckets are recomputed always; ``whole`` also recomputes
+    incomplete ones wholly inside ``time`` (a delete: from what is left in
+    them), ``every`` every one (a rebuild that drops what only rollups held)."""
 
     sids: Sequence[int]
     time: TimeRange = TimeRange()
     instance: tuple[int, int] | None = None
     whole: bool = False
     every: bool = False
+    from_raw: bool = False
 
 
 def _redo_keys(d: SqlDialect, redo: Redo) -> tuple[str, list]:
     """SELECT (level, sid, bucket) of the buckets ``redo`` recomputes."""
     p = d.placeholder
     parts, params = [], []
+    start, end = redo.time.start, redo.time.end
     for level in LEVELS:
         where, wparams = d.sid_filter(redo.sids)
         if redo.instance is not None:
             where += f" AND bucket = (SELECT date_trunc('{level.name}', t) FROM {d.samples('sid, iid, t')} "
             where += f"WHERE sid = {p} AND iid = {p})"
             wparams += list(redo.instance)
-            wanted = _COMPLETE
-        else:
-            start, end = redo.time.start, redo.time.end
+        if start is not None:
+            where += f" AND bucket > {p}"
+            wparams.append(d.time_value(start - level.width))
+        if end is not None:
+            where += f" AND bucket <= {p}"
+            wparams.append(d.time_value(end))
+        candidates = f"SELECT sid, bucket FROM {level.view} WHERE {where}"
+        if redo.from_raw:
+            raw_where, raw_params = d.sid_filter(redo.sids)
             if start is not None:
-                where += f" AND bucket > {p}"
-                wparams.append(d.time_value(start - level.width))
+                raw_where += f" AND t >= {p}"
+                raw_params.append(d.time_value(start))
             if end is not None:
-                where += f" AND bucket <= {p}"
-                wparams.append(d.time_value(end))
+                raw_where += f" AND t <= {p}"
+                raw_params.append(d.time_value(end))
+            candidates += (
+                f" UNION ALL SELECT sid, date_trunc('{level.name}', t) FROM {d.samples('sid, t')} WHERE {raw_where}"
+            )
+            wparams += raw_params
+        wanted = _COMPLETE
+        if redo.every:
+            wanted = "TRUE"
+        elif redo.whole and (start is not None or end is not None):
             wholly = []
             if start is not None:
-                wholly.append(f"bucket >= {p}")
+                wholly.append(f"r.bucket >= {p}")
+                wparams.append(d.time_value(start))
             if end is not None:
-                wholly.append(f"bucket <= {p}")
-            wanted = _COMPLETE
-            if redo.every:
-                wanted = "TRUE"
-            elif redo.whole:
-                wanted = f"({_COMPLETE} OR ({' AND '.join(wholly) or 'TRUE'}))"
-                wparams += [d.time_value(m) for m in (start,) if m is not None]
-                wparams += [d.time_value(end - level.width + _US)] if end is not None else []
-        parts.append(f"SELECT DISTINCT {level.code} AS level, sid, bucket FROM {level.view} r WHERE {where} AND {wanted}")
+                wholly.append(f"r.bucket <= {p}")
+                wparams.append(d.time_value(end - level.width + _US))
+            wanted = f"({_COMPLETE} OR ({' AND '.join(wholly)}))"
+        elif redo.whole:
+            wanted = "TRUE"  # the whole history: every bucket is inside
+        parts.append(f"SELECT DISTINCT {level.code} AS level, sid, bucket FROM ({candidates}) AS r WHERE {wanted}")
         params += wparams
     return " UNION ALL ".join(parts), params
 

@@ -222,6 +222,16 @@ class PostgresStore(CommittingStore):
             pass
         return "nothing to compact: PostgreSQL keeps samples in place (only DuckDB files are compacted)"
 
+    def rewrite_rollups(self, statements: Sequence[tuple[str, list]]) -> list[tuple]:
+        """One transaction on a pooled connection; the statements take the
+        rollup lock themselves (``storage.rollups.lock_statements``)."""
+        with self.connection() as conn, conn.transaction():
+            rows: list[tuple] = []
+            for sql, params in statements:
+                cur = conn.execute(sql, params)
+                rows = cur.fetchall() if cur.description is not None else []
+            return rows
+
     def merge_rollups(self, limit: int) -> int:
         """At most ``limit`` hot rollup rows into their levels, in one
         transaction under the rollup lock (``storage.rollups``); how many."""

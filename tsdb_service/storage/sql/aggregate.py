@@ -190,6 +190,8 @@ class SqlAggregates(SqlReads):
         if not parts:
             return []
         sql = " UNION ALL ".join(parts)
+        if len(parts) > sum(1 for b in branches if b.sids):  # pieces of one bucket: one row again
+            sql = _combined(sql, agg.method)
         if budget.current() is not None:  # one row past the request's budget detects an overflow
             sql = f"SELECT * FROM ({sql}) AS parts LIMIT {self.dialect.placeholder}"
             params.append(budget.row_cap(MAX_BIGINT))
@@ -240,6 +242,20 @@ class SqlAggregates(SqlReads):
             f"CASE WHEN n_numeric > 0 THEN n_integer = n_numeric END AS all_integer FROM ({inner}) AS g"
         )
         return sql, [*sel_params, *wparams]
+
+
+def _combined(union: str, method: AggrMethod) -> str:
+    """The rows of ``union`` (the aggregate layout) combined per series and
+    bucket, as the history layer would: counts and sums add, minimum and
+    maximum of the pieces, "all integers" of all of them."""
+    value = {AggrMethod.MIN: "min(value)", AggrMethod.MAX: "max(value)", AggrMethod.COUNT: "NULL"}.get(
+        method, "sum(value)"
+    )
+    return (
+        "SELECT branch, sid, bucket, CAST(sum(n_present) AS BIGINT) AS n_present, "
+        f"CAST(sum(n_numeric) AS BIGINT) AS n_numeric, {value} AS value, bool_and(all_integer) AS all_integer "
+        f"FROM ({union}) AS pieces GROUP BY branch, sid, bucket"
+    )
 
 
 def _inside(hour: int, cell: list, start: int | None, end: int | None) -> bool:
