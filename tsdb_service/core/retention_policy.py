@@ -176,22 +176,33 @@ class RetentionPolicy:
         return policy
 
     def with_rollup_rules(self, rollups: RetentionPolicy, setting: str) -> RetentionPolicy:
-        """This policy with ``rollups``' raw rules as both rollup levels (the
-        deprecated ``TSDB_ROLLUP_RETENTION``, which kept the one hourly level)."""
-        added = []
+        """This policy with ``rollups``' rules as both rollup levels: the
+        deprecated ``TSDB_ROLLUP_RETENTION``, whose one hourly level held only
+        what raw retention had deleted. So a level it would drop before raw
+        is kept as long as raw instead, which is what the old setting kept."""
+        merged: dict[tuple[str, str], Keep] = {(key, level): keep for key, level, keep in self.rules}
         for key, level, keep in rollups.rules:
             if level != RAW:
                 raise ValueError(f"{setting}: {key!r}: give levels in TSDB_RETENTION (raw:, minute:, hour:)")
             for rollup_level in (MINUTE, HOUR):
-                if key in self._by_level[rollup_level]:
+                if (key, rollup_level) in merged:
                     raise ValueError(
                         f"{setting}: {key!r}: its {rollup_level} level is also given in TSDB_RETENTION; "
                         "keep only TSDB_RETENTION"
                     )
-                added.append((key, rollup_level, keep))
-        merged = RetentionPolicy((*self.rules, *added))
-        merged.check("TSDB_RETENTION with " + setting)
-        return merged
+                merged[(key, rollup_level)] = keep
+        keys = sorted({"*", *(key for key, _ in merged)}, key=lambda k: (k != "*", "/" in k, k))
+        for key in keys:  # least specific first: what a key gets, the more specific ones inherit
+            tenant, slash, entity_type = key.partition("/")
+            keeps = RetentionPolicy(tuple((k, lv, v) for (k, lv), v in merged.items())).resolve(
+                tenant, entity_type if slash else "\0"
+            )
+            for rollup_level in (MINUTE, HOUR):
+                if _longer(keeps[RAW][1], keeps[rollup_level][1]):
+                    merged[(key, rollup_level)] = keeps[RAW][1]
+        policy = RetentionPolicy(tuple((key, level, keep) for (key, level), keep in merged.items()))
+        policy.check("TSDB_RETENTION with " + setting)
+        return policy
 
     def check(self, setting: str) -> None:
         """Refuse a coarser level kept less long than a finer one."""
