@@ -92,10 +92,11 @@ def span(fetch: Fetch, d: SqlDialect, sids: Sequence[int], time: TimeRange) -> t
     """The hours of ``time`` (defaulting to everything) holding raw samples
     or rollups of ``sids``: [first hour, end of the last)."""
     where, params = d.sid_filter(sids)
-    raw = fetch(f"SELECT min(t), max(t) FROM {d.samples('sid, t')} WHERE {where}", params)[0]
-    rolled = fetch(f"SELECT min(bucket), max(bucket) FROM {HOUR.view} WHERE {where}", list(params))[0]
-    lows = [_aware(v) for v in (raw[0], rolled[0]) if v is not None]
-    highs = [_aware(v) for v in (raw[1], rolled[1]) if v is not None]
+    found = [fetch(f"SELECT min(t), max(t) FROM {d.samples('sid, t')} WHERE {where}", params)[0]]
+    for level in LEVELS:
+        found.append(fetch(f"SELECT min(bucket), max(bucket) FROM {level.view} WHERE {where}", list(params))[0])
+    lows = [_aware(row[0]) for row in found if row[0] is not None]
+    highs = [_aware(row[1]) for row in found if row[1] is not None]
     if not lows:
         return None
     start = max(min(lows), time.start) if time.start is not None else min(lows)
