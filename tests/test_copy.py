@@ -19,6 +19,7 @@ from datetime import UTC, datetime, timedelta
 import pytest
 
 from tests.support.interrupt import Interrupted, InterruptedTarget
+from tests.support.rollups import differences
 from tsdb_service.cli.main import main
 from tsdb_service.commands.copy import copy_history, store_identity
 from tsdb_service.core.config import Settings
@@ -76,6 +77,7 @@ def test_copy_round_trip_keeps_every_answer(tmp_path, pg_cluster, client_factory
     for url in (pg_url, back):
         with client_factory(url) as client:
             assert _answers(client) == expected, url
+            assert not differences(client.app.state.store)  # the writers rolled up what they copied
             rejected = client.get("/v2/notify/rejected", headers=H).json()
             assert [r["body"] for r in rejected] == ["{broken"]
             assert client.get("/v2/notify/subscriptions", headers=H).json()["sub-1"]["attrs"] == ["id", "battery"]
