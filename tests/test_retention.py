@@ -12,7 +12,7 @@ import pytest
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Geometry, Kind
 from tsdb_service.core.query import EntityFilter, Scope, TimeRange
-from tsdb_service.read.requests import LocationsIn, SamplesIn, SeriesSelect
+from tsdb_service.read.requests import LocationsIn, SeriesSelect
 from tsdb_service.storage import open_store
 from tsdb_service.write.ops import AppendSamples
 

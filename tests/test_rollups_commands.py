@@ -52,8 +52,14 @@ def damage(store, where: str) -> None:
     store.compact()  # hot rows merged into their levels
     store.rewrite_rollups(
         [
-            (f"DELETE FROM rollups_hour WHERE {sids} AND bucket = (SELECT min(bucket) FROM rollups_hour WHERE {sids})", []),
-            (f"UPDATE rollups_minute SET num_max = 99 WHERE {sids} AND bucket = (SELECT max(bucket) FROM rollups_minute WHERE {sids})", []),
+            (
+                f"DELETE FROM rollups_hour WHERE {sids} AND bucket = (SELECT min(bucket) FROM rollups_hour WHERE {sids})",
+                [],
+            ),
+            (
+                f"UPDATE rollups_minute SET num_max = 99 WHERE {sids} AND bucket = (SELECT max(bucket) FROM rollups_minute WHERE {sids})",
+                [],
+            ),
             (
                 f"INSERT INTO rollups_hot (level, sid, bucket, n_present, n_numeric, n_integer) "
                 f"SELECT 1, min(sid), {q.dialect.placeholder}, 1, 0, 0 FROM series WHERE {where}",
@@ -85,7 +91,9 @@ def test_check_finds_damage_and_rebuild_repairs_it(store_url, capsys):
 
 def test_rebuild_keeps_what_only_rollups_hold_unless_asked(store_url, capsys):
     old = NOW - timedelta(days=40)
-    store = stored(store_url, entities("acme", "Robot", old, 200), entities("acme", "Robot", NOW - timedelta(days=1), 50))
+    store = stored(
+        store_url, entities("acme", "Robot", old, 200), entities("acme", "Robot", NOW - timedelta(days=1), 50)
+    )
     count = "SELECT sum(n_present) FROM rollups_hour_all"
     before = store.querier()._fetch(count, [])[0][0]
     store.close()
@@ -112,7 +120,9 @@ def test_rebuild_touches_only_the_selection(store_url, capsys):
     damage(store, "tenant = 'acme'")
     store.close()
     window = ["--from", "2024-04-29T00:00:00Z", "--to", "2024-05-03T00:00:00Z"]
-    assert main(["rollups", "rebuild", "--db", store_url, "--tenant", "ACME", "--type", "Robot", *window, "--quiet"]) == 0
+    assert (
+        main(["rollups", "rebuild", "--db", store_url, "--tenant", "ACME", "--type", "Robot", *window, "--quiet"]) == 0
+    )
     capsys.readouterr()
     assert main(["rollups", "check", "--db", store_url, "--tenant", "acme", "--samples", "4000"]) == 0
     assert main(["rollups", "check", "--db", store_url, "--tenant", "beta", "--samples", "4000", "--seed", "1"]) == 1

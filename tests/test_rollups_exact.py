@@ -26,7 +26,7 @@ from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.core.query import AggBranch, Aggregation, AggrMethod, AggrPeriod, EntityFilter, Scope, TimeRange
 from tsdb_service.core.retention_policy import RetentionPolicy
-from tsdb_service.read.requests import AggregateRead, SeriesSelect
+from tsdb_service.read.requests import SeriesSelect
 from tsdb_service.storage import open_store
 from tsdb_service.storage.retention import RetentionConfig, RetentionWorker
 from tsdb_service.storage.rollup_repair import check
@@ -82,9 +82,7 @@ class Model:
 
     def recompute(self, level: int, entity: str, attr: str, bucket: int) -> None:
         width = LEVELS[level].width // US
-        held = [
-            snap(s) for s in self.raw if (s.entity, s.attr) == (entity, attr) and bucket <= s.t < bucket + width
-        ]
+        held = [snap(s) for s in self.raw if (s.entity, s.attr) == (entity, attr) and bucket <= s.t < bucket + width]
         key = (level, entity, attr, bucket)
         if held:
             self.counted[key] = held
@@ -206,7 +204,11 @@ class Harness:
         if rng.random() < 0.3 and start is not None:
             start -= start % (60 * 10**6)  # a minute's first instant
         self.store.write_sync(
-            [DeleteSamples(self.sids_of(entity), None if start is None else moment(start), moment(end) if end else None)]
+            [
+                DeleteSamples(
+                    self.sids_of(entity), None if start is None else moment(start), moment(end) if end else None
+                )
+            ]
         )
         m = self.model
         m.raw = [
@@ -230,7 +232,10 @@ class Harness:
         target = rng.choice(m.raw)
         [sid] = self.sids_of(target.entity, target.attr)
         q = self.store.querier()
-        iids = [r[0] for r in q._fetch(f"SELECT iid FROM samples_all WHERE sid = {q.dialect.placeholder} ORDER BY rid", [sid])]
+        iids = [
+            r[0]
+            for r in q._fetch(f"SELECT iid FROM samples_all WHERE sid = {q.dialect.placeholder} ORDER BY rid", [sid])
+        ]
         ranked = sorted((s for s in m.raw if (s.entity, s.attr) == (target.entity, target.attr)), key=lambda s: s.order)
         iid = iids[ranked.index(target)]  # row ids follow write order, one sample of a series per row
         if rng.random() < 0.5:

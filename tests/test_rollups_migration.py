@@ -5,7 +5,7 @@ what raw is left of a split hour, and the old table goes."""
 
 from __future__ import annotations
 
-from datetime import UTC, datetime
+from datetime import datetime
 
 import duckdb
 import psycopg
@@ -36,10 +36,22 @@ def _old_store(url: str, backend: str) -> None:
     series = "INSERT INTO series (sid, tenant, service_path, entity_id, entity_type, attr) VALUES (1, '', '/', 'e', 'T', 'a'), (2, '', '/', 'e', 'T', 'b')"
     rows = [
         (series, []),
-        *(("INSERT INTO samples (rid, sid, t, kind, num) VALUES ({p}, {p}, CAST({p} AS TIMESTAMP), {p}, {p})", list(r)) for r in RAW),
-        *(("INSERT INTO rollups_hourly VALUES ({p}, CAST({p} AS TIMESTAMP), {p}, {p}, {p}, {p}, {p}, {p})", list(f)) for f in FOLDED),
+        *(
+            (
+                "INSERT INTO samples (rid, sid, t, kind, num) VALUES ({p}, {p}, CAST({p} AS TIMESTAMP), {p}, {p})",
+                list(r),
+            )
+            for r in RAW
+        ),
+        *(
+            ("INSERT INTO rollups_hourly VALUES ({p}, CAST({p} AS TIMESTAMP), {p}, {p}, {p}, {p}, {p}, {p})", list(f))
+            for f in FOLDED
+        ),
         ("INSERT INTO retention_state VALUES ('rollups', '*', TIMESTAMP '2023-01-01', TIMESTAMP '2024-01-02')", []),
-        ("INSERT INTO retention_state VALUES ('samples', '*', TIMESTAMP '2024-01-01 10:35', TIMESTAMP '2024-01-02')", []),
+        (
+            "INSERT INTO retention_state VALUES ('samples', '*', TIMESTAMP '2024-01-01 10:35', TIMESTAMP '2024-01-02')",
+            [],
+        ),
     ]
     if backend == "duckdb":
         con = duckdb.connect(url)
@@ -81,9 +93,17 @@ def test_old_rollups_are_carried_and_every_sample_rolled_up(store_url, backend):
             (2, at(11), 1, 0, 0, None, None, None),
         ]
         minutes = q._fetch("SELECT sid, bucket FROM rollups_minute_all ORDER BY sid, bucket", [])
-        assert minutes == [(1, at(10).replace(minute=35)), (1, at(10).replace(minute=50)), (1, at(11).replace(minute=2)), (2, at(11).replace(minute=2))]
+        assert minutes == [
+            (1, at(10).replace(minute=35)),
+            (1, at(10).replace(minute=50)),
+            (1, at(11).replace(minute=2)),
+            (2, at(11).replace(minute=2)),
+        ]
         expired = q._fetch("SELECT sid, upto FROM rollups_expired ORDER BY sid", [])
-        assert [(sid, upto.replace(microsecond=0)) for sid, upto in expired] == [(1, at(10).replace(minute=59, second=59)), (2, at(9).replace(minute=59, second=59))]
+        assert [(sid, upto.replace(microsecond=0)) for sid, upto in expired] == [
+            (1, at(10).replace(minute=59, second=59)),
+            (2, at(9).replace(minute=59, second=59)),
+        ]
         tables = q._fetch("SELECT count(*) FROM information_schema.tables WHERE table_name = 'rollups_hourly'", [])
         assert tables == [(0,)]
         assert sorted(q._fetch("SELECT tbl, rule FROM retention_state", [])) == [("hour", "*"), ("samples", "*")]

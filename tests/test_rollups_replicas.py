@@ -62,7 +62,7 @@ def test_two_replicas_writing_the_same_series_lose_and_double_nothing(url):
             try:
                 for k in range(1, 120):
                     store.write_sync([AppendSamples(batch(writer, k))])
-            except BaseException as exc:  # noqa: BLE001 - reported below
+            except BaseException as exc:
                 failures.append(exc)
 
         def churn() -> None:
@@ -72,7 +72,7 @@ def test_two_replicas_writing_the_same_series_lose_and_double_nothing(url):
                     start = T0 + timedelta(seconds=40 * k)
                     a.write_sync([DeleteSamples(sids, start, start + timedelta(seconds=15))])
                     (a if k % 2 else b).merge_rollups(50)
-            except BaseException as exc:  # noqa: BLE001 - reported below
+            except BaseException as exc:
                 failures.append(exc)
 
         threads = [

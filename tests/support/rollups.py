@@ -28,7 +28,11 @@ def differences(store) -> list[tuple]:
                 out.append((level.name, *key, "row", mine, theirs))
                 continue
             for column, a, b in zip(COLUMNS[2:], mine, theirs, strict=True):
-                same = math.isclose(a, b, rel_tol=1e-9) if column == "num_sum" and a is not None and b is not None else a == b
+                same = (
+                    math.isclose(a, b, rel_tol=1e-9)
+                    if column == "num_sum" and a is not None and b is not None
+                    else a == b
+                )
                 if not same:
                     out.append((level.name, *key, column, a, b))
     return out

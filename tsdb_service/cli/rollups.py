@@ -63,7 +63,9 @@ def register(subparsers, command) -> None:
 
 def _selection(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", metavar="PATH|URL", help=setting_help("db"))
-    p.add_argument("--tenant", metavar="TENANT", help="only this tenant ('' for the default one; default: every tenant)")
+    p.add_argument(
+        "--tenant", metavar="TENANT", help="only this tenant ('' for the default one; default: every tenant)"
+    )
     p.add_argument("--type", dest="entity_type", metavar="TYPE", help="only this entity type (default: every type)")
     p.add_argument("--from", dest="start", metavar="TIME", help="from this time (ISO 8601; default: the first)")
     p.add_argument("--to", dest="end", metavar="TIME", help="up to this time, exclusive (ISO 8601; default: the last)")

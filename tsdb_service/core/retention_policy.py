@@ -235,9 +235,9 @@ class RetentionPolicy:
         none names it (forever); ``minute`` follows ``hour`` when unnamed."""
         out: dict[str, Rule | tuple[None, None]] = {}
         for level in (RAW, HOUR, MINUTE):
-            found = self.rule_for(tenant, entity_type, level)
+            found: Rule | tuple[None, None] | None = self.rule_for(tenant, entity_type, level)
             if found is None and level == MINUTE:
-                found = out[HOUR] if out[HOUR][0] is not None else None
+                found = out[HOUR]
             out[level] = found if found is not None else (None, None)
         return out
 

@@ -35,6 +35,7 @@ from tsdb_service.storage.rollups import (
     EXPIRED,
     HOUR,
     LEVELS,
+    OPEN,
     Level,
     Redo,
     combine_partials,
@@ -84,8 +85,9 @@ def _hour_floor(moment: datetime) -> datetime:
     return _EPOCH + timedelta(microseconds=micros - micros % size)
 
 
-def _aware(moment: datetime | None) -> datetime | None:
-    return None if moment is None else moment.replace(tzinfo=UTC) if moment.tzinfo is None else moment
+def _as_utc(moment: datetime) -> datetime:
+    """A timestamp column's naive UTC value as an aware datetime."""
+    return moment.replace(tzinfo=UTC) if moment.tzinfo is None else moment
 
 
 def span(fetch: Fetch, d: SqlDialect, sids: Sequence[int], time: TimeRange) -> tuple[datetime, datetime] | None:
@@ -95,12 +97,12 @@ def span(fetch: Fetch, d: SqlDialect, sids: Sequence[int], time: TimeRange) -> t
     found = [fetch(f"SELECT min(t), max(t) FROM {d.samples('sid, t')} WHERE {where}", params)[0]]
     for level in LEVELS:
         found.append(fetch(f"SELECT min(bucket), max(bucket) FROM {level.view} WHERE {where}", list(params))[0])
-    lows = [_aware(row[0]) for row in found if row[0] is not None]
-    highs = [_aware(row[1]) for row in found if row[1] is not None]
+    lows = [_as_utc(row[0]) for row in found if row[0] is not None]
+    highs = [_as_utc(row[1]) for row in found if row[1] is not None]
     if not lows:
         return None
     start = max(min(lows), time.start) if time.start is not None else min(lows)
-    end = min(max(highs), time.end) if time.end is not None else max(highs)  # type: ignore[type-var]
+    end = min(max(highs), time.end) if time.end is not None else max(highs)
     if start > end:
         return None
     return _hour_floor(start), _hour_floor(end) + HOUR.width
@@ -109,7 +111,7 @@ def span(fetch: Fetch, d: SqlDialect, sids: Sequence[int], time: TimeRange) -> t
 def rebuild(
     store,
     sids: Sequence[int],
-    time: TimeRange = TimeRange(),
+    time: TimeRange = OPEN,
     *,
     drop_expired: bool = False,
     progress: Callable[[RebuildReport], None] | None = None,
@@ -143,7 +145,7 @@ def rebuild(
 def check(
     store,
     sids: Sequence[int],
-    time: TimeRange = TimeRange(),
+    time: TimeRange = OPEN,
     *,
     samples: int = 1000,
     seed: int | None = None,
@@ -172,7 +174,7 @@ def check(
 
 def _expired(fetch: Fetch, d: SqlDialect, sids: Sequence[int]) -> dict[int, datetime]:
     where, params = d.sid_filter(sids)
-    return {sid: _aware(upto) for sid, upto in fetch(f"SELECT sid, upto FROM {EXPIRED} WHERE {where}", params)}
+    return {sid: _as_utc(upto) for sid, upto in fetch(f"SELECT sid, upto FROM {EXPIRED} WHERE {where}", params)}
 
 
 def _sample_keys(
@@ -194,11 +196,11 @@ def _sample_keys(
         f"AND bucket >= {p} AND bucket < {p}) AS k ORDER BY random() LIMIT {p}",
         [*params, d.time_value(window[0]), d.time_value(window[1]), n],
     )
-    keys = {(sid, _aware(bucket)) for sid, bucket in held}
+    keys = {(sid, _as_utc(bucket)) for sid, bucket in held}
     buckets = int((window[1] - window[0]) / level.width)
     for _ in range(n):
         keys.add((rng.choice(list(sids)), window[0] + level.width * rng.randrange(max(1, buckets))))
-    return sorted(keys)  # type: ignore[arg-type]
+    return sorted(keys)
 
 
 def _compare(fetch: Fetch, d: SqlDialect, level: Level, keys: list[tuple[int, datetime]]) -> list[Difference]:
@@ -222,7 +224,7 @@ def _compare(fetch: Fetch, d: SqlDialect, level: Level, keys: list[tuple[int, da
 
 
 def _key(row: tuple) -> tuple[int, datetime]:
-    return row[0], _aware(row[1])  # type: ignore[return-value]
+    return row[0], _as_utc(row[1])
 
 
 def _differences(level: Level, raw: dict, rolled: dict) -> list[Difference]:
@@ -230,7 +232,9 @@ def _differences(level: Level, raw: dict, rolled: dict) -> list[Difference]:
     for key in sorted(set(raw) | set(rolled)):
         a, b = rolled.get(key), raw.get(key)
         if a is None or b is None:
-            out.append(Difference(level.name, key[0], key[1], "row", "present" if a else None, "present" if b else None))
+            out.append(
+                Difference(level.name, key[0], key[1], "row", "present" if a else None, "present" if b else None)
+            )
             continue
         for column, mine, theirs in zip(COLUMNS[2:], a[2:], b[2:], strict=True):
             if not _same(column, mine, theirs):

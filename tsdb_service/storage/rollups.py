@@ -224,7 +224,7 @@ def fold_sql(d: SqlDialect, source: str) -> str:
     rows of ``source`` (the batch a writer is inserting): the minute ones
     computed once, the hour ones combined from them."""
     minute = samples_partials(d, MINUTE, source)
-    hour = combine_partials(d, "m", f"date_trunc('hour', bucket)")
+    hour = combine_partials(d, "m", "date_trunc('hour', bucket)")
     return (
         f"INSERT INTO {HOT} (level, {COLS}) WITH m AS MATERIALIZED ({minute}) "
         f"SELECT {MINUTE.code}, {COLS} FROM m UNION ALL SELECT {HOUR.code}, {COLS} FROM ({hour}) AS h"
@@ -241,8 +241,7 @@ def fill_statements(d: SqlDialect, version: int) -> list[str]:
         return []
     raw = d.samples("sid, rid, t, kind, num")
     return [
-        f"INSERT INTO {level.table} ({COLS}) {samples_partials(d, level, raw)} ORDER BY sid, bucket"
-        for level in LEVELS
+        f"INSERT INTO {level.table} ({COLS}) {samples_partials(d, level, raw)} ORDER BY sid, bucket" for level in LEVELS
     ]
 
 
@@ -266,6 +265,7 @@ def lock_statements(d: SqlDialect) -> list[str]:
     return [] if d.name == "duckdb" else [f"SELECT pg_advisory_xact_lock({LOCK})"]
 
 
+OPEN = TimeRange()
 _COMPLETE = f"NOT EXISTS (SELECT 1 FROM {EXPIRED} e WHERE e.sid = r.sid AND e.upto >= r.bucket)"
 
 
@@ -279,7 +279,7 @@ class Redo:
     them), ``every`` every one (a rebuild that drops what only rollups held)."""
 
     sids: Sequence[int]
-    time: TimeRange = TimeRange()
+    time: TimeRange = OPEN
     instance: tuple[int, int] | None = None
     whole: bool = False
     every: bool = False
@@ -364,28 +364,26 @@ def recompute_statements(d: SqlDialect, redo: Redo) -> tuple[list[tuple[str, lis
     (it names the buckets, from the rollups, and for an instance from its
     sample), ``after`` once it is made, in the same transaction."""
     keys, kparams = _redo_keys(d, redo)
-    before = [(sql, []) for sql in lock_statements(d)]
+    before: list[tuple[str, list]] = [(sql, []) for sql in lock_statements(d)]
     before += [(sql, kparams if sql.startswith("CREATE") else []) for sql in _temp_table(d, "rollups_redo", keys)]
     span, sparams = _raw_span(d, redo)
     raw = f"(SELECT sid, rid, t, kind, num FROM {d.samples('sid, rid, t, kind, num')} WHERE {span}) AS raw"
     redone = " UNION ALL ".join(
-        f"SELECT {level.code} AS level, {COLS} FROM ({samples_partials(d, level, raw, '', 'WHERE ' + _key_of('s', level))}) AS q{level.code}"
+        f"SELECT {level.code} AS level, {COLS} "
+        f"FROM ({samples_partials(d, level, raw, '', 'WHERE ' + _key_of('s', level))}) AS q{level.code}"
         for level in LEVELS
     )
     rparams = sparams * len(LEVELS)
-    hot_gone = f"EXISTS (SELECT 1 FROM rollups_redo x WHERE x.level = h.level AND x.sid = h.sid AND x.bucket = h.bucket)"
+    hot_gone = "EXISTS (SELECT 1 FROM rollups_redo x WHERE x.level = h.level AND x.sid = h.sid AND x.bucket = h.bucket)"
     after: list[tuple[str, list]] = []
     if d.name == "duckdb":
         after += [(sql, rparams) for sql in _temp_table(d, "rollups_redone", redone)]
         after.append((f"DELETE FROM {HOT} h WHERE {hot_gone}", []))
     else:  # the hot rows go in the statement that reads raw: one snapshot
-        after += [(sql, []) for sql in _temp_table(d, "rollups_redone", f"SELECT level, {COLS} FROM {HOT} WITH NO DATA")]
-        after.append(
-            (
-                f"WITH gone AS (DELETE FROM {HOT} h WHERE {hot_gone}) INSERT INTO rollups_redone (level, {COLS}) {redone}",
-                rparams,
-            )
-        )
+        empty = f"SELECT level, {COLS} FROM {HOT} WITH NO DATA"
+        after += [(sql, []) for sql in _temp_table(d, "rollups_redone", empty)]
+        gone = f"WITH gone AS (DELETE FROM {HOT} h WHERE {hot_gone})"
+        after.append((f"{gone} INSERT INTO rollups_redone (level, {COLS}) {redone}", rparams))
     for level in LEVELS:
         after.append((f"DELETE FROM {level.table} r WHERE {_key_of('r', level)}", []))
         after.append(

@@ -37,7 +37,6 @@ from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL
 from tsdb_service.storage.duckdb.memory import DuckDBMemory
 from tsdb_service.storage.duckdb.state import ADVANCE_SQL
 from tsdb_service.storage.layouts import layout_values, upsert_layout_sql
-from tsdb_service.storage.rollups import fold_sql
 from tsdb_service.storage.ld_ingest import (
     LATEST_INSTANCE_SQL,
     drop_renotified,
@@ -45,6 +44,7 @@ from tsdb_service.storage.ld_ingest import (
     with_deletions,
     without_dropped,
 )
+from tsdb_service.storage.rollups import fold_sql
 from tsdb_service.storage.sql.writes import delete_statements, instance_statements
 from tsdb_service.storage.staging import StagingAppender, WriteTarget
 from tsdb_service.write.ops import DeleteInstance, DeleteSamples, Delivery, LogPosition, PutLayout, ReplaceInstance
