@@ -50,16 +50,12 @@ def damage(store, where: str) -> None:
     q = store.querier()
     sids = f"sid IN (SELECT sid FROM series WHERE {where})"
     store.compact()  # hot rows merged into their levels
+    first_hour = f"(SELECT min(bucket) FROM rollups_hour WHERE {sids})"
+    last_minute = f"(SELECT max(bucket) FROM rollups_minute WHERE {sids})"
     store.rewrite_rollups(
         [
-            (
-                f"DELETE FROM rollups_hour WHERE {sids} AND bucket = (SELECT min(bucket) FROM rollups_hour WHERE {sids})",
-                [],
-            ),
-            (
-                f"UPDATE rollups_minute SET num_max = 99 WHERE {sids} AND bucket = (SELECT max(bucket) FROM rollups_minute WHERE {sids})",
-                [],
-            ),
+            (f"DELETE FROM rollups_hour WHERE {sids} AND bucket = {first_hour}", []),
+            (f"UPDATE rollups_minute SET num_max = 99 WHERE {sids} AND bucket = {last_minute}", []),
             (
                 f"INSERT INTO rollups_hot (level, sid, bucket, n_present, n_numeric, n_integer) "
                 f"SELECT 1, min(sid), {q.dialect.placeholder}, 1, 0, 0 FROM series WHERE {where}",

@@ -33,7 +33,10 @@ FOLDED = [  # sid, hour, n_present, n_numeric, sum, min, max, all_integer
 def _old_store(url: str, backend: str) -> None:
     """A store migrated up to 0013, with raw samples, folded hours and watermarks."""
     old = [m for m in load_migrations(backend) if m.version < 14]
-    series = "INSERT INTO series (sid, tenant, service_path, entity_id, entity_type, attr) VALUES (1, '', '/', 'e', 'T', 'a'), (2, '', '/', 'e', 'T', 'b')"
+    series = (
+        "INSERT INTO series (sid, tenant, service_path, entity_id, entity_type, attr) "
+        "VALUES (1, '', '/', 'e', 'T', 'a'), (2, '', '/', 'e', 'T', 'b')"
+    )
     rows = [
         (series, []),
         *(
