@@ -62,6 +62,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 
+from tsdb_service.core.buckets import served_by
 from tsdb_service.core.model import Kind
 from tsdb_service.core.query import AggrMethod, AggrPeriod, TimeRange
 from tsdb_service.storage.sql.dialect import SqlDialect
@@ -520,6 +521,48 @@ def aggregate_part(
         "CAST(sum(n_present) AS BIGINT) AS n_present, CAST(sum(n_numeric) AS BIGINT) AS n_numeric, "
         f"{fn} AS value, CASE WHEN sum(n_numeric) > 0 THEN sum(n_integer) = sum(n_numeric) END AS all_integer "
         f"FROM {piece.level.view} WHERE {where} GROUP BY sid{', ' + trunc if trunc else ''}"
+    )
+    return sql, params
+
+
+def bucket_levels(width: timedelta) -> tuple[Level, ...]:
+    """The levels whose whole buckets make buckets of ``width``, coarsest
+    first (``core.buckets.served_by``): what ``split_window`` takes for a
+    ``read.buckets.BucketRead``."""
+    return tuple(level for level in reversed(LEVELS) if served_by(width, level.width))
+
+
+def bucket_part(d: SqlDialect, level: Level, sids: Sequence[int], piece: Piece, width: timedelta) -> tuple[str, list]:
+    """The rows of ``read.buckets.BucketRow`` (sid, start µs, n, total,
+    all_integer, min, min_t, max, max_t, first, first_t, last, last_t) of
+    the numeric samples in ``level``'s whole buckets of ``piece`` (``start
+    <= bucket < end``), grouped into buckets of ``width`` (a multiple of the
+    level's, from the epoch): exactly what the raw samples of that time give
+    (``storage.sql.buckets.raw_part``), ties included. One part of the bucket
+    query, combined with the raw parts of the window's edges."""
+    p = d.placeholder
+    w = width // _US
+    where, params = d.sid_filter(sids)
+    where += " AND n_numeric > 0"
+    if piece.start is not None:
+        where += f" AND bucket >= {p}"
+        params.append(d.time_value(piece.start))
+    if piece.end is not None:
+        where += f" AND bucket < {p}"
+        params.append(d.time_value(piece.end))
+    inner = f"SELECT {COLS}, {d.epoch_us('bucket')} AS bu FROM {level.view} WHERE {where}{d.fence}"
+    start = f"(bu - mod(mod(bu, {w}) + {w}, {w}))"
+    only = "num_min IS NOT NULL"
+    sql = (
+        f"SELECT sid, {start} AS start, CAST(sum(n_numeric) AS BIGINT) AS n, sum(num_sum) AS total, "
+        "sum(n_integer) = sum(n_numeric) AS all_integer, "
+        f"min(num_min) AS min, {_at_min(d, 'num_min', 'min_us', only)} AS min_t, "
+        f"max(num_max) AS max, {_at_max(d, 'num_max', 'max_us', only)} AS max_t, "
+        f"{_pick(d, 'num_first', 'first_us', 'first_rid', 'num_first IS NOT NULL', last=False)} AS first, "
+        "min(first_us) FILTER (WHERE num_first IS NOT NULL) AS first_t, "
+        f"{_pick(d, 'num_last', 'last_us', 'last_rid', 'num_last IS NOT NULL', last=True)} AS last, "
+        "max(last_us) FILTER (WHERE num_last IS NOT NULL) AS last_t "
+        f"FROM ({inner}) AS r GROUP BY sid, {start}"
     )
     return sql, params
 
