@@ -4,7 +4,7 @@
     .venv/bin/python benchmarks/rollups_ingest.py --backends duckdb --rounds 50
 
 Commits batches of notifications (entities x 5 numeric attributes, one
-sample a second each, as ``long_windows.py`` loads) through the writer, and
+sample a second each, as the long-window benchmark loads) through the writer, and
 times each commit twice over: with the rollups folded in the commit's
 transaction (what the service does) and without.
 

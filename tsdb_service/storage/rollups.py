@@ -42,7 +42,7 @@ Invariants:
   deleted range from what is left in it. An incomplete bucket only partly
   covered by a delete, or holding an edited instance, stays as it was: a
   minimum cannot be subtracted, and expired samples cannot be read again.
-* **Merged off the write path.** ``merge_statements`` moves hot rows into
+* **Merged off the write path.** ``merge`` moves hot rows into
   the level tables, combined with the rows of the same buckets, in one
   transaction. Merges, recomputes and rollup retention exclude each other
   (DuckDB: the compactor's lock; PostgreSQL: the transaction advisory lock
@@ -58,7 +58,7 @@ from __future__ import annotations
 import logging
 import threading
 import time as _time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 
@@ -118,6 +118,7 @@ MINUTE = Level(1, "minute", timedelta(minutes=1))
 HOUR = Level(2, "hour", timedelta(hours=1))
 LEVELS = (MINUTE, HOUR)
 LEVEL_NAMED = {level.name: level for level in LEVELS}
+LEVEL_CODED = {level.code: level for level in LEVELS}
 
 
 # --- the partial aggregates, per dialect -----------------------------------------------------
@@ -393,25 +394,36 @@ def recompute_statements(d: SqlDialect, redo: Redo) -> tuple[list[tuple[str, lis
     return before, after
 
 
-def merge_statements(d: SqlDialect, limit: int) -> list[str]:
+Run = Callable[[str, list], list[tuple]]  # execute one statement in the caller's transaction: its rows
+
+
+def merge(d: SqlDialect, run: Run, limit: int) -> int:
     """Move at most ``limit`` hot rows into the level tables, each bucket
-    combined with its merged row (hold the rollup lock: ``lock_statements``)."""
+    combined with its merged row, in the caller's transaction (which holds
+    the rollup lock: ``lock_statements``, or DuckDB's compactor lock); how
+    many moved. The merged rows of a level are looked for only from the
+    oldest bucket moving on (recent, usually: the tables grow in time order)."""
     rid = _row_id(d)
-    out = _temp_table(d, "rollups_moving", f"SELECT {rid} AS r, level, {COLS} FROM {HOT} LIMIT {int(limit)}")
-    for level in LEVELS:
+    for sql in _temp_table(d, "rollups_moving", f"SELECT {rid} AS r, level, {COLS} FROM {HOT} LIMIT {int(limit)}"):
+        run(sql, [])
+    moved = 0
+    for level, oldest, count in run("SELECT level, min(bucket), count(*) FROM rollups_moving GROUP BY level", []):
+        moved += int(count)
+        table = LEVEL_CODED[int(level)].table
         same = (
-            f"EXISTS (SELECT 1 FROM rollups_moving m WHERE m.level = {level.code} AND m.sid = b.sid "
-            "AND m.bucket = b.bucket)"
+            f"b.bucket >= {d.placeholder} AND EXISTS (SELECT 1 FROM rollups_moving m WHERE m.level = {int(level)} "
+            "AND m.sid = b.sid AND m.bucket = b.bucket)"
         )
         source = (
-            f"(SELECT {COLS} FROM rollups_moving WHERE level = {level.code} "
-            f"UNION ALL SELECT {COLS} FROM {level.table} b WHERE {same})"
+            f"(SELECT {COLS} FROM rollups_moving WHERE level = {int(level)} "
+            f"UNION ALL SELECT {COLS} FROM {table} b WHERE {same})"
         )
-        out += _temp_table(d, "rollups_merged", combine_partials(d, source))
-        out.append(f"DELETE FROM {level.table} b WHERE {same}")
-        out.append(f"INSERT INTO {level.table} ({COLS}) SELECT {COLS} FROM rollups_merged ORDER BY sid, bucket")
-    out.append(f"DELETE FROM {HOT} WHERE {rid} IN (SELECT r FROM rollups_moving)")
-    return out
+        for sql in _temp_table(d, "rollups_merged", combine_partials(d, source)):
+            run(sql, [oldest] if sql.startswith("CREATE") else [])
+        run(f"DELETE FROM {table} b WHERE {same}", [oldest])
+        run(f"INSERT INTO {table} ({COLS}) SELECT {COLS} FROM rollups_merged ORDER BY sid, bucket", [])
+    run(f"DELETE FROM {HOT} WHERE {rid} IN (SELECT r FROM rollups_moving)", [])
+    return moved
 
 
 def expire_sql(source: str) -> str:
@@ -538,7 +550,7 @@ def bucket_part(d: SqlDialect, level: Level, sids: Sequence[int], piece: Piece, 
     the numeric samples in ``level``'s whole buckets of ``piece`` (``start
     <= bucket < end``), grouped into buckets of ``width`` (a multiple of the
     level's, from the epoch): exactly what the raw samples of that time give
-    (``storage.sql.buckets.raw_part``), ties included. One part of the bucket
+    (the raw part of the bucket query), ties included. One part of the bucket
     query, combined with the raw parts of the window's edges."""
     p = d.placeholder
     w = width // _US
@@ -568,19 +580,24 @@ def bucket_part(d: SqlDialect, level: Level, sids: Sequence[int], piece: Piece, 
 
 
 def rolled_up_count(querier, sids: Sequence[int], time: TimeRange) -> int:
-    """Hour buckets held in rollups that meet ``time``: history a delete
-    still finds where retention left no raw sample."""
+    """Buckets of ``sids`` wholly inside ``time`` that hold history retention
+    deleted from raw: what a delete finds to delete where no raw sample is
+    left (a delete drops them; buckets it only cuts stay as they are)."""
     d = querier.dialect
     p = d.placeholder
-    where, params = d.sid_filter(sids)
-    if time.start is not None:
-        where += f" AND bucket > {p}"
-        params.append(d.time_value(time.start - HOUR.width))
-    if time.end is not None:
-        where += f" AND bucket <= {p}"
-        params.append(d.time_value(time.end))
-    rows = querier._fetch(f"SELECT count(*) FROM {HOUR.view} WHERE {where}", params)
-    return int(rows[0][0]) if rows else 0
+    parts, params = [], []
+    for level in LEVELS:
+        where, wparams = d.sid_filter(sids)
+        if time.start is not None:
+            where += f" AND bucket >= {p}"
+            wparams.append(d.time_value(time.start))
+        if time.end is not None:
+            where += f" AND bucket <= {p}"
+            wparams.append(d.time_value(time.end - level.width + _US))
+        parts.append(f"SELECT count(*) AS n FROM {level.view} r WHERE {where} AND NOT {_COMPLETE}")
+        params += wparams
+    rows = querier._fetch(f"SELECT sum(n) FROM ({' UNION ALL '.join(parts)}) AS c", params)
+    return int(rows[0][0] or 0) if rows else 0
 
 
 class Merger:

@@ -12,12 +12,12 @@ import duckdb
 from tsdb_service.core.errors import first_line
 from tsdb_service.storage.duckdb.connection import rollback_quietly, scalar
 from tsdb_service.storage.duckdb.dialect import DuckDBDialect
-from tsdb_service.storage.rollups import HOT, merge_statements
+from tsdb_service.storage.rollups import HOT, LEVELS, merge
 
 # Hot rollup rows are merged into their levels once there are this many
 # (readers combine them meanwhile; a few thousand cost a read nothing).
 MERGE_ROWS = 20_000
-_MERGE = merge_statements(DuckDBDialect(), 4 * MERGE_ROWS)
+_DIALECT = DuckDBDialect()
 
 log = logging.getLogger(__name__)
 
@@ -92,19 +92,17 @@ class Compactor:
             cur.close()
 
     def _merge(self, cur: duckdb.DuckDBPyConnection) -> int:
-        """Hot rollup rows into their levels (``storage.rollups.merge_statements``);
+        """Hot rollup rows into their levels (``storage.rollups.merge``);
         how many moved."""
         with self._lock:
             cur.execute("BEGIN")
             try:
-                for sql in _MERGE:
-                    cur.execute(sql)
-                moved = scalar(cur, "SELECT count(*) FROM rollups_moving")
+                moved = merge(_DIALECT, lambda sql, params: cur.execute(sql, params).fetchall(), 4 * MERGE_ROWS)
                 cur.execute("COMMIT")
             except Exception:
                 rollback_quietly(cur)
                 raise
-        return int(moved)
+        return moved
 
     def _move(self, cur: duckdb.DuckDBPyConnection) -> None:
         with self._lock:
@@ -132,6 +130,12 @@ class Compactor:
                 cur.execute("CREATE TABLE samples_sorted AS SELECT * FROM samples ORDER BY sid, t, rid")
                 cur.execute("DROP TABLE samples")
                 cur.execute("ALTER TABLE samples_sorted RENAME TO samples")
+                for level in LEVELS:  # one series' rollups in few row groups; rows merges replaced dropped
+                    cur.execute(
+                        f"CREATE TABLE {level.table}_sorted AS SELECT * FROM {level.table} ORDER BY sid, bucket"
+                    )
+                    cur.execute(f"DROP TABLE {level.table}")
+                    cur.execute(f"ALTER TABLE {level.table}_sorted RENAME TO {level.table}")
                 cur.execute("COMMIT")
             except Exception:
                 rollback_quietly(cur)

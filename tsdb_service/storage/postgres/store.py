@@ -34,7 +34,7 @@ from tsdb_service.storage.postgres.memory import PostgresMemory
 from tsdb_service.storage.postgres.querier import PostgresQuerier
 from tsdb_service.storage.postgres.retention import PostgresSession, postgres_session
 from tsdb_service.storage.rejected import RejectedLimits
-from tsdb_service.storage.rollups import Merger, fill_statements, lock_statements, merge_statements
+from tsdb_service.storage.rollups import Merger, fill_statements, lock_statements, merge
 from tsdb_service.write.committer import GroupCommitter
 
 log = logging.getLogger(__name__)
@@ -236,11 +236,15 @@ class PostgresStore(CommittingStore):
         """At most ``limit`` hot rollup rows into their levels, in one
         transaction under the rollup lock (``storage.rollups``); how many."""
         dialect = PostgresDialect()
-        with self.pool.connection() as conn, conn.transaction():
-            for sql in [*lock_statements(dialect), *merge_statements(dialect, limit)]:
+        with self.connection() as conn, conn.transaction():
+            for sql in lock_statements(dialect):
                 conn.execute(sql)
-            row = conn.execute("SELECT count(*) FROM rollups_moving").fetchone()
-        return int(row[0]) if row else 0
+
+            def run(sql: str, params: list) -> list[tuple]:
+                cur = conn.execute(sql, params)
+                return cur.fetchall() if cur.description is not None else []
+
+            return merge(dialect, run, limit)
 
     def retention_session(self) -> contextlib.AbstractContextManager[PostgresSession | None]:
         """A connection of its own holding the cluster-wide pass lock."""
