@@ -21,6 +21,8 @@ from urllib.parse import urlsplit
 from pydantic import AfterValidator, BaseModel, Field, ValidationError, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from tsdb_service.core.urlprefix import url_prefixes
+
 MIB = 1024 * 1024
 # DuckDB folds its WAL into the file once it is this big (its own default:
 # 16 MiB). The commit that crosses it runs the checkpoint, and every
@@ -40,7 +42,8 @@ def _checked_prefixes(value: str) -> str:
     return value
 
 
-# A comma list of http(s) URL prefixes (TSDB_LD_CONTEXT_ALLOW, TSDB_SUBSCRIBE_BROKER_ALLOW), kept as given.
+# A comma list of http(s) URL prefixes (TSDB_LD_CONTEXT_ALLOW, TSDB_SUBSCRIBE_BROKER_ALLOW), kept as given
+# and compared by parts (core.urlprefix).
 UrlPrefixes = Annotated[str, AfterValidator(_checked_prefixes)]
 
 
@@ -528,21 +531,6 @@ SETTING_GROUPS: tuple[type[SettingsGroup], ...] = tuple(
 def setting_groups() -> tuple[tuple[type[SettingsGroup], tuple[str, ...]], ...]:
     """Each group with its settings' names, in declaration order."""
     return tuple((group, tuple(group.model_fields)) for group in SETTING_GROUPS)
-
-
-def url_prefixes(spec: str) -> tuple[str, ...]:
-    """A comma list of URL prefixes (``TSDB_LD_CONTEXT_ALLOW``), each
-    ``http://`` or ``https://`` with a host and no user info; ValueError otherwise."""
-    out = []
-    for item in spec.split(","):
-        prefix = item.strip()
-        if not prefix:
-            continue
-        parts = urlsplit(prefix)
-        if parts.scheme not in ("http", "https") or not parts.netloc or "@" in parts.netloc:
-            raise ValueError(f"URL prefixes are http(s)://host[:port][/path] without user info, not {prefix!r}")
-        out.append(prefix)
-    return tuple(out)
 
 
 def check_db(value: str) -> str:
