@@ -95,14 +95,14 @@ def test_both_settings_share_the_rule():
 class _Ok(LocalServer):
     def _handler(self) -> type:
         class Handler(BaseHTTPRequestHandler):
-            def do_GET(self) -> None:  # noqa: N802 (http.server's name)
+            def do_GET(self) -> None:
                 body = b'{"ok": true}'
                 self.send_response(200)
                 self.send_header("Content-Length", str(len(body)))
                 self.end_headers()
                 self.wfile.write(body)
 
-            do_POST = do_GET  # noqa: N815
+            do_POST = do_GET
 
             def log_message(self, *args) -> None:
                 pass

@@ -376,6 +376,11 @@ class MqttCollector(Collector):
         ("received", "tsdb_mqtt_messages_received", "MQTT messages delivered to us (redeliveries included)."),
         ("connects", "tsdb_mqtt_connects", "Connections made to the MQTT broker (the first and every reconnection)."),
         ("write_retries", "tsdb_mqtt_write_retries", "Failed attempts to store an MQTT message (it is retried)."),
+        (
+            "sessions_lost",
+            "tsdb_mqtt_sessions_lost",
+            "Connections on which the MQTT broker had no session for us (the duplicate window starts afresh).",
+        ),
     )
     _GAUGES = (
         ("connected", "tsdb_mqtt_connected", "1 while connected to the MQTT broker."),

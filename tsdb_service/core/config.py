@@ -376,10 +376,18 @@ class MqttSettings(SettingsGroup):
         "tenant header): a tenant, or '-' for the default tenant; empty: such a message is rejected (kept "
         "with its topic).",
     )
+    mqtt_tenants: str = Field(
+        "",
+        description="Tenants each topic may write, as the tenants of an API key restrict HTTP: "
+        "'FILTER=TENANT[,TENANT...]' entries separated by ';' (e.g. 'tsdb/alpha/#=alpha; tsdb/beta/#=beta'; "
+        "'-' is the default tenant); a message for any other tenant is rejected. Empty: any tenant (only the "
+        "broker's ACLs restrict who publishes what).",
+    )
     mqtt_client_id: str = Field(
         "",
         description="MQTT client id: names our session on the broker, so it must stay the same across "
-        "restarts and differ between replicas; default tsdb-service-HOSTNAME.",
+        "restarts and differ between replicas, and only we may use it (broker ACLs); default "
+        "tsdb-service-HOSTNAME, which anyone can guess.",
     )
     mqtt_username: str = Field("", description="User name for the MQTT broker.")
     mqtt_password: str = Field(
