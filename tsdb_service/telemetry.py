@@ -306,6 +306,14 @@ class StoreCollector(Collector):
             yield GaugeMetricFamily(
                 "tsdb_write_queue_depth", "Write ops queued, not yet taken by a writer.", value=depth
             )
+        poisoned = getattr(_committer(self._store), "poisoned", None)
+        if poisoned is not None:
+            yield CounterMetricFamily(
+                "tsdb_writes_poisoned",
+                "Writes the database refused for their content again and again (NotStorable): never retried; "
+                "the notification is kept in the rejected store.",
+                value=poisoned,
+            )
         yield from _ingest_log_metrics(getattr(self._store, "ingest_log", None))
         dropped = getattr(self._store, "rejected_dropped", None)
         if dropped is not None:
@@ -401,10 +409,11 @@ class MqttCollector(Collector):
         outcomes = CounterMetricFamily(
             "tsdb_mqtt_messages",
             "MQTT messages settled, by outcome: stored (samples written), rejected (kept in the rejected "
-            "store), redelivered (a redelivery of one stored already: acknowledged, not stored again).",
+            "store), redelivered (a redelivery of one stored already: acknowledged, not stored again), "
+            "poisoned (refused by the database for its content: kept in the rejected store).",
             labels=["outcome"],
         )
-        for outcome in ("stored", "rejected", "redelivered"):
+        for outcome in ("stored", "rejected", "redelivered", "poisoned"):
             outcomes.add_metric([outcome], numbers[outcome])
         yield outcomes
         for key, name, text in self._COUNTERS:

@@ -15,6 +15,7 @@ the columns, rows and SQL below it import none of it.
 from __future__ import annotations
 
 import json
+import time
 from abc import abstractmethod
 from collections.abc import Sequence
 from datetime import UTC, datetime
@@ -32,6 +33,8 @@ from tsdb_service.storage.store import CopyRun, Store
 from tsdb_service.write.committer import GroupCommitter
 from tsdb_service.write.logged import LoggedWriter
 from tsdb_service.write.ops import AppendSamples, WriteOp
+
+POISON_WARN_S = 3600.0  # /health warns this long after a write was refused for its content
 
 
 class CommittingStore(Store):
@@ -103,15 +106,30 @@ class CommittingStore(Store):
             problem = logged.failure
         alive = self._committer.alive and (logged is None or logged.alive)
         ok = alive and problem is None and self._reachable()
+        poison = self._poison_warning() if ok else None
         report: dict[str, Any] = {
-            "status": "pass" if ok else "fail",
+            "status": ("pass" if poison is None else "warn") if ok else "fail",
             "backend": self.backend,
             "commits": self._committer.commits,
             "writes": self._committer.ops,
         }
-        if problem is not None:
-            report["output"] = problem
+        if problem is not None or poison is not None:
+            report["output"] = problem or poison
         return report
+
+    def _poison_warning(self) -> str | None:
+        """``warn`` for an hour after the database refused a write for its
+        content (``write.committer``, poison): the service works, but an
+        operator has a notification to look at in the rejected store."""
+        committer = self._committer
+        last = committer.last_poison
+        if last is None or time.time() - last[0] > POISON_WARN_S:
+            return None
+        at = datetime.fromtimestamp(last[0], UTC).isoformat(timespec="seconds")
+        return (
+            f"{committer.poisoned} write(s) refused by the database for their content since start, the last at "
+            f"{at} ({last[1][:200]}); kept in GET /v2/notify/rejected?allTenants=true"
+        )
 
     def _health_problem(self) -> str | None:
         """A backend's own reason to fail ``/health``, worded for an operator."""

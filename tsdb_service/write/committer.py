@@ -12,6 +12,14 @@ commit's outcome is unknown) raises ``Unavailable`` instead: the group is
 answered with that error as it stands, never retried, because a retry after a
 commit that did land would store everything twice.
 
+**Poison.** A lone operation that fails ``SINGLE_OP_ATTEMPTS`` times, with
+an error its appender says is the content's (``Appender.refuses``: a value
+the database cannot hold, a constraint it breaks), will never be stored:
+its caller gets ``NotStorable`` (4xx), not a 503 inviting a retry that
+cannot succeed, and keeps the notification in the rejected store (HTTP
+answers 422; MQTT acknowledges it). ``poisoned`` counts them for
+``/metrics`` and ``/health``. Any other failure is still ``Unavailable``.
+
 Several writer threads may share the queue. A commit is mostly waiting (for
 the log's fsync, for the GIL held by the event loop), so while one writer
 waits another can build and send the next group: throughput scales with
@@ -34,7 +42,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import Future as SyncFuture
 from typing import Protocol
 
-from tsdb_service.core.errors import Unavailable
+from tsdb_service.core.errors import NotStorable, Unavailable, first_line
 from tsdb_service.write.appender import Appender
 from tsdb_service.write.ops import AppendSamples, WriteOp
 
@@ -77,6 +85,8 @@ class GroupCommitter:
         self.commits = 0
         self.ops = 0
         self.observer: CommitObserver | None = None
+        self.poisoned = 0  # operations set aside as NotStorable
+        self.last_poison: tuple[float, str] | None = None  # (time.time(), the database's reason)
         self._threads = [threading.Thread(target=self._run, name=f"{name}-{i}", daemon=True) for i in range(threads)]
         self._started = threading.Semaphore(0)
         self._count_lock = threading.Lock()
@@ -187,7 +197,7 @@ class GroupCommitter:
             self._tell("failed_ops", group)
             _resolve(group, exc)
             return
-        except Exception:
+        except Exception as exc:
             appender.rollback()
             if len(group) > 1:
                 log.warning("group commit of %d ops failed; retrying one by one", len(group))
@@ -199,6 +209,9 @@ class GroupCommitter:
                 time.sleep(0.005 * attempt)
                 self._commit_group(appender, group, attempt + 1)
                 return
+            if appender.refuses(exc):
+                self._poisoned(group, exc)
+                return
             log.exception("write failed")
             self._tell("failed_ops", group)
             _resolve(group, Unavailable("the write could not be committed; nothing was stored"))
@@ -208,6 +221,22 @@ class GroupCommitter:
             self.ops += len(group)
         self._tell("committed", group, time.perf_counter() - start)
         _resolve(group, None)
+
+    def _poisoned(self, group: list[_Waiter], exc: Exception) -> None:
+        """The database refused this lone op for its content, every time:
+        its caller sets it aside (rejected store) and the rest goes on."""
+        reason = first_line(exc)
+        kind = type(group[0].op).__name__
+        log.error("the database refused a write (%s) %d times for its content: %s", kind, SINGLE_OP_ATTEMPTS, reason)
+        with self._count_lock:
+            self.poisoned += 1
+            self.last_poison = (time.time(), reason)
+        _resolve(
+            group,
+            NotStorable(
+                f"the database refused to store this ({reason}); it is not retried and nothing of it was stored"
+            ),
+        )
 
     def _tell(self, event: str, group: list[_Waiter], *args) -> None:
         """Report to the observer; its failure must never stop a writer."""

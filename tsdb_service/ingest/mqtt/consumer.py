@@ -38,10 +38,14 @@ even across a crash. (Without a session the broker holds no subscription
 for us either: nothing arrives before we subscribe.)
 
 **Failures.** A message we cannot use is rejected: kept in the rejected
-store with its topic, then acknowledged. A write that fails (the database
-refuses, or its outcome is unknown) is retried with backoff until it is
-stored, checking first whether its delivery landed; meanwhile the message is
-not acknowledged and later ones wait behind it.
+store with its topic, then acknowledged. A write that fails because the
+database is unavailable (or its outcome is unknown) is retried with backoff
+until it is stored, checking first whether its delivery landed; meanwhile
+the message is not acknowledged and later ones wait behind it. A write the
+database refuses for its content, every time (``NotStorable``, after the
+group committer's bounded attempts), will never succeed: the message is
+**poisoned**, kept in the rejected store like a rejected one (with the
+database's reason) and acknowledged, so the messages behind it go on.
 """
 
 from __future__ import annotations
@@ -148,6 +152,7 @@ class MqttStats:
     stored: int = 0
     rejected: int = 0
     redelivered: int = 0
+    poisoned: int = 0  # refused by the database for their content: kept in the rejected store
     write_retries: int = 0
     connects: int = 0
     sessions_lost: int = 0  # connections on which the broker had no session for us (a fresh window)
@@ -425,7 +430,7 @@ class MqttConsumer:
         written = session.writing[key] = asyncio.Event()
         try:
             op = await self._op(m, delivery)
-            if not await self._write(op, delivery):
+            if not await self._store_or_set_aside(m, op, delivery):
                 return False
         finally:
             written.set()
@@ -433,6 +438,21 @@ class MqttConsumer:
                 del session.writing[key]
         session.window.add(key)
         return True
+
+    async def _store_or_set_aside(self, m: Message, op: WriteOp, delivery: Delivery | None) -> bool:
+        """Write ``op``; when the database refuses it for its content, keep
+        ``m`` in the rejected store instead. False when stopping first."""
+        try:
+            return await self._write(op, delivery)
+        except TsdbError as exc:  # 4xx: NotStorable, it would fail however often it is tried
+            if isinstance(op, RecordRejected):
+                raise  # the rejected store takes anything (storage.rejected): a bug, logged by _process
+            log.error("MQTT: a message on %r is set aside in the rejected store: %s", m.topic[:200], exc.description)
+            aside = RecordRejected(rejected(m, exc, self.config), delivery)
+            if not await self._write(aside, delivery, counted=False):
+                return False
+            self.stats.poisoned += 1
+            return True
 
     async def _op(self, m: Message, delivery: Delivery | None) -> WriteOp:
         """The write ``m`` makes: its samples, or its rejection. A parse that
@@ -456,14 +476,17 @@ class MqttConsumer:
             return AppendSamples(entities, deliveries=() if delivery is None else (delivery,))
 
     async def _write(self, op: WriteOp, delivery: Delivery | None, counted: bool = True) -> bool:
-        """Write ``op`` until it is stored; False when stopping first.
-        ``counted``: a message's write (not a session marker), for ``/metrics``."""
+        """Write ``op`` until it is stored; False when stopping first; a 4xx
+        ``TsdbError`` (``NotStorable``) when the database refuses it for its
+        content. ``counted``: count it as stored or rejected (``/metrics``)."""
         delay = RETRY_DELAY_S
         while True:
             try:
                 await self.store.write(op)
                 break
             except Exception as exc:
+                if isinstance(exc, TsdbError) and exc.status < 500:
+                    raise  # the database refuses it for its content: retrying cannot help
                 self.stats.write_retries += 1
                 if self._stopping:
                     return False
@@ -532,6 +555,7 @@ class MqttConsumer:
             "stored": s.stored,
             "rejected": s.rejected,
             "redelivered": s.redelivered,
+            "poisoned": s.poisoned,
             "write_retries": s.write_retries,
             "connects": s.connects,
             "sessions_lost": s.sessions_lost,
