@@ -105,6 +105,9 @@ FLAGS_BEFORE_GROUPS = [
 # Flags added since (each a new setting, nothing renamed).
 FLAGS_ADDED_AFTER_GROUPS = [
     "--mqtt-tenants",  # issue 37: the tenants each MQTT topic may write
+    "--read-concurrency",  # issue 37: the reads of all requests together (core.budget.ReadPool)
+    "--read-rows-in-flight",
+    "--read-queue-seconds",
 ]
 SETTINGS_BEFORE_GROUPS = [f[2:].replace("-", "_") for f in FLAGS_BEFORE_GROUPS if f != "--no-ingest-log"]
 SETTINGS_ADDED_AFTER_GROUPS = [f[2:].replace("-", "_") for f in FLAGS_ADDED_AFTER_GROUPS]

@@ -422,6 +422,31 @@ class MqttCollector(Collector):
             yield GaugeMetricFamily(name, text, value=numbers[key])
 
 
+class ReadPoolCollector(Collector):
+    """The reads in flight (``core.budget.ReadPool``), from memory at scrape time."""
+
+    def __init__(self, pool):
+        self._pool = pool
+
+    def collect(self):
+        n = self._pool.snapshot()
+        yield GaugeMetricFamily("tsdb_read_slots_in_use", "Reads of the database running now.", value=n["slots_used"])
+        yield GaugeMetricFamily(
+            "tsdb_read_rows_in_flight",
+            "Rows the reads running now hold (TSDB_READ_ROWS_IN_FLIGHT).",
+            value=n["rows_used"],
+        )
+        yield GaugeMetricFamily("tsdb_read_waiting", "Reads waiting now for a free slot.", value=n["waiting"])
+        yield CounterMetricFamily(
+            "tsdb_read_queued", "Reads that had to wait for a slot or for room for their rows.", value=n["queued"]
+        )
+        yield CounterMetricFamily(
+            "tsdb_read_refused",
+            "Reads answered 503 ServerBusy after waiting TSDB_READ_QUEUE_SECONDS.",
+            value=n["refused"],
+        )
+
+
 class _OtherOps:
     """An observer that passes on all but samples (counted at the ingest log)."""
 
@@ -486,6 +511,14 @@ class Metrics:
             worker.observer = self.retention
             self._retention_collector = RetentionLagCollector(worker)
             self.registry.register(self._retention_collector)
+
+    def attach_read_pool(self, pool) -> None:
+        """Report the process's read budget (``core.budget.ReadPool``)."""
+        previous = getattr(self, "_read_pool_collector", None)
+        if previous is not None:
+            self.registry.unregister(previous)
+        self._read_pool_collector = ReadPoolCollector(pool)
+        self.registry.register(self._read_pool_collector)
 
     def attach_mqtt(self, consumer) -> None:
         """Report the MQTT consumer (``ingest.mqtt``) while it runs."""

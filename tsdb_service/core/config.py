@@ -184,7 +184,10 @@ class CacheSettings(SettingsGroup):
 
 class ReadSettings(SettingsGroup):
     title = "Reads and budgets"
-    about = "How much one history query may select, read, render and take (past it: 422 QueryTooLarge)."
+    about = (
+        "How much one history query may select, read, render and take (past it: 422 QueryTooLarge), and all "
+        "reads together (past it: they wait, then 503 ServerBusy)."
+    )
 
     default_limit: int = Field(10_000, ge=1, description="Rows returned when no limit is given.")
     read_max_series: int = Field(
@@ -206,6 +209,26 @@ class ReadSettings(SettingsGroup):
         20.0,
         gt=0,
         description="Wall time of one read, checked between its steps; past it: 422 QueryTooLarge.",
+    )
+    read_concurrency: int = Field(
+        4,
+        ge=2,
+        le=1024,
+        description="Reads of the database running at once, over all requests (about twice the cores); one "
+        "tenant at most half (the others wait their turn, tenants served round-robin).",
+    )
+    read_rows_in_flight: int = Field(
+        1_000_000,
+        ge=2,
+        description="Rows all reads together may hold, charged as they stream from the database; one tenant "
+        "at most half (never less than one read's TSDB_READ_MAX_ROWS).",
+    )
+    read_queue_seconds: float = Field(
+        10.0,
+        gt=0,
+        le=600,
+        description="How long a read may wait for a free slot or room for its rows; past it: 503 ServerBusy "
+        "with Retry-After.",
     )
 
 
