@@ -249,7 +249,8 @@ class QuantumLeapReader:
         try:
             with self._conn.transaction(), self._conn.cursor(name="tsdb_ql_import") as cur:
                 cur.execute(sql, params)
-                fetch, carry = min(FIRST_FETCH, page_rows), []
+                fetch = min(FIRST_FETCH, page_rows)
+                carry: list[dict[str, Any]] = []
                 while rows := cur.fetchmany(fetch):
                     fetch = _next_fetch(rows, page_rows)
                     rows = carry + rows
