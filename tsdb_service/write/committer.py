@@ -14,7 +14,8 @@ commit that did land would store everything twice.
 
 **Poison.** A lone operation that fails ``SINGLE_OP_ATTEMPTS`` times, with
 an error its appender says is the content's (``Appender.refuses``: a value
-the database cannot hold, a constraint it breaks), will never be stored:
+the database cannot hold, a constraint it breaks), or while the operations
+of its group committed one by one beside it, will never be stored:
 its caller gets ``NotStorable`` (4xx), not a 503 inviting a retry that
 cannot succeed, and keeps the notification in the rejected store (HTTP
 answers 422; MQTT acknowledges it). ``poisoned`` counts them for
@@ -184,43 +185,71 @@ class GroupCommitter:
             if not isinstance(waiter.op, AppendSamples):
                 self._commit_group(appender, [waiter])
 
-    def _commit_group(self, appender: Appender, group: list[_Waiter], attempt: int = 1) -> None:
+    def _commit_group(self, appender: Appender, group: list[_Waiter]) -> None:
+        """Commit ``group`` in one transaction; if it fails, each op alone
+        (the ones that fail again retried, then set aside or refused)."""
+        exc = self._try(appender, group)
+        if exc is None:
+            return
+        if isinstance(exc, Unavailable):
+            self._unavailable(group, exc)
+            return
+        if len(group) == 1:
+            self._retry_alone(appender, group[0], exc, others_committed=False)
+            return
+        log.warning("group commit of %d ops failed; retrying one by one", len(group))
+        failures = [(waiter, failure) for waiter in group if (failure := self._try(appender, [waiter])) is not None]
+        others_committed = len(failures) < len(group)
+        for waiter, failure in failures:
+            if isinstance(failure, Unavailable):
+                self._unavailable([waiter], failure)
+            else:
+                self._retry_alone(appender, waiter, failure, others_committed)
+
+    def _retry_alone(self, appender: Appender, waiter: _Waiter, exc: Exception, others_committed: bool) -> None:
+        """A lone op that failed once: tried again (a transient conflict with
+        another writer passes); failing every time, it is poison when the
+        appender says the content is at fault, or when the ops committed
+        beside it show the database takes writes; else 503."""
+        for attempt in range(1, SINGLE_OP_ATTEMPTS):
+            time.sleep(0.005 * attempt)
+            failure = self._try(appender, [waiter])
+            if failure is None:
+                return
+            if isinstance(failure, Unavailable):
+                self._unavailable([waiter], failure)
+                return
+            exc = failure
+        if others_committed or appender.refuses(exc):
+            self._poisoned([waiter], exc)
+            return
+        log.error("write failed", exc_info=exc)
+        self._tell("failed_ops", [waiter])
+        _resolve([waiter], Unavailable("the write could not be committed; nothing was stored"))
+
+    def _try(self, appender: Appender, group: list[_Waiter]) -> Exception | None:
+        """Stage and commit ``group`` once: None once it is committed (and
+        its waiters answered), else the failure (rolled back, unanswered)."""
         start = time.perf_counter()
         try:
             for waiter in group:
                 appender.stage(waiter.op)
             appender.commit()
-        except Unavailable as exc:
-            # The appender says what happened (nothing stored, or unknown).
-            appender.rollback()
-            log.debug("write of %d ops refused: %s", len(group), exc.description)
-            self._tell("failed_ops", group)
-            _resolve(group, exc)
-            return
         except Exception as exc:
             appender.rollback()
-            if len(group) > 1:
-                log.warning("group commit of %d ops failed; retrying one by one", len(group))
-                for waiter in group:
-                    self._commit_group(appender, [waiter])
-                return
-            if attempt < SINGLE_OP_ATTEMPTS:
-                # A lone op can meet a transient conflict with another writer.
-                time.sleep(0.005 * attempt)
-                self._commit_group(appender, group, attempt + 1)
-                return
-            if appender.refuses(exc):
-                self._poisoned(group, exc)
-                return
-            log.exception("write failed")
-            self._tell("failed_ops", group)
-            _resolve(group, Unavailable("the write could not be committed; nothing was stored"))
-            return
+            return exc
         with self._count_lock:
             self.commits += 1
             self.ops += len(group)
         self._tell("committed", group, time.perf_counter() - start)
         _resolve(group, None)
+        return None
+
+    def _unavailable(self, group: list[_Waiter], exc: Unavailable) -> None:
+        """The appender says what happened (nothing stored, or unknown): never retried."""
+        log.debug("write of %d ops refused: %s", len(group), exc.description)
+        self._tell("failed_ops", group)
+        _resolve(group, exc)
 
     def _poisoned(self, group: list[_Waiter], exc: Exception) -> None:
         """The database refused this lone op for its content, every time:

@@ -45,7 +45,9 @@ the message is not acknowledged and later ones wait behind it. A write the
 database refuses for its content, every time (``NotStorable``, after the
 group committer's bounded attempts), will never succeed: the message is
 **poisoned**, kept in the rejected store like a rejected one (with the
-database's reason) and acknowledged, so the messages behind it go on.
+database's reason) and acknowledged, so the messages behind it go on. So
+is one whose write failed ``POISON_ATTEMPTS`` times, whatever the error,
+while other messages were stored meanwhile.
 """
 
 from __future__ import annotations
@@ -70,7 +72,7 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
-from tsdb_service.core.errors import TsdbError
+from tsdb_service.core.errors import NotStorable, TsdbError
 from tsdb_service.ingest.mqtt.config import BUFFER_BYTES, MqttConfig
 from tsdb_service.ingest.mqtt.messages import Message, parse_message, rejected
 from tsdb_service.parse import ValuesLayout
@@ -83,6 +85,7 @@ KEEPALIVE_S = 30
 RETRY_DELAY_S = 0.1
 RETRY_MAX_DELAY_S = 5.0
 STOP_TIMEOUT_S = 10.0
+POISON_ATTEMPTS = 5  # failed writes of one message, while others are stored, before it is set aside
 _PARSE_INLINE_MAX = 64 * 1024  # larger payloads are parsed in the threadpool, as over HTTP
 
 
@@ -166,6 +169,7 @@ class MqttConsumer:
         self.stats = MqttStats()
         self._session = _Session(Window(config.window))
         self._next_seq = 1
+        self._writes_ok = 0  # writes that went through (a message failing alone while it grows is poison)
         self._order: deque[_Item] = deque()
         self._tasks: set[asyncio.Task] = set()
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -384,8 +388,11 @@ class MqttConsumer:
         seq = self._next_seq
         self._next_seq += 1
         marker = Delivery(self.config.client_id, seq, 0, b"", datetime.now(UTC), prune_below=seq)
-        if not await self._write(AppendSamples((), deliveries=(marker,)), marker, counted=False):
-            return  # stopping
+        try:
+            if not await self._write(AppendSamples((), deliveries=(marker,)), marker, counted=False):
+                return  # stopping
+        except TsdbError as exc:  # refused for its content: cannot be (a marker is ids only); go on in memory
+            log.error("MQTT: the earlier deliveries could not be forgotten in the database: %s", exc.description)
         self.stats.sessions_lost += 1
         with self._ack_lock:
             current = self._connected and generation == self._generation
@@ -411,7 +418,7 @@ class MqttConsumer:
         already; True once it may be acknowledged."""
         if m.qos == 0:
             op = await self._op(m, None)
-            await self._write(op, None)
+            await self._store_or_set_aside(m, op, None)
             return False
         key = (m.packet_id, m.digest)
         session = self._session  # the broker's session this message belongs to
@@ -480,6 +487,7 @@ class MqttConsumer:
         ``TsdbError`` (``NotStorable``) when the database refuses it for its
         content. ``counted``: count it as stored or rejected (``/metrics``)."""
         delay = RETRY_DELAY_S
+        others_before, attempts = self._writes_ok, 0
         while True:
             try:
                 await self.store.write(op)
@@ -488,6 +496,7 @@ class MqttConsumer:
                 if isinstance(exc, TsdbError) and exc.status < 500:
                     raise  # the database refuses it for its content: retrying cannot help
                 self.stats.write_retries += 1
+                attempts += 1
                 if self._stopping:
                     return False
                 reason = getattr(exc, "description", None) or str(exc) or type(exc).__name__
@@ -496,6 +505,12 @@ class MqttConsumer:
                 delay = min(delay * 2, RETRY_MAX_DELAY_S)
                 if delivery is not None and await self._recorded(delivery.seq):
                     break  # a commit whose outcome was unknown did land
+                if attempts >= POISON_ATTEMPTS and self._writes_ok > others_before:
+                    # The store took other messages meanwhile: this one is the trouble.
+                    raise NotStorable(
+                        f"storing it failed {attempts} times while other messages were stored: {reason}"
+                    ) from None
+        self._writes_ok += 1
         if not counted:
             return True
         if isinstance(op, RecordRejected):
