@@ -15,7 +15,7 @@ import time
 import orjson
 import pytest
 
-from tests.support.mosquitto import Publisher, unique_client_id
+from tests.support.mosquitto import Publisher, mqtt_settings, unique_client_id
 from tsdb_service.core.config import Settings
 from tsdb_service.ingest.mqtt.config import MqttConfig
 from tsdb_service.ingest.mqtt.topics import filter_matches, parse_tenant_rules, topic_tenants
@@ -33,14 +33,10 @@ def envelope(headers: dict, entity_id: str) -> bytes:
 @pytest.fixture
 def feed(client_factory, store_url, mosquitto):
     prefix = unique_client_id("tenants")
-    settings = {
-        "mqtt_url": mosquitto.url,
-        "mqtt_client_id": unique_client_id("svc"),
-        "mqtt_topics": f"{prefix}/#",
-        "mqtt_topic_template": f"{prefix}/v2/${{service}}${{servicePath}}",
-        "mqtt_default_tenant": "-",
-        "mqtt_tenants": f"{prefix}/v2/alpha/#=alpha; {prefix}/site/+/robots=alpha,-",
-    }
+    rules = f"{prefix}/v2/alpha/#=alpha; {prefix}/site/+/robots=alpha,-"
+    settings = mqtt_settings(
+        mosquitto.url, prefix, "v2/${service}${servicePath}", mqtt_default_tenant="-", mqtt_tenants=rules
+    )
     with client_factory(store_url, **settings) as client, Publisher(mosquitto.url) as publisher:
         consumer = client.app.state.mqtt
         assert consumer.subscribed.wait(10)

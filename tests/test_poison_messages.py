@@ -25,7 +25,7 @@ import orjson
 import psycopg
 import pytest
 
-from tests.support.mosquitto import Publisher, unique_client_id
+from tests.support.mosquitto import Publisher, mqtt_settings, unique_client_id
 from tsdb_service.core.model import RejectedNotification
 from tsdb_service.write.ops import RecordRejected
 
@@ -89,12 +89,7 @@ def test_a_nul_in_an_ngsi_ld_notification_is_refused(client_factory, store_url):
 def mqtt(client_factory, store_url, mosquitto):
     """An app consuming ``PREFIX/#`` (tenant and service path in the topic)."""
     prefix = unique_client_id("poison")
-    settings = {
-        "mqtt_url": mosquitto.url,
-        "mqtt_client_id": unique_client_id("svc"),
-        "mqtt_topics": f"{prefix}/#",
-        "mqtt_topic_template": f"{prefix}/${{service}}${{servicePath}}",
-    }
+    settings = mqtt_settings(mosquitto.url, prefix)
 
     def start():
         return client_factory(store_url, **settings)
@@ -113,6 +108,17 @@ def settle(consumer, count: int, timeout: float = 30.0) -> None:
         time.sleep(0.02)
 
 
+def good_behind(publisher, topic: str, name: str) -> None:
+    """Three good messages behind a bad one: entities NAME:1 to NAME:3."""
+    for n in range(1, 4):
+        publisher.publish(topic, v2(f"{name}:{n}", f"good {n}"))
+
+
+def assert_good(client, name: str) -> None:
+    for n in range(1, 4):
+        assert texts(client, f"{name}:{n}") == [f"good {n}"]
+
+
 def test_a_nul_over_mqtt_is_set_aside_and_never_blocks(mqtt):
     prefix, client, publisher, _ = mqtt
     consumer = client.app.state.mqtt
@@ -121,13 +127,11 @@ def test_a_nul_over_mqtt_is_set_aside_and_never_blocks(mqtt):
     # itself refuses a NUL in an MQTT 5 user property, as MQTT says).
     envelope = {"metadata": {"Fiware-Service": f"po{NUL}ison"}, "body": orjson.loads(v2("M:0", "x"))}
     publisher.publish(f"{prefix}/", orjson.dumps(envelope))
-    for n in range(1, 4):
-        publisher.publish(f"{prefix}/poison", v2(f"M:{n}", f"good {n}"))
+    good_behind(publisher, f"{prefix}/poison", "M")
     settle(consumer, 5)
     client.app.state.store.sync()
     assert (consumer.stats.stored, consumer.stats.rejected) == (3, 2)
-    for n in range(1, 4):
-        assert texts(client, f"M:{n}") == [f"good {n}"]
+    assert_good(client, "M")
     kept = {r["topic"]: r for r in rejected(client)}
     assert "NUL" in kept[f"{prefix}/poison"]["description"]
     assert orjson.loads(kept[f"{prefix}/"]["body"]) == envelope
@@ -196,13 +200,11 @@ def test_a_write_the_database_refuses_over_mqtt_is_set_aside_and_acknowledged(mq
     consumer = client.app.state.mqtt
     refusing()
     publisher.publish(f"{prefix}/poison", v2("Q:0", "poison"))
-    for n in range(1, 4):
-        publisher.publish(f"{prefix}/poison", v2(f"Q:{n}", f"good {n}"))
+    good_behind(publisher, f"{prefix}/poison", "Q")
     settle(consumer, 4)
     client.app.state.store.sync()
     assert (consumer.stats.stored, consumer.stats.poisoned) == (3, 1)
-    for n in range(1, 4):
-        assert texts(client, f"Q:{n}") == [f"good {n}"]
+    assert_good(client, "Q")
     kept = rejected(client)
     assert [(r["error"], r["topic"]) for r in kept] == [("NotStorable", f"{prefix}/poison")]
     assert client.get("/health").json()["status"] == "warn"

@@ -25,7 +25,16 @@ from tests.support.apt import apt_install
 from tests.support.server import ServerProcess
 from tsdb_service.demo.mosquitto import LocalMosquitto, find_mosquitto
 
-__all__ = ["Publisher", "broker", "mosquitto_binary", "mqtt_args", "mqtt_outcome", "ready", "unique_client_id"]
+__all__ = [
+    "Publisher",
+    "broker",
+    "mosquitto_binary",
+    "mqtt_args",
+    "mqtt_outcome",
+    "mqtt_settings",
+    "ready",
+    "unique_client_id",
+]
 
 _ids = itertools.count(1)
 
@@ -122,6 +131,19 @@ class Publisher:
 # --- a service consuming from the broker (tests that run ``serve`` as a process) ---
 
 READY_TIMEOUT_S = 30.0
+
+
+def mqtt_settings(url: str, prefix: str, template: str = "${service}${servicePath}", **extra) -> dict:
+    """App settings (``client_factory``) to consume ``prefix/#`` under a
+    client id of the test's own, the tenant and service path in the topic
+    after ``prefix/`` as ``template`` says."""
+    return {
+        "mqtt_url": url,
+        "mqtt_client_id": unique_client_id("svc"),
+        "mqtt_topics": f"{prefix}/#",
+        "mqtt_topic_template": f"{prefix}/{template}",
+        **extra,
+    }
 
 
 def mqtt_args(url: str, prefix: str, client_id: str, *extra: str) -> list[str]:
