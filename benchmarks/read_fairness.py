@@ -35,7 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import httpx
 
-from tests.support.read_load import light_latencies, peak_rss_mib, percentile, prepare, start_heavy
+from tests.support.memory import peak_rss_mib
+from tests.support.read_load import light_latencies, percentile, prepare, start_heavy
 from tests.support.server import ServerProcess
 
 

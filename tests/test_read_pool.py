@@ -24,7 +24,8 @@ import time
 
 import pytest
 
-from tests.support.read_load import light_latencies, peak_rss_mib, percentile, prepare, start_heavy
+from tests.support.memory import peak_rss_mib
+from tests.support.read_load import light_latencies, percentile, prepare, start_heavy
 from tests.support.server import ServerProcess
 from tsdb_service.core.budget import CHUNK_ROWS, OutOfRoom, ReadBudget, ReadLimits, ReadPool, ServerBusy
 

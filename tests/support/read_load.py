@@ -121,18 +121,6 @@ def light_latencies(url: str, seconds: float, pause: float = 0.05) -> list[float
     return out
 
 
-def peak_rss_mib(pid: int, until: float, every: float = 0.05) -> int:
-    """The largest resident size of process ``pid`` seen until ``until``, in MiB."""
-    import psutil
-
-    proc = psutil.Process(pid)
-    peak = 0
-    while time.monotonic() < until:
-        peak = max(peak, proc.memory_info().rss)
-        time.sleep(every)
-    return peak // (1024 * 1024)
-
-
 def percentile(values: list[float], p: float) -> float:
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, round(p / 100 * (len(ordered) - 1)))]

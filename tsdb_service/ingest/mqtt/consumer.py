@@ -76,7 +76,7 @@ from tsdb_service.core.errors import NotStorable, TsdbError
 from tsdb_service.ingest.mqtt.config import BUFFER_BYTES, MqttConfig
 from tsdb_service.ingest.mqtt.messages import Message, parse_message, rejected
 from tsdb_service.parse import ValuesLayout
-from tsdb_service.write.ops import AppendSamples, Delivery, RecordRejected, WriteOp
+from tsdb_service.write.ops import AppendSamples, Delivery, RecordDelivery, RecordRejected, WriteOp
 
 log = logging.getLogger(__name__)
 
@@ -389,7 +389,7 @@ class MqttConsumer:
         self._next_seq += 1
         marker = Delivery(self.config.client_id, seq, 0, b"", datetime.now(UTC), prune_below=seq)
         try:
-            if not await self._write(AppendSamples((), deliveries=(marker,)), marker, counted=False):
+            if not await self._write(RecordDelivery(marker), marker, counted=False):
                 return  # stopping
         except TsdbError as exc:  # refused for its content: cannot be (a marker is ids only); go on in memory
             log.error("MQTT: the earlier deliveries could not be forgotten in the database: %s", exc.description)
