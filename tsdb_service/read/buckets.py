@@ -18,6 +18,14 @@ refreshing every few seconds hit the same buckets).
 * ``state_changes(ChangesRead)``: the samples of non-numeric series (text,
   booleans, enumerations) whose value differs from the one before it, so a
   state timeline keeps every transition and nothing is ever averaged.
+* ``span(SamplesIn)``: the first and last sample times of some series in a
+  window, where a drawing's window has an open end (all data).
+
+Times are epoch microseconds (UTC) as plain integers: a 1,000-point panel
+of 20 series is 20,000 rows of five times each, and making a ``datetime``
+of each costs more than the database takes to compute them. A value path
+(``steps``, as in ``core.query.ValuePath``) reads the number, or for
+changes the value, at that path inside each stored JSON value.
 
 Threads and lifetimes as for every read (``read``): any thread, never the
 event loop, each call its own snapshot, rows owned by the caller.
@@ -27,10 +35,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime, timedelta
+from datetime import timedelta
 from typing import NamedTuple, Protocol
 
 from tsdb_service.core.query import TimeRange
+from tsdb_service.read.requests import SamplesIn
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,49 +47,54 @@ class BucketRead:
     """Buckets of ``width`` (a ``core.buckets.LADDER`` width, aligned to the
     epoch) over ``time`` (both ends given, inclusive) of the series
     ``sids``. A bucket cut by an end of the window holds only the samples
-    inside it."""
+    inside it. ``steps``: the numbers at this path inside JSON values (a
+    ``ValuePath``'s steps) instead of the numeric samples themselves."""
 
     sids: Sequence[int]
     time: TimeRange
     width: timedelta
+    steps: tuple[str | int, ...] = ()
 
 
 class BucketRow(NamedTuple):
     """One series' numeric samples in one bucket. ``n`` >= 1; the
-    ``*_t`` are sample times (UTC, aware); ties go to the earliest sample
+    ``*_t`` are sample times (epoch µs, UTC); ties go to the earliest sample
     (then the lowest row id), for ``last`` to the latest."""
 
     sid: int
-    start: datetime  # the bucket's start (not clipped to the window)
+    start: int  # the bucket's start, epoch µs (not clipped to the window)
     n: int  # numeric samples
     total: float  # their sum
     all_integer: bool  # every one of them an integer
     min: float
-    min_t: datetime
+    min_t: int
     max: float
-    max_t: datetime
+    max_t: int
     first: float
-    first_t: datetime
+    first_t: int
     last: float
-    last_t: datetime
+    last_t: int
 
 
 @dataclass(frozen=True, slots=True)
 class ChangesRead:
     """Transitions of ``sids`` in ``time``: at most ``limit`` of them, the
-    newest kept when there are more."""
+    newest kept when there are more. ``steps``: compare the values at this
+    path inside JSON values (a ``ValuePath``'s steps), not whole values."""
 
     sids: Sequence[int]
     time: TimeRange
     limit: int
+    steps: tuple[str | int, ...] = ()
 
 
 class StateChange(NamedTuple):
     """A sample whose value differs from the series' sample before it (the
-    first sample of the window always counts). The value as stored."""
+    first sample of the window always counts). The value as stored (the
+    whole value, also when changes are compared at a path)."""
 
     sid: int
-    time: datetime
+    time: int  # epoch µs
     kind: int
     num: float | None
     txt: str | None
@@ -99,4 +113,9 @@ class BucketReader(Protocol):
 
     def state_changes(self, ask: ChangesRead) -> ChangesPage:
         """Every transition of the series in the window (see ``ChangesRead``)."""
+        ...
+
+    def span(self, ask: SamplesIn) -> tuple[int, int] | None:
+        """The first and last sample times (epoch µs) of ``ask.sids`` in
+        ``ask.time`` (no mask); None when there is none."""
         ...
