@@ -8,6 +8,7 @@ rollups plug into) equals the window answered at once.
 
 from __future__ import annotations
 
+import itertools
 import random
 from datetime import timedelta
 
@@ -130,7 +131,7 @@ def test_changes_keep_transitions_only(pair):
     for change in page.changes:
         by_sid.setdefault(change.sid, []).append(change.num)
     for values in by_sid.values():
-        assert all(a != b for a, b in zip(values, values[1:], strict=False)), "consecutive changes differ"
+        assert all(a != b for a, b in itertools.pairwise(values)), "consecutive changes differ"
 
 
 def test_span(pair):

@@ -518,7 +518,6 @@ class Settings(
 
     model_config = SettingsConfigDict(env_prefix="TSDB_", extra="ignore")
 
-
     @property
     def backend(self) -> str:
         return "postgresql" if self.db.startswith(("postgresql://", "postgres://")) else "duckdb"

@@ -91,7 +91,10 @@ class ChangesRead:
 class StateChange(NamedTuple):
     """A sample whose value differs from the series' sample before it (the
     first sample of the window always counts). The value as stored (the
-    whole value, also when changes are compared at a path)."""
+    whole value, also when changes are compared at a path). ``before``: the
+    time of the series' sample before it in the window (None for the
+    window's first), where the previous state was last seen: a run of
+    states ends there (Grafana's annotations)."""
 
     sid: int
     time: int  # epoch µs
@@ -99,6 +102,7 @@ class StateChange(NamedTuple):
     num: float | None
     txt: str | None
     js: str | None
+    before: int | None  # epoch µs
 
 
 class ChangesPage(NamedTuple):

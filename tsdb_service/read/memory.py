@@ -294,17 +294,19 @@ class MemoryQuerier(SeparateScans, Querier):
         return [_bucket_row(sid, start, rows) for (sid, start), rows in sorted(groups.items())]
 
     def state_changes(self, ask: ChangesRead) -> ChangesPage:
-        found: list[MemorySample] = []
+        found: list[tuple[MemorySample, int | None]] = []
         for sid in sorted(set(ask.sids)):
             previous: Any = _NO_SAMPLE
+            before = None
             for s in sorted(self._in([sid], ask.time), key=lambda r: (r.t, r.rid)):
                 state = _state_of(s, ask.steps)
                 if state != previous:
-                    found.append(s)
-                previous = state
-        found.sort(key=lambda s: (s.t, s.rid, s.sid))
+                    found.append((s, before))
+                previous, before = state, s.t_us
+        found.sort(key=lambda pair: (pair[0].t, pair[0].rid, pair[0].sid))
         kept = found[max(0, len(found) - ask.limit) :] if ask.limit > 0 else []
-        return ChangesPage([StateChange(s.sid, s.t_us, s.kind, s.num, s.txt, s.js) for s in kept], len(kept) < len(found))
+        changes = [StateChange(s.sid, s.t_us, s.kind, s.num, s.txt, s.js, before) for s, before in kept]
+        return ChangesPage(changes, len(kept) < len(found))
 
     def span(self, ask: SamplesIn) -> tuple[int, int] | None:
         times = [s.t_us for s in self._in(ask.sids, ask.time)]

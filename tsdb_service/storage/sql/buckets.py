@@ -56,9 +56,7 @@ from tsdb_service.storage.sql.dialect import (
 from tsdb_service.storage.sql.reads import SqlReads
 
 # The layout of every part and of the answer (``BucketRow``).
-BUCKET_COLUMNS = (
-    "sid, start, n, total, all_integer, min, min_t, max, max_t, first, first_t, last, last_t"
-)
+BUCKET_COLUMNS = "sid, start, n, total, all_integer, min, min_t, max, max_t, first, first_t, last, last_t"
 as_buckets = rows_as(BucketRow)
 as_changes = rows_as(StateChange)
 _MICRO = timedelta(microseconds=1)
@@ -92,10 +90,7 @@ def raw_part(
     w = width_us(width)
     key, kparams = d.bucket_index("t", "tu", w)
     start, sparams = d.bucket_start("b", w)
-    inner = (
-        f"SELECT sid, rid, {d.epoch_us('t')} AS tu, t, {values} "
-        f"FROM {d.samples(columns)} WHERE {where}{d.fence}"
-    )
+    inner = f"SELECT sid, rid, {d.epoch_us('t')} AS tu, t, {values} FROM {d.samples(columns)} WHERE {where}{d.fence}"
     keyed = f"SELECT sid, rid, tu, v, i, {key} AS b, {d.value_key('v')} AS vk FROM ({inner}) AS x WHERE v IS NOT NULL"
     sql = (
         f"SELECT sid, {start} AS start, count(*) AS n, sum(v) AS total, "
@@ -147,7 +142,7 @@ def _compared(dialect: SqlDialect, steps: tuple[str | int, ...]) -> tuple[list[s
 
 def changes_sql(dialect: SqlDialect, ask: ChangesRead) -> tuple[str, list]:
     """The newest ``ask.limit + 1`` transitions, newest first, as
-    (sid, time µs, kind, num, txt, js)."""
+    (sid, time µs, kind, num, txt, js, the previous sample's time µs)."""
     d = dialect
     where, wparams = series_time_filter(d, ask.sids, ask.time)
     compared, cparams = _compared(d, ask.steps)
@@ -158,10 +153,13 @@ def changes_sql(dialect: SqlDialect, ask: ChangesRead) -> tuple[str, list]:
     inner = f"SELECT sid, rid, t, kind, num, txt, js, {values} FROM {d.samples('sid, rid, t, kind, num, txt, js')} "
     inner += f"WHERE {where}{d.fence}"
     mine = ", ".join(f"c{i}" for i in range(len(compared)))
-    ranked = f"SELECT sid, rid, t, kind, num, txt, js, {mine}, row_number() {window} AS rn, {lags} FROM ({inner}) AS x"
+    ranked = (
+        f"SELECT sid, rid, t, kind, num, txt, js, {mine}, row_number() {window} AS rn, "
+        f"lag(t) {window} AS before, {lags} FROM ({inner}) AS x"
+    )
     p = d.placeholder
     sql = (
-        f"SELECT sid, {d.epoch_us('t')}, kind, num, txt, js FROM ({ranked}) AS y "
+        f"SELECT sid, {d.epoch_us('t')}, kind, num, txt, js, {d.epoch_us('before')} FROM ({ranked}) AS y "
         f"WHERE rn = 1 OR {differs} ORDER BY t DESC, rid DESC, sid DESC LIMIT {p}"
     )
     return sql, [*cparams, *wparams, min(ask.limit + 1, MAX_BIGINT)]
