@@ -156,14 +156,13 @@ def draw(querier: HistoryReads, q: DrawQuery) -> Drawing:
     if window is None:
         return Drawing([])
     width = choose_width(_span(window), q.points, q.floor)
-    columns = _columns_of(q.columns, refs)
     reads = _reads(q.columns, refs)
-    rows: dict[int, list[BucketRow]] = {}
+    rows: dict[tuple[tuple[str | int, ...], int], list[BucketRow]] = {}  # (steps, sid) -> buckets
     for read in reads:
         found = querier.buckets(BucketRead(read.sids, _range(window), width, read.steps))
         budget.charge_rows(len(found))
         for row in found:
-            rows.setdefault(row.sid, []).append(row)
+            rows.setdefault((read.steps, row.sid), []).append(row)
     if q.raw and q.mode in VALUE_MODES and all(sum(r.n for r in bs) <= q.points for bs in rows.values()):
         raw = _raw(querier, q, refs, window)
         if raw is not None:
@@ -172,23 +171,23 @@ def draw(querier: HistoryReads, q: DrawQuery) -> Drawing:
     tracks: dict[tuple[str, str], Track] = {}
     grid = _Grid(window, width)
     by_sid = {r.sid: r for r in refs}
-    for sid, found in rows.items():
+    for (steps, sid), found in rows.items():
         ref = by_sid[sid]
         track = _track(tracks, ref)
-        for name in columns.get(sid, ()):
-            track.lines[name] = _bucket_line(found, q.mode, q.fill, grid)
-    states = [_Read(read.steps, tuple(s for s in read.sids if s not in rows)) for read in reads]
-    states = [read for read in states if read.sids]
-    if states:
-        limit = q.changes
-        for read in states:
-            lines, notice = changes_lines(querier, read, window, limit or q.points * len(read.sids))
-            if notice:
-                drawing.notices.append(notice)
-            for sid, line in lines.items():
-                track = _track(tracks, by_sid[sid])
-                for name in columns.get(sid, ()):
-                    track.lines[name] = _extracted(line, _path_of(q.columns, name))
+        for column in _drawn_as(q.columns, ref, steps):
+            track.lines[column.name] = _bucket_line(found, q.mode, q.fill, grid)
+    for read in reads:
+        states = _Read(read.steps, tuple(s for s in read.sids if (read.steps, s) not in rows))
+        if not states.sids:
+            continue
+        lines, notice = changes_lines(querier, states, window, q.changes or q.points * len(states.sids))
+        if notice:
+            drawing.notices.append(notice)
+        for sid, line in lines.items():
+            ref = by_sid[sid]
+            track = _track(tracks, ref)
+            for column in _drawn_as(q.columns, ref, read.steps):
+                track.lines[column.name] = _extracted(line, column.path)
     drawing.tracks = [tracks[key] for key in sorted(tracks, key=lambda k: (k[1], k[0]))]
     return drawing
 
@@ -223,14 +222,9 @@ def _micros(moment: datetime) -> int:
     return (moment - _EPOCH) // _US
 
 
-def _columns_of(columns: Sequence[Column], refs: Sequence[SeriesRef]) -> dict[int, list[str]]:
-    """sid → the names of the columns it is drawn under."""
-    out: dict[int, list[str]] = {}
-    for ref in refs:
-        names = [c.name for c in columns if c.path.attr == ref.attr]
-        if names:
-            out[ref.sid] = names
-    return out
+def _drawn_as(columns: Sequence[Column], ref: SeriesRef, steps: tuple[str | int, ...]) -> list[Column]:
+    """The columns series ``ref`` is drawn under at the path ``steps``."""
+    return [c for c in columns if c.path.attr == ref.attr and c.path.steps == steps]
 
 
 def _reads(columns: Sequence[Column], refs: Sequence[SeriesRef]) -> list[_Read]:
@@ -241,10 +235,6 @@ def _reads(columns: Sequence[Column], refs: Sequence[SeriesRef]) -> list[_Read]:
         sids = by_steps.setdefault(column.path.steps, [])
         sids += [r.sid for r in refs if r.attr == column.path.attr and r.sid not in sids]
     return [_Read(steps, tuple(sorted(sids))) for steps, sids in by_steps.items() if sids]
-
-
-def _path_of(columns: Sequence[Column], name: str) -> ValuePath:
-    return next(c.path for c in columns if c.name == name)
 
 
 def _track(tracks: dict[tuple[str, str], Track], ref: SeriesRef) -> Track:
