@@ -397,9 +397,8 @@ def test_a_gap_in_the_data_is_a_break_in_the_line(browser, demo_server, shots):
           const x = Math.round(u.valToPos(t, 'x', true));
           const data = u.ctx.getImageData(x - 2, 0, 5, u.ctx.canvas.height).data;
           let n = 0;
-          for (let i = 0; i < data.length; i += 4) {
-            if (Math.abs(data[i] - 31) < 40 && Math.abs(data[i + 1] - 119) < 40 && Math.abs(data[i + 2] - 180) < 40) n++;
-          }
+          const near = (i, c) => Math.abs(data[i] - c) < 40;
+          for (let i = 0; i < data.length; i += 4) if (near(i, 31) && near(i + 1, 119) && near(i + 2, 180)) n++;
           return n;
         };
         return [ink(arguments[0]), ink(arguments[1])];""",

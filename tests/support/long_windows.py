@@ -29,7 +29,7 @@ def _state(rng: random.Random, robot: str, at: datetime) -> dict:
         "type": "Robot",
         "TimeInstant": {"type": "DateTime", "value": at.isoformat().replace("+00:00", "Z")},
         "speed": {"type": "Number", "value": speed},
-        "count": {"type": "Number", "value": rng.randint(0, 5)},
+        "count": {"type": "Integer", "value": rng.randint(0, 5)},
         "mode": {"type": "Text", "value": rng.choice(MODES) if rng.random() < 0.2 else None},
         "busy": {"type": "Boolean", "value": rng.random() < 0.5},
         "odom": {"type": "StructuredValue", "value": {"v": inner, "s": rng.choice(MODES[:2])}},
@@ -46,8 +46,9 @@ def _times(rng: random.Random, n: int) -> list[datetime]:
     return out
 
 
-def load(client, seed: int = 38, per_robot: int = 240) -> None:
-    """Store ``per_robot`` (and a few more) states of each robot, out of order."""
+def load(client, seed: int = 38, per_robot: int = 240) -> list[dict]:
+    """Store ``per_robot`` (and a few more) states of each robot, out of
+    order; the states as sent, in the order sent (which is row-id order)."""
     rng = random.Random(seed)
     states = [_state(rng, robot, at) for robot in ROBOTS for at in _times(rng, per_robot)]
     rng.shuffle(states)
@@ -55,3 +56,25 @@ def load(client, seed: int = 38, per_robot: int = 240) -> None:
         body = {"subscriptionId": "longwin", "data": states[i : i + 6]}
         response = client.post("/v2/notify", json=body, headers=HEADERS)
         assert response.status_code == 200, response.text
+    return states
+
+
+def micros(text: str) -> int:
+    """An ISO time (``Z`` or an offset) → epoch µs."""
+    at = datetime.fromisoformat(text.replace("Z", "+00:00"))
+    return (at - datetime(1970, 1, 1, tzinfo=UTC)) // timedelta(microseconds=1)
+
+
+def samples(states: list[dict], robot: str, attr: str, path: tuple = ()) -> list[tuple[int, object]]:
+    """(epoch µs, value) of one robot's attribute (at ``path`` inside it), in
+    time order then sending order: the raw samples a bucket is computed from."""
+    out = []
+    for state in states:
+        if state["id"] != robot:
+            continue
+        value = state[attr]["value"]
+        for step in path:
+            value = value.get(step) if isinstance(value, dict) else None
+        out.append((micros(state["TimeInstant"]["value"]), value))
+    out.sort(key=lambda pair: pair[0])  # stable: equal times keep the sending order
+    return out

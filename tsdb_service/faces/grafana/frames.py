@@ -107,12 +107,12 @@ def rows_long(tracks: Sequence[Track], extra: Callable[[Track], dict] | None = N
     rows = []
     for track in tracks:
         head = extra(track) if extra else {}
-        cells: dict[int, dict] = {}
+        cells: dict[tuple[int, int], dict] = {}
         for name, line in track.lines.items():
-            for t, value in zip(line.times, line.values, strict=True):
-                row = cells.get(t)
+            for key, value in zip(_keys(line.times), line.values, strict=True):
+                row = cells.get(key)
                 if row is None:
-                    row = cells[t] = {"time": t, "entity": track.entity_id, **head}
+                    row = cells[key] = {"time": key[0], "entity": track.entity_id, **head}
                 row[name] = value
         rows.extend(cells.values())
     rows.sort(key=lambda r: (r["time"], r["entity"]))
@@ -126,14 +126,23 @@ def rows_wide(tracks: Sequence[Track]) -> list[dict]:
     Entities are named by the last part of their id unless two would clash."""
     shorts = [short_name(t.entity_id) for t in tracks]
     clash = len(set(shorts)) != len(shorts)
-    by_time: dict[int, dict] = {}
+    by_time: dict[tuple[int, int], dict] = {}
     for track, short in zip(tracks, shorts, strict=True):
         label = track.entity_id if clash else short
         for name, line in track.lines.items():
             column = f"{label} {name}"
-            for t, value in zip(line.times, line.values, strict=True):
-                by_time.setdefault(t, {})[column] = value
-    return [{"time": iso_z_ms(t), **by_time[t]} for t in sorted(by_time)]
+            for key, value in zip(_keys(line.times), line.values, strict=True):
+                by_time.setdefault(key, {})[column] = value
+    return [{"time": iso_z_ms(key[0]), **by_time[key]} for key in sorted(by_time)]
+
+
+def _keys(times: list[int]) -> list[tuple[int, int]]:
+    """(time, how many points of the line came before at that time): two
+    samples of one instant are two rows, never one written over the other."""
+    keys = []
+    for i, t in enumerate(times):
+        keys.append((t, keys[-1][1] + 1 if i and times[i - 1] == t else 0))
+    return keys
 
 
 # --- endpoints' computations ------------------------------------------------------------------------
