@@ -141,3 +141,17 @@ def test_span(pair):
             ask = SamplesIn(_sids(backend, attr), window)
             assert backend.span(ask) == memory.span(ask) is not None
     assert backend.span(SamplesIn(_sids(backend, "speed"), TimeRange(*data.OUTAGE))) is None
+
+
+@pytest.mark.parametrize("most", [0, 1, 50, 10**6])
+def test_counting_up_to_and_reading_samples(pair, most):
+    """``count_up_to`` stops at ``most``; ``samples`` gives the first ``most``
+    by series, time and row id, times in epoch µs."""
+    backend, memory = pair
+    sids = _sids(backend, "mode") + _sids(backend, "speed")
+    for window in (TimeRange(None, None), TimeRange(data.T0 + timedelta(hours=1), data.T0 + timedelta(hours=2))):
+        ask = SamplesIn(sids, window)
+        assert backend.count_up_to(ask, most) == memory.count_up_to(ask, most) == min(most, memory.count(ask))
+        got = [tuple(row) for row in backend.samples(ask, most)]
+        assert got == [tuple(row) for row in memory.samples(ask, most)]
+        assert len(got) == min(most, memory.count(ask))

@@ -75,9 +75,16 @@ def iso_z(ms: int) -> str:
 
 
 def iso_z_ms(ms: int) -> str:
-    """Epoch milliseconds → ``iso_z``'s text, as fast as ``iso_ms_us``
-    (drawn points are thousands a request)."""
-    return iso_ms_us(ms * 1000)[:-6] + "Z"
+    """Epoch milliseconds → ``iso_z``'s text, with the minute's text cached
+    (drawn points are up to 100,000 a request)."""
+    minute, rest = divmod(ms, 60_000)
+    return f"{_minute(minute)}{rest // 1000:02d}.{rest % 1000:03d}Z"
+
+
+@lru_cache(maxsize=65_536)
+def _minute(minutes: int) -> str:
+    days, rest = divmod(minutes, 1440)
+    return f"{_day(days)}{rest // 60:02d}:{rest % 60:02d}:"
 
 
 @lru_cache(maxsize=4096)

@@ -24,8 +24,10 @@ Invariants:
   buckets between two points with one null (a chart breaks its line there);
   ``null`` gives every empty bucket a null, ``previous`` the value before
   it, ``linear`` the straight line between its neighbours;
-* raw samples are drawn as stored when no series has more than ``points``
-  numbers in the window and the mode keeps values (not ``count``, ``sum``);
+* raw samples are drawn as stored when the window holds at most ``points``
+  samples a series (``count_up_to``: never more read to know), no column of
+  an entity has more than ``points`` of them, and the mode keeps values
+  (not ``count``, ``sum``);
 * a series without a number in the window (texts, booleans, JSON) is drawn
   from its transitions (``BucketReader.state_changes``) and its last sample,
   never averaged; at most ``changes`` transitions per read, the newest, and a
@@ -42,9 +44,10 @@ from enum import Enum
 
 from tsdb_service.core import budget
 from tsdb_service.core.buckets import bucket_count, bucket_start, choose_width
-from tsdb_service.core.query import EntityFilter, HistoryQuery, Scope, SeriesRef, Shape, TimeRange, ValuePath
+from tsdb_service.core.model import Kind
+from tsdb_service.core.query import EntityFilter, Scope, SeriesRef, TimeRange, ValuePath
 from tsdb_service.core.timefmt import ms_of_iso
-from tsdb_service.history.service import decode, run_history
+from tsdb_service.history.service import decode
 from tsdb_service.history.valuepath import extract
 from tsdb_service.read import HistoryReads
 from tsdb_service.read.buckets import BucketRead, BucketRow, ChangesRead, StateChange
@@ -157,16 +160,21 @@ def draw(querier: HistoryReads, q: DrawQuery) -> Drawing:
         return Drawing([])
     width = choose_width(_span(window), q.points, q.floor)
     reads = _reads(q.columns, refs)
+    if q.raw and q.mode in VALUE_MODES:
+        sids = sorted({sid for read in reads for sid in read.sids})
+        most = q.points * len(sids)
+        if querier.count_up_to(SamplesIn(sids, _range(window)), most + 1) <= most:
+            charged = budget.mark()
+            raw = _raw(querier, q, refs, window)
+            if raw is not None:
+                return raw
+            budget.rewind(charged)  # one column held too many: the buckets answer instead
     rows: dict[tuple[tuple[str | int, ...], int], list[BucketRow]] = {}  # (steps, sid) -> buckets
     for read in reads:
         found = querier.buckets(BucketRead(read.sids, _range(window), width, read.steps))
         budget.charge_rows(len(found))
         for row in found:
             rows.setdefault((read.steps, row.sid), []).append(row)
-    if q.raw and q.mode in VALUE_MODES and all(sum(r.n for r in bs) <= q.points for bs in rows.values()):
-        raw = _raw(querier, q, refs, window)
-        if raw is not None:
-            return raw
     drawing = Drawing([], window, width)
     tracks: dict[tuple[str, str], Track] = {}
     grid = _Grid(window, width)
@@ -249,36 +257,43 @@ def _track(tracks: dict[tuple[str, str], Track], ref: SeriesRef) -> Track:
 
 
 def _raw(querier: HistoryReads, q: DrawQuery, refs: Sequence[SeriesRef], window: tuple[int, int]) -> Drawing | None:
-    """Every sample of the window as stored, or None when some column of
-    some entity holds more than ``points`` of them (then buckets answer)."""
-    cap = q.points * len(refs) + 1
-    paths = tuple(dict.fromkeys(c.path for c in q.columns))
-    query = HistoryQuery(
-        shape=Shape.ATTRS, scope=q.scope, entities=q.entities, attrs=paths, time=_range(window), limit=cap
-    )
-    found = run_history(querier, query).entities
-    tracks = []
-    for ent in found:
-        if len(ent.index) >= cap:
+    """Every sample of the window as stored (``count_up_to`` found at most
+    ``most``), or None when some series holds more than ``points`` of them
+    (then buckets answer). A sample without a value at a column's path is
+    no point of it."""
+    sids = sorted({r.sid for r in refs})
+    most = q.points * len(sids)
+    found = querier.samples(SamplesIn(sids, _range(window)), most)
+    budget.charge_rows(len(found))
+    by_sid = {r.sid: r for r in refs}
+    tracks: dict[tuple[str, str], Track] = {}
+    start = 0
+    number = int(Kind.NUMBER)
+    while start < len(found):
+        sid = found[start][0]
+        stop = start
+        while stop < len(found) and found[stop][0] == sid:
+            stop += 1
+        if stop - start > q.points:
             return None
-        times = list(map(ms_of_iso, ent.index))
-        track = Track(ent.entity_id, ent.entity_type)
-        for column in q.columns:
-            values = ent.columns.get(column.path.text)
-            if values is None:
-                continue
-            line = Line()
-            for t, value in zip(times, values, strict=True):
-                if value is not None:
-                    line.add(t, value)
-            if len(line.times) > q.points:
-                return None
+        ref = by_sid[sid]
+        rows = found[start:stop]
+        times = [row[1] // 1000 for row in rows]
+        if {row[2] for row in rows} == {number}:
+            values = [row[3] for row in rows]
+        else:
+            values = [decode(kind, num, txt, js) for _, _, kind, num, txt, js in rows]
+        for column in [c for c in q.columns if c.path.attr == ref.attr]:
+            extracted = [extract(v, column.path.steps) for v in values] if column.path.steps else values
+            if None in extracted:
+                kept = [(t, v) for t, v in zip(times, extracted, strict=True) if v is not None]
+                line = Line([t for t, _ in kept], [v for _, v in kept])
+            else:
+                line = Line(times, extracted)
             if line.times:
-                track.lines[column.name] = line
-        if track.lines:
-            tracks.append(track)
-    tracks.sort(key=lambda t: (t.entity_type, t.entity_id))
-    return Drawing(tracks, window, None)
+                _track(tracks, ref).lines[column.name] = line
+        start = stop
+    return Drawing([tracks[key] for key in sorted(tracks, key=lambda k: (k[1], k[0]))], window, None)
 
 
 # --- buckets into lines ----------------------------------------------------------------------------

@@ -19,7 +19,10 @@ refreshing every few seconds hit the same buckets).
   booleans, enumerations) whose value differs from the one before it, so a
   state timeline keeps every transition and nothing is ever averaged.
 * ``span(SamplesIn)``: the first and last sample times of some series in a
-  window, where a drawing's window has an open end (all data).
+  window, where a drawing's window has an open end (all data);
+* ``count_up_to(SamplesIn, most)``: their samples in a window, counted no
+  further than ``most`` (may they be drawn as stored?), and ``samples``:
+  those samples, when they may (a direct read, times as integers).
 
 Times are epoch microseconds (UTC) as plain integers: a 1,000-point panel
 of 20 series is 20,000 rows of five times each, and making a ``datetime``
@@ -105,6 +108,12 @@ class StateChange(NamedTuple):
     before: int | None  # epoch µs
 
 
+# One stored sample, its time as epoch µs (``BucketReader.samples``): (sid,
+# time, kind, num, txt, js), a plain tuple as the driver hands it over
+# (making 100,000 NamedTuples costs more than the read).
+TimedSample = tuple[int, int, int, float | None, str | None, str | None]
+
+
 class ChangesPage(NamedTuple):
     changes: list[StateChange]  # oldest first
     truncated: bool  # older transitions in the window were left out (``limit``)
@@ -122,4 +131,16 @@ class BucketReader(Protocol):
     def span(self, ask: SamplesIn) -> tuple[int, int] | None:
         """The first and last sample times (epoch µs) of ``ask.sids`` in
         ``ask.time`` (no mask); None when there is none."""
+        ...
+
+    def count_up_to(self, ask: SamplesIn, most: int) -> int:
+        """How many samples ``ask.sids`` hold in ``ask.time`` (no mask),
+        counting no further than ``most``: whether a window's raw samples fit
+        a point budget costs at most ``most`` rows read, however long it is."""
+        ...
+
+    def samples(self, ask: SamplesIn, most: int) -> list[TimedSample]:
+        """The samples of ``ask.sids`` in ``ask.time`` (no mask) by series,
+        then time, then row id: the first ``most`` of them. For windows
+        ``count_up_to`` found small: over a long one the ordering costs."""
         ...

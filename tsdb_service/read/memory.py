@@ -55,7 +55,7 @@ from tsdb_service.core.query import (
 )
 from tsdb_service.core.timefmt import iso_ms
 from tsdb_service.read import Querier
-from tsdb_service.read.buckets import BucketRead, BucketRow, ChangesPage, ChangesRead, StateChange
+from tsdb_service.read.buckets import BucketRead, BucketRow, ChangesPage, ChangesRead, StateChange, TimedSample
 from tsdb_service.read.bulk import EXPORT_COLUMNS, Columns, SampleBatches
 from tsdb_service.read.instances import SeparateScans
 from tsdb_service.read.requests import (
@@ -311,6 +311,13 @@ class MemoryQuerier(SeparateScans, Querier):
     def span(self, ask: SamplesIn) -> tuple[int, int] | None:
         times = [s.t_us for s in self._in(ask.sids, ask.time)]
         return (min(times), max(times)) if times else None
+
+    def count_up_to(self, ask: SamplesIn, most: int) -> int:
+        return min(len(self._in(ask.sids, ask.time)), max(0, most))
+
+    def samples(self, ask: SamplesIn, most: int) -> list[TimedSample]:
+        rows = sorted(self._in(ask.sids, ask.time), key=lambda s: (s.sid, s.t, s.rid))[: max(0, most)]
+        return [(s.sid, s.t_us, s.kind, s.num, s.txt, s.js) for s in rows]
 
     # -- locations ------------------------------------------------------------------------
 

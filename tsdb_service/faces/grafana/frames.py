@@ -104,7 +104,7 @@ def rows_long(tracks: Sequence[Track], extra: Callable[[Track], dict] | None = N
     """``[{"time", "entity", col...}]`` ordered by time, then entity. A row
     holds the columns with a point at its time (a null: a gap); a column
     without a point there is left out."""
-    rows = []
+    rows: list[dict] = []
     for track in tracks:
         head = extra(track) if extra else {}
         cells: dict[tuple[int, int], dict] = {}
@@ -139,7 +139,7 @@ def rows_wide(tracks: Sequence[Track]) -> list[dict]:
 def _keys(times: list[int]) -> list[tuple[int, int]]:
     """(time, how many points of the line came before at that time): two
     samples of one instant are two rows, never one written over the other."""
-    keys = []
+    keys: list[tuple[int, int]] = []
     for i, t in enumerate(times):
         keys.append((t, keys[-1][1] + 1 if i and times[i - 1] == t else 0))
     return keys
@@ -238,7 +238,7 @@ def state_rows(
     if window is None:
         return Shown([])
     by_entity, notices = _value_lines(querier, refs, cols, window, max_points)
-    rows = []
+    rows: list[dict] = []
     for (_etype, eid), lines in by_entity.items():
         names = [c.name for c in cols if c.name in lines]
         times = sorted({t for name in names for t in lines[name].times})

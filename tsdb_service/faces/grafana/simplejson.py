@@ -540,7 +540,7 @@ def _annotation_frames(
     meta: dict[str, Any] = {}
     if notices:
         meta["notices"] = [{"severity": "warning", "text": text} for text in notices]
-    frame = {
+    frame: dict[str, Any] = {
         "name": target.column.name,
         "refId": target.ref_id,
         "fields": [

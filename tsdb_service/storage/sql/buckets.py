@@ -43,7 +43,15 @@ from datetime import timedelta
 
 from tsdb_service.core import budget
 from tsdb_service.core.query import TimeRange
-from tsdb_service.read.buckets import BucketRead, BucketReader, BucketRow, ChangesPage, ChangesRead, StateChange
+from tsdb_service.read.buckets import (
+    BucketRead,
+    BucketReader,
+    BucketRow,
+    ChangesPage,
+    ChangesRead,
+    StateChange,
+    TimedSample,
+)
 from tsdb_service.read.requests import SamplesIn
 from tsdb_service.storage.sql.dialect import (
     INTEGER_KIND,
@@ -171,6 +179,26 @@ def span_sql(dialect: SqlDialect, ask: SamplesIn) -> tuple[str, list]:
     return f"SELECT {d.epoch_us('min(t)')}, {d.epoch_us('max(t)')} FROM {d.samples('sid, t')} WHERE {where}", params
 
 
+def count_up_to_sql(dialect: SqlDialect, ask: SamplesIn, most: int) -> tuple[str, list]:
+    """A count that stops reading at ``most`` rows (a LIMIT without ORDER BY)."""
+    d = dialect
+    where, params = series_time_filter(d, ask.sids, ask.time)
+    return (
+        f"SELECT count(*) FROM (SELECT 1 AS one FROM {d.samples('sid, t')} WHERE {where} LIMIT {d.placeholder}) AS c",
+        [*params, max(0, min(most, MAX_BIGINT))],
+    )
+
+
+def samples_sql(dialect: SqlDialect, ask: SamplesIn, most: int) -> tuple[str, list]:
+    d = dialect
+    where, params = series_time_filter(d, ask.sids, ask.time)
+    sql = (
+        f"SELECT sid, {d.epoch_us('t')}, kind, num, txt, js FROM {d.samples('sid, rid, t, kind, num, txt, js')} "
+        f"WHERE {where} ORDER BY sid, t, rid LIMIT {d.placeholder}"
+    )
+    return sql, [*params, max(0, min(most, MAX_BIGINT))]
+
+
 class SqlBuckets(SqlReads, BucketReader):
     def buckets(self, ask: BucketRead) -> list[BucketRow]:
         """See ``BucketReader``: one statement (``bucket_sql``)."""
@@ -202,3 +230,14 @@ class SqlBuckets(SqlReads, BucketReader):
         if not rows or rows[0][0] is None:
             return None
         return int(rows[0][0]), int(rows[0][1])
+
+    def count_up_to(self, ask: SamplesIn, most: int) -> int:
+        if not ask.sids or most <= 0:
+            return 0
+        rows = self._fetch(*count_up_to_sql(self.dialect, ask, most))
+        return int(rows[0][0]) if rows else 0
+
+    def samples(self, ask: SamplesIn, most: int) -> list[TimedSample]:
+        if not ask.sids or most <= 0:
+            return []
+        return self._fetch(*samples_sql(self.dialect, ask, most))
