@@ -85,9 +85,10 @@ def _series(entities: int) -> list[list]:
     return cols
 
 
-def _value_sql(entities: int, spike: int, k: str) -> str:
-    """Below 100 everywhere, but entity 0's speed at ``spike``."""
-    return f"CASE WHEN e = 0 AND a = 1 AND {k} = {spike} THEN {SPIKE_VALUE} ELSE e + a + ({k} % 3600) / 100.0 END"
+def _value_sql(spike: int, k: str, mod: str = "%") -> str:
+    """Below 100 everywhere, but entity 0's speed at ``spike`` (``mod``: ``%%``
+    where ``%`` starts a placeholder)."""
+    return f"CASE WHEN e = 0 AND a = 1 AND {k} = {spike} THEN {SPIKE_VALUE} ELSE e + a + ({k} {mod} 3600) / 100.0 END"
 
 
 def load_duckdb(path: str, entities: int, days: int) -> dict:
@@ -112,7 +113,7 @@ def load_duckdb(path: str, entities: int, days: int) -> dict:
                 SELECT (kk * {entities} + e + 1)::BIGINT AS rid, (e * {len(ATTRS)} + a + 1)::INTEGER AS sid,
                        ((kk * {entities} + e) * {len(ATTRS)} + a + 1)::BIGINT AS iid,
                        TIMESTAMP '2024-05-01' + to_seconds(kk) AS t, 1::UTINYINT AS kind, 'Number' AS atype,
-                       ({_value_sql(entities, spike_second(days), "kk")})::DOUBLE AS num
+                       ({_value_sql(spike_second(days), "kk")})::DOUBLE AS num
                 FROM (SELECT ? AS e) r1, range({len(ATTRS)}) r2(a), range(?) r3(kk)
                 ORDER BY sid, t""",
                 [e, seconds],
@@ -146,7 +147,7 @@ def load_postgres(url: str, entities: int, days: int) -> dict:
                     f"""INSERT INTO samples (rid, sid, t, kind, atype, num)
                     SELECT kk::bigint * {entities} + e + 1, e * {len(ATTRS)} + a + 1,
                            TIMESTAMP '2024-05-01' + make_interval(secs => kk), 1, 'Number',
-                           {_value_sql(entities, spike_second(days), "kk")}
+                           {_value_sql(spike_second(days), "kk", "%%")}
                     FROM (SELECT %s::int AS e) r1, generate_series(0, {len(ATTRS) - 1}) a,
                          generate_series(%s::int, %s::int) kk
                     ORDER BY 2, 3""",

@@ -171,7 +171,7 @@ def draw(querier: HistoryReads, q: DrawQuery) -> Drawing:
             budget.rewind(charged)  # one column held too many: the buckets answer instead
     rows: dict[tuple[tuple[str | int, ...], int], list[BucketRow]] = {}  # (steps, sid) -> buckets
     for read in reads:
-        found = querier.buckets(BucketRead(read.sids, _range(window), width, read.steps))
+        found = querier.buckets(BucketRead(read.sids, _range(window), width, read.steps, q.mode is Mode.MINMAX))
         budget.charge_rows(len(found))
         for row in found:
             rows.setdefault((read.steps, row.sid), []).append(row)

@@ -51,12 +51,16 @@ class BucketRead:
     epoch) over ``time`` (both ends given, inclusive) of the series
     ``sids``. A bucket cut by an end of the window holds only the samples
     inside it. ``steps``: the numbers at this path inside JSON values (a
-    ``ValuePath``'s steps) instead of the numeric samples themselves."""
+    ``ValuePath``'s steps) instead of the numeric samples themselves.
+    ``extreme_times``: whether the times of the minimum and maximum are
+    wanted (the min-max mode); without them a backend may answer ``min_t``
+    and ``max_t`` as None, and finding them is most of the query's work."""
 
     sids: Sequence[int]
     time: TimeRange
     width: timedelta
     steps: tuple[str | int, ...] = ()
+    extreme_times: bool = True
 
 
 class BucketRow(NamedTuple):
@@ -70,9 +74,9 @@ class BucketRow(NamedTuple):
     total: float  # their sum
     all_integer: bool  # every one of them an integer
     min: float
-    min_t: int
+    min_t: int | None  # None: not asked (``BucketRead.extreme_times``)
     max: float
-    max_t: int
+    max_t: int | None
     first: float
     first_t: int
     last: float

@@ -291,7 +291,8 @@ class MemoryQuerier(SeparateScans, Querier):
             if number is not None:
                 t = s.t_us
                 groups[(s.sid, t - t % width)].append((t, s.rid, number[0], number[1]))
-        return [_bucket_row(sid, start, rows) for (sid, start), rows in sorted(groups.items())]
+        found = [_bucket_row(sid, start, rows) for (sid, start), rows in sorted(groups.items())]
+        return found if ask.extreme_times else [row._replace(min_t=None, max_t=None) for row in found]
 
     def state_changes(self, ask: ChangesRead) -> ChangesPage:
         found: list[tuple[MemorySample, int | None]] = []

@@ -169,7 +169,7 @@ def _bucket_batches(
         if stop >= last:
             stop = last
         piece = TimeRange(first if start is None else max(first, start), stop)
-        rows = querier.buckets(BucketRead(sids, piece, width))
+        rows = querier.buckets(BucketRead(sids, piece, width, extreme_times=False))
         if rows:
             yield _bucket_batch(rows, by_sid)
         if stop >= last:

@@ -530,8 +530,8 @@ def _thinned_positions(
         return Shown([])
     span = TimeRange(_utc(window[0]), _utc(window[1]))
     width = choose_width(timedelta(microseconds=window[1] - window[0]), max_points)
-    lons = {(r.sid, r.start): r for r in querier.buckets(BucketRead(sids, span, width, _LON))}
-    lats = {(r.sid, r.start): r for r in querier.buckets(BucketRead(sids, span, width, _LAT))}
+    lons = {(r.sid, r.start): r for r in querier.buckets(BucketRead(sids, span, width, _LON, False))}
+    lats = {(r.sid, r.start): r for r in querier.buckets(BucketRead(sids, span, width, _LAT, False))}
     budget.charge_rows(len(lons) + len(lats))
     extra = _column_lines(querier, scope, entities, cols, span, max_points, width)
     by_sid = {r.sid: r for r in loc_refs}

@@ -88,10 +88,16 @@ def _numbers(dialect: SqlDialect, steps: tuple[str | int, ...]) -> tuple[str, st
 
 
 def raw_part(
-    dialect: SqlDialect, sids: Sequence[int], time: TimeRange, width: timedelta, steps: tuple[str | int, ...] = ()
+    dialect: SqlDialect,
+    sids: Sequence[int],
+    time: TimeRange,
+    width: timedelta,
+    steps: tuple[str | int, ...] = (),
+    extreme_times: bool = True,
 ) -> tuple[str, list]:
     """The partial rows (``BUCKET_COLUMNS``) of the raw samples of ``sids`` in
-    ``time`` (inclusive; an open end reads to the end), in buckets of ``width``."""
+    ``time`` (inclusive; an open end reads to the end), in buckets of ``width``;
+    without ``extreme_times``, ``min_t`` and ``max_t`` are NULL."""
     d = dialect
     columns, values, vparams = _numbers(d, steps)
     where, wparams = series_time_filter(d, sids, time)
@@ -99,12 +105,14 @@ def raw_part(
     key, kparams = d.bucket_index("t", "tu", w)
     start, sparams = d.bucket_start("b", w)
     inner = f"SELECT sid, rid, {d.epoch_us('t')} AS tu, t, {values} FROM {d.samples(columns)} WHERE {where}{d.fence}"
-    keyed = f"SELECT sid, rid, tu, v, i, {key} AS b, {d.value_key('v')} AS vk FROM ({inner}) AS x WHERE v IS NOT NULL"
+    value_key = f", {d.value_key('v')} AS vk" if extreme_times else ""
+    keyed = f"SELECT sid, rid, tu, v, i, {key} AS b{value_key} FROM ({inner}) AS x WHERE v IS NOT NULL"
+    min_t = d.time_of_min("v", "vk", "tu") if extreme_times else "CAST(NULL AS BIGINT)"
+    max_t = d.time_of_max("v", "vk", "tu") if extreme_times else "CAST(NULL AS BIGINT)"
     sql = (
         f"SELECT sid, {start} AS start, count(*) AS n, sum(v) AS total, "
         "count(*) FILTER (WHERE i) = count(*) AS all_integer, "
-        f"min(v) AS min, {d.time_of_min('v', 'vk', 'tu')} AS min_t, "
-        f"max(v) AS max, {d.time_of_max('v', 'vk', 'tu')} AS max_t, "
+        f"min(v) AS min, {min_t} AS min_t, max(v) AS max, {max_t} AS max_t, "
         f"{d.value_at_first('v', 'tu', 'rid')} AS first, min(tu) AS first_t, "
         f"{d.value_at_last('v', 'tu', 'rid')} AS last, max(tu) AS last_t "
         f"FROM ({keyed}) AS y GROUP BY sid, b"
@@ -135,7 +143,7 @@ def combine(dialect: SqlDialect, parts: Sequence[tuple[str, list]]) -> tuple[str
 
 def bucket_sql(dialect: SqlDialect, ask: BucketRead) -> tuple[str, list]:
     """The whole query of ``ask``, rows by series then bucket start."""
-    sql, params = combine(dialect, [raw_part(dialect, ask.sids, ask.time, ask.width, ask.steps)])
+    sql, params = combine(dialect, [raw_part(dialect, ask.sids, ask.time, ask.width, ask.steps, ask.extreme_times)])
     return f"SELECT {BUCKET_COLUMNS} FROM ({sql}) AS b ORDER BY sid, start", params
 
 
