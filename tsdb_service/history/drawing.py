@@ -399,9 +399,9 @@ def _minmax_line(rows: list[BucketRow], fill: Fill, grid: _Grid) -> Line:
         last_k = k
         integral = row.all_integer
         seen = set()
-        for t, value in sorted(
-            ((row.first_t, row.first), (row.min_t, row.min), (row.max_t, row.max), (row.last_t, row.last))
-        ):
+        low = row.first_t if row.min_t is None else row.min_t  # always asked in this mode (``extreme_times``)
+        high = row.first_t if row.max_t is None else row.max_t
+        for t, value in sorted(((row.first_t, row.first), (low, row.min), (high, row.max), (row.last_t, row.last))):
             if (t, value) not in seen:
                 seen.add((t, value))
                 line.add(t // 1000, _number(value, integral))
