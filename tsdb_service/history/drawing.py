@@ -144,7 +144,7 @@ class Drawing:
 
 
 @dataclass(frozen=True, slots=True)
-class _Read:
+class PathRead:
     """One ``BucketRead``/``ChangesRead``: the series of the columns sharing a path's steps."""
 
     steps: tuple[str | int, ...]
@@ -159,11 +159,11 @@ def draw(querier: HistoryReads, q: DrawQuery) -> Drawing:
     if window is None:
         return Drawing([])
     width = choose_width(_span(window), q.points, q.floor)
-    reads = _reads(q.columns, refs)
+    reads = path_reads(q.columns, refs)
     if q.raw and q.mode in VALUE_MODES:
         sids = sorted({sid for read in reads for sid in read.sids})
         most = q.points * len(sids)
-        if querier.count_up_to(SamplesIn(sids, _range(window)), most + 1) <= most:
+        if querier.count_up_to(SamplesIn(sids, window_range(window)), most + 1) <= most:
             charged = budget.mark()
             raw = _raw(querier, q, refs, window)
             if raw is not None:
@@ -171,7 +171,7 @@ def draw(querier: HistoryReads, q: DrawQuery) -> Drawing:
             budget.rewind(charged)  # one column held too many: the buckets answer instead
     rows: dict[tuple[tuple[str | int, ...], int], list[BucketRow]] = {}  # (steps, sid) -> buckets
     for read in reads:
-        found = querier.buckets(BucketRead(read.sids, _range(window), width, read.steps, q.mode is Mode.MINMAX))
+        found = querier.buckets(BucketRead(read.sids, window_range(window), width, read.steps, q.mode is Mode.MINMAX))
         budget.charge_rows(len(found))
         for row in found:
             rows.setdefault((read.steps, row.sid), []).append(row)
@@ -185,7 +185,7 @@ def draw(querier: HistoryReads, q: DrawQuery) -> Drawing:
         for column in _drawn_as(q.columns, ref, steps):
             track.lines[column.name] = _bucket_line(found, q.mode, q.fill, grid)
     for read in reads:
-        states = _Read(read.steps, tuple(s for s in read.sids if (read.steps, s) not in rows))
+        states = PathRead(read.steps, tuple(s for s in read.sids if (read.steps, s) not in rows))
         if not states.sids:
             continue
         lines, notice = changes_lines(querier, states, window, q.changes or q.points * len(states.sids))
@@ -195,7 +195,7 @@ def draw(querier: HistoryReads, q: DrawQuery) -> Drawing:
             ref = by_sid[sid]
             track = _track(tracks, ref)
             for column in _drawn_as(q.columns, ref, read.steps):
-                track.lines[column.name] = _extracted(line, column.path)
+                track.lines[column.name] = extracted(line, column.path)
     drawing.tracks = [tracks[key] for key in sorted(tracks, key=lambda k: (k[1], k[0]))]
     return drawing
 
@@ -218,7 +218,7 @@ def _span(window: tuple[int, int]) -> timedelta:
     return timedelta(microseconds=window[1] - window[0])
 
 
-def _range(window: tuple[int, int]) -> TimeRange:
+def window_range(window: tuple[int, int]) -> TimeRange:
     return TimeRange(_datetime(window[0]), _datetime(window[1]))
 
 
@@ -235,14 +235,14 @@ def _drawn_as(columns: Sequence[Column], ref: SeriesRef, steps: tuple[str | int,
     return [c for c in columns if c.path.attr == ref.attr and c.path.steps == steps]
 
 
-def _reads(columns: Sequence[Column], refs: Sequence[SeriesRef]) -> list[_Read]:
+def path_reads(columns: Sequence[Column], refs: Sequence[SeriesRef]) -> list[PathRead]:
     """One read per distinct path inside the values (plain attributes: one
     read for them all); a series drawn at two paths is in two reads."""
     by_steps: dict[tuple[str | int, ...], list[int]] = {}
     for column in columns:
         sids = by_steps.setdefault(column.path.steps, [])
         sids += [r.sid for r in refs if r.attr == column.path.attr and r.sid not in sids]
-    return [_Read(steps, tuple(sorted(sids))) for steps, sids in by_steps.items() if sids]
+    return [PathRead(steps, tuple(sorted(sids))) for steps, sids in by_steps.items() if sids]
 
 
 def _track(tracks: dict[tuple[str, str], Track], ref: SeriesRef) -> Track:
@@ -263,7 +263,7 @@ def _raw(querier: HistoryReads, q: DrawQuery, refs: Sequence[SeriesRef], window:
     no point of it."""
     sids = sorted({r.sid for r in refs})
     most = q.points * len(sids)
-    found = querier.samples(SamplesIn(sids, _range(window)), most)
+    found = querier.samples(SamplesIn(sids, window_range(window)), most)
     budget.charge_rows(len(found))
     by_sid = {r.sid: r for r in refs}
     tracks: dict[tuple[str, str], Track] = {}
@@ -427,7 +427,7 @@ def _minmax_fill(fill: Fill, k: int, known: list[int], by_k: dict[int, BucketRow
 
 def changes_lines(
     querier: HistoryReads,
-    read: _Read | tuple[tuple[str | int, ...], Sequence[int]],
+    read: PathRead,
     window: tuple[int, int],
     limit: int,
 ) -> tuple[dict[int, Line], str | None]:
@@ -435,13 +435,12 @@ def changes_lines(
     then its last sample (the same value) where it came later: a line of
     states ends where the data ends. And the notice when older transitions
     were left out (``limit``)."""
-    steps, sids = (read.steps, read.sids) if isinstance(read, _Read) else read
-    page = querier.state_changes(ChangesRead(list(sids), _range(window), max(1, limit), steps))
+    page = querier.state_changes(ChangesRead(list(read.sids), window_range(window), max(1, limit), read.steps))
     budget.charge_rows(len(page.changes))
     lines: dict[int, Line] = {}
     for change in page.changes:
         lines.setdefault(change.sid, Line()).add(change.time // 1000, change_value(change))
-    for sid, iso in querier.latest_index(SamplesIn(list(lines), _range(window))):
+    for sid, iso in querier.latest_index(SamplesIn(list(lines), window_range(window))):
         line = lines[sid]
         last = ms_of_iso(iso)
         if last > line.times[-1]:
@@ -459,7 +458,7 @@ def change_value(change: StateChange):
     return decode(change.kind, change.num, change.txt, change.js)
 
 
-def _extracted(line: Line, path: ValuePath) -> Line:
+def extracted(line: Line, path: ValuePath) -> Line:
     if not path.steps:
         return line
     return Line(list(line.times), [extract(v, path.steps) for v in line.values])

@@ -60,9 +60,13 @@ from tsdb_service.history.drawing import (
     Track,
     changes_lines,
     draw,
+    extracted,
+    path_reads,
     resolve_window,
+    window_range,
 )
 from tsdb_service.history.service import run_history, run_last_values
+from tsdb_service.history.valuepath import extract
 from tsdb_service.http.responses import drawn_headers
 from tsdb_service.read import HistoryReads
 from tsdb_service.read.buckets import BucketRead
@@ -148,20 +152,9 @@ def _keys(times: list[int]) -> list[tuple[int, int]]:
 # --- endpoints' computations ------------------------------------------------------------------------
 
 
-def series_rows(
-    querier: HistoryReads,
-    scope: Scope,
-    entities: EntityFilter,
-    cols: Sequence[Column],
-    time: TimeRange,
-    *,
-    max_points: int,
-    interval_ms: int | None,
-    agg: str,
-    fill: str = "none",
-    wide: bool = False,
-) -> Shown:
-    drawing = draw(querier, series_query(scope, entities, cols, time, max_points, interval_ms, agg, fill))
+def series_rows(querier: HistoryReads, query: DrawQuery, wide: bool = False) -> Shown:
+    """``series``: ``query`` drawn (``history.drawing``) as long or wide rows."""
+    drawing = draw(querier, query)
     rows = rows_wide(drawing.tracks) if wide else rows_long(drawing.tracks)
     return Shown(rows, drawing.width, drawing.notices, raw=drawing.width is None and drawing.window is not None)
 
@@ -180,15 +173,6 @@ def series_query(
     return DrawQuery(scope, entities, tuple(cols), time, max_points, floor, Mode(agg), Fill(fill))
 
 
-def _reads(refs: Sequence[SeriesRef], cols: Sequence[Column]) -> list[tuple[tuple[str | int, ...], list[int]]]:
-    """(steps, sids) per distinct path inside the values."""
-    by_steps: dict[tuple[str | int, ...], list[int]] = {}
-    for col in cols:
-        sids = by_steps.setdefault(col.path.steps, [])
-        sids += [r.sid for r in refs if r.attr == col.path.attr and r.sid not in sids]
-    return [(steps, sids) for steps, sids in by_steps.items() if sids]
-
-
 def _value_lines(
     querier: HistoryReads, refs: list[SeriesRef], cols: Sequence[Column], window: tuple[int, int], limit: int
 ) -> tuple[dict[tuple[str, str], dict[str, Line]], list[str]]:
@@ -197,22 +181,20 @@ def _value_lines(
     by_sid = {r.sid: r for r in refs}
     out: dict[tuple[str, str], dict[str, Line]] = {}
     notices = []
-    for steps, sids in _reads(refs, cols):
-        lines, notice = changes_lines(querier, (steps, sids), window, limit * len({by_sid[s].entity_id for s in sids}))
+    for read in path_reads(cols, refs):
+        entities = len({by_sid[sid].entity_id for sid in read.sids})
+        lines, notice = changes_lines(querier, read, window, limit * entities)
         if notice:
             notices.append(notice)
         for sid, line in lines.items():
             ref = by_sid[sid]
             for col in cols:
-                if col.path.attr == ref.attr and col.path.steps == steps:
-                    values = [_extract(v, col.path) for v in line.values]
-                    out.setdefault((ref.entity_type, ref.entity_id), {})[col.name] = Line(line.times, values)
+                if col.path.attr == ref.attr and col.path.steps == read.steps:
+                    out.setdefault((ref.entity_type, ref.entity_id), {})[col.name] = extracted(line, col.path)
     return out, notices
 
 
-def _extract(value, path: ValuePath):
-    from tsdb_service.history.valuepath import extract
-
+def _extracted_value(value, path: ValuePath):
     return extract(value, path.steps) if path.steps else value
 
 
@@ -313,8 +295,9 @@ def event_runs(
     by_sid = {r.sid: r for r in refs}
     runs: list[Run] = []
     notices = []
-    span = TimeRange(*(_utc(us) for us in window))
-    for steps, sids in _reads(refs, cols):
+    span = window_range(window)
+    for read in path_reads(cols, refs):
+        steps, sids = read.steps, list(read.sids)
         page = querier.state_changes(ChangesRead(sids, span, EVENT_CHANGES, steps))
         budget.charge_rows(len(page.changes))
         last = dict(querier.latest_index(SamplesIn(sids, span)))
@@ -331,7 +314,7 @@ def event_runs(
             for col in cols:
                 if col.path.attr != ref.attr or col.path.steps != steps:
                     continue
-                values = [_extract(change_value(c), col.path) for c in changes]
+                values = [_extracted_value(change_value(c), col.path) for c in changes]
                 skip_first = page.truncated  # the first kept run may have started before
                 end_of = ms_of_iso(last[sid]) if sid in last else changes[-1].time // 1000
                 runs += _runs(ref.entity_id, col.name, changes, values, matches, end_of, skip_first)
@@ -528,7 +511,7 @@ def _thinned_positions(
     window = resolve_window(querier, sids, time)
     if window is None:
         return Shown([])
-    span = TimeRange(_utc(window[0]), _utc(window[1]))
+    span = window_range(window)
     width = choose_width(timedelta(microseconds=window[1] - window[0]), max_points)
     lons = {(r.sid, r.start): r for r in querier.buckets(BucketRead(sids, span, width, _LON, False))}
     lats = {(r.sid, r.start): r for r in querier.buckets(BucketRead(sids, span, width, _LAT, False))}
@@ -600,12 +583,6 @@ def _value_at(line: Line | None, t: int):
         return None
     at = bisect.bisect_right(line.times, t) - 1
     return line.values[at] if at >= 0 else None
-
-
-def _utc(micros: int):
-    from datetime import UTC, datetime
-
-    return datetime(1970, 1, 1, tzinfo=UTC) + timedelta(microseconds=micros)
 
 
 def _geo_ok(geo, point: tuple[float, float]) -> bool:

@@ -69,8 +69,7 @@ def series(request: Request) -> JSON:
     or filled by ``fill`` (null, previous, linear). ``layout=wide`` gives one
     row per time and a column per entity and column."""
     querier, scope, entities, params = _common(request)
-    shown = frames.series_rows(
-        querier,
+    query = frames.series_query(
         scope,
         entities,
         columns(params.get("attrs")),
@@ -79,8 +78,9 @@ def series(request: Request) -> JSON:
         interval_ms=positive_int(params.get("interval_ms"), "interval_ms", None, 10**12),
         agg=choice(params.get("agg"), "agg", frames.AGGREGATIONS, "auto"),
         fill=fill_choice(params.get("fill")),
-        wide=choice(params.get("layout"), "layout", ("long", "wide"), "long") == "wide",
     )
+    wide = choice(params.get("layout"), "layout", ("long", "wide"), "long") == "wide"
+    shown = frames.series_rows(querier, query, wide)
     return JSON(shown.rows, headers=shown.headers())
 
 

@@ -25,8 +25,27 @@ from tsdb_service.http.openapi import (
 )
 
 _FRAME_FIELD = obj(
-    ("name", "type", "values"), {"name": STR, "type": STR, "values": array(ANY), "labels": {"type": "object"}}
+    ("name", "type", "values"),
+    {
+        "name": STR,
+        "type": STR,
+        "values": array(ANY),
+        "labels": {"type": "object"},
+        "config": {"type": "object", "description": "the time field's interval: the bucket width in ms"},
+    },
 )
+# What a drawn answer says about itself (docs/long-windows.md): its bucket
+# width, its mode, and what a cap left out (Grafana shows notices on the panel).
+_META = {
+    "type": "object",
+    "properties": {
+        "custom": {
+            "type": "object",
+            "properties": {"bucket": STR, "bucketMs": {"type": "integer"}, "agg": STR},
+        },
+        "notices": array(obj(("severity", "text"), {"severity": STR, "text": STR})),
+    },
+}
 
 
 _GRAFANA_TENANCY = [
@@ -297,7 +316,10 @@ SCHEMAS: dict[str, dict] = {
     "InfinityRows": array({"type": "object"}, "flat rows, one object each; columns named by attrs"),
     "SimpleJsonAnswer": {
         "anyOf": [
-            obj(("target", "datapoints"), {"target": STR, "refId": STR, "datapoints": array(array(ANY))}),
+            obj(
+                ("target", "datapoints"),
+                {"target": STR, "refId": STR, "datapoints": array(array(ANY)), "meta": _META},
+            ),
             obj(
                 ("type", "columns", "rows"),
                 {
@@ -305,9 +327,10 @@ SCHEMAS: dict[str, dict] = {
                     "refId": STR,
                     "columns": array({"type": "object"}),
                     "rows": array(array(ANY)),
+                    "meta": _META,
                 },
             ),
-            obj(("name", "fields"), {"name": STR, "refId": STR, "fields": array(_FRAME_FIELD)}),
+            obj(("name", "fields"), {"name": STR, "refId": STR, "fields": array(_FRAME_FIELD), "meta": _META}),
         ]
     },
     "Dashboard": {"type": "object", "description": "A Grafana dashboard (schemaVersion 42)"},
