@@ -52,6 +52,7 @@ from tsdb_service.read.requests import (
     InstanceAggregateRead,
     LocationsIn,
     RowsRead,
+    SamplesIn,
     SeriesSelect,
 )
 from tsdb_service.storage.catalog import SeriesCatalog
@@ -314,6 +315,29 @@ class PostgresQuerier(SqlQuerier):
                 [int_array(sids)],
             )
         )
+
+    def span(self, ask: SamplesIn) -> tuple[int, int] | None:
+        """Two ``(sid, t)`` index probes per series (its first and last sample
+        in the window) instead of reading the window."""
+        if not ask.sids:
+            return None
+        d = self.dialect
+        window, params = "", []
+        if ask.time.start is not None:
+            window += " AND x.t >= %s"
+            params.append(d.time_value(ask.time.start))
+        if ask.time.end is not None:
+            window += " AND x.t <= %s"
+            params.append(d.time_value(ask.time.end))
+        sql = (
+            f"SELECT {d.epoch_us('min(a.t)')}, {d.epoch_us('max(b.t)')} FROM unnest(%s::integer[]) AS s(sid) "
+            f"CROSS JOIN LATERAL (SELECT x.t FROM samples x WHERE x.sid = s.sid{window} ORDER BY x.t LIMIT 1) a "
+            f"CROSS JOIN LATERAL (SELECT x.t FROM samples x WHERE x.sid = s.sid{window} ORDER BY x.t DESC LIMIT 1) b"
+        )
+        rows = self._fetch(sql, [int_array(ask.sids), *params, *params])
+        if not rows or rows[0][0] is None:
+            return None
+        return int(rows[0][0]), int(rows[0][1])
 
     def _location_seeds(self, sids: Sequence[int], before: datetime) -> tuple[str, list]:
         """The latest geo sample before ``before``: one index probe per series."""
