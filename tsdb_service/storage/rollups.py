@@ -544,14 +544,17 @@ def bucket_levels(width: timedelta) -> tuple[Level, ...]:
     return tuple(level for level in reversed(LEVELS) if served_by(width, level.width))
 
 
-def bucket_part(d: SqlDialect, level: Level, sids: Sequence[int], piece: Piece, width: timedelta) -> tuple[str, list]:
+def bucket_part(
+    d: SqlDialect, level: Level, sids: Sequence[int], piece: Piece, width: timedelta, extreme_times: bool = True
+) -> tuple[str, list]:
     """The rows of ``read.buckets.BucketRow`` (sid, start µs, n, total,
     all_integer, min, min_t, max, max_t, first, first_t, last, last_t) of
     the numeric samples in ``level``'s whole buckets of ``piece`` (``start
     <= bucket < end``), grouped into buckets of ``width`` (a multiple of the
     level's, from the epoch): exactly what the raw samples of that time give
-    (the raw part of the bucket query), ties included. One part of the bucket
-    query, combined with the raw parts of the window's edges."""
+    (``storage.sql.buckets.raw_part``), ties included: one part of the
+    bucket query, combined with the raw parts of the window's edges. Without
+    ``extreme_times``, ``min_t`` and ``max_t`` are NULL (``BucketRead``)."""
     p = d.placeholder
     w = width // _US
     where, params = d.sid_filter(sids)
@@ -565,11 +568,12 @@ def bucket_part(d: SqlDialect, level: Level, sids: Sequence[int], piece: Piece, 
     inner = f"SELECT {COLS}, {d.epoch_us('bucket')} AS bu FROM {level.view} WHERE {where}{d.fence}"
     start = f"(bu - mod(mod(bu, {w}) + {w}, {w}))"
     only = "num_min IS NOT NULL"
+    min_t = _at_min(d, "num_min", "min_us", only) if extreme_times else "CAST(NULL AS BIGINT)"
+    max_t = _at_max(d, "num_max", "max_us", only) if extreme_times else "CAST(NULL AS BIGINT)"
     sql = (
         f"SELECT sid, {start} AS start, CAST(sum(n_numeric) AS BIGINT) AS n, sum(num_sum) AS total, "
         "sum(n_integer) = sum(n_numeric) AS all_integer, "
-        f"min(num_min) AS min, {_at_min(d, 'num_min', 'min_us', only)} AS min_t, "
-        f"max(num_max) AS max, {_at_max(d, 'num_max', 'max_us', only)} AS max_t, "
+        f"min(num_min) AS min, {min_t} AS min_t, max(num_max) AS max, {max_t} AS max_t, "
         f"{_pick(d, 'num_first', 'first_us', 'first_rid', 'num_first IS NOT NULL', last=False)} AS first, "
         "min(first_us) FILTER (WHERE num_first IS NOT NULL) AS first_t, "
         f"{_pick(d, 'num_last', 'last_us', 'last_rid', 'num_last IS NOT NULL', last=True)} AS last, "
