@@ -44,7 +44,7 @@ from tsdb_service.storage.ld_ingest import (
     with_deletions,
     without_dropped,
 )
-from tsdb_service.storage.rollups import fold_sql
+from tsdb_service.storage.rollups import HOT, fold_sql, partial_rows
 from tsdb_service.storage.sql.writes import delete_statements, instance_statements
 from tsdb_service.storage.staging import StagingAppender, WriteTarget
 from tsdb_service.write.ops import DeleteInstance, DeleteSamples, Delivery, LogPosition, PutLayout, ReplaceInstance
@@ -415,9 +415,20 @@ class DuckDBAppender(StagingAppender):
 
     def _fold_rollups(self, cur: duckdb.DuckDBPyConnection) -> None:
         """The batch's minute and hour partials into ``rollups_hot``, in the
-        samples' transaction (``storage.rollups``): one statement over the
-        batch's own columns."""
+        samples' transaction (``storage.rollups``): a small batch aggregated
+        here and appended, a big one by one statement over its columns."""
         cols = self._cols
+        if len(cols["rid"]) <= ARROW_MIN_ROWS:
+            rows = partial_rows(cols["sid"], cols["rid"], cols["t"], cols["kind"], cols["num"])
+            appender = cur.appender(HOT)
+            try:
+                appender.append_rows(rows)
+                appender.flush()
+            except BaseException:
+                with contextlib.suppress(duckdb.Error):  # no row may reach a later flush
+                    appender.clear()
+                raise
+            return
         batch = pa.Table.from_arrays(
             [
                 pa.array(cols["sid"], pa.int32()),
