@@ -4,19 +4,25 @@
     .venv/bin/python benchmarks/rollups_ingest.py --backends duckdb --rounds 50
 
 Commits batches of notifications (entities x 5 numeric attributes, one
-sample a second each, as the long-window benchmark loads) through the writer, and
-times each commit twice over: with the rollups folded in the commit's
-transaction (what the service does) and without.
+sample a second each, as the long-window benchmark loads) through the
+writer, on a fresh store per mode: with the rollups folded in each commit's
+transaction (what the service does) and without, at three batch sizes:
+100 rows (light traffic's small group: DuckDB's writer aggregates it in
+Python and appends it), 2,000 rows and 50,000 rows (the ingest log's
+applier under load; one SQL statement over the Arrow batch).
 
-* **DuckDB**: the writer itself (``DuckDBAppender``) with and without its
-  ``_fold_rollups`` step, on one file, alternately, at three batch sizes:
-  100 rows (a DuckDB appender, the small group of light traffic), 2,000
-  rows and 50,000 rows (Arrow; the ingest log's applier under load).
-* **PostgreSQL**: ``write_sync`` on a private durable cluster with the
-  ``rollups_fold`` trigger enabled and disabled, alternately.
+* **DuckDB**: the writer itself (``DuckDBAppender``), and a subclass
+  without its ``_fold_rollups`` step. The compactor merges hot rollup rows
+  in the background meanwhile; the run ends with a full merge
+  (``compact``), whose time is counted.
+* **PostgreSQL**: ``write_sync`` on a private durable cluster, the
+  ``rollups_fold`` trigger enabled or disabled; the merger thread runs
+  meanwhile, and a full merge ends the run.
 
-Prints the median commit time per batch size and mode, and the cost per
-1,000 samples. One machine, one run: indicative only, and meaningless while
+Prints, per batch size and mode, the median commit time, and the run's
+total (every commit and the final merge) per 1,000 samples; for DuckDB
+also the process's CPU time per 1,000 samples (the compactor's merges
+included). One machine, one run: indicative only, and meaningless while
 other work shares the cores.
 """
 
@@ -53,7 +59,8 @@ def batch(rows: int, second: int) -> list[EntitySample]:
     return out
 
 
-def duckdb_run(rounds: int) -> dict[tuple[int, str], float]:
+def duckdb_run(rounds: int) -> dict[tuple[int, str], tuple[float, float, float]]:
+    """(batch size, mode) → (median commit s, total s per 1k rows, CPU s per 1k rows)."""
     from tsdb_service.storage.duckdb.appender import DuckDBAppender
     from tsdb_service.storage.duckdb.store import DuckDBStore
 
@@ -62,29 +69,30 @@ def duckdb_run(rounds: int) -> dict[tuple[int, str], float]:
             pass
 
     out = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        store = DuckDBStore(str(Path(tmp) / "bench.duckdb"), ingest_log=False)
-        try:
-            writers = {"with": DuckDBAppender(store), "without": WithoutRollups(store)}
-            second = 0
-            for rows in SIZES:
-                times: dict[str, list[float]] = {"with": [], "without": []}
-                n = rounds if rows < 50_000 else max(3, rounds // 10)
-                for _ in range(n):
-                    for mode, writer in writers.items():
-                        second += 60
-                        writer.stage(AppendSamples(batch(rows, second), dedup=False))
+    for rows in SIZES:
+        n = rounds if rows < 50_000 else max(3, rounds // 10)
+        for mode, writer_type in (("without", WithoutRollups), ("with", DuckDBAppender)):
+            with tempfile.TemporaryDirectory() as tmp:
+                store = DuckDBStore(str(Path(tmp) / "bench.duckdb"), ingest_log=False)
+                try:
+                    writer = writer_type(store)
+                    times = []
+                    cpu0, wall0 = time.process_time(), time.perf_counter()
+                    for k in range(n):
+                        writer.stage(AppendSamples(batch(rows, 60 * k), dedup=False))
                         t0 = time.perf_counter()
                         writer.commit()
-                        times[mode].append(time.perf_counter() - t0)
-                for mode, seen in times.items():
-                    out[(rows, mode)] = statistics.median(seen)
-        finally:
-            store.close()
+                        times.append(time.perf_counter() - t0)
+                    store.compact(full=False)  # what is left to merge
+                    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+                finally:
+                    store.close()
+            per_k = 1000 / (rows * n)
+            out[(rows, mode)] = (statistics.median(times), wall * per_k, cpu * per_k)
     return out
 
 
-def postgres_run(rounds: int) -> dict[tuple[int, str], float]:
+def postgres_run(rounds: int) -> dict[tuple[int, str], tuple[float, float, float]]:
     import psycopg
     from pgutil import BenchCluster
 
@@ -93,28 +101,28 @@ def postgres_run(rounds: int) -> dict[tuple[int, str], float]:
 
     out = {}
     with BenchCluster("rollups_ingest") as cluster:
-        store = open_store(Settings(db=cluster.url))
-        try:
-            with psycopg.connect(cluster.url, autocommit=True) as conn:
-                second = 0
-                store.write_sync([AppendSamples(batch(100, second), dedup=False)])  # series exist: the COPY path
-                for rows in SIZES:
-                    times: dict[str, list[float]] = {"with": [], "without": []}
-                    n = rounds if rows < 50_000 else max(3, rounds // 10)
-                    for _ in range(n):
-                        for mode in ("with", "without"):
-                            switch = "ENABLE" if mode == "with" else "DISABLE"
-                            conn.execute(f"ALTER TABLE samples {switch} TRIGGER rollups_fold")
-                            second += 60
-                            ops = [AppendSamples(batch(rows, second), dedup=False)]
-                            t0 = time.perf_counter()
-                            store.write_sync(ops)
-                            times[mode].append(time.perf_counter() - t0)
-                    for mode, seen in times.items():
-                        out[(rows, mode)] = statistics.median(seen)
-                conn.execute("ALTER TABLE samples ENABLE TRIGGER rollups_fold")
-        finally:
-            store.close()
+        for rows in SIZES:
+            n = rounds if rows < 50_000 else max(3, rounds // 10)
+            for mode in ("without", "with"):
+                url = cluster.cluster.database(f"rollups_{rows}_{mode}")
+                store = open_store(Settings(db=url))
+                try:
+                    switch = "ENABLE" if mode == "with" else "DISABLE"
+                    with psycopg.connect(url, autocommit=True) as conn:
+                        conn.execute(f"ALTER TABLE samples {switch} TRIGGER rollups_fold")
+                    store.write_sync([AppendSamples(batch(100, -3600), dedup=False)])  # series known: the COPY path
+                    times = []
+                    wall0 = time.perf_counter()
+                    for k in range(n):
+                        ops = [AppendSamples(batch(rows, 60 * k), dedup=False)]
+                        t0 = time.perf_counter()
+                        store.write_sync(ops)
+                        times.append(time.perf_counter() - t0)
+                    store.compact()  # what is left to merge
+                    wall = time.perf_counter() - wall0
+                finally:
+                    store.close()
+                out[(rows, mode)] = (statistics.median(times), wall * 1000 / (rows * n), float("nan"))
     return out
 
 
@@ -123,15 +131,18 @@ def main() -> int:
     parser.add_argument("--backends", default="duckdb,postgresql", help="comma list (default: both)")
     parser.add_argument("--rounds", type=int, default=30, help="commits per batch size and mode (default 30)")
     args = parser.parse_args()
-    print("commit time, median (ms); one machine, one run: indicative only")
-    print(f"{'backend':<11}{'rows':>8}{'without':>11}{'with':>11}{'added':>10}{'per 1k rows':>13}")
+    print("one machine, one run: indicative only")
+    print(f"{'backend':<11}{'rows':>7}  {'commit p50 ms':>22}  {'total ms / 1k rows':>22}  {'CPU ms / 1k rows':>20}")
+    print(f"{'':<11}{'':>7}  {'without':>10} {'with':>11}  {'without':>10} {'with':>11}  {'without':>9} {'with':>10}")
     for backend in args.backends.split(","):
         run = {"duckdb": duckdb_run, "postgresql": postgres_run}[backend.strip()]
         figures = run(args.rounds)
         for rows in SIZES:
-            without, with_ = figures[(rows, "without")] * 1000, figures[(rows, "with")] * 1000
-            added = with_ - without
-            print(f"{backend:<11}{rows:>8}{without:>11.2f}{with_:>11.2f}{added:>+10.2f}{added / rows * 1000:>+13.2f}")
+            a, b = figures[(rows, "without")], figures[(rows, "with")]
+            print(
+                f"{backend:<11}{rows:>7}  {a[0] * 1000:>10.2f} {b[0] * 1000:>11.2f}  "
+                f"{a[1] * 1000:>10.2f} {b[1] * 1000:>11.2f}  {a[2] * 1000:>9.2f} {b[2] * 1000:>10.2f}"
+            )
     return 0
 
 

@@ -249,7 +249,7 @@ def partial_rows(
     cells: dict[tuple[int, int, int], list] = {}
     widths = [(level.code, level.width // _US) for level in LEVELS]
     for sid, rid, t, kind, num in zip(sids, rids, times, kinds, nums, strict=True):
-        number = num if (kind == _NUMBER or kind == _INTEGER) and num is not None else None
+        number = num if kind in (_NUMBER, _INTEGER) and num is not None else None
         for code, width in widths:
             key = (code, sid, t - t % width)
             c = cells.get(key)
