@@ -28,8 +28,9 @@ Invariants:
 
 * **Never behind.** Every statement inserting samples appends their
   partials in its own transaction: on DuckDB the writer folds each batch
-  (``fold_sql`` over the batch) in the transaction that also moves the
-  ingest-log position, so a replayed batch is folded exactly once; on
+  (``partial_rows`` for a small one, ``fold_sql`` over a big one) in the
+  transaction that also moves the ingest-log position, so a replayed batch
+  is folded exactly once; on
   PostgreSQL the trigger ``rollups_fold`` (migration 0014, the same SQL)
   folds each statement's new rows, whoever inserts them. ``copy`` and
   ``import quantumleap`` write through the writers.
