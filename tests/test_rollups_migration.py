@@ -7,15 +7,12 @@ from __future__ import annotations
 
 from datetime import datetime
 
-import duckdb
-import psycopg
-
+from tests.support.old_store import old_store
 from tests.support.rollups import differences
 from tsdb_service.core.config import Settings
 from tsdb_service.core.query import AggBranch, Aggregation, AggrMethod, AggrPeriod, TimeRange
 from tsdb_service.read.requests import AggregateRead
 from tsdb_service.storage import open_store
-from tsdb_service.storage.migrations import SCHEMA_TABLE, load_migrations, split_statements
 
 RAW = [  # rid, sid, t, kind, num: the 10:00 hour is split, its start folded by retention
     (1, 1, "2024-01-01 10:35:00", 2, 5.0),
@@ -32,7 +29,6 @@ FOLDED = [  # sid, hour, n_present, n_numeric, sum, min, max, all_integer
 
 def _old_store(url: str, backend: str) -> None:
     """A store migrated up to 0013, with raw samples, folded hours and watermarks."""
-    old = [m for m in load_migrations(backend) if m.version < 14]
     series = (
         "INSERT INTO series (sid, tenant, service_path, entity_id, entity_type, attr) "
         "VALUES (1, '', '/', 'e', 'T', 'a'), (2, '', '/', 'e', 'T', 'b')"
@@ -56,25 +52,9 @@ def _old_store(url: str, backend: str) -> None:
             [],
         ),
     ]
-    if backend == "duckdb":
-        con = duckdb.connect(url)
-        con.execute(SCHEMA_TABLE)
-        for m in old:
-            for statement in split_statements(m.sql):
-                con.execute(statement)
-            con.execute("INSERT INTO schema_migrations (version, name) VALUES (?, ?)", [m.version, m.name])
-        for sql, params in rows:
-            con.execute(sql.format(p="?"), params)
-        con.close()
-        return
-    with psycopg.connect(url) as conn:
-        conn.execute(SCHEMA_TABLE)
-        for m in old:
-            conn.execute(m.sql)
-            conn.execute("INSERT INTO schema_migrations (version, name) VALUES (%s, %s)", [m.version, m.name])
-        for sql, params in rows:
-            conn.execute(sql.format(p="%s"), params)
-        conn.execute("SELECT setval(pg_get_serial_sequence('series', 'sid'), 2)")
+    if backend == "postgresql":
+        rows.append(("SELECT setval(pg_get_serial_sequence('series', 'sid'), 2)", []))
+    old_store(url, backend, 14, rows)
 
 
 def test_old_rollups_are_carried_and_every_sample_rolled_up(store_url, backend):

@@ -16,10 +16,9 @@ import argparse
 import sys
 from datetime import UTC, datetime
 
-from tsdb_service.cli.argtypes import integer, positive_int
+from tsdb_service.cli.argtypes import integer, positive_int, utc_time
 from tsdb_service.cli.main import setting_help
 from tsdb_service.core.config import Settings, SettingsError, check_db, load_settings
-from tsdb_service.parse.timeindex import parse_time
 
 
 def register(subparsers, command) -> None:
@@ -71,20 +70,11 @@ def _selection(p: argparse.ArgumentParser) -> None:
     p.add_argument("--to", dest="end", metavar="TIME", help="up to this time, exclusive (ISO 8601; default: the last)")
 
 
-def _time(text: str | None, flag: str) -> datetime | None:
-    if text is None:
-        return None
-    moment = parse_time(text)
-    if moment is None:
-        raise SettingsError(f"{flag}: {text!r} is not an ISO 8601 time (e.g. 2024-05-01T00:00:00Z)")
-    return moment.astimezone(UTC)
-
-
 def cmd_rollups(args: argparse.Namespace) -> int:
     from tsdb_service.commands.rollups import check_rollups, rebuild_rollups
     from tsdb_service.storage import open_store, require_history
 
-    start, end = _time(args.start, "--from"), _time(args.end, "--to")
+    start, end = utc_time(args.start, "--from"), utc_time(args.end, "--to")
     if start is not None and end is not None and start >= end:
         raise SettingsError("--from must be before --to")
     try:

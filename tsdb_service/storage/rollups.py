@@ -315,6 +315,28 @@ def lock_statements(d: SqlDialect) -> list[str]:
     return [] if d.name == "duckdb" else [f"SELECT pg_advisory_xact_lock({LOCK})"]
 
 
+def _within(
+    d: SqlDialect, sids: Sequence[int], first: datetime | None = None, last: datetime | None = None
+) -> tuple[str, list]:
+    """WHERE text: the rows of ``sids`` with ``first <= bucket <= last``
+    (None: open). Buckets are whole microseconds: ``bucket < x`` is
+    ``last = x - 1 µs``."""
+    p = d.placeholder
+    where, params = d.sid_filter(sids)
+    if first is not None:
+        where += f" AND bucket >= {p}"
+        params.append(d.time_value(first))
+    if last is not None:
+        where += f" AND bucket <= {p}"
+        params.append(d.time_value(last))
+    return where, params
+
+
+def _before(moment: datetime | None) -> datetime | None:
+    """The last microsecond before ``moment`` (a half-open range's end)."""
+    return None if moment is None else moment - _US
+
+
 OPEN = TimeRange()
 _COMPLETE = f"NOT EXISTS (SELECT 1 FROM {EXPIRED} e WHERE e.sid = r.sid AND e.upto >= r.bucket)"
 
@@ -342,17 +364,12 @@ def _redo_keys(d: SqlDialect, redo: Redo) -> tuple[str, list]:
     parts, params = [], []
     start, end = redo.time.start, redo.time.end
     for level in LEVELS:
-        where, wparams = d.sid_filter(redo.sids)
+        # Buckets meeting [start, end]: from the one holding start on.
+        where, wparams = _within(d, redo.sids, None if start is None else start - level.width + _US, end)
         if redo.instance is not None:
             where += f" AND bucket = (SELECT date_trunc('{level.name}', t) FROM {d.samples('sid, iid, t')} "
             where += f"WHERE sid = {p} AND iid = {p})"
             wparams += list(redo.instance)
-        if start is not None:
-            where += f" AND bucket > {p}"
-            wparams.append(d.time_value(start - level.width))
-        if end is not None:
-            where += f" AND bucket <= {p}"
-            wparams.append(d.time_value(end))
         candidates = f"SELECT sid, bucket FROM {level.view} WHERE {where}"
         if redo.from_raw:
             raw_where, raw_params = d.sid_filter(redo.sids)
@@ -561,7 +578,6 @@ def aggregate_part(
     aggregation's layout (branch, sid, ISO bucket | NULL, n_present,
     n_numeric, value, all_integer)."""
     assert piece.level is not None
-    p = d.placeholder
     fn = {
         AggrMethod.SUM: "sum(num_sum)",
         AggrMethod.AVG: "sum(num_sum)",
@@ -569,13 +585,7 @@ def aggregate_part(
         AggrMethod.MAX: "max(num_max)",
     }.get(method, "NULL")
     trunc = d.date_trunc(period.value, "bucket") if period is not None else None
-    where, params = d.sid_filter(sids)
-    if piece.start is not None:
-        where += f" AND bucket >= {p}"
-        params.append(d.time_value(piece.start))
-    if piece.end is not None:
-        where += f" AND bucket < {p}"
-        params.append(d.time_value(piece.end))
+    where, params = _within(d, sids, piece.start, _before(piece.end))
     sql = (
         f"SELECT {number} AS branch, sid, {d.iso_ms(trunc) if trunc else 'NULL'} AS bucket, "
         "CAST(sum(n_present) AS BIGINT) AS n_present, CAST(sum(n_numeric) AS BIGINT) AS n_numeric, "
@@ -603,16 +613,9 @@ def bucket_part(
     (``storage.sql.buckets.raw_part``), ties included: one part of the
     bucket query, combined with the raw parts of the window's edges. Without
     ``extreme_times``, ``min_t`` and ``max_t`` are NULL (``BucketRead``)."""
-    p = d.placeholder
     w = width // _US
-    where, params = d.sid_filter(sids)
+    where, params = _within(d, sids, piece.start, _before(piece.end))
     where += " AND n_numeric > 0"
-    if piece.start is not None:
-        where += f" AND bucket >= {p}"
-        params.append(d.time_value(piece.start))
-    if piece.end is not None:
-        where += f" AND bucket < {p}"
-        params.append(d.time_value(piece.end))
     inner = f"SELECT {COLS}, {d.epoch_us('bucket')} AS bu FROM {level.view} WHERE {where}{d.fence}"
     start = f"(bu - mod(mod(bu, {w}) + {w}, {w}))"
     only = "num_min IS NOT NULL"
@@ -636,16 +639,10 @@ def rolled_up_count(querier, sids: Sequence[int], time: TimeRange) -> int:
     deleted from raw: what a delete finds to delete where no raw sample is
     left (a delete drops them; buckets it only cuts stay as they are)."""
     d = querier.dialect
-    p = d.placeholder
     parts, params = [], []
     for level in LEVELS:
-        where, wparams = d.sid_filter(sids)
-        if time.start is not None:
-            where += f" AND bucket >= {p}"
-            wparams.append(d.time_value(time.start))
-        if time.end is not None:
-            where += f" AND bucket <= {p}"
-            wparams.append(d.time_value(time.end - level.width + _US))
+        last = None if time.end is None else time.end - level.width + _US  # the bucket ends inside
+        where, wparams = _within(d, sids, time.start, last)
         parts.append(f"SELECT count(*) AS n FROM {level.view} r WHERE {where} AND NOT {_COMPLETE}")
         params += wparams
     rows = querier._fetch(f"SELECT sum(n) FROM ({' UNION ALL '.join(parts)}) AS c", params)
