@@ -14,7 +14,7 @@
 -- the two tables. A bucket may be held by several rows at once (merged and
 -- hot): readers read the *_all views and combine them. Its function body is
 -- storage.rollups.fold_sql(PostgresDialect(), 'changed'), word for word
--- (tests/test_rollups_trigger.py checks it): change both together, in a new
+-- (tests/test_rollups_replicas.py checks it): change both together, in a new
 -- migration.
 --
 -- rollups_expired: per series, the newest sample time retention has deleted

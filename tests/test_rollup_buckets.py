@@ -4,7 +4,10 @@ samples at one instant, ties of values, integers and floats, texts), every
 width a level serves, and windows of whole minutes and hours, each row
 (count, sum, integers, minimum and maximum with the time of the earliest
 sample holding it, first and last) equals one computed in Python from the
-raw samples; merged and hot rows alike, also after deletes.
+raw samples; merged and hot rows alike, also after deletes. The whole
+bucket query (``storage.sql.buckets.bucket_sql``: rollups for the window's
+whole hours and minutes, raw samples for its edges) equals the raw samples'
+buckets over random windows cutting minutes anywhere.
 
 Numbers are multiples of 1/8: every sum is exact in any order."""
 
@@ -19,8 +22,10 @@ from tsdb_service.core.buckets import LADDER
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.core.query import TimeRange
+from tsdb_service.read.buckets import BucketRead
 from tsdb_service.storage import open_store
 from tsdb_service.storage.rollups import Piece, bucket_levels, bucket_part, split_window
+from tsdb_service.storage.sql.buckets import BUCKET_COLUMNS, as_buckets, raw_part
 from tsdb_service.write.ops import AppendSamples, DeleteSamples
 
 T0 = datetime(2024, 5, 1, 21, tzinfo=UTC)
@@ -123,3 +128,26 @@ def test_rollup_buckets_equal_raw_buckets(store):
                 start -= (start - EPOCH) % level.width
                 end = start + span
                 assert from_rollups(store, width, start, end) == reference(store, width, start, end), (width, start)
+
+
+def raw_buckets(q, sids: list[int], ask: BucketRead) -> list:
+    """The bucket query's rows as raw samples alone give them."""
+    sql, params = raw_part(q.dialect, sids, ask.time, ask.width, (), ask.extreme_times)
+    return as_buckets(q._fetch(f"SELECT {BUCKET_COLUMNS} FROM ({sql}) AS b ORDER BY sid, start", params))
+
+
+def test_the_bucket_query_equals_raw_over_random_windows(store):
+    rng = random.Random(3838)
+    store.write_sync([AppendSamples(samples(rng, 400), dedup=False)])
+    store.compact()  # merged rows, and hot ones from the late samples below
+    store.write_sync([AppendSamples(samples(rng, 200), dedup=False)])
+    q = store.querier()
+    sids = [r[0] for r in q._fetch("SELECT sid FROM series ORDER BY sid", [])]
+    cut = T0 + timedelta(hours=3, minutes=10, seconds=17)
+    store.write_sync([DeleteSamples(tuple(sids), cut, cut + timedelta(hours=1, minutes=33))])
+    for _ in range(16):
+        width = rng.choice(WIDTHS)
+        start = T0 - timedelta(minutes=20) + timedelta(microseconds=rng.randrange(9 * 3600 * 10**6))
+        end = start + timedelta(microseconds=rng.randrange(60 * 10**6, 6 * 3600 * 10**6))
+        ask = BucketRead(tuple(sids), TimeRange(start, end), width, (), rng.random() < 0.5)
+        assert q.buckets(ask) == raw_buckets(q, sids, ask), (width, start, end)

@@ -162,6 +162,27 @@ def test_minutes_and_cut_hours_come_from_rollups_value_paths_from_raw(loaded):
     assert got == [[30], [30]]
 
 
+def _drawn(client, **params):
+    r = client.get("/grafana/infinity/series", params={"id": "Robot:1", "attrs": "v=speed", **params}, headers=H)
+    assert r.status_code == 200, r.text
+    return r.json(), r.headers["X-Tsdb-Bucket"]
+
+
+def test_drawing_after_retention_shows_the_rolled_up_history(loaded):
+    """A panel of all data starts where the rollups' history does, and raw
+    samples that would fit the budget but no longer hold the window's start
+    give way to buckets."""
+    before = _drawn(loaded, max_points=100)
+    assert before[1] == "1d" and before[0][0]["time"] == iso(OLD).replace("+00:00", "Z")
+    assert _drawn(loaded, max_points=1000)[1] == "raw"  # 180 samples: drawn as stored
+    loaded.app.state.store.retention.run_once()
+    assert _drawn(loaded, max_points=100) == before  # the window found from the rollups too
+    rows, width = _drawn(loaded, max_points=1000)
+    assert width == "2h" and rows[0]["time"] == before[0][0]["time"]  # 30 raw samples left, but buckets
+    window = {"from": int(OLD.timestamp() * 1000), "to": int((NEW + timedelta(hours=10)).timestamp() * 1000)}
+    assert _drawn(loaded, max_points=1000, **window)[1] == "2h"
+
+
 def test_deleting_an_entity_removes_its_rollups(loaded):
     loaded.app.state.store.retention.run_once()
     count = "/v2/entities/Robot:1/attrs/ticks?aggrMethod=count"

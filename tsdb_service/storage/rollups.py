@@ -649,6 +649,29 @@ def rolled_up_count(querier, sids: Sequence[int], time: TimeRange) -> int:
     return int(rows[0][0] or 0) if rows else 0
 
 
+def expired_history_sql(d: SqlDialect, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
+    """SELECT (lo, hi), epoch µs: per rollup row of ``sids`` meeting ``time``
+    (inclusive; None: open) that holds samples retention deleted (an
+    incomplete bucket, either level), the time of its first and last number
+    (the bucket's edges where it holds none), clipped to ``time``. What raw
+    samples no longer show of a window: its span and whether raw samples
+    alone can draw it (``storage.sql.buckets``)."""
+    parts, params = [], []
+    for level in LEVELS:
+        bu, size = d.epoch_us("r.bucket"), level.width // _US
+        lo, hi = f"coalesce(r.first_us, {bu})", f"coalesce(r.last_us, {bu} + {size - 1})"
+        if time.start is not None:
+            lo = f"greatest({lo}, {_micros(time.start)})"
+        if time.end is not None:
+            hi = f"least({hi}, {_micros(time.end)})"
+        where, wparams = _within(d, sids, None if time.start is None else time.start - level.width + _US, time.end)
+        parts.append(
+            f"SELECT {lo} AS lo, {hi} AS hi FROM {level.view} r WHERE {where} AND r.n_present > 0 AND NOT {_COMPLETE}"
+        )
+        params += wparams
+    return " UNION ALL ".join(parts), params
+
+
 class Merger:
     """A thread that merges hot rollup rows every ``interval`` seconds
     (PostgreSQL; DuckDB's compactor does it): ``merge_once(limit)`` moves at
