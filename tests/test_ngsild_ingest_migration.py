@@ -22,18 +22,13 @@ OLD_ROWS = [
 
 def _old_store(url: str, backend: str) -> None:
     """A store migrated up to 0004, with samples in it (on DuckDB the last one hot)."""
-    series = "INSERT INTO series (sid, tenant, service_path, entity_id, entity_type, attr) VALUES "
-    series += "(1, '', '/', 'e', 'T', 'a'), (2, '', '/', 'e', 'T', 'b')"
     insert = "INSERT INTO {table} (rid, sid, t, kind, atype, num) VALUES ({{p}}, {{p}}, {{p}}, {{p}}, {{p}}, {{p}})"
     hot = "samples_hot" if backend == "duckdb" else "samples"
     rows = [
-        (series, []),
         *((insert.format(table="samples"), list(r)) for r in OLD_ROWS[:2]),
         *((insert.format(table=hot), list(r)) for r in OLD_ROWS[2:]),
     ]
-    if backend == "postgresql":
-        rows.append(("SELECT setval(pg_get_serial_sequence('series', 'sid'), 2)", []))
-    old_store(url, backend, 5, rows)
+    old_store(url, backend, 5, rows, attrs=("a", "b"))
 
 
 def test_existing_samples_get_instance_ids(store_url, backend):

@@ -29,12 +29,7 @@ FOLDED = [  # sid, hour, n_present, n_numeric, sum, min, max, all_integer
 
 def _old_store(url: str, backend: str) -> None:
     """A store migrated up to 0013, with raw samples, folded hours and watermarks."""
-    series = (
-        "INSERT INTO series (sid, tenant, service_path, entity_id, entity_type, attr) "
-        "VALUES (1, '', '/', 'e', 'T', 'a'), (2, '', '/', 'e', 'T', 'b')"
-    )
     rows = [
-        (series, []),
         *(
             (
                 "INSERT INTO samples (rid, sid, t, kind, num) VALUES ({p}, {p}, CAST({p} AS TIMESTAMP), {p}, {p})",
@@ -52,9 +47,7 @@ def _old_store(url: str, backend: str) -> None:
             [],
         ),
     ]
-    if backend == "postgresql":
-        rows.append(("SELECT setval(pg_get_serial_sequence('series', 'sid'), 2)", []))
-    old_store(url, backend, 14, rows)
+    old_store(url, backend, 14, rows, attrs=("a", "b"))
 
 
 def test_old_rollups_are_carried_and_every_sample_rolled_up(store_url, backend):

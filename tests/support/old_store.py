@@ -12,10 +12,14 @@ import psycopg
 from tsdb_service.storage.migrations import SCHEMA_TABLE, load_migrations, split_statements
 
 
-def old_store(url: str, backend: str, version: int, rows: Sequence[tuple[str, list]] = ()) -> None:
-    """Migrate ``url`` up to (not including) ``version``, then run ``rows``:
-    (SQL with ``{p}`` placeholders, parameters)."""
+def old_store(
+    url: str, backend: str, version: int, rows: Sequence[tuple[str, list]] = (), attrs: Sequence[str] = ()
+) -> None:
+    """Migrate ``url`` up to (not including) ``version``, add the series of
+    ``attrs`` (entity ``e`` of type ``T`` in the default tenant, sids from 1),
+    then run ``rows``: (SQL with ``{p}`` placeholders, parameters)."""
     old = [m for m in load_migrations(backend) if m.version < version]
+    rows = [*_series(backend, attrs), *rows]
     if backend == "duckdb":
         con = duckdb.connect(url)
         try:
@@ -36,3 +40,14 @@ def old_store(url: str, backend: str, version: int, rows: Sequence[tuple[str, li
             conn.execute("INSERT INTO schema_migrations (version, name) VALUES (%s, %s)", [m.version, m.name])
         for sql, params in rows:
             conn.execute(sql.format(p="%s"), params)
+
+
+def _series(backend: str, attrs: Sequence[str]) -> list[tuple[str, list]]:
+    if not attrs:
+        return []
+    values = ", ".join("({p}, '', '/', 'e', 'T', {p})" for _ in attrs)
+    params = [v for sid, attr in enumerate(attrs, 1) for v in (sid, attr)]
+    out = [(f"INSERT INTO series (sid, tenant, service_path, entity_id, entity_type, attr) VALUES {values}", params)]
+    if backend == "postgresql":
+        out.append(("SELECT setval(pg_get_serial_sequence('series', 'sid'), {p})", [len(attrs)]))
+    return out

@@ -66,7 +66,7 @@ from datetime import UTC, datetime, timedelta
 from tsdb_service.core.buckets import served_by
 from tsdb_service.core.model import Kind
 from tsdb_service.core.query import AggrMethod, AggrPeriod, TimeRange
-from tsdb_service.storage.sql.dialect import SqlDialect
+from tsdb_service.storage.sql.dialect import SqlDialect, series_time_filter
 
 COLUMNS = (
     "sid",
@@ -372,13 +372,7 @@ def _redo_keys(d: SqlDialect, redo: Redo) -> tuple[str, list]:
             wparams += list(redo.instance)
         candidates = f"SELECT sid, bucket FROM {level.view} WHERE {where}"
         if redo.from_raw:
-            raw_where, raw_params = d.sid_filter(redo.sids)
-            if start is not None:
-                raw_where += f" AND t >= {p}"
-                raw_params.append(d.time_value(start))
-            if end is not None:
-                raw_where += f" AND t <= {p}"
-                raw_params.append(d.time_value(end))
+            raw_where, raw_params = series_time_filter(d, redo.sids, redo.time)
             candidates += (
                 f" UNION ALL SELECT sid, date_trunc('{level.name}', t) FROM {d.samples('sid, t')} WHERE {raw_where}"
             )
