@@ -181,6 +181,10 @@ def test_drawing_after_retention_shows_the_rolled_up_history(loaded):
     assert width == "2h" and rows[0]["time"] == before[0][0]["time"]  # 30 raw samples left, but buckets
     window = {"from": int(OLD.timestamp() * 1000), "to": int((NEW + timedelta(hours=10)).timestamp() * 1000)}
     assert _drawn(loaded, max_points=1000, **window)[1] == "2h"
+    # Ten hours that only rollups hold, from an open start: minute buckets, each sample's value.
+    rows, width = _drawn(loaded, max_points=1000, to=int((OLD + timedelta(hours=10)).timestamp() * 1000) - 1)
+    drawn = [row for row in rows if row["v"] is not None]
+    assert width != "raw" and drawn[0]["time"] == before[0][0]["time"] and len(drawn) == 30
 
 
 def test_deleting_an_entity_removes_its_rollups(loaded):

@@ -643,27 +643,39 @@ def rolled_up_count(querier, sids: Sequence[int], time: TimeRange) -> int:
     return int(rows[0][0] or 0) if rows else 0
 
 
-def expired_history_sql(d: SqlDialect, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
-    """SELECT (lo, hi), epoch µs: per rollup row of ``sids`` meeting ``time``
-    (inclusive; None: open) that holds samples retention deleted (an
-    incomplete bucket, either level), the time of its first and last number
-    (the bucket's edges where it holds none), clipped to ``time``. What raw
-    samples no longer show of a window: its span and whether raw samples
-    alone can draw it (``storage.sql.buckets``)."""
-    parts, params = [], []
+def expired_span_sql(d: SqlDialect, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
+    """SELECT min(lo), max(hi), epoch µs, clipped to ``time`` (inclusive;
+    None: open): the first and last number (a bucket's edges where it holds
+    none) of the rollup rows of ``sids`` meeting ``time`` that hold samples
+    retention deleted (incomplete buckets, either level). NULLs: none. What
+    raw samples no longer show of a window: its span, and whether raw
+    samples alone can draw it (``storage.sql.buckets``). Per series that
+    retention reached, two probes a level (its earliest and latest such
+    bucket in the window), never a scan of the window's rollups."""
+    p = d.placeholder
+    los, his, bparams = [], [], []
     for level in LEVELS:
         bu, size = d.epoch_us("r.bucket"), level.width // _US
         lo, hi = f"coalesce(r.first_us, {bu})", f"coalesce(r.last_us, {bu} + {size - 1})"
+        bounds, params = "r.sid = e.sid AND r.n_present > 0 AND r.bucket <= e.upto", []
         if time.start is not None:
-            lo = f"greatest({lo}, {_micros(time.start)})"
+            bounds += f" AND r.bucket >= {p}"
+            params.append(d.time_value(time.start - level.width + _US))
         if time.end is not None:
-            hi = f"least({hi}, {_micros(time.end)})"
-        where, wparams = _within(d, sids, None if time.start is None else time.start - level.width + _US, time.end)
-        parts.append(
-            f"SELECT {lo} AS lo, {hi} AS hi FROM {level.view} r WHERE {where} AND r.n_present > 0 AND NOT {_COMPLETE}"
-        )
-        params += wparams
-    return " UNION ALL ".join(parts), params
+            bounds += f" AND r.bucket <= {p}"
+            params.append(d.time_value(time.end))
+        los.append(f"(SELECT {lo} FROM {level.view} r WHERE {bounds} ORDER BY r.bucket, 1 LIMIT 1)")
+        his.append(f"(SELECT {hi} FROM {level.view} r WHERE {bounds} ORDER BY r.bucket DESC, 1 DESC LIMIT 1)")
+        bparams.append(params)
+    lo, hi = f"least({', '.join(los)})", f"greatest({', '.join(his)})"  # both ignore NULLs
+    if time.start is not None:
+        lo = f"greatest({lo}, {_micros(time.start)})"
+    if time.end is not None:
+        hi = f"least({hi}, {_micros(time.end)})"
+    where, wparams = d.sid_filter(sids)
+    sql = f"SELECT min(lo), max(hi) FROM (SELECT {lo} AS lo, {hi} AS hi FROM {EXPIRED} e WHERE {where}) AS x"
+    # Placeholders in textual order: the levels' lo probes, their hi probes, the series.
+    return sql, [*(v for ps in bparams for v in ps), *(v for ps in bparams for v in ps), *wparams]
 
 
 class Merger:

@@ -54,7 +54,7 @@ from tsdb_service.read.buckets import (
     TimedSample,
 )
 from tsdb_service.read.requests import SamplesIn
-from tsdb_service.storage.rollups import bucket_levels, bucket_part, expired_history_sql, split_window
+from tsdb_service.storage.rollups import bucket_levels, bucket_part, expired_span_sql, split_window
 from tsdb_service.storage.sql.dialect import (
     INTEGER_KIND,
     MAX_BIGINT,
@@ -199,13 +199,6 @@ def span_sql(dialect: SqlDialect, ask: SamplesIn) -> tuple[str, list]:
     return f"SELECT {d.epoch_us('min(t)')}, {d.epoch_us('max(t)')} FROM {d.samples('sid, t')} WHERE {where}", params
 
 
-def rolled_up_span_sql(dialect: SqlDialect, ask: SamplesIn) -> tuple[str, list]:
-    """The first and last times (epoch µs) of the history of ``ask`` that
-    only rollups keep (``storage.rollups.expired_history_sql``)."""
-    sql, params = expired_history_sql(dialect, ask.sids, ask.time)
-    return f"SELECT min(lo), max(hi) FROM ({sql}) AS e", params
-
-
 def count_up_to_sql(dialect: SqlDialect, ask: SamplesIn, most: int) -> tuple[str, list]:
     """A count that stops reading at ``most`` rows (a LIMIT without ORDER BY)."""
     d = dialect
@@ -267,11 +260,11 @@ class SqlBuckets(SqlReads, BucketReader):
         return (int(rows[0][0]), int(rows[0][1])) if rows and rows[0][0] is not None else None
 
     def _rolled_up_span(self, ask: SamplesIn) -> tuple[int, int] | None:
-        """The span of what only rollups keep (``rolled_up_span_sql``);
+        """The span of what only rollups keep (``storage.rollups.expired_span_sql``);
         nothing to read until retention has deleted raw samples."""
         if not self.raw_expired():
             return None
-        rows = self._fetch(*rolled_up_span_sql(self.dialect, ask))
+        rows = self._fetch(*expired_span_sql(self.dialect, ask.sids, ask.time))
         return (int(rows[0][0]), int(rows[0][1])) if rows and rows[0][0] is not None else None
 
     def count_up_to(self, ask: SamplesIn, most: int) -> int:
@@ -282,10 +275,8 @@ class SqlBuckets(SqlReads, BucketReader):
             return 0
         rows = self._fetch(*count_up_to_sql(self.dialect, ask, most))
         counted = int(rows[0][0]) if rows else 0
-        if counted < most and self.raw_expired():
-            sql, params = expired_history_sql(self.dialect, ask.sids, ask.time)
-            if self._fetch(f"SELECT 1 FROM ({sql}) AS e LIMIT 1", params):
-                return most
+        if counted < most and self._rolled_up_span(ask) is not None:
+            return most
         return counted
 
     def samples(self, ask: SamplesIn, most: int) -> list[TimedSample]:
