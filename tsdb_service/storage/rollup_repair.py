@@ -18,13 +18,19 @@ or changed by hand, a restored partial backup.
   their raw samples give, field by field (sums to a relative 1e-9: the
   order of additions differs), and lists every difference. Incomplete
   buckets are skipped: their rollups rightly hold more than raw.
+* ``expired_history`` / ``put_expired_history``: what only rollups hold (the
+  incomplete buckets of each series retention reached, combined per bucket,
+  with its ``rollups_expired`` mark), read from one store in pages and
+  written into another (``tsdb-service copy``): each page replaces the
+  target's rows of its buckets, which then hold what the copied raw samples
+  rolled up, so running it again changes nothing.
 """
 
 from __future__ import annotations
 
 import math
 import random
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 
@@ -33,12 +39,14 @@ from tsdb_service.storage.rollups import (
     COLS,
     COLUMNS,
     EXPIRED,
+    HOT,
     HOUR,
     LEVELS,
     OPEN,
     Level,
     Redo,
     combine_partials,
+    lock_statements,
     recompute_statements,
     samples_partials,
 )
@@ -246,3 +254,66 @@ def _same(column: str, mine: object, theirs: object) -> bool:
     if column == "num_sum" and isinstance(mine, float) and isinstance(theirs, float):
         return math.isclose(mine, theirs, rel_tol=_SUM_TOLERANCE, abs_tol=_SUM_TOLERANCE)
     return mine == theirs or (isinstance(mine, (int, float)) and isinstance(theirs, (int, float)) and mine == theirs)
+
+
+PAGE_ROWS = 2_000  # rollup rows a page: 16 parameters each, under PostgreSQL's 65,535
+
+
+@dataclass(frozen=True, slots=True)
+class ExpiredPage:
+    """Rows (``COLUMNS``, one per bucket) of ``level`` of series ``sid`` that
+    hold samples retention deleted, by bucket; ``upto``: the series' mark."""
+
+    sid: int
+    upto: datetime  # naive UTC, as stored
+    level: Level
+    rows: list[tuple]
+
+
+def expired_history(store, page_rows: int = PAGE_ROWS) -> Iterator[ExpiredPage]:
+    """Every series' incomplete buckets, combined per bucket, a page at a time."""
+    store.sync()
+    querier = store.querier()
+    fetch, d = querier._fetch, querier.dialect
+    p = d.placeholder
+    for sid, upto in fetch(f"SELECT sid, upto FROM {EXPIRED} ORDER BY sid", []):
+        for level in LEVELS:
+            after = None
+            while True:
+                where, params = f"sid = {p} AND bucket <= {p}", [sid, upto]
+                if after is not None:
+                    where += f" AND bucket > {p}"
+                    params.append(after)
+                source = f"(SELECT {COLS} FROM {level.view} WHERE {where})"
+                rows = fetch(f"{combine_partials(d, source)} ORDER BY bucket LIMIT {p}", [*params, page_rows])
+                if rows:
+                    yield ExpiredPage(sid, upto, level, [tuple(r) for r in rows])
+                if len(rows) < page_rows:
+                    break
+                after = rows[-1][1]
+
+
+def put_expired_history(store, page: ExpiredPage, sid: int) -> None:
+    """``page`` as series ``sid``'s in ``store``: its buckets' rows replaced by
+    the page's, its mark raised to the page's, in one transaction."""
+    querier = store.querier()
+    d = querier.dialect
+    p = d.placeholder
+    first, last = page.rows[0][1], page.rows[-1][1]
+    span = f"sid = {p} AND bucket >= {p} AND bucket <= {p}"
+    values = ", ".join(f"({', '.join([p] * len(COLUMNS))})" for _ in page.rows)
+    statements: list[tuple[str, list]] = [(sql, []) for sql in lock_statements(d)]
+    statements += [
+        (f"DELETE FROM {page.level.table} WHERE {span}", [sid, first, last]),
+        (f"DELETE FROM {HOT} WHERE level = {page.level.code} AND {span}", [sid, first, last]),
+        (
+            f"INSERT INTO {page.level.table} ({COLS}) VALUES {values}",
+            [v for row in page.rows for v in (sid, *row[1:])],
+        ),
+        (
+            f"INSERT INTO {EXPIRED} (sid, upto) VALUES ({p}, {p}) "
+            f"ON CONFLICT (sid) DO UPDATE SET upto = greatest({EXPIRED}.upto, EXCLUDED.upto)",
+            [sid, page.upto],
+        ),
+    ]
+    store.rewrite_rollups(statements)
