@@ -649,9 +649,12 @@ def expired_span_sql(d: SqlDialect, sids: Sequence[int], time: TimeRange) -> tup
     none) of the rollup rows of ``sids`` meeting ``time`` that hold samples
     retention deleted (incomplete buckets, either level). NULLs: none. What
     raw samples no longer show of a window: its span, and whether raw
-    samples alone can draw it (``storage.sql.buckets``). Per series that
-    retention reached, two probes a level (its earliest and latest such
-    bucket in the window), never a scan of the window's rollups."""
+    samples alone can draw it (``storage.sql.buckets``).
+
+    Only the earliest and the latest such bucket are read: PostgreSQL probes
+    them per series that retention reached, two index probes a level;
+    DuckDB (which turns such probes into joins over every row) finds the
+    two buckets with one grouped scan, then reads their rows."""
     p = d.placeholder
     los, his, bparams = [], [], []
     for level in LEVELS:
@@ -664,18 +667,29 @@ def expired_span_sql(d: SqlDialect, sids: Sequence[int], time: TimeRange) -> tup
         if time.end is not None:
             bounds += f" AND r.bucket <= {p}"
             params.append(d.time_value(time.end))
-        los.append(f"(SELECT {lo} FROM {level.view} r WHERE {bounds} ORDER BY r.bucket, 1 LIMIT 1)")
-        his.append(f"(SELECT {hi} FROM {level.view} r WHERE {bounds} ORDER BY r.bucket DESC, 1 DESC LIMIT 1)")
+        if d.name == "duckdb":
+            sid_where, sid_params = d.sid_filter(sids)
+            rows = f"FROM {level.view} r JOIN {EXPIRED} e ON {bounds} WHERE r.{sid_where}"
+            ends = f"(SELECT min(r.bucket) AS b0, max(r.bucket) AS b1 {rows})"
+            los.append(f"(SELECT min({lo}) {rows} AND r.bucket = (SELECT b0 FROM {ends} AS k))")
+            his.append(f"(SELECT max({hi}) {rows} AND r.bucket = (SELECT b1 FROM {ends} AS k))")
+            params = [*params, *sid_params] * 2
+        else:
+            los.append(f"(SELECT {lo} FROM {level.view} r WHERE {bounds} ORDER BY r.bucket, 1 LIMIT 1)")
+            his.append(f"(SELECT {hi} FROM {level.view} r WHERE {bounds} ORDER BY r.bucket DESC, 1 DESC LIMIT 1)")
         bparams.append(params)
     lo, hi = f"least({', '.join(los)})", f"greatest({', '.join(his)})"  # both ignore NULLs
     if time.start is not None:
         lo = f"greatest({lo}, {_micros(time.start)})"
     if time.end is not None:
         hi = f"least({hi}, {_micros(time.end)})"
+    # Placeholders in textual order: the levels' lo parts, their hi parts (then, on PostgreSQL, the series).
+    params = [v for ps in bparams for v in ps] * 2
+    if d.name == "duckdb":
+        return f"SELECT {lo}, {hi}", params
     where, wparams = d.sid_filter(sids)
     sql = f"SELECT min(lo), max(hi) FROM (SELECT {lo} AS lo, {hi} AS hi FROM {EXPIRED} e WHERE {where}) AS x"
-    # Placeholders in textual order: the levels' lo probes, their hi probes, the series.
-    return sql, [*(v for ps in bparams for v in ps), *(v for ps in bparams for v in ps), *wparams]
+    return sql, [*params, *wparams]
 
 
 class Merger:
