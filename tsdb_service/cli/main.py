@@ -85,6 +85,7 @@ _TEXT_METAVARS = {
     "ngsild_contexts": "URL=PATH;...",
     "cors_origins": "ORIGINS",
     "retention": "RULES",
+    "time_index_paths": "RULES",
     "rollup_retention": "RULES",
     "mqtt_url": "URL",
     "mqtt_topics": "FILTERS",

@@ -50,6 +50,7 @@ class MqttConfig:
     ca_file: str = ""
     cert_file: str = ""
     key_file: str = ""
+    time_index_paths: str = ""  # TSDB_TIME_INDEX_PATHS, as for HTTP notifications
 
     @property
     def window(self) -> int:
@@ -108,6 +109,7 @@ class MqttConfig:
             ca_file=settings.mqtt_ca_file,
             cert_file=settings.mqtt_cert_file,
             key_file=settings.mqtt_key_file,
+            time_index_paths=settings.time_index_paths,
         )
 
 
