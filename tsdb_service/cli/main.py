@@ -199,6 +199,7 @@ def _feature_modules() -> tuple[ModuleType, ...]:
     from tsdb_service.cli import export as export_commands
     from tsdb_service.cli import qlimport as import_commands
     from tsdb_service.cli import register as register_commands
+    from tsdb_service.cli import rosbag as rosbag_commands
 
     return (
         demo_commands,
@@ -206,6 +207,7 @@ def _feature_modules() -> tuple[ModuleType, ...]:
         copy_commands,
         export_commands,
         import_commands,
+        rosbag_commands,  # after import_commands: a source of `import`
         backup_commands,
         register_commands,
     )

@@ -88,7 +88,8 @@ def register(subparsers, command) -> None:
         help="samples committed per batch; an interruption loses at most one (default 50000)",
     )
     ql.add_argument("--quiet", action="store_true", help="no progress line (default: progress on stderr)")
-    command("import")(_source_explained(cmd_import))
+    ql.set_defaults(run_import=_source_explained(cmd_import))
+    command("import")(lambda args: args.run_import(args))  # each source sets its own (cli.rosbag too)
 
 
 def _time(text: str | None, flag: str) -> datetime | None:
