@@ -62,7 +62,7 @@ def register(subparsers, command) -> None:
 def cmd_import_rosbag(args: argparse.Namespace) -> int:
     from tsdb_service.cli.main import new_duckdb_file
     from tsdb_service.commands.rosbag.bag import BagError
-    from tsdb_service.commands.rosbag.importer import ImportNotVerified, import_rosbag
+    from tsdb_service.commands.rosbag.importer import ImportNotVerified, PreparedImport
     from tsdb_service.commands.rosbag.mapping import MapError, load_map
     from tsdb_service.core.config import Settings, SettingsError, check_db, load_settings
     from tsdb_service.storage import open_store
@@ -72,35 +72,32 @@ def cmd_import_rosbag(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise SettingsError(f"--db: {exc}") from None
     defaults = {k: v for k, v in (("service", args.service), ("service_path", args.service_path)) if v is not None}
-    options = {"defaults": defaults, "progress": not args.quiet, "batch_samples": args.batch_samples}
     try:
-        if args.map:
-            options |= {"spec": load_map(args.map), "source": f"map {args.map}"}
-        if args.dry_run:  # nothing opened but the bag and the map
-            report = import_rosbag(args.bag, None, dry_run=True, **options)
-            _print_plan(report)
-            print(f"dry run: {report.total} messages would be imported; nothing was written")
+        spec = load_map(args.map) if args.map else {}
+        # the bag and the map are read and checked before the store is even opened
+        prepared = PreparedImport.open(args.bag, spec, f"map {args.map}" if args.map else "the map", defaults)
+    except (BagError, MapError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    with prepared:
+        if args.dry_run:
+            _print_plan(prepared.report)
+            print(f"dry run: {prepared.report.total} messages would be imported; nothing was written")
             return 0
         created = new_duckdb_file(Settings(db=db))
         target = open_store(Settings(db=db))
-    except (BagError, MapError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    if created is not None:
-        print(f"created a new, empty DuckDB database at {created}", file=sys.stderr)
-    try:
-        report = import_rosbag(args.bag, target, again=args.again, **options)
-    except (BagError, MapError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except ImportNotVerified as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(f"\ninterrupted: run the same command again to resume the import into {db}", file=sys.stderr)
-        return 130
-    finally:
-        target.close()
+        if created is not None:
+            print(f"created a new, empty DuckDB database at {created}", file=sys.stderr)
+        try:
+            report = prepared.run(target, again=args.again, progress=not args.quiet, batch_samples=args.batch_samples)
+        except ImportNotVerified as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
+        except KeyboardInterrupt:
+            print(f"\ninterrupted: run the same command again to resume the import into {db}", file=sys.stderr)
+            return 130
+        finally:
+            target.close()
     _print_plan(report)
     _print_result(report)
     return 0

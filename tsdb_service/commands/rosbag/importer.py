@@ -83,7 +83,6 @@ class RosbagReport:
     total: int = 0  # messages the plan imports
     already: int = 0  # stored by earlier runs of this import
     complete_before: bool = False  # the same import was complete: nothing done
-    dry_run: bool = False
     topics: dict[str, TopicReport] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
     totals: dict[tuple[str, str], int] = field(default_factory=dict)  # (tenant, type) → samples of the plan's series
@@ -121,31 +120,66 @@ def import_rosbag(
     """Import the recording at ``path`` into ``target`` (None only with
     ``dry_run``) as the map ``spec`` says; the report, verified. ``BagError``
     and ``mapping.MapError`` (one line each) before anything is written."""
-    started = time.monotonic()
-    with Recording.open(path) as recording:
-        chosen = plan(recording, spec or {}, source, defaults)
-        report = RosbagReport(str(path), recording.kind, chosen, dry_run=dry_run)
-        report.topics = {name: TopicReport() for name in chosen.topics}
-        names = set(chosen.topics)
-        checked = recording.check(names)
+    with PreparedImport.open(path, spec, source, defaults) as prepared:
+        if dry_run or target is None:
+            if not dry_run:
+                raise ValueError("a target store is needed unless dry_run")
+            return prepared.report
+        return prepared.run(target, again=again, progress=progress, batch_samples=batch_samples)
+
+
+class PreparedImport:
+    """A recording opened, planned and checked: nothing can fail any more
+    because of the bag or the map, and nothing is written yet. ``run`` writes."""
+
+    def __init__(self, recording: Recording, chosen: Plan, digest: bytes, report: RosbagReport):
+        self.recording, self.plan, self.digest, self.report = recording, chosen, digest, report
+        self.started = time.monotonic()
+
+    @classmethod
+    def open(
+        cls, path: str | Path, spec: dict | None = None, source: str = "the map", defaults: dict | None = None
+    ) -> PreparedImport:
+        started = time.monotonic()
+        recording = Recording.open(path)
+        try:
+            chosen = plan(recording, spec or {}, source, defaults)
+            report = RosbagReport(str(path), recording.kind, chosen)
+            report.topics = {name: TopicReport() for name in chosen.topics}
+            checked = recording.check(set(chosen.topics))
+        except BaseException:
+            recording.close()
+            raise
         report.total = checked.total
-        if dry_run or not report.total:
-            return report
-        if target is None:
-            raise ValueError("a target store is needed unless dry_run")
-        identity = hashlib.blake2b(checked.digest + chosen.canonical(), digest_size=16)
-        job = _Job(recording, chosen, target, CLIENT_PREFIX + identity.hexdigest(), identity.digest(), report)
-        job.progress, job.batch_samples = progress, batch_samples
-        job.run(again)
-    report.seconds = time.monotonic() - started
-    return report
+        prepared = cls(recording, chosen, checked.digest, report)
+        prepared.started = started
+        return prepared
+
+    def __enter__(self) -> PreparedImport:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.recording.close()
+
+    def run(
+        self, target: Store, *, again: bool = False, progress: bool = False, batch_samples: int = BATCH_SAMPLES
+    ) -> RosbagReport:
+        """Write what is not stored yet, check the totals; the report."""
+        if self.report.total:
+            identity = hashlib.blake2b(self.digest + self.plan.canonical(), digest_size=16)
+            job = _Job(self.recording, self.plan, target, CLIENT_PREFIX + identity.hexdigest(), identity.digest())
+            job.report, job.progress, job.batch_samples = self.report, progress, batch_samples
+            job.run(again)
+        self.report.seconds = time.monotonic() - self.started
+        return self.report
 
 
 class _Job:
     """One run: where the import stands, the messages after it, the check."""
 
-    def __init__(self, recording: Recording, chosen: Plan, target: Store, client_id: str, digest: bytes, report):
-        self.recording, self.plan, self.target, self.report = recording, chosen, target, report
+    def __init__(self, recording: Recording, chosen: Plan, target: Store, client_id: str, digest: bytes):
+        self.recording, self.plan, self.target = recording, chosen, target
+        self.report = RosbagReport("", "", chosen)
         self.client_id, self.digest = client_id, digest
         self.progress, self.batch_samples = False, BATCH_SAMPLES
         self.batch: list[EntitySample] = []
@@ -349,4 +383,4 @@ def _iso(time_ns: int) -> str:
     return moment.isoformat().replace("+00:00", "Z")
 
 
-__all__ = ["BagError", "ImportNotVerified", "RosbagReport", "import_rosbag"]
+__all__ = ["BagError", "ImportNotVerified", "PreparedImport", "RosbagReport", "import_rosbag"]
