@@ -73,6 +73,7 @@ class RawMessage:
     topic: str
     time_ns: int  # the receive (log) time the recording gives it
     data: bytes
+    ngsi_type: str | None = None  # an exported MCAP channel's own (its samples' NGSI type)
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,7 +95,7 @@ class Recording:
     def __init__(self, path: Path, kind: str, stack: ExitStack):
         self.path, self.kind, self._stack = path, kind, stack
         self.topics: dict[str, Topic] = {}
-        self._raw: Callable[[set[str]], Iterable[tuple[str, int, bytes]]] = lambda _: ()
+        self._raw: Callable[[set[str]], Iterable[tuple[str, int, bytes, str | None]]] = lambda _: ()
         self._typestore: Any = None
         self._plain: dict[str, list[tuple[str, int]]] = {}
 
@@ -291,41 +292,41 @@ def _plain_spec(fields) -> list[tuple[str, int]]:
     return spec
 
 
-def ordered(raw: Iterable[tuple[str, int, bytes]]) -> Iterator[RawMessage]:
+def ordered(raw: Iterable[tuple[str, int, bytes, str | None]]) -> Iterator[RawMessage]:
     """Messages by time as the reader gives them, those of one instant sorted
     by (topic, bytes): the order depends on the content only."""
-    group: list[tuple[int, str, bytes]] = []
+    group: list[tuple[int, str, bytes, str]] = []
     current = None
-    for topic, time_ns, data in raw:
+    for topic, time_ns, data, ngsi_type in raw:
         if time_ns != current:
             if group:
                 yield from _flush(group)
             group, current = [], time_ns
-        group.append((time_ns, topic, bytes(data)))
+        group.append((time_ns, topic, bytes(data), ngsi_type or ""))
     if group:
         yield from _flush(group)
 
 
-def _flush(group: list[tuple[int, str, bytes]]) -> Iterator[RawMessage]:
+def _flush(group: list[tuple[int, str, bytes, str]]) -> Iterator[RawMessage]:
     if len(group) > 1:
         group.sort()
-    for time_ns, topic, data in group:
-        yield RawMessage(topic, time_ns, data)
+    for time_ns, topic, data, ngsi_type in group:
+        yield RawMessage(topic, time_ns, data, ngsi_type or None)
 
 
-def _from_rosbags(reader, names: set[str]) -> Iterator[tuple[str, int, bytes]]:
+def _from_rosbags(reader, names: set[str]) -> Iterator[tuple[str, int, bytes, None]]:
     connections = [c for c in reader.connections if c.topic in names]
     if not connections:
         return
     for connection, time_ns, data in reader.messages(connections=connections):
-        yield connection.topic, time_ns, data
+        yield connection.topic, time_ns, data, None
 
 
-def _from_mcap(reader, names: set[str]) -> Iterator[tuple[str, int, bytes]]:
+def _from_mcap(reader, names: set[str]) -> Iterator[tuple[str, int, bytes, str | None]]:
     if not names:
         return
     for _, channel, message in reader.iter_messages(topics=sorted(names), log_time_order=True):
-        yield channel.topic, message.log_time, message.data
+        yield channel.topic, message.log_time, message.data, channel.metadata.get("tsdb.ngsi_type")
 
 
 def _typestore(connections, distro: str | None):

@@ -230,7 +230,8 @@ class _Job:
         counts.messages += 1
         try:
             value = self.recording.decode(message)
-            entity = _entity(topic_plan, value, message.time_ns, counts, message.topic in self.exported)
+            exported = message.topic in self.exported
+            entity = _entity(topic_plan, value, message.time_ns, counts, exported, message.ngsi_type)
         except (MessageUnreadable, TooDeep) as exc:
             counts.rejected += 1
             self.rejected.append(RecordRejected(_rejection(topic_plan, message, exc, self.report.bag)))
@@ -316,8 +317,11 @@ class _Job:
             )
 
 
-def _entity(plan_: TopicPlan, value: Any, time_ns: int, counts: TopicReport, exported: bool) -> EntitySample:
-    """One message as the entity sample the IoT Agent and Orion would have made."""
+def _entity(
+    plan_: TopicPlan, value: Any, time_ns: int, counts: TopicReport, exported: bool, own_type: str | None = None
+) -> EntitySample:
+    """One message as the entity sample the IoT Agent and Orion would have made
+    (an exported MCAP message with its channel's own NGSI type, ``own_type``)."""
     moment = None
     if plan_.time is not None:
         moment = read_stamp(extract(value, plan_.time))
@@ -327,11 +331,12 @@ def _entity(plan_: TopicPlan, value: Any, time_ns: int, counts: TopicReport, exp
     attrs: list[AttrSample] = []
     for f in plan_.fields:
         got = extract(value, f.steps) if f.steps else value
+        ngsi_type = f.ngsi_type
         if exported:
-            got = _unwrapped(got)
-        elif f.ngsi_type == GEO_JSON:
+            got, ngsi_type = _unwrapped(got), own_type or ngsi_type
+        elif ngsi_type == GEO_JSON:
             got = _point(got)
-        sample = attr_sample(f.name, f.ngsi_type, got, None)
+        sample = attr_sample(f.name, ngsi_type, got, None)
         sample.observed_at = moment
         attrs.append(sample)
     return EntitySample(plan_.tenant, plan_.service_path, plan_.entity_id, plan_.entity_type, at, attrs)

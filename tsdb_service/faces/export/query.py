@@ -23,6 +23,7 @@ from tsdb_service.parse.request_context import entity_filter, scope, time_range
 class ExportFormat(str, Enum):
     CSV = "csv"
     PARQUET = "parquet"
+    MCAP = "mcap"  # for Foxglove (faces.export.mcap)
 
     @property
     def media_type(self) -> str:
@@ -33,7 +34,11 @@ class ExportFormat(str, Enum):
         return "." + self.value
 
 
-_MEDIA_TYPES = {ExportFormat.CSV: "text/csv; charset=utf-8", ExportFormat.PARQUET: "application/vnd.apache.parquet"}
+_MEDIA_TYPES = {
+    ExportFormat.CSV: "text/csv; charset=utf-8",
+    ExportFormat.PARQUET: "application/vnd.apache.parquet",
+    ExportFormat.MCAP: "application/x-mcap",
+}
 PARAMETERS = ("format", "type", "id", "idPattern", "attrs", "fromDate", "toDate", "raw")
 
 
@@ -56,7 +61,7 @@ def export_format(raw: str | None, default: ExportFormat = ExportFormat.CSV) -> 
     try:
         return ExportFormat(raw.strip().lower())
     except ValueError:
-        raise BadRequest(f"format must be csv or parquet, not {raw[:40]!r}") from None
+        raise BadRequest(f"format must be csv, parquet or mcap, not {raw[:40]!r}") from None
 
 
 def export_query(params: Mapping[str, str], headers: Mapping[str, str], tenant: str) -> ExportQuery:
