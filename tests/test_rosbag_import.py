@@ -141,7 +141,7 @@ def _grafana(client, odom):
 
 
 def test_a_second_import_stores_nothing_and_again_imports_once_more(bag, tmp_path, store_url):
-    path, written = bag
+    path, _ = bag
     store = open_store(Settings(db=store_url))
     try:
         first = import_rosbag(path, store)

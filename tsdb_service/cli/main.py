@@ -199,6 +199,7 @@ def _feature_modules() -> tuple[ModuleType, ...]:
     from tsdb_service.cli import export as export_commands
     from tsdb_service.cli import qlimport as import_commands
     from tsdb_service.cli import register as register_commands
+    from tsdb_service.cli import replay as replay_commands
     from tsdb_service.cli import rosbag as rosbag_commands
 
     return (
@@ -208,6 +209,7 @@ def _feature_modules() -> tuple[ModuleType, ...]:
         export_commands,
         import_commands,
         rosbag_commands,  # after import_commands: a source of `import`
+        replay_commands,
         backup_commands,
         register_commands,
     )
