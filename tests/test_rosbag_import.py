@@ -132,7 +132,7 @@ def _grafana(client, odom):
     """Grafana reaches into the messages with value paths."""
     answer = client.get(
         "/grafana/infinity/series",
-        params={"service": "robots", "servicePath": "/garden", "type": "Robot", "attrs": "odom(twist.twist.linear.x)"},
+        params={"service": "robots", "servicepath": "/garden", "type": "Robot", "attrs": "odom(twist.twist.linear.x)"},
     )
     assert answer.status_code == 200, answer.text
     text = answer.text

@@ -238,12 +238,27 @@ class _Job:
             if len(self.report.problems) < SHOWN_PROBLEMS:
                 self.report.problems.append(f"{message.topic} at {_iso(message.time_ns)}: {_words(exc)}")
         else:
-            self.batch.append(entity)
+            self._add(entity)
             self.batch_n += len(entity.attrs)
             counts.samples += len(entity.attrs)
         self.done += 1
         if self.batch_n >= self.batch_samples:
             self._flush()
+
+    def _add(self, entity: EntitySample) -> None:
+        """Into the batch; messages of one entity at one instant (topics of a
+        robot stamped together) share a row, as one notification's attributes do."""
+        last = self.batch[-1] if self.batch else None
+        if (
+            last is not None
+            and last.time_index == entity.time_index
+            and (last.entity_id, last.entity_type, last.tenant, last.service_path)
+            == (entity.entity_id, entity.entity_type, entity.tenant, entity.service_path)
+            and not {a.name for a in last.attrs} & {a.name for a in entity.attrs}
+        ):
+            last.attrs.extend(entity.attrs)
+        else:
+            self.batch.append(entity)
 
     def _flush(self, last: bool = False) -> None:
         """Commit the batch, with the import's progress in its transaction, in
