@@ -44,17 +44,27 @@ def register(subparsers, command) -> None:
         "--url",
         metavar="URL",
         help="read through the running service at URL (GET /v2/export) instead of opening --db (a credential "
-        "from TSDB_CLIENT_TOKEN); when a tsdb-service on this machine holds the DuckDB file, it is used by itself",
+        "from TSDB_CLIENT_TOKEN) (default: open --db, or the tsdb-service on this machine that holds the DuckDB file)",
     )
     source.add_argument("--service", default="", metavar="TENANT", help="tenant to read (default: the default tenant)")
-    source.add_argument("--service-path", default="/", metavar="PATH", help="service paths and their children (/)")
+    source.add_argument(
+        "--service-path", default="/", metavar="PATH", help="service paths and their children (default /)"
+    )
     for flag, _, metavar, text in _SELECTION:
         source.add_argument(flag, metavar=metavar, help=f"{text} (default: all)")
     target = p.add_argument_group("where to send it (one of)")
-    target.add_argument("--to-orion", metavar="URL", help="an Orion: POST /v2/op/update (e.g. http://orion:1026)")
-    target.add_argument("--to-orion-ld", metavar="URL", help="an Orion-LD: POST /ngsi-ld/v1/entityOperations/upsert")
-    target.add_argument("--to-mqtt", metavar="URL", help="an MQTT broker (mqtt://HOST:1883), as Orion publishes")
-    target.add_argument("--to-notify", metavar="URL", help="another tsdb-service: POST /v2/notify (its base URL)")
+    target.add_argument(
+        "--to-orion", metavar="URL", help="an Orion: POST /v2/op/update (e.g. http://orion:1026; default: none)"
+    )
+    target.add_argument(
+        "--to-orion-ld", metavar="URL", help="an Orion-LD: POST /ngsi-ld/v1/entityOperations/upsert (default: none)"
+    )
+    target.add_argument(
+        "--to-mqtt", metavar="URL", help="an MQTT broker (mqtt://HOST:1883), as Orion publishes (default: none)"
+    )
+    target.add_argument(
+        "--to-notify", metavar="URL", help="another tsdb-service: POST /v2/notify (its base URL; default: none)"
+    )
     target.add_argument(
         "--to-service",
         metavar="TENANT",
@@ -74,7 +84,10 @@ def register(subparsers, command) -> None:
         help="with --to-mqtt: the bare notification Orion publishes, or Orion-LD's {metadata, body} (default orion)",
     )
     target.add_argument(
-        "--mqtt-username", default="", metavar="USER", help="with --to-mqtt: user (password: TSDB_MQTT_PASSWORD)"
+        "--mqtt-username",
+        default="",
+        metavar="USER",
+        help="with --to-mqtt: user, password from TSDB_MQTT_PASSWORD (default: none)",
     )
     pace = p.add_argument_group("pace")
     pace.add_argument(
