@@ -36,7 +36,6 @@ import math
 import sys
 import time
 from collections.abc import Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -44,6 +43,7 @@ from typing import Any
 
 import orjson
 
+from tsdb_service.commands.inorder import InOrder
 from tsdb_service.commands.rosbag.bag import BagError, MessageUnreadable, RawMessage, Recording
 from tsdb_service.commands.rosbag.mapping import EXPORTED, GEO_JSON, Plan, TopicPlan, plan
 from tsdb_service.core.model import AttrSample, EntitySample, RejectedNotification
@@ -188,8 +188,7 @@ class _Job:
         self.done = 0  # messages of the order stored (this run's and earlier ones')
         self.recorded = 0  # what the last batch's progress says
         self.round = 0
-        self.writer = ThreadPoolExecutor(1, thread_name_prefix="rosbag-import")
-        self.pending: Future | None = None
+        self.writes = InOrder(target.write_sync, "rosbag-import")
         self.started = time.monotonic()
         self.shown = 0.0
         self.exported = {name for name, topic in recording.topics.items() if EXPORTED["attribute"] in topic.metadata}
@@ -213,7 +212,7 @@ class _Job:
                 self._message(message)
             self._flush(last=True)
         finally:
-            self.writer.shutdown()  # a batch in flight (e.g. at Ctrl-C) ends committed or not, never half
+            self.writes.close()  # a batch in flight (e.g. at Ctrl-C) ends committed or not, never half
         if self.progress:
             self._show(final=True)
             print(file=sys.stderr)
@@ -263,19 +262,15 @@ class _Job:
     def _flush(self, last: bool = False) -> None:
         """Commit the batch, with the import's progress in its transaction, in
         the background while the next one is decoded (one at a time, in order)."""
-        if self.pending is not None:
-            pending, self.pending = self.pending, None
-            pending.result()
         if self.done > self.recorded:
             seq = self.round * self.report.total + self.done
             progress = Delivery(self.client_id, seq, 0, self.digest, datetime.now(UTC), prune_below=seq)
-            ops: list = [AppendSamples(self.batch, dedup=False, deliveries=(progress,)), *self.rejected]
-            self.pending = self.writer.submit(self.target.write_sync, ops)
+            self.writes.submit([AppendSamples(self.batch, dedup=False, deliveries=(progress,)), *self.rejected])
             self.recorded = self.done
         self.batch, self.rejected, self.batch_n = [], [], 0
-        if last and self.pending is not None:
-            self._flush()
-        elif not last:
+        if last:
+            self.writes.wait()
+        else:
             self._show()
 
     def _show(self, final: bool = False) -> None:
