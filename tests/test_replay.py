@@ -251,3 +251,26 @@ def test_into_mqtt_as_the_brokers_publish_paced_and_read_by_our_ingest(source, r
     assert all("tsdbReplay" in {a.name for a in e.attrs} for e in parsed)
     if shape == "orion-ld":
         assert all(orjson.loads(p)["metadata"]["NGSILD-Tenant"] == "staging" for _, _, p in subscriber.got)
+
+
+def test_a_store_a_service_holds_is_read_through_that_service(source, replay, tmp_path):
+    import shutil
+
+    held = tmp_path / "held.duckdb"
+    shutil.copy(source, held)
+    with ServerProcess(held) as service, served(StandInOrion()) as orion:
+        done = replay("--db", str(held), "--service", "robots", "--to-orion", orion.url, "--to-service", "staging",
+                      "--no-pacing")  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        assert f"is held by the service at {service.url}" in done.stderr
+        through_holder = list(orion.updates)
+        orion.updates.clear()
+        done = replay("--url", service.url, "--service", "robots", "--to-orion", orion.url, "--to-service", "staging",
+                      "--no-pacing")  # fmt: skip
+        assert done.returncode == 0, done.stderr
+    for updates in (through_holder, orion.updates):
+        entities = [e for _, _, body in updates for e in body["entities"]]
+        assert [(datetime.fromisoformat(e["TimeInstant"]["value"]), e["id"]) for e in entities] == _expected_updates()
+        speeds = [e["speed"]["value"] for e in entities if "speed" in e]
+        assert speeds == [0.25 * i for i in range(INSTANTS)]
+        assert entities[0]["odom"]["value"] == {"header": {"stamp": {"sec": 1714557600, "nanosec": 0}}, "x": 0}

@@ -210,3 +210,36 @@ def test_without_a_map_each_topic_is_an_entity_and_each_message_the_iot_agent_at
         assert {e["type"] for e in entities} == {"ROS2Topic"}
         fix = client.get("/v2/entities/urn:ngsi-ld:ROS2Topic:fix/attrs/fix").json()
         assert fix["values"] == [w.message for w in written if w.topic == "/fix"]
+
+
+def test_a_ros1_bag_is_read_too(tmp_path, client_factory):
+    """ROS 1 bags come with rosbags: its time as {"sec", "nanosec"}, stamps honoured."""
+    from rosbags.rosbag1 import Writer as Ros1Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store_types = get_typestore(Stores.ROS1_NOETIC)
+    t = store_types.types
+    path = tmp_path / "old.bag"
+    stamps = [(1_714_557_600 + i, 500_000_000 + i) for i in range(3)]
+    with Ros1Writer(path) as writer:
+        connection = writer.add_connection("/temperature", "sensor_msgs/msg/Temperature", typestore=store_types)
+        for i, (sec, nanosec) in enumerate(stamps):
+            header = t["std_msgs/msg/Header"](
+                seq=i, stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id="probe"
+            )
+            message = t["sensor_msgs/msg/Temperature"](header=header, temperature=20.5 + i, variance=0.0)
+            raw = store_types.serialize_ros1(message, "sensor_msgs/msg/Temperature")
+            writer.write(connection, (sec + 1) * 10**9, raw)
+    db = str(tmp_path / "t.duckdb")
+    target = open_store(Settings(db=db))
+    try:
+        report = import_rosbag(
+            path, target, spec={"topics": {"/temperature": {"attributes": {"celsius": "temperature"}}}}
+        )
+    finally:
+        target.close()
+    assert report.kind == "ROS 1 bag" and report.messages == 3
+    with client_factory(db) as client:
+        got = client.get("/v2/entities/urn:ngsi-ld:ROS2Topic:temperature/attrs/celsius").json()
+    assert got["values"] == [20.5, 21.5, 22.5]
+    assert got["index"] == [ql_index(at((sec * 10**9) + nanosec)) for sec, nanosec in stamps]
