@@ -129,15 +129,24 @@ def _ngsi_ld(client, battery):
 
 
 def _grafana(client, odom):
-    """Grafana reaches into the messages with value paths."""
+    """Grafana (Infinity) reaches into the messages with value paths, at their stamps."""
     answer = client.get(
         "/grafana/infinity/series",
-        params={"service": "robots", "servicepath": "/garden", "type": "Robot", "attrs": "odom(twist.twist.linear.x)"},
+        params={
+            "service": "robots",
+            "servicepath": "/garden",
+            "type": "Robot",
+            "attrs": "vx=odom(twist.twist.linear.x)",
+            "from": "2024-05-01T09:00:00Z",
+            "to": "2024-05-01T11:00:00Z",
+        },
     )
     assert answer.status_code == 200, answer.text
-    text = answer.text
-    for w in odom:
-        assert str(w.message["twist"]["twist"]["linear"]["x"]) in text
+    rows = [row for row in answer.json() if row.get("vx") is not None]
+    assert [row["vx"] for row in rows] == [w.message["twist"]["twist"]["linear"]["x"] for w in odom]
+    assert [datetime.fromisoformat(row["time"]) for row in rows] == [
+        sample_time(w).replace(microsecond=sample_time(w).microsecond // 1000 * 1000) for w in odom
+    ]
 
 
 def test_a_second_import_stores_nothing_and_again_imports_once_more(bag, tmp_path, store_url):

@@ -26,7 +26,9 @@ Invariants:
   its own).
 * A message whose bytes do not fit its type is kept in the rejected store
   (``RecordRejected``, its raw bytes) and the import goes on: one bad
-  message never blocks the ones behind it.
+  message never blocks the ones behind it. Rejections are written just
+  before their batch's samples: after a crash between the two a resume
+  keeps one twice, never none.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ import hashlib
 import math
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -188,7 +190,7 @@ class _Job:
         self.done = 0  # messages of the order stored (this run's and earlier ones')
         self.recorded = 0  # what the last batch's progress says
         self.round = 0
-        self.writes = InOrder(target.write_sync, "rosbag-import")
+        self.writes = InOrder(self._write, "rosbag-import")
         self.started = time.monotonic()
         self.shown = 0.0
         self.exported = {name for name, topic in recording.topics.items() if EXPORTED["attribute"] in topic.metadata}
@@ -272,6 +274,15 @@ class _Job:
             self.writes.wait()
         else:
             self._show()
+
+    def _write(self, ops: Sequence) -> None:
+        """The batch's rejected messages first, then its samples with the
+        progress: a crash between the two can only keep a rejection twice
+        (the resume decodes the batch again), never lose one."""
+        rejected = [op for op in ops if isinstance(op, RecordRejected)]
+        if rejected:
+            self.target.write_sync(rejected)
+        self.target.write_sync([op for op in ops if not isinstance(op, RecordRejected)])
 
     def _show(self, final: bool = False) -> None:
         now = time.monotonic()
