@@ -14,7 +14,8 @@ import re
 
 import pytest
 
-from tests.support.mqtt_service import ready, settled, stored_notifications
+from tests.support.mosquitto import ready
+from tests.support.mqtt_service import settled, stored_notifications
 from tests.support.server import ServerProcess
 from tsdb_service.cli.main import main
 from tsdb_service.demo.mosquitto import free_port

@@ -91,6 +91,22 @@ def test_time_range_and_service_path(stored, tmp_path):
     assert {r["service_path"] for r in rows} == {"/site/b"}
 
 
+def test_by_bucket(stored, tmp_path, capsys):
+    """``--bucket 1h``: one row per series and hour holding numbers, as the API's ``bucket=1h``."""
+    url, _, _ = stored
+    out = tmp_path / "hourly.parquet"
+    args = ["export", "--db", url, "--out", str(out), "--service", TENANT, "--attrs", "count", "--bucket", "1h"]
+    assert main(args) == 0
+    rows = read_parquet(out.read_bytes()).to_pylist()
+    assert rows and list(rows[0]) == [
+        "time", "entity_id", "entity_type", "service_path", "attribute", "n", "avg", "min", "max", "first", "last"
+    ]  # fmt: skip
+    assert all(r["attribute"] == "count" and r["n"] >= 1 and r["min"] <= r["avg"] <= r["max"] for r in rows)
+    assert all(r["time"].minute == 0 and r["time"].second == 0 for r in rows)
+    assert f"exported {len(rows)} buckets to {out}" in capsys.readouterr().out
+    assert main([*args[:-1], "2 hours"]) == 2
+
+
 def test_a_missing_database_is_an_error(tmp_path, capsys):
     missing = tmp_path / "nope.duckdb"
     assert main(["export", "--db", str(missing), "--out", str(tmp_path / "x.csv")]) == 2

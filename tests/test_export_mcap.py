@@ -166,3 +166,8 @@ def test_the_command_writes_the_same_file_and_it_imports_back(loaded, tmp_path, 
         target.close()
     back = sorted((r["entity_id"], r["attribute"], r["time"], orjson.dumps(_value(r))) for r in rows)
     assert back == reference
+
+
+def test_mcap_exports_samples_not_buckets(loaded):
+    answer = loaded.get("/v2/export", params={"format": "mcap", "bucket": "1h"}, headers=HEADERS)
+    assert answer.status_code == 400 and "mcap exports the samples themselves" in answer.json()["description"]

@@ -11,10 +11,11 @@ matter; bad input is a 400 in the NGSI shape, never a 500.
 
 from __future__ import annotations
 
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 
 import pytest
 
+from tsdb_service.core.buckets import choose_width
 from tsdb_service.usecases import enums, sites
 
 PREFIX = "/grafana/simplejson"
@@ -116,11 +117,17 @@ def test_search_lists_metrics_and_variable_values(grafana_http):
 
 def test_timeserie_target_downsampled_to_max_data_points(grafana_http, span):
     body = _classic_query(span, [{"target": SPEED, "refId": "A", "type": "timeserie", "hide": False}], max_points=50)
-    (series,) = _post(grafana_http, "/query", body)
+    response = grafana_http.post(PREFIX + "/query", json=body, headers=LAWNMOWER)
+    assert response.status_code == 200, response.text
+    (series,) = response.json()
     assert series["target"].endswith("odom(twist.twist.linear.x)")
     points = series["datapoints"]
-    # 50 buckets span the whole requested range; the mower's 20 minutes fill some of them
-    assert 5 < len(points) <= 50
+    # 50 round buckets (at least intervalMs) span the whole requested range; the mower's 20 minutes fill some
+    width = choose_width(timedelta(milliseconds=span[1] - span[0]), 50, timedelta(milliseconds=20000))
+    assert response.headers["X-Tsdb-Bucket-Ms"] == str(width // timedelta(milliseconds=1))
+    assert series["meta"]["custom"]["bucketMs"] == width // timedelta(milliseconds=1)
+    assert all(t % (width // timedelta(milliseconds=1)) == 0 for _, t in series["datapoints"][1:])
+    assert 3 <= len(points) <= 50
     times = [t for _, t in points]
     assert times == sorted(times) and all(isinstance(t, int) for t in times)
     assert all(isinstance(v, float) and -0.3 < v < 0.6 for v, _ in points), "averages of the speed"
@@ -240,7 +247,7 @@ def test_simpod_metrics_and_payload_options(grafana_http):
     metrics = _post(grafana_http, "/metrics", {})
     odom = next(m for m in metrics if m["value"] == f"{MOWER}/odom")
     assert odom["label"] == "Lawnmower01 odom"
-    assert {p["name"] for p in odom["payloads"]} == {"path", "agg", "format", "alias"}
+    assert {p["name"] for p in odom["payloads"]} == {"path", "agg", "fill", "format", "alias"}
     first = _post(grafana_http, "/metrics", {"metric": f"{MOWER}/odom", "payload": {"agg": "avg"}})
     assert first[0]["value"] == f"{MOWER}/odom"
     paths = _post(grafana_http, "/metric-payload-options", {"metric": f"{MOWER}/odom", "payload": {}, "name": "path"})

@@ -17,8 +17,8 @@ from urllib.parse import urlsplit
 import orjson
 import pytest
 
-from tests.support.mosquitto import Publisher
-from tests.support.mqtt_service import ready, settled
+from tests.support.mosquitto import Publisher, ready
+from tests.support.mqtt_service import settled
 from tests.support.server import ServerProcess
 from tests.support.standins import StandInOrion, served
 from tsdb_service.cli.main import main

@@ -28,14 +28,12 @@ import httpx
 import orjson
 import pytest
 
-from tests.support.mosquitto import Publisher, broker, unique_client_id
-from tests.support.mqtt_service import ready
+from tests.support.mosquitto import Publisher, broker, mqtt_args, mqtt_outcome, ready, unique_client_id
 from tests.support.server import ServerProcess
 
 ENTITIES = 8
 TENANT = "crash"
 T0 = datetime(2025, 1, 1, tzinfo=UTC)
-READY_TIMEOUT_S = 30.0
 
 
 def at(seq: int) -> datetime:
@@ -86,20 +84,6 @@ class Stream(threading.Thread):
         return range(self.first, self.first + self.sent)
 
 
-def mqtt_args(url: str, prefix: str, client_id: str, *extra: str) -> list[str]:
-    return [
-        "--mqtt-url",
-        url,
-        "--mqtt-client-id",
-        client_id,
-        "--mqtt-topics",
-        f"{prefix}/#",
-        "--mqtt-topic-template",
-        f"{prefix}/${{service}}${{servicePath}}",
-        *extra,
-    ]
-
-
 def stored(server: ServerProcess) -> list[tuple[int, str, str]]:
     """Every stored (seq, label, time index), through the history API."""
     out = []
@@ -138,15 +122,8 @@ def assert_each_once(rows: list[tuple[int, str, str]], seqs: range) -> None:
         assert datetime.fromisoformat(index) == at(seq)
 
 
-def settled_as(server: ServerProcess, outcome: str) -> int:
-    """This process's count of MQTT messages stored, rejected or redelivered (``/metrics``)."""
-    prefix = f'tsdb_mqtt_messages_total{{outcome="{outcome}"}} '
-    metrics = httpx.get(server.url + "/metrics", timeout=10).text
-    return int(float(next(line for line in metrics.splitlines() if line.startswith(prefix)).split()[-1]))
-
-
 def redelivered(server: ServerProcess) -> int:
-    return settled_as(server, "redelivered")
+    return mqtt_outcome(server, "redelivered")
 
 
 @pytest.fixture
@@ -215,7 +192,7 @@ def test_two_replicas_on_a_shared_subscription_store_each_message_once(pg_cluste
         b.kill()  # its share waits in its session for it
         ready(b.start())
         assert_each_once(settle(a, 600), stream.finish())
-        by_a = settled_as(a, "stored")
+        by_a = mqtt_outcome(a, "stored")
         assert 0 < by_a < 600, f"replica a stored {by_a} of 600: the group did not split the stream"
     finally:
         for replica in replicas:

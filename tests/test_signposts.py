@@ -274,7 +274,7 @@ def _read_protocols() -> dict[str, set[str]]:
     import tsdb_service.read as read
 
     found = {}
-    for name in ("SeriesCatalogue", "SampleReader", "LocationReader", "TemporalReader", "BulkReader"):
+    for name in ("SeriesCatalogue", "SampleReader", "LocationReader", "TemporalReader", "BulkReader", "BucketReader"):
         protocol = getattr(read, name)
         found[name] = {m for m in vars(protocol) if not m.startswith("_") and callable(getattr(protocol, m))}
     return found

@@ -15,7 +15,10 @@ their paths and the page load times are printed (``pytest -s`` shows them).
 
 Besides the use cases, the server holds one small entity of its own (tenant
 ``edge``) whose newest sample falls on a whole hour, so a chart's last time
-tick sits at the very right end of its axis: where its label used to be cut.
+tick sits at the very right end of its axis: where its label used to be cut;
+and one (tenant ``gaps``) with more samples than the explorer's point budget
+and a 30-minute outage, drawn from time buckets: the outage is a break in
+the line, not a straight segment across it.
 """
 
 from __future__ import annotations
@@ -72,6 +75,7 @@ def demo_server(tmp_path_factory):
         for name, row in stats.items():
             assert row.sent > 100 and row.failed == 0, f"{name}: {row}"
         _feed_edge(server.url)
+        _feed_gap(server.url)
         yield server
     finally:
         server.terminate()
@@ -119,6 +123,36 @@ def _feed_edge(url: str) -> None:
             }
             sent = client.post(
                 "/v2/notify", json={"subscriptionId": "edge", "data": [entity]}, headers={"Fiware-Service": "edge"}
+            )
+            assert sent.status_code == 200, sent.text
+
+
+GAP_END = EDGE_END
+GAP = (GAP_END - timedelta(minutes=75), GAP_END - timedelta(minutes=45))  # no sample in [start, end)
+
+
+def _feed_gap(url: str) -> None:
+    """Tenant ``gaps``: a temperature every 5 s for two hours up to GAP_END
+    (1,080 samples, more than Explore's 800 points) but none during ``GAP``."""
+    states = []
+    for i in range(2 * 720 + 1):
+        at = GAP_END - timedelta(seconds=5 * (2 * 720 - i))
+        if GAP[0] <= at < GAP[1]:
+            continue
+        states.append(
+            {
+                "id": "Probe2",
+                "type": "Probe",
+                "temperature": {"type": "Number", "value": 20 + (i % 60) / 10},
+                "TimeInstant": {"type": "DateTime", "value": at.isoformat().replace("+00:00", "Z")},
+            }
+        )
+    with httpx.Client(base_url=url, timeout=30) as client:
+        for k in range(0, len(states), 100):
+            sent = client.post(
+                "/v2/notify",
+                json={"subscriptionId": "gaps", "data": states[k : k + 100]},
+                headers={"Fiware-Service": "gaps"},
             )
             assert sent.status_code == 200, sent.text
 
@@ -341,6 +375,41 @@ def test_drone_priority_table_fits_its_card(browser, demo_server, shots, wide, w
     wide(width)
     _open(browser, demo_server.url + "/ui/#/drone", "drone")
     assert _layout(browser, "tableProblems") == [], f"at {width} px"
+
+
+def test_a_gap_in_the_data_is_a_break_in_the_line(browser, demo_server, shots):
+    """Explore draws all of the entity's data from time buckets (more samples
+    than its 800 points): a bucket without a sample is a null, and uPlot
+    leaves the line out there. The chart's canvas holds no pixel of the
+    series' colour in the middle of the outage, and does elsewhere; the
+    page says the points are buckets."""
+    _open(browser, demo_server.url + "/ui/#/explore?tenant=gaps", "explore")
+    gaps, drawn = browser.execute_script(
+        """const box = document.querySelector('.chart[data-attr="temperature"]');
+        return [Number(box.dataset.gaps), Number(box.dataset.points)];"""
+    )
+    assert gaps >= 1 and 500 < drawn <= 800, (gaps, drawn)
+    mid = (GAP[0] + (GAP[1] - GAP[0]) / 2).timestamp()
+    before = (GAP[0] - timedelta(minutes=20)).timestamp()
+    inked = browser.execute_script(
+        """const u = document.querySelector('.chart[data-attr="temperature"]').uplot;
+        const ink = (t) => {  // pixels of the series' colour (#1f77b4) in 5 columns around time t
+          const x = Math.round(u.valToPos(t, 'x', true));
+          const data = u.ctx.getImageData(x - 2, 0, 5, u.ctx.canvas.height).data;
+          let n = 0;
+          const near = (i, c) => Math.abs(data[i] - c) < 40;
+          for (let i = 0; i < data.length; i += 4) if (near(i, 31) && near(i + 1, 119) && near(i + 2, 180)) n++;
+          return n;
+        };
+        return [ink(arguments[0]), ink(arguments[1])];""",
+        mid,
+        before,
+    )
+    assert inked[0] == 0, f"the line is drawn across the outage: {inked}"
+    assert inked[1] > 0, f"no line where the data is: {inked}"
+    said = browser.find_element("css selector", "#said").text
+    assert "time buckets" in said, said
+    _shot(browser, shots, "explore-gap")
 
 
 def test_explore_names_series_and_states(browser, demo_server, shots):

@@ -12,7 +12,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.types import ASGIApp
 
 from tsdb_service import __version__, telemetry
-from tsdb_service.core.budget import ReadLimits
+from tsdb_service.core.budget import ReadLimits, ReadPool
 from tsdb_service.core.config import Settings, SettingsError, flag_named, get_settings
 from tsdb_service.faces import export, grafana, ngsild, operator, quantumleap, ui
 from tsdb_service.faces.grafana import openapi as grafana_oa
@@ -107,7 +107,13 @@ def create_app(
     app.front = protect(app.dispatch, settings)
     install_error_handlers(app)
     install_openapi(app, settings.api_key_header if authenticates(settings) else None, FEATURE_SCHEMAS)
-    app.add_middleware(ReadBudgetMiddleware, limits=ReadLimits.from_settings(settings))
+    # One read budget for the whole process, shared by every request (core.budget).
+    read_pool = ReadPool(
+        settings.read_concurrency, settings.read_rows_in_flight, settings.read_queue_seconds, settings.read_max_rows
+    )
+    app.state.read_pool = read_pool
+    metrics.attach_read_pool(read_pool)
+    app.add_middleware(ReadBudgetMiddleware, limits=ReadLimits.from_settings(settings), pool=read_pool)
     app.add_middleware(
         BodyLimit,
         default=settings.max_request_body_bytes,
@@ -116,7 +122,7 @@ def create_app(
     )
     for feature in FEATURES:
         app.include_router(feature.router)
-    app.fast = FastRoutes(quantumleap_history.router.routes, FAST_PATHS, ReadLimits.from_settings(settings))
+    app.fast = FastRoutes(quantumleap_history.router.routes, FAST_PATHS, ReadLimits.from_settings(settings), read_pool)
     return app
 
 

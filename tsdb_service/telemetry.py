@@ -314,6 +314,14 @@ class StoreCollector(Collector):
             yield GaugeMetricFamily(
                 "tsdb_write_queue_depth", "Write ops queued, not yet taken by a writer.", value=depth
             )
+        poisoned = getattr(_committer(self._store), "poisoned", None)
+        if poisoned is not None:
+            yield CounterMetricFamily(
+                "tsdb_writes_poisoned",
+                "Writes the database refused for their content again and again (NotStorable): never retried; "
+                "the notification is kept in the rejected store.",
+                value=poisoned,
+            )
         yield from _ingest_log_metrics(getattr(self._store, "ingest_log", None))
         dropped = getattr(self._store, "rejected_dropped", None)
         if dropped is not None:
@@ -400,6 +408,11 @@ class MqttCollector(Collector):
         ("received", "tsdb_mqtt_messages_received", "MQTT messages delivered to us (redeliveries included)."),
         ("connects", "tsdb_mqtt_connects", "Connections made to the MQTT broker (the first and every reconnection)."),
         ("write_retries", "tsdb_mqtt_write_retries", "Failed attempts to store an MQTT message (it is retried)."),
+        (
+            "sessions_lost",
+            "tsdb_mqtt_sessions_lost",
+            "Connections on which the MQTT broker had no session for us (the duplicate window starts afresh).",
+        ),
     )
     _GAUGES = (
         ("connected", "tsdb_mqtt_connected", "1 while connected to the MQTT broker."),
@@ -420,16 +433,42 @@ class MqttCollector(Collector):
         outcomes = CounterMetricFamily(
             "tsdb_mqtt_messages",
             "MQTT messages settled, by outcome: stored (samples written), rejected (kept in the rejected "
-            "store), redelivered (a redelivery of one stored already: acknowledged, not stored again).",
+            "store), redelivered (a redelivery of one stored already: acknowledged, not stored again), "
+            "poisoned (refused by the database for its content: kept in the rejected store).",
             labels=["outcome"],
         )
-        for outcome in ("stored", "rejected", "redelivered"):
+        for outcome in ("stored", "rejected", "redelivered", "poisoned"):
             outcomes.add_metric([outcome], numbers[outcome])
         yield outcomes
         for key, name, text in self._COUNTERS:
             yield CounterMetricFamily(name, text, value=numbers[key])
         for key, name, text in self._GAUGES:
             yield GaugeMetricFamily(name, text, value=numbers[key])
+
+
+class ReadPoolCollector(Collector):
+    """The reads in flight (``core.budget.ReadPool``), from memory at scrape time."""
+
+    def __init__(self, pool):
+        self._pool = pool
+
+    def collect(self):
+        n = self._pool.snapshot()
+        yield GaugeMetricFamily("tsdb_read_slots_in_use", "Reads of the database running now.", value=n["slots_used"])
+        yield GaugeMetricFamily(
+            "tsdb_read_rows_in_flight",
+            "Rows the reads running now hold (TSDB_READ_ROWS_IN_FLIGHT).",
+            value=n["rows_used"],
+        )
+        yield GaugeMetricFamily("tsdb_read_waiting", "Reads waiting now for a free slot.", value=n["waiting"])
+        yield CounterMetricFamily(
+            "tsdb_read_queued", "Reads that had to wait for a slot or for room for their rows.", value=n["queued"]
+        )
+        yield CounterMetricFamily(
+            "tsdb_read_refused",
+            "Reads answered 503 ServerBusy after waiting TSDB_READ_QUEUE_SECONDS.",
+            value=n["refused"],
+        )
 
 
 class _OtherOps:
@@ -497,6 +536,14 @@ class Metrics:
             worker.observer = self.retention
             self._retention_collector = RetentionLagCollector(worker)
             self.registry.register(self._retention_collector)
+
+    def attach_read_pool(self, pool) -> None:
+        """Report the process's read budget (``core.budget.ReadPool``)."""
+        previous = getattr(self, "_read_pool_collector", None)
+        if previous is not None:
+            self.registry.unregister(previous)
+        self._read_pool_collector = ReadPoolCollector(pool)
+        self.registry.register(self._read_pool_collector)
 
     def attach_mqtt(self, consumer) -> None:
         """Report the MQTT consumer (``ingest.mqtt``) while it runs."""

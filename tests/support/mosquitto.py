@@ -13,16 +13,28 @@ from __future__ import annotations
 import itertools
 import os
 import threading
+import time
 
+import httpx
 import paho.mqtt.client as paho
 import pytest
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
 from tests.support.apt import apt_install
+from tests.support.server import ServerProcess
 from tsdb_service.demo.mosquitto import LocalMosquitto, find_mosquitto
 
-__all__ = ["Publisher", "broker", "mosquitto_binary", "unique_client_id"]
+__all__ = [
+    "Publisher",
+    "broker",
+    "mosquitto_binary",
+    "mqtt_args",
+    "mqtt_outcome",
+    "mqtt_settings",
+    "ready",
+    "unique_client_id",
+]
 
 _ids = itertools.count(1)
 
@@ -114,3 +126,56 @@ class Publisher:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+# --- a service consuming from the broker (tests that run ``serve`` as a process) ---
+
+READY_TIMEOUT_S = 30.0
+
+
+def mqtt_settings(url: str, prefix: str, template: str = "${service}${servicePath}", **extra) -> dict:
+    """App settings (``client_factory``) to consume ``prefix/#`` under a
+    client id of the test's own, the tenant and service path in the topic
+    after ``prefix/`` as ``template`` says."""
+    return {
+        "mqtt_url": url,
+        "mqtt_client_id": unique_client_id("svc"),
+        "mqtt_topics": f"{prefix}/#",
+        "mqtt_topic_template": f"{prefix}/{template}",
+        **extra,
+    }
+
+
+def mqtt_args(url: str, prefix: str, client_id: str, *extra: str) -> list[str]:
+    """``serve`` flags to consume ``prefix/#``, the tenant and service path in the topic."""
+    return [
+        "--mqtt-url",
+        url,
+        "--mqtt-client-id",
+        client_id,
+        "--mqtt-topics",
+        f"{prefix}/#",
+        "--mqtt-topic-template",
+        f"{prefix}/${{service}}${{servicePath}}",
+        *extra,
+    ]
+
+
+def ready(server: ServerProcess, timeout: float = READY_TIMEOUT_S) -> ServerProcess:
+    """Wait until the service is subscribed (``/health`` passes): before
+    that the broker queues nothing for a new session."""
+    deadline = time.monotonic() + timeout
+    while True:
+        report = httpx.get(server.url + "/health", timeout=5).json()
+        if report["status"] == "pass":
+            return server
+        assert time.monotonic() < deadline, f"MQTT never came up: {report}\n{server.output()[-3000:]}"
+        time.sleep(0.05)
+
+
+def mqtt_outcome(server: ServerProcess, outcome: str) -> int:
+    """This process's count of MQTT messages stored, rejected, redelivered
+    or poisoned (``/metrics``)."""
+    prefix = f'tsdb_mqtt_messages_total{{outcome="{outcome}"}} '
+    metrics = httpx.get(server.url + "/metrics", timeout=10).text
+    return int(float(next(line for line in metrics.splitlines() if line.startswith(prefix)).split()[-1]))

@@ -2,9 +2,8 @@
 
 ``Feed`` is one in-process app consuming ``PREFIX/#`` of a private Mosquitto
 (``consuming`` makes its settings), with a publisher and the history API to
-read back; ``ready`` waits until a ``serve`` subprocess is subscribed;
-``stored_notifications`` and ``settled`` count what a use case's entities
-hold. ``timed`` and ``v2`` build NGSIv2 notifications.
+read back; ``stored_notifications`` and ``settled`` count what a use case's
+entities hold. ``timed`` and ``v2`` build NGSIv2 notifications.
 """
 
 from __future__ import annotations
@@ -17,9 +16,6 @@ import orjson
 
 from tests.support.mosquitto import Publisher, unique_client_id
 from tests.support.server import ServerProcess
-
-READY_TIMEOUT_S = 30.0
-
 
 T = "2025-02-03T04:05:06.789Z"
 
@@ -81,18 +77,6 @@ def rejected_on(feed, topic: str) -> dict:
     found = [row for row in rows if row["topic"] == f"{feed.prefix}/{topic}"]
     assert len(found) == 1, rows
     return found[0]
-
-
-def ready(server: ServerProcess, timeout: float = READY_TIMEOUT_S) -> ServerProcess:
-    """Wait until the service is subscribed (``/health`` passes): before
-    that the broker queues nothing for a new session."""
-    deadline = time.monotonic() + timeout
-    while True:
-        report = httpx.get(server.url + "/health", timeout=5).json()
-        if report["status"] == "pass":
-            return server
-        assert time.monotonic() < deadline, f"MQTT never came up: {report}\n{server.output()[-3000:]}"
-        time.sleep(0.05)
 
 
 def stored_notifications(service: ServerProcess, sim) -> int:

@@ -25,6 +25,13 @@ _FLAGS = (  # (flag, HTTP parameter or header, placeholder, help)
     ("--attrs", "attrs", "NAMES", "attribute names (comma-separated; default: all)"),
     ("--from-date", "fromDate", "TIME", "first time included (ISO 8601; default: the oldest sample)"),
     ("--to-date", "toDate", "TIME", "last time included (ISO 8601; default: the newest sample)"),
+    (
+        "--bucket",
+        "bucket",
+        "WIDTH",
+        "one row per series and time bucket of WIDTH (10s, 5min, 1h, 1d ...) with the count, average, minimum, "
+        "maximum, first and last of its numbers (default: one row per sample)",
+    ),
 )
 SUFFIXES = {
     ".csv": ExportFormat.CSV,
@@ -126,9 +133,10 @@ def cmd_export(args: argparse.Namespace) -> int:
     finally:
         store.close()
     rate = rows / seconds if seconds > 0 else 0.0
+    what = "samples" if query.bucket is None else "buckets"
     print(
-        f"exported {rows:,} samples to {args.out} ({size:,} bytes, {query.format.value}) "
-        f"in {seconds:.2f} s ({rate:,.0f} samples/s)"
+        f"exported {rows:,} {what} to {args.out} ({size:,} bytes, {query.format.value}) "
+        f"in {seconds:.2f} s ({rate:,.0f} {what}/s)"
     )
     if hint:
         print(f"hint: {hint} (--service TENANT)", file=sys.stderr)

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 
 from tsdb_service.cli.argtypes import positive_int
-from tsdb_service.cli.main import new_duckdb_file
+from tsdb_service.cli.newdb import new_duckdb_file
 from tsdb_service.core.config import Settings, SettingsError, check_db, load_settings
 from tsdb_service.parse.timeindex import parse_time
 
@@ -87,6 +87,14 @@ def register(subparsers, command) -> None:
         metavar="N",
         help="samples committed per batch; an interruption loses at most one (default 50000)",
     )
+    ql.add_argument(
+        "--max-value-bytes",
+        type=positive_int,
+        default=9 * 1024 * 1024,
+        metavar="N",
+        help="largest value (one cell) imported; a larger one is left out and reported, never read "
+        "(default 9437184, TSDB_MAX_BODY_BYTES' default: no notification could carry more)",
+    )
     ql.add_argument("--quiet", action="store_true", help="no progress line (default: progress on stderr)")
     ql.set_defaults(run_import=_source_explained(cmd_import))
     command("import")(lambda args: args.run_import(args))  # each source sets its own (cli.rosbag too)
@@ -128,6 +136,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         "keep_duplicates": args.keep_duplicates,
         "progress": not args.quiet,
         "batch_samples": args.batch_samples,
+        "max_value_bytes": args.max_value_bytes,
     }
     if args.dry_run:  # the target is not even opened: nothing is created
         report = import_quantumleap(args.source, None, dry_run=True, **options)
@@ -210,7 +219,14 @@ def _check_source(url: str) -> None:
 
 
 def _print_tables(report, verb: str) -> None:
+    """Per table what was (or would be) imported, then what was not and why:
+    tables, attributes, rows and values, each counted, the first few named."""
+    for skipped in report.skipped:
+        print(f"{skipped.name}: not imported: {skipped.reason}")
     for t in report.tables:
+        if t.skipped is not None:
+            print(f"{t.name}: {t.source_rows} rows, not imported: {t.skipped}")
+            continue
         notes = []
         if t.duplicates:
             notes.append(f"{t.duplicates} duplicate rows")
@@ -218,7 +234,23 @@ def _print_tables(report, verb: str) -> None:
             notes.append(f"{t.recovered} failed-batch rows recovered")
         if t.unreadable:
             notes.append(f"{t.unreadable} rows not importable")
+        if t.refused_attrs:
+            notes.append(f"{len(t.refused_attrs)} attributes not importable")
+        if t.dropped:
+            notes.append(f"{t.dropped} values not importable")
         extra = f" ({', '.join(notes)})" if notes else ""
         print(f"{t.name}: {t.source_rows} rows, {verb} {t.rows} rows, {t.samples} samples{extra}")
+        for column, why in sorted(t.refused_attrs.items()):
+            print(f"  column {_shown(column)} not imported: {why}")
         for p in t.problems:
             print(f"  not imported: {p.entity_id or '?'} at {p.time_index}: {p.reason}")
+        for d in t.dropped_shown:
+            print(f"  value not imported: {_shown(d.attr)} of {d.entity_id} at {d.time_index}: {d.reason}")
+    refused = len(report.skipped) + sum(t.skipped is not None for t in report.tables)
+    if refused:
+        print(f"{refused} tables not imported: their tenant or layout is not one the API can serve (see above)")
+
+
+def _shown(text: str) -> str:
+    """A name from QuantumLeap's tables, on one line (newlines and the like escaped)."""
+    return repr(text[:120])

@@ -60,7 +60,7 @@ def register(subparsers, command) -> None:
 
 
 def cmd_import_rosbag(args: argparse.Namespace) -> int:
-    from tsdb_service.cli.main import new_duckdb_file
+    from tsdb_service.cli.newdb import new_duckdb_file
     from tsdb_service.commands.rosbag.bag import BagError
     from tsdb_service.commands.rosbag.importer import ImportNotVerified, PreparedImport
     from tsdb_service.commands.rosbag.mapping import MapError, load_map

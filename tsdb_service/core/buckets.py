@@ -12,8 +12,11 @@ them, and two panels of the same width agree.
 Invariants:
 
 * ``choose_width(span, points)`` is the narrowest ladder width that draws
-  ``span`` in at most ``points`` buckets, and never narrower than a
-  ``floor`` the client asked for (Grafana's ``intervalMs``);
+  ``span`` in at most ``points`` buckets wherever the window lies (a window
+  meets ``span // width + 1`` buckets at most, aligned as they are), and
+  never narrower than a ``floor`` the client asked for (Grafana's
+  ``intervalMs``); it depends on the span alone, so a panel sliding with
+  ``now`` keeps its width;
 * every width divides the next day boundary evenly up to one day
   (``bucket_start`` of a UTC midnight is that midnight), and a wider width is
   a whole number of days counted from the epoch;
@@ -22,7 +25,6 @@ Invariants:
 
 from __future__ import annotations
 
-import math
 from datetime import UTC, datetime, timedelta
 
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
@@ -50,14 +52,15 @@ HOUR = _H
 
 def choose_width(span: timedelta, points: int, floor: timedelta | None = None) -> timedelta:
     """The narrowest ladder width drawing ``span`` in at most ``points``
-    buckets, at least ``floor`` (rounded up to the ladder)."""
+    buckets wherever the window starts, at least ``floor`` (rounded up to
+    the ladder)."""
     if points < 1:
         raise ValueError("a chart needs at least one point")
     wanted = span / points if span > timedelta(0) else LADDER[0]
     if floor is not None and floor > wanted:
         wanted = floor
     for width in LADDER:
-        if width >= wanted and math.ceil(span / width) <= points:
+        if width >= wanted and span // width + 1 <= points:
             return width
     return WIDEST
 
@@ -77,6 +80,15 @@ def bucket_count(start: datetime, end: datetime, width: timedelta) -> int:
 def served_by(width: timedelta, level: timedelta) -> bool:
     """Whether buckets of ``width`` are unions of whole ``level`` buckets."""
     return width >= level and _micros(width) % _micros(level) == 0
+
+
+def label(width: timedelta) -> str:
+    """A width as people write it: ``500ms``, ``15s``, ``5min``, ``1h``, ``7d``."""
+    micros = _micros(width)
+    for unit, size in (("d", _D), ("h", _H), ("min", _MIN), ("s", _S), ("ms", _MS)):
+        if micros % _micros(size) == 0:
+            return f"{micros // _micros(size)}{unit}"
+    return f"{micros}us"
 
 
 def _micros(delta: timedelta) -> int:

@@ -21,6 +21,8 @@ from urllib.parse import urlsplit
 from pydantic import AfterValidator, BaseModel, Field, ValidationError, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from tsdb_service.core.urlprefix import url_prefixes
+
 MIB = 1024 * 1024
 # DuckDB folds its WAL into the file once it is this big (its own default:
 # 16 MiB). The commit that crosses it runs the checkpoint, and every
@@ -40,7 +42,8 @@ def _checked_prefixes(value: str) -> str:
     return value
 
 
-# A comma list of http(s) URL prefixes (TSDB_LD_CONTEXT_ALLOW, TSDB_SUBSCRIBE_BROKER_ALLOW), kept as given.
+# A comma list of http(s) URL prefixes (TSDB_LD_CONTEXT_ALLOW, TSDB_SUBSCRIBE_BROKER_ALLOW), kept as given
+# and compared by parts (core.urlprefix).
 UrlPrefixes = Annotated[str, AfterValidator(_checked_prefixes)]
 
 
@@ -206,7 +209,10 @@ class CacheSettings(SettingsGroup):
 
 class ReadSettings(SettingsGroup):
     title = "Reads and budgets"
-    about = "How much one history query may select, read, render and take (past it: 422 QueryTooLarge)."
+    about = (
+        "How much one history query may select, read, render and take (past it: 422 QueryTooLarge), and all "
+        "reads together (past it: they wait, then 503 ServerBusy)."
+    )
 
     default_limit: int = Field(10_000, ge=1, description="Rows returned when no limit is given.")
     read_max_series: int = Field(
@@ -228,6 +234,26 @@ class ReadSettings(SettingsGroup):
         20.0,
         gt=0,
         description="Wall time of one read, checked between its steps; past it: 422 QueryTooLarge.",
+    )
+    read_concurrency: int = Field(
+        4,
+        ge=2,
+        le=1024,
+        description="Reads of the database running at once, over all requests (about twice the cores); one "
+        "tenant at most half (the others wait their turn, tenants served round-robin).",
+    )
+    read_rows_in_flight: int = Field(
+        1_000_000,
+        ge=2,
+        description="Rows all reads together may hold, charged as they stream from the database; one tenant "
+        "at most half (never less than one read's TSDB_READ_MAX_ROWS).",
+    )
+    read_queue_seconds: float = Field(
+        10.0,
+        gt=0,
+        le=600,
+        description="How long a read may wait for a free slot or room for its rows; past it: 503 ServerBusy "
+        "with Retry-After.",
     )
 
 
@@ -398,10 +424,18 @@ class MqttSettings(SettingsGroup):
         "tenant header): a tenant, or '-' for the default tenant; empty: such a message is rejected (kept "
         "with its topic).",
     )
+    mqtt_tenants: str = Field(
+        "",
+        description="Tenants each topic may write, as the tenants of an API key restrict HTTP: "
+        "'FILTER=TENANT[,TENANT...]' entries separated by ';' (e.g. 'tsdb/alpha/#=alpha; tsdb/beta/#=beta'; "
+        "'-' is the default tenant); a message for any other tenant is rejected. Empty: any tenant (only the "
+        "broker's ACLs restrict who publishes what).",
+    )
     mqtt_client_id: str = Field(
         "",
         description="MQTT client id: names our session on the broker, so it must stay the same across "
-        "restarts and differ between replicas; default tsdb-service-HOSTNAME.",
+        "restarts and differ between replicas, and only we may use it (broker ACLs); default "
+        "tsdb-service-HOSTNAME, which anyone can guess.",
     )
     mqtt_username: str = Field("", description="User name for the MQTT broker.")
     mqtt_password: str = Field(
@@ -554,21 +588,6 @@ SETTING_GROUPS: tuple[type[SettingsGroup], ...] = tuple(
 def setting_groups() -> tuple[tuple[type[SettingsGroup], tuple[str, ...]], ...]:
     """Each group with its settings' names, in declaration order."""
     return tuple((group, tuple(group.model_fields)) for group in SETTING_GROUPS)
-
-
-def url_prefixes(spec: str) -> tuple[str, ...]:
-    """A comma list of URL prefixes (``TSDB_LD_CONTEXT_ALLOW``), each
-    ``http://`` or ``https://`` with a host and no user info; ValueError otherwise."""
-    out = []
-    for item in spec.split(","):
-        prefix = item.strip()
-        if not prefix:
-            continue
-        parts = urlsplit(prefix)
-        if parts.scheme not in ("http", "https") or not parts.netloc or "@" in parts.netloc:
-            raise ValueError(f"URL prefixes are http(s)://host[:port][/path] without user info, not {prefix!r}")
-        out.append(prefix)
-    return tuple(out)
 
 
 def check_db(value: str) -> str:

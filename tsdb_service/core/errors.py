@@ -86,6 +86,14 @@ class Unprocessable(TsdbError):
     ld_type = "OperationNotSupported"
 
 
+class NotStorable(Unprocessable):
+    """The database refused this write again and again while it takes
+    others: the content is at fault (a poison message), not the database.
+    Retrying cannot help; a notification is kept in the rejected store."""
+
+    error = "NotStorable"
+
+
 class Unauthorized(TsdbError):
     """No credential, or one we cannot verify: the client should authenticate."""
 

@@ -80,8 +80,9 @@ def client_disconnected(request: Request) -> JSON:
 
 
 def error_response(request: Request, exc: TsdbError) -> JSON:
-    """A ``TsdbError`` as the answer of the API the path belongs to."""
-    return _error(request, exc.error, exc.description, exc.status, exc.ld_type)
+    """A ``TsdbError`` as the answer of the API the path belongs to (with
+    the headers it carries, such as ``ServerBusy``'s ``Retry-After``)."""
+    return _error(request, exc.error, exc.description, exc.status, exc.ld_type, getattr(exc, "headers", None))
 
 
 def unexpected_response(request: Request, exc: BaseException) -> JSON:

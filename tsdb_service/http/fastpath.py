@@ -19,19 +19,21 @@ from starlette.requests import ClientDisconnect, Request
 from starlette.routing import Match
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from tsdb_service.core.budget import ReadLimits
+from tsdb_service.core.budget import ReadLimits, ReadPool
 from tsdb_service.core.errors import TsdbError
 from tsdb_service.http.budget import ReadBudgetMiddleware
 from tsdb_service.http.errors import client_disconnected, error_response, unexpected_response
 
 
 class FastRoutes:
-    def __init__(self, routes: Iterable[object], paths: Iterable[str], limits: ReadLimits):
+    def __init__(
+        self, routes: Iterable[object], paths: Iterable[str], limits: ReadLimits, pool: ReadPool | None = None
+    ):
         wanted = set(paths)
         self._routes = [
             r for r in routes if isinstance(r, APIRoute) and r.path in wanted and "GET" in (r.methods or ())
         ]
-        self._budgeted: ASGIApp = ReadBudgetMiddleware(self._serve, limits)
+        self._budgeted: ASGIApp = ReadBudgetMiddleware(self._serve, limits, pool)
 
     def match(self, scope: Scope) -> Scope | None:
         """The matched route's child scope (path parameters, route), or None."""

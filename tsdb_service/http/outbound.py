@@ -7,8 +7,10 @@ Unchecked, that is server-side request forgery: the metadata service at
 network, and the error texts a port scanner. So ``fetch``:
 
 * accepts only ``http``/``https`` URLs without user info;
-* unless the URL starts with one of the operator's allowed prefixes
-  (``TSDB_LD_CONTEXT_ALLOW``), resolves the host and refuses it if **any**
+* unless the URL is under one of the operator's allowed prefixes
+  (``TSDB_LD_CONTEXT_ALLOW``; compared by parts, not as text: scheme, host
+  and effective port exactly, then the path segment by segment, see
+  ``core.urlprefix``), resolves the host and refuses it if **any**
   address is not public (loopback, private, link-local, shared, reserved,
   multicast; IPv4 inside IPv6 is judged as IPv4);
 * connects to an address it checked (the URL's host is replaced by that
@@ -42,12 +44,13 @@ import asyncio
 import ipaddress
 import socket
 import zlib
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from urllib.parse import urljoin
 
 import anyio
 import httpx
+
+from tsdb_service.core.urlprefix import UrlPrefix, allowed, canonical_host
 
 MAX_CONCURRENT = 8
 _REDIRECTS = frozenset({301, 302, 303, 307, 308})
@@ -61,14 +64,19 @@ class FetchFailed(Exception):
 @dataclass(frozen=True, slots=True)
 class FetchPolicy:
     """What ``fetch`` may do: ``allow`` lists URL prefixes exempt from the
-    address check (e.g. ``http://127.0.0.1:``)."""
+    address check (e.g. ``http://127.0.0.1:``, any port of that host)."""
 
     deadline: float = 2.0
     max_bytes: int = 1 << 20
     max_redirects: int = 3
-    allow: tuple[str, ...] = ()
+    allow: tuple[UrlPrefix, ...] = ()
     accept: str = "*/*"
     semaphore: asyncio.Semaphore = field(default_factory=lambda: asyncio.Semaphore(MAX_CONCURRENT), compare=False)
+
+    def __post_init__(self) -> None:
+        """Prefixes given as text are parsed here (ValueError on a bad one)."""
+        parsed = tuple(p if isinstance(p, UrlPrefix) else UrlPrefix.parse(p) for p in self.allow)
+        object.__setattr__(self, "allow", parsed)
 
 
 def is_public(address: str) -> bool:
@@ -84,8 +92,13 @@ def is_public(address: str) -> bool:
     return ip.is_global and not ip.is_multicast
 
 
-def _allowed(url: str, allow: Iterable[str]) -> bool:
-    return any(url.startswith(prefix) for prefix in allow)
+def _allowed(url: httpx.URL, allow: tuple[UrlPrefix, ...]) -> bool:
+    """Is ``url`` (as ``_checked`` parsed it) under one of the ``allow`` prefixes?
+    Compared as sent: the host in its ASCII form, the path percent-encoded."""
+    if not allow:
+        return False
+    path = url.raw_path.split(b"?", 1)[0].decode("ascii")
+    return allowed(allow, url.scheme, canonical_host(url.raw_host.decode("ascii")), url.port, path)
 
 
 def _checked(url: str) -> httpx.URL:
@@ -154,7 +167,7 @@ async def post(url: str, content: bytes, headers: dict[str, str], policy: FetchP
 async def _post(url: str, content: bytes, headers: dict[str, str], policy: FetchPolicy) -> Answer:
     async with httpx.AsyncClient(trust_env=False, follow_redirects=False, timeout=None) as client:
         target = _checked(url)
-        addresses = await _addresses(target, _allowed(str(target), policy.allow))
+        addresses = await _addresses(target, _allowed(target, policy.allow))
         sent = _Sent("POST", {**headers, "Accept": policy.accept}, content)
         response = await _connect(client, target, addresses, policy.accept, sent)
         try:
@@ -175,7 +188,7 @@ async def _follow(url: str, policy: FetchPolicy) -> bytes:
     async with httpx.AsyncClient(trust_env=False, follow_redirects=False, timeout=None) as client:
         for _ in range(policy.max_redirects + 1):
             target = _checked(url)
-            addresses = await _addresses(target, _allowed(str(target), policy.allow))
+            addresses = await _addresses(target, _allowed(target, policy.allow))
             response = await _connect(client, target, addresses, policy.accept)
             try:
                 if response.status_code in _REDIRECTS and response.headers.get("location"):

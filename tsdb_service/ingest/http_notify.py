@@ -2,8 +2,10 @@
 
 Orion never retries a notification, and counts any answer, 4xx and 5xx
 included, as delivered. So a 200 is sent only after the samples are
-committed, and a notification we cannot parse is kept in the rejected store
-before its 400 goes out: nothing the broker sent us is silently dropped.
+committed, and a notification we cannot parse, or that the database
+refuses for its content (``NotStorable``, 422), is kept in the rejected
+store before its 4xx goes out: nothing the broker sent us is silently
+dropped.
 """
 
 from __future__ import annotations
@@ -117,11 +119,14 @@ async def _receive(request: Request) -> None:
             time_paths=parse_time_paths(settings.time_index_paths),
         )
         entities = await store.read(parse, memory_first=len(body) <= _PARSE_INLINE_MAX, consistent=False)
+        # A write the database refuses for its content, every time, is
+        # NotStorable (422): kept below like a refused notification, never a
+        # 503 (Orion does not retry; a retry could not succeed anyway).
+        await store.write(AppendSamples(entities))
     except TsdbError as exc:
         if exc.status < 500:
             await _keep_rejected(request, store, received_at, exc, body, settings.rejected_body_max_bytes)
         raise
-    await store.write(AppendSamples(entities))
 
 
 # --- Content-Type ------------------------------------------------------------------

@@ -77,7 +77,7 @@ _NOTIFY_EXAMPLES = {
 NOTIFY = spec(
     *NOTIFY_HEADERS,
     ok_=ok({"const": "Notification successfully processed"}, "Durable before this answer (DuckDB: in the ingest log)"),
-    errors_=(400, *AUTH, 413, 415, 503),
+    errors_=(400, *AUTH, 413, 415, 422, 503),
     body=json_body(
         ref("Notification"),
         media_types=("application/json", "application/ld+json", "application/geo+json"),

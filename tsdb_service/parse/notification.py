@@ -35,6 +35,7 @@ from tsdb_service.geo.encodings import GEOMETRY_TYPES
 from tsdb_service.parse import timeindex
 from tsdb_service.parse.names import ID_RULE, RULE, id_problem, name_problem
 from tsdb_service.parse.request_context import notification_service_paths, notification_tenant
+from tsdb_service.parse.text import nul_problem
 from tsdb_service.parse.timeindex import FALLBACK_METADATA, TimeClues, parse_time, to_utc, watched_attributes
 from tsdb_service.parse.values import TooDeep, attr_sample, to_json
 
@@ -196,13 +197,16 @@ def _header_text(value: Any) -> str:
 
 
 def load_document(body: bytes) -> dict:
-    """A notification body as JSON: an object, else ``ParseError``."""
+    """A notification body as JSON: an object without a NUL character
+    anywhere (``parse.text``), else ``ParseError``."""
     try:
         doc = orjson.loads(body)
     except (orjson.JSONDecodeError, TypeError) as exc:
         raise ParseError(f"notification is not valid JSON: {exc}") from None
     if type(doc) is not dict:
         raise ParseError(f"notification must be a JSON object, got {_json_kind(doc)}")
+    if (problem := nul_problem(body, doc)) is not None:
+        raise ParseError(f"{problem}; the notification is kept in GET /v2/notify/rejected")
     return doc
 
 

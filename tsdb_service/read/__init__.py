@@ -9,7 +9,9 @@ returning plain immutable rows (the NamedTuples and tuples of
 * ``SampleReader`` (``read.samples``): samples, aggregates, latest values;
 * ``LocationReader`` (``read.locations``): positions and extents;
 * ``TemporalReader`` (``read.instances``): NGSI-LD attribute instances;
-* ``BulkReader`` (``read.bulk``): exports, copies, counts.
+* ``BulkReader`` (``read.bulk``): exports, copies, counts;
+* ``BucketReader`` (``read.buckets``): time buckets and state changes for
+  every face that draws (long windows).
 
 A layer names the roles it uses (``HistoryReads`` for the history layer,
 ``TemporalReads`` for the NGSI-LD API); each backend's querier implements
@@ -31,6 +33,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Protocol, TypeVar
 
+from tsdb_service.read.buckets import BucketReader
 from tsdb_service.read.bulk import BulkReader
 from tsdb_service.read.catalogue import SeriesCatalogue
 from tsdb_service.read.instances import TemporalReader
@@ -40,7 +43,7 @@ from tsdb_service.read.samples import SampleReader
 T = TypeVar("T")
 
 
-class HistoryReads(SeriesCatalogue, SampleReader, LocationReader, Protocol):
+class HistoryReads(SeriesCatalogue, SampleReader, LocationReader, BucketReader, Protocol):
     """What the history layer (QuantumLeap API, Grafana, the explorer) reads."""
 
 

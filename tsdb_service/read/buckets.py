@@ -18,6 +18,17 @@ refreshing every few seconds hit the same buckets).
 * ``state_changes(ChangesRead)``: the samples of non-numeric series (text,
   booleans, enumerations) whose value differs from the one before it, so a
   state timeline keeps every transition and nothing is ever averaged.
+* ``span(SamplesIn)``: the first and last sample times of some series in a
+  window, where a drawing's window has an open end (all data);
+* ``count_up_to(SamplesIn, most)``: their samples in a window, counted no
+  further than ``most`` (may they be drawn as stored?), and ``samples``:
+  those samples, when they may (a direct read, times as integers).
+
+Times are epoch microseconds (UTC) as plain integers: a 1,000-point panel
+of 20 series is 20,000 rows of five times each, and making a ``datetime``
+of each costs more than the database takes to compute them. A value path
+(``steps``, as in ``core.query.ValuePath``) reads the number, or for
+changes the value, at that path inside each stored JSON value.
 
 Threads and lifetimes as for every read (``read``): any thread, never the
 event loop, each call its own snapshot, rows owned by the caller.
@@ -27,10 +38,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime, timedelta
+from datetime import timedelta
 from typing import NamedTuple, Protocol
 
 from tsdb_service.core.query import TimeRange
+from tsdb_service.read.requests import SamplesIn
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,53 +50,72 @@ class BucketRead:
     """Buckets of ``width`` (a ``core.buckets.LADDER`` width, aligned to the
     epoch) over ``time`` (both ends given, inclusive) of the series
     ``sids``. A bucket cut by an end of the window holds only the samples
-    inside it."""
+    inside it. ``steps``: the numbers at this path inside JSON values (a
+    ``ValuePath``'s steps) instead of the numeric samples themselves.
+    ``extreme_times``: whether the times of the minimum and maximum are
+    wanted (the min-max mode); without them a backend may answer ``min_t``
+    and ``max_t`` as None, and finding them is most of the query's work."""
 
     sids: Sequence[int]
     time: TimeRange
     width: timedelta
+    steps: tuple[str | int, ...] = ()
+    extreme_times: bool = True
 
 
 class BucketRow(NamedTuple):
     """One series' numeric samples in one bucket. ``n`` >= 1; the
-    ``*_t`` are sample times (UTC, aware); ties go to the earliest sample
+    ``*_t`` are sample times (epoch µs, UTC); ties go to the earliest sample
     (then the lowest row id), for ``last`` to the latest."""
 
     sid: int
-    start: datetime  # the bucket's start (not clipped to the window)
+    start: int  # the bucket's start, epoch µs (not clipped to the window)
     n: int  # numeric samples
     total: float  # their sum
     all_integer: bool  # every one of them an integer
     min: float
-    min_t: datetime
+    min_t: int | None  # None: not asked (``BucketRead.extreme_times``)
     max: float
-    max_t: datetime
+    max_t: int | None
     first: float
-    first_t: datetime
+    first_t: int
     last: float
-    last_t: datetime
+    last_t: int
 
 
 @dataclass(frozen=True, slots=True)
 class ChangesRead:
     """Transitions of ``sids`` in ``time``: at most ``limit`` of them, the
-    newest kept when there are more."""
+    newest kept when there are more. ``steps``: compare the values at this
+    path inside JSON values (a ``ValuePath``'s steps), not whole values."""
 
     sids: Sequence[int]
     time: TimeRange
     limit: int
+    steps: tuple[str | int, ...] = ()
 
 
 class StateChange(NamedTuple):
     """A sample whose value differs from the series' sample before it (the
-    first sample of the window always counts). The value as stored."""
+    first sample of the window always counts). The value as stored (the
+    whole value, also when changes are compared at a path). ``before``: the
+    time of the series' sample before it in the window (None for the
+    window's first), where the previous state was last seen: a run of
+    states ends there (Grafana's annotations)."""
 
     sid: int
-    time: datetime
+    time: int  # epoch µs
     kind: int
     num: float | None
     txt: str | None
     js: str | None
+    before: int | None  # epoch µs
+
+
+# One stored sample, its time as epoch µs (``BucketReader.samples``): (sid,
+# time, kind, num, txt, js), a plain tuple as the driver hands it over
+# (making 100,000 NamedTuples costs more than the read).
+TimedSample = tuple[int, int, int, float | None, str | None, str | None]
 
 
 class ChangesPage(NamedTuple):
@@ -99,4 +130,21 @@ class BucketReader(Protocol):
 
     def state_changes(self, ask: ChangesRead) -> ChangesPage:
         """Every transition of the series in the window (see ``ChangesRead``)."""
+        ...
+
+    def span(self, ask: SamplesIn) -> tuple[int, int] | None:
+        """The first and last sample times (epoch µs) of ``ask.sids`` in
+        ``ask.time`` (no mask); None when there is none."""
+        ...
+
+    def count_up_to(self, ask: SamplesIn, most: int) -> int:
+        """How many samples ``ask.sids`` hold in ``ask.time`` (no mask),
+        counting no further than ``most``: whether a window's raw samples fit
+        a point budget costs at most ``most`` rows read, however long it is."""
+        ...
+
+    def samples(self, ask: SamplesIn, most: int) -> list[TimedSample]:
+        """The samples of ``ask.sids`` in ``ask.time`` (no mask) by series,
+        then time, then row id: the first ``most`` of them. For windows
+        ``count_up_to`` found small: over a long one the ordering costs."""
         ...

@@ -56,6 +56,7 @@ from tsdb_service.core.query import (
 )
 from tsdb_service.core.timefmt import iso_ms
 from tsdb_service.read import Querier
+from tsdb_service.read.buckets import BucketRead, BucketRow, ChangesPage, ChangesRead, StateChange, TimedSample
 from tsdb_service.read.bulk import EXPORT_COLUMNS, Columns, SampleBatches
 from tsdb_service.read.instances import SeparateScans
 from tsdb_service.read.requests import (
@@ -292,6 +293,45 @@ class MemoryQuerier(SeparateScans, Querier):
 
     def count(self, ask: SamplesIn) -> int:
         return len(self._in(ask.sids, ask.time, ask.mask))
+
+    # -- long windows ---------------------------------------------------------------------
+
+    def buckets(self, ask: BucketRead) -> list[BucketRow]:
+        width = ask.width // timedelta(microseconds=1)
+        groups: dict[tuple[int, int], list[tuple[int, int, float, bool]]] = defaultdict(list)
+        for s in self._in(ask.sids, ask.time):
+            number = _number_of(s, ask.steps)
+            if number is not None:
+                t = s.t_us
+                groups[(s.sid, t - t % width)].append((t, s.rid, number[0], number[1]))
+        found = [_bucket_row(sid, start, rows) for (sid, start), rows in sorted(groups.items())]
+        return found if ask.extreme_times else [row._replace(min_t=None, max_t=None) for row in found]
+
+    def state_changes(self, ask: ChangesRead) -> ChangesPage:
+        found: list[tuple[MemorySample, int | None]] = []
+        for sid in sorted(set(ask.sids)):
+            previous: Any = _NO_SAMPLE
+            before = None
+            for s in sorted(self._in([sid], ask.time), key=lambda r: (r.t, r.rid)):
+                state = _state_of(s, ask.steps)
+                if state != previous:
+                    found.append((s, before))
+                previous, before = state, s.t_us
+        found.sort(key=lambda pair: (pair[0].t, pair[0].rid, pair[0].sid))
+        kept = found[max(0, len(found) - ask.limit) :] if ask.limit > 0 else []
+        changes = [StateChange(s.sid, s.t_us, s.kind, s.num, s.txt, s.js, before) for s, before in kept]
+        return ChangesPage(changes, len(kept) < len(found))
+
+    def span(self, ask: SamplesIn) -> tuple[int, int] | None:
+        times = [s.t_us for s in self._in(ask.sids, ask.time)]
+        return (min(times), max(times)) if times else None
+
+    def count_up_to(self, ask: SamplesIn, most: int) -> int:
+        return min(len(self._in(ask.sids, ask.time)), max(0, most))
+
+    def samples(self, ask: SamplesIn, most: int) -> list[TimedSample]:
+        rows = sorted(self._in(ask.sids, ask.time), key=lambda s: (s.sid, s.t, s.rid))[: max(0, most)]
+        return [(s.sid, s.t_us, s.kind, s.num, s.txt, s.js) for s in rows]
 
     # -- locations ------------------------------------------------------------------------
 
@@ -579,6 +619,60 @@ def _aggregate_row(
     value = fn(numbers) if fn is not None and numbers else None
     all_integer = integers == len(numbers) if numbers else None
     return AggregateRow(number, sid, bucket, present, len(numbers), value, all_integer)
+
+
+_NO_SAMPLE = object()
+
+
+def _number_of(s: MemorySample, steps: tuple[str | int, ...]) -> tuple[float, bool] | None:
+    """The sample's number (and whether it is an integer) as the bucket query reads it."""
+    if not steps:
+        if s.kind in _NUMERIC and s.num is not None:
+            return s.num + 0.0, s.kind == Kind.INTEGER
+        return None
+    value = _at_path(s, steps)
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value) + 0.0, isinstance(value, int)
+    return None
+
+
+def _bucket_row(sid: int, start: int, rows: list[tuple[int, int, float, bool]]) -> BucketRow:
+    """``rows``: (time µs, row id, number, is integer). Ties: the earliest
+    (time, row id) wins; for the last, the latest."""
+    low = min(rows, key=lambda r: (r[2], r[0], r[1]))
+    high = min(rows, key=lambda r: (-r[2], r[0], r[1]))
+    first = min(rows, key=lambda r: (r[0], r[1]))
+    last = max(rows, key=lambda r: (r[0], r[1]))
+    return BucketRow(
+        sid,
+        start,
+        len(rows),
+        sum(r[2] for r in rows),
+        all(r[3] for r in rows),
+        low[2],
+        low[0],
+        high[2],
+        high[0],
+        first[2],
+        first[0],
+        last[2],
+        last[0],
+    )
+
+
+def _state_of(s: MemorySample, steps: tuple[str | int, ...]) -> Any:
+    """What two samples share when they hold the same state."""
+    if not steps or s.js is None:
+        return (s.kind, s.num, s.txt, s.js) if not steps else None
+    node: Any = orjson.loads(s.js)
+    for step in steps:
+        if isinstance(step, int):
+            if not (isinstance(node, list) and -len(node) <= step < len(node)):
+                return None  # missing: SQL NULL, unlike a JSON null
+        elif not (isinstance(node, dict) and step in node):
+            return None
+        node = node[step]
+    return orjson.dumps(node)
 
 
 def _time_property(s: MemorySample, name: str) -> datetime | None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 from starlette.middleware.cors import CORSMiddleware
 
 from tsdb_service.core.errors import Forbidden, Unauthorized
+from tsdb_service.http.responses import EXPOSED_HEADERS
 from tsdb_service.security.guard import Guard
 from tsdb_service.security.keys import KeyRing
 from tsdb_service.security.principals import ADMIN, METRICS, READ, WRITE, Principal, required_scope
@@ -54,7 +55,7 @@ def protect(app, settings):
             allow_origins=origins,
             allow_methods=["GET", "HEAD", "POST", "PUT", "DELETE"],
             allow_headers=["*"],
-            expose_headers=["X-Request-Id", "WWW-Authenticate"],
+            expose_headers=["X-Request-Id", "WWW-Authenticate", *EXPOSED_HEADERS],
             max_age=CORS_MAX_AGE_S,
         )
     return app

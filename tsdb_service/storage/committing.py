@@ -15,6 +15,7 @@ the columns, rows and SQL below it import none of it.
 from __future__ import annotations
 
 import json
+import time
 from abc import abstractmethod
 from collections.abc import Sequence
 from datetime import UTC, datetime
@@ -32,6 +33,8 @@ from tsdb_service.storage.store import CopyRun, Store
 from tsdb_service.write.committer import GroupCommitter
 from tsdb_service.write.logged import LoggedWriter
 from tsdb_service.write.ops import AppendSamples, WriteOp
+
+POISON_WARN_S = 3600.0  # /health warns this long after a write was refused for its content
 
 
 class CommittingStore(Store):
@@ -96,7 +99,8 @@ class CommittingStore(Store):
         """``fail`` unless the writers run and the database takes writes
         (and whatever ``_health_problem`` checks), and, with an ingest log,
         while it cannot be written or applied; ``warn`` while the log holds
-        damaged records set aside for an operator; else ``pass``."""
+        damaged records set aside for an operator, or for an hour after the
+        database refused a write for its content (poison); else ``pass``."""
         problem = self._health_problem()
         if problem is None and self._write_failure is not None:
             problem = "the database refuses writes: " + self._write_failure
@@ -106,6 +110,8 @@ class CommittingStore(Store):
         alive = self._committer.alive and (logged is None or logged.alive)
         ok = alive and problem is None and self._reachable()
         warning = logged.warning() if ok and logged is not None else None
+        if warning is None and ok:
+            warning = self._poison_warning()
         report: dict[str, Any] = {
             "status": "fail" if not ok else "warn" if warning is not None else "pass",
             "backend": self.backend,
@@ -115,6 +121,20 @@ class CommittingStore(Store):
         if problem is not None or warning is not None:
             report["output"] = problem or warning
         return report
+
+    def _poison_warning(self) -> str | None:
+        """``warn`` for an hour after the database refused a write for its
+        content (``write.committer``, poison): the service works, but an
+        operator has a notification to look at in the rejected store."""
+        committer = self._committer
+        last = committer.last_poison
+        if last is None or time.time() - last[0] > POISON_WARN_S:
+            return None
+        at = datetime.fromtimestamp(last[0], UTC).isoformat(timespec="seconds")
+        return (
+            f"{committer.poisoned} write(s) refused by the database for their content since start, the last at "
+            f"{at} ({last[1][:200]}); kept in GET /v2/notify/rejected?allTenants=true"
+        )
 
     def _health_problem(self) -> str | None:
         """A backend's own reason to fail ``/health``, worded for an operator."""

@@ -21,6 +21,13 @@ listing must not hand out gigabytes. So:
 Backends differ only in placeholders and how a string's byte length is
 written (``RejectedSpelling``); every value is a bound parameter. The rows
 a writer inserts (``INSERT_COLUMNS``, ``insert_values``) are the same too.
+
+**The rejected store takes anything.** It is where a message that cannot
+be stored goes, so it must never refuse one itself: the body is kept as
+bytes, and the text columns (a tenant header as received, a description
+quoting the input, the headers, the topic) have the characters no
+PostgreSQL text can hold escaped (``storable``: NUL as ``\\u0000``, a lone
+surrogate as ``\\udXXX``), on both backends alike.
 """
 
 from __future__ import annotations
@@ -46,19 +53,32 @@ INSERT_COLUMNS = "tenant, received_at, error, description, headers, body, body_s
 
 
 def insert_values(r: RejectedNotification) -> tuple:
-    """A ``rejected_notifications`` row (``INSERT_COLUMNS``)."""
+    """A ``rejected_notifications`` row (``INSERT_COLUMNS``), its text storable anywhere."""
     size = len(r.body) if r.body_size is None else r.body_size
     return (
-        r.tenant,
+        storable(r.tenant),
         naive_utc(r.received_at),
-        r.error,
-        r.description,
-        r.headers,
+        storable(r.error),
+        storable(r.description),
+        storable(r.headers),
         r.body,
         size,
         r.body_truncated,
-        r.topic,
+        None if r.topic is None else storable(r.topic),
     )
+
+
+def storable(text: str) -> str:
+    """``text`` with NUL written ``\\u0000`` and lone surrogates escaped
+    (``\\udXXX``): PostgreSQL text holds neither, UTF-8 has no surrogates."""
+    if text.isascii() and "\x00" not in text:
+        return text
+    text = text.replace("\x00", "\\u0000")
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        text = text.encode("utf-8", "backslashreplace").decode("ascii", "backslashreplace")
+    return text
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,7 +137,7 @@ def prune(
         "{where}WINDOW w AS (ORDER BY id DESC)"
     )
     per_tenant = ranked.format(bytes=dialect.row_bytes, where=f"WHERE tenant = {p} ")
-    for tenant in sorted(set(tenants)):
+    for tenant in sorted({storable(t) for t in tenants}):  # as insert_values stored them
         for reason, condition, bound in (("count", "n", limits.max_count), ("bytes", "b", limits.max_bytes)):
             sql = (
                 f"DELETE FROM rejected_notifications WHERE id IN (SELECT id FROM ({per_tenant}) r "

@@ -36,6 +36,7 @@ from tsdb_service.write.ops import (
     Delivery,
     LogPosition,
     PutLayout,
+    RecordDelivery,
     RecordRejected,
     ReplaceInstance,
     WriteOp,
@@ -71,6 +72,8 @@ class StagingAppender(Appender):
             self._stage_rejected(op.rejected)
             if op.delivery is not None:
                 self._deliveries.append(op.delivery)
+        elif isinstance(op, RecordDelivery):
+            self._deliveries.append(op.delivery)
         elif isinstance(op, PutLayout):
             self._layouts.append(op)
         elif isinstance(op, DeleteSamples):

@@ -23,5 +23,14 @@ class Appender(ABC):
     @abstractmethod
     def rollback(self) -> None: ...
 
+    def refuses(self, exc: BaseException) -> bool:
+        """Did ``commit`` fail with ``exc`` because of what was staged (a
+        value the database cannot hold, a constraint it breaks), so that the
+        same operation would fail again however often it is tried? False
+        for the database's own trouble (unreachable, disk full, busy), which
+        passes. The group committer sets such an operation aside
+        (``NotStorable``) instead of failing every retry with 503."""
+        return False
+
     def close(self) -> None:  # noqa: B027 - optional hook
         pass

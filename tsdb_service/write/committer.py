@@ -12,6 +12,15 @@ commit's outcome is unknown) raises ``Unavailable`` instead: the group is
 answered with that error as it stands, never retried, because a retry after a
 commit that did land would store everything twice.
 
+**Poison.** A lone operation that fails ``SINGLE_OP_ATTEMPTS`` times, with
+an error its appender says is the content's (``Appender.refuses``: a value
+the database cannot hold, a constraint it breaks), or while the operations
+of its group committed one by one beside it, will never be stored:
+its caller gets ``NotStorable`` (4xx), not a 503 inviting a retry that
+cannot succeed, and keeps the notification in the rejected store (HTTP
+answers 422; MQTT acknowledges it). ``poisoned`` counts them for
+``/metrics`` and ``/health``. Any other failure is still ``Unavailable``.
+
 Several writer threads may share the queue. A commit is mostly waiting (for
 the log's fsync, for the GIL held by the event loop), so while one writer
 waits another can build and send the next group: throughput scales with
@@ -34,7 +43,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import Future as SyncFuture
 from typing import Protocol
 
-from tsdb_service.core.errors import Unavailable
+from tsdb_service.core.errors import NotStorable, Unavailable, first_line
 from tsdb_service.write.appender import Appender
 from tsdb_service.write.ops import AppendSamples, WriteOp
 
@@ -77,6 +86,8 @@ class GroupCommitter:
         self.commits = 0
         self.ops = 0
         self.observer: CommitObserver | None = None
+        self.poisoned = 0  # operations set aside as NotStorable
+        self.last_poison: tuple[float, str] | None = None  # (time.time(), the database's reason)
         self._threads = [threading.Thread(target=self._run, name=f"{name}-{i}", daemon=True) for i in range(threads)]
         self._started = threading.Semaphore(0)
         self._count_lock = threading.Lock()
@@ -174,40 +185,87 @@ class GroupCommitter:
             if not isinstance(waiter.op, AppendSamples):
                 self._commit_group(appender, [waiter])
 
-    def _commit_group(self, appender: Appender, group: list[_Waiter], attempt: int = 1) -> None:
+    def _commit_group(self, appender: Appender, group: list[_Waiter]) -> None:
+        """Commit ``group`` in one transaction; if it fails, each op alone
+        (the ones that fail again retried, then set aside or refused)."""
+        exc = self._try(appender, group)
+        if exc is None:
+            return
+        if isinstance(exc, Unavailable):
+            self._unavailable(group, exc)
+            return
+        if len(group) == 1:
+            self._retry_alone(appender, group[0], exc, others_committed=False)
+            return
+        log.warning("group commit of %d ops failed; retrying one by one", len(group))
+        failures = [(waiter, failure) for waiter in group if (failure := self._try(appender, [waiter])) is not None]
+        others_committed = len(failures) < len(group)
+        for waiter, failure in failures:
+            if isinstance(failure, Unavailable):
+                self._unavailable([waiter], failure)
+            else:
+                self._retry_alone(appender, waiter, failure, others_committed)
+
+    def _retry_alone(self, appender: Appender, waiter: _Waiter, exc: Exception, others_committed: bool) -> None:
+        """A lone op that failed once: tried again (a transient conflict with
+        another writer passes); failing every time, it is poison when the
+        appender says the content is at fault, or when the ops committed
+        beside it show the database takes writes; else 503."""
+        for attempt in range(1, SINGLE_OP_ATTEMPTS):
+            time.sleep(0.005 * attempt)
+            failure = self._try(appender, [waiter])
+            if failure is None:
+                return
+            if isinstance(failure, Unavailable):
+                self._unavailable([waiter], failure)
+                return
+            exc = failure
+        if others_committed or appender.refuses(exc):
+            self._poisoned([waiter], exc)
+            return
+        log.error("write failed", exc_info=exc)
+        self._tell("failed_ops", [waiter])
+        _resolve([waiter], Unavailable("the write could not be committed; nothing was stored"))
+
+    def _try(self, appender: Appender, group: list[_Waiter]) -> Exception | None:
+        """Stage and commit ``group`` once: None once it is committed (and
+        its waiters answered), else the failure (rolled back, unanswered)."""
         start = time.perf_counter()
         try:
             for waiter in group:
                 appender.stage(waiter.op)
             appender.commit()
-        except Unavailable as exc:
-            # The appender says what happened (nothing stored, or unknown).
+        except Exception as exc:
             appender.rollback()
-            log.debug("write of %d ops refused: %s", len(group), exc.description)
-            self._tell("failed_ops", group)
-            _resolve(group, exc)
-            return
-        except Exception:
-            appender.rollback()
-            if len(group) > 1:
-                log.warning("group commit of %d ops failed; retrying one by one", len(group))
-                for waiter in group:
-                    self._commit_group(appender, [waiter])
-                return
-            if attempt < SINGLE_OP_ATTEMPTS:
-                # A lone op can meet a transient conflict with another writer.
-                time.sleep(0.005 * attempt)
-                self._commit_group(appender, group, attempt + 1)
-                return
-            log.exception("write failed")
-            self._tell("failed_ops", group)
-            _resolve(group, Unavailable("the write could not be committed; nothing was stored"))
-            return
+            return exc
         with self._count_lock:
             self.commits += 1
             self.ops += len(group)
         self._tell("committed", group, time.perf_counter() - start)
         _resolve(group, None)
+        return None
+
+    def _unavailable(self, group: list[_Waiter], exc: Unavailable) -> None:
+        """The appender says what happened (nothing stored, or unknown): never retried."""
+        log.debug("write of %d ops refused: %s", len(group), exc.description)
+        self._tell("failed_ops", group)
+        _resolve(group, exc)
+
+    def _poisoned(self, group: list[_Waiter], exc: Exception) -> None:
+        """The database refused this lone op for its content, every time:
+        its caller sets it aside (rejected store) and the rest goes on."""
+        reason = first_line(exc)
+        kind = type(group[0].op).__name__
+        log.error("the database refused a write (%s) %d times for its content: %s", kind, SINGLE_OP_ATTEMPTS, reason)
+        with self._count_lock:
+            self.poisoned += 1
+            self.last_poison = (time.time(), reason)
+        _resolve(
+            group,
+            NotStorable(
+                f"the database refused to store this ({reason}); it is not retried and nothing of it was stored"
+            ),
+        )
 
     def _tell(self, event: str, group: list[_Waiter], *args) -> None:
         """Report to the observer; its failure must never stop a writer."""

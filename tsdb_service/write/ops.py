@@ -67,6 +67,16 @@ class RecordRejected:
 
 
 @dataclass(frozen=True, slots=True)
+class RecordDelivery:
+    """Record an MQTT delivery that stores nothing else: the consumer's mark
+    of a new broker session, whose ``prune_below`` forgets every earlier
+    delivery of its client id (``ingest.mqtt``). Not a sample write, so it
+    never goes through the ingest log."""
+
+    delivery: Delivery
+
+
+@dataclass(frozen=True, slots=True)
 class PutLayout:
     tenant: str
     subscription_id: str
@@ -105,4 +115,4 @@ class ReplaceInstance:
     modified_at: datetime
 
 
-WriteOp = AppendSamples | RecordRejected | PutLayout | DeleteSamples | DeleteInstance | ReplaceInstance
+WriteOp = AppendSamples | RecordRejected | RecordDelivery | PutLayout | DeleteSamples | DeleteInstance | ReplaceInstance

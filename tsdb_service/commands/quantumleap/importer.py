@@ -28,7 +28,14 @@ many samples as others wrote).
 Duplicate rows (QuantumLeap does not deduplicate; a duplicate differs only
 in ``instanceid``) are counted and imported once, unless ``keep_duplicates``.
 Rows that cannot be imported (a failed batch's unparseable entity, a row
-with every attribute NULL) are counted and reported with the first few.
+with every attribute NULL, no usable ``time_index``, an entity id, type or
+service path the API refuses) are counted and reported with the first few;
+so are tables (a tenant the API refuses, a malformed ``md_ets_metadata``
+entry, a table without QuantumLeap's columns), attributes (a name the API
+refuses, a column the table lacks) and single values (larger than
+``max_value_bytes``, a time Python cannot hold, a NUL). Whatever the
+tables hold, the import ends in a report or one error line, never a
+traceback, in bounded memory (``reader``; batches are cut by bytes too).
 """
 
 from __future__ import annotations
@@ -41,21 +48,36 @@ from dataclasses import dataclass, field
 from datetime import datetime
 
 from tsdb_service.commands.inorder import InOrder
-from tsdb_service.commands.quantumleap.reader import PAGE_ROWS, QuantumLeapReader, Window
+from tsdb_service.commands.quantumleap.reader import (
+    MAX_VALUE_BYTES,
+    PAGE_ROWS,
+    REFUSED_CELLS,
+    QuantumLeapReader,
+    Window,
+)
 from tsdb_service.commands.quantumleap.rows import (
     HOUSEKEEPING,
+    ID,
     ORIGINAL_ENTITY,
+    TIME_INDEX,
+    TYPE,
+    Dropped,
+    SkippedTable,
     TableMeta,
     Unreadable,
     duplicate_key,
+    iso,
     row_to_entity,
+    to_datetime,
 )
 from tsdb_service.core.model import EntitySample
 from tsdb_service.storage.store import CopyRun, Store
 from tsdb_service.write.ops import AppendSamples
 
 BATCH_SAMPLES = 50_000
+BATCH_BYTES = 64 * 1024 * 1024  # a batch is committed once its values weigh this much, whatever its samples
 SHOWN_PROBLEMS = 5
+_REQUIRED = (ID, TYPE, TIME_INDEX)  # a table without them is not QuantumLeap's
 PROGRESS_EVERY_S = 0.5
 _SEP = "\t"
 
@@ -82,6 +104,10 @@ class TableReport:
     unreadable: int = 0
     problems: list[Unreadable] = field(default_factory=list)
     by_type: dict[str, list[int]] = field(default_factory=dict)  # type as notified → [rows, samples]
+    refused_attrs: dict[str, str] = field(default_factory=dict)  # column → why it is not imported
+    dropped: int = 0  # single values left out of rows that were imported
+    dropped_shown: list[Dropped] = field(default_factory=list)
+    skipped: str | None = None  # why nothing of the table is imported
 
 
 @dataclass
@@ -90,6 +116,7 @@ class ImportReport:
     dry_run: bool
     totals: dict[tuple[str, str], tuple[int, int]] = field(default_factory=dict)  # checked in the target
     resumed_from: int = 0  # samples already imported by an interrupted run
+    skipped: list[SkippedTable] = field(default_factory=list)  # md_ets_metadata entries not imported
 
     @property
     def samples(self) -> int:
@@ -128,12 +155,19 @@ def import_quantumleap(
     progress: bool = False,
     batch_samples: int = BATCH_SAMPLES,
     page_rows: int = PAGE_ROWS,
+    max_value_bytes: int = MAX_VALUE_BYTES,
 ) -> ImportReport:
     """Import QuantumLeap's history from ``source_url`` into ``target`` (not
     touched, and may be None, when ``dry_run``); the report, verified."""
     reader = QuantumLeapReader(source_url)
     try:
         tables = [m for m in reader.tables() if selection.keeps(m)]
+        skipped = list(reader.skipped)
+        if not tables and skipped:
+            raise ImportRefused(
+                f"{reader.where} has no QuantumLeap table that can be imported: "
+                + "; ".join(f"{t.name}: {t.reason}" for t in skipped[:SHOWN_PROBLEMS])
+            )
         if not tables:
             raise ImportRefused(
                 f"{reader.where} has no QuantumLeap table for {selection.describe() or 'any tenant and type'}"
@@ -146,10 +180,11 @@ def import_quantumleap(
             source_id = _source_id(reader.where, selection, keep_duplicates)
             run = _resume_or_start(target, source_id, sum(source_rows.values()), append, selection.window.end)
         job = _Job(reader, target, run, selection.window.end, keep_duplicates, progress, batch_samples, page_rows)
+        job.max_value_bytes = max_value_bytes
         reports = job.run(tables, source_rows, selection.window)
     finally:
         reader.close()
-    report = ImportReport(reports, dry_run, resumed_from=job.skip)
+    report = ImportReport(reports, dry_run, resumed_from=job.skip, skipped=skipped)
     if target is not None and run is not None:
         report.totals = _verify(target, run, reports, selection.window.end)
         target.copy_run_finish(run.source)
@@ -212,6 +247,8 @@ class _Job:
         self.skip = 0
         self.seen = 0  # samples passed, skipped or written
         self.batch: list[EntitySample] = []
+        self.batch_bytes = 0
+        self.max_value_bytes = MAX_VALUE_BYTES
         self.writes = InOrder(target.write_sync if target is not None else lambda ops: None, "ql-import")
         self.batch_n = 0
         self.rows_done = 0
@@ -227,10 +264,14 @@ class _Job:
         try:
             for meta in tables:
                 report = TableReport(meta.name, meta.tenant, source_rows[meta.name])
-                columns = self._columns(meta)
-                for group in _instants(self.reader.pages(meta, columns, window, self.page_rows)):
-                    self._group(meta, group, report)
                 reports.append(report)
+                columns = self._columns(meta, report)
+                if columns is None:
+                    continue
+                self._untimed(meta, window, report)
+                pages = self.reader.pages(meta, columns, window, self.page_rows, self.max_value_bytes)
+                for group in _instants(pages):
+                    self._group(meta, group, report)
             self._flush(last=True)
         finally:
             self.writes.close()  # a batch in flight (e.g. at Ctrl-C) ends committed or not, never half
@@ -244,16 +285,42 @@ class _Job:
             )
         return reports
 
-    def _columns(self, meta: TableMeta) -> list[str]:
+    def _columns(self, meta: TableMeta, report: TableReport) -> list[str] | None:
+        """The columns to read; None (and ``report.skipped`` says why) when
+        the table lacks QuantumLeap's own. Attributes md_ets_metadata names
+        that are refused, or missing from the table, are reported."""
         present = set(self.reader.columns(meta))
+        missing = [c for c in _REQUIRED if c not in present]
+        if missing:
+            report.skipped = f"the table has no {', '.join(missing)} column: not a QuantumLeap table"
+            report.unreadable = report.source_rows
+            return None
+        report.refused_attrs.update(meta.refused)
+        for column, (name, _) in meta.attrs.items():
+            if column not in present:
+                report.refused_attrs[column] = (
+                    f"attribute {name[:80]!r}: md_ets_metadata names it, the table has no such column"
+                )
         wanted = (HOUSEKEEPING - {"instanceid"}) | set(meta.attrs)
         return sorted(c for c in wanted if c in present)
+
+    def _untimed(self, meta: TableMeta, window: Window, report: TableReport) -> None:
+        """Rows without a usable time index: counted, never read."""
+        n = self.reader.untimed(meta, window)
+        if n:
+            report.unreadable += n
+            why = "time_index is NULL, infinity or outside the years 1 to 9999"
+            report.problems.append(Unreadable(meta.name, f"{n} rows", "-", why))
 
     def _group(self, meta: TableMeta, rows: list[dict], report: TableReport) -> None:
         """One instant of one table: its entities, each duplicate once."""
         entities, seen = [], set()
         for row in rows:
-            entity = row_to_entity(meta, row, self.reader.dialect)
+            dropped: list[Dropped] = []
+            entity = _refused_cells(meta, row, dropped) or row_to_entity(meta, row, self.reader.dialect, dropped)
+            if dropped:
+                report.dropped += len(dropped)
+                report.dropped_shown += dropped[: SHOWN_PROBLEMS - len(report.dropped_shown)]
             if isinstance(entity, Unreadable):
                 report.unreadable += 1
                 if len(report.problems) < SHOWN_PROBLEMS:
@@ -290,13 +357,14 @@ class _Job:
             return
         self.batch.extend(entities)
         self.batch_n += n
-        if self.batch_n >= self.batch_samples:
+        self.batch_bytes += sum(_weight(e) for e in entities)
+        if self.batch_n >= self.batch_samples or self.batch_bytes >= BATCH_BYTES:
             self._flush()
 
     def _flush(self, last: bool = False) -> None:
         """Commit the batch in the background while the next one is read
         (one at a time, in order: the target always holds a prefix)."""
-        batch, self.batch, self.batch_n = self.batch, [], 0
+        batch, self.batch, self.batch_n, self.batch_bytes = self.batch, [], 0, 0
         if batch and self.target is not None:
             self.writes.submit([AppendSamples(batch, dedup=False)])  # once the previous batch is committed
         if last:
@@ -318,6 +386,29 @@ class _Job:
             file=sys.stderr,
             flush=True,
         )
+
+
+def _refused_cells(meta: TableMeta, row: dict, dropped: list[Dropped]) -> Unreadable | None:
+    """The cells the reader left out of ``row`` (``REFUSED_CELLS``): an
+    attribute's value is dropped (the rest of the row imported); the
+    entity's own columns make the row unreadable."""
+    refused = row.pop(REFUSED_CELLS, None)
+    if not refused:
+        return None
+    moment = to_datetime(row.get(TIME_INDEX))
+    at = iso(moment) if moment is not None else str(row.get(TIME_INDEX))
+    eid = row.get(ID) if isinstance(row.get(ID), str) else None
+    for column, why in refused:
+        if column in meta.attrs:
+            dropped.append(Dropped(meta.attrs[column][0], (eid or "?")[:200], at, why))
+        elif column != ORIGINAL_ENTITY or not any(row.get(c) is not None for c in meta.attrs):
+            return Unreadable(meta.name, eid and eid[:200], at, f"column {column}: {why}")
+    return None
+
+
+def _weight(entity: EntitySample) -> int:
+    """About what an entity's values weigh in memory, for cutting batches."""
+    return sum(64 + len(a.txt or "") + len(a.js or "") for a in entity.attrs)
 
 
 def _only_original(meta: TableMeta, row: dict) -> bool:

@@ -62,8 +62,12 @@ class _Pieces:
         return out
 
 
-CSV_SCHEMA = SCHEMA.set(0, pa.field("time", pa.string(), nullable=False))
-_TEXT_COLUMNS = [i for i, f in enumerate(SCHEMA) if i > 0 and pa.types.is_string(f.type)]
+def csv_schema(schema: pa.Schema) -> pa.Schema:
+    """``schema`` with its first column, the time, as ISO text."""
+    return schema.set(0, pa.field("time", pa.string(), nullable=False))
+
+
+CSV_SCHEMA = csv_schema(SCHEMA)
 _FORMULA = r"^[=+\-@\t\r]"  # what a spreadsheet may read as a formula (OWASP CSV injection)
 
 
@@ -84,29 +88,31 @@ def iso_times(times: pa.Array) -> pa.Array:
 class Encoder:
     """``encode(batch)`` → the bytes it adds; ``finish()`` → the rest."""
 
-    def __init__(self, fmt: ExportFormat, raw: bool = False, tenant: str = "") -> None:
+    def __init__(self, fmt: ExportFormat, raw: bool = False, schema: pa.Schema = SCHEMA, tenant: str = "") -> None:
         self._sink = _Pieces()
         self._csv = fmt is ExportFormat.CSV
         self._neutralise = self._csv and not raw
+        self._schema = csv_schema(schema) if self._csv else schema
+        self._text = [i for i, f in enumerate(schema) if i > 0 and pa.types.is_string(f.type)]
         self._mcap = None
         if fmt is ExportFormat.MCAP:  # its own encoder (faces.export.mcap), naming the tenant
             from tsdb_service.faces.export.mcap import McapEncoder
 
             self._mcap = McapEncoder(tenant)
         elif self._csv:
-            self._writer = pa_csv.CSVWriter(self._sink, CSV_SCHEMA)
+            self._writer = pa_csv.CSVWriter(self._sink, self._schema)
         else:
-            self._writer = pq.ParquetWriter(self._sink, SCHEMA, compression="zstd")
+            self._writer = pq.ParquetWriter(self._sink, schema, compression="zstd")
 
     def encode(self, batch: pa.RecordBatch) -> bytes:
         if self._mcap is not None:
             return self._mcap.encode(batch)
         if batch.num_rows:
             if self._csv:
-                batch = batch.set_column(0, CSV_SCHEMA.field(0), iso_times(batch.column(0)))
+                batch = batch.set_column(0, self._schema.field(0), iso_times(batch.column(0)))
             if self._neutralise:
-                for i in _TEXT_COLUMNS:
-                    batch = batch.set_column(i, CSV_SCHEMA.field(i), neutralised(batch.column(i)))
+                for i in self._text:
+                    batch = batch.set_column(i, self._schema.field(i), neutralised(batch.column(i)))
             self._writer.write_batch(batch)
         return self._sink.take()
 
@@ -119,7 +125,7 @@ class Encoder:
 
 def chunks(stream: SampleStream, fmt: ExportFormat, raw: bool = False, tenant: str = "") -> Iterator[bytes]:
     """The encoded export, one piece per batch (blocking: run it in a thread)."""
-    encoder = Encoder(fmt, raw, tenant)
+    encoder = Encoder(fmt, raw, stream.schema, tenant)
     while (batch := stream.next_batch()) is not None:
         piece = encoder.encode(batch)
         if piece:

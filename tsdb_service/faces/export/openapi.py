@@ -19,6 +19,12 @@ EXPORT = [
         "leading ' so a spreadsheet does not run it as a formula (OWASP CSV injection).",
         {"type": "boolean", "default": False},
     ),
+    query(
+        "bucket",
+        "A width (10s, 5min, 1h, 1d; ms, s, min, h, d): one row per series and time bucket (from the epoch, UTC) "
+        "with n, avg, min, max, first, last of its numbers instead of one row per sample.",
+        {"type": "string", "pattern": "^[1-9][0-9]{0,9}(ms|s|min|m|h|d)$"},
+    ),
 ]
 
 

@@ -10,8 +10,10 @@ whole tenant.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
+from datetime import timedelta
 from enum import Enum
 
 from tsdb_service.core.errors import BadRequest
@@ -39,7 +41,10 @@ _MEDIA_TYPES = {
     ExportFormat.PARQUET: "application/vnd.apache.parquet",
     ExportFormat.MCAP: "application/x-mcap",
 }
-PARAMETERS = ("format", "type", "id", "idPattern", "attrs", "fromDate", "toDate", "raw")
+PARAMETERS = ("format", "type", "id", "idPattern", "attrs", "fromDate", "toDate", "raw", "bucket")
+_WIDTH = re.compile(r"^([1-9][0-9]{0,9})(ms|s|min|m|h|d)$")
+_UNITS = {"ms": 1e-3, "s": 1, "min": 60, "m": 60, "h": 3600, "d": 86400}
+LONGEST_BUCKET = timedelta(days=366)
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,6 +58,7 @@ class ExportQuery:
     time: TimeRange
     format: ExportFormat = ExportFormat.CSV
     raw: bool = False  # CSV cells as stored, formulas included (encode.neutralised)
+    bucket: timedelta | None = None  # one row per series and bucket of this width (``stream.BUCKET_SCHEMA``)
 
 
 def export_format(raw: str | None, default: ExportFormat = ExportFormat.CSV) -> ExportFormat:
@@ -70,14 +76,32 @@ def export_query(params: Mapping[str, str], headers: Mapping[str, str], tenant: 
     if unknown:
         raise BadRequest(f"unknown parameter {unknown[0][:40]!r}; export takes {', '.join(PARAMETERS)}")
     get = params.get
-    return ExportQuery(
+    query = ExportQuery(
         scope=scope(headers, tenant),
         entities=entity_filter(params),
         attrs=_attr_names(get("attrs")),
         time=time_range(get("fromDate"), get("toDate")),
         format=export_format(get("format")),
         raw=_flag(get("raw"), "raw"),
+        bucket=bucket_width(get("bucket")),
     )
+    if query.format is ExportFormat.MCAP and query.bucket is not None:
+        raise BadRequest("bucket exports aggregates, as csv or parquet; mcap exports the samples themselves")
+    return query
+
+
+def bucket_width(raw: str | None) -> timedelta | None:
+    """``bucket``: ``500ms``, ``10s``, ``5min`` (or ``5m``), ``1h``, ``1d``; buckets
+    start at multiples of it from the Unix epoch (UTC), as the charts' do."""
+    if raw in (None, ""):
+        return None
+    match = _WIDTH.match(raw.strip())
+    if match is None:
+        raise BadRequest(f"bucket must be a width such as 10s, 5min, 1h or 1d (ms, s, min, h, d), not {raw[:40]!r}")
+    width = timedelta(seconds=int(match.group(1)) * _UNITS[match.group(2)])
+    if width > LONGEST_BUCKET:
+        raise BadRequest(f"bucket is at most {LONGEST_BUCKET.days} days, not {raw[:40]!r}")
+    return width
 
 
 def _flag(raw: str | None, name: str) -> bool:

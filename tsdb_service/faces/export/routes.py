@@ -37,7 +37,10 @@ router = APIRouter(tags=["export"])
         "fromDate, toDate, raw; tenant from Fiware-Service / Fiware-ServicePath. Columns: time (UTC, µs), "
         "entity_id, entity_type, service_path, attribute, ngsi_type, value_number, value_text, "
         "value_bool, value_json (exactly one value column set per sample). CSV text cells starting with "
-        "=, +, -, @, tab or CR get a leading ' (CSV injection); raw=true writes them as stored."
+        "=, +, -, @, tab or CR get a leading ' (CSV injection); raw=true writes them as stored. "
+        "bucket=WIDTH (10s, 5min, 1h, 1d ...): one row per series and time bucket (from the epoch, UTC) with "
+        "the count, average, minimum, maximum, first and last of its numbers, computed by the database: time "
+        "(the bucket's start), entity_id, entity_type, service_path, attribute, n, avg, min, max, first, last."
     ),
     response_class=StreamingResponse,
     **export_oa.EXPORT_SPEC,
@@ -48,7 +51,7 @@ async def export(request: Request) -> StreamingResponse:
     stream = await store.read(partial(open_export, store, query), memory_first=False)
     filename = f"tsdb-export{query.format.suffix}"
     return StreamingResponse(
-        _body(store, stream, Encoder(query.format, query.raw, query.scope.tenant)),
+        _body(store, stream, Encoder(query.format, query.raw, stream.schema, query.scope.tenant)),
         media_type=query.format.media_type,
         headers={"Content-Disposition": f'attachment; filename="{filename}"'},
     )

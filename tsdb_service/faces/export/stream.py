@@ -10,21 +10,31 @@ time window of about ``WINDOW_ROWS`` samples at a time (it sorts in
 memory), PostgreSQL streams a server-side cursor. Here the columns become
 record batches in ``SCHEMA``.
 
+With a bucket width (``ExportQuery.bucket``) the rows are the database's
+time buckets instead (``BucketReader.buckets``, in ``BUCKET_SCHEMA``): one
+per series and bucket holding numbers, ordered by bucket, then entity and
+attribute, read a piece of the window at a time (at most ``BATCH_ROWS``
+buckets), skipping stretches without samples.
+
 Every call here blocks: callers run it in a thread, never on the event loop.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack
+from datetime import UTC, datetime, timedelta
 from functools import partial
 
 import pyarrow as pa
 
+from tsdb_service.core.buckets import bucket_start
+from tsdb_service.core.query import SeriesRef, TimeRange
 from tsdb_service.faces.export.query import ExportQuery
-from tsdb_service.read import Reader
+from tsdb_service.read import Querier, Reader
+from tsdb_service.read.buckets import BucketRead, BucketRow
 from tsdb_service.read.bulk import EXPORT_COLUMNS, SampleBatches
-from tsdb_service.read.requests import ExportRead, SeriesSelect
+from tsdb_service.read.requests import ExportRead, SamplesIn, SeriesSelect
 
 BATCH_ROWS = 131_072
 WINDOW_ROWS = 1_000_000  # DuckDB: samples sorted at once (``Querier.export_batches``)
@@ -50,6 +60,25 @@ SCHEMA = pa.schema(
 _AFTER_TIME = list(SCHEMA)[1:]  # every column after the time
 assert tuple(SCHEMA.names) == EXPORT_COLUMNS
 
+# ``bucket=``: one row per series and bucket (docs/operations.md, "Export").
+BUCKET_SCHEMA = pa.schema(
+    [
+        pa.field("time", UTC_MICROS, nullable=False),  # the bucket's start
+        pa.field("entity_id", pa.string(), nullable=False),
+        pa.field("entity_type", pa.string(), nullable=False),
+        pa.field("service_path", pa.string(), nullable=False),
+        pa.field("attribute", pa.string(), nullable=False),
+        pa.field("n", pa.int64(), nullable=False),  # numeric samples in the bucket
+        pa.field("avg", pa.float64(), nullable=False),
+        pa.field("min", pa.float64(), nullable=False),
+        pa.field("max", pa.float64(), nullable=False),
+        pa.field("first", pa.float64(), nullable=False),
+        pa.field("last", pa.float64(), nullable=False),
+    ]
+)
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+_US = timedelta(microseconds=1)
+
 
 class SampleStream:
     """Record batches in ``SCHEMA``; ``next_batch()`` is None at the end.
@@ -58,10 +87,11 @@ class SampleStream:
     a pooled connection in a transaction) until ``close()``; use it as a
     context manager, from one thread at a time, never on the event loop."""
 
-    def __init__(self) -> None:
+    def __init__(self, schema: pa.Schema = SCHEMA) -> None:
         self._resources = ExitStack()
         self._next: Callable[[], pa.RecordBatch | None] = _nothing
         self.rows = 0
+        self.schema = schema
 
     def next_batch(self) -> pa.RecordBatch | None:
         batch = self._next()
@@ -89,6 +119,11 @@ def open_export(store: Reader, query: ExportQuery) -> SampleStream:
     what the database needs to produce the first batch."""
     querier = store.querier()
     refs = querier.series(SeriesSelect(query.scope, query.entities, query.attrs))
+    if query.bucket is not None:
+        stream = SampleStream(BUCKET_SCHEMA)
+        if refs:
+            stream._next = partial(next, _bucket_batches(querier, refs, query.time, query.bucket), None)
+        return stream
     stream = SampleStream()
     if not refs:
         return stream
@@ -111,3 +146,55 @@ def _conform(columns) -> pa.RecordBatch:
     out = [columns[0].cast(pa.int64()).cast(UTC_MICROS)]
     out += [col.cast(field.type) for col, field in zip(columns[1:], _AFTER_TIME, strict=True)]
     return pa.RecordBatch.from_arrays(out, schema=SCHEMA)
+
+
+def _bucket_batches(
+    querier: Querier, refs: Sequence[SeriesRef], time: TimeRange, width: timedelta
+) -> Iterator[pa.RecordBatch]:
+    """The buckets of ``refs`` in ``time``, a piece of the window at a time:
+    each piece at most ``BATCH_ROWS`` buckets (series x buckets), starting at
+    the first sample after the last piece (``span``)."""
+    sids = sorted({ref.sid for ref in refs})
+    by_sid = {ref.sid: ref for ref in refs}
+    per_piece = width * max(1, BATCH_ROWS // len(sids))
+    end = time.end
+    start = time.start
+    while True:
+        found = querier.span(SamplesIn(sids, TimeRange(start, end)))
+        if found is None:
+            return
+        first = bucket_start(_EPOCH + found[0] * _US, width)
+        stop = first + per_piece - _US
+        last = _EPOCH + found[1] * _US
+        if stop >= last:
+            stop = last
+        piece = TimeRange(first if start is None else max(first, start), stop)
+        rows = querier.buckets(BucketRead(sids, piece, width, extreme_times=False))
+        if rows:
+            yield _bucket_batch(rows, by_sid)
+        if stop >= last:
+            return
+        start = stop + _US
+
+
+def _bucket_batch(rows: list[BucketRow], by_sid: dict[int, SeriesRef]) -> pa.RecordBatch:
+    def order(row: BucketRow) -> tuple:
+        ref = by_sid[row.sid]
+        return (row.start, ref.entity_type, ref.entity_id, ref.attr, ref.service_path)
+
+    rows = sorted(rows, key=order)
+    refs = [by_sid[row.sid] for row in rows]
+    columns = [
+        pa.array([row.start for row in rows], type=pa.int64()).cast(UTC_MICROS),
+        pa.array([ref.entity_id for ref in refs], type=pa.string()),
+        pa.array([ref.entity_type for ref in refs], type=pa.string()),
+        pa.array([ref.service_path for ref in refs], type=pa.string()),
+        pa.array([ref.attr for ref in refs], type=pa.string()),
+        pa.array([row.n for row in rows], type=pa.int64()),
+        pa.array([row.total / row.n for row in rows], type=pa.float64()),
+        pa.array([row.min for row in rows], type=pa.float64()),
+        pa.array([row.max for row in rows], type=pa.float64()),
+        pa.array([row.first for row in rows], type=pa.float64()),
+        pa.array([row.last for row in rows], type=pa.float64()),
+    ]
+    return pa.RecordBatch.from_arrays(columns, schema=BUCKET_SCHEMA)

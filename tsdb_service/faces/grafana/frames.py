@@ -1,28 +1,39 @@
 """Flat rows for Grafana, computed on top of the history layer.
 
 Every function here builds frozen history queries, runs them through
-``history.service`` on the store's querier, and post-processes the per-entity
-results in Python into the flat JSON rows dashboards read:
+``history`` on the store's querier, and shapes the per-entity results into
+the flat JSON rows dashboards read. What draws a window reads time buckets
+the database computed (``history.drawing``), never the window's samples:
 
-* ``series``: samples of some columns, downsampled to at most ``max_points``
-  per entity (avg for numbers, last for states);
+* ``series``: columns over a window in a point budget (``history.drawing``:
+  buckets in a ``Mode``, gaps as nulls or filled, raw samples when they fit);
 * ``latest``: the latest value of each column per entity;
-* ``states``: only the rows where a state changes (for state timelines);
-* ``events``: runs of samples meeting a condition (annotations);
-* ``positions``: time, entity, lat, lon and chosen columns (geomap);
+* ``states``: only the rows where a state changes (for state timelines),
+  from the database's transitions;
+* ``events``: runs of samples meeting a condition (annotations), from the
+  same transitions;
+* ``positions``: time, entity, lat, lon and chosen columns (geomap): the
+  samples when at most ``max_points`` a series, else the last position of
+  each bucket;
 * ``aggregate``: one aggregate per entity (or per period), in SQL.
 
-No SQL is written here and nothing touches storage directly.
+Each answer that draws comes as a ``Shown``: its rows, the bucket width
+(None: raw samples) and the notices saying what a cap left out (the routes
+put both in headers). No SQL is written here and nothing touches storage
+directly.
 """
 
 from __future__ import annotations
 
-import math
+import bisect
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from datetime import timedelta
 
 import orjson
 
+from tsdb_service.core import budget
+from tsdb_service.core.buckets import choose_width
 from tsdb_service.core.query import (
     Aggregation,
     AggrMethod,
@@ -32,30 +43,56 @@ from tsdb_service.core.query import (
     HistoryQuery,
     LastValueQuery,
     Scope,
+    SeriesRef,
     Shape,
     TimeRange,
     ValuePath,
 )
-from tsdb_service.core.timefmt import epoch_ms, iso_z, ms_of, z_of
+from tsdb_service.core.timefmt import iso_z_ms, ms_of_iso, z_of
 from tsdb_service.faces.grafana.params import Column
 from tsdb_service.geo.encodings import from_geojson, parse_lat_lon
+from tsdb_service.history.drawing import (
+    Drawing,
+    DrawQuery,
+    Fill,
+    Line,
+    Mode,
+    Track,
+    changes_lines,
+    draw,
+    extracted,
+    path_reads,
+    resolve_window,
+    window_range,
+)
 from tsdb_service.history.service import run_history, run_last_values
+from tsdb_service.history.valuepath import extract
+from tsdb_service.http.responses import drawn_headers
 from tsdb_service.read import HistoryReads
+from tsdb_service.read.buckets import BucketRead
+from tsdb_service.read.requests import SamplesIn, SeriesSelect
 
-# Raw samples read for one request at most (newest kept): bounds memory and
-# time on very long ranges. Downsampling happens after this read.
-MAX_RAW_ROWS = 500_000
-AGGREGATIONS = ("auto", "avg", "last", "first", "min", "max", "sum", "count")
+AGGREGATIONS = tuple(mode.value for mode in Mode)
+FILLS = tuple(fill.value for fill in Fill)
+# Transitions one events request reads per column, the newest kept: past it
+# the answer says which events were left out.
+EVENT_CHANGES = 100_000
+# GeoJSON point coordinates: the numbers a thinned track reads.
+_LON, _LAT = ("coordinates", 0), ("coordinates", 1)
 
 
 @dataclass(slots=True)
-class EntitySeries:
-    """One entity's samples: parallel time and column lists, oldest first."""
+class Shown:
+    """What an endpoint answers: rows, the bucket width (None: raw samples or
+    nothing drawn in buckets) and what was left out, in words."""
 
-    entity_id: str
-    entity_type: str
-    times: list[int] = field(default_factory=list)  # epoch ms
-    columns: dict[str, list] = field(default_factory=dict)
+    rows: list[dict]
+    width: timedelta | None = None
+    notices: list[str] = field(default_factory=list)
+    raw: bool = False  # the samples as stored (no bucket)
+
+    def headers(self) -> dict[str, str]:
+        return drawn_headers(self.width, self.raw, self.notices)
 
 
 def short_name(entity_id: str) -> str:
@@ -64,195 +101,105 @@ def short_name(entity_id: str) -> str:
     return tail or entity_id
 
 
-# --- reading ------------------------------------------------------------------------------
-
-
-def fetch(
-    querier: HistoryReads,
-    scope: Scope,
-    entities: EntityFilter,
-    cols: Sequence[Column],
-    time: TimeRange,
-    max_rows: int = MAX_RAW_ROWS,
-) -> list[EntitySeries]:
-    """Raw samples of ``cols`` per entity, through the history service."""
-    paths = tuple(dict.fromkeys(col.path for col in cols))
-    query = HistoryQuery(
-        shape=Shape.ATTRS,
-        scope=scope,
-        entities=entities,
-        attrs=paths,
-        time=time,
-        last_n=max_rows,
-        limit=max_rows,
-    )
-    out = []
-    for ent in run_history(querier, query).entities:
-        series = EntitySeries(ent.entity_id, ent.entity_type, [epoch_ms(t) for t in ent.index])
-        size = len(series.times)
-        for col in cols:
-            values = ent.columns.get(col.path.text)
-            series.columns[col.name] = list(values) if values is not None else [None] * size
-        if any(any(v is not None for v in values) for values in series.columns.values()):
-            out.append(series)
-    return out
-
-
-# --- downsampling ---------------------------------------------------------------------------
-
-
-def _is_number(value) -> bool:
-    return type(value) in (int, float)
-
-
-def column_methods(series: EntitySeries, agg: str) -> dict[str, str]:
-    """Per column: ``auto`` is avg where the column holds floats (a measure)
-    and last otherwise (integer codes, booleans, text: states)."""
-    if agg != "auto":
-        return dict.fromkeys(series.columns, agg)
-    methods = {}
-    for name, values in series.columns.items():
-        methods[name] = "avg" if any(type(v) is float for v in values) else "last"
-    return methods
-
-
-def _reduce(method: str, values: list):
-    present = [v for v in values if v is not None]
-    if method == "count":
-        return len(present)
-    if not present:
-        return None
-    if method == "last":
-        return present[-1]
-    if method == "first":
-        return present[0]
-    numbers = [v for v in present if _is_number(v)]
-    if not numbers:
-        return None
-    if method == "avg":
-        return sum(numbers) / len(numbers)
-    if method == "min":
-        return min(numbers)
-    if method == "max":
-        return max(numbers)
-    return sum(numbers)  # sum
-
-
-def bucket_width(times: list[int], max_points: int, interval_ms: int | None, span: tuple[int, int]) -> int:
-    """The smallest width (ms, at least ``interval_ms``) giving at most
-    ``max_points`` buckets with data."""
-    start, end = span
-    width = max(interval_ms or 1, math.ceil(max(end - start, 1) / max_points), 1)
-    while True:
-        buckets, last = 0, None
-        for t in times:
-            key = t // width
-            if key != last:
-                buckets += 1
-                last = key
-                if buckets > max_points:
-                    break
-        if buckets <= max_points:
-            return width
-        width *= 2
-
-
-def downsample(
-    series: EntitySeries, max_points: int, interval_ms: int | None, agg: str, span: tuple[int, int] | None = None
-) -> EntitySeries:
-    """At most ``max_points`` samples: untouched when already that few,
-    otherwise one sample per time bucket (stamped at the bucket start)."""
-    times = series.times
-    if len(times) <= max_points:
-        return series
-    width = bucket_width(times, max_points, interval_ms, span or (times[0], times[-1]))
-    methods = column_methods(series, agg)
-    out = EntitySeries(series.entity_id, series.entity_type, [], {name: [] for name in series.columns})
-    start = 0
-    n = len(times)
-    while start < n:
-        key = times[start] // width
-        stop = start + 1
-        while stop < n and times[stop] // width == key:
-            stop += 1
-        out.times.append(key * width)
-        for name, values in series.columns.items():
-            out.columns[name].append(_reduce(methods[name], values[start:stop]))
-        start = stop
-    return out
-
-
 # --- row shapes ---------------------------------------------------------------------------------
 
 
-def rows_long(all_series: Sequence[EntitySeries], extra: Callable[[EntitySeries], dict] | None = None) -> list[dict]:
-    """``[{"time", "entity", col...}]`` ordered by time, then entity."""
-    rows = []
-    for series in all_series:
-        head = extra(series) if extra else {}
-        names = list(series.columns)
-        for i, t in enumerate(series.times):
-            row = {"time": t, "entity": series.entity_id, **head}
-            for name in names:
-                row[name] = series.columns[name][i]
-            rows.append(row)
+def rows_long(tracks: Sequence[Track], extra: Callable[[Track], dict] | None = None) -> list[dict]:
+    """``[{"time", "entity", col...}]`` ordered by time, then entity. A row
+    holds the columns with a point at its time (a null: a gap); a column
+    without a point there is left out."""
+    rows: list[dict] = []
+    for track in tracks:
+        head = extra(track) if extra else {}
+        cells: dict[tuple[int, int], dict] = {}
+        for name, line in track.lines.items():
+            for key, value in zip(_keys(line.times), line.values, strict=True):
+                row = cells.get(key)
+                if row is None:
+                    row = cells[key] = {"time": key[0], "entity": track.entity_id, **head}
+                row[name] = value
+        rows.extend(cells.values())
     rows.sort(key=lambda r: (r["time"], r["entity"]))
     for row in rows:
-        row["time"] = iso_z(row["time"])
+        row["time"] = iso_z_ms(row["time"])
     return rows
 
 
-def rows_wide(all_series: Sequence[EntitySeries]) -> list[dict]:
+def rows_wide(tracks: Sequence[Track]) -> list[dict]:
     """One row per time, one column per (entity, column): ``"Sensor01 temperature"``.
     Entities are named by the last part of their id unless two would clash."""
-    shorts = [short_name(s.entity_id) for s in all_series]
+    shorts = [short_name(t.entity_id) for t in tracks]
     clash = len(set(shorts)) != len(shorts)
-    by_time: dict[int, dict] = {}
-    names: list[str] = []
-    for series, short in zip(all_series, shorts, strict=True):
-        label = series.entity_id if clash else short
-        for name, values in series.columns.items():
+    by_time: dict[tuple[int, int], dict] = {}
+    for track, short in zip(tracks, shorts, strict=True):
+        label = track.entity_id if clash else short
+        for name, line in track.lines.items():
             column = f"{label} {name}"
-            names.append(column)
-            for t, value in zip(series.times, values, strict=True):
-                by_time.setdefault(t, {})[column] = value
-    rows = []
-    for t in sorted(by_time):
-        cells = by_time[t]
-        rows.append({"time": iso_z(t), **{name: cells.get(name) for name in names}})
-    return rows
+            for key, value in zip(_keys(line.times), line.values, strict=True):
+                by_time.setdefault(key, {})[column] = value
+    return [{"time": iso_z_ms(key[0]), **by_time[key]} for key in sorted(by_time)]
+
+
+def _keys(times: list[int]) -> list[tuple[int, int]]:
+    """(time, how many points of the line came before at that time): two
+    samples of one instant are two rows, never one written over the other."""
+    keys: list[tuple[int, int]] = []
+    for i, t in enumerate(times):
+        keys.append((t, keys[-1][1] + 1 if i and times[i - 1] == t else 0))
+    return keys
 
 
 # --- endpoints' computations ------------------------------------------------------------------------
 
 
-def series_rows(
-    querier: HistoryReads,
+def series_rows(querier: HistoryReads, query: DrawQuery, wide: bool = False) -> Shown:
+    """``series``: ``query`` drawn (``history.drawing``) as long or wide rows."""
+    drawing = draw(querier, query)
+    rows = rows_wide(drawing.tracks) if wide else rows_long(drawing.tracks)
+    return Shown(rows, drawing.width, drawing.notices, raw=drawing.width is None and drawing.window is not None)
+
+
+def series_query(
     scope: Scope,
     entities: EntityFilter,
     cols: Sequence[Column],
     time: TimeRange,
-    *,
     max_points: int,
     interval_ms: int | None,
     agg: str,
-    wide: bool = False,
-) -> list[dict]:
-    fetched = fetch(querier, scope, entities, cols, time)
-    span = _span(time)
-    sampled = [downsample(s, max_points, interval_ms, agg, _fill(span, s)) for s in fetched]
-    return rows_wide(sampled) if wide else rows_long(sampled)
+    fill: str,
+) -> DrawQuery:
+    floor = None if interval_ms is None else timedelta(milliseconds=interval_ms)
+    return DrawQuery(scope, entities, tuple(cols), time, max_points, floor, Mode(agg), Fill(fill))
 
 
-def _span(time: TimeRange) -> tuple[int | None, int | None]:
-    return ms_of(time.start), ms_of(time.end)
+def _value_lines(
+    querier: HistoryReads, refs: list[SeriesRef], cols: Sequence[Column], window: tuple[int, int], limit: int
+) -> tuple[dict[tuple[str, str], dict[str, Line]], list[str]]:
+    """Per entity, per column: the values at their transitions (and at the
+    series' last sample); the notices of transitions left out."""
+    by_sid = {r.sid: r for r in refs}
+    out: dict[tuple[str, str], dict[str, Line]] = {}
+    notices = []
+    for read in path_reads(cols, refs):
+        entities = len({by_sid[sid].entity_id for sid in read.sids})
+        lines, notice = changes_lines(querier, read, window, limit * entities)
+        if notice:
+            notices.append(notice)
+        for sid, line in lines.items():
+            ref = by_sid[sid]
+            for col in cols:
+                if col.path.attr == ref.attr and col.path.steps == read.steps:
+                    out.setdefault((ref.entity_type, ref.entity_id), {})[col.name] = extracted(line, col.path)
+    return out, notices
 
 
-def _fill(span: tuple[int | None, int | None], series: EntitySeries) -> tuple[int, int] | None:
-    if not series.times:
-        return None
-    start, end = span
-    return (series.times[0] if start is None else start, series.times[-1] if end is None else end)
+def _extracted_value(value, path: ValuePath):
+    return extract(value, path.steps) if path.steps else value
+
+
+def _selected(querier: HistoryReads, scope: Scope, entities: EntityFilter, cols: Sequence[Column]) -> list[SeriesRef]:
+    return querier.series(SeriesSelect(scope, entities, {c.path.attr for c in cols}))
 
 
 def state_rows(
@@ -263,38 +210,33 @@ def state_rows(
     time: TimeRange,
     *,
     max_points: int,
-) -> list[dict]:
-    """Rows where any column's value changes (missing values carry the
-    previous one), plus each entity's last sample, so a state timeline ends
-    where the data ends."""
-    out = []
-    for series in fetch(querier, scope, entities, cols, time):
-        changed = _changes(series)
-        if len(changed.times) > max_points:
-            changed = _changes(downsample(changed, max_points, None, "last", _fill(_span(time), changed)))
-        out.append(changed)
-    return rows_long(out)
-
-
-def _changes(series: EntitySeries) -> EntitySeries:
-    names = list(series.columns)
-    out = EntitySeries(series.entity_id, series.entity_type, [], {name: [] for name in names})
-    current: list = [None] * len(names)
-    previous: list | None = None
-    last_index = len(series.times) - 1
-    for i, t in enumerate(series.times):
-        for j, name in enumerate(names):
-            value = series.columns[name][i]
-            if value is not None:
-                current[j] = value
-        if previous is None or current != previous or i == last_index:
-            if previous is not None and current == previous and out.times and out.times[-1] == t:
-                continue
-            out.times.append(t)
-            for j, name in enumerate(names):
-                out.columns[name].append(current[j])
-            previous = list(current)
-    return out
+) -> Shown:
+    """Rows where any column's value changes (a column that did not change
+    carries its value), plus each entity's last sample, so a state timeline
+    ends where the data ends. Every transition (never averaged): at most
+    ``max_points`` per entity and column, the newest, with a notice."""
+    refs = _selected(querier, scope, entities, cols)
+    window = resolve_window(querier, [r.sid for r in refs], time) if refs else None
+    if window is None:
+        return Shown([])
+    by_entity, notices = _value_lines(querier, refs, cols, window, max_points)
+    rows: list[dict] = []
+    for (_etype, eid), lines in by_entity.items():
+        names = [c.name for c in cols if c.name in lines]
+        times = sorted({t for name in names for t in lines[name].times})
+        at = dict.fromkeys(names, 0)
+        current: dict[str, object] = dict.fromkeys(names)
+        for t in times:
+            for name in names:
+                line = lines[name]
+                while at[name] < len(line.times) and line.times[at[name]] <= t:
+                    current[name] = line.values[at[name]]
+                    at[name] += 1
+            rows.append({"time": t, "entity": eid, **current})
+    rows.sort(key=lambda r: (r["time"], r["entity"]))
+    for row in rows:
+        row["time"] = iso_z_ms(row["time"])
+    return Shown(rows, None, notices)
 
 
 def condition(equals: str | None) -> Callable[[object], bool]:
@@ -313,6 +255,98 @@ def condition(equals: str | None) -> Callable[[object], bool]:
     return lambda v: v == wanted
 
 
+def _is_number(value) -> bool:
+    return type(value) in (int, float)
+
+
+@dataclass(frozen=True, slots=True)
+class Run:
+    """A run of samples of one column meeting a condition: from its first to
+    its last sample (epoch ms), through ``values`` (each change once)."""
+
+    entity_id: str
+    column: str
+    start: int
+    end: int
+    values: tuple
+
+
+def event_runs(
+    querier: HistoryReads,
+    scope: Scope,
+    entities: EntityFilter,
+    cols: Sequence[Column],
+    time: TimeRange,
+    matches: Callable[[object], bool],
+) -> tuple[list[Run], list[str]]:
+    """The runs of every column, from the database's transitions: a run
+    starts at a transition to a matching value, goes through the matching
+    ones after it and ends at the last sample before the first that does not
+    match (``StateChange.before``), or at the series' last sample. When older
+    transitions were left out (``EVENT_CHANGES``), runs are answered from the
+    first one that surely started in what was read, and a notice says so."""
+    refs = _selected(querier, scope, entities, cols)
+    window = resolve_window(querier, [r.sid for r in refs], time) if refs else None
+    if window is None:
+        return [], []
+    from tsdb_service.history.drawing import change_value
+    from tsdb_service.read.buckets import ChangesRead
+
+    by_sid = {r.sid: r for r in refs}
+    runs: list[Run] = []
+    notices = []
+    span = window_range(window)
+    for read in path_reads(cols, refs):
+        steps, sids = read.steps, list(read.sids)
+        page = querier.state_changes(ChangesRead(sids, span, EVENT_CHANGES, steps))
+        budget.charge_rows(len(page.changes))
+        last = dict(querier.latest_index(SamplesIn(sids, span)))
+        if page.truncated and page.changes:
+            notices.append(
+                f"more than {EVENT_CHANGES} state changes in the window: events are shown from "
+                f"{iso_z_ms(page.changes[0].time // 1000)} on; narrow the window to see the older ones"
+            )
+        per_sid: dict[int, list] = {}
+        for change in page.changes:
+            per_sid.setdefault(change.sid, []).append(change)
+        for sid, changes in per_sid.items():
+            ref = by_sid[sid]
+            for col in cols:
+                if col.path.attr != ref.attr or col.path.steps != steps:
+                    continue
+                values = [_extracted_value(change_value(c), col.path) for c in changes]
+                skip_first = page.truncated  # the first kept run may have started before
+                end_of = ms_of_iso(last[sid]) if sid in last else changes[-1].time // 1000
+                runs += _runs(ref.entity_id, col.name, changes, values, matches, end_of, skip_first)
+    return runs, notices
+
+
+def _runs(eid: str, name: str, changes, values: list, matches, end_of: int, skip_first: bool) -> list[Run]:
+    out = []
+    first = None
+    for i, value in enumerate(values):
+        ok = value is not None and matches(value)
+        if ok and first is None:
+            first = i
+        elif not ok and first is not None:
+            out.append(_run(eid, name, changes, values, first, i))
+            first = None
+    if first is not None:
+        out.append(Run(eid, name, changes[first].time // 1000, end_of, _distinct(values[first:])))
+    if skip_first and out and out[0].start == changes[0].time // 1000:
+        out = out[1:]
+    return out
+
+
+def _run(eid: str, name: str, changes, values: list, first: int, stop: int) -> Run:
+    end = changes[stop].before
+    return Run(eid, name, changes[first].time // 1000, end // 1000, _distinct(values[first:stop]))
+
+
+def _distinct(values: list) -> tuple:
+    return tuple(v for i, v in enumerate(values) if i == 0 or v != values[i - 1])
+
+
 def event_rows(
     querier: HistoryReads,
     scope: Scope,
@@ -323,50 +357,35 @@ def event_rows(
     matches: Callable[[object], bool],
     text: str | None,
     limit: int,
-) -> list[dict]:
+) -> Shown:
     """Annotations: one per run of consecutive samples meeting the condition,
     from its first to its last matching sample, labelled with every value the
-    run went through (as the SimpleJSON annotations are)."""
-    events = []
-    for series in fetch(querier, scope, entities, cols, time):
-        for name, values in series.columns.items():
-            for first, last in runs(values, matches):
-                label = run_label(values[first : last + 1])
-                events.append(_event(series, name, label, series.times[first], series.times[last], text))
+    run went through (as the SimpleJSON annotations are). The newest
+    ``limit``, with a notice when there were more."""
+    runs, notices = event_runs(querier, scope, entities, cols, time, matches)
+    events = [_event(run, text) for run in runs]
     events.sort(key=lambda e: (e["time"], e["entity"], e["title"]))
-    events = events[-limit:]
+    if len(events) > limit:
+        notices.append(f"{len(events)} events in the window: only the newest {limit} are shown (limit)")
+        events = events[-limit:]
     for event in events:
-        event["time"], event["timeEnd"] = iso_z(event["time"]), iso_z(event["timeEnd"])
-    return events
+        event["time"], event["timeEnd"] = iso_z_ms(event["time"]), iso_z_ms(event["timeEnd"])
+    return Shown(events, None, notices)
 
 
-def _event(series: EntitySeries, name: str, label: str, start: int, end: int, text: str | None) -> dict:
-    short = short_name(series.entity_id)
+def _event(run: Run, text: str | None) -> dict:
+    short = short_name(run.entity_id)
     return {
-        "time": start,
-        "timeEnd": end,
-        "entity": series.entity_id,
-        "title": f"{name} on {short}",
-        "text": text or f"{name} = {label} on {series.entity_id}",
-        "tags": f"{short},{name}",
+        "time": run.start,
+        "timeEnd": run.end,
+        "entity": run.entity_id,
+        "title": f"{run.column} on {short}",
+        "text": text or f"{run.column} = {run_label(list(run.values))} on {run.entity_id}",
+        "tags": f"{short},{run.column}",
     }
 
 
 MAX_LABEL_VALUES = 12
-
-
-def runs(values: list, matches: Callable[[object], bool]) -> list[tuple[int, int]]:
-    """(first, last) index of each run of consecutive values meeting ``matches``."""
-    found, first = [], None
-    for i, value in enumerate(values):
-        if value is not None and matches(value):
-            first = i if first is None else first
-        elif first is not None:
-            found.append((first, i - 1))
-            first = None
-    if first is not None:
-        found.append((first, len(values) - 1))
-    return found
 
 
 def run_label(values: list) -> str:
@@ -411,30 +430,159 @@ def position_rows(
     latest: bool,
     max_points: int,
     geo=None,
-) -> list[dict]:
+) -> Shown:
     """``[{"time", "entity", "type", "name", "lat", "lon", col...}]``: one row per
-    located sample (or only each entity's latest with ``latest``). ``geo`` is
-    a ``GeoFilter``; a position is kept when its point matches it."""
+    located sample while no entity has more than ``max_points`` in the
+    window, else the last position of each time bucket (``max_points``
+    buckets), with its columns' last values in that bucket; or only each
+    entity's latest with ``latest``. ``geo`` is a ``GeoFilter``; a position
+    is kept when its point matches it."""
     loc = Column("__location__", location)
     if latest:
-        return _latest_positions(querier, scope, entities, loc, cols, geo)
-    rows = []
-    for series in fetch(querier, scope, entities, (loc, *cols), time):
-        located = EntitySeries(
-            series.entity_id, series.entity_type, [], {name: [] for name in ("lat", "lon", *(c.name for c in cols))}
+        return Shown(_latest_positions(querier, scope, entities, loc, cols, geo))
+    loc_refs = querier.series(SeriesSelect(scope, entities, {location.attr}))
+    if not loc_refs:
+        return Shown([])
+    entities_n = len({(r.entity_type, r.entity_id) for r in loc_refs})
+    cap = max_points * entities_n
+    if querier.count(SamplesIn([r.sid for r in loc_refs], time)) <= cap:
+        tracks = _raw_positions(querier, scope, entities, loc, cols, time, max_points, cap, geo)
+        if tracks is not None:
+            return Shown(rows_long(tracks, extra=_place), raw=True)
+    return _thinned_positions(querier, scope, entities, loc, loc_refs, cols, time, max_points, geo)
+
+
+def _place(track: Track) -> dict:
+    return {"type": track.entity_type, "name": short_name(track.entity_id)}
+
+
+def _raw_positions(
+    querier: HistoryReads,
+    scope: Scope,
+    entities: EntityFilter,
+    loc: Column,
+    cols: Sequence[Column],
+    time: TimeRange,
+    max_points: int,
+    cap: int,
+    geo,
+) -> list[Track] | None:
+    """Every located sample (no entity above ``max_points``), or None."""
+    paths = tuple(dict.fromkeys(c.path for c in (loc, *cols)))
+    query = HistoryQuery(shape=Shape.ATTRS, scope=scope, entities=entities, attrs=paths, time=time, limit=cap + 1)
+    tracks = []
+    for ent in run_history(querier, query).entities:
+        located = Track(
+            ent.entity_id, ent.entity_type, {name: Line() for name in ("lat", "lon", *(c.name for c in cols))}
         )
-        for i, t in enumerate(series.times):
-            point = lon_lat(series.columns[loc.name][i])
+        where = ent.columns.get(loc.path.text) or []
+        for i, iso in enumerate(ent.index):
+            point = lon_lat(where[i]) if i < len(where) else None
             if point is None or (geo is not None and not _geo_ok(geo, point)):
                 continue
-            located.times.append(t)
-            located.columns["lat"].append(point[1])
-            located.columns["lon"].append(point[0])
+            t = ms_of_iso(iso)
+            located.lines["lat"].add(t, point[1])
+            located.lines["lon"].add(t, point[0])
             for col in cols:
-                located.columns[col.name].append(series.columns[col.name][i])
-        if located.times:
-            rows.append(downsample(located, max_points, None, "last", None))
-    return rows_long(rows, extra=lambda s: {"type": s.entity_type, "name": short_name(s.entity_id)})
+                values = ent.columns.get(col.path.text)
+                located.lines[col.name].add(t, values[i] if values is not None else None)
+        if len(located.lines["lat"].times) > max_points:
+            return None
+        if located.lines["lat"].times:
+            tracks.append(located)
+    return tracks
+
+
+def _thinned_positions(
+    querier: HistoryReads,
+    scope: Scope,
+    entities: EntityFilter,
+    loc: Column,
+    loc_refs: list[SeriesRef],
+    cols: Sequence[Column],
+    time: TimeRange,
+    max_points: int,
+    geo,
+) -> Shown:
+    """The last GeoJSON point of each bucket (its coordinates' last numbers,
+    the same sample), with each column's value then: the bucket's last number,
+    or the state in force (transitions)."""
+    sids = [r.sid for r in loc_refs]
+    window = resolve_window(querier, sids, time)
+    if window is None:
+        return Shown([])
+    span = window_range(window)
+    width = choose_width(timedelta(microseconds=window[1] - window[0]), max_points)
+    lons = {(r.sid, r.start): r for r in querier.buckets(BucketRead(sids, span, width, _LON, False))}
+    lats = {(r.sid, r.start): r for r in querier.buckets(BucketRead(sids, span, width, _LAT, False))}
+    budget.charge_rows(len(lons) + len(lats))
+    extra = _column_lines(querier, scope, entities, cols, span, max_points, width)
+    by_sid = {r.sid: r for r in loc_refs}
+    tracks: dict[tuple[str, str], Track] = {}
+    for key, lon in lons.items():
+        lat = lats.get(key)
+        if lat is None or lat.last_t != lon.last_t:
+            continue
+        point = (lon.last, lat.last)
+        if geo is not None and not _geo_ok(geo, point):
+            continue
+        ref = by_sid[key[0]]
+        track = tracks.get((ref.entity_type, ref.entity_id))
+        if track is None:
+            names = ("lat", "lon", *(c.name for c in cols))
+            track = tracks[(ref.entity_type, ref.entity_id)] = Track(
+                ref.entity_id, ref.entity_type, {name: Line() for name in names}
+            )
+        t = lon.last_t // 1000
+        track.lines["lat"].add(t, point[1])
+        track.lines["lon"].add(t, point[0])
+        lines = extra.get((ref.entity_type, ref.entity_id), {})
+        for col in cols:
+            track.lines[col.name].add(t, _value_at(lines.get(col.name), t))
+    notices = []
+    placed = {key[0] for key in lons}
+    unplaced = sorted({by_sid[s].entity_id for s in sids if s not in placed})
+    if unplaced and querier.count(SamplesIn([s for s in sids if s not in placed], span)):
+        notices.append(
+            f"positions of {', '.join(unplaced[:5])}{' ...' if len(unplaced) > 5 else ''} are not GeoJSON "
+            f"points and cannot be thinned: narrow the window to at most {max_points} positions to see them"
+        )
+    ordered = [tracks[k] for k in sorted(tracks, key=lambda k: (k[1], k[0]))]
+    for track in ordered:
+        _sort_track(track)
+    return Shown(rows_long(ordered, extra=_place), width, notices)
+
+
+def _sort_track(track: Track) -> None:
+    order = sorted(range(len(track.lines["lat"].times)), key=track.lines["lat"].times.__getitem__)
+    for line in track.lines.values():
+        line.times[:] = [line.times[i] for i in order]
+        line.values[:] = [line.values[i] for i in order]
+
+
+def _column_lines(
+    querier: HistoryReads,
+    scope: Scope,
+    entities: EntityFilter,
+    cols: Sequence[Column],
+    span: TimeRange,
+    max_points: int,
+    width: timedelta,
+) -> dict[tuple[str, str], dict[str, Line]]:
+    """Each column's last value per bucket of ``width`` (states: their transitions)."""
+    if not cols:
+        return {}
+    query = DrawQuery(scope, entities, tuple(cols), span, max_points, width, Mode.LAST, Fill.NONE, raw=False)
+    drawing: Drawing = draw(querier, query)
+    return {(t.entity_type, t.entity_id): t.lines for t in drawing.tracks}
+
+
+def _value_at(line: Line | None, t: int):
+    """The line's value in force at ``t`` (epoch ms): its last point at or before."""
+    if line is None:
+        return None
+    at = bisect.bisect_right(line.times, t) - 1
+    return line.values[at] if at >= 0 else None
 
 
 def _geo_ok(geo, point: tuple[float, float]) -> bool:
@@ -491,13 +639,21 @@ def aggregate_rows(
     method: AggrMethod,
     period: AggrPeriod | None,
     limit: int,
-) -> list[dict]:
+) -> Shown:
     """One row per entity (and period): ``[{"entity", "type", "name",
-    ("time",) col...}]``, aggregated in SQL by the history layer."""
+    ("time",) col...}]``, aggregated in SQL by the history layer. At most
+    ``limit`` rows (entities, then periods, in order), with a notice when
+    there were more."""
     aggregation = Aggregation(method, period, AggrScope.ENTITY)
     paths = tuple(dict.fromkeys(col.path for col in cols))
     query = HistoryQuery(
-        shape=Shape.ATTRS, scope=scope, entities=entities, attrs=paths, time=time, limit=limit, aggregation=aggregation
+        shape=Shape.ATTRS,
+        scope=scope,
+        entities=entities,
+        attrs=paths,
+        time=time,
+        limit=limit + 1,
+        aggregation=aggregation,
     )
     rows = []
     for ent in run_history(querier, query).entities:
@@ -511,4 +667,8 @@ def aggregate_rows(
                 values = ent.columns.get(col.path.text) or []
                 row[col.name] = values[i] if i < len(values) else None
             rows.append(row)
-    return rows
+    notices = []
+    if len(rows) > limit:
+        notices.append(f"more than {limit} aggregate rows: the first {limit} are shown (limit)")
+        rows = rows[:limit]
+    return Shown(rows, None, notices)

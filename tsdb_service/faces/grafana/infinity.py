@@ -11,7 +11,10 @@ into frames. Common query parameters:
   ``speed=odom(twist.twist.linear.x)``; a row carries each under its name;
 * time: ``from`` / ``to`` as epoch ms (Grafana's ``${__from}``) or ISO 8601.
 
-Times in rows are ISO 8601 UTC with milliseconds and a ``Z``.
+Times in rows are ISO 8601 UTC with milliseconds and a ``Z``. What draws a
+window reads the database's time buckets (``history.drawing``); answers say
+their bucket width and anything a cap left out in headers
+(``http.responses.drawn_headers``): rows of flat JSON have no room for it.
 Routes read the store through ``Store.read`` (``@reads_store``): in the threadpool.
 """
 
@@ -28,6 +31,7 @@ from tsdb_service.faces.grafana.params import (
     choice,
     columns,
     entity_filter,
+    fill_choice,
     flag,
     positive_int,
     time_range,
@@ -48,18 +52,24 @@ def _common(request: Request):
 
 
 @router.get(
-    "/series", summary="Time series of columns per entity, downsampled to max_points", **grafana_oa.INFINITY["series"]
+    "/series",
+    summary="Time series of columns per entity, in at most max_points buckets",
+    **grafana_oa.INFINITY["series"],
 )
 @reads_store
 def series(request: Request) -> JSON:
-    """``[{"time", "entity", col...}]``. Over ``max_points`` samples per entity
-    (default 1000), samples are bucketed (width at least ``interval_ms``) and
-    reduced by ``agg``: ``auto`` (avg for numbers, last for states: integers,
-    booleans, text), or one of avg, last, first, min, max, sum, count.
-    ``layout=wide`` gives one row per time and a column per entity and column."""
+    """``[{"time", "entity", col...}]`` over the whole window: the samples as
+    stored while each series has at most ``max_points`` (default 1000) in
+    it, else time buckets computed by the database (width from the window and
+    ``max_points``, at least ``interval_ms``, a round width) reduced by
+    ``agg``: ``auto`` (avg where a series holds fractions, last where it
+    holds integers only), avg, last, first, min, max, sum, count, or
+    ``minmax`` (first, min, max and last of each bucket at their times).
+    Texts and booleans: every transition. An empty bucket is a gap (a null),
+    or filled by ``fill`` (null, previous, linear). ``layout=wide`` gives one
+    row per time and a column per entity and column."""
     querier, scope, entities, params = _common(request)
-    rows = frames.series_rows(
-        querier,
+    query = frames.series_query(
         scope,
         entities,
         columns(params.get("attrs")),
@@ -67,9 +77,11 @@ def series(request: Request) -> JSON:
         max_points=positive_int(params.get("max_points"), "max_points", 1000, MAX_POINTS_LIMIT),
         interval_ms=positive_int(params.get("interval_ms"), "interval_ms", None, 10**12),
         agg=choice(params.get("agg"), "agg", frames.AGGREGATIONS, "auto"),
-        wide=choice(params.get("layout"), "layout", ("long", "wide"), "long") == "wide",
+        fill=fill_choice(params.get("fill")),
     )
-    return JSON(rows)
+    wide = choice(params.get("layout"), "layout", ("long", "wide"), "long") == "wide"
+    shown = frames.series_rows(querier, query, wide)
+    return JSON(shown.rows, headers=shown.headers())
 
 
 @router.get(
@@ -90,9 +102,10 @@ def latest(request: Request) -> JSON:
 @reads_store
 def states(request: Request) -> JSON:
     """``[{"time", "entity", col...}]``: a row where any column changes, and
-    each entity's last sample."""
+    each entity's last sample: every transition, at most ``max_points``
+    (default 5000) per entity and column, the newest (a header says so)."""
     querier, scope, entities, params = _common(request)
-    rows = frames.state_rows(
+    shown = frames.state_rows(
         querier,
         scope,
         entities,
@@ -100,7 +113,7 @@ def states(request: Request) -> JSON:
         time_range(params),
         max_points=positive_int(params.get("max_points"), "max_points", 5000, MAX_POINTS_LIMIT),
     )
-    return JSON(rows)
+    return JSON(shown.rows, headers=shown.headers())
 
 
 @router.get(
@@ -111,9 +124,10 @@ def states(request: Request) -> JSON:
 @reads_store
 def events(request: Request) -> JSON:
     """``[{"time", "timeEnd", "entity", "title", "text", "tags"}]``: one per
-    run of samples where a column is truthy, or ``== equals`` (a JSON value)."""
+    run of samples where a column is truthy, or ``== equals`` (a JSON value);
+    the newest ``limit`` (default 1000; a header says when there were more)."""
     querier, scope, entities, params = _common(request)
-    rows = frames.event_rows(
+    shown = frames.event_rows(
         querier,
         scope,
         entities,
@@ -123,7 +137,7 @@ def events(request: Request) -> JSON:
         text=(params.get("text") or None),
         limit=positive_int(params.get("limit"), "limit", 1000, MAX_POINTS_LIMIT),
     )
-    return JSON(rows)
+    return JSON(shown.rows, headers=shown.headers())
 
 
 @router.get(
@@ -137,10 +151,12 @@ def positions(request: Request) -> JSON:
     names the attribute or value path holding the position (default
     ``location``; GeoJSON or ``"lat, lon"``). ``latest=true`` keeps each
     entity's latest position with its columns' latest values. ``georel``,
-    ``geometry`` and ``coords`` (NGSIv2 geo-query) keep matching positions."""
+    ``geometry`` and ``coords`` (NGSIv2 geo-query) keep matching positions.
+    Over ``max_points`` (default 5000) positions an entity, the last position
+    of each time bucket (a header gives the width)."""
     querier, scope, entities, params = _common(request)
     geo = parse_geo(params.get("georel"), params.get("geometry"), params.get("coords"))
-    rows = frames.position_rows(
+    shown = frames.position_rows(
         querier,
         scope,
         entities,
@@ -151,7 +167,7 @@ def positions(request: Request) -> JSON:
         max_points=positive_int(params.get("max_points"), "max_points", 5000, MAX_POINTS_LIMIT),
         geo=geo,
     )
-    return JSON(rows)
+    return JSON(shown.rows, headers=shown.headers())
 
 
 @router.get(
@@ -162,9 +178,10 @@ def positions(request: Request) -> JSON:
 @reads_store
 def aggregate(request: Request) -> JSON:
     """``[{"entity", "type", "name", ("time",) col...}]``; ``method`` avg
-    (default), min, max, sum, count; optional ``period`` (second ... year)."""
+    (default), min, max, sum, count; optional ``period`` (second ... year);
+    at most ``limit`` rows (default 10000; a header says when there were more)."""
     querier, scope, entities, params = _common(request)
-    rows = frames.aggregate_rows(
+    shown = frames.aggregate_rows(
         querier,
         scope,
         entities,
@@ -174,7 +191,7 @@ def aggregate(request: Request) -> JSON:
         period=aggregate_period(params.get("period")),
         limit=positive_int(params.get("limit"), "limit", 10_000, MAX_POINTS_LIMIT),
     )
-    return JSON(rows)
+    return JSON(shown.rows, headers=shown.headers())
 
 
 @router.get(

@@ -25,8 +25,27 @@ from tsdb_service.http.openapi import (
 )
 
 _FRAME_FIELD = obj(
-    ("name", "type", "values"), {"name": STR, "type": STR, "values": array(ANY), "labels": {"type": "object"}}
+    ("name", "type", "values"),
+    {
+        "name": STR,
+        "type": STR,
+        "values": array(ANY),
+        "labels": {"type": "object"},
+        "config": {"type": "object", "description": "the time field's interval: the bucket width in ms"},
+    },
 )
+# What a drawn answer says about itself (docs/long-windows.md): its bucket
+# width, its mode, and what a cap left out (Grafana shows notices on the panel).
+_META = {
+    "type": "object",
+    "properties": {
+        "custom": {
+            "type": "object",
+            "properties": {"bucket": STR, "bucketMs": {"type": "integer"}, "agg": STR},
+        },
+        "notices": array(obj(("severity", "text"), {"severity": STR, "text": STR})),
+    },
+}
 
 
 _GRAFANA_TENANCY = [
@@ -70,7 +89,9 @@ def grafana_params(*extra: dict, attrs: bool | None = True, time: bool = True) -
     return params + list(extra)
 
 
-MAX_POINTS = query("max_points", "Samples per entity before downsampling (capped at 100000).", _POINTS)
+MAX_POINTS = query(
+    "max_points", "Points per series: more samples than this are drawn in buckets (capped at 100000).", _POINTS
+)
 
 
 GRAFANA_LIMIT = query("limit", "At most this many rows (capped at 100000).", _POINTS)
@@ -88,7 +109,12 @@ def _infinity(rows: dict, *parameters: dict, attrs: bool | None = True, time: bo
     return spec(*grafana_params(*parameters, attrs=attrs, time=time), ok_=ok(rows), errors_=_GRAFANA_ERRORS)
 
 
-_AGG = ["auto", "avg", "last", "first", "min", "max", "sum", "count"]  # grafana.frames.AGGREGATIONS
+_AGG = ["auto", "avg", "min", "max", "first", "last", "sum", "count", "minmax"]  # grafana.frames.AGGREGATIONS
+_FILL = ["none", "null", "previous", "linear"]  # grafana.frames.FILLS
+_DRAWN = (
+    " The answer's X-Tsdb-Bucket header gives the bucket width (raw: the samples as stored; X-Tsdb-Bucket-Ms "
+    "in milliseconds); X-Tsdb-Truncated and X-Tsdb-Notice say what a cap left out."
+)
 
 
 INFINITY = {
@@ -96,7 +122,13 @@ INFINITY = {
         _rows("time"),
         MAX_POINTS,
         query("interval_ms", "Minimum bucket width in milliseconds.", {"type": "number", "minimum": 1}),
-        query("agg", "Downsampling: auto (avg for numbers, last for states) or a fixed reducer.", {"enum": _AGG}),
+        query(
+            "agg",
+            "What a bucket shows: auto (avg where a series holds fractions, last where it holds integers), avg, "
+            "min, max, first, last, sum, count, or minmax (first, min, max and last at their times)." + _DRAWN,
+            {"enum": _AGG},
+        ),
+        query("fill", "What an empty bucket shows: none (a gap: one null), null, previous or linear.", {"enum": _FILL}),
         query("layout", "long: a row per entity and time; wide: a row per time.", {"enum": ["long", "wide"]}),
     ),
     "latest": _infinity(_rows("entity", "type", "name"), time=False),
@@ -173,6 +205,7 @@ _TARGET = {
                 "idPattern": STR,
                 "alias": STR,
                 "agg": {"enum": _AGG},
+                "fill": {"enum": _FILL},
                 "format": {"enum": ["timeseries", "table", "dataframe", "annotations"]},
                 "equals": ANY,
             },
@@ -283,7 +316,10 @@ SCHEMAS: dict[str, dict] = {
     "InfinityRows": array({"type": "object"}, "flat rows, one object each; columns named by attrs"),
     "SimpleJsonAnswer": {
         "anyOf": [
-            obj(("target", "datapoints"), {"target": STR, "refId": STR, "datapoints": array(array(ANY))}),
+            obj(
+                ("target", "datapoints"),
+                {"target": STR, "refId": STR, "datapoints": array(array(ANY)), "meta": _META},
+            ),
             obj(
                 ("type", "columns", "rows"),
                 {
@@ -291,9 +327,10 @@ SCHEMAS: dict[str, dict] = {
                     "refId": STR,
                     "columns": array({"type": "object"}),
                     "rows": array(array(ANY)),
+                    "meta": _META,
                 },
             ),
-            obj(("name", "fields"), {"name": STR, "refId": STR, "fields": array(_FRAME_FIELD)}),
+            obj(("name", "fields"), {"name": STR, "refId": STR, "fields": array(_FRAME_FIELD), "meta": _META}),
         ]
     },
     "Dashboard": {"type": "object", "description": "A Grafana dashboard (schemaVersion 42)"},

@@ -13,10 +13,10 @@ NGSI shape by the app's one error handler.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
 
 from tsdb_service.core.errors import BadRequest
-from tsdb_service.core.query import AggrMethod, AggrPeriod, ValuePath
+from tsdb_service.core.query import AggrMethod, AggrPeriod
+from tsdb_service.history.drawing import Column, Fill
 from tsdb_service.history.valuepath import parse_value_path
 from tsdb_service.parse.request_context import aggr_method, aggr_period, entity_filter, moment
 from tsdb_service.parse.request_context import grafana_time_range as time_range
@@ -30,6 +30,7 @@ __all__ = [
     "choice",
     "columns",
     "entity_filter",
+    "fill_choice",
     "flag",
     "moment",
     "positive_int",
@@ -43,14 +44,6 @@ MAX_POINTS_LIMIT = 100_000
 RESERVED = frozenset({"time", "entity", "type", "name", "lat", "lon", "timeEnd", "title", "text", "tags"})
 # The order Grafana's ``method`` lists them in (avg, the default, first).
 _METHODS = (AggrMethod.AVG, AggrMethod.MIN, AggrMethod.MAX, AggrMethod.SUM, AggrMethod.COUNT)
-
-
-@dataclass(frozen=True, slots=True)
-class Column:
-    """One output column: a value path and the name rows carry it under."""
-
-    name: str
-    path: ValuePath
 
 
 def columns(raw: str | None, *, required: bool = True, what: str = "attrs") -> tuple[Column, ...]:
@@ -107,6 +100,12 @@ def flag(raw: str | None, name: str) -> bool:
     if low in ("0", "false", "no", "off"):
         return False
     raise BadRequest(f"{name} must be true or false, not {raw[:40]!r}")
+
+
+def fill_choice(raw: str | None, name: str = "fill") -> str:
+    """``fill``: what an empty bucket shows; none (a gap, the default), null,
+    previous or linear."""
+    return choice(raw, name, tuple(f.value for f in Fill), "none")
 
 
 def choice(raw: str | None, name: str, allowed: tuple[str, ...], default: str) -> str:

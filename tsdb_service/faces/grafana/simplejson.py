@@ -15,9 +15,15 @@ form, so whatever they list is a valid target. ``*`` instead of an id means
 every entity (narrowed by the payload's ``type`` or ``idPattern``). simPod's
 payload (or SimpleJSON's ``data``) may add ``path``
 (steps inside the value, appended to a plain attribute), ``agg`` (auto, avg,
-last, min, max ...), ``alias`` and ``format`` (``timeseries``, ``table``,
+last, min, max, first, sum, count, minmax), ``fill`` (none, null, previous,
+linear), ``alias`` and ``format`` (``timeseries``, ``table``,
 ``dataframe``, ``annotations``). An annotation query is a target optionally
 followed by ``=<JSON value>``: ``.../perimeterLeft(data)=true``.
+
+``/query`` draws the whole range in at most ``maxDataPoints`` points per
+series, with buckets at least ``intervalMs`` wide, computed by the database
+(``history.drawing``); each frame says its bucket width and what a cap left
+out (``meta.notices``, and the ``X-Tsdb-*`` headers).
 
 Unknown keys anywhere in a body are ignored: simPod posts Grafana's whole
 request object. Routes that read the store do so through ``Store.read``
@@ -32,17 +38,18 @@ from typing import Any
 from fastapi import APIRouter, Body, Request
 
 from tsdb_service.core import budget
+from tsdb_service.core.buckets import label
 from tsdb_service.core.errors import BadRequest
 from tsdb_service.core.idpattern import compile_pattern, compiled
 from tsdb_service.core.query import EntityFilter, LastValueQuery, Scope, TimeRange, ValuePath
-from tsdb_service.core.timefmt import ms_of
 from tsdb_service.faces.grafana import frames
 from tsdb_service.faces.grafana import openapi as grafana_oa
 from tsdb_service.faces.grafana.params import MAX_POINTS_LIMIT, Column, moment, positive_int
+from tsdb_service.history.drawing import Drawing, Mode, Track, draw
 from tsdb_service.history.service import run_last_values
 from tsdb_service.history.valuepath import parse_value_path
 from tsdb_service.http.rawpath import escape_segment, unescape_segment
-from tsdb_service.http.responses import JSON
+from tsdb_service.http.responses import JSON, drawn_headers
 from tsdb_service.http.store import reads_store, store_of
 from tsdb_service.http.tenancy import grafana_scope
 from tsdb_service.parse.request_context import id_pattern
@@ -143,6 +150,9 @@ class Target:
         self.agg = _str(payload.get("agg"), "payload.agg", "auto").strip().lower() or "auto"
         if self.agg not in frames.AGGREGATIONS:
             raise BadRequest(f"payload.agg must be one of {', '.join(frames.AGGREGATIONS)}")
+        self.fill = _str(payload.get("fill"), "payload.fill", "none").strip().lower() or "none"
+        if self.fill not in frames.FILLS:
+            raise BadRequest(f"payload.fill must be one of {', '.join(frames.FILLS)}")
         fmt = _str(payload.get("format"), "payload.format").strip().lower()
         kind = _str(raw.get("type"), "type").strip().lower()
         if not fmt:
@@ -173,11 +183,9 @@ def _adhoc(body: dict) -> list[tuple[str, str, str]]:
     return out
 
 
-def _keep(series: frames.EntitySeries, filters: list[tuple[str, str, str]]) -> bool:
+def _keep(entity_id: str, entity_type: str, filters: list[tuple[str, str, str]]) -> bool:
     for key, op, value in filters:
-        subject = {"entity": series.entity_id, "type": series.entity_type, "name": frames.short_name(series.entity_id)}[
-            key
-        ]
+        subject = {"entity": entity_id, "type": entity_type, "name": frames.short_name(entity_id)}[key]
         if op == "=":
             ok = subject == value
         elif op == "!=":
@@ -302,6 +310,13 @@ _PAYLOADS = [
         "options": [{"label": a, "value": a} for a in frames.AGGREGATIONS],
     },
     {
+        "label": "Empty buckets",
+        "name": "fill",
+        "type": "select",
+        "width": 20,
+        "options": [{"label": f, "value": f} for f in frames.FILLS],
+    },
+    {
         "label": "Format",
         "name": "format",
         "type": "select",
@@ -347,6 +362,8 @@ def metric_payload_options(request: Request, body: Any = Body(None)) -> JSON:
         return JSON([{"label": a, "value": a} for a in frames.AGGREGATIONS])
     if name == "format":
         return JSON([{"label": f, "value": f} for f in FORMATS])
+    if name == "fill":
+        return JSON([{"label": f, "value": f} for f in frames.FILLS])
     if name == "type":
         return JSON([{"label": t, "value": t} for t in sorted({t for _, t in _catalog(request)})])
     if name != "path":
@@ -393,7 +410,10 @@ def query(request: Request, body: Any = Body(None)) -> JSON:
     """Grafana's query request (``range``, ``intervalMs``, ``maxDataPoints``,
     ``targets``, ``adhocFilters``) → classic SimpleJSON answers
     (``{"target", "datapoints"}``, ``{"type": "table", "columns", "rows"}``)
-    or data frames (``{"name", "refId", "fields"}``), per target format."""
+    or data frames (``{"name", "refId", "fields"}``), per target format.
+    Each series is the whole range in at most ``maxDataPoints`` buckets at
+    least ``intervalMs`` wide (or its samples, when fewer): every answer
+    carries ``meta`` with the bucket width and its ``notices``."""
     doc = _obj(body)
     raw_targets = doc.get("targets")
     if raw_targets is not None and not isinstance(raw_targets, list):
@@ -408,19 +428,40 @@ def query(request: Request, body: Any = Body(None)) -> JSON:
     scope = grafana_scope(request)
     querier = store_of(request).querier()
     out: list[dict] = []
-    for raw in targets:
+    widths, notices, raw = set(), [], False
+    for raw_target in targets:
         budget.checkpoint()  # each target is a step of the request's wall-time budget
-        target = Target(raw)
+        target = Target(raw_target)
         if target.format == "annotations":
-            out.extend(_annotation_frames(querier, scope, target, time, filters))
+            frames_, said = _annotation_frames(querier, scope, target, time, filters)
+            out.extend(frames_)
+            notices += said
             continue
-        fetched = [
-            s for s in frames.fetch(querier, scope, target.entities, (target.column,), time) if _keep(s, filters)
-        ]
-        span = (ms_of(time.start), ms_of(time.end))
-        sampled = [frames.downsample(s, max_points, interval_ms, target.agg, frames._fill(span, s)) for s in fetched]
-        out.extend(_render(target, sampled, several=len(sampled) > 1))
-    return JSON(out)
+        query = frames.series_query(
+            scope, target.entities, (target.column,), time, max_points, interval_ms, target.agg, target.fill
+        )
+        drawing = draw(querier, query)
+        tracks = [t for t in drawing.tracks if _keep(t.entity_id, t.entity_type, filters)]
+        out.extend(_render(target, tracks, several=len(tracks) > 1, meta=_meta(drawing, target)))
+        notices += drawing.notices
+        if drawing.width is not None:
+            widths.add(drawing.width)
+        raw = raw or (drawing.width is None and drawing.window is not None)
+    width = max(widths) if widths else None
+    return JSON(out, headers=drawn_headers(width, raw, notices))
+
+
+def _meta(drawing: Drawing, target: Target) -> dict:
+    """A frame's ``meta``: Grafana shows ``notices`` on the panel; ``custom``
+    says the bucket width (``raw``: the samples as stored)."""
+    meta: dict[str, Any] = {
+        "custom": {"bucket": label(drawing.width) if drawing.width is not None else "raw", "agg": target.agg}
+    }
+    if drawing.width is not None:
+        meta["custom"]["bucketMs"] = drawing.width_ms
+    if drawing.notices:
+        meta["notices"] = [{"severity": "warning", "text": text} for text in drawing.notices]
+    return meta
 
 
 def _num_text(value: Any) -> str | None:
@@ -429,22 +470,28 @@ def _num_text(value: Any) -> str | None:
     return str(value)
 
 
-def _render(target: Target, sampled: list[frames.EntitySeries], several: bool) -> list[dict]:
+def _render(target: Target, tracks: list[Track], several: bool, meta: dict) -> list[dict]:
     name = target.column.name
+    lines = [(t, t.lines[name]) for t in tracks if name in t.lines]
     if target.format == "timeseries":
         return [
             {
-                "target": f"{frames.short_name(s.entity_id)} {name}" if several or not target.alias else name,
+                "target": f"{frames.short_name(t.entity_id)} {name}" if several or not target.alias else name,
                 "refId": target.ref_id,
-                "datapoints": [[_number(v), t] for v, t in zip(s.columns[name], s.times, strict=True)],
+                "datapoints": [[_number(v), at] for v, at in zip(line.values, line.times, strict=True)],
+                "meta": meta,
             }
-            for s in sampled
+            for t, line in lines
         ]
     if target.format == "table":
-        values = [v for s in sampled for v in s.columns[name]]
+        values = [v for _, line in lines for v in line.values]
         kind = _kind(values)
         rows = sorted(
-            ([t, s.entity_id, _cell(v, kind)] for s in sampled for t, v in zip(s.times, s.columns[name], strict=True)),
+            (
+                [at, t.entity_id, _cell(v, kind)]
+                for t, line in lines
+                for at, v in zip(line.times, line.values, strict=True)
+            ),
             key=lambda r: (r[0], r[1]),
         )
         return [
@@ -457,22 +504,28 @@ def _render(target: Target, sampled: list[frames.EntitySeries], several: bool) -
                     {"text": name, "type": kind},
                 ],
                 "rows": rows,
+                "meta": meta,
             }
         ]
     out = []
-    for s in sampled:
-        kind = _kind(s.columns[name])
+    interval = meta["custom"].get("bucketMs") if target.agg != Mode.MINMAX.value else None
+    for t, line in lines:
+        kind = _kind(line.values)
+        time_field: dict[str, Any] = {"name": "time", "type": "time", "values": line.times}
+        if interval:
+            time_field["config"] = {"interval": interval}  # Grafana breaks the line where a bucket is missing
         out.append(
             {
-                "name": f"{frames.short_name(s.entity_id)} {name}",
+                "name": f"{frames.short_name(t.entity_id)} {name}",
                 "refId": target.ref_id,
+                "meta": meta,
                 "fields": [
-                    {"name": "time", "type": "time", "values": s.times},
+                    time_field,
                     {
                         "name": name,
                         "type": kind,
-                        "values": [_cell(v, kind) for v in s.columns[name]],
-                        "labels": {"entity": s.entity_id},
+                        "values": [_cell(v, kind) for v in line.values],
+                        "labels": {"entity": t.entity_id},
                     },
                 ],
             }
@@ -480,49 +533,59 @@ def _render(target: Target, sampled: list[frames.EntitySeries], several: bool) -
     return out
 
 
-def _annotation_frames(querier: HistoryReads, scope: Scope, target: Target, time: TimeRange, filters) -> list[dict]:
-    events = _events(querier, scope, target, time, filters, target.equals)
-    return [
-        {
-            "name": target.column.name,
-            "refId": target.ref_id,
-            "fields": [
-                {"name": "time", "type": "time", "values": [e["time"] for e in events]},
-                {"name": "timeEnd", "type": "time", "values": [e["timeEnd"] for e in events]},
-                {"name": "title", "type": "string", "values": [e["title"] for e in events]},
-                {"name": "text", "type": "string", "values": [e["text"] for e in events]},
-                {"name": "tags", "type": "string", "values": [",".join(e["tags"]) for e in events]},
-            ],
-        }
-    ]
+def _annotation_frames(
+    querier: HistoryReads, scope: Scope, target: Target, time: TimeRange, filters
+) -> tuple[list[dict], list[str]]:
+    events, notices = _events(querier, scope, target, time, filters, target.equals)
+    meta: dict[str, Any] = {}
+    if notices:
+        meta["notices"] = [{"severity": "warning", "text": text} for text in notices]
+    frame: dict[str, Any] = {
+        "name": target.column.name,
+        "refId": target.ref_id,
+        "fields": [
+            {"name": "time", "type": "time", "values": [e["time"] for e in events]},
+            {"name": "timeEnd", "type": "time", "values": [e["timeEnd"] for e in events]},
+            {"name": "title", "type": "string", "values": [e["title"] for e in events]},
+            {"name": "text", "type": "string", "values": [e["text"] for e in events]},
+            {"name": "tags", "type": "string", "values": [",".join(e["tags"]) for e in events]},
+        ],
+    }
+    if meta:
+        frame["meta"] = meta
+    return [frame], notices
 
 
-def _events(querier: HistoryReads, scope: Scope, target: Target, time: TimeRange, filters, equals) -> list[dict]:
+def _events(
+    querier: HistoryReads, scope: Scope, target: Target, time: TimeRange, filters, equals
+) -> tuple[list[dict], list[str]]:
     """One event per run of consecutive samples meeting the condition, labelled
     with every value the run went through (``missionState(data) = 1 → 2 → 3``):
-    a run of truthy states is several states, not only its first."""
+    a run of truthy states is several states, not only its first. The newest
+    ``_MAX_EVENTS``, with a notice when there were more."""
     matches = frames.condition(None if equals is None else equals if isinstance(equals, str) else frames._text(equals))
     name = target.column.name
     kept = [f for f in filters if f[0] != "type"]
+    runs, notices = frames.event_runs(querier, scope, target.entities, (target.column,), time, matches)
     out: list[dict[str, Any]] = []
-    for series in frames.fetch(querier, scope, target.entities, (target.column,), time):
-        if kept and not _keep(frames.EntitySeries(series.entity_id, ""), kept):
+    for run in runs:
+        if kept and not _keep(run.entity_id, "", kept):
             continue
-        values, short = series.columns[name], frames.short_name(series.entity_id)
-        for first, last in frames.runs(values, matches):
-            start, end = series.times[first], series.times[last]
-            out.append(
-                {
-                    "time": start,
-                    "timeEnd": end,
-                    "isRegion": end > start,
-                    "title": f"{name} on {short}",
-                    "text": f"{name} = {frames.run_label(values[first : last + 1])} on {series.entity_id}",
-                    "tags": [short, name],
-                }
-            )
+        short = frames.short_name(run.entity_id)
+        out.append(
+            {
+                "time": run.start,
+                "timeEnd": run.end,
+                "isRegion": run.end > run.start,
+                "title": f"{name} on {short}",
+                "text": f"{name} = {frames.run_label(list(run.values))} on {run.entity_id}",
+                "tags": [short, name],
+            }
+        )
     out.sort(key=lambda e: (e["time"], e["tags"][0]))
-    return out[-_MAX_EVENTS:]
+    if len(out) > _MAX_EVENTS:
+        notices.append(f"{len(out)} events in the range: only the newest {_MAX_EVENTS} are shown")
+    return out[-_MAX_EVENTS:], notices
 
 
 _MAX_EVENTS = 10_000
@@ -548,9 +611,11 @@ def annotation_events(request: Request, body: Any = Body(None)) -> JSON:
     path_text, sep, equals = rest.partition("=")
     target = Target({"target": f"{entity}{slash}{path_text}".strip(), "refId": "annotations"})
     scope = grafana_scope(request)
-    events = _events(store_of(request).querier(), scope, target, _range(doc), [], equals.strip() if sep else None)
+    events, notices = _events(
+        store_of(request).querier(), scope, target, _range(doc), [], equals.strip() if sep else None
+    )
     head = {k: annotation[k] for k in ("name", "enable", "iconColor", "query") if k in annotation}
-    return JSON([{"annotation": head, **event} for event in events])
+    return JSON([{"annotation": head, **event} for event in events], headers=drawn_headers(notices=notices))
 
 
 @router.post("/tag-keys", summary="Ad hoc filter keys", **grafana_oa.SIMPLEJSON["tag-keys"])

@@ -69,6 +69,7 @@ from tsdb_service.faces.ngsild.scope import scopes
 from tsdb_service.http.store import store_of
 from tsdb_service.http.tenancy import caller_of, tenant_echo, tenant_of
 from tsdb_service.parse.notification import parse_ld_instance
+from tsdb_service.parse.text import nul_problem
 from tsdb_service.read.requests import InstanceLookup, SeriesSelect
 from tsdb_service.write.ops import AppendSamples, DeleteInstance, DeleteSamples, ReplaceInstance
 
@@ -285,6 +286,8 @@ async def _body(request: Request) -> dict:
         raise InvalidRequest(f"the body is not valid JSON: {exc}") from None
     if type(doc) is not dict:
         raise InvalidRequest("the body must be a JSON object")
+    if (problem := nul_problem(raw, doc)) is not None:  # no backend may store it (parse.text)
+        raise BadRequestData(problem)
     if media == "application/ld+json" and "@context" not in doc:
         raise BadRequestData("an application/ld+json body must carry its @context")
     if media == "application/json" and "@context" in doc:

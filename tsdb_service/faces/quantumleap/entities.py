@@ -5,6 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 
 from tsdb_service.faces.quantumleap import openapi as ql_oa
+from tsdb_service.faces.quantumleap.paging import limit_headers
 from tsdb_service.faces.quantumleap.params import entity_list_query
 from tsdb_service.history.service import run_entity_list
 from tsdb_service.http import openapi as oa
@@ -28,4 +29,6 @@ def list_entities(request: Request) -> JSON:
         request.query_params, request.headers, tenant_of(request), request.app.state.settings.default_limit
     )
     found = run_entity_list(store_of(request).querier(), query)
-    return JSON(found, headers=None if found else empty_answer_hint(request, query.scope.tenant))
+    if not found:
+        return JSON(found, headers=empty_answer_hint(request, query.scope.tenant))
+    return JSON(found, headers=limit_headers(request, query.limit, query.offset, [len(found)]) or None)

@@ -17,6 +17,7 @@ from fastapi import APIRouter, Request
 
 from tsdb_service.core.query import Shape
 from tsdb_service.faces.quantumleap import openapi as ql_oa
+from tsdb_service.faces.quantumleap.paging import limit_headers
 from tsdb_service.faces.quantumleap.params import history_query
 from tsdb_service.faces.quantumleap.shape import render
 from tsdb_service.history.service import run_history
@@ -41,7 +42,19 @@ def answer_history(request: Request, shape: Shape, values_only: bool) -> JSON:
         attr=path.get("attr_name"),
         values_only=values_only,
     )
-    return JSON(render(run_history(store_of(request).querier(), query)))
+    result = run_history(store_of(request).querier(), query)
+    headers = limit_headers(request, query.limit, query.offset, _rows_per_type(result))
+    return JSON(render(result), headers=headers or None)
+
+
+def _rows_per_type(result) -> list[int]:
+    """Rows answered per entity type (QuantumLeap's limit applies to each), or
+    in all for a global aggregate."""
+    counts: dict[str, int] = {}
+    for ent in result.entities:
+        size = len(ent.index) if ent.index else max((len(v) for v in ent.columns.values()), default=0)
+        counts[ent.entity_type] = counts.get(ent.entity_type, 0) + size
+    return list(counts.values())
 
 
 @dataclass(frozen=True, slots=True)

@@ -43,8 +43,8 @@ import orjson
 from fastapi import APIRouter, Request
 
 from tsdb_service.broker.subscriptions import BrokerAnswer
-from tsdb_service.core.config import url_prefixes
 from tsdb_service.core.errors import BadRequest, TsdbError
+from tsdb_service.core.urlprefix import url_prefixes
 from tsdb_service.faces.quantumleap import openapi as ql_oa
 from tsdb_service.http.outbound import FetchFailed, FetchPolicy, post
 from tsdb_service.http.responses import JSON

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from urllib.parse import urlsplit
 
 from tsdb_service.core.config import MQTT_SCHEMES, Settings
-from tsdb_service.ingest.mqtt.topics import TopicTemplate, check_filter, parse_templates
+from tsdb_service.ingest.mqtt.topics import TenantRule, TopicTemplate, check_filter, parse_templates, parse_tenant_rules
 
 MIB = 1024 * 1024
 # What the broker may send beyond a notification's own bytes: the topic and
@@ -26,6 +26,10 @@ BUFFER_BYTES = 64 * MIB
 # always of a message among the last receive-maximum we received (see
 # docs/mqtt.md, "Delivery guarantees").
 WINDOW_FACTOR = 4
+
+
+# Settings that mean nothing without TSDB_MQTT_URL: given alone, a mistake.
+_NEED_URL = ("mqtt_topics", "mqtt_share_group", "mqtt_username", "mqtt_password", "mqtt_ca_file", "mqtt_tenants")
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,6 +54,8 @@ class MqttConfig:
     ca_file: str = ""
     cert_file: str = ""
     key_file: str = ""
+    tenant_rules: tuple[TenantRule, ...] = ()  # TSDB_MQTT_TENANTS; empty: any tenant
+    client_id_is_default: bool = False  # ``tsdb-service-HOSTNAME``: guessable (``serve`` warns without credentials)
     time_index_paths: str = ""  # TSDB_TIME_INDEX_PATHS, as for HTTP notifications
 
     @property
@@ -65,7 +71,7 @@ class MqttConfig:
     def from_settings(cls, settings: Settings) -> MqttConfig | None:
         """None when MQTT is off (no ``--mqtt-url``); ValueError on a bad setting."""
         if not settings.mqtt_url:
-            for name in ("mqtt_topics", "mqtt_share_group", "mqtt_username", "mqtt_password", "mqtt_ca_file"):
+            for name in _NEED_URL:
                 if getattr(settings, name):
                     raise ValueError(f"TSDB_{name.upper()} is set but TSDB_MQTT_URL is not: give the broker's URL")
             return None
@@ -84,6 +90,10 @@ class MqttConfig:
             filters = tuple(dict.fromkeys(t.filter for t in templates))
         if not filters:
             raise ValueError("TSDB_MQTT_TOPICS is empty and so is TSDB_MQTT_TOPIC_TEMPLATE: nothing to subscribe to")
+        try:
+            tenant_rules = parse_tenant_rules(settings.mqtt_tenants)
+        except ValueError as exc:
+            raise ValueError(f"TSDB_MQTT_TENANTS: {exc}") from None
         if settings.mqtt_share_group:
             filters = tuple(f"$share/{settings.mqtt_share_group}/{f}" for f in filters)
         _check_credentials(settings, tls)
@@ -109,6 +119,8 @@ class MqttConfig:
             ca_file=settings.mqtt_ca_file,
             cert_file=settings.mqtt_cert_file,
             key_file=settings.mqtt_key_file,
+            tenant_rules=tenant_rules,
+            client_id_is_default=not settings.mqtt_client_id,
             time_index_paths=settings.time_index_paths,
         )
 

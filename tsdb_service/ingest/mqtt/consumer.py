@@ -22,14 +22,32 @@ acknowledged on the next one: the broker sends it again (with DUP set).
 BLAKE2b-128 digest of topic and payload) is written in the same transaction
 as its samples or its rejected row. A redelivery (DUP set) whose packet id
 and digest are among this client id's last ``window`` deliveries was stored
-before: it is acknowledged and not stored again. Why that window suffices
-and where the guarantee ends: docs/mqtt.md, "Delivery guarantees".
+before: it is acknowledged and not stored again. Only a message flagged DUP
+is ever a candidate. Why that window suffices and where the guarantee ends:
+docs/mqtt.md, "Delivery guarantees".
+
+**A lost session is a fresh window.** Packet ids belong to a session: when
+the broker answers a connection with session-present 0 (it restarted
+without its state, the session expired, another client took our id), it
+will redeliver nothing from before, and the packet ids it gives from now on
+start again. So before subscribing on such a connection the window is
+emptied, in memory and, durably, in the database (a marker delivery whose
+``prune_below`` forgets every earlier one); only then is the subscription
+sent, so no message of the new session can meet a delivery of the old one,
+even across a crash. (Without a session the broker holds no subscription
+for us either: nothing arrives before we subscribe.)
 
 **Failures.** A message we cannot use is rejected: kept in the rejected
-store with its topic, then acknowledged. A write that fails (the database
-refuses, or its outcome is unknown) is retried with backoff until it is
-stored, checking first whether its delivery landed; meanwhile the message is
-not acknowledged and later ones wait behind it.
+store with its topic, then acknowledged. A write that fails because the
+database is unavailable (or its outcome is unknown) is retried with backoff
+until it is stored, checking first whether its delivery landed; meanwhile
+the message is not acknowledged and later ones wait behind it. A write the
+database refuses for its content, every time (``NotStorable``, after the
+group committer's bounded attempts), will never succeed: the message is
+**poisoned**, kept in the rejected store like a rejected one (with the
+database's reason) and acknowledged, so the messages behind it go on. So
+is one whose write failed ``POISON_ATTEMPTS`` times, whatever the error,
+while other messages were stored meanwhile.
 """
 
 from __future__ import annotations
@@ -44,7 +62,7 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from functools import partial
 from typing import Any, Protocol, TypeVar
@@ -54,11 +72,11 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
-from tsdb_service.core.errors import TsdbError
+from tsdb_service.core.errors import NotStorable, TsdbError
 from tsdb_service.ingest.mqtt.config import BUFFER_BYTES, MqttConfig
 from tsdb_service.ingest.mqtt.messages import Message, parse_message, rejected
 from tsdb_service.parse import ValuesLayout
-from tsdb_service.write.ops import AppendSamples, Delivery, RecordRejected, WriteOp
+from tsdb_service.write.ops import AppendSamples, Delivery, RecordDelivery, RecordRejected, WriteOp
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +85,7 @@ KEEPALIVE_S = 30
 RETRY_DELAY_S = 0.1
 RETRY_MAX_DELAY_S = 5.0
 STOP_TIMEOUT_S = 10.0
+POISON_ATTEMPTS = 5  # failed writes of one message, while others are stored, before it is set aside
 _PARSE_INLINE_MAX = 64 * 1024  # larger payloads are parsed in the threadpool, as over HTTP
 
 
@@ -119,6 +138,16 @@ class _Item:
 
 
 @dataclass(slots=True)
+class _Session:
+    """What belongs to one broker session: the deliveries that may come
+    again (``window``), and the first deliveries being written (a
+    redelivery waits for its first delivery's write)."""
+
+    window: Window
+    writing: dict[tuple[int, bytes], asyncio.Event] = field(default_factory=dict)
+
+
+@dataclass(slots=True)
 class MqttStats:
     """Counters for ``/metrics`` (``telemetry.MqttCollector``)."""
 
@@ -126,8 +155,10 @@ class MqttStats:
     stored: int = 0
     rejected: int = 0
     redelivered: int = 0
+    poisoned: int = 0  # refused by the database for their content: kept in the rejected store
     write_retries: int = 0
     connects: int = 0
+    sessions_lost: int = 0  # connections on which the broker had no session for us (a fresh window)
     acks_skipped: int = 0  # received on a connection that dropped before the ack: the broker resends
 
 
@@ -136,9 +167,9 @@ class MqttConsumer:
         self.config = config
         self.store = store
         self.stats = MqttStats()
-        self._window = Window(config.window)
+        self._session = _Session(Window(config.window))
         self._next_seq = 1
-        self._writing: dict[tuple[int, bytes], asyncio.Event] = {}
+        self._writes_ok = 0  # writes that went through (a message failing alone while it grows is poison)
         self._order: deque[_Item] = deque()
         self._tasks: set[asyncio.Task] = set()
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -165,7 +196,7 @@ class MqttConsumer:
         cid, window = self.config.client_id, self.config.window
         recent = await self.store.read(lambda: self.store.deliveries(cid, window), memory_first=False)
         for _seq, packet_id, digest in reversed(recent):
-            self._window.add((packet_id, digest))
+            self._session.window.add((packet_id, digest))
         self._next_seq = (recent[0][0] + 1) if recent else 1
         self._client = self._make_client()
         self._client.connect_async(
@@ -244,8 +275,34 @@ class MqttConsumer:
         if not flags.session_present and self.stats.connects > 1:
             session += " (the broker had lost ours: what was published meanwhile was not kept for us)"
         log.info("MQTT: connected to %s as %s, %s", self.config.url, self.config.client_id, session)
+        if self.stats.connects == 1:
+            self._warn_guessable_id()
+        if flags.session_present:
+            self._subscribe(client)
+            return
+        loop, generation = self._loop, self._generation
+        if loop is not None:
+            with contextlib.suppress(RuntimeError):  # the loop has closed: we are stopping
+                loop.call_soon_threadsafe(self._spawn, self._fresh_session(client, generation))
+
+    def _subscribe(self, client: paho.Client) -> None:
         options = SubscribeOptions(qos=self.config.qos, retainHandling=SubscribeOptions.RETAIN_DO_NOT_SEND)
         client.subscribe([(topic_filter, options) for topic_filter in self.config.filters])
+
+    def _warn_guessable_id(self) -> None:
+        """The broker took us without credentials under the default client
+        id: any client that connects as ``tsdb-service-HOSTNAME`` takes our
+        session, and with it the messages queued for us."""
+        cfg = self.config
+        if cfg.client_id_is_default and not cfg.username and not cfg.cert_file:
+            log.warning(
+                "MQTT: the broker %s accepted us without credentials, under the default client id %s, which "
+                "anyone can guess: a client connecting with it takes our session and the messages queued for "
+                "it. Set TSDB_MQTT_CLIENT_ID to an id of your own and let the broker authenticate clients and "
+                "restrict each client id to its owner (docs/mqtt.md, 'What the broker must enforce')",
+                cfg.url,
+                cfg.client_id,
+            )
 
     def _on_subscribe(self, client, userdata, mid, reason_codes, properties) -> None:
         refused = [
@@ -315,9 +372,32 @@ class MqttConsumer:
     def _arrived(self, item: _Item) -> None:
         self.stats.received += 1
         self._order.append(item)
-        task = asyncio.ensure_future(self._process(item))
+        self._spawn(self._process(item))
+
+    def _spawn(self, work) -> None:
+        task = asyncio.ensure_future(work)
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
+
+    async def _fresh_session(self, client: paho.Client, generation: int) -> None:
+        """The broker has no session for us: forget every delivery of the
+        old one (in memory now, in the database before subscribing), then
+        subscribe, unless the connection dropped meanwhile (the next one
+        decides again)."""
+        self._session = _Session(Window(self.config.window))
+        seq = self._next_seq
+        self._next_seq += 1
+        marker = Delivery(self.config.client_id, seq, 0, b"", datetime.now(UTC), prune_below=seq)
+        try:
+            if not await self._write(RecordDelivery(marker), marker, counted=False):
+                return  # stopping
+        except TsdbError as exc:  # refused for its content: cannot be (a marker is ids only); go on in memory
+            log.error("MQTT: the earlier deliveries could not be forgotten in the database: %s", exc.description)
+        self.stats.sessions_lost += 1
+        with self._ack_lock:
+            current = self._connected and generation == self._generation
+        if current:
+            self._subscribe(client)
 
     async def _process(self, item: _Item) -> None:
         try:
@@ -338,14 +418,15 @@ class MqttConsumer:
         already; True once it may be acknowledged."""
         if m.qos == 0:
             op = await self._op(m, None)
-            await self._write(op, None)
+            await self._store_or_set_aside(m, op, None)
             return False
         key = (m.packet_id, m.digest)
-        if m.dup:
-            pending = self._writing.get(key)
+        session = self._session  # the broker's session this message belongs to
+        if m.dup:  # only a redelivery can have been stored before
+            pending = session.writing.get(key)
             if pending is not None:  # its first delivery is being written right now
                 await pending.wait()
-            if key in self._window:
+            if key in session.window:
                 self.stats.redelivered += 1
                 return True
         seq = self._next_seq
@@ -353,17 +434,32 @@ class MqttConsumer:
         window = self.config.window
         prune = seq - window if seq % window == 0 else 0
         delivery = Delivery(self.config.client_id, seq, m.packet_id, m.digest, m.received_at, prune)
-        written = self._writing[key] = asyncio.Event()
+        written = session.writing[key] = asyncio.Event()
         try:
             op = await self._op(m, delivery)
-            if not await self._write(op, delivery):
+            if not await self._store_or_set_aside(m, op, delivery):
                 return False
         finally:
             written.set()
-            if self._writing.get(key) is written:
-                del self._writing[key]
-        self._window.add(key)
+            if session.writing.get(key) is written:
+                del session.writing[key]
+        session.window.add(key)
         return True
+
+    async def _store_or_set_aside(self, m: Message, op: WriteOp, delivery: Delivery | None) -> bool:
+        """Write ``op``; when the database refuses it for its content, keep
+        ``m`` in the rejected store instead. False when stopping first."""
+        try:
+            return await self._write(op, delivery)
+        except TsdbError as exc:  # 4xx: NotStorable, it would fail however often it is tried
+            if isinstance(op, RecordRejected):
+                raise  # the rejected store takes anything (storage.rejected): a bug, logged by _process
+            log.error("MQTT: a message on %r is set aside in the rejected store: %s", m.topic[:200], exc.description)
+            aside = RecordRejected(rejected(m, exc, self.config), delivery)
+            if not await self._write(aside, delivery, counted=False):
+                return False
+            self.stats.poisoned += 1
+            return True
 
     async def _op(self, m: Message, delivery: Delivery | None) -> WriteOp:
         """The write ``m`` makes: its samples, or its rejection. A parse that
@@ -386,15 +482,21 @@ class MqttConsumer:
                 continue
             return AppendSamples(entities, deliveries=() if delivery is None else (delivery,))
 
-    async def _write(self, op: WriteOp, delivery: Delivery | None) -> bool:
-        """Write ``op`` until it is stored; False when stopping first."""
+    async def _write(self, op: WriteOp, delivery: Delivery | None, counted: bool = True) -> bool:
+        """Write ``op`` until it is stored; False when stopping first; a 4xx
+        ``TsdbError`` (``NotStorable``) when the database refuses it for its
+        content. ``counted``: count it as stored or rejected (``/metrics``)."""
         delay = RETRY_DELAY_S
+        others_before, attempts = self._writes_ok, 0
         while True:
             try:
                 await self.store.write(op)
                 break
             except Exception as exc:
+                if isinstance(exc, TsdbError) and exc.status < 500:
+                    raise  # the database refuses it for its content: retrying cannot help
                 self.stats.write_retries += 1
+                attempts += 1
                 if self._stopping:
                     return False
                 reason = getattr(exc, "description", None) or str(exc) or type(exc).__name__
@@ -403,6 +505,14 @@ class MqttConsumer:
                 delay = min(delay * 2, RETRY_MAX_DELAY_S)
                 if delivery is not None and await self._recorded(delivery.seq):
                     break  # a commit whose outcome was unknown did land
+                if attempts >= POISON_ATTEMPTS and self._writes_ok > others_before:
+                    # The store took other messages meanwhile: this one is the trouble.
+                    raise NotStorable(
+                        f"storing it failed {attempts} times while other messages were stored: {reason}"
+                    ) from None
+        self._writes_ok += 1
+        if not counted:
+            return True
         if isinstance(op, RecordRejected):
             self.stats.rejected += 1
         else:
@@ -460,8 +570,10 @@ class MqttConsumer:
             "stored": s.stored,
             "rejected": s.rejected,
             "redelivered": s.redelivered,
+            "poisoned": s.poisoned,
             "write_retries": s.write_retries,
             "connects": s.connects,
+            "sessions_lost": s.sessions_lost,
             "inflight": len(self._order),
             "buffered_bytes": self._buffered,
             "oldest_unacked_s": lag,

@@ -20,6 +20,11 @@ or the message is refused as a request naming two tenants is), else
 ``--mqtt-default-tenant``; with none of them the message is rejected. The
 service path: the topic's, a ``Fiware-ServicePath`` header (which must
 agree with the topic's), else ``/``.
+
+**Which tenants a topic may write** (``TSDB_MQTT_TENANTS``, ``topics``):
+checked on the parsed samples, as the HTTP routes check a credential's
+tenants on the parsed request; a message for another tenant is rejected
+(``Forbidden``, kept in the rejected store under the tenant it named).
 """
 
 from __future__ import annotations
@@ -31,11 +36,11 @@ from datetime import datetime
 import orjson
 
 from tsdb_service.core.credentials import redact_headers
-from tsdb_service.core.errors import BadRequest, ParseError, PayloadTooLarge, TsdbError
+from tsdb_service.core.errors import BadRequest, Forbidden, ParseError, PayloadTooLarge, TsdbError
 from tsdb_service.core.model import EntitySample, RejectedNotification
 from tsdb_service.core.timepaths import parse_time_paths
 from tsdb_service.ingest.mqtt.config import MqttConfig
-from tsdb_service.ingest.mqtt.topics import route
+from tsdb_service.ingest.mqtt.topics import route, topic_tenants
 from tsdb_service.parse import load_document, parse_document
 from tsdb_service.parse.request_context import TenantProblem, raw_tenant, select_tenant, selectors
 
@@ -123,13 +128,29 @@ def parse_message(message: Message, config: MqttConfig, values_layout=None) -> l
         if type(doc) is not dict:
             raise ParseError("envelope 'body' must be a notification object")
     headers = routed_headers(message.topic, pairs, config)
-    return parse_document(
+    entities = parse_document(
         doc,
         Headers(headers),
         received_at=message.received_at,
         values_layout=values_layout,
         time_paths=parse_time_paths(config.time_index_paths),
     )
+    if config.tenant_rules:
+        check_tenants(message.topic, {e.tenant for e in entities}, config)
+    return entities
+
+
+def check_tenants(topic: str, tenants: set[str], config: MqttConfig) -> None:
+    """``Forbidden`` unless ``TSDB_MQTT_TENANTS`` lets ``topic`` write every one of ``tenants``."""
+    allowed = topic_tenants(config.tenant_rules, topic)
+    refused = sorted(tenants - allowed)
+    if refused:
+        names = ", ".join(repr(t) if t else "the default tenant" for t in refused)
+        may = ", ".join(sorted(repr(t) if t else "'-'" for t in allowed)) or "no tenant"
+        raise Forbidden(
+            f"the topic {topic[:200]!r} may not write {names} (TSDB_MQTT_TENANTS lets it write {may}); "
+            "nothing was stored"
+        )
 
 
 def routed_headers(topic: str, pairs: list[tuple[str, str]], config: MqttConfig) -> list[tuple[str, str]]:

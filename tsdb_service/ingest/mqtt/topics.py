@@ -13,12 +13,22 @@ matched and ignored. Without macros a template is a fixed topic.
 
 The filter a template implies is its literal levels up to the first macro,
 then ``#``: ``tsdb/${service}${servicePath}`` subscribes to ``tsdb/#``.
+
+**Tenants by topic** (``TSDB_MQTT_TENANTS``). A subscriber never learns who
+published a message (MQTT carries no publisher identity to it), so the
+tenants a message may write are decided by its topic, whose publishers the
+broker's ACLs restrict: ``tsdb/alpha/#=alpha; tsdb/shared/#=beta,gamma``.
+A message may write the tenants of every rule whose filter matches its
+topic (MQTT's ``+`` and ``#``), none when no rule does; without rules, any
+tenant (the broker's ACLs are then the only restriction).
 """
 
 from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+
+from tsdb_service.parse.request_context import is_stored_tenant
 
 SERVICE = "service"
 SERVICE_PATH = "servicePath"
@@ -116,3 +126,62 @@ def check_filter(topic_filter: str) -> str:
         if "+" in level and level != "+":
             raise ValueError(f"topic filter {topic_filter[:80]!r}: '+' must be a whole level")
     return topic_filter
+
+
+def filter_matches(topic_filter: str, topic: str) -> bool:
+    """Does ``topic`` match the MQTT filter (``+`` one level, ``#`` the rest,
+    its parent level included)? Wildcards never match a ``$`` topic's first level."""
+    if topic.startswith("$") and topic_filter[:1] in ("+", "#"):
+        return False
+    levels, wanted = topic.split("/"), topic_filter.split("/")
+    for i, want in enumerate(wanted):
+        if want == "#":
+            return True
+        if i >= len(levels) or (want != "+" and want != levels[i]):
+            return False
+    return len(levels) == len(wanted)
+
+
+DEFAULT_TENANT_TOKEN = "-"  # the default tenant in a list, as in TSDB_API_KEYS
+
+
+@dataclass(frozen=True, slots=True)
+class TenantRule:
+    """Messages on topics matching ``filter`` may write ``tenants`` (as stored: lower case, ``""`` the default)."""
+
+    filter: str
+    tenants: frozenset[str]
+
+
+def parse_tenant_rules(spec: str) -> tuple[TenantRule, ...]:
+    """``FILTER=TENANT[,TENANT...]`` entries separated by ``;``
+    (``TSDB_MQTT_TENANTS``), or ValueError saying which entry is wrong."""
+    rules = []
+    for entry in spec.split(";"):
+        if not entry.strip():
+            continue
+        topic_filter, sep, names = entry.strip().rpartition("=")
+        if not sep or not topic_filter.strip():
+            raise ValueError(f"entry {entry.strip()[:80]!r} is not FILTER=TENANT[,TENANT...]")
+        topic_filter = check_filter(topic_filter.strip())
+        tenants = set()
+        for name in names.split(","):
+            tenant = name.strip().lower()
+            tenant = "" if tenant == DEFAULT_TENANT_TOKEN else tenant
+            if not name.strip() or not is_stored_tenant(tenant):
+                raise ValueError(
+                    f"entry {entry.strip()[:80]!r}: {name.strip()[:60]!r} is not a tenant (1 to 50 letters, "
+                    "digits or underscores, or '-' for the default tenant)"
+                )
+            tenants.add(tenant)
+        rules.append(TenantRule(topic_filter, frozenset(tenants)))
+    return tuple(rules)
+
+
+def topic_tenants(rules: tuple[TenantRule, ...], topic: str) -> frozenset[str]:
+    """The tenants a message on ``topic`` may write under ``rules`` (non-empty)."""
+    out: set[str] = set()
+    for rule in rules:
+        if filter_matches(rule.filter, topic):
+            out |= rule.tenants
+    return frozenset(out)

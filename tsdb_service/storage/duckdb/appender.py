@@ -304,6 +304,21 @@ class DuckDBAppender(StagingAppender):
                 raise
         store.note_write(None)
 
+    def refuses(self, exc: BaseException) -> bool:
+        """The content's fault: a value DuckDB cannot convert or hold, a
+        constraint it breaks, or a value the appender cannot take (a plain
+        Python error). An invalidated database, I/O and transaction
+        conflicts pass: they are not."""
+        if isinstance(exc, duckdb.Error):
+            content = (
+                duckdb.ConversionException,
+                duckdb.InvalidInputException,
+                duckdb.ConstraintException,
+                duckdb.OutOfRangeException,
+            )
+            return isinstance(exc, content) and fatal_kind(exc) is None
+        return isinstance(exc, ValueError | TypeError | OverflowError)
+
     def _durable(self, cur: duckdb.DuckDBPyConnection, sql: str, params=None) -> None:
         """Execute a statement that commits (autocommit, or COMMIT itself).
         "COMMIT succeeded ... but the autocheckpoint failed" means it did:

@@ -12,6 +12,13 @@ _PERIOD_US = {"second": 10**6, "minute": 60 * 10**6, "hour": 3600 * 10**6, "day"
 _YEAR_1_US = 62_135_596_800 * 10**6  # 0001-01-01 to 1970-01-01
 
 
+# Order-preserving integer keys: a double's bits with the magnitude flipped
+# for negatives (``-0.0 + 0.0`` is ``0.0``); a time with its row id below it.
+_BITS = "(((({v}) + 0.0)::BIT)::BIGINT)"
+_LOW = 2**62  # epoch µs + this stays in [0, 2**63) for every timestamp
+_HIGH = f"{2**64}::HUGEINT"  # DuckDB refuses to left-shift a negative number
+
+
 def _shift(width: int) -> int:
     """The smallest multiple of ``width`` that is at least ``_YEAR_1_US``."""
     return -(-_YEAR_1_US // width) * width
@@ -94,3 +101,35 @@ class DuckDBDialect(SqlDialect):
             "(SELECT unnest(?::INTEGER[]) AS m_sid, unnest(?::TIMESTAMP[]) AS m_t0, unnest(?::BIGINT[]) AS m_r0, "
             "unnest(?::TIMESTAMP[]) AS m_t1, unnest(?::BIGINT[]) AS m_r1) AS m"
         )
+
+    # -- time buckets ------------------------------------------------------------
+    # Integer arithmetic on epoch µs: grouping by it measured 1.4 times as
+    # fast as by ``time_bucket(..., origin)`` (the key hashes faster), with
+    # the same buckets. ``arg_min``/``arg_max`` pick any row among equal
+    # values, so each compares a key unique per row: the value's ordered
+    # bits above its time, or the time above the row id (HUGEINT).
+
+    def bucket_index(self, t: str, tu: str, width_us: int) -> tuple[str, list]:
+        return f"(({tu} + ?) // ?)", [_shift(width_us), width_us]
+
+    def bucket_start(self, key: str, width_us: int) -> tuple[str, list]:
+        return f"({key} * ? - ?)", [width_us, _shift(width_us)]
+
+    def value_key(self, v: str) -> str:
+        bits = _BITS.format(v=v)
+        return f"xor({bits}, ({bits} >> 63) & 9223372036854775807)"
+
+    def time_of_min(self, v: str, vk: str, tu: str) -> str:
+        return f"arg_min({tu}, {vk} * {_HIGH} + ({tu} + {_LOW}))"
+
+    def time_of_max(self, v: str, vk: str, tu: str) -> str:
+        return f"arg_max({tu}, {vk} * {_HIGH} + ({_LOW - 1} - {tu}))"
+
+    def value_at_first(self, v: str, tu: str, rid: str) -> str:
+        return f"arg_min({v}, {tu} * {_HIGH} + {rid})"
+
+    def value_at_last(self, v: str, tu: str, rid: str) -> str:
+        return f"arg_max({v}, {tu} * {_HIGH} + {rid})"
+
+    def json_value(self, col: str, path: object) -> tuple[str, list]:
+        return f"CAST(json_extract({col}, ?) AS VARCHAR)", [path]

@@ -19,6 +19,7 @@ from typing import Protocol
 
 import duckdb
 
+from tsdb_service.core import budget
 from tsdb_service.core.errors import Unavailable
 from tsdb_service.core.query import (
     ExtentRow,
@@ -88,7 +89,7 @@ class DuckDBQuerier(SqlQuerier):
         self.catalog = SeriesCatalog(self._load_series, store.series_generation)
 
     def _load_series(self, after: int) -> list[tuple]:
-        return self._fetch(_LOAD_SERIES, [after])
+        return self._fetch(_LOAD_SERIES, [after], pooled=False)  # the shared catalog's, not one read's
 
     def raw_rows(self, ask: RowsRead) -> list[RawRow]:
         """One attribute per row: try the in-memory tails first; under a geo
@@ -487,14 +488,15 @@ class DuckDBQuerier(SqlQuerier):
             [sid, n],
         )
 
-    def _fetch(self, sql: str, params: list) -> list[tuple]:
+    def _fetch(self, sql: str, params: list, pooled: bool = True) -> list[tuple]:
         """Run a read; an invalidated database (disk full during a checkpoint)
-        is a 503 while the store reopens it, not a 500."""
+        is a 503 while the store reopens it, not a 500. ``pooled``: its rows
+        count in the request's read pool (not a shared cache's load)."""
         check_database_allowed()
         store = self._store
         try:
             with store.reading():
-                return store.cursor().execute(sql, params).fetchall()
+                return budget.fetch_all(store.cursor().execute(sql, params), pooled)
         except duckdb.Error as exc:
             unavailable = self._unavailable(exc)
             if unavailable is None:

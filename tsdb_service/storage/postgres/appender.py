@@ -429,6 +429,15 @@ class PostgresAppender(StagingAppender):
         memory.forget([op.sid for op in self._instance_ops])
         self._reset()
 
+    def refuses(self, exc: BaseException) -> bool:
+        """The content's fault: a value PostgreSQL cannot hold or convert
+        (class 22, data exception, e.g. a NUL in text), a constraint it
+        breaks (class 23), or a value the driver cannot send. A lost
+        connection, a full disk, a conflict pass: they are not."""
+        if isinstance(exc, psycopg.Error):
+            return isinstance(exc, psycopg.DataError | psycopg.IntegrityError)
+        return isinstance(exc, ValueError | TypeError | OverflowError)
+
     def rollback(self) -> None:
         # conn.rollback() sends ROLLBACK only inside a transaction (BEGIN
         # was explicit: the connection is in autocommit).

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from datetime import timedelta
 
 from tsdb_service.storage.sql.dialect import SqlDialect
 
@@ -67,6 +68,32 @@ class PostgresDialect(SqlDialect):
 
     def periods_relation(self) -> str:
         return "unnest(%s::bigint[], %s::bigint[]) AS per(lo, hi)"
+
+    # -- time buckets ------------------------------------------------------------
+    # ``date_bin`` from the epoch; among equal values the earliest sample wins
+    # through arrays compared element by element (``min(float8[])``): a time
+    # in epoch µs and a row id are exact in a float8 below 2**53.
+
+    def bucket_index(self, t: str, tu: str, width_us: int) -> tuple[str, list]:
+        return f"date_bin(%s::interval, {t}, TIMESTAMP '1970-01-01')", [timedelta(microseconds=width_us)]
+
+    def bucket_start(self, key: str, width_us: int) -> tuple[str, list]:
+        return self.epoch_us(key), []
+
+    def time_of_min(self, v: str, vk: str, tu: str) -> str:
+        return f"((min(ARRAY[{v}, {tu}::float8]))[2])::bigint"
+
+    def time_of_max(self, v: str, vk: str, tu: str) -> str:
+        return f"(-(max(ARRAY[{v}, (-{tu})::float8]))[2])::bigint"
+
+    def value_at_first(self, v: str, tu: str, rid: str) -> str:
+        return f"(min(ARRAY[{tu}::float8, {rid}::float8, {v}]))[3]"
+
+    def value_at_last(self, v: str, tu: str, rid: str) -> str:
+        return f"(max(ARRAY[{tu}::float8, {rid}::float8, {v}]))[3]"
+
+    def json_value(self, col: str, path: object) -> tuple[str, list]:
+        return f"(({col})::jsonb #> %s::text[])", [path]
 
 
 def int_array(values: Iterable[int]) -> str:

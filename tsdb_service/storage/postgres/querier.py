@@ -30,6 +30,7 @@ from typing import Final, Protocol
 
 import psycopg
 
+from tsdb_service.core import budget
 from tsdb_service.core.errors import Unavailable
 from tsdb_service.core.model import Kind
 from tsdb_service.core.query import (
@@ -51,6 +52,7 @@ from tsdb_service.read.requests import (
     InstanceAggregateRead,
     LocationsIn,
     RowsRead,
+    SamplesIn,
     SeriesSelect,
 )
 from tsdb_service.storage.catalog import SeriesCatalog
@@ -291,7 +293,7 @@ class PostgresQuerier(SqlQuerier):
             sql = f"SELECT {cols} FROM geo_extents WHERE sid = ANY(%s::integer[]) AND {test}"
             return [_new(ExtentRow, (*row, None, None)) for row in self._fetch(sql, [int_array(sids), *params])]
         if prefilter is None:
-            rows = self._fetch(f"SELECT {cols} FROM geo_extents", [])
+            rows = self._fetch(f"SELECT {cols} FROM geo_extents", [], pooled=False)  # the shared ledger's
         else:
             box = prefilter[1]
             rows = self._fetch(
@@ -313,6 +315,29 @@ class PostgresQuerier(SqlQuerier):
                 [int_array(sids)],
             )
         )
+
+    def span(self, ask: SamplesIn) -> tuple[int, int] | None:
+        """Two ``(sid, t)`` index probes per series (its first and last sample
+        in the window) instead of reading the window."""
+        if not ask.sids:
+            return None
+        d = self.dialect
+        window, params = "", []
+        if ask.time.start is not None:
+            window += " AND x.t >= %s"
+            params.append(d.time_value(ask.time.start))
+        if ask.time.end is not None:
+            window += " AND x.t <= %s"
+            params.append(d.time_value(ask.time.end))
+        sql = (
+            f"SELECT {d.epoch_us('min(a.t)')}, {d.epoch_us('max(b.t)')} FROM unnest(%s::integer[]) AS s(sid) "
+            f"CROSS JOIN LATERAL (SELECT x.t FROM samples x WHERE x.sid = s.sid{window} ORDER BY x.t LIMIT 1) a "
+            f"CROSS JOIN LATERAL (SELECT x.t FROM samples x WHERE x.sid = s.sid{window} ORDER BY x.t DESC LIMIT 1) b"
+        )
+        rows = self._fetch(sql, [int_array(ask.sids), *params, *params])
+        if not rows or rows[0][0] is None:
+            return None
+        return int(rows[0][0]), int(rows[0][1])
 
     def _location_seeds(self, sids: Sequence[int], before: datetime) -> tuple[str, list]:
         """The latest geo sample before ``before``: one index probe per series."""
@@ -368,7 +393,7 @@ class PostgresQuerier(SqlQuerier):
         now = time.monotonic()
         if own == self._generation[0] and now - self._checked < SERIES_CHECK_S:
             return self._generation
-        count = int(self._fetch("SELECT sum(n) FROM series_generation", [])[0][0])
+        count = int(self._fetch("SELECT sum(n) FROM series_generation", [], pooled=False)[0][0])
         self._generation, self._checked = (own, count), now
         return self._generation
 
@@ -378,18 +403,22 @@ class PostgresQuerier(SqlQuerier):
         return self._fetch(
             "SELECT sid, sid, tenant, service_path, entity_id, entity_type, attr, dataset_id FROM series ORDER BY sid",
             [],
+            pooled=False,  # the shared catalog's, not one read's
         )
 
-    def _fetch(self, sql: str, params: list, binary: bool = False, prepare: bool = True) -> list[tuple]:
+    def _fetch(
+        self, sql: str, params: list, binary: bool = False, prepare: bool = True, pooled: bool = True
+    ) -> list[tuple]:
         """All rows; ``binary``: in PostgreSQL's binary format, which parses
         faster where thousands of numeric rows come back. ``prepare=False``:
         planned for its parameters at every run; a prepared statement gets a
         generic plan after five runs, and for the aggregations that plan
-        made one run in twenty take 20-50 ms instead of 6."""
+        made one run in twenty take 20-50 ms instead of 6. ``pooled``: its
+        rows count in the request's read pool (not a shared cache's load)."""
         check_database_allowed()
         try:
             with self._store.connection() as conn, conn.cursor(binary=binary) as cur:
-                return cur.execute(sql, params, prepare=prepare).fetchall()
+                return budget.fetch_all(cur.execute(sql, params, prepare=prepare), pooled)
         except psycopg.OperationalError as exc:
             raise Unavailable(f"the database is not available: {exc}") from None
 

@@ -122,6 +122,45 @@ class SqlDialect:
         """A FROM item of two bound BIGINT arrays zipped into rows
         ``per(lo, hi)`` (consecutive periods, epoch µs)."""
 
+    # -- time buckets (``storage.sql.buckets``) ---------------------------------
+    # The aggregates below take column names of the bucket query's inner
+    # select: a number ``v``, its ``value_key`` ``vk``, its time ``tu`` (epoch
+    # µs) and its row id.
+
+    @abstractmethod
+    def bucket_index(self, t: str, tu: str, width_us: int) -> tuple[str, list]:
+        """A per-row grouping key of the bucket of ``width_us`` (aligned to
+        the epoch) holding timestamp ``t`` (``tu``: the same in epoch µs)."""
+
+    @abstractmethod
+    def bucket_start(self, key: str, width_us: int) -> tuple[str, list]:
+        """The bucket's start in epoch µs, from its key (once per group)."""
+
+    def value_key(self, v: str) -> str:
+        """A per-row key of ``v`` that ``time_of_min``/``time_of_max`` use."""
+        return "NULL"
+
+    @abstractmethod
+    def time_of_min(self, v: str, vk: str, tu: str) -> str:
+        """Aggregate: the time of the smallest ``v``, the earliest among equals."""
+
+    @abstractmethod
+    def time_of_max(self, v: str, vk: str, tu: str) -> str:
+        """Aggregate: the time of the largest ``v``, the earliest among equals."""
+
+    @abstractmethod
+    def value_at_first(self, v: str, tu: str, rid: str) -> str:
+        """Aggregate: ``v`` of the earliest row by (``tu``, ``rid``)."""
+
+    @abstractmethod
+    def value_at_last(self, v: str, tu: str, rid: str) -> str:
+        """Aggregate: ``v`` of the latest row by (``tu``, ``rid``)."""
+
+    @abstractmethod
+    def json_value(self, col: str, path: object) -> tuple[str, list]:
+        """The JSON value at ``path`` in JSON text ``col``, comparable with
+        ``IS DISTINCT FROM`` (NULL where missing)."""
+
 
 def mask_filter(dialect: SqlDialect, mask: RowMask) -> tuple[str, list]:
     """SQL: the sample's (t, rid) lies in one of its series' mask intervals.

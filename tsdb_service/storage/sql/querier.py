@@ -1,7 +1,7 @@
 """The SQL querier: every read of the seam, for any backend with a ``SqlDialect``.
 
 Each role is rendered in its own module (``series``, ``samples``,
-``aggregate``, ``locations``, ``instances``, ``bulk``); a backend subclasses
+``aggregate``, ``locations``, ``instances``, ``bulk``, ``buckets``); a backend subclasses
 ``SqlQuerier``, gives it a connection (``_fetch``, ``_batches``) and
 overrides what it answers faster (DuckDB from memory, PostgreSQL by index).
 Every query filters samples by series id first (``sid = ?`` or
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from tsdb_service.read import Querier
 from tsdb_service.storage.sql.aggregate import SqlAggregates
+from tsdb_service.storage.sql.buckets import SqlBuckets
 from tsdb_service.storage.sql.bulk import SqlBulk
 from tsdb_service.storage.sql.instances import SqlInstances
 from tsdb_service.storage.sql.locations import SqlLocations
@@ -20,5 +21,5 @@ from tsdb_service.storage.sql.samples import SqlSamples
 from tsdb_service.storage.sql.series import SqlSeries
 
 
-class SqlQuerier(SqlSeries, SqlSamples, SqlAggregates, SqlLocations, SqlInstances, SqlBulk, Querier):
+class SqlQuerier(SqlSeries, SqlSamples, SqlAggregates, SqlLocations, SqlInstances, SqlBulk, SqlBuckets, Querier):
     """Every read, on the backend's connection."""

@@ -34,8 +34,9 @@
     drone: { seconds: 6 * 3600, text: "last 6 h of data" },
   };
   const AUTO_TIP = "Every range ends at the newest sample stored, not at the present, so an old database shows " +
-    "its data too. auto picks a window that suits the view: Explore, all the entity's data (each series thinned " +
-    "to at most 800 points); Lawnmower, the last hour; Warehouse, the last 10 minutes; Drone, the last 6 hours.";
+    "its data too. auto picks a window that suits the view: Explore, all the entity's data (the database draws " +
+    "each series in at most 800 time buckets); Lawnmower, the last hour; Warehouse, the last 10 minutes; Drone, " +
+    "the last 6 hours.";
   let charts = []; // live uPlot instances of the current view
   let generation = 0; // bumps on every navigation; stale async work stops drawing
 
@@ -72,6 +73,10 @@
 
   // -- the API ------------------------------------------------------------------
 
+  /** What the answers of the view at hand said about themselves: the bucket widths their
+   * points stand for (X-Tsdb-Bucket) and what a cap left out (X-Tsdb-Notice). */
+  let said = { buckets: new Set(), notices: [] };
+
   async function api(path, params) {
     const url = new URL(path, ROOT);
     for (const [key, value] of Object.entries(params || {})) {
@@ -88,7 +93,23 @@
       const why = body && body.description ? `: ${body.description}` : "";
       throw new Error(`${url.pathname} answered HTTP ${resp.status}${why}`);
     }
+    const bucket = resp.headers.get("X-Tsdb-Bucket");
+    if (bucket && bucket !== "raw") said.buckets.add(bucket);
+    const notice = resp.headers.get("X-Tsdb-Notice");
+    if (notice) for (const text of notice.split(" | ")) if (!said.notices.includes(text)) said.notices.push(text);
     return body;
+  }
+
+  /** A line under the view: the bucket widths drawn (a point per bucket, not every sample) and
+   * anything the service left out, so a chart never looks complete when it is not. */
+  function saidLine() {
+    const parts = [];
+    if (said.buckets.size) {
+      parts.push(h("span", { id: "buckets" }, `Drawn from the database's time buckets (${[...said.buckets].join(", ")}): ` +
+        "one point per bucket, a gap where a bucket holds no sample."));
+    }
+    for (const text of said.notices) parts.push(h("span", { class: "notice" }, `Not shown: ${text}.`));
+    return parts.length ? h("p", { id: "said", class: "muted" }, parts) : null;
   }
 
   let useCasesPromise = null;
@@ -142,7 +163,9 @@
 
   // -- charts (uPlot) ------------------------------------------------------------------
 
-  /** Rows of one or more entities → uPlot data: shared x (s) and one array per (entity, column). */
+  /** Rows of one or more entities → uPlot data: shared x (s) and one array per (entity, column).
+   * A row without a column has no point of it there (undefined: the line goes on); a null is a gap
+   * (no sample in that bucket): the line breaks. */
   function toColumns(rows, keys) {
     const times = [...new Set(rows.map((r) => Date.parse(r.time)))].sort((a, b) => a - b);
     const at = new Map(times.map((t, i) => [t, i]));
@@ -150,16 +173,18 @@
     for (const row of rows) {
       const i = at.get(Date.parse(row.time));
       for (const key of keys) {
+        if (!(key in row)) continue;
         const id = `${row.entity}\u0000${key}`;
-        if (!out.has(id)) out.set(id, { entity: row.entity, key, values: new Array(times.length).fill(null) });
+        if (!out.has(id)) out.set(id, { entity: row.entity, key, values: new Array(times.length).fill(undefined) });
         const v = row[key];
-        out.get(id).values[i] = typeof v === "boolean" ? Number(v) : typeof v === "number" ? v : null;
+        out.get(id).values[i] = v === null ? null : typeof v === "boolean" ? Number(v) : typeof v === "number" ? v : undefined;
       }
     }
     return { xs: times.map((t) => t / 1000), columns: [...out.values()] };
   }
+  const drawn = (v) => v !== null && v !== undefined;
   /** One column's values (of the first entity that has it); [] when no row had any. */
-  const valuesOf = (data, key) => (data.columns.find((c) => c.key === key) || { values: [] }).values;
+  const valuesOf = (data, key) => (data.columns.find((c) => c.key === key) || { values: new Array(data.xs.length).fill(undefined) }).values;
 
   /** Time tick labels of one kind for a whole axis: dates, clock times, or both. */
   function timeLabel(ms, stepSeconds, spanSeconds) {
@@ -231,7 +256,7 @@
         stroke: one.color || PALETTE[i % PALETTE.length],
         width: one.width || 1.5,
         dash: one.dash,
-        spanGaps: true,
+        spanGaps: false, // a null is a bucket without a sample: the line breaks there
         points: { show: one.points || false, size: 5 },
         paths: one.stepped ? uPlot.paths.stepped({ align: 1 }) : undefined,
       }))),
@@ -242,7 +267,8 @@
     chart.tsdbHeight = height;
     charts.push(chart);
     box.dataset.series = String(series.length);
-    box.dataset.points = String(series.reduce((n, one) => n + one.values.filter((v) => v !== null).length, 0));
+    box.dataset.points = String(series.reduce((n, one) => n + one.values.filter(drawn).length, 0));
+    box.dataset.gaps = String(series.reduce((n, one) => n + one.values.filter((v) => v === null).length, 0));
     return chart;
   }
 
@@ -591,7 +617,7 @@
     for (const [attr, cols] of byAttr) {
       const varying = [], constant = [];
       for (const col of cols) {
-        const present = (values.get(col.key) || []).filter((v) => v !== null);
+        const present = (values.get(col.key) || []).filter(drawn);
         const label = col.keys.length ? col.keys.join(".") : attr;
         if (present.length && present.every((v) => v === present[0]) && cols.length > 1) constant.push(`${label} = ${present[0]}`);
         else varying.push({ label, values: values.get(col.key) || [], stepped: Number.isInteger(present[0]) });
@@ -942,9 +968,16 @@
     const status = h("p", { id: "loading", role: "status" }, h("span", { class: "spinner" }), LOADING[view]);
     main.replaceChildren(box, status);
     document.body.dataset.loading = view;
+    said = { buckets: new Set(), notices: [] };
     try {
       await VIEWS[view](box, params, stale);
-      if (!stale()) status.remove();
+      if (!stale()) {
+        status.remove();
+        const line = saidLine();
+        const head = box.querySelector(":scope > p.muted");
+        if (line && head) head.after(line);
+        else if (line) box.prepend(line);
+      }
     } catch (err) {
       if (!stale()) showError(status, err);
     }
