@@ -148,6 +148,13 @@ def test_bad_arguments_are_one_line(source, replay, args, needle):
     assert_usage_error(replay("--db", source, "--service", "robots", *args), needle)
 
 
+def test_a_store_that_is_not_there_is_one_line_and_not_created(replay, tmp_path):
+    missing = tmp_path / "missing.duckdb"
+    assert_usage_error(replay("--db", str(missing), "--to-orion", "http://a", "--to-service", "x"), "no database at")
+    assert not missing.exists()
+    assert_usage_error(replay("--url", "ftp://a", "--to-orion", "http://a", "--to-service", "x"), "http://")
+
+
 # --- Orion and Orion-LD: the documented request shapes ----------------------------------------
 
 

@@ -76,6 +76,13 @@ def test_a_path_that_is_no_bag_is_one_line(tmp_path, import_bag):
     _refused(import_bag(tmp_path / "nothing", tmp_path / "t.duckdb"), tmp_path / "t.duckdb", "no bag at")
 
 
+def test_a_bag_without_messages_imports_nothing_and_creates_no_store(tmp_path, import_bag):
+    write_bag(tmp_path / "empty", count=0)
+    done = import_bag(tmp_path / "empty", tmp_path / "t.duckdb")
+    assert done.returncode == 0 and "nothing to import" in done.stdout, done.stdout + done.stderr
+    assert not (tmp_path / "t.duckdb").exists()
+
+
 def test_an_unknown_message_type_without_a_definition(tmp_path, import_bag):
     bag = tmp_path / "run"
     write_bag(bag, "sqlite3", count=2)

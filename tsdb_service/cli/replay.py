@@ -14,6 +14,7 @@ import signal
 import sys
 import threading
 import uuid
+from pathlib import Path
 
 from tsdb_service.cli.argtypes import positive_number
 
@@ -241,13 +242,17 @@ def _run(args, selection, params, headers, to_tenant: str, to_path: str | None) 
 def _source(args, selection, params, headers):
     """(store or None, updates, where): the store opened here, or the service holding it."""
     from tsdb_service.cli.export_service import lock_holder, service_url
-    from tsdb_service.commands.replay.source import service_updates, store_updates
+    from tsdb_service.commands.replay.source import SourceError, service_updates, store_updates
     from tsdb_service.core.config import Settings
     from tsdb_service.storage import StoreUnavailable, open_store, redact
 
     if args.url:
+        if not args.url.startswith(("http://", "https://")):
+            raise SourceError(f"--url {args.url[:80]}: give the service's http:// or https:// URL")
         return None, service_updates(args.url, params, headers), args.url
     settings = Settings(**({"db": args.db} if args.db else {}))
+    if settings.backend == "duckdb" and not Path(settings.db).is_file():
+        raise SourceError(f"no database at {settings.db}")  # opening would create an empty one
     try:
         store = open_store(settings)
     except StoreUnavailable:

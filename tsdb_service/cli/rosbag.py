@@ -84,6 +84,10 @@ def cmd_import_rosbag(args: argparse.Namespace) -> int:
             _print_plan(prepared.report)
             print(f"dry run: {prepared.report.total} messages would be imported; nothing was written")
             return 0
+        if not prepared.report.total:  # nothing to write: no store to open, let alone create
+            _print_plan(prepared.report)
+            _print_result(prepared.report)
+            return 0
         created = new_duckdb_file(Settings(db=db))
         target = open_store(Settings(db=db))
         if created is not None:
