@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/rosbag.py                          # a 1 GB bag (MCAP) into DuckDB
     .venv/bin/python benchmarks/rosbag.py --size-mb 5              # a quick check
     .venv/bin/python benchmarks/rosbag.py --storage sqlite3 --target postgresql [--size-mb N] [--json FILE]
+    .venv/bin/python benchmarks/rosbag.py --map fields             # 2-4 fields per message as attributes
 
 1. Writes a rosbag2 of about ``--size-mb`` MB with rosbags (not timed): a
    robot at work, ``nav_msgs/Odometry`` at 100 Hz, ``sensor_msgs/LaserScan``
@@ -10,8 +11,10 @@
    ``geometry_msgs/Twist`` at 20 Hz and ``sensor_msgs/BatteryState`` at 1 Hz.
 2. Imports it with the library calls the command uses (``PreparedImport``:
    the checking read, then the import with the default map: one entity per
-   topic, the message as one attribute) into a new DuckDB file or a private
-   PostgreSQL (``pgutil.BenchCluster``), and times both.
+   topic, the message as one attribute; or with ``--map fields`` 2 to 4
+   fields of each message as attributes, so samples/s is not messages/s)
+   into a new DuckDB file or a private PostgreSQL (``pgutil.BenchCluster``),
+   and times both; the peak RSS of the process (bag writing included).
 3. Replays ``--replay-seconds`` of the imported ``/fix`` history (5 Hz) at ``--speed`` into
    a local receiver (an HTTP server answering ``/v2/notify`` that records
    when each notification arrives) and compares each arrival with its due
@@ -23,6 +26,7 @@ from __future__ import annotations
 import argparse
 import http.server
 import json
+import resource
 import sys
 import tempfile
 import threading
@@ -35,6 +39,22 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from pgutil import BenchCluster  # puts the repository on sys.path
 
 T0_NS = 1_714_557_600 * 10**9  # 2024-05-01T10:00:00Z
+# --map fields: the fields an integration would keep, several attributes per message (so samples/s
+# differs from messages/s); the entity ids stay the default ones so the replay reads the same /fix entity.
+FIELDS_MAP = {
+    "topics": {
+        "/odom": {"entity": "urn:ngsi-ld:ROS2Topic:odom", "attributes": {
+            "x": "pose.pose.position.x", "y": "pose.pose.position.y",
+            "speed": "twist.twist.linear.x", "yawRate": "twist.twist.angular.z"}},
+        "/scan": {"entity": "urn:ngsi-ld:ROS2Topic:scan", "attributes": {"ranges": "ranges", "rangeMax": "range_max"}},
+        "/fix": {"entity": "urn:ngsi-ld:ROS2Topic:fix", "attributes": {
+            "location": {"path": "", "type": "geo:json"}, "altitude": "altitude"}},
+        "/cmd_vel": {"entity": "urn:ngsi-ld:ROS2Topic:cmd_vel", "attributes": {
+            "linear": "linear.x", "angular": "angular.z"}},
+        "/battery": {"entity": "urn:ngsi-ld:ROS2Topic:battery", "attributes": {
+            "voltage": "voltage", "percentage": "percentage", "temperature": "temperature"}},
+    }
+}  # fmt: skip
 RATES = {  # topic: (message type, messages per second)
     "/odom": ("nav_msgs/msg/Odometry", 100),
     "/scan": ("sensor_msgs/msg/LaserScan", 10),
@@ -112,13 +132,13 @@ def _message(t, kind: str, header, tick: int, np):
     )  # fmt: skip
 
 
-def import_bag(path: Path, db: str) -> dict:
+def import_bag(path: Path, db: str, spec: dict | None = None) -> dict:
     from tsdb_service.commands.rosbag.importer import PreparedImport
     from tsdb_service.core.config import Settings
     from tsdb_service.storage import open_store
 
     started = time.perf_counter()
-    with PreparedImport.open(path) as prepared:
+    with PreparedImport.open(path, spec) as prepared:
         checked = time.perf_counter()
         store = open_store(Settings(db=db))
         try:
@@ -135,6 +155,7 @@ def import_bag(path: Path, db: str) -> dict:
         "total_seconds": round(seconds, 2),
         "messages_per_second": round(report.messages / seconds),
         "samples_per_second": round(report.samples / seconds),
+        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),  # bag writing included
     }
 
 
@@ -205,8 +226,16 @@ def main() -> int:
     p.add_argument("--target", choices=("duckdb", "postgresql"), default="duckdb")
     p.add_argument("--replay-seconds", type=float, default=60.0, help="history replayed (default 60 s of /fix)")
     p.add_argument("--speed", type=float, default=10.0, help="replay speed (default 10)")
+    p.add_argument(
+        "--map",
+        choices=("message", "fields"),
+        default="message",
+        help="message: the default map (each message one attribute, as the ROS 2 IoT Agent sends it); "
+        "fields: 2 to 4 fields of each message as attributes (default message)",
+    )
     p.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     args = p.parse_args()
+    spec = FIELDS_MAP if args.map == "fields" else None
     with tempfile.TemporaryDirectory() as tmp:
         bag = Path(tmp) / "big"
         made = write_bag(bag, args.size_mb, args.storage)
@@ -214,18 +243,19 @@ def main() -> int:
         if args.target == "postgresql":
             with BenchCluster("rosbag") as pg:
                 assert pg.url is not None
-                result = {"bag": made, "import": import_bag(bag, pg.url)}
+                result = {"bag": made, "import": import_bag(bag, pg.url, spec)}
                 seconds = min(args.replay_seconds, made["seconds_of_history"])
                 result["replay"] = replay_pacing(pg.url, seconds, args.speed)
         else:
             db = str(Path(tmp) / "t.duckdb")
-            result = {"bag": made, "import": import_bag(bag, db)}
+            result = {"bag": made, "import": import_bag(bag, db, spec)}
             result["replay"] = replay_pacing(db, min(args.replay_seconds, made["seconds_of_history"]), args.speed)
-    result.update({"storage": args.storage, "target": args.target})
+    result.update({"storage": args.storage, "target": args.target, "map": args.map})
     imp, rep = result["import"], result["replay"]
     print(
         f"import: {imp['messages_per_second']:,} messages/s, {imp['samples_per_second']:,} samples/s "
-        f"({imp['check_seconds']} s checking, {imp['import_seconds']} s importing)"
+        f"({imp['check_seconds']} s checking, {imp['import_seconds']} s importing; map {args.map}, "
+        f"peak RSS {imp['peak_rss_mb']} MB)"
     )
     print(
         f"replay at x{rep['speed']:g}: {rep['updates']} updates in {rep['wall_seconds']} s "
