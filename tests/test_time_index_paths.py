@@ -160,6 +160,19 @@ def test_a_bad_setting_is_one_line_naming_the_flag(spec, problem):
     assert line.startswith("error: --time-index-paths (TSDB_TIME_INDEX_PATHS)") and problem in line
 
 
+def test_an_mqtt_message_follows_the_same_rules():
+    from tsdb_service.core.config import Settings
+    from tsdb_service.ingest.mqtt.config import MqttConfig
+    from tsdb_service.ingest.mqtt.messages import Message, parse_message
+
+    config = MqttConfig.from_settings(
+        Settings(mqtt_url="mqtt://127.0.0.1:1883", time_index_paths="ROS2System/odom=header.stamp")
+    )
+    payload = orjson.dumps({"subscriptionId": "s", "data": [robot(odom=ros(STAMP))]})
+    samples = parse_message(Message("tsdb/robots", payload, 1, False, 1, b"", (), RECEIVED), config)
+    assert times(samples) == {"TimeInstant": AT_INSTANT, "odom": AT_STAMP}
+
+
 # --- Fiware-TimeIndex-Attribute with a value path ---------------------------------
 
 
