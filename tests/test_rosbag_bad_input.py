@@ -97,6 +97,28 @@ def test_an_unknown_message_type_without_a_definition(tmp_path, import_bag):
     assert "import verified: 8 messages" in done.stdout and "skipped: /blade" in done.stdout
 
 
+def test_an_mcap_channel_that_is_not_json_is_refused_unless_skipped(tmp_path, import_bag):
+    from mcap.writer import Writer as McapWriter
+
+    recorded = tmp_path / "foxglove.mcap"  # as Foxglove records: JSON beside another encoding
+    with recorded.open("wb") as stream:
+        writer = McapWriter(stream)
+        writer.start()
+        schema = writer.register_schema(name="Pose", encoding="jsonschema", data=b'{"type": "object"}')
+        pose = writer.register_channel(topic="/pose", message_encoding="json", schema_id=schema)
+        other = writer.register_channel(topic="/camera", message_encoding="cbor", schema_id=0)
+        for i in range(3):
+            writer.add_message(channel_id=pose, log_time=10**18 + i, publish_time=0, data=b'{"x": %d}' % i)
+            writer.add_message(channel_id=other, log_time=10**18 + i, publish_time=0, data=b"\xa0")
+        writer.finish()
+    db = tmp_path / "t.duckdb"
+    _refused(import_bag(recorded, db), db, "/camera", "cbor-encoded", "skip")
+    (tmp_path / "map.yaml").write_text("topics:\n  /camera: skip\n")
+    done = import_bag(recorded, db, "--map", str(tmp_path / "map.yaml"))
+    assert done.returncode == 0, done.stderr
+    assert "import verified: 3 messages" in done.stdout and "skipped: /camera" in done.stdout
+
+
 @pytest.mark.parametrize(
     "topic_map, needles",
     [

@@ -12,7 +12,9 @@ What can be opened (``Recording.open``):
   (and only if) the import reads that topic;
 * an MCAP file whose channels are JSON (what ``tsdb-service export --format
   mcap`` writes, and what Foxglove records from JSON sources), through the
-  ``mcap`` reader: each message is already the JSON value.
+  ``mcap`` reader: each message is already the JSON value. A channel in
+  another encoding (Protobuf, CBOR) is a topic of unknown type: an error
+  if (and only if) the import reads it.
 
 Invariants:
 
@@ -183,13 +185,14 @@ class Recording:
             raise BagError(f"{self.path} has no summary (an MCAP file cut short?): it cannot be indexed")
         counts = summary.statistics.channel_message_counts if summary.statistics else {}
         for channel in sorted(summary.channels.values(), key=lambda c: c.id):
-            if channel.message_encoding != JSON:
-                raise BagError(
-                    f"{self.path}: channel {channel.topic} is {channel.message_encoding or 'unknown'}-encoded; "
-                    "an MCAP file without the ros2 profile is read when its channels are JSON"
-                )
             schema = summary.schemas.get(channel.schema_id)
             count = counts.get(channel.id, 0)
+            if channel.message_encoding != JSON:  # protobuf, CBOR...: unreadable, an error if (only if) imported
+                encoding = channel.message_encoding or "unknown"
+                self.topics[channel.topic] = Topic(
+                    channel.topic, schema.name if schema else "", count, encoding, known=False
+                )
+                continue
             first = self.topics.get(channel.topic)
             if first is None:
                 first = Topic(channel.topic, schema.name if schema else "", 0, JSON, dict(channel.metadata))

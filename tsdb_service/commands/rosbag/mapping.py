@@ -45,7 +45,7 @@ from typing import Any
 
 import orjson
 
-from tsdb_service.commands.rosbag.bag import Recording, Topic
+from tsdb_service.commands.rosbag.bag import CDR, JSON, ROS1, Recording, Topic
 from tsdb_service.core.valuesteps import Steps, parse_steps, steps_text
 from tsdb_service.parse.names import (
     ID_RULE,
@@ -182,6 +182,11 @@ def plan(recording: Recording, spec: dict, source: str = "the map", defaults: di
 
 def _topic_plan(recording: Recording, topic: Topic, top: dict, entry: dict, where: str) -> TopicPlan:
     _keys(entry, _TOPIC_KEYS, where)
+    if not topic.known and topic.encoding not in (CDR, ROS1, JSON):
+        raise MapError(
+            f"{where}: its messages are {topic.encoding}-encoded; an MCAP file without the ros2 profile "
+            "is read when its channels are JSON: skip the topic"
+        )
     if not topic.known:
         raise MapError(
             f"{where}: the bag has no definition of {topic.msgtype} and it is not a standard ROS type: "
