@@ -96,15 +96,26 @@ def test_into_another_service_in_order_marked_paced_and_not_into_the_source_tena
         assert all(m["source"].startswith("robots on ") and len(m["replay"]) == 12 for m in marks["values"])
         # --retime: stored at the time each was sent, which shows the pacing: 0.1 s apart within 10%
         sent = [datetime.fromisoformat(t) for t in speed["index"]]
-        offsets = [(t - sent[0]).total_seconds() for t in sent]
-        for i, offset in enumerate(offsets):
-            assert abs(offset - i / 10) <= 0.1, offsets  # 10% of the whole second
+        _assert_paced([(t - sent[0]).total_seconds() for t in sent])
         odom = httpx.get(f"{target.url}/v2/entities/urn:ngsi-ld:Robot:R1/attrs/odom", headers=staging).json()
         assert [v["x"] for v in odom["values"]] == list(range(INSTANTS))
         # nothing went to the tenant it reads from
         assert httpx.get(f"{target.url}/v2/entities", headers={"Fiware-Service": "robots"}).json() == []
         hint = httpx.get(f"{target.url}/v2/entities").headers["x-tsdb-hint"]
         assert "staging" in hint and "robots" not in hint
+
+
+def _assert_paced(offsets: list[float]) -> None:
+    """One instant a second of history at --speed 10: update i is due 0.1 s x i after the start.
+    Measured against the schedule that fits best (the median lag, so a late first update does
+    not shift the rest), every update is within 10% of the whole second (0.1 s) of its due time
+    but one (a single stall of a process on a busy shared machine: the replay never skips ahead,
+    so it does not carry over), and half are within 30 ms (a wrong speed or a drift is not)."""
+    errors = sorted(offset - i / 10 for i, offset in enumerate(offsets))
+    lag = errors[len(errors) // 2]
+    deviations = sorted(abs(e - lag) for e in errors)
+    assert deviations[-2] <= 0.1, offsets
+    assert deviations[len(deviations) // 2] <= 0.03, offsets
 
 
 def test_original_times_are_kept_without_retime(source, replay, tmp_path):
@@ -245,9 +256,7 @@ def test_into_mqtt_as_the_brokers_publish_paced_and_read_by_our_ingest(source, r
         subscriber.close()
     assert len(subscriber.got) == INSTANTS
     assert {topic for _, topic, _ in subscriber.got} == {"tsdb/staging/garden"}
-    offsets = [at - subscriber.got[0][0] for at, _, _ in subscriber.got]
-    for i, offset in enumerate(offsets):
-        assert abs(offset - i / 10) <= 0.1, offsets
+    _assert_paced([at - subscriber.got[0][0] for at, _, _ in subscriber.got])
     config = MqttConfig.from_settings(Settings(mqtt_url=mosquitto.url))
     parsed = []
     for _, topic, payload in subscriber.got:
