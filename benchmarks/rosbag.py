@@ -132,8 +132,8 @@ def _message(t, kind: str, header, tick: int, np):
     )  # fmt: skip
 
 
-def import_bag(path: Path, db: str, spec: dict | None = None) -> dict:
-    from tsdb_service.commands.rosbag.importer import PreparedImport
+def import_bag(path: Path, db: str, spec: dict | None = None, batch_samples: int = 0) -> dict:
+    from tsdb_service.commands.rosbag.importer import BATCH_SAMPLES, PreparedImport
     from tsdb_service.core.config import Settings
     from tsdb_service.storage import open_store
 
@@ -142,7 +142,7 @@ def import_bag(path: Path, db: str, spec: dict | None = None) -> dict:
         checked = time.perf_counter()
         store = open_store(Settings(db=db))
         try:
-            report = prepared.run(store)
+            report = prepared.run(store, batch_samples=batch_samples or BATCH_SAMPLES)
         finally:
             store.close()
     done = time.perf_counter()
@@ -233,6 +233,13 @@ def main() -> int:
         help="message: the default map (each message one attribute, as the ROS 2 IoT Agent sends it); "
         "fields: 2 to 4 fields of each message as attributes (default message)",
     )
+    p.add_argument(
+        "--batch-samples",
+        type=int,
+        default=0,
+        help="samples per committed batch (the command's --batch-samples; default the command's, 50000): "
+        "the peak RSS follows it",
+    )
     p.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     args = p.parse_args()
     spec = FIELDS_MAP if args.map == "fields" else None
@@ -243,12 +250,12 @@ def main() -> int:
         if args.target == "postgresql":
             with BenchCluster("rosbag") as pg:
                 assert pg.url is not None
-                result = {"bag": made, "import": import_bag(bag, pg.url, spec)}
+                result = {"bag": made, "import": import_bag(bag, pg.url, spec, args.batch_samples)}
                 seconds = min(args.replay_seconds, made["seconds_of_history"])
                 result["replay"] = replay_pacing(pg.url, seconds, args.speed)
         else:
             db = str(Path(tmp) / "t.duckdb")
-            result = {"bag": made, "import": import_bag(bag, db, spec)}
+            result = {"bag": made, "import": import_bag(bag, db, spec, args.batch_samples)}
             result["replay"] = replay_pacing(db, min(args.replay_seconds, made["seconds_of_history"]), args.speed)
     result.update({"storage": args.storage, "target": args.target, "map": args.map})
     imp, rep = result["import"], result["replay"]
