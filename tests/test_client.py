@@ -164,7 +164,7 @@ def test_errors_carry_the_ngsi_answer(tsdb):
     with pytest.raises(TsdbClientError) as caught:
         tsdb.entity_attr("Robot:2", "count", aggr_method="median")
     assert caught.value.status == 400 and "aggrMethod" in caught.value.description
-    with pytest.raises(TsdbClientError, match="format must be csv or parquet"):
+    with pytest.raises(TsdbClientError, match="format must be csv, parquet or mcap"):
         tsdb.export_file("/dev/null", format="xlsx")
 
 

@@ -444,6 +444,29 @@ def test_demo_command_serves_feeds_and_prints_where_to_look(tmp_path):
     for name in SIMULATORS:
         assert f"  {name}" in out, out
     assert db.exists()
+    # the lawnmower's recorded run (a ROS 2 bag) was imported at start, and says where to see it
+    assert "Recorded run: the lawnmower's ROS 2 bag" in out and "format=mcap" in out, out
+    assert _recorded_odom(db) == 360
+
+
+def _recorded_odom(db: Path) -> int:
+    """Odometry samples of the demo's lawnmower in the recorded run's time range."""
+    from tsdb_service.core.config import Settings
+    from tsdb_service.core.query import EntityFilter, Scope, TimeRange
+    from tsdb_service.demo.bag import BAG_SECONDS, BAG_START
+    from tsdb_service.read.requests import SamplesIn, SeriesSelect
+    from tsdb_service.storage import open_store
+
+    store = open_store(Settings(db=str(db)))
+    try:
+        querier = store.querier()
+        refs = querier.series(
+            SeriesSelect(Scope(sites.LAWNMOWER.service), EntityFilter(ids=(sites.LAWNMOWER_ID,)), ("odom",))
+        )
+        span = TimeRange(BAG_START, BAG_START + timedelta(seconds=BAG_SECONDS))
+        return querier.count(SamplesIn([r.sid for r in refs], span))
+    finally:
+        store.close()
 
 
 # -- one instant, one state ----------------------------------------------------------------

@@ -146,8 +146,11 @@ def test_an_interrupted_export_leaves_no_file(tmp_path):
 @pytest.mark.parametrize(
     ("out", "says"),
     [
-        ("x.json", "x.json: the suffix '.json' names no export format; end it in .csv or .parquet"),
-        ("history", "history: a name without a suffix says no format; end it in .csv or .parquet, or give --format"),
+        ("x.json", "x.json: the suffix '.json' names no export format; end it in .csv, .parquet or .mcap"),
+        (
+            "history",
+            "history: a name without a suffix says no format; end it in .csv, .parquet or .mcap, or give --format",
+        ),
         ("missing/dir/x.csv", "does not exist"),
         (".", "is a directory"),
     ],

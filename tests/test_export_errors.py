@@ -7,7 +7,7 @@ import pytest
 from tests.export_fixtures import READ
 
 BAD = [
-    pytest.param({"format": "xlsx"}, READ, "format must be csv or parquet", id="format"),
+    pytest.param({"format": "xlsx"}, READ, "format must be csv, parquet or mcap", id="format"),
     pytest.param({"fromdate": "2024-01-01"}, READ, "unknown parameter 'fromdate'", id="unknown-parameter"),
     pytest.param({"lastN": "3"}, READ, "unknown parameter 'lastN'", id="history-only-parameter"),
     pytest.param({"attrs": "odom(twist.linear.x)"}, READ, "not value paths", id="value-path"),

@@ -107,7 +107,11 @@ def test_history_routes_declare_every_parameter_they_read(doc, path):
 def test_export_declares_exactly_what_it_accepts(doc):
     operation = doc["paths"]["/v2/export"]["get"]
     assert _names(operation, "query") == set(EXPORT_PARAMETERS)
-    assert set(operation["responses"]["200"]["content"]) == {"text/csv", "application/vnd.apache.parquet"}
+    assert set(operation["responses"]["200"]["content"]) == {
+        "text/csv",
+        "application/vnd.apache.parquet",
+        "application/x-mcap",
+    }
 
 
 @pytest.mark.parametrize("path", ["/v2/notify", "/ngsi-ld/v1/notify"])

@@ -112,6 +112,7 @@ TEXT_SAMPLES = {
     "ld_context_allow": "http://127.0.0.1:9000/",
     "subscribe_broker_allow": "http://orion:1026/",
     "retention": "*=30d",
+    "time_index_paths": "odom=header.stamp",
     "rollup_retention": "*=365d",
     "mqtt_url": "mqtt://broker:1883",
     "mqtt_default_tenant": "acme",
@@ -143,6 +144,7 @@ def test_every_setting_is_in_exactly_one_group():
     assert [group.title for group in SETTING_GROUPS] == [
         "Storage",
         "HTTP server",
+        "Ingest",
         "Ingest log",
         "Caches",
         "Reads and budgets",

@@ -277,7 +277,7 @@ class Client:
         from_date: TimeBound = None,
         to_date: TimeBound = None,
     ) -> Path:
-        """Download an export (``format`` ``parquet`` or ``csv``) to ``path``,
+        """Download an export (``format`` ``parquet``, ``csv`` or ``mcap``) to ``path``,
         streamed to disk; returns the path."""
         params = _params(
             format=format,

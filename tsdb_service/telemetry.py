@@ -16,9 +16,10 @@ Three sources, each hooked where it costs least:
   burst of scrapes costs one query.
 
 Each app has its own registry, so two apps in one process (tests) never mix
-counts. The time-index fallback counter is the exception: the parser reports
-through one module-level hook (``parse.timeindex.on_fallback``), so that
-counter is per process and every app's registry shows it.
+counts. The time-index fallback counters are the exception: the parser reports
+through module-level hooks (``parse.timeindex.on_fallback``,
+``on_stamp_fallback``), so those counters are per process and every app's
+registry shows them.
 
 Tenant labels are capped at ``max_tenants`` distinct values per app; later
 tenants are counted under ``other``, and a tenant header the API refused
@@ -76,6 +77,13 @@ TIME_INDEX_FALLBACKS = Counter(
     registry=None,
 )
 timeindex.on_fallback = TIME_INDEX_FALLBACKS.inc
+TIME_INDEX_STAMP_FALLBACKS = Counter(
+    "tsdb_time_index_stamp_fallbacks",
+    "Attribute samples whose stamp (TSDB_TIME_INDEX_PATHS, or a value path in Fiware-TimeIndex-Attribute) "
+    "could not be read, stored at the entity's time index instead (counted when parsed, per process).",
+    registry=None,
+)
+timeindex.on_stamp_fallback = TIME_INDEX_STAMP_FALLBACKS.inc
 # ``*_created`` timestamps double the series count and nothing here reads them.
 disable_created_metrics()
 
@@ -498,6 +506,7 @@ class Metrics:
         self.writer = WriterMetrics(self.registry, self.tenants)
         self.requests = RequestMetrics(self.registry)
         self.registry.register(TIME_INDEX_FALLBACKS)
+        self.registry.register(TIME_INDEX_STAMP_FALLBACKS)
         # The standard process_* (CPU, memory, open files) and python_info series.
         ProcessCollector(registry=self.registry)
         PlatformCollector(registry=self.registry)

@@ -104,6 +104,7 @@ class StandInOrion:
         self.subscriptions: dict[tuple[str, str], list[dict]] = {}
         self.entities: dict[tuple[str, str, str], dict] = {}
         self.notified: list[int] = []
+        self.updates: list[tuple[str, dict[str, str], object]] = []  # (path?query, headers, body) of each update
         self._ids = itertools.count(1)
         self.app = Starlette(
             routes=[
@@ -135,6 +136,7 @@ class StandInOrion:
 
     async def update_v2(self, request: Request) -> Response:
         body = await request.json()
+        self.updates.append((request.url.path, dict(request.headers), body))
         assert body["actionType"] == "append"
         tenancy = self.tenancy(request)
         for entity in body["entities"]:
@@ -149,6 +151,7 @@ class StandInOrion:
         return Response(status_code=204)
 
     async def upsert_ld(self, request: Request) -> Response:
+        self.updates.append((f"{request.url.path}?{request.url.query}", dict(request.headers), await request.json()))
         assert request.query_params.get("options") == "update"
         assert "@context" not in (await request.body()).decode()  # application/json: the core context
         tenancy = self.tenancy(request)

@@ -11,7 +11,7 @@ import asyncio
 import random
 import signal
 import sys
-from datetime import datetime
+from datetime import datetime, timedelta
 from pathlib import Path
 
 from tsdb_service.cli.argtypes import integer, port, positive_int, positive_number
@@ -150,7 +150,9 @@ def _add_queries(sub) -> None:
 def _add_notifications(sub) -> None:
     p = sub.add_parser("notifications", help="the Orion subscriptions and recorded notifications")
     actions = p.add_subparsers(dest="notifications_action", required=True)
-    build = actions.add_parser("build", help="write notifications/<use case>/ from the simulators")
+    build = actions.add_parser(
+        "build", help="write notifications/<use case>/ from the simulators (and the lawnmower's recorded ROS 2 bag)"
+    )
     build.add_argument("--out", default="notifications", help="folder (default ./notifications)")
 
 
@@ -228,6 +230,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     else:
         log_path = Path(args.db).with_suffix(".demo-server.log")
         consume = ("--mqtt-url", args.mqtt_url, "--mqtt-client-id", "tsdb-service-demo") if args.via == "mqtt" else ()
+        if any(sim.name == "lawnmower" for sim in simulators):
+            args.recorded = import_recorded_run(args.db)  # before the service holds the file
         try:
             service = LocalService(args.db, args.host, args.port, log_path, consume).start()
         except BaseException:
@@ -245,6 +249,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             print(f"error: cannot reach {url}: {exc}", file=sys.stderr)
             return 2
         _print_banner(args, url, seed, service, start, speedup)
+        _print_recorded(getattr(args, "recorded", None), url)
         stats = asyncio.run(_run_demo(simulators, url, args, seed, start, speedup))
         if service is not None and args.via == "mqtt" and not args.broker:
             published = sum(row.acked for row in stats.values())
@@ -262,6 +267,56 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if service is not None:
         print(f"The data stays in {args.db}: `tsdb-service serve --db {args.db}` to explore it again.")
     return 1 if failed else 0
+
+
+def import_recorded_run(db: str):
+    """The lawnmower's recorded run (a ROS 2 bag, ``demo.bag``) into ``db``,
+    as ``tsdb-service import rosbag`` does: once, however often the demo
+    runs. (folder, report), or None after a warning."""
+    from tsdb_service.commands.rosbag.bag import BagError
+    from tsdb_service.commands.rosbag.importer import PreparedImport
+    from tsdb_service.commands.rosbag.mapping import MapError, load_map
+    from tsdb_service.core.config import Settings
+    from tsdb_service.demo.bag import BAG_NAME, MAP_NAME, lawnmower_bag
+    from tsdb_service.storage import open_store
+
+    if "://" not in db:
+        Path(db).parent.mkdir(parents=True, exist_ok=True)
+    try:
+        folder = lawnmower_bag(db)
+        with PreparedImport.open(
+            folder / BAG_NAME, load_map(folder / MAP_NAME), f"map {folder / MAP_NAME}"
+        ) as prepared:
+            store = open_store(Settings(db=db))
+            try:
+                report = prepared.run(store)
+            finally:
+                store.close()
+    except (BagError, MapError, RuntimeError) as exc:
+        print(f"warning: the lawnmower's recorded run was not imported: {exc}", file=sys.stderr)
+        return None
+    return folder, report
+
+
+def _print_recorded(recorded, url: str) -> None:
+    """Where to see the recorded run: its time range, the MCAP download."""
+    if recorded is None:
+        return
+    from urllib.parse import urlencode
+
+    from tsdb_service.demo.bag import BAG_SECONDS, BAG_START
+    from tsdb_service.usecases import sites
+    from tsdb_service.usecases.orion import iso
+
+    folder, report = recorded
+    end = BAG_START + timedelta(seconds=BAG_SECONDS + 1)
+    span = {"fromDate": iso(BAG_START), "toDate": iso(end)}
+    tenancy = f"-H 'Fiware-Service: {sites.LAWNMOWER.service}' -H 'Fiware-ServicePath: {sites.LAWNMOWER.service_path}'"
+    stored = "imported now" if report.messages else "imported by an earlier run"
+    print(f"Recorded run: the lawnmower's ROS 2 bag {folder}/run ({report.total} messages, {stored}):")
+    print(f"  in history from {span['fromDate']} to {span['toDate']} (explorer and Grafana: that time range)")
+    print(f"  for Foxglove:  curl -s {tenancy} -o run.mcap '{url}/v2/export?{urlencode({**span, 'format': 'mcap'})}'")
+    sys.stdout.flush()
 
 
 def _window(simulators, url: str, args: argparse.Namespace):
@@ -539,7 +594,8 @@ def _unreachable(url: str) -> str | None:
 
 def cmd_notifications(args: argparse.Namespace) -> int:
     from tsdb_service.broker.subscriptions import write_examples
+    from tsdb_service.demo.bag import write_lawnmower_bag
 
-    for path in write_examples(Path(args.out)):
+    for path in [*write_examples(Path(args.out)), *write_lawnmower_bag(Path(args.out) / "lawnmower")]:
         print(f"wrote {path}")
     return 0

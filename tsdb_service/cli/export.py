@@ -33,13 +33,18 @@ _FLAGS = (  # (flag, HTTP parameter or header, placeholder, help)
         "maximum, first and last of its numbers (default: one row per sample)",
     ),
 )
-SUFFIXES = {".csv": ExportFormat.CSV, ".parquet": ExportFormat.PARQUET, ".pq": ExportFormat.PARQUET}
+SUFFIXES = {
+    ".csv": ExportFormat.CSV,
+    ".parquet": ExportFormat.PARQUET,
+    ".pq": ExportFormat.PARQUET,
+    ".mcap": ExportFormat.MCAP,
+}
 
 
 def register(subparsers, command) -> None:
     p = subparsers.add_parser(
         "export",
-        help="export history to a CSV or Parquet file",
+        help="export history to a CSV, Parquet or MCAP (Foxglove) file",
         description="Write one row per sample (time, entity, attribute, typed value) of a tenant, "
         "optionally narrowed to types, entities, attributes and a time range.",
     )
@@ -49,9 +54,14 @@ def register(subparsers, command) -> None:
         help="DuckDB file or postgresql:// URL to read (env TSDB_DB; default ./data/tsdb.duckdb)",
     )
     p.add_argument(
-        "--out", required=True, metavar="FILE", help="file to write; its suffix (.csv, .parquet) picks the format"
+        "--out",
+        required=True,
+        metavar="FILE",
+        help="file to write; its suffix (.csv, .parquet, .mcap) picks the format",
     )
-    p.add_argument("--format", choices=[f.value for f in ExportFormat], help="csv or parquet (default: from --out)")
+    p.add_argument(
+        "--format", choices=[f.value for f in ExportFormat], help="csv, parquet or mcap (default: from --out)"
+    )
     p.add_argument(
         "--service", default="", metavar="TENANT", help="tenant, as Fiware-Service (default: the default tenant)"
     )
@@ -118,7 +128,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         return _through_holder(settings.db, holder, params, headers, args.out)
     try:
         with open_export(store, query) as stream:
-            rows, size, seconds = write_file(stream, query.format, args.out, query.raw)
+            rows, size, seconds = write_file(stream, query.format, args.out, query.raw, query.scope.tenant)
         hint = tenant_hint(store.querier().tenants(), query.scope.tenant) if rows == 0 else None
     finally:
         store.close()
@@ -180,5 +190,7 @@ def format_of(out: str) -> str:
         problem = (
             f"the suffix {suffix!r} names no export format" if suffix else "a name without a suffix says no format"
         )
-        raise ValueError(f"--out {out}: {problem}; end it in .csv or .parquet, or give --format csv|parquet")
+        raise ValueError(
+            f"--out {out}: {problem}; end it in .csv, .parquet or .mcap, or give --format csv|parquet|mcap"
+        )
     return SUFFIXES[suffix].value

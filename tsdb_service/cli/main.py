@@ -85,6 +85,7 @@ _TEXT_METAVARS = {
     "ngsild_contexts": "URL=PATH;...",
     "cors_origins": "ORIGINS",
     "retention": "RULES",
+    "time_index_paths": "RULES",
     "rollup_retention": "RULES",
     "mqtt_url": "URL",
     "mqtt_topics": "FILTERS",
@@ -198,7 +199,9 @@ def _feature_modules() -> tuple[ModuleType, ...]:
     from tsdb_service.cli import export as export_commands
     from tsdb_service.cli import qlimport as import_commands
     from tsdb_service.cli import register as register_commands
+    from tsdb_service.cli import replay as replay_commands
     from tsdb_service.cli import rollups as rollup_commands
+    from tsdb_service.cli import rosbag as rosbag_commands
 
     return (
         demo_commands,
@@ -206,6 +209,8 @@ def _feature_modules() -> tuple[ModuleType, ...]:
         copy_commands,
         export_commands,
         import_commands,
+        rosbag_commands,  # after import_commands: a source of `import`
+        replay_commands,
         backup_commands,
         register_commands,
         rollup_commands,

@@ -94,7 +94,8 @@ def register(subparsers, command) -> None:
         "(default 9437184, TSDB_MAX_BODY_BYTES' default: no notification could carry more)",
     )
     ql.add_argument("--quiet", action="store_true", help="no progress line (default: progress on stderr)")
-    command("import")(_source_explained(cmd_import))
+    ql.set_defaults(run_import=_source_explained(cmd_import))
+    command("import")(lambda args: args.run_import(args))  # each source sets its own (cli.rosbag too)
 
 
 def cmd_import(args: argparse.Namespace) -> int:

@@ -150,6 +150,26 @@ class HttpSettings(SettingsGroup):
         return value.strip()
 
 
+class IngestSettings(SettingsGroup):
+    title = "Ingest"
+    about = "How a notification becomes samples: which time each sample is stored at."
+
+    time_index_paths: str = Field(
+        "",
+        description="Attributes whose samples are timed by a stamp inside their value, ahead of TimeInstant, "
+        "observedAt and the arrival time: '[TYPE/]ATTR=PATH' rules separated by ',', e.g. "
+        "'odom=header.stamp' (ROS header.stamp {sec, nanosec}, ISO 8601 or epoch numbers); empty: none.",
+    )
+
+    @field_validator("time_index_paths")
+    @classmethod
+    def _time_index_rules(cls, value: str) -> str:
+        from tsdb_service.core.timepaths import parse_time_paths
+
+        parse_time_paths(value)  # raises ValueError naming the rule
+        return value
+
+
 class IngestLogSettings(SettingsGroup):
     title = "Ingest log"
     about = "DuckDB: notifications are acknowledged once in this log, and applied to the database behind it."
@@ -558,6 +578,7 @@ class LoggingSettings(SettingsGroup):
 class Settings(
     StorageSettings,
     HttpSettings,
+    IngestSettings,
     IngestLogSettings,
     CacheSettings,
     ReadSettings,

@@ -6,57 +6,34 @@ array indices as ``[n]``. NGSIv2 forbids ``(`` and ``)`` in attribute names,
 so a value path can never be mistaken for an attribute: ``odom`` is the
 whole attribute, ``odom(twist.twist.linear.x)`` one number inside it.
 
-Keys may use any character except ``. , [ ] ( ) < > " ' = ;`` and white space.
+Keys may use any character except ``. , [ ] ( ) < > " ' = ;`` and white space
+(the grammar is ``core.valuesteps``'s, shared with the time index and imports).
 Attribute names follow the one rule of ``tsdb_service.parse.names``, the
 same the ingest applies, so every stored name can be asked for.
 """
 
 from __future__ import annotations
 
-import re
-
 from tsdb_service.core.errors import BadRequest
 from tsdb_service.core.query import ValuePath
+from tsdb_service.core.valuesteps import extract, split_value_path
 from tsdb_service.parse.names import name_problem
 
-_KEY = r"""[^\s.,\[\]()<>"'=;]+"""
-_STEP = re.compile(rf"\.?({_KEY})|\[(\d{{1,9}})\]")
-_MAX_STEPS = 32
+__all__ = ["extract", "parse_attr_list", "parse_value_path"]
 
 
 def parse_value_path(text: str) -> ValuePath:
     """``"odom(twist.linear.x)"`` → ``ValuePath("odom", ("twist", "linear", "x"))``."""
     open_at = text.find("(")
-    if open_at < 0:
-        if name_problem(text) is not None:
-            raise BadRequest(f"invalid attribute name {text[:80]!r}")
-        return ValuePath(text)
-    attr, inner = text[:open_at], text[open_at + 1 :]
+    attr = text if open_at < 0 else text[:open_at]
     if name_problem(attr) is not None:
-        raise BadRequest(f"invalid attribute name {attr[:80]!r} in value path {text[:80]!r}")
-    if not inner.endswith(")") or not inner[:-1]:
-        raise BadRequest(f"invalid value path {text[:80]!r}: expected attr(key.key[0]...)")
-    return ValuePath(attr, _steps(inner[:-1], text))
-
-
-def _steps(path: str, text: str) -> tuple[str | int, ...]:
-    steps: list[str | int] = []
-    pos = 0
-    while pos < len(path):
-        match = _STEP.match(path, pos)
-        # A leading "." or a "." right after nothing is not allowed.
-        if match is None or (pos == 0 and path[0] == "."):
-            raise BadRequest(f"invalid value path {text[:80]!r} at {path[pos : pos + 20]!r}")
-        if match.group(1) is not None:
-            if pos > 0 and path[pos] != ".":
-                raise BadRequest(f"invalid value path {text[:80]!r}: keys must be separated by '.'")
-            steps.append(match.group(1))
-        else:
-            steps.append(int(match.group(2)))
-        pos = match.end()
-        if len(steps) > _MAX_STEPS:
-            raise BadRequest(f"value path {text[:80]!r} is deeper than {_MAX_STEPS} steps")
-    return tuple(steps)
+        where = "" if open_at < 0 else f" in value path {text[:80]!r}"
+        raise BadRequest(f"invalid attribute name {attr[:80]!r}{where}")
+    try:
+        attr, steps = split_value_path(text)  # the one grammar (core.valuesteps)
+    except ValueError as exc:
+        raise BadRequest(str(exc)) from None
+    return ValuePath(attr, steps)
 
 
 def parse_attr_list(raw: str | None) -> tuple[ValuePath, ...] | None:
@@ -71,23 +48,3 @@ def parse_attr_list(raw: str | None) -> tuple[ValuePath, ...] | None:
     for item in items:
         seen.setdefault(parse_value_path(item), None)
     return tuple(seen)
-
-
-_MISSING = object()
-
-
-def extract(value: object, steps: tuple[str | int, ...]) -> object:
-    """Follow ``steps`` into a decoded JSON value; ``None`` where it leads nowhere."""
-    for step in steps:
-        if isinstance(step, int):
-            if type(value) is list and step < len(value):
-                value = value[step]
-                continue
-            return None
-        if type(value) is dict:
-            value = value.get(step, _MISSING)
-            if value is _MISSING:
-                return None
-            continue
-        return None
-    return value

@@ -22,6 +22,7 @@ from starlette.responses import Response
 from tsdb_service.core.credentials import redact_headers
 from tsdb_service.core.errors import ParseError, PayloadTooLarge, TsdbError, UnsupportedMediaType
 from tsdb_service.core.model import RejectedNotification
+from tsdb_service.core.timepaths import parse_time_paths
 from tsdb_service.http import openapi as oa
 from tsdb_service.http.errors import REQUEST_ID_HEADER, internal_error
 from tsdb_service.http.responses import JSON
@@ -110,7 +111,12 @@ async def _receive(request: Request) -> None:
         # A read: a 'values' layout comes from the store (memory; on
         # PostgreSQL a miss looks in the database, off the loop).
         parse = partial(
-            parse_notification, body, request.headers, received_at=received_at, values_layout=store.values_layout
+            parse_notification,
+            body,
+            request.headers,
+            received_at=received_at,
+            values_layout=store.values_layout,
+            time_paths=parse_time_paths(settings.time_index_paths),
         )
         entities = await store.read(parse, memory_first=len(body) <= _PARSE_INLINE_MAX, consistent=False)
         # A write the database refuses for its content, every time, is

@@ -28,8 +28,11 @@ from typing import Any
 import orjson
 
 from tsdb_service.core.errors import ParseError
-from tsdb_service.core.model import AttrSample, EntitySample, ld_series_name
+from tsdb_service.core.model import AttrSample, EntitySample, Kind, ld_series_name
+from tsdb_service.core.timepaths import NO_TIME_PATHS, TimePaths
+from tsdb_service.core.valuesteps import Steps, extract, split_value_path
 from tsdb_service.geo.encodings import GEOMETRY_TYPES
+from tsdb_service.parse import timeindex
 from tsdb_service.parse.names import ID_RULE, RULE, id_problem, name_problem
 from tsdb_service.parse.request_context import notification_service_paths, notification_tenant
 from tsdb_service.parse.text import nul_problem
@@ -118,6 +121,8 @@ class _Context:
     watched: frozenset[str]
     header_attr: str | None
     received_at: datetime
+    header_steps: Steps = ()  # Fiware-TimeIndex-Attribute names a value path: its stamp
+    time_paths: TimePaths = NO_TIME_PATHS  # TSDB_TIME_INDEX_PATHS
 
 
 def parse_notification(
@@ -126,9 +131,12 @@ def parse_notification(
     *,
     received_at: datetime,
     values_layout: Callable[[str, str], ValuesLayout | None] | None = None,
+    time_paths: TimePaths = NO_TIME_PATHS,
 ) -> list[EntitySample]:
-    """Every entity in one notification, ready to store."""
-    return parse_document(load_document(body), headers, received_at=received_at, values_layout=values_layout)
+    """Every entity in one notification, ready to store (an entity whose
+    attributes ``time_paths`` times by their own stamps gives one sample per time)."""
+    doc = load_document(body)
+    return parse_document(doc, headers, received_at=received_at, values_layout=values_layout, time_paths=time_paths)
 
 
 def parse_document(
@@ -137,6 +145,7 @@ def parse_document(
     *,
     received_at: datetime,
     values_layout: Callable[[str, str], ValuesLayout | None] | None = None,
+    time_paths: TimePaths = NO_TIME_PATHS,
 ) -> list[EntitySample]:
     """``parse_notification`` of a body already decoded (``load_document``),
     e.g. the ``body`` member of an MQTT envelope (``ingest.mqtt``)."""
@@ -144,13 +153,31 @@ def parse_document(
     format_header = hdrs.get("ngsiv2-attrsformat")
     layout = _layout(doc, format_header, hdrs.get("ngsild-attribute-format"))
     tenant = notification_tenant((str(k), _header_text(v)) for k, v in headers.items())
-    header_attr = hdrs.get("fiware-timeindex-attribute", "").strip() or None
-    ctx = _Context(watched_attributes(header_attr), header_attr, to_utc(received_at))
+    header_attr, header_steps = _time_index_header(hdrs.get("fiware-timeindex-attribute", "").strip() or None)
+    ctx = _Context(watched_attributes(header_attr), header_attr, to_utc(received_at), header_steps, time_paths)
     layout, entities = _entities(doc, layout, tenant, values_layout)
     paths = notification_service_paths(hdrs.get("fiware-servicepath"), len(entities))
     parse = _ENTITY_PARSERS[layout]
     label = _ENTITY_LABELS.get(layout, "data")
-    return [_entity_sample(parse, raw, _where(label, i), tenant, paths[i], ctx) for i, raw in enumerate(entities)]
+    out: list[EntitySample] = []
+    for i, raw in enumerate(entities):
+        out += _entity_samples(parse, raw, _where(label, i), tenant, paths[i], ctx)
+    return out
+
+
+def _time_index_header(text: str | None) -> tuple[str | None, Steps]:
+    """``Fiware-TimeIndex-Attribute``: an attribute, or a value path into one
+    (``odom(header.stamp)``) whose stamp is the time index."""
+    if text is None or "(" not in text:
+        return text, ()
+    try:
+        attr, steps = split_value_path(text)
+    except ValueError as exc:
+        raise ParseError(f"Fiware-TimeIndex-Attribute: {exc}") from None
+    problem = name_problem(attr)
+    if problem is not None:
+        raise ParseError(f"Fiware-TimeIndex-Attribute: attribute name {attr[:80]!r} {problem}")
+    return attr, steps
 
 
 # --- envelope ------------------------------------------------------------------
@@ -254,10 +281,10 @@ def _where(label: str, index: int) -> str:
     return label if label == "entity" else f"{label}[{index}]"
 
 
-def _entity_sample(parse, raw: Any, where: str, tenant: str, path: str, ctx: _Context) -> EntitySample:
+def _entity_samples(parse, raw: Any, where: str, tenant: str, path: str, ctx: _Context) -> list[EntitySample]:
     if type(raw) is not dict:
         raise ParseError(f"{where} must be an entity object, got {_json_kind(raw)}")
-    clues = TimeClues(ctx.header_attr, ctx.watched)
+    clues = TimeClues(ctx.header_attr, ctx.watched, ctx.header_steps)
     try:
         entity_id, entity_type, attrs = parse(raw, where, clues)
     except TooDeep as exc:
@@ -269,18 +296,47 @@ def _entity_sample(parse, raw: Any, where: str, tenant: str, path: str, ctx: _Co
                 f"{where}: attribute name {attr.name[:80]!r} {problem}; we store only names "
                 f"every endpoint can be asked for: {RULE}"
             )
+    deleted_at = _ld_entity_deleted_at(raw) if parse in _LD_ENTITY_PARSERS else None
+    stamped: list[EntitySample] = []
+    if ctx.time_paths:
+        attrs, stamped = _split_stamped(attrs, ctx.time_paths, (tenant, path, entity_id, entity_type))
+        if not attrs and deleted_at is None:
+            return stamped
     time_index = clues.resolve(ctx.received_at)
     if clues.unusable:
         _mark_fallback(attrs, clues.unusable)
-    return EntitySample(
-        tenant,
-        path,
-        entity_id,
-        entity_type,
-        time_index,
-        attrs,
-        _ld_entity_deleted_at(raw) if parse in _LD_ENTITY_PARSERS else None,
-    )
+    return [EntitySample(tenant, path, entity_id, entity_type, time_index, attrs, deleted_at), *stamped]
+
+
+def _split_stamped(
+    attrs: list[AttrSample], rules: TimePaths, head: tuple[str, str, str, str]
+) -> tuple[list[AttrSample], list[EntitySample]]:
+    """The attributes ``rules`` time by their own stamp, taken off the entity's
+    row: one ``EntitySample`` per stamp, each sample's ``observedAt`` that
+    stamp (unless it has one), so an unchanged attribute the broker notifies
+    again is recognised and stored once (``storage.ld_ingest``). The rest,
+    and those whose stamp cannot be read (counted), stay at the entity's time."""
+    rest: list[AttrSample] = []
+    by_time: dict[datetime, list[AttrSample]] = {}
+    for attr in attrs:
+        steps = rules.steps(head[3], attr.name)
+        moment = _stamp_of(attr, steps) if steps is not None else None
+        if moment is None:
+            if steps is not None:
+                timeindex.on_stamp_fallback()
+            rest.append(attr)
+            continue
+        if attr.observed_at is None:
+            attr.observed_at = moment
+        by_time.setdefault(moment, []).append(attr)
+    return rest, [EntitySample(*head, moment, group) for moment, group in by_time.items()]
+
+
+def _stamp_of(attr: AttrSample, steps: Steps) -> datetime | None:
+    """The stamp at ``steps`` inside a structured sample's value."""
+    if attr.kind is not Kind.STRUCTURED or not attr.js:
+        return None
+    return timeindex.read_stamp(extract(orjson.loads(attr.js), steps))
 
 
 def _mark_fallback(attrs: list[AttrSample], unusable: tuple[str, ...]) -> None:
@@ -519,7 +575,7 @@ def _geojson_entities(data: dict, *, simplified: bool) -> list:
 
 def _feature_entity(feature: Any, index: int, simplified: bool) -> Any:
     if type(feature) is not dict:
-        return feature  # reported by _entity_sample with its position
+        return feature  # reported by _entity_samples with its position
     properties = feature.get("properties")
     if properties is None:
         properties = {}

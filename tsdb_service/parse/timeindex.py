@@ -4,7 +4,8 @@ Every attribute of an entity in one notification shares one time index, as
 in QuantumLeap, so a wide history row can be rebuilt. The index is the first
 of these that yields a valid time:
 
-1. the attribute named by the ``Fiware-TimeIndex-Attribute`` header;
+1. the attribute named by the ``Fiware-TimeIndex-Attribute`` header, or the
+   stamp at a value path inside it (``odom(header.stamp)``: ``read_stamp``);
 2. a ``TimeInstant`` attribute, else the newest ``TimeInstant`` metadata;
 3. a ``timestamp`` attribute;
 4. the newest NGSI-LD ``observedAt`` among the entity's properties;
@@ -28,6 +29,16 @@ Milliseconds are therefore read from 2001-09-09 on (and before 1938-04-24).
 Sources are collected raw while the entity is parsed and only read when
 their rule is reached, so a notification with a ``TimeInstant`` attribute
 never pays for parsing metadata times.
+
+**Stamps** (``read_stamp``): a robot's own time inside a value. ROS 2's
+``builtin_interfaces/Time`` ``{"sec", "nanosec"}``, ROS 1's ``{"secs",
+"nsecs"}``, Foxglove's ``{"sec", "nsec"}``, or anything ``parse_time``
+reads. Nanoseconds are cut to microseconds (what we store). An all-zero
+stamp is the unset header of a message nobody stamped: not a time. The
+attributes ``TSDB_TIME_INDEX_PATHS`` names (``core.timepaths``) are timed
+by their stamp, each on its own (``parse.notification`` splits them off the
+entity's row); a stamp that cannot be read leaves the sample at the
+entity's time index, and ``on_stamp_fallback`` counts it.
 """
 
 from __future__ import annotations
@@ -36,6 +47,8 @@ import math
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from typing import Any
+
+from tsdb_service.core.valuesteps import extract, steps_text
 
 UTC = UTC
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
@@ -59,6 +72,32 @@ def _no_op() -> None:
 # ``tsdb_service.telemetry`` installs its counter here (a hook, so this parser
 # stays free of metrics code).
 on_fallback: Callable[[], None] = _no_op
+# Called once per attribute sample whose stamp (``TSDB_TIME_INDEX_PATHS``, or
+# the value path of ``Fiware-TimeIndex-Attribute``) could not be read; the
+# same kind of hook.
+on_stamp_fallback: Callable[[], None] = _no_op
+
+_NANOS_PER_SECOND = 1_000_000_000
+# The seconds of 0001-01-01 and of 9999-12-31T23:59:59 since the epoch.
+_FIRST_SECOND, _LAST_SECOND = -62135596800, 253402300799
+_STAMP_KEYS = (("sec", "nanosec"), ("secs", "nsecs"), ("sec", "nsec"))
+
+
+def read_stamp(value: Any) -> datetime | None:
+    """A robot's stamp (see the module docstring) as a UTC datetime, or None."""
+    if type(value) is dict:
+        for sec_key, frac_key in _STAMP_KEYS:
+            if sec_key in value and frac_key in value:
+                return _from_stamp(value[sec_key], value[frac_key])
+    return parse_time(value)
+
+
+def _from_stamp(sec: Any, nanosec: Any) -> datetime | None:
+    if type(sec) is not int or type(nanosec) is not int or not 0 <= nanosec < _NANOS_PER_SECOND:
+        return None
+    if (sec == 0 and nanosec == 0) or not _FIRST_SECOND <= sec <= _LAST_SECOND:
+        return None
+    return EPOCH + timedelta(seconds=sec, microseconds=nanosec // 1000)
 
 
 def parse_time(value: Any) -> datetime | None:
@@ -143,6 +182,7 @@ class TimeClues:
     __slots__ = (
         "date_modified_md",
         "header_attr",
+        "header_steps",
         "modified_at",
         "observed_at",
         "time_instant_md",
@@ -151,8 +191,9 @@ class TimeClues:
         "watched",
     )
 
-    def __init__(self, header_attr: str | None, watched: frozenset[str]):
+    def __init__(self, header_attr: str | None, watched: frozenset[str], header_steps: tuple = ()):
         self.header_attr = header_attr
+        self.header_steps = header_steps  # a value path inside it: the stamp there
         self.watched = watched  # attribute names whose values matter here
         self.values: dict[str, Any] = {}
         self.time_instant_md: list[Any] = []
@@ -176,11 +217,13 @@ class TimeClues:
             self.date_modified_md.append(_meta_value(modified))
 
     def resolve(self, received_at: datetime) -> datetime:
-        for _, raw, read in self._candidates():
+        for n, (_, raw, read) in enumerate(self._candidates()):
             if raw is not None and raw != []:
                 moment = read(raw)
                 if moment is not None:
                     return moment
+                if n == 0 and self.header_steps:
+                    on_stamp_fallback()  # the header's stamp is there but not a time
         on_fallback()
         self.unusable = tuple(
             dict.fromkeys(label for label, raw, _ in self._candidates() if raw is not None and raw != [])
@@ -191,7 +234,11 @@ class TimeClues:
         """The rules of the module docstring, in order: ``(source, raw, reader)``."""
         values = self.values
         if self.header_attr is not None:
-            yield self.header_attr, values.get(self.header_attr), parse_time
+            if self.header_steps:
+                label, steps = f"{self.header_attr}({steps_text(self.header_steps)})", self.header_steps
+                yield label, values.get(self.header_attr), lambda raw: read_stamp(extract(raw, steps))
+            else:
+                yield self.header_attr, values.get(self.header_attr), parse_time
         yield "TimeInstant", values.get("TimeInstant"), parse_time
         yield "TimeInstant metadata", self.time_instant_md, _newest
         yield "timestamp", values.get("timestamp"), parse_time

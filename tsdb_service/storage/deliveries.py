@@ -4,6 +4,10 @@ A writer records each delivery in the transaction that stores what the
 message carried (its samples or its rejection), so a redelivered message is
 recognised exactly when its content is stored. Both backends write the same
 statements, differing only in placeholders.
+
+``tsdb-service import rosbag`` records its progress the same way, as one
+delivery per import (client id ``rosbag:<identity>``, ``seq`` the messages
+stored, older rows pruned): ``commands.rosbag.importer``.
 """
 
 from __future__ import annotations

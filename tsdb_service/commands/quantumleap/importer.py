@@ -44,10 +44,10 @@ import sys
 import time
 from collections import defaultdict
 from collections.abc import Iterator, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import datetime
 
+from tsdb_service.commands.inorder import InOrder
 from tsdb_service.commands.quantumleap.reader import (
     MAX_VALUE_BYTES,
     PAGE_ROWS,
@@ -249,8 +249,7 @@ class _Job:
         self.batch: list[EntitySample] = []
         self.batch_bytes = 0
         self.max_value_bytes = MAX_VALUE_BYTES
-        self.writer = ThreadPoolExecutor(1, thread_name_prefix="ql-import")
-        self.pending: Future | None = None
+        self.writes = InOrder(target.write_sync if target is not None else lambda ops: None, "ql-import")
         self.batch_n = 0
         self.rows_done = 0
         self.rows_total = 0
@@ -275,7 +274,7 @@ class _Job:
                     self._group(meta, group, report)
             self._flush(last=True)
         finally:
-            self.writer.shutdown()  # a batch in flight (e.g. at Ctrl-C) ends committed or not, never half
+            self.writes.close()  # a batch in flight (e.g. at Ctrl-C) ends committed or not, never half
         if self.progress:
             self._show(final=True)
             print(file=sys.stderr)
@@ -365,15 +364,12 @@ class _Job:
     def _flush(self, last: bool = False) -> None:
         """Commit the batch in the background while the next one is read
         (one at a time, in order: the target always holds a prefix)."""
-        if self.pending is not None:
-            pending, self.pending = self.pending, None
-            pending.result()  # the previous batch is committed (or its failure raised) first
         batch, self.batch, self.batch_n, self.batch_bytes = self.batch, [], 0, 0
         if batch and self.target is not None:
-            self.pending = self.writer.submit(self.target.write_sync, [AppendSamples(batch, dedup=False)])
-        if last and self.pending is not None:
-            self._flush()
-        if not last:
+            self.writes.submit([AppendSamples(batch, dedup=False)])  # once the previous batch is committed
+        if last:
+            self.writes.wait()
+        else:
             self._show()
 
     def _show(self, final: bool = False) -> None:

@@ -1,4 +1,4 @@
-"""Record batches → CSV or Parquet bytes, piece by piece.
+"""Record batches → CSV or Parquet bytes (or MCAP: ``mcap``), piece by piece.
 
 pyarrow's writers write into a file object; here that object only collects
 what each batch produced, so the caller can hand it on (an HTTP body chunk,
@@ -88,18 +88,25 @@ def iso_times(times: pa.Array) -> pa.Array:
 class Encoder:
     """``encode(batch)`` → the bytes it adds; ``finish()`` → the rest."""
 
-    def __init__(self, fmt: ExportFormat, raw: bool = False, schema: pa.Schema = SCHEMA) -> None:
+    def __init__(self, fmt: ExportFormat, raw: bool = False, schema: pa.Schema = SCHEMA, tenant: str = "") -> None:
         self._sink = _Pieces()
         self._csv = fmt is ExportFormat.CSV
         self._neutralise = self._csv and not raw
         self._schema = csv_schema(schema) if self._csv else schema
         self._text = [i for i, f in enumerate(schema) if i > 0 and pa.types.is_string(f.type)]
-        if self._csv:
+        self._mcap = None
+        if fmt is ExportFormat.MCAP:  # its own encoder (faces.export.mcap), naming the tenant
+            from tsdb_service.faces.export.mcap import McapEncoder
+
+            self._mcap = McapEncoder(tenant)
+        elif self._csv:
             self._writer = pa_csv.CSVWriter(self._sink, self._schema)
         else:
             self._writer = pq.ParquetWriter(self._sink, schema, compression="zstd")
 
     def encode(self, batch: pa.RecordBatch) -> bytes:
+        if self._mcap is not None:
+            return self._mcap.encode(batch)
         if batch.num_rows:
             if self._csv:
                 batch = batch.set_column(0, self._schema.field(0), iso_times(batch.column(0)))
@@ -110,13 +117,15 @@ class Encoder:
         return self._sink.take()
 
     def finish(self) -> bytes:
+        if self._mcap is not None:
+            return self._mcap.finish()
         self._writer.close()
         return self._sink.take()
 
 
-def chunks(stream: SampleStream, fmt: ExportFormat, raw: bool = False) -> Iterator[bytes]:
+def chunks(stream: SampleStream, fmt: ExportFormat, raw: bool = False, tenant: str = "") -> Iterator[bytes]:
     """The encoded export, one piece per batch (blocking: run it in a thread)."""
-    encoder = Encoder(fmt, raw, stream.schema)
+    encoder = Encoder(fmt, raw, stream.schema, tenant)
     while (batch := stream.next_batch()) is not None:
         piece = encoder.encode(batch)
         if piece:
@@ -125,7 +134,7 @@ def chunks(stream: SampleStream, fmt: ExportFormat, raw: bool = False) -> Iterat
 
 
 def write_file(
-    stream: SampleStream, fmt: ExportFormat, path: str | os.PathLike[str], raw: bool = False
+    stream: SampleStream, fmt: ExportFormat, path: str | os.PathLike[str], raw: bool = False, tenant: str = ""
 ) -> tuple[int, int, float]:
     """Write the export to ``path``; (samples, bytes, seconds).
 
@@ -137,7 +146,7 @@ def write_file(
     size = 0
     try:
         with open(partial, "wb") as out:
-            for piece in chunks(stream, fmt, raw):
+            for piece in chunks(stream, fmt, raw, tenant):
                 out.write(piece)
                 size += len(piece)
         os.replace(partial, target)

@@ -12,7 +12,7 @@ EXPORT = [
     FROM_DATE,
     TO_DATE,
     query("attrs", "Attribute names (not value paths), comma-separated."),
-    query("format", "File format.", {"enum": ["csv", "parquet"], "default": "csv"}),
+    query("format", "File format (mcap: for Foxglove).", {"enum": ["csv", "parquet", "mcap"], "default": "csv"}),
     query(
         "raw",
         "CSV: write text cells as stored. By default a cell starting with =, +, -, @, tab or CR gets a "
@@ -36,6 +36,7 @@ EXPORT_SPEC = spec(
             "content": {
                 "text/csv": {"schema": {"type": "string"}},
                 "application/vnd.apache.parquet": {"schema": {"type": "string", "format": "binary"}},
+                "application/x-mcap": {"schema": {"type": "string", "format": "binary"}},
             },
         }
     },

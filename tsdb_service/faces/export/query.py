@@ -25,6 +25,7 @@ from tsdb_service.parse.request_context import entity_filter, scope, time_range
 class ExportFormat(str, Enum):
     CSV = "csv"
     PARQUET = "parquet"
+    MCAP = "mcap"  # for Foxglove (faces.export.mcap)
 
     @property
     def media_type(self) -> str:
@@ -35,7 +36,11 @@ class ExportFormat(str, Enum):
         return "." + self.value
 
 
-_MEDIA_TYPES = {ExportFormat.CSV: "text/csv; charset=utf-8", ExportFormat.PARQUET: "application/vnd.apache.parquet"}
+_MEDIA_TYPES = {
+    ExportFormat.CSV: "text/csv; charset=utf-8",
+    ExportFormat.PARQUET: "application/vnd.apache.parquet",
+    ExportFormat.MCAP: "application/x-mcap",
+}
 PARAMETERS = ("format", "type", "id", "idPattern", "attrs", "fromDate", "toDate", "raw", "bucket")
 _WIDTH = re.compile(r"^([1-9][0-9]{0,9})(ms|s|min|m|h|d)$")
 _UNITS = {"ms": 1e-3, "s": 1, "min": 60, "m": 60, "h": 3600, "d": 86400}
@@ -62,7 +67,7 @@ def export_format(raw: str | None, default: ExportFormat = ExportFormat.CSV) -> 
     try:
         return ExportFormat(raw.strip().lower())
     except ValueError:
-        raise BadRequest(f"format must be csv or parquet, not {raw[:40]!r}") from None
+        raise BadRequest(f"format must be csv, parquet or mcap, not {raw[:40]!r}") from None
 
 
 def export_query(params: Mapping[str, str], headers: Mapping[str, str], tenant: str) -> ExportQuery:
@@ -71,7 +76,7 @@ def export_query(params: Mapping[str, str], headers: Mapping[str, str], tenant: 
     if unknown:
         raise BadRequest(f"unknown parameter {unknown[0][:40]!r}; export takes {', '.join(PARAMETERS)}")
     get = params.get
-    return ExportQuery(
+    query = ExportQuery(
         scope=scope(headers, tenant),
         entities=entity_filter(params),
         attrs=_attr_names(get("attrs")),
@@ -80,6 +85,9 @@ def export_query(params: Mapping[str, str], headers: Mapping[str, str], tenant: 
         raw=_flag(get("raw"), "raw"),
         bucket=bucket_width(get("bucket")),
     )
+    if query.format is ExportFormat.MCAP and query.bucket is not None:
+        raise BadRequest("bucket exports aggregates, as csv or parquet; mcap exports the samples themselves")
+    return query
 
 
 def bucket_width(raw: str | None) -> timedelta | None:

@@ -30,9 +30,10 @@ router = APIRouter(tags=["export"])
 
 @router.get(
     "/v2/export",
-    summary="Export history as CSV or Parquet (one row per sample)",
+    summary="Export history as CSV, Parquet or MCAP (one row or message per sample)",
     description=(
-        "Parameters: format=csv|parquet (default csv), type, id, idPattern, attrs (attribute names), "
+        "Parameters: format=csv|parquet|mcap (default csv; mcap: for Foxglove, one channel per entity and "
+        "attribute, docs/robots.md), type, id, idPattern, attrs (attribute names), "
         "fromDate, toDate, raw; tenant from Fiware-Service / Fiware-ServicePath. Columns: time (UTC, µs), "
         "entity_id, entity_type, service_path, attribute, ngsi_type, value_number, value_text, "
         "value_bool, value_json (exactly one value column set per sample). CSV text cells starting with "
@@ -50,7 +51,7 @@ async def export(request: Request) -> StreamingResponse:
     stream = await store.read(partial(open_export, store, query), memory_first=False)
     filename = f"tsdb-export{query.format.suffix}"
     return StreamingResponse(
-        _body(store, stream, Encoder(query.format, query.raw, stream.schema)),
+        _body(store, stream, Encoder(query.format, query.raw, stream.schema, query.scope.tenant)),
         media_type=query.format.media_type,
         headers={"Content-Disposition": f'attachment; filename="{filename}"'},
     )

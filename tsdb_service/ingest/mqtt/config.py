@@ -56,6 +56,7 @@ class MqttConfig:
     key_file: str = ""
     tenant_rules: tuple[TenantRule, ...] = ()  # TSDB_MQTT_TENANTS; empty: any tenant
     client_id_is_default: bool = False  # ``tsdb-service-HOSTNAME``: guessable (``serve`` warns without credentials)
+    time_index_paths: str = ""  # TSDB_TIME_INDEX_PATHS, as for HTTP notifications
 
     @property
     def window(self) -> int:
@@ -120,6 +121,7 @@ class MqttConfig:
             key_file=settings.mqtt_key_file,
             tenant_rules=tenant_rules,
             client_id_is_default=not settings.mqtt_client_id,
+            time_index_paths=settings.time_index_paths,
         )
 
 

@@ -38,6 +38,7 @@ import orjson
 from tsdb_service.core.credentials import redact_headers
 from tsdb_service.core.errors import BadRequest, Forbidden, ParseError, PayloadTooLarge, TsdbError
 from tsdb_service.core.model import EntitySample, RejectedNotification
+from tsdb_service.core.timepaths import parse_time_paths
 from tsdb_service.ingest.mqtt.config import MqttConfig
 from tsdb_service.ingest.mqtt.topics import route, topic_tenants
 from tsdb_service.parse import load_document, parse_document
@@ -127,7 +128,13 @@ def parse_message(message: Message, config: MqttConfig, values_layout=None) -> l
         if type(doc) is not dict:
             raise ParseError("envelope 'body' must be a notification object")
     headers = routed_headers(message.topic, pairs, config)
-    entities = parse_document(doc, Headers(headers), received_at=message.received_at, values_layout=values_layout)
+    entities = parse_document(
+        doc,
+        Headers(headers),
+        received_at=message.received_at,
+        values_layout=values_layout,
+        time_paths=parse_time_paths(config.time_index_paths),
+    )
     if config.tenant_rules:
         check_tenants(message.topic, {e.tenant for e in entities}, config)
     return entities
