@@ -7,12 +7,12 @@ import gc
 import os
 import sys
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from types import ModuleType
 from typing import NoReturn
 
 from tsdb_service import __version__
 from tsdb_service.cli.messages import readable
+from tsdb_service.cli.newdb import new_duckdb_file
 from tsdb_service.cli.parser import CommandParser, Formatter
 from tsdb_service.core.config import (
     LOG_LEVELS,
@@ -267,16 +267,6 @@ def cmd_serve(args: argparse.Namespace) -> int:
     )
     # --- end of limits ---
     return 0
-
-
-def new_duckdb_file(settings: Settings) -> Path | None:
-    """The DuckDB file ``settings.db`` names when it does not exist yet (the
-    store will create it), as an absolute path; None otherwise. Asked before
-    the store opens, so a mistyped path is said once: a new, empty database."""
-    if settings.backend != "duckdb" or settings.db == ":memory:":
-        return None
-    path = Path(settings.db).resolve()
-    return None if path.exists() else path
 
 
 WRITER_SWITCH_INTERVAL_S = 0.0002

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 
 from tsdb_service.cli.argtypes import positive_int
-from tsdb_service.cli.main import new_duckdb_file
+from tsdb_service.cli.newdb import new_duckdb_file
 from tsdb_service.core.config import Settings, SettingsError, check_db, load_settings
 from tsdb_service.parse.timeindex import parse_time
 

@@ -342,7 +342,12 @@ class NgsiLdSettings(SettingsGroup):
     ngsild_default_limit: int = Field(100, ge=1, description="Entities per page when a temporal query gives no limit.")
     ngsild_max_limit: int = Field(1000, ge=1, description="Largest limit a temporal query may ask for.")
     ngsild_max_instances: int = Field(
-        10_000, ge=1, description="Instances in one temporal answer; past it the answer is 206 Partial Content."
+        10_000,
+        ge=1,
+        description=(
+            "Instances in one temporal answer; past it a V1.9.1 request gets 206 Partial Content,"
+            " a TS 104 176 one (firstN/offsetN) a 200 page with links."
+        ),
     )
     ngsild_contexts: str = Field(
         "", description="Local JSON-LD @context files: 'URL=path' pairs separated by ';' (served instead of fetching)."
