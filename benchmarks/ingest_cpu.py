@@ -194,13 +194,7 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict] = []
     profiles: dict = {}
     try:
-        if args.backend == "postgresql":
-            from pgutil import BenchCluster
-
-            cluster = BenchCluster("ingestcpu").start()
-            db = cluster.url
-        else:
-            db = str(workdir / "ingest.duckdb")
+        db, cluster = common.fresh_database(args.backend, "ingestcpu", workdir)
         port = common.free_port()
         cmd = common.ours_cmd(db, port) + args.serve_arg
         server = common.spawned("ours", cmd, port, workdir, env)
