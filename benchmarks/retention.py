@@ -1,4 +1,4 @@
-"""Retention benchmark: the cost of retention batches and of folding rollups.
+"""Retention benchmark: the cost of retention batches, raw and rollup levels.
 
     .venv/bin/python benchmarks/retention.py                      # 10M samples, DuckDB
     .venv/bin/python benchmarks/retention.py --scale 0.1          # 1M samples
@@ -9,11 +9,13 @@
    batches, as ``queries.py`` does), spread over 25 hours whatever the scale,
    then compacts (DuckDB) or runs VACUUM ANALYZE (PostgreSQL).
 2. Runs two retention passes with a clock set inside the data, each deleting
-   about a third of it: the first without rollups, the second folding what it
-   deletes into hourly rollups (``TSDB_ROLLUPS``), with ``--batch-rows`` rows
-   per batch and no pause. Meanwhile a probe thread commits one notification
-   (10 samples) and runs one hourly average over the rolled-up hours,
-   alternately, and records their latencies, also with retention idle.
+   about a third of the raw samples (rollups, kept on ingest, stay): the
+   first of raw samples only, the second also of the minute rollups of the
+   first third (``TSDB_RETENTION=*=raw:...,minute:...``), with
+   ``--batch-rows`` rows per batch and no pause. Meanwhile a probe thread
+   commits one notification (10 samples) and runs one hourly average over
+   hours only rollups hold, alternately, and records their latencies, also
+   with retention idle.
 3. Prints rows deleted per second, batch time p50/p99/max for each pass, the
    probe's latencies idle and during each pass, and an hourly average over
    data that is only in rollups.
@@ -145,16 +147,15 @@ class Probe:
         return {"result": result, "commit_ms": pct(self.commit_ms), "query_ms": pct(self.query_ms)}
 
 
-def one_pass(store, settings_kw: dict, clock_at: datetime, batch_rows: int) -> dict:
+def one_pass(store, retention: str, clock_at: datetime, batch_rows: int) -> dict:
     from tsdb_service.core.config import Settings
     from tsdb_service.storage.retention import attach_retention
 
     settings = Settings(
         db="unused",
-        retention=f"*={int(KEEP.total_seconds())}s",
+        retention=retention,
         retention_pause=0,
         retention_batch_rows=batch_rows,
-        **settings_kw,
     )
     worker = attach_retention(store, settings, start=False, clock=lambda: clock_at)
     batches = worker.observer = Batches()
@@ -193,14 +194,18 @@ def run(db, cluster, args) -> dict:
     try:
         probe = Probe(store, START + timedelta(hours=9))
         out["idle"] = probe.measure(lambda: time.sleep(2.0))
-        # Pass 1, no rollups: everything before START + 8h20m goes (a third).
-        first = probe.measure(lambda: one_pass(store, {}, START + SPAN / 3 + KEEP, args.batch_rows))
-        out["pass_plain"] = {**first.pop("result"), **first}
-        print("plain  ", json.dumps(out["pass_plain"]), flush=True)
-        # Pass 2, rollups: up to START + 16h (the cutoff is floored to the hour), folded.
-        second = probe.measure(lambda: one_pass(store, {"rollups": True}, START + 2 * SPAN / 3 + KEEP, args.batch_rows))
-        out["pass_rollups"] = {**second.pop("result"), **second}
-        print("rollups", json.dumps(out["pass_rollups"]), flush=True)
+        keep = int(KEEP.total_seconds())
+        # Pass 1, raw samples: everything before START + 8h20m goes (a third); rollups stay.
+        first = probe.measure(lambda: one_pass(store, f"*={keep}s", START + SPAN / 3 + KEEP, args.batch_rows))
+        out["pass_raw"] = {**first.pop("result"), **first}
+        print("raw          ", json.dumps(out["pass_raw"]), flush=True)
+        # Pass 2, raw samples up to START + 16h40m, and the minute rollups of the first third.
+        minute = keep + int(SPAN.total_seconds()) // 3
+        second = probe.measure(
+            lambda: one_pass(store, f"*=raw:{keep}s,minute:{minute}s", START + 2 * SPAN / 3 + KEEP, args.batch_rows)
+        )
+        out["pass_raw_and_minute"] = {**second.pop("result"), **second}
+        print("raw + minute ", json.dumps(out["pass_raw_and_minute"]), flush=True)
         out["rolled_up_hourly_avg_8h_ms"] = rolled_up_query_ms(store, probe)
     finally:
         store.close()

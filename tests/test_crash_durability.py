@@ -29,7 +29,10 @@ from tests.support.crash_load import (
     entity_id,
     temperature,
 )
+from tests.support.rollups import differences
 from tests.support.server import ServerProcess
+from tsdb_service.core.config import Settings
+from tsdb_service.storage import open_store
 
 
 def stored_temperatures(db_path) -> dict[str, set[float]]:
@@ -90,3 +93,8 @@ def test_acknowledged_notifications_survive_sigkill(tmp_path):
     assert refused_stored == 0, f"{refused_stored} never-sent notifications are stored?! {summary}"
     assert len(acked) >= acked_before_kill >= KILL_AFTER_ACKS, f"too little load to mean anything: {summary}"
     assert not lost, f"acknowledged but lost, e.g. {[entity_id(s) for s in lost[:10]]}: {summary}"
+    store = open_store(Settings(db=str(db_path)))  # rollups folded once per stored sample, none for the rest
+    try:
+        assert not differences(store)
+    finally:
+        store.close()

@@ -22,7 +22,10 @@ from tests.support.crash_load import (
     entity_id,
     temperature,
 )
+from tests.support.rollups import differences
 from tests.support.server import ServerProcess
+from tsdb_service.core.config import Settings
+from tsdb_service.storage import open_store
 
 
 def stored_temperatures(url: str) -> dict[str, set[float]]:
@@ -62,3 +65,8 @@ def test_two_replicas_lose_nothing_acknowledged_on_sigkill(pg_cluster):
     )
     assert len(acked) >= acked_before_kill >= KILL_AFTER_ACKS
     assert not lost, f"acknowledged but lost: {[entity_id(s) for s in lost[:10]]}"
+    store = open_store(Settings(db=url))  # each committed sample rolled up once, by its transaction
+    try:
+        assert not differences(store)
+    finally:
+        store.close()

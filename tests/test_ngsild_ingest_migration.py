@@ -5,15 +5,12 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 
-import duckdb
-import psycopg
-
+from tests.support.old_store import old_store
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.core.query import EntityFilter, Scope
 from tsdb_service.read.requests import InstancesRead, SeriesSelect
 from tsdb_service.storage import open_store
-from tsdb_service.storage.migrations import SCHEMA_TABLE, load_migrations, split_statements
 from tsdb_service.write.ops import AppendSamples
 
 OLD_ROWS = [
@@ -24,34 +21,14 @@ OLD_ROWS = [
 
 
 def _old_store(url: str, backend: str) -> None:
-    """A store migrated up to 0004, with samples in it."""
-    old = [m for m in load_migrations(backend) if m.version < 5]
-    series = "INSERT INTO series (sid, tenant, service_path, entity_id, entity_type, attr) VALUES "
-    if backend == "duckdb":
-        con = duckdb.connect(url)
-        con.execute(SCHEMA_TABLE)
-        for m in old:
-            for statement in split_statements(m.sql):
-                con.execute(statement)
-            con.execute("INSERT INTO schema_migrations (version, name) VALUES (?, ?)", [m.version, m.name])
-        con.execute(series + "(1, '', '/', 'e', 'T', 'a'), (2, '', '/', 'e', 'T', 'b')")
-        con.executemany("INSERT INTO samples (rid, sid, t, kind, atype, num) VALUES (?, ?, ?, ?, ?, ?)", OLD_ROWS[:2])
-        con.executemany(
-            "INSERT INTO samples_hot (rid, sid, t, kind, atype, num) VALUES (?, ?, ?, ?, ?, ?)", OLD_ROWS[2:]
-        )
-        con.close()
-        return
-    with psycopg.connect(url) as conn:
-        conn.execute(SCHEMA_TABLE)
-        for m in old:
-            conn.execute(m.sql)
-            conn.execute("INSERT INTO schema_migrations (version, name) VALUES (%s, %s)", [m.version, m.name])
-        conn.execute(series + "(1, '', '/', 'e', 'T', 'a'), (2, '', '/', 'e', 'T', 'b')")
-        conn.execute("SELECT setval(pg_get_serial_sequence('series', 'sid'), 2)")
-        with conn.cursor() as cur:
-            cur.executemany(
-                "INSERT INTO samples (rid, sid, t, kind, atype, num) VALUES (%s, %s, %s, %s, %s, %s)", OLD_ROWS
-            )
+    """A store migrated up to 0004, with samples in it (on DuckDB the last one hot)."""
+    insert = "INSERT INTO {table} (rid, sid, t, kind, atype, num) VALUES ({{p}}, {{p}}, {{p}}, {{p}}, {{p}}, {{p}})"
+    hot = "samples_hot" if backend == "duckdb" else "samples"
+    rows = [
+        *((insert.format(table="samples"), list(r)) for r in OLD_ROWS[:2]),
+        *((insert.format(table=hot), list(r)) for r in OLD_ROWS[2:]),
+    ]
+    old_store(url, backend, 5, rows, attrs=("a", "b"))
 
 
 def test_existing_samples_get_instance_ids(store_url, backend):

@@ -20,6 +20,7 @@ from pathlib import Path
 import psycopg
 import pytest
 
+from tests.support.rollups import differences
 from tsdb_service.cli.main import main
 from tsdb_service.commands.quantumleap.layout import has_postgis, write_entities
 from tsdb_service.parse.timeindex import parse_time
@@ -105,6 +106,7 @@ def test_imported_history_answers_like_quantumleap(pg_cluster, client_factory, t
     assert len(cases) > 100
     with client_factory(target) as client:
         imported = _answers(client, cases)
+        assert not differences(client.app.state.store)  # rolled up by the writers the import goes through
     with client_factory(str(tmp_path / "notified.duckdb")) as client:
         for note in notes:
             posted = client.post("/v2/notify", json=note["body"], headers=note.get("headers") or {})

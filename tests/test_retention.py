@@ -12,7 +12,7 @@ import pytest
 from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Geometry, Kind
 from tsdb_service.core.query import EntityFilter, Scope, TimeRange
-from tsdb_service.read.requests import LocationsIn, SamplesIn, SeriesSelect
+from tsdb_service.read.requests import LocationsIn, SeriesSelect
 from tsdb_service.storage import open_store
 from tsdb_service.write.ops import AppendSamples
 
@@ -36,11 +36,16 @@ def entity(tenant: str, eid: str, etype: str, age: timedelta, n: int = 1, **extr
 
 
 def count(store, tenant: str, eid: str | None = None, etype: str | None = None) -> int:
+    """Raw samples left (``Querier.count`` also counts what only rollups hold)."""
     q = store.querier()
     refs = q.series(
         SeriesSelect(Scope(tenant), EntityFilter(ids=(eid,) if eid else None, types=(etype,) if etype else None))
     )
-    return q.count(SamplesIn([r.sid for r in refs], TimeRange()))
+    sids = [r.sid for r in refs]
+    if not sids:
+        return 0
+    where, params = q.dialect.sid_filter(sids)
+    return q._fetch(f"SELECT count(*) FROM samples_all WHERE {where}", params)[0][0]
 
 
 class Batches:

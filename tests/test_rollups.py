@@ -1,10 +1,10 @@
-"""Hourly rollups answer aggregations over what retention deleted.
+"""Rollups answer aggregations over what retention deleted, through the API.
 
-Every aggregation whose period is an hour or longer (or none) gives the same
-answer after retention folded the old samples into rollups as before, also
-when it spans rolled-up and raw data; late samples, user deletes, rollup
-retention and a restart keep it so. Minute buckets, value paths and ranges
-that cut an hour only see raw samples, as documented."""
+Minute and hour rollups are kept on ingest, so every aggregation whose
+period is made of whole minutes or hours (or none) gives the same answer
+after retention deleted the old raw samples as before, also when it spans
+rolled-up and raw data; late samples, user deletes, rollup retention and a
+restart keep it so. Value paths read raw samples only, as documented."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ OLD = NOW - timedelta(days=60) - timedelta(hours=7)  # 50 hours from here: rolle
 NEW = NOW - timedelta(days=2)  # 10 hours from here: raw
 MS = timedelta(milliseconds=1)
 H = {"Fiware-Service": "acme"}
-SETTINGS = dict(retention="acme=30d", rollups=True, retention_batch_rows=40, retention_pause=0, retention_interval=3600)
+SETTINGS = dict(retention="acme=30d", retention_batch_rows=40, retention_pause=0, retention_interval=3600)
 
 
 def iso(moment: datetime) -> str:
@@ -66,7 +66,7 @@ def queries() -> list[str]:
     ]
     out = []
     for method in ("count", "sum", "avg", "min", "max"):
-        for period in ("", "&aggrPeriod=hour", "&aggrPeriod=day", "&aggrPeriod=month", "&aggrPeriod=year"):
+        for period in ("", "&aggrPeriod=minute", "&aggrPeriod=hour", "&aggrPeriod=day", "&aggrPeriod=month"):
             for span in spans:
                 q = f"aggrMethod={method}{period}{span}"
                 out += [f"/v2/entities/Robot:1/attrs/{attr}?{q}" for attr in ("speed", "ticks", "mixed", "label")]
@@ -86,9 +86,12 @@ def raw_count(client) -> int:
     return client.app.state.store.querier()._fetch("SELECT count(*) FROM samples_all", [])[0][0]
 
 
-def rollup_rows(client) -> list[tuple]:
+def rollup_rows(client, level: str = "hour") -> list[tuple]:
+    """(sid, bucket, n_present) of each bucket of ``level``, merged and hot rows combined."""
     q = client.app.state.store.querier()
-    return q._fetch("SELECT sid, bucket, n_present FROM rollups_hourly ORDER BY sid, bucket", [])
+    return q._fetch(
+        f"SELECT sid, bucket, sum(n_present) FROM rollups_{level}_all GROUP BY sid, bucket ORDER BY sid, bucket", []
+    )
 
 
 @pytest.fixture
@@ -98,20 +101,22 @@ def loaded(client_factory, store_url, notify):
         yield client
 
 
-def test_answers_are_the_same_after_retention_folded_the_old_samples(loaded):
+def test_answers_are_the_same_after_retention_deleted_the_old_samples(loaded):
     paths = queries()
     before = answers(loaded, paths)
     assert before["/v2/entities/Robot:1/attrs/ticks?aggrMethod=sum&aggrPeriod=day"][0] == 200
     assert before["/v2/entities/Robot:1/attrs/label?aggrMethod=sum&aggrPeriod=day"][0] == 404  # text
+    assert len(rollup_rows(loaded)) == 2 * (50 + 10) * 6  # one per series and hour, written on ingest
     deleted = loaded.app.state.store.retention.run_once()
     assert deleted and sum(deleted.values()) == 2 * 50 * 3 * 6  # every old sample of 6 attributes (TimeInstant too)
     assert raw_count(loaded) == 2 * 10 * 3 * 6
-    assert len(rollup_rows(loaded)) == 2 * 50 * 6  # one row per series and hour
+    assert len(rollup_rows(loaded)) == 2 * (50 + 10) * 6  # retention leaves rollups
+    assert len(rollup_rows(loaded, "minute")) == 2 * (50 + 10) * 3 * 6
     after = answers(loaded, paths)
     assert after == before
 
 
-def test_late_samples_are_counted_before_and_after_they_are_folded(loaded, notify):
+def test_late_samples_are_counted_before_and_after_retention(loaded, notify):
     path = "/v2/entities/Robot:1/attrs/ticks?aggrMethod=sum&aggrPeriod=day"
     loaded.app.state.store.retention.run_once()
     before = loaded.get(path, headers=H).json()
@@ -120,29 +125,33 @@ def test_late_samples_are_counted_before_and_after_they_are_folded(loaded, notif
     notify(loaded, {"subscriptionId": "s", "data": [late]}, H)
     day = iso((OLD + timedelta(hours=2)).replace(hour=0)).replace("Z", "+00:00")
     expected = [v + 1000 if i == before["index"].index(day) else v for i, v in enumerate(before["values"])]
-    assert loaded.get(path, headers=H).json()["values"] == expected  # raw + rollup, same hour
+    assert loaded.get(path, headers=H).json()["values"] == expected  # rolled up on ingest
     assert sum(loaded.app.state.store.retention.run_once().values()) == 6  # the late notification's samples
-    assert loaded.get(path, headers=H).json()["values"] == expected  # folded into the same rollup row
+    assert loaded.get(path, headers=H).json()["values"] == expected  # its rollups stay
 
 
-def test_minute_buckets_value_paths_and_cut_hours_see_raw_samples_only(loaded):
+def test_minutes_and_cut_hours_come_from_rollups_value_paths_from_raw(loaded):
     loaded.app.state.store.retention.run_once()
     minute = loaded.get("/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&aggrPeriod=minute", headers=H).json()
-    raw_minutes = [iso(NEW + timedelta(hours=h, minutes=m)) for h in range(10) for m in (0, 20, 40)]
-    assert (minute["index"], minute["values"]) == (raw_minutes, [1] * 30)  # one raw sample a bucket, to the ms
+    every = [
+        iso(start + timedelta(hours=h, minutes=m))
+        for start, hours in ((OLD, 50), (NEW, 10))
+        for h in range(hours)
+        for m in (0, 20, 40)
+    ]
+    assert (minute["index"], minute["values"]) == (every, [1] * 180)  # one sample a bucket, to the ms
     path = loaded.get("/v2/entities/Robot:1/attrs/odom(x)?aggrMethod=count", headers=H).json()
     assert path["values"] == [30]  # only the raw window
-    # A range starting mid-hour leaves that hour's rolled-up part out.
+    # A range starting mid-hour counts that hour's later minutes (from minute rollups).
     cut = loaded.get(
         f"/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&fromDate="
         f"{quote(iso(OLD + timedelta(hours=4, minutes=30)))}",
         headers=H,
     ).json()
-    whole = loaded.get(
-        f"/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&fromDate={quote(iso(OLD + timedelta(hours=5)))}", headers=H
-    ).json()
-    assert cut["values"] == whole["values"] == [(50 - 5) * 3 + 30]
-    # A range ending on an hour's first instant leaves that hour out; its last millisecond keeps it in.
+    assert cut["values"] == [(50 - 5) * 3 + 1 + 30]  # the 4:40 sample too
+    # A range ending on an hour's first instant cuts that instant's minute: it is read from raw samples,
+    # which retention deleted (documented), so the 10:00 sample is not counted; one ending on the hour's
+    # last millisecond before covers whole minutes only.
     ends = [OLD + timedelta(hours=10), OLD + timedelta(hours=10) - MS]
     got = [
         loaded.get(f"/v2/entities/Robot:1/attrs/ticks?aggrMethod=count&toDate={quote(iso(end))}", headers=H).json()[
@@ -153,35 +162,67 @@ def test_minute_buckets_value_paths_and_cut_hours_see_raw_samples_only(loaded):
     assert got == [[30], [30]]
 
 
+def _drawn(client, **params):
+    r = client.get("/grafana/infinity/series", params={"id": "Robot:1", "attrs": "v=speed", **params}, headers=H)
+    assert r.status_code == 200, r.text
+    return r.json(), r.headers["X-Tsdb-Bucket"]
+
+
+def test_drawing_after_retention_shows_the_rolled_up_history(loaded):
+    """A panel of all data starts where the rollups' history does, and raw
+    samples that would fit the budget but no longer hold the window's start
+    give way to buckets."""
+    before = _drawn(loaded, max_points=100)
+    assert before[1] == "1d" and before[0][0]["time"] == iso(OLD).replace("+00:00", "Z")
+    assert _drawn(loaded, max_points=1000)[1] == "raw"  # 180 samples: drawn as stored
+    loaded.app.state.store.retention.run_once()
+    assert _drawn(loaded, max_points=100) == before  # the window found from the rollups too
+    rows, width = _drawn(loaded, max_points=1000)
+    assert width == "2h" and rows[0]["time"] == before[0][0]["time"]  # 30 raw samples left, but buckets
+    window = {"from": int(OLD.timestamp() * 1000), "to": int((NEW + timedelta(hours=10)).timestamp() * 1000)}
+    assert _drawn(loaded, max_points=1000, **window)[1] == "2h"
+    # Ten hours that only rollups hold, from an open start: minute buckets, each sample's value.
+    rows, width = _drawn(loaded, max_points=1000, to=int((OLD + timedelta(hours=10)).timestamp() * 1000) - 1)
+    drawn = [row for row in rows if row["v"] is not None]
+    assert width != "raw" and drawn[0]["time"] == before[0][0]["time"] and len(drawn) == 30
+
+
 def test_deleting_an_entity_removes_its_rollups(loaded):
     loaded.app.state.store.retention.run_once()
     count = "/v2/entities/Robot:1/attrs/ticks?aggrMethod=count"
     assert loaded.get(count, headers=H).json()["values"] == [180]
-    # A range delete removes every rolled-up hour it touches: 10:00 to 20:00 inclusive is 11 hours.
+    # Over expired samples a range delete drops the buckets it covers whole
+    # (10:00 to 19:59) and keeps the ones it only cuts (the 20:00 hour and minute).
     r = loaded.delete(
         f"/v2/entities/Robot:1?type=Robot&fromDate={quote(iso(OLD + timedelta(hours=10)))}"
         f"&toDate={quote(iso(OLD + timedelta(hours=20)))}",
         headers=H,
     )
     assert r.status_code == 204, r.text
-    assert loaded.get(count, headers=H).json()["values"] == [180 - 33]
+    assert loaded.get(count, headers=H).json()["values"] == [180 - 30]
     assert loaded.delete("/v2/entities/Robot:2?type=Robot", headers=H).status_code == 204
     assert loaded.get("/v2/entities/Robot:2?aggrMethod=count", headers=H).json() == []
     store = loaded.app.state.store
     robot2 = {r.sid for r in store.querier().series(SeriesSelect(Scope("acme"), EntityFilter(ids=("Robot:2",))))}
-    assert not [row for row in rollup_rows(loaded) if row[0] in robot2]
+    assert not [row for row in rollup_rows(loaded) + rollup_rows(loaded, "minute") if row[0] in robot2]
 
 
-def test_rollup_retention_trims_old_rollup_rows(client_factory, store_url, notify):
-    with client_factory(store_url, **{**SETTINGS, "rollup_retention": "acme=60d"}) as client:
+@pytest.mark.parametrize(
+    "settings",
+    [{"retention": "acme=raw:30d,minute:60d,hour:60d"}, {"rollup_retention": "acme=60d"}],
+    ids=["levels", "deprecated"],
+)
+def test_rollup_retention_trims_old_rollup_rows(client_factory, store_url, notify, settings):
+    with client_factory(store_url, **{**SETTINGS, **settings}) as client:
         load(client, notify)
         worker = client.app.state.store.retention
         worker.run_once()
-        horizon = worker.watermarks[("rollups", "acme")].replace(tzinfo=None)
+        horizon = worker.watermarks[("hour", "acme")].replace(tzinfo=None)
         buckets = [row[1] for row in rollup_rows(client)]
-        assert buckets and min(buckets) >= horizon
-        assert len(buckets) < 2 * 50 * 6  # the oldest hours are gone
+        assert buckets and min(buckets) >= horizon - timedelta(hours=1)
+        assert len(buckets) < 2 * 60 * 6  # the oldest hours are gone
         assert OLD.replace(tzinfo=None) < horizon <= datetime.now(UTC).replace(tzinfo=None) - timedelta(days=60)
+        assert ("minute", "acme") in worker.watermarks
 
 
 def test_a_restart_keeps_rollups_and_watermarks(client_factory, store_url, notify):
@@ -194,7 +235,7 @@ def test_a_restart_keeps_rollups_and_watermarks(client_factory, store_url, notif
     with client_factory(store_url, **SETTINGS) as client:
         assert client.app.state.store.retention.watermarks == marks
         assert answers(client, paths) == before
-    # Rollups keep answering with the feature switched off later.
+    # Rollups keep answering with retention switched off later.
     with client_factory(store_url) as client:
         assert answers(client, paths) == before
 

@@ -207,8 +207,8 @@ class RetentionMetrics:
         self._tenants = tenants
         self.deleted = Counter(
             "tsdb_retention_deleted_rows",
-            "Rows deleted by retention, by table (samples, samples_hot, "
-            "rollups_hourly) and tenant; with rollups on, every deleted sample was folded into the rollups.",
+            "Rows deleted by retention, by table (samples, samples_hot, rollups_minute, rollups_hour, "
+            "rollups_hot_minute, rollups_hot_hour) and tenant; deleting raw samples leaves their rollups.",
             ["table", "tenant"],
             registry=registry,
         )
@@ -233,7 +233,7 @@ class RetentionLagCollector(Collector):
         family = GaugeMetricFamily(
             "tsdb_retention_watermark_lag_seconds",
             "How far the cutoff of the last completed retention pass trails the rule's cutoff now, per "
-            "table (samples, rollups) and rule; for samples with rollups on, also the rollups' watermark lag.",
+            "level (table: samples, minute, hour) and rule.",
             labels=["table", "rule"],
         )
         for (kind, rule), lag in sorted(self._worker.lags().items()):

@@ -2,13 +2,19 @@
 
 Each raises ``argparse.ArgumentTypeError`` with a message that names the
 value and what to give instead. A plain ``ValueError`` would make argparse
-print the function's name ("invalid _positive_int value: 'abc'").
+print the function's name ("invalid _positive_int value: 'abc'"). Times
+(``utc_time``) are read after parsing, naming their flag in one
+``SettingsError`` line.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+from datetime import UTC, datetime
+
+from tsdb_service.core.config import SettingsError
+from tsdb_service.parse.timeindex import parse_time
 
 
 def positive_int(text: str) -> int:
@@ -50,3 +56,13 @@ def port(text: str) -> int:
     if not 1 <= value <= 65535:
         raise argparse.ArgumentTypeError(f"{value} is not a port: give 1-65535")
     return value
+
+
+def utc_time(text: str | None, flag: str) -> datetime | None:
+    """An ISO 8601 time a flag gave, in UTC (None when not given)."""
+    if text is None:
+        return None
+    moment = parse_time(text)
+    if moment is None:
+        raise SettingsError(f"{flag}: {text!r} is not an ISO 8601 time (e.g. 2024-05-01T00:00:00Z)")
+    return moment.astimezone(UTC)

@@ -86,6 +86,13 @@ def cmd_copy(args) -> int:
         print(f"tenant {tenant or '(default)'}: {src} samples in source, {dst} copied into target")
     if report.resumed_from:
         print(f"resumed an interrupted copy: {report.resumed_from} samples were already there")
+    if report.rolled_up_buckets:
+        print(f"rollups: {report.rolled_up_buckets} minute and hour buckets whose raw samples retention deleted")
+    if report.rolled_up_left_out:
+        print(
+            f"not copied: the rolled-up history of {report.rolled_up_left_out} series with no raw sample left "
+            "(the target has no series to hold it)"
+        )
     print(
         f"copy verified: the target holds {report.target_total} samples, "
         f"{report.target_rejected} rejected notifications"

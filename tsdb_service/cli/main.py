@@ -198,6 +198,7 @@ def _feature_modules() -> tuple[ModuleType, ...]:
     from tsdb_service.cli import export as export_commands
     from tsdb_service.cli import qlimport as import_commands
     from tsdb_service.cli import register as register_commands
+    from tsdb_service.cli import rollups as rollup_commands
 
     return (
         demo_commands,
@@ -207,6 +208,7 @@ def _feature_modules() -> tuple[ModuleType, ...]:
         import_commands,
         backup_commands,
         register_commands,
+        rollup_commands,
     )
 
 

@@ -11,12 +11,10 @@ import argparse
 import re
 import sys
 from collections.abc import Callable
-from datetime import UTC, datetime
 
-from tsdb_service.cli.argtypes import positive_int
+from tsdb_service.cli.argtypes import positive_int, utc_time
 from tsdb_service.cli.newdb import new_duckdb_file
 from tsdb_service.core.config import Settings, SettingsError, check_db, load_settings
-from tsdb_service.parse.timeindex import parse_time
 
 
 def register(subparsers, command) -> None:
@@ -99,15 +97,6 @@ def register(subparsers, command) -> None:
     command("import")(_source_explained(cmd_import))
 
 
-def _time(text: str | None, flag: str) -> datetime | None:
-    if text is None:
-        return None
-    moment = parse_time(text)
-    if moment is None:
-        raise SettingsError(f"{flag}: {text!r} is not an ISO 8601 time (e.g. 2024-05-01T00:00:00Z)")
-    return moment.astimezone(UTC)
-
-
 def cmd_import(args: argparse.Namespace) -> int:
     from tsdb_service.commands.quantumleap.importer import (
         ImportNotVerified,
@@ -125,7 +114,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         raise SettingsError(f"--db: {exc}") from None
     if Settings(db=db).backend == "postgresql" and redact(db) == redact(args.source):
         raise SettingsError("--from and --db are the same database: import into a store of its own")
-    window = Window(_time(args.from_date, "--from-date"), _time(args.to_date, "--to-date"))
+    window = Window(utc_time(args.from_date, "--from-date"), utc_time(args.to_date, "--to-date"))
     if window.start and window.end and window.start >= window.end:
         raise SettingsError("--from-date must be before --to-date")
     selection = Selection(tuple(args.tenant), tuple(args.types), window)

@@ -14,7 +14,12 @@ Safe to run again, by design:
   the target's ``copy_runs`` table; after an interruption the same command
   resumes where the target's committed samples end;
 * at the end the target's totals per tenant must equal what it held before
-  plus the source's: totals, not what this run believes it added.
+  plus the source's: totals, not what this run believes it added;
+* what only the source's rollups hold (buckets whose raw samples retention
+  deleted) replaces the target's rollups of those buckets, which held what
+  the copied raw samples rolled up (``storage.rollup_repair``): again,
+  running it twice changes nothing. A series with no raw sample left has no
+  series in the target to hold it: it is counted and said, not copied.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from tsdb_service.core.config import Settings
 from tsdb_service.core.model import AttrSample, EntitySample, Geometry, Kind, RejectedNotification
 from tsdb_service.core.query import EntityFilter, Scope, StoredSample
 from tsdb_service.read.requests import SeriesSelect
+from tsdb_service.storage.rollup_repair import expired_history, put_expired_history
 from tsdb_service.storage.store import CopyRun, Store
 from tsdb_service.write.ops import AppendSamples, PutLayout, RecordRejected
 
@@ -65,6 +71,8 @@ class CopyReport:
     target_total: int
     target_rejected: int
     resumed_from: int = 0  # samples already copied by an interrupted run
+    rolled_up_buckets: int = 0  # buckets only the source's rollups held, copied
+    rolled_up_left_out: int = 0  # series whose rolled-up history could not be (no raw sample left)
 
 
 def copy_history(
@@ -83,13 +91,30 @@ def copy_history(
     already = sum(_counts(target).values()) - sum(run.base_counts.values())
     _copy_samples(source, target, skip=already, total=src_total, progress=progress, batch_rows=batch_rows)
     _copy_side_tables(source, target, resumed=already > 0 or _rejected_count(target) > run.base_rejected)
+    buckets, left_out = _copy_rolled_up(source, target)
     after, rejected = _counts(target), _rejected_count(target)
     _verify(src_counts, run, after, rejected, _rejected_count(source))
     target.copy_run_finish(source_id)
     tenants = {
         t: (src_counts.get(t, 0), after.get(t, 0) - run.base_counts.get(t, 0)) for t in set(src_counts) | set(after)
     }
-    return CopyReport(tenants, sum(after.values()), rejected, already)
+    return CopyReport(tenants, sum(after.values()), rejected, already, buckets, left_out)
+
+
+def _copy_rolled_up(source: Store, target: Store) -> tuple[int, int]:
+    """The history only the source's rollups hold, into the target's series
+    of the same key: (buckets copied, series left out: none in the target)."""
+    keys = _series(source)
+    sids = {key: sid for sid, key in _series(target).items()}
+    buckets, left_out = 0, set()
+    for page in expired_history(source):
+        sid = sids.get(keys[page.sid]) if page.sid in keys else None
+        if sid is None:
+            left_out.add(page.sid)
+            continue
+        put_expired_history(target, page, sid)
+        buckets += len(page.rows)
+    return buckets, len(left_out)
 
 
 def _resume_or_start(target: Store, source_id: str, src_total: int, append: bool) -> CopyRun:

@@ -18,7 +18,7 @@ from functools import lru_cache
 from typing import Annotated, ClassVar
 from urllib.parse import urlsplit
 
-from pydantic import AfterValidator, BaseModel, Field, ValidationError, field_validator
+from pydantic import AfterValidator, BaseModel, Field, ValidationError, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from tsdb_service.core.urlprefix import url_prefixes
@@ -489,21 +489,23 @@ class MqttSettings(SettingsGroup):
 
 class RetentionSettings(SettingsGroup):
     title = "Retention and rollups"
-    about = "How long raw samples and hourly rollups are kept."
+    about = "How long raw samples and each rollup level (minute, hour) are kept."
 
     retention: str = Field(
         "",
-        description="How long raw samples are kept, per tenant and entity type: "
-        "'*=365d,acme=30d,acme/Robot=7d' (or the same as a JSON object); empty: forever.",
+        description="How long raw samples and rollups are kept, per tenant and entity type: "
+        "'*=365d,acme=30d,acme/Robot=raw:30d,minute:1y,hour:forever' (a bare duration is the raw level; "
+        "or the same as a JSON object); empty: everything forever.",
     )
     rollups: bool = Field(
         False,
-        description="Fold the samples retention deletes into hourly count/sum/min/max per series, "
-        "which aggregation queries (aggrPeriod hour or longer, or none) keep answering from.",
+        description="Deprecated, no effect: minute and hour rollups are always kept up to date on ingest "
+        "(their retention is in --retention).",
     )
     rollup_retention: str = Field(
         "",
-        description="How long hourly rollups are kept, same syntax as retention; empty: forever.",
+        description="Deprecated: rules for both rollup levels, as minute: and hour: in --retention "
+        "(which it is merged into).",
     )
     retention_interval: float = Field(300.0, gt=0, description="Seconds between retention passes.")
     retention_batch_rows: int = Field(
@@ -520,6 +522,21 @@ class RetentionSettings(SettingsGroup):
 
         RetentionPolicy.parse(value, setting="TSDB_" + info.field_name.upper())  # raises ValueError
         return value
+
+    @model_validator(mode="after")
+    def _levels_in_order(self):
+        self.retention_policy()  # raises ValueError: the merged policy keeps its levels in order
+        return self
+
+    def retention_policy(self):
+        """The policy ``--retention`` and the deprecated ``--rollup-retention`` make together."""
+        from tsdb_service.core.retention_policy import RetentionPolicy
+
+        policy = RetentionPolicy.parse(self.retention, "TSDB_RETENTION")
+        if self.rollup_retention.strip():
+            rollups = RetentionPolicy.parse(self.rollup_retention, "TSDB_ROLLUP_RETENTION")
+            policy = policy.with_rollup_rules(rollups, "TSDB_ROLLUP_RETENTION")
+        return policy
 
 
 class LoggingSettings(SettingsGroup):

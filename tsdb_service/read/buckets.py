@@ -134,13 +134,16 @@ class BucketReader(Protocol):
 
     def span(self, ask: SamplesIn) -> tuple[int, int] | None:
         """The first and last sample times (epoch µs) of ``ask.sids`` in
-        ``ask.time`` (no mask); None when there is none."""
+        ``ask.time`` (no mask); None when there is none. A backend keeping
+        rollups counts the history they keep of samples retention deleted."""
         ...
 
     def count_up_to(self, ask: SamplesIn, most: int) -> int:
         """How many samples ``ask.sids`` hold in ``ask.time`` (no mask),
         counting no further than ``most``: whether a window's raw samples fit
-        a point budget costs at most ``most`` rows read, however long it is."""
+        a point budget costs at most ``most`` rows read, however long it is.
+        A backend keeping rollups answers ``most`` where the window holds
+        history only they keep (raw samples cannot draw it whole)."""
         ...
 
     def samples(self, ask: SamplesIn, most: int) -> list[TimedSample]:

@@ -21,9 +21,11 @@ class SampleReader(Protocol):
 
     def aggregate(self, ask: AggregateRead) -> list[AggregateRow]:
         """Per-series (and per period when ``agg.period``) partial aggregates
-        of each branch, including hours retention folded into rollups (never
-        under a mask). The caller combines them across series. One statement;
-        a backend may answer from memory (its hourly partials)."""
+        of each branch, whole hours and minutes read from rollups where the
+        period is made of them (and what rollups keep of samples retention
+        deleted; never under a mask or at a value path). The caller combines
+        them across series. One statement; a backend may answer from memory
+        (its hourly partials)."""
         ...
 
     def latest_index(self, ask: SamplesIn) -> list[LatestRow]:

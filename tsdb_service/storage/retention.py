@@ -1,34 +1,37 @@
-"""Retention: delete raw samples older than a tenant's (or type's) limit.
+"""Retention: delete raw samples and rollup rows older than their level's limit.
 
-``TSDB_RETENTION`` names how long samples are kept, per tenant and
-optionally per entity type (``*=365d,acme=30d,acme/Robot=7d``, see
-``RetentionPolicy``). A background thread (``RetentionWorker``) applies it
-every ``TSDB_RETENTION_INTERVAL`` seconds in bounded batches: at most
+``TSDB_RETENTION`` names how long each level of history is kept, per tenant
+and optionally per entity type (``*=365d,acme/Robot=raw:30d,minute:1y``, see
+``core.retention_policy``): raw samples, minute rollups, hour rollups. A
+background thread (``RetentionWorker``) applies it every
+``TSDB_RETENTION_INTERVAL`` seconds in bounded batches: at most
 ``TSDB_RETENTION_BATCH_ROWS`` rows per batch and table, each batch its own
 short transaction, with a pause between batches, so ingest and queries never
 wait long behind it.
 
-With ``TSDB_ROLLUPS`` each batch folds the rows it deletes into hourly
-rollups in the same transaction (``storage.rollups``), and aggregation
-queries keep answering for that time. ``TSDB_ROLLUP_RETENTION`` limits how
-long rollup rows are kept, with the same syntax.
+Rollups are kept up to date on ingest (``storage.rollups``), so deleting raw
+samples leaves them: what a coarser level holds is what remains of the
+finer ones. Each raw batch records, in its transaction, the newest sample
+time it deleted per series (``rollups_expired``): buckets up to there can no
+longer be recomputed from raw. A level's batch deletes the rows whose whole
+bucket is older than its cutoff.
 
 Each backend batches its own way (a ``Session``, from
 ``Store.retention_session``):
 
 * **DuckDB** (``storage.duckdb.retention``): a batch holds the compactor's lock (as a user's delete does),
   so it never races the compactor moving or rewriting the same rows; it
-  picks at most N expired rows by ``rowid``, folds them, deletes them, and
-  drops the touched series from the in-memory tails and latest locations.
+  picks at most N expired rows by ``rowid``, deletes them, and drops the
+  touched series from the in-memory tails and latest locations.
 * **PostgreSQL** (``storage.postgres.retention``): one statement per batch picks at most N expired rows by
-  (``tableoid``, ``ctid``), deletes them and folds exactly the rows it
-  deleted (``RETURNING``). A session advisory lock lets one replica run a
-  pass at a time; the others skip theirs.
+  (``tableoid``, ``ctid``) and deletes them, recording what it deleted
+  (``RETURNING``). A session advisory lock lets one replica run a pass at a
+  time; the others skip theirs. Rollup batches hold the rollup lock.
 
-After a rule's every batch is done, its *watermark* (the cutoff it applied:
-every sample of the rule older than that is gone, and folded when rollups
-are on) is saved in ``retention_state``, so the lag metric survives
-restarts.
+After a rule's every batch of a level is done, its *watermark* (the cutoff
+it applied: every row of the rule and level older than that is gone) is
+saved in ``retention_state`` (``tbl``: samples, minute or hour), so the lag
+metric survives restarts.
 """
 
 from __future__ import annotations
@@ -41,31 +44,37 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from typing import Protocol
 
-from tsdb_service.core.retention_policy import RetentionPolicy
-from tsdb_service.storage.rollups import TABLE as ROLLUP_TABLE
-from tsdb_service.storage.rollups import RollupPresence
-from tsdb_service.storage.sql.dialect import SqlDialect
+from tsdb_service.core.retention_policy import HOUR, MINUTE, RAW, RetentionPolicy
+from tsdb_service.storage.rollups import HOT, LEVEL_NAMED, ExpiryPresence, Level
 
 log = logging.getLogger(__name__)
 
-SAMPLES, ROLLUPS = "samples", "rollups"  # the two things retention trims
+SAMPLES = "samples"  # the watermark kind of the raw level (the rollup levels': their names)
+KINDS = {RAW: SAMPLES, MINUTE: MINUTE, HOUR: HOUR}
 
 
 @dataclass(frozen=True)
 class RetentionConfig:
-    samples: RetentionPolicy = field(default_factory=RetentionPolicy)
-    rollups: bool = False
-    rollup_policy: RetentionPolicy = field(default_factory=RetentionPolicy)
+    policy: RetentionPolicy = field(default_factory=RetentionPolicy)
     interval: float = 300.0
     batch_rows: int = 50_000
     pause: float = 0.05
 
     @classmethod
     def from_settings(cls, settings) -> RetentionConfig:
+        if settings.rollups:
+            log.warning(
+                "TSDB_ROLLUPS is deprecated and has no effect: minute and hour rollups are always kept up to date; "
+                "how long each level is kept is in TSDB_RETENTION (e.g. acme=raw:30d,minute:1y,hour:forever)"
+            )
+        if settings.rollup_retention.strip():
+            log.warning(
+                "TSDB_ROLLUP_RETENTION is deprecated: its rules now apply to both rollup levels; "
+                "give them in TSDB_RETENTION instead (TSDB_RETENTION=%s)",
+                settings.retention_policy().describe(),
+            )
         return cls(
-            samples=RetentionPolicy.parse(settings.retention, "TSDB_RETENTION"),
-            rollups=settings.rollups,
-            rollup_policy=RetentionPolicy.parse(settings.rollup_retention, "TSDB_ROLLUP_RETENTION"),
+            policy=settings.retention_policy(),
             interval=settings.retention_interval,
             batch_rows=settings.retention_batch_rows,
             pause=settings.retention_pause,
@@ -73,7 +82,7 @@ class RetentionConfig:
 
     @property
     def active(self) -> bool:
-        return self.samples.active or self.rollup_policy.active
+        return self.policy.active
 
 
 # --- backends ----------------------------------------------------------------------
@@ -86,22 +95,11 @@ class Session(Protocol):
 
     def series(self) -> list[tuple[int, str, str]]: ...
 
-    def delete_samples(self, table: str, sids: Sequence[int], cutoff: datetime, limit: int, fold: bool) -> int: ...
+    def delete_samples(self, table: str, sids: Sequence[int], cutoff: datetime, limit: int) -> int: ...
 
-    def delete_rollups(self, sids: Sequence[int], cutoff: datetime, limit: int) -> int: ...
+    def delete_rollups(self, level: Level, table: str, sids: Sequence[int], cutoff: datetime, limit: int) -> int: ...
 
     def save_watermark(self, kind: str, rule: str, horizon: datetime) -> None: ...
-
-
-def rollup_delete_sql(dialect: SqlDialect, sids: Sequence[int], cutoff: datetime, limit: int) -> tuple[str, list]:
-    """At most ``limit`` rollup rows of ``sids`` older than ``cutoff`` (by key: the primary key finds them)."""
-    where, params = dialect.sid_filter(sids)
-    p = dialect.placeholder
-    sql = (
-        f"DELETE FROM {ROLLUP_TABLE} WHERE (sid, bucket) IN (SELECT sid, bucket FROM {ROLLUP_TABLE} "
-        f"WHERE {where} AND bucket < {p} LIMIT {p})"
-    )
-    return sql, [*params, dialect.time_value(cutoff), limit]
 
 
 SAVE_WATERMARK = (
@@ -153,7 +151,8 @@ class RetentionWorker:
                 log.exception("retention pass failed; will retry")
 
     def run_once(self) -> dict[str, int]:
-        """One pass over every rule; returns the rows deleted per table."""
+        """One pass over every rule of every level, finest first; returns the
+        rows deleted per table."""
         deleted: dict[str, int] = {}
         self._store.sync()  # after every sample acknowledged before the pass (the ingest log)
         with self._run_lock, self._session() as session:
@@ -161,59 +160,53 @@ class RetentionWorker:
                 return deleted
             now = self._clock()
             series = session.series()
-            if self._apply(session, series, SAMPLES, now, deleted):
-                self._apply(session, series, ROLLUPS, now, deleted)
+            for level in (RAW, MINUTE, HOUR):
+                if not self._apply(session, series, level, now, deleted):
+                    break
             self.passes += 1
         return deleted
 
-    def _apply(self, session, series, kind: str, now: datetime, deleted: dict[str, int]) -> bool:
-        """Every finite rule of one policy; False when stopped midway."""
-        policy = self.config.samples if kind == SAMPLES else self.config.rollup_policy
+    def _apply(self, session, series, level: str, now: datetime, deleted: dict[str, int]) -> bool:
+        """Every finite rule of one level; False when stopped midway."""
+        kind = KINDS[level]
+        policy = self.config.policy
         groups: dict[str, dict[str, list[int]]] = {}
+        keeps: dict[str, timedelta] = {key: keep for key, named, keep in policy.rules if named == level and keep}
         for sid, tenant, entity_type in series:
-            found = policy.rule_for(tenant, entity_type)
-            if found is not None and found[1] is not None:
-                groups.setdefault(found[0], {}).setdefault(tenant, []).append(sid)
-        for rule, keep in policy.rules:
-            if keep is None:
-                continue
-            cutoff = self._cutoff(now, keep, hourly=kind == ROLLUPS or self.config.rollups)
+            rule, keep = policy.resolve(tenant, entity_type)[level]
+            if rule is not None and keep is not None:
+                groups.setdefault(rule, {}).setdefault(tenant, []).append(sid)
+                keeps[rule] = keep
+        for rule in sorted(keeps):
+            cutoff = (now - keeps[rule]).astimezone(UTC)
             for tenant, sids in sorted(groups.get(rule, {}).items()):
-                tables = session.tables if kind == SAMPLES else (ROLLUP_TABLE,)
+                tables = session.tables if level == RAW else (LEVEL_NAMED[level].table, HOT)
                 for table in tables:
-                    if not self._drain(session, kind, table, tenant, sids, cutoff, deleted):
+                    if not self._drain(session, level, table, tenant, sids, cutoff, deleted):
                         return False
             session.save_watermark(kind, rule, cutoff)
             self.watermarks[(kind, rule)] = cutoff
         return True
 
-    @staticmethod
-    def _cutoff(now: datetime, keep: timedelta, hourly: bool) -> datetime:
-        """Rows older than this go. With rollups, on an hour boundary: an
-        hour is then folded whole, never partly raw and partly rolled up."""
-        cutoff = (now - keep).astimezone(UTC)
-        if hourly:
-            return cutoff.replace(minute=0, second=0, microsecond=0)
-        return cutoff
-
-    def _drain(self, session, kind, table, tenant, sids, cutoff, deleted) -> bool:
+    def _drain(self, session, level, table, tenant, sids, cutoff, deleted) -> bool:
         """Batches until one comes back short; False when stopped."""
         limit = self.config.batch_rows
         while True:
             if self._stop.is_set():
                 return False
             start = time.perf_counter()
-            if kind == SAMPLES:
-                n = session.delete_samples(table, sids, cutoff, limit, self.config.rollups)
+            if level == RAW:
+                n = session.delete_samples(table, sids, cutoff, limit)
             else:
-                n = session.delete_rollups(sids, cutoff, limit)
+                n = session.delete_rollups(LEVEL_NAMED[level], table, sids, cutoff, limit)
             seconds = time.perf_counter() - start
             self.batches += 1
+            label = table if level == RAW or table != HOT else f"{HOT}_{level}"
             if n:
-                deleted[table] = deleted.get(table, 0) + n
-                if kind == SAMPLES and self.config.rollups:
+                deleted[label] = deleted.get(label, 0) + n
+                if level == RAW:
                     self._store.rollup_presence.mark()
-                self._tell(table, tenant, n, seconds)
+                self._tell(label, tenant, n, seconds)
             if n < limit:
                 return True
             if self.config.pause:
@@ -230,37 +223,28 @@ class RetentionWorker:
 
     def lags(self) -> dict[tuple[str, str], float]:
         """(kind, rule) → seconds the last completed pass's cutoff trails the
-        rule's cutoff now (about one interval when all is well). With rollups
-        the samples' lag is also the rollups' watermark lag: every sample
-        older than the watermark is in the rollups."""
+        rule's cutoff now (about one interval when all is well); kind:
+        samples, minute or hour."""
         now = self._clock()
         out = {}
-        for kind, policy in ((SAMPLES, self.config.samples), (ROLLUPS, self.config.rollup_policy)):
-            for rule, keep in policy.rules:
-                mark = self.watermarks.get((kind, rule))
-                if keep is not None and mark is not None:
-                    out[(kind, rule)] = max(0.0, ((now - keep) - mark).total_seconds())
+        for key, level, keep in self.config.policy.rules:
+            mark = self.watermarks.get((KINDS[level], key))
+            if keep is not None and mark is not None:
+                out[(KINDS[level], key)] = max(0.0, ((now - keep) - mark).total_seconds())
         return out
 
 
 def attach_retention(
     store, settings, *, start: bool = True, clock: Callable[[], datetime] | None = None
 ) -> RetentionWorker | None:
-    """Give ``store`` its rollup presence tracker and, when a policy deletes
+    """Give ``store`` its expiry presence tracker and, when a policy deletes
     anything, its retention worker (started unless ``start`` is False)."""
     config = RetentionConfig.from_settings(settings)
-    store.rollup_presence = RollupPresence(enabled=config.rollups)
+    store.rollup_presence = ExpiryPresence()
     if not config.active:
-        if config.rollups:
-            log.info("rollups are on but no retention rule deletes anything: nothing to roll up")
         return None
     worker = store.retention = RetentionWorker(store, config, clock)
-    log.info(
-        "retention: samples %s, rollups %s (kept %s)",
-        config.samples.describe(),
-        "on" if config.rollups else "off",
-        config.rollup_policy.describe(),
-    )
+    log.info("retention: %s", config.policy.describe())
     if start:
         worker.start()
     return worker

@@ -1,110 +1,739 @@
-"""Hourly rollups: what aggregation queries keep answering after retention.
+"""Rollups: every series' minute and hour aggregates, exact, kept on ingest.
 
-Retention (``storage.retention``) deletes raw samples in batches. With
-rollups on, each batch first *folds* the rows it is about to delete into
-``rollups_hourly`` (migration 0004), in the same transaction: per series and
-UTC hour, the partials the raw aggregation computes (``SqlQuerier.aggregate``):
-samples with a value, numeric samples, their sum, min and max, and whether
-they were all integers. A sample is therefore always either a raw row or
-counted in a rollup row, never both and never neither, whatever order
-samples arrive in (late samples included) and however batches fall.
+What long windows read instead of raw samples (the QuantumLeap aggregations
+in ``storage.sql.aggregate``, the bucket query that draws), and what remains
+of a series once retention deleted its raw samples (``storage.retention``).
 
-Answering is then a plain union: ``rollup_parts`` adds a SELECT over the
-rollup rows to the raw aggregation's statement (one statement, so one
-snapshot sees a batch either before or after it moved rows), and the history
-service combines partials of the same bucket as it already does across
-series. A rollup row is used only when its whole hour lies in the query's
-time range, only for plain attributes (not value paths: only the attribute's
-own number is rolled up) and only for ``aggrPeriod`` hour, day, month, year
-or none: minute and second buckets cannot be cut out of an hour.
+A rollup row (``COLUMNS``) is the partial aggregate of one series' samples
+in one bucket of its level (a UTC minute, a UTC hour):
+
+* ``n_present`` samples holding a value (any kind: QuantumLeap's ``count``),
+  ``n_numeric`` the numeric ones (Kind NUMBER and INTEGER with a number),
+  ``n_integer`` the integers among them, ``num_sum`` their sum;
+* ``num_min``/``min_us`` (the smallest number and the earliest sample time
+  holding it, epoch µs), ``num_max``/``max_us`` (idem), and the first and
+  last number by (time, row id) with their time and row id: what
+  ``read.buckets.BucketRow`` draws.
+
+Partials combine associatively (counts and sums add, the others pick by
+their key), so a bucket may be held by several rows and every reader
+combines them (``combine_partials``). Tables (migration 0014):
+``rollups_minute`` and ``rollups_hour`` (merged rows) and ``rollups_hot``
+(rows of both levels, ``level`` 1 or 2, appended by the writers); the views
+``rollups_minute_all`` and ``rollups_hour_all`` are what readers read.
+``rollups_expired`` holds, per series, the newest sample time retention
+deleted (``upto``).
+
+Invariants:
+
+* **Never behind.** Every statement inserting samples appends their
+  partials in its own transaction: on DuckDB the writer folds each batch
+  (``partial_rows`` for a small one, ``fold_sql`` over a big one) in the
+  transaction that also moves the ingest-log position, so a replayed batch
+  is folded exactly once; on
+  PostgreSQL the trigger ``rollups_fold`` (migration 0014, the same SQL)
+  folds each statement's new rows, whoever inserts them. ``copy`` and
+  ``import quantumleap`` write through the writers.
+* **Exact.** A bucket's rows combine to the partial of its raw samples plus
+  those retention deleted (which is the point of keeping them). A bucket is
+  *complete* while retention has deleted none of its samples: its start is
+  after the series' ``rollups_expired.upto``. Deletes and NGSI-LD instance
+  edits recompute the buckets they touch from raw in their own transaction
+  (``recompute_statements``): every complete one, and one wholly inside a
+  deleted range from what is left in it. An incomplete bucket only partly
+  covered by a delete, or holding an edited instance, stays as it was: a
+  minimum cannot be subtracted, and expired samples cannot be read again.
+* **Merged off the write path.** ``merge`` moves hot rows into
+  the level tables, combined with the rows of the same buckets, in one
+  transaction. Merges, recomputes and rollup retention exclude each other
+  (DuckDB: the compactor's lock; PostgreSQL: the transaction advisory lock
+  ``LOCK``); appends never wait for them.
+* **One snapshot per recompute on PostgreSQL**: a recompute deletes the
+  hot rows of its buckets and reads their raw samples in one statement, so
+  a replica committing samples of the same bucket meanwhile is counted
+  once: its raw rows and its hot row are both seen, or neither.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 import time as _time
-from collections.abc import Sequence
-from datetime import timedelta
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
 
+from tsdb_service.core.buckets import served_by
 from tsdb_service.core.model import Kind
-from tsdb_service.core.query import AggrMethod, AggrPeriod
+from tsdb_service.core.query import AggrMethod, AggrPeriod, TimeRange
+from tsdb_service.storage.sql.dialect import SqlDialect, series_time_filter
 
-TABLE = "rollups_hourly"
-HOUR = timedelta(hours=1)
-# Query times have millisecond precision: an hour whose last millisecond is
-# in the range counts as inside it (toDate=...T12:59:59.999 covers 12:00).
-ONE_MS = timedelta(milliseconds=1)
-# Periods made of whole hours: their buckets are unions of rollup rows.
-ROLLUP_PERIODS = frozenset({AggrPeriod.HOUR, AggrPeriod.DAY, AggrPeriod.MONTH, AggrPeriod.YEAR})
+COLUMNS = (
+    "sid",
+    "bucket",
+    "n_present",
+    "n_numeric",
+    "n_integer",
+    "num_sum",
+    "num_min",
+    "min_us",
+    "num_max",
+    "max_us",
+    "num_first",
+    "first_us",
+    "first_rid",
+    "num_last",
+    "last_us",
+    "last_rid",
+)
+COLS = ", ".join(COLUMNS)
+log = logging.getLogger(__name__)
+HOT = "rollups_hot"
+EXPIRED = "rollups_expired"
+LOCK = 0x7473_726F  # "tsro": PostgreSQL's merges, recomputes and rollup retention, one at a time
 PRESENCE_TTL_S = 10.0
+_US = timedelta(microseconds=1)
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 
-_NUMERIC = f"{int(Kind.NUMBER)}, {int(Kind.INTEGER)}"
-_VALUE = f"CASE WHEN kind IN ({_NUMERIC}) THEN num END"
+
+@dataclass(frozen=True, slots=True)
+class Level:
+    """A rollup level: its code in ``rollups_hot``, its name (a
+    ``date_trunc`` unit and the retention level's name) and bucket width."""
+
+    code: int
+    name: str
+    width: timedelta
+
+    @property
+    def table(self) -> str:
+        return f"rollups_{self.name}"
+
+    @property
+    def view(self) -> str:
+        """Merged and hot rows together (what readers read)."""
+        return f"rollups_{self.name}_all"
 
 
-def fold_sql(source: str) -> str:
-    """INSERT the hourly partials of the rows in ``source`` (columns sid, t,
-    kind, num), merging into existing rows: the same definitions as the raw
-    aggregation's partials, so folded and raw answers are identical."""
+MINUTE = Level(1, "minute", timedelta(minutes=1))
+HOUR = Level(2, "hour", timedelta(hours=1))
+LEVELS = (MINUTE, HOUR)
+LEVEL_NAMED = {level.name: level for level in LEVELS}
+LEVEL_CODED = {level.code: level for level in LEVELS}
+
+
+# --- the partial aggregates, per dialect -----------------------------------------------------
+# Among equal values the earliest sample wins (``read.buckets``); each pick
+# compares a key unique per row. DuckDB: ``arg_min``/``arg_max`` over
+# HUGEINT keys (a value's ordered bits above its time, or a time above its
+# row id). PostgreSQL: float8 arrays compared element by element (times in
+# epoch µs and row ids are exact below 2**53).
+
+_HIGH = f"{2**64}::HUGEINT"
+_LOW = 2**62  # epoch µs + this stays in [0, 2**63)
+
+
+def _duck_bits(v: str) -> str:
+    bits = f"(((({v}) + 0.0)::BIT)::BIGINT)"
+    return f"xor({bits}, ({bits} >> 63) & 9223372036854775807)"
+
+
+def _at_min(d: SqlDialect, v: str, t: str, only: str) -> str:
+    """Aggregate over rows where ``only``: the time of the smallest ``v``,
+    the earliest among equals."""
+    if d.name == "duckdb":
+        return f"arg_min({t}, {_duck_bits(v)} * {_HIGH} + ({t} + {_LOW})) FILTER (WHERE {only})"
+    return f"((min(ARRAY[{v}, {t}::float8]) FILTER (WHERE {only}))[2])::bigint"
+
+
+def _at_max(d: SqlDialect, v: str, t: str, only: str) -> str:
+    """Aggregate over rows where ``only``: the time of the largest ``v``,
+    the earliest among equals."""
+    if d.name == "duckdb":
+        return f"arg_max({t}, {_duck_bits(v)} * {_HIGH} + ({_LOW - 1} - {t})) FILTER (WHERE {only})"
+    return f"(-(max(ARRAY[{v}, (-{t})::float8]) FILTER (WHERE {only}))[2])::bigint"
+
+
+def _pick(d: SqlDialect, x: str, t: str, rid: str, only: str, *, last: bool, integer: bool = False) -> str:
+    """Aggregate over rows where ``only``: ``x`` of the earliest (``last``:
+    latest) row by (t, rid)."""
+    if d.name == "duckdb":
+        return f"arg_{'max' if last else 'min'}({x}, {t} * {_HIGH} + {rid}) FILTER (WHERE {only})"
+    picked = f"({'max' if last else 'min'}(ARRAY[{t}::float8, {rid}::float8, {x}::float8]) FILTER (WHERE {only}))[3]"
+    return f"({picked})::bigint" if integer else picked
+
+
+def _aggregates(d: SqlDialect, *, v: str, t: str, rid: str, partial: bool) -> str:
+    """The select list after ``sid, bucket``: over samples (``v`` the number,
+    ``t`` its time in µs, ``rid`` its row id) or, ``partial``, over partial rows."""
+    if partial:
+        counts = ["sum(n_present)", "sum(n_numeric)", "sum(n_integer)"]
+        total = "sum(num_sum)"
+        mn, mn_t, mx, mx_t = "num_min", "min_us", "num_max", "max_us"
+        first, first_t, first_rid = "num_first", "first_us", "first_rid"
+        last, last_t, last_rid = "num_last", "last_us", "last_rid"
+        numbers, firsts, lasts = "num_min IS NOT NULL", "num_first IS NOT NULL", "num_last IS NOT NULL"
+    else:
+        counts = [
+            f"count(*) FILTER (WHERE kind <> {int(Kind.NULL)})",
+            f"count({v})",
+            f"count({v}) FILTER (WHERE kind = {int(Kind.INTEGER)})",
+        ]
+        total = f"sum({v})"
+        mn = mx = first = last = v
+        mn_t = mx_t = first_t = last_t = t
+        first_rid = last_rid = rid
+        numbers = firsts = lasts = f"{v} IS NOT NULL"
+    exprs = [
+        *(f"CAST({c} AS BIGINT)" for c in counts),
+        total,
+        f"min({mn})",
+        _at_min(d, mn, mn_t, numbers),
+        f"max({mx})",
+        _at_max(d, mx, mx_t, numbers),
+        _pick(d, first, first_t, first_rid, firsts, last=False),
+        f"min({first_t}) FILTER (WHERE {firsts})",
+        _pick(d, first_rid, first_t, first_rid, firsts, last=False, integer=True),
+        _pick(d, last, last_t, last_rid, lasts, last=True),
+        f"max({last_t}) FILTER (WHERE {lasts})",
+        _pick(d, last_rid, last_t, last_rid, lasts, last=True, integer=True),
+    ]
+    return ", ".join(f"{expr} AS {name}" for expr, name in zip(exprs, COLUMNS[2:], strict=True))
+
+
+def samples_partials(d: SqlDialect, level: Level, source: str, where: str = "", outer: str = "") -> str:
+    """SELECT ``COLUMNS``: the partials of ``level`` of the sample rows of
+    ``source`` (a FROM item with sid, rid, t, kind, num) matching ``where``
+    (``WHERE ...`` text, or empty); ``outer`` filters the rows with their
+    ``bucket`` computed (``WHERE ...`` text on alias ``s``)."""
+    v = f"CASE WHEN kind IN ({int(Kind.NUMBER)}, {int(Kind.INTEGER)}) THEN num END"
+    inner = (
+        f"SELECT sid, rid, kind, date_trunc('{level.name}', t) AS bucket, {d.epoch_us('t')} AS tu, {v} AS v "
+        f"FROM {source} {where}{d.fence}"
+    )
+    aggs = _aggregates(d, v="v", t="tu", rid="rid", partial=False)
+    return f"SELECT sid, bucket, {aggs} FROM ({inner}) AS s {outer} GROUP BY sid, bucket"
+
+
+def combine_partials(d: SqlDialect, source: str, bucket: str = "bucket") -> str:
+    """SELECT ``COLUMNS``: the rows of ``source`` (partials) combined per
+    series and ``bucket`` (an expression over their ``bucket``)."""
+    aggs = _aggregates(d, v="", t="", rid="", partial=True)
+    return f"SELECT sid, {bucket} AS bucket, {aggs} FROM {source} AS p GROUP BY sid, {bucket}"
+
+
+def fold_sql(d: SqlDialect, source: str) -> str:
+    """INSERT into ``rollups_hot`` the minute and hour partials of the sample
+    rows of ``source`` (the batch a writer is inserting): the minute ones
+    computed once, the hour ones combined from them."""
+    minute = samples_partials(d, MINUTE, source)
+    hour = combine_partials(d, "m", "date_trunc('hour', bucket)")
     return (
-        f"INSERT INTO {TABLE} (sid, bucket, n_present, n_numeric, num_sum, num_min, num_max, all_integer) "
-        f"SELECT sid, date_trunc('hour', t), count(*) FILTER (WHERE kind <> {int(Kind.NULL)}), "
-        f"count({_VALUE}), sum({_VALUE}), min({_VALUE}), max({_VALUE}), "
-        f"bool_and(kind = {int(Kind.INTEGER)}) FILTER (WHERE {_VALUE} IS NOT NULL) "
-        f"FROM {source} GROUP BY sid, date_trunc('hour', t) "
-        f"ON CONFLICT (sid, bucket) DO UPDATE SET "
-        f"n_present = {TABLE}.n_present + EXCLUDED.n_present, "
-        f"n_numeric = {TABLE}.n_numeric + EXCLUDED.n_numeric, "
-        f"num_sum = coalesce({TABLE}.num_sum + EXCLUDED.num_sum, {TABLE}.num_sum, EXCLUDED.num_sum), "
-        f"num_min = least({TABLE}.num_min, EXCLUDED.num_min), "
-        f"num_max = greatest({TABLE}.num_max, EXCLUDED.num_max), "
-        f"all_integer = coalesce({TABLE}.all_integer AND EXCLUDED.all_integer, "
-        f"{TABLE}.all_integer, EXCLUDED.all_integer)"
+        f"INSERT INTO {HOT} (level, {COLS}) WITH m AS MATERIALIZED ({minute}) "
+        f"SELECT {MINUTE.code}, {COLS} FROM m UNION ALL SELECT {HOUR.code}, {COLS} FROM ({hour}) AS h"
     )
 
 
-def _overlapping(dialect, sids: Sequence[int], start, end) -> tuple[str, list]:
-    """WHERE text: rollup rows of ``sids`` whose hour overlaps [start, end]."""
-    p = dialect.placeholder
-    where, params = dialect.sid_filter(sids)
-    if start is not None:
-        where += f" AND bucket > {p}"
-        params.append(dialect.time_value(start - HOUR))
-    if end is not None:
+_NUMBER, _INTEGER, _NULL = int(Kind.NUMBER), int(Kind.INTEGER), int(Kind.NULL)
+_NAIVE_EPOCH = datetime(1970, 1, 1)
+
+
+def partial_rows(
+    sids: Sequence[int], rids: Sequence[int], times: Sequence[int], kinds: Sequence[int], nums: Sequence
+) -> list[tuple]:
+    """``fold_sql`` in Python, for a writer's small batch (a few hundred
+    samples: one statement costs DuckDB several ms of CPU, this loop a few
+    hundred µs): the ``rollups_hot`` rows (level, ``COLUMNS``) of the samples
+    given as columns (times in epoch µs), the same partials to the last
+    tie: the smallest and largest number with the earliest time holding
+    it, the first and last by (time, row id)."""
+    cells: dict[tuple[int, int, int], list] = {}
+    widths = [(level.code, level.width // _US) for level in LEVELS]
+    for sid, rid, t, kind, num in zip(sids, rids, times, kinds, nums, strict=True):
+        number = num if kind in (_NUMBER, _INTEGER) and num is not None else None
+        for code, width in widths:
+            key = (code, sid, t - t % width)
+            c = cells.get(key)
+            if c is None:
+                # n_present, n_numeric, n_integer, sum, min, min_t, max, max_t, first, first_t,
+                # first_rid, last, last_t, last_rid
+                c = cells[key] = [0, 0, 0, None, None, None, None, None, None, None, None, None, None, None]
+            if kind != _NULL:
+                c[0] += 1
+            if number is None:
+                continue
+            c[1] += 1
+            if kind == _INTEGER:
+                c[2] += 1
+            if c[1] == 1:
+                c[3:] = [number, number, t, number, t, number, t, rid, number, t, rid]
+                continue
+            c[3] += number
+            if number < c[4] or (number == c[4] and t < c[5]):
+                c[4], c[5] = number, t
+            if number > c[6] or (number == c[6] and t < c[7]):
+                c[6], c[7] = number, t
+            if (t, rid) < (c[9], c[10]):
+                c[8], c[9], c[10] = number, t, rid
+            if (t, rid) > (c[12], c[13]):
+                c[11], c[12], c[13] = number, t, rid
+    epoch, delta = _NAIVE_EPOCH, timedelta
+    return [(code, sid, epoch + delta(microseconds=bucket), *c) for (code, sid, bucket), c in cells.items()]
+
+
+MIGRATION = 14  # migrations/0014_rollup_levels.*.sql
+
+
+def fill_statements(d: SqlDialect, version: int) -> list[str]:
+    """After migration ``version``, in its transaction: for 0014, the levels
+    of every sample stored so far (raw rows are only ever read here)."""
+    if version != MIGRATION:
+        return []
+    raw = d.samples("sid, rid, t, kind, num")
+    return [
+        f"INSERT INTO {level.table} ({COLS}) {samples_partials(d, level, raw)} ORDER BY sid, bucket" for level in LEVELS
+    ]
+
+
+# --- writing: recomputes, merges, retention ---------------------------------------------------
+
+
+def _temp_table(d: SqlDialect, name: str, select: str) -> list[str]:
+    """Statements making temporary table ``name`` from ``select`` for the
+    rest of the transaction (one transaction may make it again)."""
+    if d.name == "duckdb":
+        return [f"CREATE OR REPLACE TEMP TABLE {name} AS {select}"]
+    return [f"DROP TABLE IF EXISTS pg_temp.{name}", f"CREATE TEMP TABLE {name} ON COMMIT DROP AS {select}"]
+
+
+def _row_id(d: SqlDialect) -> str:
+    return "rowid" if d.name == "duckdb" else "ctid"
+
+
+def lock_statements(d: SqlDialect) -> list[str]:
+    """PostgreSQL: wait for the rollup lock (held to the transaction's end)."""
+    return [] if d.name == "duckdb" else [f"SELECT pg_advisory_xact_lock({LOCK})"]
+
+
+def _within(
+    d: SqlDialect, sids: Sequence[int], first: datetime | None = None, last: datetime | None = None
+) -> tuple[str, list]:
+    """WHERE text: the rows of ``sids`` with ``first <= bucket <= last``
+    (None: open). Buckets are whole microseconds: ``bucket < x`` is
+    ``last = x - 1 µs``."""
+    p = d.placeholder
+    where, params = d.sid_filter(sids)
+    if first is not None:
+        where += f" AND bucket >= {p}"
+        params.append(d.time_value(first))
+    if last is not None:
         where += f" AND bucket <= {p}"
-        params.append(dialect.time_value(end))
+        params.append(d.time_value(last))
     return where, params
 
 
-def delete_sql(dialect, sids: Sequence[int], start, end) -> tuple[str, list]:
-    """DELETE the rollup rows of ``sids`` whose hour overlaps [start, end]
-    (``None``: open). A user's delete must remove rolled-up history too; an
-    hour the range only partly covers goes whole (a rollup row cannot be
-    split), which only matters for hours retention already folded."""
-    where, params = _overlapping(dialect, sids, start, end)
-    return f"DELETE FROM {TABLE} WHERE {where}", params
+def _before(moment: datetime | None) -> datetime | None:
+    """The last microsecond before ``moment`` (a half-open range's end)."""
+    return None if moment is None else moment - _US
 
 
-def rolled_up_count(querier, sids: Sequence[int], time) -> int:
-    """How many rolled-up hours a delete of ``sids`` in ``time`` removes, so
-    that deleting history only rollups hold still finds something to delete."""
-    if not querier.rollups_present():
-        return 0
-    where, params = _overlapping(querier.dialect, sids, time.start, time.end)
-    rows = querier._fetch(f"SELECT count(*) FROM {TABLE} WHERE {where}", params)
-    return int(rows[0][0]) if rows else 0
+OPEN = TimeRange()
+_COMPLETE = f"NOT EXISTS (SELECT 1 FROM {EXPIRED} e WHERE e.sid = r.sid AND e.upto >= r.bucket)"
 
 
-class RollupPresence:
-    """Whether ``rollups_hourly`` may hold rows, so that aggregations skip
-    the extra SELECT while it is certainly empty (rollups never used).
+@dataclass(frozen=True, slots=True)
+class Redo:
+    """Which buckets of ``sids`` a recompute takes up: those of their
+    rollup rows (and, ``from_raw``, of their raw samples) meeting ``time``
+    (inclusive, None: open), or holding the instance ``(sid, iid)``. Of
+    those, complete buckets are recomputed always; ``whole`` also recomputes
+    incomplete ones wholly inside ``time`` (a delete: from what is left in
+    them), ``every`` every one (a rebuild that drops what only rollups held)."""
+
+    sids: Sequence[int]
+    time: TimeRange = OPEN
+    instance: tuple[int, int] | None = None
+    whole: bool = False
+    every: bool = False
+    from_raw: bool = False
+
+
+def _redo_keys(d: SqlDialect, redo: Redo) -> tuple[str, list]:
+    """SELECT (level, sid, bucket) of the buckets ``redo`` recomputes."""
+    p = d.placeholder
+    parts, params = [], []
+    start, end = redo.time.start, redo.time.end
+    for level in LEVELS:
+        # Buckets meeting [start, end]: from the one holding start on.
+        where, wparams = _within(d, redo.sids, None if start is None else start - level.width + _US, end)
+        if redo.instance is not None:
+            where += f" AND bucket = (SELECT date_trunc('{level.name}', t) FROM {d.samples('sid, iid, t')} "
+            where += f"WHERE sid = {p} AND iid = {p})"
+            wparams += list(redo.instance)
+        candidates = f"SELECT sid, bucket FROM {level.view} WHERE {where}"
+        if redo.from_raw:
+            raw_where, raw_params = series_time_filter(d, redo.sids, redo.time)
+            candidates += (
+                f" UNION ALL SELECT sid, date_trunc('{level.name}', t) FROM {d.samples('sid, t')} WHERE {raw_where}"
+            )
+            wparams += raw_params
+        wanted = _COMPLETE
+        if redo.every:
+            wanted = "TRUE"
+        elif redo.whole and (start is not None or end is not None):
+            wholly = []
+            if start is not None:
+                wholly.append(f"r.bucket >= {p}")
+                wparams.append(d.time_value(start))
+            if end is not None:
+                wholly.append(f"r.bucket <= {p}")
+                wparams.append(d.time_value(end - level.width + _US))
+            wanted = f"({_COMPLETE} OR ({' AND '.join(wholly)}))"
+        elif redo.whole:
+            wanted = "TRUE"  # the whole history: every bucket is inside
+        parts.append(f"SELECT DISTINCT {level.code} AS level, sid, bucket FROM ({candidates}) AS r WHERE {wanted}")
+        params += wparams
+    return " UNION ALL ".join(parts), params
+
+
+def _raw_span(d: SqlDialect, redo: Redo) -> tuple[str, list]:
+    """WHERE text bounding the raw samples a recompute reads."""
+    where, params = d.sid_filter(redo.sids)
+    p = d.placeholder
+    if redo.instance is not None:
+        where += " AND t >= (SELECT min(bucket) FROM rollups_redo) "
+        where += "AND t < (SELECT max(bucket) FROM rollups_redo) + INTERVAL '1 hour'"
+        return where, params
+    if redo.time.start is not None:
+        where += f" AND t >= {p}"
+        params.append(d.time_value(_floor(redo.time.start, HOUR.width)))
+    if redo.time.end is not None:
+        where += f" AND t < {p}"
+        params.append(d.time_value(_floor(redo.time.end, HOUR.width) + HOUR.width))
+    return where, params
+
+
+def _key_of(alias: str, level: Level) -> str:
+    return (
+        f"EXISTS (SELECT 1 FROM rollups_redo x WHERE x.level = {level.code} AND x.sid = {alias}.sid "
+        f"AND x.bucket = {alias}.bucket)"
+    )
+
+
+def recompute_statements(d: SqlDialect, redo: Redo) -> tuple[list[tuple[str, list]], list[tuple[str, list]]]:
+    """(before, after): run ``before`` ahead of the change to the raw samples
+    (it names the buckets, from the rollups, and for an instance from its
+    sample), ``after`` once it is made, in the same transaction."""
+    keys, kparams = _redo_keys(d, redo)
+    before: list[tuple[str, list]] = [(sql, []) for sql in lock_statements(d)]
+    before += [(sql, kparams if sql.startswith("CREATE") else []) for sql in _temp_table(d, "rollups_redo", keys)]
+    span, sparams = _raw_span(d, redo)
+    raw = f"(SELECT sid, rid, t, kind, num FROM {d.samples('sid, rid, t, kind, num')} WHERE {span}) AS raw"
+    redone = " UNION ALL ".join(
+        f"SELECT {level.code} AS level, {COLS} "
+        f"FROM ({samples_partials(d, level, raw, '', 'WHERE ' + _key_of('s', level))}) AS q{level.code}"
+        for level in LEVELS
+    )
+    rparams = sparams * len(LEVELS)
+    hot_gone = "EXISTS (SELECT 1 FROM rollups_redo x WHERE x.level = h.level AND x.sid = h.sid AND x.bucket = h.bucket)"
+    after: list[tuple[str, list]] = []
+    if d.name == "duckdb":
+        after += [(sql, rparams) for sql in _temp_table(d, "rollups_redone", redone)]
+        after.append((f"DELETE FROM {HOT} h WHERE {hot_gone}", []))
+    else:  # the hot rows go in the statement that reads raw: one snapshot
+        empty = f"SELECT level, {COLS} FROM {HOT} WITH NO DATA"
+        after += [(sql, []) for sql in _temp_table(d, "rollups_redone", empty)]
+        gone = f"WITH gone AS (DELETE FROM {HOT} h WHERE {hot_gone})"
+        after.append((f"{gone} INSERT INTO rollups_redone (level, {COLS}) {redone}", rparams))
+    for level in LEVELS:
+        after.append((f"DELETE FROM {level.table} r WHERE {_key_of('r', level)}", []))
+        after.append(
+            (f"INSERT INTO {level.table} ({COLS}) SELECT {COLS} FROM rollups_redone WHERE level = {level.code}", [])
+        )
+    return before, after
+
+
+Run = Callable[[str, list], list[tuple]]  # execute one statement in the caller's transaction: its rows
+
+
+def merge(d: SqlDialect, run: Run, limit: int) -> int:
+    """Move at most ``limit`` hot rows into the level tables, each bucket
+    combined with its merged row, in the caller's transaction (which holds
+    the rollup lock: ``lock_statements``, or DuckDB's compactor lock); how
+    many moved. The merged rows of a level are looked for only from the
+    oldest bucket moving on (recent, usually: the tables grow in time order)."""
+    rid = _row_id(d)
+    for sql in _temp_table(d, "rollups_moving", f"SELECT {rid} AS r, level, {COLS} FROM {HOT} LIMIT {int(limit)}"):
+        run(sql, [])
+    moved = 0
+    for level, oldest, count in run("SELECT level, min(bucket), count(*) FROM rollups_moving GROUP BY level", []):
+        moved += int(count)
+        table = LEVEL_CODED[int(level)].table
+        same = (
+            f"b.bucket >= {d.placeholder} AND EXISTS (SELECT 1 FROM rollups_moving m WHERE m.level = {int(level)} "
+            "AND m.sid = b.sid AND m.bucket = b.bucket)"
+        )
+        source = (
+            f"(SELECT {COLS} FROM rollups_moving WHERE level = {int(level)} "
+            f"UNION ALL SELECT {COLS} FROM {table} b WHERE {same})"
+        )
+        for sql in _temp_table(d, "rollups_merged", combine_partials(d, source)):
+            run(sql, [oldest] if sql.startswith("CREATE") else [])
+        run(f"DELETE FROM {table} b WHERE {same}", [oldest])
+        run(f"INSERT INTO {table} ({COLS}) SELECT {COLS} FROM rollups_merged ORDER BY sid, bucket", [])
+    run(f"DELETE FROM {HOT} WHERE {rid} IN (SELECT r FROM rollups_moving)", [])
+    return moved
+
+
+def expire_sql(source: str) -> str:
+    """Record in ``rollups_expired`` the newest time of the rows of
+    ``source`` (sid, t) that retention is deleting."""
+    return (
+        f"INSERT INTO {EXPIRED} (sid, upto) SELECT sid, max(t) FROM {source} GROUP BY sid ORDER BY sid "
+        f"ON CONFLICT (sid) DO UPDATE SET upto = greatest({EXPIRED}.upto, EXCLUDED.upto)"
+    )
+
+
+def level_delete_sql(
+    d: SqlDialect, level: Level, table: str, sids: Sequence[int], cutoff: datetime, limit: int
+) -> tuple[str, list]:
+    """At most ``limit`` rows of ``level`` in ``table`` (its merged table or
+    ``rollups_hot``) of ``sids`` whose whole bucket is older than ``cutoff``."""
+    where, params = d.sid_filter(sids)
+    p, rid = d.placeholder, _row_id(d)
+    if table == HOT:
+        where += f" AND level = {level.code}"
+    sql = f"DELETE FROM {table} WHERE {rid} IN (SELECT {rid} FROM {table} WHERE {where} AND bucket <= {p} LIMIT {p})"
+    return sql, [*params, d.time_value(cutoff - level.width), limit]
+
+
+# --- reading -----------------------------------------------------------------------------------
+
+
+def _micros(moment: datetime) -> int:
+    return (moment - _EPOCH) // _US
+
+
+def _moment(micros: int) -> datetime:
+    return _EPOCH + timedelta(microseconds=micros)
+
+
+def _floor(moment: datetime, width: timedelta) -> datetime:
+    micros, size = _micros(moment), width // _US
+    return _moment(micros - micros % size)
+
+
+@dataclass(frozen=True, slots=True)
+class Piece:
+    """A part of a window: buckets of ``level`` with ``start <= bucket <
+    end``, or (``level`` None) raw samples in ``[start, end]``; None: open."""
+
+    level: Level | None
+    start: datetime | None
+    end: datetime | None
+
+
+def split_window(time: TimeRange, levels: Sequence[Level]) -> list[Piece]:
+    """``time`` (inclusive, to the µs) as the whole buckets of the coarsest
+    of ``levels`` inside it, its edges likewise with the next level, and what
+    is left as raw samples."""
+    if not levels:
+        return [Piece(None, time.start, time.end)]
+    level, finer = levels[0], levels[1:]
+    size = level.width // _US
+    first = None if time.start is None else -(-_micros(time.start) // size) * size  # first whole bucket
+    past = None if time.end is None else (_micros(time.end) + 1) // size * size  # end of the last whole one
+    if first is not None and past is not None and first >= past:
+        return split_window(time, finer)
+    out = []
+    if time.start is not None and first is not None and _micros(time.start) < first:
+        out += split_window(TimeRange(time.start, _moment(first - 1)), finer)
+    out.append(Piece(level, None if first is None else _moment(first), None if past is None else _moment(past)))
+    if time.end is not None and past is not None and past <= _micros(time.end):
+        out += split_window(TimeRange(_moment(past), time.end), finer)
+    return out
+
+
+# Aggregation periods made of whole buckets of each level, coarsest first.
+PERIOD_LEVELS = {
+    None: (HOUR, MINUTE),
+    AggrPeriod.YEAR: (HOUR, MINUTE),
+    AggrPeriod.MONTH: (HOUR, MINUTE),
+    AggrPeriod.DAY: (HOUR, MINUTE),
+    AggrPeriod.HOUR: (HOUR, MINUTE),
+    AggrPeriod.MINUTE: (MINUTE,),
+}
+
+
+def aggregate_part(
+    d: SqlDialect, number: int, sids: Sequence[int], piece: Piece, method: AggrMethod, period: AggrPeriod | None
+) -> tuple[str, list]:
+    """A branch's aggregate rows from ``piece``'s level, in the raw
+    aggregation's layout (branch, sid, ISO bucket | NULL, n_present,
+    n_numeric, value, all_integer)."""
+    assert piece.level is not None
+    fn = {
+        AggrMethod.SUM: "sum(num_sum)",
+        AggrMethod.AVG: "sum(num_sum)",
+        AggrMethod.MIN: "min(num_min)",
+        AggrMethod.MAX: "max(num_max)",
+    }.get(method, "NULL")
+    trunc = d.date_trunc(period.value, "bucket") if period is not None else None
+    where, params = _within(d, sids, piece.start, _before(piece.end))
+    sql = (
+        f"SELECT {number} AS branch, sid, {d.iso_ms(trunc) if trunc else 'NULL'} AS bucket, "
+        "CAST(sum(n_present) AS BIGINT) AS n_present, CAST(sum(n_numeric) AS BIGINT) AS n_numeric, "
+        f"{fn} AS value, CASE WHEN sum(n_numeric) > 0 THEN sum(n_integer) = sum(n_numeric) END AS all_integer "
+        f"FROM {piece.level.view} WHERE {where} GROUP BY sid{', ' + trunc if trunc else ''}"
+    )
+    return sql, params
+
+
+def bucket_levels(width: timedelta) -> tuple[Level, ...]:
+    """The levels whose whole buckets make buckets of ``width``, coarsest
+    first (``core.buckets.served_by``): what ``split_window`` takes for a
+    ``read.buckets.BucketRead``."""
+    return tuple(level for level in reversed(LEVELS) if served_by(width, level.width))
+
+
+def bucket_part(
+    d: SqlDialect, level: Level, sids: Sequence[int], piece: Piece, width: timedelta, extreme_times: bool = True
+) -> tuple[str, list]:
+    """The rows of ``read.buckets.BucketRow`` (sid, start µs, n, total,
+    all_integer, min, min_t, max, max_t, first, first_t, last, last_t) of
+    the numeric samples in ``level``'s whole buckets of ``piece`` (``start
+    <= bucket < end``), grouped into buckets of ``width`` (a multiple of the
+    level's, from the epoch): exactly what the raw samples of that time give
+    (``storage.sql.buckets.raw_part``), ties included: one part of the
+    bucket query, combined with the raw parts of the window's edges. Without
+    ``extreme_times``, ``min_t`` and ``max_t`` are NULL (``BucketRead``)."""
+    w = width // _US
+    where, params = _within(d, sids, piece.start, _before(piece.end))
+    where += " AND n_numeric > 0"
+    inner = f"SELECT {COLS}, {d.epoch_us('bucket')} AS bu FROM {level.view} WHERE {where}{d.fence}"
+    start = f"(bu - mod(mod(bu, {w}) + {w}, {w}))"
+    only = "num_min IS NOT NULL"
+    min_t = _at_min(d, "num_min", "min_us", only) if extreme_times else "CAST(NULL AS BIGINT)"
+    max_t = _at_max(d, "num_max", "max_us", only) if extreme_times else "CAST(NULL AS BIGINT)"
+    sql = (
+        f"SELECT sid, {start} AS start, CAST(sum(n_numeric) AS BIGINT) AS n, sum(num_sum) AS total, "
+        "sum(n_integer) = sum(n_numeric) AS all_integer, "
+        f"min(num_min) AS min, {min_t} AS min_t, max(num_max) AS max, {max_t} AS max_t, "
+        f"{_pick(d, 'num_first', 'first_us', 'first_rid', 'num_first IS NOT NULL', last=False)} AS first, "
+        "min(first_us) FILTER (WHERE num_first IS NOT NULL) AS first_t, "
+        f"{_pick(d, 'num_last', 'last_us', 'last_rid', 'num_last IS NOT NULL', last=True)} AS last, "
+        "max(last_us) FILTER (WHERE num_last IS NOT NULL) AS last_t "
+        f"FROM ({inner}) AS r GROUP BY sid, {start}"
+    )
+    return sql, params
+
+
+def rolled_up_count(querier, sids: Sequence[int], time: TimeRange) -> int:
+    """Buckets of ``sids`` wholly inside ``time`` that hold history retention
+    deleted from raw: what a delete finds to delete where no raw sample is
+    left (a delete drops them; buckets it only cuts stay as they are)."""
+    d = querier.dialect
+    parts, params = [], []
+    for level in LEVELS:
+        last = None if time.end is None else time.end - level.width + _US  # the bucket ends inside
+        where, wparams = _within(d, sids, time.start, last)
+        parts.append(f"SELECT count(*) AS n FROM {level.view} r WHERE {where} AND NOT {_COMPLETE}")
+        params += wparams
+    rows = querier._fetch(f"SELECT sum(n) FROM ({' UNION ALL '.join(parts)}) AS c", params)
+    return int(rows[0][0] or 0) if rows else 0
+
+
+def expired_span_sql(d: SqlDialect, sids: Sequence[int], time: TimeRange) -> tuple[str, list]:
+    """SELECT min(lo), max(hi), epoch µs, clipped to ``time`` (inclusive;
+    None: open): the first and last number (a bucket's edges where it holds
+    none) of the rollup rows of ``sids`` meeting ``time`` that hold samples
+    retention deleted (incomplete buckets, either level). NULLs: none. What
+    raw samples no longer show of a window: its span, and whether raw
+    samples alone can draw it (``storage.sql.buckets``).
+
+    Only the earliest and the latest such bucket are read: PostgreSQL probes
+    them per series that retention reached, two index probes a level;
+    DuckDB (which turns such probes into joins over every row) finds the
+    two buckets with one grouped scan, then reads their rows."""
+    p = d.placeholder
+    los, his, bparams = [], [], []
+    for level in LEVELS:
+        bu, size = d.epoch_us("r.bucket"), level.width // _US
+        lo, hi = f"coalesce(r.first_us, {bu})", f"coalesce(r.last_us, {bu} + {size - 1})"
+        bounds, params = "r.sid = e.sid AND r.n_present > 0 AND r.bucket <= e.upto", []
+        if time.start is not None:
+            bounds += f" AND r.bucket >= {p}"
+            params.append(d.time_value(time.start - level.width + _US))
+        if time.end is not None:
+            bounds += f" AND r.bucket <= {p}"
+            params.append(d.time_value(time.end))
+        if d.name == "duckdb":
+            sid_where, sid_params = d.sid_filter(sids)
+            rows = f"FROM {level.view} r JOIN {EXPIRED} e ON {bounds} WHERE r.{sid_where}"
+            ends = f"(SELECT min(r.bucket) AS b0, max(r.bucket) AS b1 {rows})"
+            los.append(f"(SELECT min({lo}) {rows} AND r.bucket = (SELECT b0 FROM {ends} AS k))")
+            his.append(f"(SELECT max({hi}) {rows} AND r.bucket = (SELECT b1 FROM {ends} AS k))")
+            params = [*params, *sid_params] * 2
+        else:
+            los.append(f"(SELECT {lo} FROM {level.view} r WHERE {bounds} ORDER BY r.bucket, 1 LIMIT 1)")
+            his.append(f"(SELECT {hi} FROM {level.view} r WHERE {bounds} ORDER BY r.bucket DESC, 1 DESC LIMIT 1)")
+        bparams.append(params)
+    lo, hi = f"least({', '.join(los)})", f"greatest({', '.join(his)})"  # both ignore NULLs
+    if time.start is not None:
+        lo = f"greatest({lo}, {_micros(time.start)})"
+    if time.end is not None:
+        hi = f"least({hi}, {_micros(time.end)})"
+    # Placeholders in textual order: the levels' lo parts, their hi parts (then, on PostgreSQL, the series).
+    params = [v for ps in bparams for v in ps] * 2
+    if d.name == "duckdb":
+        return f"SELECT {lo}, {hi}", params
+    where, wparams = d.sid_filter(sids)
+    sql = f"SELECT min(lo), max(hi) FROM (SELECT {lo} AS lo, {hi} AS hi FROM {EXPIRED} e WHERE {where}) AS x"
+    return sql, [*params, *wparams]
+
+
+class Merger:
+    """A thread that merges hot rollup rows every ``interval`` seconds
+    (PostgreSQL; DuckDB's compactor does it): ``merge_once(limit)`` moves at
+    most ``limit`` rows and says how many; a full batch is followed at once
+    by the next."""
+
+    def __init__(self, merge_once, interval: float = 2.0, limit: int = 20_000):
+        self._merge_once = merge_once
+        self._interval = interval
+        self._limit = limit
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="tsdb-rollup-merger", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Finish the merge in progress (one transaction), then stop."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join()
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self._interval):
+            try:
+                while self._merge_once(self._limit) >= self._limit and not self._stop.is_set():
+                    pass
+            except Exception:  # keep serving: readers combine hot rows meanwhile
+                log.exception("merging rollups failed; will retry")
+
+
+class ExpiryPresence:
+    """Whether retention may have deleted raw samples anywhere in the store
+    (``rollups_expired`` holds rows), so that aggregations skip the hourly
+    partials in memory, which know raw samples only.
 
     Known present: stays so. Otherwise the table is looked at no more often
-    than every ``ttl`` seconds; a store whose own worker folds rows says so
+    than every ``ttl`` seconds; a store whose own retention deletes says so
     at once (``mark``)."""
 
-    def __init__(self, enabled: bool = False, ttl: float = PRESENCE_TTL_S):
-        self._present = enabled
+    def __init__(self, ttl: float = PRESENCE_TTL_S):
+        self._present = False
         self._ttl = ttl
         self._checked = float("-inf")
         self._lock = threading.Lock()
@@ -117,55 +746,14 @@ class RollupPresence:
             return True
         with self._lock:
             if _time.monotonic() - self._checked >= self._ttl:
-                self._present = bool(fetch(f"SELECT 1 FROM {TABLE} LIMIT 1", []))
+                self._present = bool(fetch(f"SELECT 1 FROM {EXPIRED} LIMIT 1", []))
                 self._checked = _time.monotonic()
         return self._present
 
 
-def presence_of(store) -> RollupPresence:
+def presence_of(store) -> ExpiryPresence:
     """The store's presence tracker (created on first use)."""
     presence = store.rollup_presence
     if presence is None:
-        presence = store.rollup_presence = RollupPresence()
+        presence = store.rollup_presence = ExpiryPresence()
     return presence
-
-
-def rollup_parts(querier, branches, time, agg) -> tuple[str, list]:
-    """A SELECT yielding the aggregate partials held in rollups, in the raw
-    aggregation's row layout (branch, sid, bucket, n_present, n_numeric,
-    value, all_integer), or ``("", [])`` when rollups cannot contribute."""
-    if agg.period is not None and agg.period not in ROLLUP_PERIODS:
-        return "", []
-    plain = [(number, b) for number, b in enumerate(branches) if b.sids and not b.steps]
-    if not plain or not querier.rollups_present():
-        return "", []
-    d = querier.dialect
-    p = d.placeholder
-    fn = {
-        AggrMethod.SUM: "sum(num_sum)",
-        AggrMethod.AVG: "sum(num_sum)",
-        AggrMethod.MIN: "min(num_min)",
-        AggrMethod.MAX: "max(num_max)",
-    }.get(agg.method, "NULL")
-    period = d.date_trunc(agg.period.value, "bucket") if agg.period is not None else None
-    bucket_sql = d.iso_ms(period) if period else "NULL"
-    group = "sid" + (f", {period}" if period else "")
-    parts, params = [], []
-    for number, branch in plain:
-        where, wparams = d.sid_filter(branch.sids)
-        # Whole hours only: [bucket, bucket + 1h) inside the inclusive range
-        # (to the millisecond).
-        if time.start is not None:
-            where += f" AND bucket >= {p}"
-            wparams.append(d.time_value(time.start))
-        if time.end is not None:
-            where += f" AND bucket <= {p}"
-            wparams.append(d.time_value(time.end - HOUR + ONE_MS))
-        parts.append(
-            f"SELECT {number} AS branch, sid, {bucket_sql} AS bucket, "
-            f"CAST(sum(n_present) AS BIGINT) AS n_present, CAST(sum(n_numeric) AS BIGINT) AS n_numeric, "
-            f"{fn} AS value, bool_and(all_integer) AS all_integer "
-            f"FROM {TABLE} WHERE {where} GROUP BY {group}"
-        )
-        params += wparams
-    return " UNION ALL ".join(parts), params

@@ -134,6 +134,12 @@ class Store(ABC):
     def retention_watermarks(self) -> dict[tuple[str, str], datetime]:
         """Saved retention watermarks by (table, rule), timezone-aware."""
 
+    @abstractmethod
+    def rewrite_rollups(self, statements: Sequence[tuple[str, list]]) -> list[tuple]:
+        """Run rollup statements (``storage.rollup_repair``) in one
+        transaction, excluding merges and deletes as a delete does; the rows
+        of the last one."""
+
     def backup(self, path: str) -> BackupReport:
         """A consistent, checked copy of the store in the new file ``path``
         (DuckDB); a backend with its own tools refuses."""

@@ -44,6 +44,7 @@ from tsdb_service.storage.ld_ingest import (
     with_deletions,
     without_dropped,
 )
+from tsdb_service.storage.rollups import HOT, fold_sql, partial_rows
 from tsdb_service.storage.sql.writes import delete_statements, instance_statements
 from tsdb_service.storage.staging import StagingAppender, WriteTarget
 from tsdb_service.write.ops import DeleteInstance, DeleteSamples, Delivery, LogPosition, PutLayout, ReplaceInstance
@@ -89,6 +90,7 @@ INSERT_SERIES = (
 
 
 _DIALECT = DuckDBDialect()
+FOLD_SQL = fold_sql(_DIALECT, "_rollup_batch")
 
 
 # Above this many rows a batch goes through Arrow (the ingest log's applier
@@ -347,7 +349,8 @@ class DuckDBAppender(StagingAppender):
 
         Under load the event loop holds the GIL, and every return from
         DuckDB into Python waits for it. A small batch is therefore appended
-        and flushed in autocommit mode: two calls, one transaction. Big
+        and flushed by a DuckDB appender, its rollups folded by one statement
+        over the same columns (``_fold_rollups``), in one transaction. Big
         batches (bulk loads) go through Arrow instead, where the per-row
         conversion cost matters more than the GIL. New series
         rows are committed first; if the samples then fail, an unused series
@@ -392,14 +395,13 @@ class DuckDBAppender(StagingAppender):
         )
 
     def _commit_samples(self, cur: duckdb.DuckDBPyConnection) -> None:
-        # MQTT deliveries and the ingest log's position commit with the
-        # samples they came with: then one explicit transaction around them
-        # all (the appender joins it).
+        # The samples' rollups, MQTT deliveries and the ingest log's
+        # position commit with the samples they came with: one explicit
+        # transaction around them all (the appender joins it), so a
+        # replayed batch is neither stored nor rolled up twice.
         deliveries, self._deliveries = self._deliveries, []
         position, self._position = self._position, None
-        explicit = bool(deliveries) or position is not None
-        if explicit:
-            cur.execute("BEGIN")
+        cur.execute("BEGIN")
         if len(self._cols["rid"]) <= ARROW_MIN_ROWS:
             # Only columns that carry a value: converting the all-NULL
             # ones (geometry, metadata...) would hold the GIL for nothing.
@@ -407,18 +409,50 @@ class DuckDBAppender(StagingAppender):
             self._append_rows(cur, names)
         else:
             self._insert_arrow(cur)
+        self._fold_rollups(cur)
         for sql, params in delivery_statements("?", deliveries):
             cur.execute(sql, params)
         if position is not None:
             cur.execute(ADVANCE_SQL, [position.seq, position.rid])
-        if explicit:
-            self._durable(cur, "COMMIT")
+        self._durable(cur, "COMMIT")
+
+    def _fold_rollups(self, cur: duckdb.DuckDBPyConnection) -> None:
+        """The batch's minute and hour partials into ``rollups_hot``, in the
+        samples' transaction (``storage.rollups``): a small batch aggregated
+        here and appended, a big one by one statement over its columns."""
+        cols = self._cols
+        if len(cols["rid"]) <= ARROW_MIN_ROWS:
+            rows = partial_rows(cols["sid"], cols["rid"], cols["t"], cols["kind"], cols["num"])
+            appender = cur.appender(HOT)
+            try:
+                appender.append_rows(rows)
+                appender.flush()
+            except BaseException:
+                with contextlib.suppress(duckdb.Error):  # no row may reach a later flush
+                    appender.clear()
+                raise
+            return
+        batch = pa.Table.from_arrays(
+            [
+                pa.array(cols["sid"], pa.int32()),
+                pa.array(cols["rid"], pa.int64()),
+                pa.array(cols["t"], pa.int64()).cast(pa.timestamp("us")),
+                pa.array(cols["kind"], pa.uint8()),
+                pa.array(cols["num"], pa.float64()),
+            ],
+            names=["sid", "rid", "t", "kind", "num"],
+        )
+        cur.register("_rollup_batch", batch)
+        try:
+            cur.execute(FOLD_SQL)
+        finally:
+            with contextlib.suppress(duckdb.Error):  # fails on an invalid instance
+                cur.unregister("_rollup_batch")
 
     def _append_rows(self, cur: duckdb.DuckDBPyConnection, names: tuple[str, ...]) -> None:
-        """The staged rows of ``names`` through a DuckDB appender, flushed in
-        autocommit mode (one statement, its own transaction, one WAL fsync,
-        as durable as an INSERT), or inside the transaction that also records
-        the rows' MQTT deliveries and ingest-log position. A third cheaper in CPU than the INSERT ...
+        """The staged rows of ``names`` through a DuckDB appender, flushed
+        inside the transaction that also records the rows' rollups, MQTT
+        deliveries and ingest-log position. A third cheaper in CPU than the INSERT ...
         SELECT unnest($1..$n) it replaces (binding and planning that
         statement was most of a small group's cost), at 8 to 100
         notifications a group (``benchmarks/README.md``).

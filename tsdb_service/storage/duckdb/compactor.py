@@ -1,4 +1,5 @@
-"""The compactor: moves the hot rows into the table sorted by (series, time)."""
+"""The compactor: moves the hot rows into the table sorted by (series, time),
+and the hot rollup rows into their levels (``storage.rollups``)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,13 @@ import duckdb
 
 from tsdb_service.core.errors import first_line
 from tsdb_service.storage.duckdb.connection import rollback_quietly, scalar
+from tsdb_service.storage.duckdb.dialect import DuckDBDialect
+from tsdb_service.storage.rollups import HOT, LEVELS, merge
+
+# Hot rollup rows are merged into their levels once there are this many
+# (readers combine them meanwhile; a few thousand cost a read nothing).
+MERGE_ROWS = 20_000
+_DIALECT = DuckDBDialect()
 
 log = logging.getLogger(__name__)
 
@@ -20,7 +28,9 @@ class Compactor:
     Moving hot rows is one transaction (insert sorted, delete moved), so a
     reader sees each sample exactly once. Only this thread touches
     ``samples``; the writer only appends to ``samples_hot``; the two never
-    conflict.
+    conflict. Likewise for rollups: the writer appends to ``rollups_hot``,
+    this thread merges those rows into the level tables (``_merge``), one
+    transaction at a time; deletes recompute rollups under its lock.
     """
 
     def __init__(
@@ -59,6 +69,8 @@ class Compactor:
                         self._move(cur)
                         if self._runs >= self._major_runs:
                             self._rewrite(cur)
+                    if scalar(cur, f"SELECT count(*) FROM {HOT}") >= MERGE_ROWS:
+                        self._merge(cur)
                 except Exception as exc:  # keep serving; compaction is an optimisation
                     rollback_quietly(cur)
                     if self._on_error is not None and self._on_error(exc) is not None:
@@ -74,8 +86,23 @@ class Compactor:
             self._move(cur)
             if full:
                 self._rewrite(cur)
+            while self._merge(cur):
+                pass
         finally:
             cur.close()
+
+    def _merge(self, cur: duckdb.DuckDBPyConnection) -> int:
+        """Hot rollup rows into their levels (``storage.rollups.merge``);
+        how many moved."""
+        with self._lock:
+            cur.execute("BEGIN")
+            try:
+                moved = merge(_DIALECT, lambda sql, params: cur.execute(sql, params).fetchall(), 4 * MERGE_ROWS)
+                cur.execute("COMMIT")
+            except Exception:
+                rollback_quietly(cur)
+                raise
+        return moved
 
     def _move(self, cur: duckdb.DuckDBPyConnection) -> None:
         with self._lock:
@@ -103,6 +130,12 @@ class Compactor:
                 cur.execute("CREATE TABLE samples_sorted AS SELECT * FROM samples ORDER BY sid, t, rid")
                 cur.execute("DROP TABLE samples")
                 cur.execute("ALTER TABLE samples_sorted RENAME TO samples")
+                for level in LEVELS:  # one series' rollups in few row groups; rows merges replaced dropped
+                    cur.execute(
+                        f"CREATE TABLE {level.table}_sorted AS SELECT * FROM {level.table} ORDER BY sid, bucket"
+                    )
+                    cur.execute(f"DROP TABLE {level.table}")
+                    cur.execute(f"ALTER TABLE {level.table}_sorted RENAME TO {level.table}")
                 cur.execute("COMMIT")
             except Exception:
                 rollback_quietly(cur)

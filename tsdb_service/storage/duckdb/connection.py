@@ -19,7 +19,9 @@ from typing import Any
 import duckdb
 
 from tsdb_service.core.errors import Unavailable
+from tsdb_service.storage.duckdb.dialect import DuckDBDialect
 from tsdb_service.storage.migrations import applied_versions, load_migrations, split_statements
+from tsdb_service.storage.rollups import fill_statements
 from tsdb_service.storage.sql.dialect import quote_ident
 
 SAMPLE_TABLES = ("samples", "samples_hot")
@@ -84,6 +86,8 @@ def migrate_duckdb(con: duckdb.DuckDBPyConnection) -> list[int]:
         con.execute("BEGIN")
         try:
             for statement in split_statements(migration.sql):
+                con.execute(statement)
+            for statement in fill_statements(DuckDBDialect(), migration.version):
                 con.execute(statement)
             con.execute(
                 "INSERT INTO schema_migrations (version, name) VALUES (?, ?)",

@@ -1,10 +1,12 @@
 """Retention batches on DuckDB (``storage.retention`` drives them).
 
 A batch holds the compactor's lock (as a user's delete does), so it never
-races the compactor moving or rewriting the same rows; it picks at most N
-expired rows by ``rowid``, folds them into rollups, deletes them, and drops
-the touched series from the in-memory per-series memories and recomputes
-their latest locations (``DuckDBMemory.forget``, ``relocate``).
+races the compactor moving, rewriting or merging the same rows; it picks at
+most N expired rows by ``rowid``, records the newest time it deletes per
+series (``rollups_expired``), deletes them, and drops the touched series
+from the in-memory per-series memories and recomputes their latest
+locations (``DuckDBMemory.forget``, ``relocate``). Rollup rows go by level,
+under the same lock.
 """
 
 from __future__ import annotations
@@ -21,8 +23,8 @@ from tsdb_service.storage.columns import naive_utc
 from tsdb_service.storage.duckdb.dialect import DuckDBDialect
 from tsdb_service.storage.duckdb.latest_geo import LATEST_GEO_SQL
 from tsdb_service.storage.duckdb.memory import DuckDBMemory
-from tsdb_service.storage.retention import SAVE_WATERMARK, rollup_delete_sql
-from tsdb_service.storage.rollups import fold_sql
+from tsdb_service.storage.retention import SAVE_WATERMARK
+from tsdb_service.storage.rollups import Level, expire_sql, level_delete_sql
 from tsdb_service.storage.sql.dialect import quote_ident
 
 
@@ -54,8 +56,8 @@ class DuckDBSession:
     def series(self) -> list[tuple[int, str, str]]:
         return self._cur.execute("SELECT sid, tenant, entity_type FROM series").fetchall()
 
-    def delete_samples(self, table: str, sids: Sequence[int], cutoff: datetime, limit: int, fold: bool) -> int:
-        """One batch, under the compactor's lock: pick, fold, delete, commit."""
+    def delete_samples(self, table: str, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
+        """One batch, under the compactor's lock: pick, record, delete, commit."""
         cur = self._cur
         where, params = self._d.sid_filter(sids)
         with self._store.compactor_lock():
@@ -68,8 +70,7 @@ class DuckDBSession:
                 )
                 n, upto = _one(cur, "SELECT count(*), max(rid) FROM retention_batch")
                 if n:
-                    if fold:
-                        cur.execute(fold_sql("retention_batch"))
+                    cur.execute(expire_sql("retention_batch"))
                     cur.execute(f"DELETE FROM {quote_ident(table)} WHERE rowid IN (SELECT r FROM retention_batch)")
                 cur.execute("COMMIT")
             except BaseException:
@@ -95,9 +96,9 @@ class DuckDBSession:
             query = LATEST_GEO_SQL.format(where="AND sid IN (SELECT unnest(?::INTEGER[]))")
             memory.relocate(geo, upto_rid, lambda s: cur.execute(query, [s]).fetchall())
 
-    def delete_rollups(self, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
-        sql, params = rollup_delete_sql(self._d, sids, cutoff, limit)
-        with self._store.compactor_lock():  # user deletes touch rollups under it too
+    def delete_rollups(self, level: Level, table: str, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
+        sql, params = level_delete_sql(self._d, level, table, sids, cutoff, limit)
+        with self._store.compactor_lock():  # merges and user deletes touch rollups under it too
             return int(_one(self._cur, sql, params)[0])
 
     def save_watermark(self, kind: str, rule: str, horizon: datetime) -> None:

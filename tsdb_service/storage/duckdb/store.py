@@ -423,6 +423,25 @@ class DuckDBStore(CommittingStore):
         finally:
             self._backing_up.release()
 
+    def rewrite_rollups(self, statements: Sequence[tuple[str, list]]) -> list[tuple]:
+        """One transaction on a cursor of its own, under the compactor's lock
+        (as deletes and merges of rollups are)."""
+        with self.reading(), self.compactor_lock():
+            cur = self._con.cursor()
+            try:
+                cur.execute("BEGIN")
+                rows: list[tuple] = []
+                for sql, params in statements:
+                    rows = cur.execute(sql, params).fetchall()
+                cur.execute("COMMIT")
+                return rows
+            except BaseException:
+                with contextlib.suppress(duckdb.Error):
+                    cur.execute("ROLLBACK")
+                raise
+            finally:
+                cur.close()
+
     def compactor_lock(self) -> contextlib.AbstractContextManager[Any]:
         """Hold while deleting rows (deletes, retention): the compactor must
         not move or rewrite them meanwhile (its copy could resurrect them)."""

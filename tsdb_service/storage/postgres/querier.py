@@ -316,11 +316,9 @@ class PostgresQuerier(SqlQuerier):
             )
         )
 
-    def span(self, ask: SamplesIn) -> tuple[int, int] | None:
+    def _raw_span(self, ask: SamplesIn) -> tuple[int, int] | None:
         """Two ``(sid, t)`` index probes per series (its first and last sample
         in the window) instead of reading the window."""
-        if not ask.sids:
-            return None
         d = self.dialect
         window, params = "", []
         if ask.time.start is not None:

@@ -1,9 +1,11 @@
 """Retention batches on PostgreSQL (``storage.retention`` drives them).
 
 One statement per batch picks at most N expired rows by (``tableoid``,
-``ctid``), deletes them and folds exactly the rows it deleted
-(``RETURNING``). A session advisory lock lets one replica run a pass at a
-time; the others skip theirs.
+``ctid``), deletes them and records the newest time it deleted per series
+(``rollups_expired``, from its ``RETURNING``). A session advisory lock lets
+one replica run a pass at a time; the others skip theirs. Rollup batches
+hold the rollup lock (``storage.rollups.LOCK``), as merges and recomputes
+do.
 """
 
 from __future__ import annotations
@@ -16,8 +18,8 @@ import psycopg
 
 from tsdb_service.storage.columns import naive_utc
 from tsdb_service.storage.postgres.dialect import PostgresDialect, int_array
-from tsdb_service.storage.retention import SAVE_WATERMARK, rollup_delete_sql
-from tsdb_service.storage.rollups import fold_sql
+from tsdb_service.storage.retention import SAVE_WATERMARK
+from tsdb_service.storage.rollups import Level, expire_sql, level_delete_sql, lock_statements
 from tsdb_service.storage.sql.dialect import quote_ident
 
 PG_LOCK = 0x7473_6472  # "tsdr": one retention pass at a time across replicas
@@ -36,10 +38,10 @@ class PostgresSession:
     def series(self) -> list[tuple[int, str, str]]:
         return self._conn.execute("SELECT sid, tenant, entity_type FROM series").fetchall()
 
-    def delete_samples(self, table: str, sids: Sequence[int], cutoff: datetime, limit: int, fold: bool) -> int:
+    def delete_samples(self, table: str, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
         """One statement: pick by (tableoid, ctid), which stays right on a
-        TimescaleDB hypertable's chunks, delete, and fold what was deleted."""
-        folded = f", folded AS ({fold_sql('batch')})" if fold else ""
+        TimescaleDB hypertable's chunks, delete, and record what expired."""
+        folded = f", expired AS ({expire_sql('batch')})"
         sql = (
             f"WITH pick AS MATERIALIZED (SELECT tableoid AS tab, ctid AS tid FROM {quote_ident(table)} "
             "WHERE sid = ANY(%s::integer[]) AND t < %s LIMIT %s), "
@@ -54,9 +56,11 @@ class PostgresSession:
             self._forget(sids)
         return deleted
 
-    def delete_rollups(self, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
-        sql, params = rollup_delete_sql(self._d, sids, cutoff, limit)
+    def delete_rollups(self, level: Level, table: str, sids: Sequence[int], cutoff: datetime, limit: int) -> int:
+        sql, params = level_delete_sql(self._d, level, table, sids, cutoff, limit)
         with self._conn.transaction():
+            for lock in lock_statements(self._d):
+                self._conn.execute(lock)
             return self._conn.execute(sql, params).rowcount
 
     def save_watermark(self, kind: str, rule: str, horizon: datetime) -> None:

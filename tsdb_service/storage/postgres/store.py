@@ -28,11 +28,13 @@ from tsdb_service.storage.committing import CommittingStore
 from tsdb_service.storage.layouts import LOAD_LAYOUTS_SQL, LayoutKey, layouts_from_rows
 from tsdb_service.storage.migrations import applied_versions, load_migrations
 from tsdb_service.storage.postgres.appender import PostgresAppender
+from tsdb_service.storage.postgres.dialect import PostgresDialect
 from tsdb_service.storage.postgres.ids import PostgresIds
 from tsdb_service.storage.postgres.memory import PostgresMemory
 from tsdb_service.storage.postgres.querier import PostgresQuerier
 from tsdb_service.storage.postgres.retention import PostgresSession, postgres_session
 from tsdb_service.storage.rejected import RejectedLimits
+from tsdb_service.storage.rollups import Merger, fill_statements, lock_statements, merge
 from tsdb_service.write.committer import GroupCommitter
 
 log = logging.getLogger(__name__)
@@ -87,6 +89,8 @@ def migrate_postgres(conn: psycopg.Connection) -> list[int]:
             if migration.version in done:
                 continue
             conn.execute(migration.sql)
+            for statement in fill_statements(PostgresDialect(), migration.version):
+                conn.execute(statement)
             conn.execute(
                 "INSERT INTO schema_migrations (version, name) VALUES (%s, %s)",
                 [migration.version, migration.name],
@@ -121,6 +125,8 @@ class PostgresStore(CommittingStore):
         self._committer.start()
         self._closed = False
         self._querier = PostgresQuerier(self, agg_partials_hours)
+        self._merger = Merger(self.merge_rollups)
+        self._merger.start()
 
     def querier(self) -> PostgresQuerier:
         return self._querier
@@ -209,9 +215,36 @@ class PostgresStore(CommittingStore):
             return cur.fetchall() if cur.description is not None else []
 
     def compact(self, full: bool = True) -> str:
-        """Nothing to do: samples stay where they were written, and the
-        (sid, t) index already serves every read in order."""
+        """Nothing to do for samples: they stay where they were written, and
+        the (sid, t) index already serves every read in order. Hot rollup
+        rows are merged (as the merger thread does every few seconds)."""
+        while self.merge_rollups(100_000):
+            pass
         return "nothing to compact: PostgreSQL keeps samples in place (only DuckDB files are compacted)"
+
+    def rewrite_rollups(self, statements: Sequence[tuple[str, list]]) -> list[tuple]:
+        """One transaction on a pooled connection; the statements take the
+        rollup lock themselves (``storage.rollups.lock_statements``)."""
+        with self.connection() as conn, conn.transaction():
+            rows: list[tuple] = []
+            for sql, params in statements:
+                cur = conn.execute(sql, params)
+                rows = cur.fetchall() if cur.description is not None else []
+            return rows
+
+    def merge_rollups(self, limit: int) -> int:
+        """At most ``limit`` hot rollup rows into their levels, in one
+        transaction under the rollup lock (``storage.rollups``); how many."""
+        dialect = PostgresDialect()
+        with self.connection() as conn, conn.transaction():
+            for sql in lock_statements(dialect):
+                conn.execute(sql)
+
+            def run(sql: str, params: list) -> list[tuple]:
+                cur = conn.execute(sql, params)
+                return cur.fetchall() if cur.description is not None else []
+
+            return merge(dialect, run, limit)
 
     def retention_session(self) -> contextlib.AbstractContextManager[PostgresSession | None]:
         """A connection of its own holding the cluster-wide pass lock."""
@@ -231,6 +264,7 @@ class PostgresStore(CommittingStore):
         if self._closed:
             return
         self.stop_retention()
+        self._merger.stop()
         self._committer.close()
         self._closed = True
         self._querier.close()

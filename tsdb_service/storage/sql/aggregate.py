@@ -26,7 +26,7 @@ from tsdb_service.storage.partials import (
     bucket_of,
 )
 from tsdb_service.storage.partials import PERIODS as PARTIAL_PERIODS
-from tsdb_service.storage.rollups import rollup_parts
+from tsdb_service.storage.rollups import PERIOD_LEVELS, aggregate_part, split_window
 from tsdb_service.storage.sql.dialect import INTEGER_KIND, MAX_BIGINT, NULL_KIND, NUMERIC_KINDS, rows_as
 from tsdb_service.storage.sql.reads import SqlReads
 
@@ -38,15 +38,16 @@ class SqlAggregates(SqlReads):
     def aggregate(self, ask: AggregateRead) -> list[AggregateRow]:
         """See ``SampleReader``. Plain attributes from the hourly partials in memory
         where the backend keeps them and they give SQL's answer
-        (``storage.partials``: hour-aligned periods, no geo mask, no rolled-up
-        hours); everything else in one statement (``_aggregate_sql``)."""
+        (``storage.partials``: hour-aligned periods, no geo mask, no raw
+        sample deleted by retention); everything else in one statement
+        (``_aggregate_sql``)."""
         branches, time, agg, mask = ask.branches, ask.time, ask.agg, ask.mask
         partials = self._partials() if mask is None else None
         if (
             partials is None
             or (agg.period is not None and agg.period not in PARTIAL_PERIODS)
             or not any(b.sids and not b.steps for b in branches)
-            or self.rollups_present()
+            or self.raw_expired()
         ):
             return self._aggregate_sql(branches, time, agg, mask)
         rows: list[AggregateRow] = []
@@ -164,28 +165,33 @@ class SqlAggregates(SqlReads):
     def _aggregate_sql(
         self, branches: Sequence[AggBranch], time: TimeRange, agg: Aggregation, mask: RowMask | None = None
     ) -> list[AggregateRow]:
-        """One statement: a grouped SELECT per branch (and the rolled-up hours),
-        UNION ALL. Per sample it only tests ``kind`` and reads ``num`` (the
+        """One statement: grouped SELECTs per branch, UNION ALL. A plain
+        attribute's whole hours and minutes come from the rollups
+        (``storage.rollups``: whole buckets of the period's levels, one
+        snapshot with the raw edges); value paths and geo masks read raw
+        samples only. Per sample it only tests ``kind`` and reads ``num`` (the
         columns PostgreSQL's covering index holds): "all integers" is counted
         (integers = numbers), not ``bool_and``-ed, and the bucket is a cheap
         key formatted once per group."""
         parts: list[str] = []
         params: list = []
+        levels = PERIOD_LEVELS.get(agg.period, ()) if mask is None else ()
         for number, branch in enumerate(branches):
-            if branch.sids:
-                sql, more = self._aggregate_branch(number, branch, time, agg, mask)
+            if not branch.sids:
+                continue
+            pieces = split_window(time, levels if not branch.steps else ())
+            for piece in pieces:
+                if piece.level is None:
+                    sql, more = self._aggregate_branch(number, branch, TimeRange(piece.start, piece.end), agg, mask)
+                else:
+                    sql, more = aggregate_part(self.dialect, number, branch.sids, piece, agg.method, agg.period)
                 parts.append(sql)
                 params += more
-        # Retention/rollups (storage/rollups.py): hours whose raw samples
-        # retention folded away, in this same statement (one snapshot).
-        # Never under a geo mask: rolled-up hours carry no locations to check.
-        rollup_sql, rollup_params = rollup_parts(self, branches, time, agg) if mask is None else ("", [])
-        if rollup_sql:
-            parts.append(rollup_sql)
-            params += rollup_params
         if not parts:
             return []
         sql = " UNION ALL ".join(parts)
+        if len(parts) > sum(1 for b in branches if b.sids):  # pieces of one bucket: one row again
+            sql = _combined(sql, agg.method)
         if budget.current() is not None:  # one row past the request's budget detects an overflow
             sql = f"SELECT * FROM ({sql}) AS parts LIMIT {self.dialect.placeholder}"
             params.append(budget.row_cap(MAX_BIGINT))
@@ -236,6 +242,20 @@ class SqlAggregates(SqlReads):
             f"CASE WHEN n_numeric > 0 THEN n_integer = n_numeric END AS all_integer FROM ({inner}) AS g"
         )
         return sql, [*sel_params, *wparams]
+
+
+def _combined(union: str, method: AggrMethod) -> str:
+    """The rows of ``union`` (the aggregate layout) combined per series and
+    bucket, as the history layer would: counts and sums add, minimum and
+    maximum of the pieces, "all integers" of all of them."""
+    value = {AggrMethod.MIN: "min(value)", AggrMethod.MAX: "max(value)", AggrMethod.COUNT: "NULL"}.get(
+        method, "sum(value)"
+    )
+    return (
+        "SELECT branch, sid, bucket, CAST(sum(n_present) AS BIGINT) AS n_present, "
+        f"CAST(sum(n_numeric) AS BIGINT) AS n_numeric, {value} AS value, bool_and(all_integer) AS all_integer "
+        f"FROM ({union}) AS pieces GROUP BY branch, sid, bucket"
+    )
 
 
 def _inside(hour: int, cell: list, start: int | None, end: int | None) -> bool:

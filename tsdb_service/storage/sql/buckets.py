@@ -15,10 +15,11 @@ each covering a time range, UNION ALLed and combined per (series, bucket):
   first of the earliest part and the last of the latest). Parts cover
   disjoint time ranges, so no two rows of a bucket share a first or last
   sample time;
-* ``bucket_sql(dialect, ask)``: the query of a ``BucketRead``; today one
-  raw part over the whole window. A backend with rollups (whole minutes,
-  whole hours) answers the middle of the window from them, rendered in the
-  same layout, and the edges with ``raw_part``, through ``combine``.
+* ``bucket_sql(dialect, ask)``: the query of a ``BucketRead``: where the
+  width is made of whole minutes or hours, the window's whole hours and
+  minutes come from the rollups (``storage.rollups.bucket_part``, the same
+  layout, exactly what their raw samples give) and only the edges from
+  ``raw_part``, through ``combine``.
 
 Invariants:
 
@@ -53,6 +54,7 @@ from tsdb_service.read.buckets import (
     TimedSample,
 )
 from tsdb_service.read.requests import SamplesIn
+from tsdb_service.storage.rollups import bucket_levels, bucket_part, expired_span_sql, split_window
 from tsdb_service.storage.sql.dialect import (
     INTEGER_KIND,
     MAX_BIGINT,
@@ -131,7 +133,7 @@ def combine(dialect: SqlDialect, parts: Sequence[tuple[str, list]]) -> tuple[str
     union = " UNION ALL ".join(f"SELECT {BUCKET_COLUMNS} FROM ({sql}) AS p{i}" for i, (sql, _) in enumerate(parts))
     keyed = f"SELECT {BUCKET_COLUMNS}, {d.value_key('min')} AS min_k, {d.value_key('max')} AS max_k FROM ({union}) AS u"
     sql = (
-        "SELECT sid, start, sum(n) AS n, sum(total) AS total, bool_and(all_integer) AS all_integer, "
+        "SELECT sid, start, CAST(sum(n) AS BIGINT) AS n, sum(total) AS total, bool_and(all_integer) AS all_integer, "
         f"min(min) AS min, {d.time_of_min('min', 'min_k', 'min_t')} AS min_t, "
         f"max(max) AS max, {d.time_of_max('max', 'max_k', 'max_t')} AS max_t, "
         f"{d.value_at_first('first', 'first_t', '0')} AS first, min(first_t) AS first_t, "
@@ -142,8 +144,18 @@ def combine(dialect: SqlDialect, parts: Sequence[tuple[str, list]]) -> tuple[str
 
 
 def bucket_sql(dialect: SqlDialect, ask: BucketRead) -> tuple[str, list]:
-    """The whole query of ``ask``, rows by series then bucket start."""
-    sql, params = combine(dialect, [raw_part(dialect, ask.sids, ask.time, ask.width, ask.steps, ask.extreme_times)])
+    """The whole query of ``ask``, rows by series then bucket start: the
+    window's whole hours and minutes from the rollups where the width is
+    made of them (``storage.rollups``: ``split_window``, ``bucket_part``),
+    the rest from raw samples; a value path from raw samples only."""
+    parts = []
+    for piece in split_window(ask.time, bucket_levels(ask.width) if not ask.steps else ()):
+        if piece.level is None:
+            time = TimeRange(piece.start, piece.end)
+            parts.append(raw_part(dialect, ask.sids, time, ask.width, ask.steps, ask.extreme_times))
+        else:
+            parts.append(bucket_part(dialect, piece.level, ask.sids, piece, ask.width, ask.extreme_times))
+    sql, params = combine(dialect, parts)
     return f"SELECT {BUCKET_COLUMNS} FROM ({sql}) AS b ORDER BY sid, start", params
 
 
@@ -229,21 +241,43 @@ class SqlBuckets(SqlReads, BucketReader):
         return ChangesPage(kept, truncated)
 
     def _any(self, ask: ChangesRead) -> bool:
-        return self.span(SamplesIn(ask.sids, ask.time)) is not None
+        """Raw samples in the window (transitions are read from them only)."""
+        return self._raw_span(SamplesIn(ask.sids, ask.time)) is not None
 
     def span(self, ask: SamplesIn) -> tuple[int, int] | None:
+        """See ``BucketReader``: the raw samples' span, widened by the
+        history rollups keep of samples retention deleted."""
         if not ask.sids:
             return None
-        rows = self._fetch(*span_sql(self.dialect, ask))
-        if not rows or rows[0][0] is None:
+        found = [s for s in (self._raw_span(ask), self._rolled_up_span(ask)) if s is not None]
+        if not found:
             return None
-        return int(rows[0][0]), int(rows[0][1])
+        return min(lo for lo, _ in found), max(hi for _, hi in found)
+
+    def _raw_span(self, ask: SamplesIn) -> tuple[int, int] | None:
+        """The first and last raw sample times (``span_sql``)."""
+        rows = self._fetch(*span_sql(self.dialect, ask))
+        return (int(rows[0][0]), int(rows[0][1])) if rows and rows[0][0] is not None else None
+
+    def _rolled_up_span(self, ask: SamplesIn) -> tuple[int, int] | None:
+        """The span of what only rollups keep (``storage.rollups.expired_span_sql``);
+        nothing to read until retention has deleted raw samples."""
+        if not self.raw_expired():
+            return None
+        rows = self._fetch(*expired_span_sql(self.dialect, ask.sids, ask.time))
+        return (int(rows[0][0]), int(rows[0][1])) if rows and rows[0][0] is not None else None
 
     def count_up_to(self, ask: SamplesIn, most: int) -> int:
+        """See ``BucketReader``. A window holding history only rollups keep
+        (retention deleted its raw samples) counts as ``most``: raw samples
+        cannot draw it whole, its buckets can."""
         if not ask.sids or most <= 0:
             return 0
         rows = self._fetch(*count_up_to_sql(self.dialect, ask, most))
-        return int(rows[0][0]) if rows else 0
+        counted = int(rows[0][0]) if rows else 0
+        if counted < most and self._rolled_up_span(ask) is not None:
+            return most
+        return counted
 
     def samples(self, ask: SamplesIn, most: int) -> list[TimedSample]:
         if not ask.sids or most <= 0:

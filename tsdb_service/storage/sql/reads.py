@@ -20,7 +20,7 @@ class SqlReads:
 
     dialect: SqlDialect
     catalog: SeriesCatalog
-    _store: Any  # the backend's store: its rollup presence tracker (``storage.rollups``)
+    _store: Any  # the backend's store: its expiry presence tracker (``storage.rollups``)
 
     @abstractmethod
     def _fetch(self, sql: str, params: list) -> list[tuple]:
@@ -44,8 +44,8 @@ class SqlReads:
             columns += ", rid"
         return self.dialect.samples(columns)
 
-    def rollups_present(self) -> bool:
-        """Rolled-up hours may exist (``storage.rollups``): partials hold raw
-        samples only, so aggregations then go to SQL, and a delete must look
-        at the rollup rows too."""
+    def raw_expired(self) -> bool:
+        """Retention may have deleted raw samples (``storage.rollups``): the
+        hourly partials know raw samples only, so aggregations then go to
+        SQL, which reads the rollups."""
         return presence_of(self._store)(self._fetch)

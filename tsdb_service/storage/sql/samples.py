@@ -103,4 +103,4 @@ class SqlSamples(SqlReads, SampleReader):
         raw = int(rows[0][0]) if rows else 0
         if raw or mask is not None:
             return raw
-        return rolled_up_count(self, sids, time)  # retention/rollups
+        return rolled_up_count(self, sids, time)  # what only rollups hold (retention)

@@ -7,7 +7,7 @@ from datetime import datetime
 
 from tsdb_service.core.query import TimeRange
 from tsdb_service.storage.columns import VALUE_COLUMNS, content_values
-from tsdb_service.storage.rollups import delete_sql as rollup_delete_sql
+from tsdb_service.storage.rollups import Redo, recompute_statements
 from tsdb_service.storage.sql.dialect import SqlDialect, quote_ident, series_time_filter
 from tsdb_service.write.ops import DeleteInstance, ReplaceInstance
 
@@ -16,17 +16,18 @@ def delete_statements(
     dialect: SqlDialect, tables: Sequence[str], sids: Sequence[int], time: TimeRange, upto_rid: int
 ) -> list[tuple[str, list]]:
     """DELETEs for the samples of ``sids`` in ``time``, written up to ``upto_rid``
-    (rows appended after the delete was asked for survive it), and for their
-    rolled-up hours that overlap ``time`` (``storage.rollups``)."""
+    (rows appended after the delete was asked for survive it), between the
+    statements that recompute the rollups of the buckets they touch
+    (``storage.rollups``)."""
     p = dialect.placeholder
-    out = []
+    before, after = recompute_statements(dialect, Redo(sids, time, whole=True))
+    out = list(before)
     for table in tables:
         where, params = series_time_filter(dialect, sids, time)
         where += f" AND rid <= {p}"
         params.append(upto_rid)
         out.append((f"DELETE FROM {quote_ident(table)} WHERE {where}", params))
-    out.append(rollup_delete_sql(dialect, sids, time.start, time.end))  # retention/rollups
-    return out
+    return out + after
 
 
 def instance_statements(
@@ -34,11 +35,13 @@ def instance_statements(
 ) -> list[tuple[str, list]]:
     """The statements of a ``DeleteInstance`` or ``ReplaceInstance`` op
     (``write.ops``): one per sample table, each touching the one sample
-    (``sid``, ``iid``). A replacement keeps the instance id, series and row
-    time, and the stored observedAt when the new content has none."""
+    (``sid``, ``iid``), between the statements that recompute the rollups of
+    its buckets. A replacement keeps the instance id, series and row time,
+    and the stored observedAt when the new content has none."""
     p = dialect.placeholder
     where = f"sid = {p} AND iid = {p}"
-    out = []
+    before, after = recompute_statements(dialect, Redo((op.sid,), instance=(op.sid, op.iid)))
+    out = list(before)
     for table in tables:
         if isinstance(op, DeleteInstance):
             out.append((f"DELETE FROM {quote_ident(table)} WHERE {where}", [op.sid, op.iid]))
@@ -53,7 +56,7 @@ def instance_statements(
         sets = ", ".join(f"{c} = {p}" for c in (*VALUE_COLUMNS, "deleted_at", "modified_at"))
         sets += f", observed_at = coalesce(CAST({p} AS TIMESTAMP), observed_at)"
         out.append((f"UPDATE {quote_ident(table)} SET {sets} WHERE {where}", [*values, op.sid, op.iid]))
-    return out
+    return out + after
 
 
 def _time_or_none(dialect: SqlDialect, moment: datetime | None) -> object:
