@@ -217,22 +217,27 @@ def _recorded_entities() -> list[EntitySample]:
 
 @pytest.mark.parametrize("arrow_min_rows", [0, 10**9], ids=["arrow", "appender"])
 def test_both_ways_into_the_table_store_the_same_rows(tmp_path: Path, monkeypatch, arrow_min_rows: int):
-    """A batch goes in as one Arrow batch from ``ARROW_MIN_ROWS`` rows and
-    through DuckDB's appender below: whichever way, the rows read back
+    """A batch goes in as one Arrow batch (its rollups by one statement)
+    from ``ARROW_MIN_ROWS`` rows and through DuckDB's appenders below:
+    whichever way, the rows and their minute and hour partials read back
     alike (compared with the other way's, written to a second file)."""
     entities = _recorded_entities()
 
-    def stored(name: str, min_rows: int) -> list[tuple]:
+    def stored(name: str, min_rows: int) -> tuple[list[tuple], list[tuple]]:
         monkeypatch.setattr("tsdb_service.storage.duckdb.appender.ARROW_MIN_ROWS", min_rows)
         db = open_store(Settings(db=str(tmp_path / name), ingest_log=False))
         assert isinstance(db, DuckDBStore)
         try:
             db.write_sync([AppendSamples(copy.deepcopy(entities))])
-            return db.cursor().execute("SELECT * EXCLUDE (rid) FROM samples_all ORDER BY ALL").fetchall()
+            cur = db.cursor()
+            samples = cur.execute("SELECT * FROM samples_all ORDER BY ALL").fetchall()
+            rollups = cur.execute("SELECT * FROM rollups_hot ORDER BY ALL").fetchall()
+            return samples, rollups
         finally:
             db.close()
 
-    this_way = stored("this.duckdb", arrow_min_rows)
-    other_way = stored("other.duckdb", 10**9 - arrow_min_rows)
-    assert len(this_way) == sum(len(e.attrs) for e in entities)
-    assert this_way == other_way
+    samples, rollups = stored("this.duckdb", arrow_min_rows)
+    other_samples, other_rollups = stored("other.duckdb", 10**9 - arrow_min_rows)
+    assert len(samples) == sum(len(e.attrs) for e in entities) and rollups
+    assert samples == other_samples
+    assert rollups == other_rollups
