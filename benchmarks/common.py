@@ -43,6 +43,18 @@ except ImportError:  # pragma: no cover - only for the CPU / memory figures
 # --- ports, processes, environment ----------------------------------------------------------
 
 
+def fresh_database(backend: str, name: str, workdir: Path):
+    """``(db, cluster)``: a new DuckDB file ``workdir/NAME.duckdb`` (cluster
+    None), or a fresh database ``name`` of a private PostgreSQL cluster
+    started here (``pgutil.BenchCluster``; the caller stops it)."""
+    if backend != "postgresql":
+        return str(workdir / f"{name}.duckdb"), None
+    from pgutil import BenchCluster
+
+    cluster = BenchCluster(name).start()
+    return cluster.url, cluster
+
+
 def free_port() -> int:
     """A port free on 127.0.0.1 now (the server binds it a moment later)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:

@@ -36,11 +36,19 @@ on PostgreSQL).
 Load comes from wrk (``wrkrun.py``: Lua-generated unique POST bodies),
 installed with apt-get when missing and root; ``--loadgen`` (or no wrk)
 uses ``loadgen.py`` instead. Every figure is printed as median [min-max]
-over the reps. QuantumLeap's figures are issue 15's table (QuantumLeap 1.0.1,
-2 gunicorn workers, PostgreSQL 15 + PostGIS, same 2-core machine) unless a
-target named ``ql`` or ``quantumleap`` is given with ``--url``: then they are
-measured in this run. The load average before and after each target is in
-the output: the machine is shared, and only ratios measured in one run count.
+over the reps. Every "x QuantumLeap" figure (in the table and in the
+targets) divides by QuantumLeap measured in the same run: a target named
+``ql`` or ``quantumleap`` given with ``--url``. Without one, no ratio to
+QuantumLeap is printed and its targets are left out: this file keeps no
+stored QuantumLeap figure, and the README and docs quote only ratios it
+printed. QuantumLeap 1.0.1 is set up from its own source and lock file
+(PostgreSQL + PostGIS, 2 gunicorn workers, no Docker) by the scripts in
+``../shared/ql-sidebyside/``; once it serves on 127.0.0.1:8669::
+
+    .venv/bin/python benchmarks/compare.py --url ql=http://127.0.0.1:8669
+
+The load average before and after each target is in the output: the
+machine must be idle, and only ratios measured in one run count.
 
 ``--json FILE`` writes every raw figure. Exit status: 0 when everything ran
 (targets may FAIL: they are in the table), 1 when a step failed, and with
@@ -73,16 +81,6 @@ import lawnmower
 import wrkrun
 from common import HERE, Server, bare_cmd, free_port, ours_cmd, raw_cmd, spawned
 from loads import POOL, Runner, get_load, ingest_load, summary
-
-# Issue 15's table: QuantumLeap 1.0.1, 2 gunicorn workers, PostgreSQL 15 + PostGIS, this 2-core machine.
-QL_REFERENCE = {
-    "ingest16": {"rps": 300.0, "p99_ms": 135.0},
-    "ingest64": {"rps": 300.0, "p99_ms": 690.0},
-    "lastN8": {"rps": 190.0},
-    "lastN1": {"rps": 118.0, "p50_ms": 8.7},
-    "hourly8": {"rps": 14.0, "p50_ms": 600.0},
-    "hourly1": {"rps": 10.4, "p50_ms": 99.0},
-}
 
 INGEST = [("ingest16", 16), ("ingest64", 64)]
 QUERIES = [
@@ -352,8 +350,9 @@ def cell(runs: list[dict] | None, key: str, digits: int = 0) -> str:
 
 
 def ql_figures(results: list[Result]) -> tuple[dict, str]:
-    """QuantumLeap's figures: measured in this run when a target is named ql /
-    quantumleap, else issue 15's table."""
+    """QuantumLeap's figures, measured in this run (a target named ql or
+    quantumleap); none without one: no ratio is computed against a stored
+    figure."""
     for r in results:
         if r.kind == "external" and r.name.lower() in ("ql", "quantumleap"):
             return (
@@ -363,7 +362,7 @@ def ql_figures(results: list[Result]) -> tuple[dict, str]:
                 },
                 f"measured in this run ({r.name})",
             )
-    return QL_REFERENCE, "issue 15's table (not measured in this run)"
+    return {}, "not measured in this run (no --url ql=...): no ratio to QuantumLeap"
 
 
 def print_comparison(results: list[Result]) -> None:

@@ -78,13 +78,7 @@ def main(argv=None) -> int:
     workdir = Path(tempfile.mkdtemp(prefix="tsdb-profile-"))
     cluster = None
     try:
-        if args.backend == "postgresql":
-            from pgutil import BenchCluster
-
-            cluster = BenchCluster("profile").start()
-            db = cluster.url
-        else:
-            db = str(workdir / "profile.duckdb")
+        db, cluster = common.fresh_database(args.backend, "profile", workdir)
         port = common.free_port()
         server = common.spawned("ours", common.ours_cmd(db, port, args.workers), port, workdir)
         server.start()

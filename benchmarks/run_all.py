@@ -16,11 +16,14 @@ machine has two cores), each as a subprocess writing ``--json``:
   Not in ``--quick`` (its load alone takes ~1.5 min) unless ``--only geo``.
 
 Then it prints one table -- benchmark | metric | DuckDB | PostgreSQL | target
-| pass/fail | QuantumLeap | vs QL -- with the QuantumLeap figures measured on
-this same machine (issues 2 and 3), and writes everything (each benchmark's
+| pass/fail -- and writes everything (each benchmark's
 JSON, the table, the load averages before and after each step) to
 ``benchmarks/results/latest.json``. Each step's output goes to
 ``benchmarks/results/logs/``.
+
+It keeps no QuantumLeap figure: ratios to QuantumLeap come only from
+``compare.py --url ql=URL``, which measures a running QuantumLeap in the same
+run.
 
 Exit status: 0 when every step ran and produced its JSON (targets may still
 FAIL: they are in the table); 1 when a step crashed; with ``--strict``, also
@@ -49,13 +52,6 @@ RESULTS = HERE / "results"
 LOGS = RESULTS / "logs"
 BACKENDS = ("duckdb", "postgresql")
 LABEL = {"duckdb": "DuckDB", "postgresql": "PostgreSQL"}
-
-# QuantumLeap 1.0.1 on this same 2-core machine (issues 2 and 3).
-QL_INGEST_NOTIF_S = 515.0  # with its 2 workers
-QL_LASTN_RPS = 311.0
-QL_LASTN_P50_MS = 24.0
-QL_MINUTE_AGGR_RPS = 73.0
-BARE_FASTAPI_REF = 7000.0  # issue 2: "a bare FastAPI JSON endpoint about 7,000/s"
 
 
 def geo_capabilities(python: str) -> dict:
@@ -173,13 +169,10 @@ class Row:
         metric: str,
         target: str = "",
         check=None,
-        ql: float | None = None,
-        ql_text: str = "",
-        vs_ql=None,
         digits: int = 0,
     ):
         self.bench, self.metric, self.target, self.check = bench, metric, target, check
-        self.ql, self.ql_text, self.vs_ql, self.digits = ql, ql_text, vs_ql, digits
+        self.digits = digits
         self.values: dict[str, object] = {}
         self.texts: dict[str, str] = {}
 
@@ -192,18 +185,6 @@ class Row:
             return None
         return bool(self.check(self.values[backend]))
 
-    def ratio_text(self, backends) -> str:
-        if self.vs_ql is None or self.ql is None:
-            return ""
-        parts = []
-        for b in backends:
-            v = self.values.get(b)
-            if isinstance(v, (int, float)) and v and not math.isnan(v):
-                parts.append(f"{self.vs_ql(v, self.ql):.1f}x")
-            else:
-                parts.append("-")
-        return " / ".join(parts)
-
 
 def dig(d: dict | None, *path, default=None):
     for p in path:
@@ -215,8 +196,6 @@ def dig(d: dict | None, *path, default=None):
 
 def build_rows(steps: dict[tuple[str, str], Step], backends: list[str]) -> tuple[list[Row], list[str]]:
     notes: list[str] = []
-    faster = lambda ours, ql: ours / ql  # noqa: E731 - higher is better
-    quicker = lambda ours, ql: ql / ours  # noqa: E731 - lower is better
     rows: list[Row] = []
 
     def add(row: Row, getter) -> None:
@@ -245,18 +224,15 @@ def build_rows(steps: dict[tuple[str, str], Step], backends: list[str]) -> tuple
             "notif/s, 1 server process",
             ">= 5,000",
             lambda v: v >= 5000,
-            QL_INGEST_NOTIF_S,
-            "515 (2 workers)",
-            faster,
         ),
         lambda b: dig(ing(b), "targets", "ours", "load", "rps"),
     )
     add(
-        Row("ingest", "notif/s, 2 workers", "", None, QL_INGEST_NOTIF_S, "515 (2 workers)", faster),
+        Row("ingest", "notif/s, 2 workers"),
         lambda b: dig(ing2(b), "targets", "ours", "load", "rps") if b == "postgresql" else None,
     )
     add(
-        Row("ingest", "bare FastAPI ceiling, notif/s", "", None, None, "~7,000"),
+        Row("ingest", "bare FastAPI ceiling, notif/s"),
         lambda b: dig(ing(b), "targets", "bare", "load", "rps"),
     )
     add(Row("ingest", "ratio ours / bare", ">= 0.60", lambda v: v >= 0.6, digits=2), lambda b: dig(ing(b), "ratio"))
@@ -330,11 +306,11 @@ def build_rows(steps: dict[tuple[str, str], Step], backends: list[str]) -> tuple
 
     add(Row("queries", "bulk load samples/s (load + compact/vacuum)"), load_rate)
     add(
-        Row("queries", "lastN=100 req/s (8 conns)", ">= 2,000", lambda v: v >= 2000, QL_LASTN_RPS, "311", faster),
+        Row("queries", "lastN=100 req/s (8 conns)", ">= 2,000", lambda v: v >= 2000),
         lambda b: dig(qry(b), "results", "lastN", "rps"),
     )
     add(
-        Row("queries", "lastN=100 p50 ms", "<= 5", lambda v: v <= 5, QL_LASTN_P50_MS, "24", quicker, digits=2),
+        Row("queries", "lastN=100 p50 ms", "<= 5", lambda v: v <= 5, digits=2),
         lambda b: dig(qry(b), "results", "lastN", "p50_ms"),
     )
     add(Row("queries", "lastN=100 p99 ms", "", digits=2), lambda b: dig(qry(b), "results", "lastN", "p99_ms"))
@@ -343,7 +319,7 @@ def build_rows(steps: dict[tuple[str, str], Step], backends: list[str]) -> tuple
         lambda b: dig(qry(b), "results", "lastN_1conn", "p50_ms"),
     )
     add(
-        Row("queries", "hourly avg over 1 day req/s", "", None, QL_MINUTE_AGGR_RPS, "73 (minute aggr)*", faster),
+        Row("queries", "hourly avg over 1 day req/s"),
         lambda b: dig(qry(b), "results", "hourly_avg", "rps"),
     )
     add(
@@ -400,16 +376,7 @@ def build_rows(steps: dict[tuple[str, str], Step], backends: list[str]) -> tuple
             f"{dig(g, 'check', 'matched_mean')} entities within 1,000 m on average."
         )
 
-    if any(("queries", b) in steps for b in backends):
-        notes.append(
-            "* QuantumLeap's 73 req/s is for aggrPeriod=minute; ours is aggrPeriod=hour over one day: "
-            "same kind of query, not the same one."
-        )
-    notes.append(
-        "vs QL: ours / QuantumLeap for rates, QuantumLeap / ours for latencies (higher = better for us); "
-        + " / ".join(LABEL[b] for b in backends)
-        + "."
-    )
+    notes.append("Against QuantumLeap: compare.py --url ql=URL measures a running one in the same run.")
     return rows, notes
 
 
@@ -420,8 +387,6 @@ def print_table(rows: list[Row], backends: list[str]) -> list[dict]:
         *[LABEL[b] for b in backends],
         "target",
         "pass/fail (" + "/".join("D" if b == "duckdb" else "P" for b in backends) + ")",
-        "QuantumLeap",
-        "vs QL",
     ]
     table = []
     for r in rows:
@@ -438,8 +403,6 @@ def print_table(rows: list[Row], backends: list[str]) -> list[dict]:
                 *[r.texts.get(b, "n/a") for b in backends],
                 r.target,
                 pf,
-                r.ql_text,
-                r.ratio_text(backends),
             ]
         )
     widths = [max(len(str(x)) for x in col) for col in zip(header, *table, strict=False)]
@@ -466,9 +429,7 @@ def print_table(rows: list[Row], backends: list[str]) -> list[dict]:
                 "benchmark": r.bench,
                 "metric": r.metric,
                 "target": r.target,
-                "quantumleap": r.ql_text,
                 **{b: {"value": r.values.get(b), "text": r.texts.get(b), "pass": r.verdict(b)} for b in backends},
-                "vs_quantumleap": r.ratio_text(backends),
             }
         )
     return out
@@ -690,13 +651,6 @@ def main(argv: list[str] | None = None) -> int:
             **common.machine(),
             "loadavg_start": load_start,
             "loadavg_end": load_end,
-        },
-        "quantumleap_reference": {
-            "ingest_notif_s_2_workers": QL_INGEST_NOTIF_S,
-            "lastN_100_rps": QL_LASTN_RPS,
-            "lastN_100_p50_ms": QL_LASTN_P50_MS,
-            "minute_aggr_rps": QL_MINUTE_AGGR_RPS,
-            "bare_fastapi_notif_s": BARE_FASTAPI_REF,
         },
         "geo": geo_caps,
         "table": table,

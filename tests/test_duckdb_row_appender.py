@@ -12,10 +12,14 @@ they also pin that every time column and value reads back exactly.
 from __future__ import annotations
 
 import contextlib
+import copy
+import dataclasses
+import json
 import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+import orjson
 import pytest
 
 from tsdb_service.core.config import Settings
@@ -180,3 +184,60 @@ def test_a_poisoned_entity_through_the_log_is_kept(tmp_path: Path, monkeypatch):
         assert kept["error"] == "NotApplied" and "urn:" in kept["body"]
     finally:
         logged.close()
+
+
+PAYLOADS = Path(__file__).parent / "payloads"
+
+
+def _recorded_entities() -> list[EntitySample]:
+    """Every recorded notification that parses (NGSIv2, NGSI-LD in each
+    format, GeoJSON, NGSIv1), many times over with shifted times: numbers,
+    texts, dates, structured values, geometries, relationships, metadata,
+    observedAt and dataset ids."""
+    from tsdb_service.core.errors import ParseError
+    from tsdb_service.parse import parse_notification
+
+    parsed = []
+    for path in sorted(PAYLOADS.glob("*/*.json")):
+        record = json.loads(path.read_text())
+        body = orjson.dumps(record["body"]) if "body" in record else record["bodyText"].encode()
+        with contextlib.suppress(ParseError):
+            parsed += parse_notification(body, record["headers"], received_at=START)
+    assert len(parsed) >= 8
+    out = []
+    for n in range(40):
+        for e in parsed:
+            shift = timedelta(seconds=n)
+            attrs = [
+                dataclasses.replace(a, observed_at=a.observed_at + shift if a.observed_at else None) for a in e.attrs
+            ]
+            out.append(dataclasses.replace(e, time_index=(e.time_index or START) + shift, attrs=attrs))
+    return out
+
+
+@pytest.mark.parametrize("arrow_min_rows", [0, 10**9], ids=["arrow", "appender"])
+def test_both_ways_into_the_table_store_the_same_rows(tmp_path: Path, monkeypatch, arrow_min_rows: int):
+    """A batch goes in as one Arrow batch (its rollups by one statement)
+    from ``ARROW_MIN_ROWS`` rows and through DuckDB's appenders below:
+    whichever way, the rows and their minute and hour partials read back
+    alike (compared with the other way's, written to a second file)."""
+    entities = _recorded_entities()
+
+    def stored(name: str, min_rows: int) -> tuple[list[tuple], list[tuple]]:
+        monkeypatch.setattr("tsdb_service.storage.duckdb.appender.ARROW_MIN_ROWS", min_rows)
+        db = open_store(Settings(db=str(tmp_path / name), ingest_log=False))
+        assert isinstance(db, DuckDBStore)
+        try:
+            db.write_sync([AppendSamples(copy.deepcopy(entities))])
+            cur = db.cursor()
+            samples = cur.execute("SELECT * FROM samples_all ORDER BY ALL").fetchall()
+            rollups = cur.execute("SELECT * FROM rollups_hot ORDER BY ALL").fetchall()
+            return samples, rollups
+        finally:
+            db.close()
+
+    samples, rollups = stored("this.duckdb", arrow_min_rows)
+    other_samples, other_rollups = stored("other.duckdb", 10**9 - arrow_min_rows)
+    assert len(samples) == sum(len(e.attrs) for e in entities) and rollups
+    assert samples == other_samples
+    assert rollups == other_rollups
