@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 
 from tests.support.cli import run_cli
-from tsdb_service.cli.main import _settings, build_parser, setting_default
+from tsdb_service.cli.main import _settings, build_parser
+from tsdb_service.cli.settingflags import setting_default
 from tsdb_service.core.config import SETTING_GROUPS, Settings, load_settings, setting_groups
 
 SETTINGS_PAGE = Path(__file__).resolve().parent.parent / "docs" / "settings.md"

@@ -17,7 +17,7 @@ import sys
 from datetime import UTC, datetime
 
 from tsdb_service.cli.argtypes import integer, positive_int, utc_time
-from tsdb_service.cli.main import setting_help
+from tsdb_service.cli.settingflags import setting_help
 from tsdb_service.core.config import Settings, SettingsError, check_db, load_settings
 
 

@@ -28,38 +28,9 @@ import pyarrow.compute as pc
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
+from tsdb_service.faces.export.pieces import Pieces
 from tsdb_service.faces.export.query import ExportFormat
 from tsdb_service.faces.export.stream import SCHEMA, SampleStream
-
-
-class _Pieces:
-    """A write-only file object that keeps what was written until taken."""
-
-    closed = False
-
-    def __init__(self) -> None:
-        self._parts: list[bytes] = []
-        self._size = 0
-
-    def write(self, data) -> int:
-        piece = bytes(data)
-        self._parts.append(piece)
-        self._size += len(piece)
-        return len(piece)
-
-    def tell(self) -> int:
-        return self._size
-
-    def flush(self) -> None:
-        pass
-
-    def close(self) -> None:  # the writer's close must not end our taking
-        pass
-
-    def take(self) -> bytes:
-        out = b"".join(self._parts)
-        self._parts = []
-        return out
 
 
 def csv_schema(schema: pa.Schema) -> pa.Schema:
@@ -89,7 +60,7 @@ class Encoder:
     """``encode(batch)`` → the bytes it adds; ``finish()`` → the rest."""
 
     def __init__(self, fmt: ExportFormat, raw: bool = False, schema: pa.Schema = SCHEMA, tenant: str = "") -> None:
-        self._sink = _Pieces()
+        self._sink = Pieces()
         self._csv = fmt is ExportFormat.CSV
         self._neutralise = self._csv and not raw
         self._schema = csv_schema(schema) if self._csv else schema

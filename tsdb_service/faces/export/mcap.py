@@ -40,7 +40,7 @@ import orjson
 import pyarrow as pa
 
 from tsdb_service import __version__
-from tsdb_service.faces.export.encode import _Pieces
+from tsdb_service.faces.export.pieces import Pieces
 from tsdb_service.geo.encodings import from_ngsi
 
 MEDIA_TYPE = "application/x-mcap"
@@ -95,7 +95,7 @@ class McapEncoder:
         from mcap.writer import CompressionType, Writer
 
         self._tenant = tenant
-        self._sink = _Pieces()
+        self._sink = Pieces()
         self._writer = Writer(cast(IO[Any], self._sink), compression=CompressionType.ZSTD)  # it writes and tells
         self._writer.start(profile="", library=f"tsdb-service {__version__}")
         self._channels: dict[tuple, tuple[int, list[int]]] = {}  # key → (channel id, [next sequence])
