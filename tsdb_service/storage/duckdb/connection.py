@@ -176,9 +176,16 @@ def tables_max(cur: duckdb.DuckDBPyConnection, column: str) -> int:
 
 
 def scalar(cur: duckdb.DuckDBPyConnection, sql: str) -> Any:
-    """The one value of an aggregate query."""
-    row = cur.execute(sql).fetchone()
-    return None if row is None else row[0]
+    """The one value of an aggregate query.
+
+    Read with ``fetchall``: after ``fetchone`` the result is still open and
+    keeps the cursor in a transaction, and while any transaction is open
+    DuckDB skips the automatic checkpoint of every commit. The compactor's
+    cursor polls with this between its sleeps, so the write-ahead log (and
+    the memory holding what it has not checkpointed) grew without bound
+    under a steady load of big batches (``tests/test_wal_growth.py``)."""
+    rows = cur.execute(sql).fetchall()
+    return rows[0][0] if rows else None
 
 
 def rollback_quietly(cur: duckdb.DuckDBPyConnection) -> None:

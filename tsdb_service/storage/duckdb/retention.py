@@ -30,9 +30,11 @@ from tsdb_service.storage.sql.dialect import quote_ident
 
 def _one(cur: duckdb.DuckDBPyConnection, sql: str, params: object = None) -> tuple:
     """The one row ``sql`` returns (an aggregate, a DELETE's count)."""
-    row = cur.execute(sql, params).fetchone()
-    assert row is not None, sql
-    return row
+    rows = cur.execute(
+        sql, params
+    ).fetchall()  # not fetchone: an open result holds back checkpoints (connection.scalar)
+    assert len(rows) == 1, sql
+    return rows[0]
 
 
 class RetainedStore(Protocol):
