@@ -177,6 +177,15 @@ def test_the_format_flag_wins_over_the_suffix(stored, tmp_path):
     assert out.read_bytes().startswith(b'"time","entity_id"')
 
 
+def test_a_suffix_naming_another_format_than_the_flag_is_refused(stored, tmp_path, capsys):
+    url, _, _ = stored
+    out = tmp_path / "history.csv"
+    assert main(["export", "--db", url, "--out", str(out), "--service", TENANT, "--format", "mcap"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"error: --out {out} names csv but --format says mcap: make them agree\n", err
+    assert not out.exists()
+
+
 def test_an_empty_export_names_the_tenants_with_data(stored, tmp_path, capsys):
     """The demo's data is under lawnmower, warehouse, drone: without --service
     (or with a mistyped one) an export found nothing and said only "0 samples"."""

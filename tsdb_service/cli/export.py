@@ -102,7 +102,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         return 2
     try:
         check_out(args.out)
-        out_format = args.format or format_of(args.out)
+        out_format = chosen_format(args.out, args.format)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -180,6 +180,19 @@ def check_out(out: str) -> None:
         raise ValueError(f"--out {out}: the directory {folder} does not exist")
     if not os.access(folder, os.W_OK | os.X_OK):
         raise ValueError(f"--out {out}: the directory {folder} is not writable")
+
+
+def chosen_format(out: str, flag: str | None) -> str:
+    """``--format`` where given, else the one ``--out``'s suffix names; a
+    ``ValueError`` when the suffix names another format than the flag (a
+    ``.csv`` file must not hold MCAP). A suffix that names none (``.json``,
+    ``.dat``) is the user's choice of name."""
+    if flag is None:
+        return format_of(out)
+    named = SUFFIXES.get(Path(out).suffix.lower())
+    if named is not None and named.value != flag:
+        raise ValueError(f"--out {out} names {named.value} but --format says {flag}: make them agree")
+    return flag
 
 
 def format_of(out: str) -> str:
