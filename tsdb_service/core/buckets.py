@@ -65,6 +65,12 @@ def choose_width(span: timedelta, points: int, floor: timedelta | None = None) -
     return WIDEST
 
 
+def epoch_micros(moment: datetime) -> int:
+    """Exact microseconds since the epoch of an aware UTC ``moment`` (a float
+    timestamp loses precision)."""
+    return _micros(moment - EPOCH)
+
+
 def bucket_start(moment: datetime, width: timedelta) -> datetime:
     """The start of the bucket of ``width`` holding ``moment`` (UTC, from the epoch)."""
     micros = _micros(moment - EPOCH)

@@ -43,7 +43,7 @@ from datetime import UTC, datetime, timedelta
 from enum import Enum
 
 from tsdb_service.core import budget
-from tsdb_service.core.buckets import bucket_count, bucket_start, choose_width
+from tsdb_service.core.buckets import bucket_count, bucket_start, choose_width, epoch_micros
 from tsdb_service.core.model import Kind
 from tsdb_service.core.query import EntityFilter, Scope, SeriesRef, TimeRange, ValuePath
 from tsdb_service.core.timefmt import ms_of_iso
@@ -203,8 +203,8 @@ def draw(querier: HistoryReads, q: DrawQuery) -> Drawing:
 def resolve_window(querier: HistoryReads, sids: Sequence[int], time: TimeRange) -> tuple[int, int] | None:
     """The window in epoch µs: both ends given, or the open ones taken from
     the data (``span``). None: nothing to draw."""
-    start = None if time.start is None else _micros(time.start)
-    end = None if time.end is None else _micros(time.end)
+    start = None if time.start is None else epoch_micros(time.start)
+    end = None if time.end is None else epoch_micros(time.end)
     if start is None or end is None:
         found = querier.span(SamplesIn(sids, time))
         if found is None:
@@ -224,10 +224,6 @@ def window_range(window: tuple[int, int]) -> TimeRange:
 
 def _datetime(micros: int) -> datetime:
     return _EPOCH + timedelta(microseconds=micros)
-
-
-def _micros(moment: datetime) -> int:
-    return (moment - _EPOCH) // _US
 
 
 def _drawn_as(columns: Sequence[Column], ref: SeriesRef, steps: tuple[str | int, ...]) -> list[Column]:
@@ -307,7 +303,7 @@ class _Grid:
         self.start, self.end = window
         self.width = width // _US
         self.first = bucket_start(_datetime(self.start), width)
-        self.first_us = _micros(self.first)
+        self.first_us = epoch_micros(self.first)
         self.count = bucket_count(_datetime(self.start), _datetime(self.end), width)
 
     def index(self, start_us: int) -> int:

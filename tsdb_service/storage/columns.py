@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from datetime import UTC, datetime, timedelta
 
+from tsdb_service.core.buckets import epoch_micros
 from tsdb_service.core.model import AttrSample
 
 GEO_COLUMNS = ("geo", "lon", "lat", "min_lon", "min_lat", "max_lon", "max_lat")
@@ -37,9 +38,7 @@ def content_values(a: AttrSample) -> tuple:
     return (int(a.kind), a.ngsi_type, a.num, a.txt, a.js, *geo, a.md)
 
 
-def to_micros(moment: datetime) -> int:
-    """Exact microseconds since the epoch (float timestamps lose precision)."""
-    return (moment - EPOCH) // ONE_US
+to_micros = epoch_micros  # exact microseconds since the epoch (float timestamps lose precision)
 
 
 def naive_timestamps(micros: Iterable[int | None]) -> list[datetime | None]:

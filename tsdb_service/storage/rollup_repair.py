@@ -34,6 +34,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 
+from tsdb_service.core.buckets import bucket_start
 from tsdb_service.core.query import TimeRange
 from tsdb_service.storage.rollups import (
     COLS,
@@ -55,7 +56,6 @@ from tsdb_service.storage.sql.dialect import SqlDialect
 CHUNK = timedelta(days=1)
 SERIES_PER_CHUNK = 256
 _US = timedelta(microseconds=1)
-_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _SUM_TOLERANCE = 1e-9
 
 Fetch = Callable[[str, list], list[tuple]]
@@ -87,12 +87,6 @@ class CheckReport:
     differences: list[Difference] = field(default_factory=list)
 
 
-def _hour_floor(moment: datetime) -> datetime:
-    micros = (moment - _EPOCH) // _US
-    size = HOUR.width // _US
-    return _EPOCH + timedelta(microseconds=micros - micros % size)
-
-
 def _as_utc(moment: datetime) -> datetime:
     """A timestamp column's naive UTC value as an aware datetime."""
     return moment.replace(tzinfo=UTC) if moment.tzinfo is None else moment
@@ -113,7 +107,7 @@ def span(fetch: Fetch, d: SqlDialect, sids: Sequence[int], time: TimeRange) -> t
     end = min(max(highs), time.end) if time.end is not None else max(highs)
     if start > end:
         return None
-    return _hour_floor(start), _hour_floor(end) + HOUR.width
+    return bucket_start(start, HOUR.width), bucket_start(end, HOUR.width) + HOUR.width
 
 
 def rebuild(

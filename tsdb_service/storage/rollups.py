@@ -63,7 +63,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 
-from tsdb_service.core.buckets import served_by
+from tsdb_service.core.buckets import bucket_start, epoch_micros, served_by
 from tsdb_service.core.model import Kind
 from tsdb_service.core.query import AggrMethod, AggrPeriod, TimeRange
 from tsdb_service.storage.sql.dialect import SqlDialect, series_time_filter
@@ -406,10 +406,10 @@ def _raw_span(d: SqlDialect, redo: Redo) -> tuple[str, list]:
         return where, params
     if redo.time.start is not None:
         where += f" AND t >= {p}"
-        params.append(d.time_value(_floor(redo.time.start, HOUR.width)))
+        params.append(d.time_value(bucket_start(redo.time.start, HOUR.width)))
     if redo.time.end is not None:
         where += f" AND t < {p}"
-        params.append(d.time_value(_floor(redo.time.end, HOUR.width) + HOUR.width))
+        params.append(d.time_value(bucket_start(redo.time.end, HOUR.width) + HOUR.width))
     return where, params
 
 
@@ -510,17 +510,8 @@ def level_delete_sql(
 # --- reading -----------------------------------------------------------------------------------
 
 
-def _micros(moment: datetime) -> int:
-    return (moment - _EPOCH) // _US
-
-
 def _moment(micros: int) -> datetime:
     return _EPOCH + timedelta(microseconds=micros)
-
-
-def _floor(moment: datetime, width: timedelta) -> datetime:
-    micros, size = _micros(moment), width // _US
-    return _moment(micros - micros % size)
 
 
 @dataclass(frozen=True, slots=True)
@@ -541,15 +532,15 @@ def split_window(time: TimeRange, levels: Sequence[Level]) -> list[Piece]:
         return [Piece(None, time.start, time.end)]
     level, finer = levels[0], levels[1:]
     size = level.width // _US
-    first = None if time.start is None else -(-_micros(time.start) // size) * size  # first whole bucket
-    past = None if time.end is None else (_micros(time.end) + 1) // size * size  # end of the last whole one
+    first = None if time.start is None else -(-epoch_micros(time.start) // size) * size  # first whole bucket
+    past = None if time.end is None else (epoch_micros(time.end) + 1) // size * size  # end of the last whole one
     if first is not None and past is not None and first >= past:
         return split_window(time, finer)
     out = []
-    if time.start is not None and first is not None and _micros(time.start) < first:
+    if time.start is not None and first is not None and epoch_micros(time.start) < first:
         out += split_window(TimeRange(time.start, _moment(first - 1)), finer)
     out.append(Piece(level, None if first is None else _moment(first), None if past is None else _moment(past)))
-    if time.end is not None and past is not None and past <= _micros(time.end):
+    if time.end is not None and past is not None and past <= epoch_micros(time.end):
         out += split_window(TimeRange(_moment(past), time.end), finer)
     return out
 
@@ -680,9 +671,9 @@ def expired_span_sql(d: SqlDialect, sids: Sequence[int], time: TimeRange) -> tup
         bparams.append(params)
     lo, hi = f"least({', '.join(los)})", f"greatest({', '.join(his)})"  # both ignore NULLs
     if time.start is not None:
-        lo = f"greatest({lo}, {_micros(time.start)})"
+        lo = f"greatest({lo}, {epoch_micros(time.start)})"
     if time.end is not None:
-        hi = f"least({hi}, {_micros(time.end)})"
+        hi = f"least({hi}, {epoch_micros(time.end)})"
     # Placeholders in textual order: the levels' lo parts, their hi parts (then, on PostgreSQL, the series).
     params = [v for ps in bparams for v in ps] * 2
     if d.name == "duckdb":

@@ -117,7 +117,7 @@ def _partial(target: Path, what: str) -> Iterator[Path]:
 def _copy(cur: duckdb.DuckDBPyConnection, partial: Path) -> tuple[dict[str, int], Rows, str, int]:
     """One transaction: the copy, every table's count, the sampled rows, the log position."""
     [(source,)] = cur.execute("SELECT current_database()").fetchall()
-    alias = f"tsdb_backup_{uuid.uuid4().hex[:12]}"
+    alias = quote_ident(f"tsdb_backup_{uuid.uuid4().hex[:12]}")
     cur.execute(f"ATTACH ? AS {alias}", [str(partial)])
     try:
         cur.execute("BEGIN")
