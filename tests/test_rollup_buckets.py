@@ -1,4 +1,4 @@
-"""The bucket query's rollup part (``storage.rollups.bucket_part``) gives
+"""The bucket query's rollup part (``storage.rollup_reads.bucket_part``) gives
 what the raw samples give: for random data (late and out of order, several
 samples at one instant, ties of values, integers and floats, texts), every
 width a level serves, and windows of whole minutes and hours, each row
@@ -24,7 +24,7 @@ from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.core.query import TimeRange
 from tsdb_service.read.buckets import BucketRead
 from tsdb_service.storage import open_store
-from tsdb_service.storage.rollups import Piece, bucket_levels, bucket_part, split_window
+from tsdb_service.storage.rollup_reads import Piece, bucket_levels, bucket_part, split_window
 from tsdb_service.storage.sql.buckets import BUCKET_COLUMNS, as_buckets, raw_part
 from tsdb_service.write.ops import AppendSamples, DeleteSamples
 

@@ -26,7 +26,7 @@ from tsdb_service.storage.partials import (
     bucket_of,
 )
 from tsdb_service.storage.partials import PERIODS as PARTIAL_PERIODS
-from tsdb_service.storage.rollups import PERIOD_LEVELS, aggregate_part, split_window
+from tsdb_service.storage.rollup_reads import PERIOD_LEVELS, aggregate_part, split_window
 from tsdb_service.storage.sql.dialect import INTEGER_KIND, MAX_BIGINT, NULL_KIND, NUMERIC_KINDS, rows_as
 from tsdb_service.storage.sql.reads import SqlReads
 

@@ -17,7 +17,7 @@ each covering a time range, UNION ALLed and combined per (series, bucket):
   sample time;
 * ``bucket_sql(dialect, ask)``: the query of a ``BucketRead``: where the
   width is made of whole minutes or hours, the window's whole hours and
-  minutes come from the rollups (``storage.rollups.bucket_part``, the same
+  minutes come from the rollups (``storage.rollup_reads.bucket_part``, the same
   layout, exactly what their raw samples give) and only the edges from
   ``raw_part``, through ``combine``.
 
@@ -54,7 +54,7 @@ from tsdb_service.read.buckets import (
     TimedSample,
 )
 from tsdb_service.read.requests import SamplesIn
-from tsdb_service.storage.rollups import bucket_levels, bucket_part, expired_span_sql, split_window
+from tsdb_service.storage.rollup_reads import bucket_levels, bucket_part, expired_span_sql, split_window
 from tsdb_service.storage.sql.dialect import (
     INTEGER_KIND,
     MAX_BIGINT,
@@ -146,7 +146,7 @@ def combine(dialect: SqlDialect, parts: Sequence[tuple[str, list]]) -> tuple[str
 def bucket_sql(dialect: SqlDialect, ask: BucketRead) -> tuple[str, list]:
     """The whole query of ``ask``, rows by series then bucket start: the
     window's whole hours and minutes from the rollups where the width is
-    made of them (``storage.rollups``: ``split_window``, ``bucket_part``),
+    made of them (``storage.rollup_reads``: ``split_window``, ``bucket_part``),
     the rest from raw samples; a value path from raw samples only."""
     parts = []
     for piece in split_window(ask.time, bucket_levels(ask.width) if not ask.steps else ()):
@@ -260,7 +260,7 @@ class SqlBuckets(SqlReads, BucketReader):
         return (int(rows[0][0]), int(rows[0][1])) if rows and rows[0][0] is not None else None
 
     def _rolled_up_span(self, ask: SamplesIn) -> tuple[int, int] | None:
-        """The span of what only rollups keep (``storage.rollups.expired_span_sql``);
+        """The span of what only rollups keep (``storage.rollup_reads.expired_span_sql``);
         nothing to read until retention has deleted raw samples."""
         if not self.raw_expired():
             return None

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from tsdb_service.core.query import LastValueRow, LatestRow, RawRow
 from tsdb_service.read.requests import RowsRead, SamplesIn, ValuesAt
 from tsdb_service.read.samples import SampleReader
-from tsdb_service.storage.rollups import rolled_up_count
+from tsdb_service.storage.rollup_reads import rolled_up_count
 from tsdb_service.storage.sql.dialect import MAX_BIGINT, latest_per_series, rows_as
 from tsdb_service.storage.sql.reads import SqlReads
 
