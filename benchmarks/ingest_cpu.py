@@ -129,9 +129,13 @@ def one_window(server: common.Server, cluster, make, connections: int, seconds: 
     return row
 
 
-def profile_window(server: common.Server, make, connections: int, seconds: float, top: int) -> dict:
+def profile_window(
+    server: common.Server, make, connections: int, seconds: float, top: int, gil_only: bool = False
+) -> dict:
     """py-spy over every process of the server during one window: each
-    process's share of the samples, and its heaviest frames."""
+    process's share of the samples, and its heaviest frames; ``gil_only``:
+    only the samples of the thread holding the interpreter lock (what one
+    process cannot run in parallel)."""
     import profile_ingest
 
     pyspy = shutil.which("py-spy") or str(Path(sys.executable).parent / "py-spy")
@@ -145,6 +149,8 @@ def profile_window(server: common.Server, make, connections: int, seconds: float
         role = "serve" if i == 0 else f"{_role(p)}-{p.pid}"
         cmd = [pyspy, "record", "--pid", str(p.pid), "--duration", str(int(seconds)), "--format", "raw"]
         cmd += ["--threads", "--output", str(raw), "--rate", "200", "--nonblocking"]
+        if gil_only:
+            cmd.append("--gil")
         spies.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         outputs[role] = raw
     for spy in spies:
@@ -181,6 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--label", default="", help="a name for this configuration in the output")
     ap.add_argument("--profile", action="store_true", help="also a py-spy window per connection count")
     ap.add_argument("--top", type=int, default=12)
+    ap.add_argument("--gil", action="store_true", help="--profile: only the thread holding the interpreter lock")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     if wrkrun.ensure_wrk() is None:
@@ -223,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
                         flush=True,
                     )
                 if args.profile:
-                    profiles[connections] = profile_window(server, make, connections, args.seconds, args.top)
+                    profiles[connections] = profile_window(server, make, connections, args.seconds, args.top, args.gil)
                     print_profile(profiles[connections])
         finally:
             server.stop()
