@@ -4,7 +4,9 @@ the store is opened by the lifespan and closed (drained, checkpointed) by it."""
 from __future__ import annotations
 
 import logging
+import os
 from contextlib import asynccontextmanager
+from functools import partial
 from pathlib import Path
 
 from fastapi import FastAPI
@@ -67,10 +69,15 @@ class TsdbApp(FastAPI):
 
 
 def create_app(
-    settings: Settings | None = None, metrics: telemetry.Metrics | None = None, store: ServiceStore | None = None
+    settings: Settings | None = None,
+    metrics: telemetry.Metrics | None = None,
+    store: ServiceStore | None = None,
+    relay_dir: str | None = None,
 ) -> FastAPI:
     """The app. ``store``: serve this one (``http.memory.MemoryStore`` in
-    route tests) instead of opening ``settings.db``; the caller closes it."""
+    route tests) instead of opening ``settings.db``; the caller closes it.
+    ``relay_dir``: with ``settings.ingest_processes`` > 1, where the relay's
+    sockets live (``serve`` makes it); the lifespan starts the acceptors."""
     settings = settings or get_settings()
     metrics = metrics or telemetry.Metrics()
     mqtt = mqtt_config(settings)
@@ -86,7 +93,7 @@ def create_app(
         metrics.attach(app.state.store)
         log.info("tsdb-service %s opened the %s", __version__, describe_database(settings))
         try:
-            async with consuming(app, mqtt, metrics):
+            async with consuming(app, mqtt, metrics), accepting(app, settings, relay_dir):
                 yield
         finally:
             metrics.detach()
@@ -173,6 +180,53 @@ async def consuming(app: FastAPI, config, metrics: telemetry.Metrics):
         await consumer.stop()
 
 
+@asynccontextmanager
+async def accepting(app: FastAPI, settings: Settings, relay_dir: str | None):
+    """With ``--ingest-processes`` N > 1: the relay (``ingest.relay``) and
+    its N-1 acceptor processes (``ingest.processes``) while the app runs,
+    once the store is open; the acceptors stop before the relay and the
+    store close. Nothing otherwise."""
+    if relay_dir is None or settings.ingest_processes < 2:
+        yield
+        return
+    from tsdb_service.ingest.processes import RELAY_SOCKET, Acceptors
+    from tsdb_service.ingest.relay import RelayServer
+
+    store = app.state.store
+
+    async def values_layout(tenant: str, subscription_id: str):
+        return await store.read(partial(store.values_layout, tenant, subscription_id), consistent=False)
+
+    relay = RelayServer(store.write, values_layout, max_frame=2 * settings.max_body_bytes + 65536)
+    await relay.start(str(Path(relay_dir) / RELAY_SOCKET))
+    acceptors = Acceptors(settings.ingest_processes - 1, relay_dir)
+    app.state.acceptors = acceptors
+    try:
+        await acceptors.start()
+        yield
+    finally:
+        await acceptors.stop()
+        await relay.close()
+
+
+def create_acceptor_app(settings: Settings, relay_dir: str):
+    """An acceptor process's app (``ingest.acceptor``): the notify path
+    behind the same guard as the serving process's, the rest passed on."""
+    from tsdb_service.ingest.acceptor import AcceptorApp
+    from tsdb_service.ingest.processes import OWNER_HTTP_SOCKET, RELAY_SOCKET
+    from tsdb_service.ingest.relay import RelayClient
+
+    app = AcceptorApp(
+        settings, RelayClient(), str(Path(relay_dir) / OWNER_HTTP_SOCKET), str(Path(relay_dir) / RELAY_SOCKET)
+    )
+
+    async def serve_notify(scope, receive, send) -> None:
+        await notify.serve_notification(app, scope, receive, send)
+
+    app.notify = protect(serve_notify, settings)
+    return app
+
+
 def describe_database(settings: Settings) -> str:
     """The database a server opened, for its log: a DuckDB file's absolute
     path, or a PostgreSQL URL without its password."""
@@ -184,5 +238,8 @@ def describe_database(settings: Settings) -> str:
 
 
 def create_app_from_env() -> FastAPI:
-    """uvicorn factory entry point: settings from ``TSDB_*`` variables."""
-    return create_app(Settings())
+    """uvicorn factory entry point: settings from ``TSDB_*`` variables (and
+    the relay's directory, which ``serve`` sets with ``--ingest-processes``)."""
+    from tsdb_service.ingest.processes import RELAY_DIR_VARIABLE
+
+    return create_app(Settings(), relay_dir=os.environ.get(RELAY_DIR_VARIABLE))

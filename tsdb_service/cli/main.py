@@ -8,7 +8,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from types import ModuleType
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from tsdb_service import __version__
 from tsdb_service.cli.messages import readable
@@ -157,6 +157,13 @@ def cmd_serve(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    if settings.ingest_processes > 1 and settings.backend != "duckdb":
+        print(
+            "error: --ingest-processes > 1 is for DuckDB, whose file belongs to one process; with PostgreSQL "
+            "use --workers, whose processes each write to the database.",
+            file=sys.stderr,
+        )
+        return 2
     check_serve(settings)  # one line each, before anything is created
     created = new_duckdb_file(settings)
     check_store(settings)  # a wrong --db is one line here, before uvicorn starts
@@ -176,22 +183,55 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from tsdb_service.http.server import GuardedHttpToolsProtocol, log_config, raise_fd_limit
 
     raise_fd_limit()
+    options: dict[str, Any] = {
+        "log_level": settings.log_level,
+        "log_config": log_config(settings.log_level),  # tsdb-service's own lines too (the database opened)
+        "access_log": settings.access_log,
+        "loop": "uvloop",
+        "http": GuardedHttpToolsProtocol,  # httptools with header/body deadlines and a connection cap
+        "timeout_keep_alive": settings.keep_alive_s,
+        "timeout_graceful_shutdown": 30,
+    }
+    # --- end of limits ---
+    if settings.ingest_processes > 1:
+        return serve_with_acceptors(settings, options)
     uvicorn.run(
         "tsdb_service.cli.main:serve_app",
         factory=True,
         host=settings.host,
         port=settings.port,
         workers=settings.workers,
-        log_level=settings.log_level,
-        log_config=log_config(settings.log_level),  # tsdb-service's own lines too (the database opened)
-        access_log=settings.access_log,
-        loop="uvloop",
-        http=GuardedHttpToolsProtocol,  # httptools with header/body deadlines and a connection cap
-        timeout_keep_alive=settings.keep_alive_s,
-        timeout_graceful_shutdown=30,
+        **options,
     )
-    # --- end of limits ---
     return 0
+
+
+def serve_with_acceptors(settings: Settings, options: dict[str, Any]) -> int:
+    """``serve --ingest-processes N``: this process owns the database and
+    serves everything, on the port it shares with N-1 acceptor processes
+    (started by the app's lifespan, ``ingest.processes``), and on a private
+    Unix socket for the requests they pass on (``ingest.acceptor``)."""
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    import uvicorn
+
+    from tsdb_service.http.server import private_socket, shared_socket
+    from tsdb_service.ingest.processes import OWNER_HTTP_SOCKET, RELAY_DIR_VARIABLE
+
+    relay_dir = tempfile.mkdtemp(prefix="tsdb-ingest-")  # 0700: this user only
+    os.environ[RELAY_DIR_VARIABLE] = relay_dir
+    try:
+        sockets = [
+            shared_socket(settings.host, settings.port),
+            private_socket(str(Path(relay_dir) / OWNER_HTTP_SOCKET)),
+        ]
+        server = uvicorn.Server(uvicorn.Config("tsdb_service.cli.main:serve_app", factory=True, **options))
+        server.run(sockets=sockets)
+    finally:
+        shutil.rmtree(relay_dir, ignore_errors=True)
+    return 0 if server.started else 3
 
 
 WRITER_SWITCH_INTERVAL_S = 0.0002

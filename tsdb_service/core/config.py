@@ -104,6 +104,13 @@ class HttpSettings(SettingsGroup):
     host: str = Field("0.0.0.0", description="Address to bind, as QuantumLeap does.")
     port: int = Field(8668, ge=1, le=65535, description="QuantumLeap's port.")
     workers: int = Field(1, ge=1, description="uvicorn workers; PostgreSQL only.")
+    ingest_processes: int = Field(
+        1,
+        ge=1,
+        le=16,
+        description="Processes that take HTTP notifications on one port, DuckDB only: the serving process and "
+        "N-1 acceptors that parse and relay to it (docs: Architecture, 'Ingest processes'). 2 on 2 cores.",
+    )
     max_connections: int = Field(
         4096,
         ge=1,

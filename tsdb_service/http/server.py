@@ -229,3 +229,36 @@ def log_config(level: str) -> dict:
     config = copy.deepcopy(LOGGING_CONFIG)
     config["loggers"]["tsdb_service"] = {"handlers": ["default"], "level": level.upper(), "propagate": False}
     return config
+
+
+def shared_socket(host: str, port: int):
+    """A listening TCP socket on ``host:port`` that other processes of ours
+    may listen on too (``SO_REUSEPORT``: the kernel spreads new connections
+    over them; ``--ingest-processes``). Only processes of the same user can
+    join it."""
+    import socket
+
+    family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)[
+        0
+    ]
+    sock = socket.socket(family, kind, proto)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+    if family == socket.AF_INET6:
+        sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 0)
+    sock.bind(address)
+    sock.listen(2048)
+    sock.set_inheritable(False)
+    return sock
+
+
+def private_socket(path: str):
+    """A listening Unix socket at ``path`` that only this user may connect to."""
+    import os
+    import socket
+
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    sock.bind(path)
+    os.chmod(path, 0o600)
+    sock.listen(2048)
+    return sock

@@ -1,0 +1,47 @@
+"""An acceptor process of ``serve --ingest-processes`` (``ingest.acceptor``):
+started by the serving process (``ingest.processes``), never by hand. It
+reads the settings from the ``TSDB_*`` variables ``serve`` set, listens on
+the shared port and stops when the serving process goes."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+
+def main() -> int:
+    import uvicorn
+
+    from tsdb_service.app import create_acceptor_app
+    from tsdb_service.cli.main import tune_collector
+    from tsdb_service.core.config import Settings
+    from tsdb_service.http.server import GuardedHttpToolsProtocol, log_config, raise_fd_limit, shared_socket
+    from tsdb_service.ingest.processes import RELAY_DIR_VARIABLE
+
+    relay_dir = os.environ.get(RELAY_DIR_VARIABLE)
+    if not relay_dir:
+        print("error: an ingest process is started by 'tsdb-service serve --ingest-processes N'", file=sys.stderr)
+        return 2
+    settings = Settings()
+    raise_fd_limit()
+    app = create_acceptor_app(settings, relay_dir)
+    config = uvicorn.Config(
+        app,
+        lifespan="on",
+        log_level=settings.log_level,
+        log_config=log_config(settings.log_level),
+        access_log=settings.access_log,
+        loop="uvloop",
+        http=GuardedHttpToolsProtocol,
+        timeout_keep_alive=settings.keep_alive_s,
+        timeout_graceful_shutdown=30,
+    )
+    server = uvicorn.Server(config)
+    app.on_owner_lost = lambda: setattr(server, "should_exit", True)
+    tune_collector()
+    server.run(sockets=[shared_socket(settings.host, settings.port)])
+    return 0 if server.started else 3
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,108 @@
+"""The serving process's acceptor processes (``--ingest-processes``; ``ingest.relay``).
+
+Invariants:
+
+* **Started after the relay listens, stopped before it closes.** The
+  owner's lifespan starts them once the store is open and the relay socket
+  takes frames, and stops them (SIGTERM: each finishes the requests it
+  holds, whose writes still reach the owner) before the relay and the store
+  close.
+* **An acceptor that dies is started again**, after a pause that doubles
+  with each death in a row (at most ``MAX_PAUSE_S``), and the death is
+  logged with its exit status; ``alive`` and ``restarts`` say how they
+  fare (``/health``, ``/metrics``).
+* **They inherit the settings** through the ``TSDB_*`` variables ``serve``
+  sets, and the relay's directory through ``RELAY_DIR_VARIABLE``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import signal
+import sys
+
+log = logging.getLogger(__name__)
+
+RELAY_DIR_VARIABLE = "TSDB_INTERNAL_RELAY_DIR"
+RELAY_SOCKET = "relay.sock"  # frames (ingest.relay)
+OWNER_HTTP_SOCKET = "http.sock"  # the owner's HTTP, for requests an acceptor passes on
+FIRST_PAUSE_S = 0.5
+MAX_PAUSE_S = 10.0
+STOP_TIMEOUT_S = 30.0
+
+
+class Acceptors:
+    """``count`` acceptor processes, kept running until ``stop``."""
+
+    def __init__(self, count: int, relay_dir: str):
+        self.count = count
+        self.relay_dir = relay_dir
+        self.restarts = 0
+        self._processes: dict[int, asyncio.subprocess.Process] = {}
+        self._watchers: list[asyncio.Task] = []
+        self._stopping = False
+
+    @property
+    def alive(self) -> int:
+        return sum(1 for p in self._processes.values() if p.returncode is None)
+
+    @property
+    def pids(self) -> list[int]:
+        return [p.pid for p in self._processes.values() if p.returncode is None]
+
+    async def start(self) -> None:
+        for slot in range(self.count):
+            await self._spawn(slot)
+            self._watchers.append(asyncio.get_running_loop().create_task(self._keep(slot)))
+
+    async def _spawn(self, slot: int) -> None:
+        env = {**os.environ, RELAY_DIR_VARIABLE: self.relay_dir}
+        process = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "tsdb_service.cli.acceptor", env=env, stdin=asyncio.subprocess.DEVNULL
+        )
+        self._processes[slot] = process
+        log.info("ingest process %d started (pid %d)", slot + 1, process.pid)
+
+    async def _keep(self, slot: int) -> None:
+        pause = FIRST_PAUSE_S
+        while True:
+            process = self._processes[slot]
+            status = await process.wait()
+            if self._stopping:
+                return
+            log.error(
+                "ingest process %d (pid %d) exited with status %s; starting it again in %.1f s",
+                slot + 1,
+                process.pid,
+                status,
+                pause,
+            )
+            await asyncio.sleep(pause)
+            if self._stopping:
+                return
+            self.restarts += 1
+            await self._spawn(slot)
+            pause = min(pause * 2, MAX_PAUSE_S)
+
+    async def stop(self) -> None:
+        """SIGTERM each, wait for them (SIGKILL past ``STOP_TIMEOUT_S``)."""
+        self._stopping = True
+        for task in self._watchers:
+            task.cancel()
+        running = [p for p in self._processes.values() if p.returncode is None]
+        for process in running:
+            with contextlib.suppress(ProcessLookupError):
+                process.send_signal(signal.SIGTERM)
+        if not running:
+            return
+        _, late = await asyncio.wait([asyncio.ensure_future(p.wait()) for p in running], timeout=STOP_TIMEOUT_S)
+        for process in running:
+            if process.returncode is None:
+                log.error("ingest process pid %d did not stop in %.0f s: killed", process.pid, STOP_TIMEOUT_S)
+                with contextlib.suppress(ProcessLookupError):
+                    process.kill()
+        if late:
+            await asyncio.wait(late, timeout=5)
