@@ -73,10 +73,11 @@ def server_env(extra: dict[str, str] | Iterable[str] = (), keep_tsdb: bool = Fal
     return env
 
 
-def ours_cmd(db: str | Path, port: int, workers: int = 1) -> list[str]:
+def ours_cmd(db: str | Path, port: int, workers: int = 1, ingest_processes: int = 1) -> list[str]:
     """``tsdb-service serve`` on ``db`` (a DuckDB path or a PostgreSQL URL)."""
     cmd = [sys.executable, "-m", "tsdb_service", "serve", "--db", str(db), "--host", HOST, "--port", str(port)]
-    return cmd + (["--workers", str(workers)] if workers > 1 else [])
+    cmd += ["--workers", str(workers)] if workers > 1 else []
+    return cmd + (["--ingest-processes", str(ingest_processes)] if ingest_processes > 1 else [])
 
 
 UVICORN_FLAGS = ["--loop", "uvloop", "--http", "httptools", "--no-access-log", "--workers", "1"]

@@ -101,7 +101,13 @@ LABELS = {
     "types1": "/v2/types/{type}/attrs/{attr}?lastN=1000, 1 connection",
     "geo4": "geo near;maxDistance + lastN=10, 10k entities, 4 connections",
 }
-OURS = {"duckdb": ("duckdb", 1), "postgresql": ("postgresql", 1), "postgresql2": ("postgresql", 2)}
+# (backend, workers, ingest processes)
+OURS = {
+    "duckdb": ("duckdb", 1, 1),
+    "duckdb2": ("duckdb", 1, 2),
+    "postgresql": ("postgresql", 1, 1),
+    "postgresql2": ("postgresql", 2, 1),
+}
 
 
 # --- measuring ---------------------------------------------------------------------------
@@ -232,10 +238,13 @@ def _print_runs(runs: list[dict]) -> None:
 
 
 def run_ours(key: str, runner: Runner, only: set[str], workdir: Path, env: dict[str, str]) -> Result:
-    backend, workers = OURS[key]
-    name = {"duckdb": "ours, DuckDB", "postgresql": "ours, PostgreSQL", "postgresql2": "ours, PostgreSQL (2 workers)"}[
-        key
-    ]
+    backend, workers, ingest_processes = OURS[key]
+    name = {
+        "duckdb": "ours, DuckDB",
+        "duckdb2": "ours, DuckDB (2 ingest processes)",
+        "postgresql": "ours, PostgreSQL",
+        "postgresql2": "ours, PostgreSQL (2 workers)",
+    }[key]
     result = Result(name, "ours", backend, workers)
     cluster = None
     try:
@@ -248,7 +257,7 @@ def run_ours(key: str, runner: Runner, only: set[str], workdir: Path, env: dict[
         else:
             db = str(workdir / f"{key}.duckdb")
         port = free_port()
-        server = spawned(key, ours_cmd(db, port, workers), port, workdir, env)
+        server = spawned(key, ours_cmd(db, port, workers, ingest_processes), port, workdir, env)
         server.start()
         result.info["startup_s"] = round(server.startup_s, 2)
         print(f"- {name} on :{port}, started in {server.startup_s:.1f} s (load {_load()})", flush=True)
@@ -261,7 +270,7 @@ def run_ours(key: str, runner: Runner, only: set[str], workdir: Path, env: dict[
             all_runs = [r for k, _ in INGEST for r in result.runs[k]]  # warm-ups included: they stored too
             result.info["store_check"] = check_store(db, ledger, all_runs)
             print(f"  store check: {result.info['store_check']}", flush=True)
-        if "geo" in only and workers == 1:
+        if "geo" in only and workers == 1 and ingest_processes == 1:
             result.runs["geo4"] = run_geo(backend, runner, workdir)
     finally:
         if cluster is not None:

@@ -85,20 +85,29 @@ def _role(p) -> str:
     return "worker" if "multiprocessing" in " ".join(p.cmdline()) else "child"
 
 
-def applied(url: str) -> tuple[float, float]:
-    """(transactions, samples) the ingest log applied so far, from
-    ``/metrics`` (DuckDB; zeros elsewhere)."""
-    found = {"tsdb_ingest_log_applied_batches_total": 0.0, "tsdb_ingest_log_applied_samples_total": 0.0}
+def applied(url: str) -> tuple[float, float, float]:
+    """(transactions, samples) the ingest log applied so far, and the writes
+    acceptor processes relayed (``--ingest-processes``), from ``/metrics``
+    (DuckDB; zeros elsewhere)."""
+    found = {
+        "tsdb_ingest_log_applied_batches_total": 0.0,
+        "tsdb_ingest_log_applied_samples_total": 0.0,
+        "tsdb_ingest_relayed_writes_total": 0.0,
+    }
     try:
         with urllib.request.urlopen(url + "/metrics", timeout=10) as answer:
             text = answer.read().decode()
     except OSError:
-        return 0.0, 0.0
+        return 0.0, 0.0, 0.0
     for line in text.splitlines():
         name, _, value = line.partition(" ")
         if name in found:
             found[name] = float(value)
-    return found["tsdb_ingest_log_applied_batches_total"], found["tsdb_ingest_log_applied_samples_total"]
+    return (
+        found["tsdb_ingest_log_applied_batches_total"],
+        found["tsdb_ingest_log_applied_samples_total"],
+        found["tsdb_ingest_relayed_writes_total"],
+    )
 
 
 def one_window(server: common.Server, cluster, make, connections: int, seconds: float) -> dict:
@@ -126,6 +135,7 @@ def one_window(server: common.Server, cluster, make, connections: int, seconds: 
     row["us_per_sample"] = round(row["total_ms"] * 1000 / SAMPLES_PER_NOTIFICATION, 1)
     batches = applied1[0] - applied0[0]
     row["samples_per_apply"] = round((applied1[1] - applied0[1]) / batches) if batches else None
+    row["relayed_share"] = round((applied1[2] - applied0[2]) / ok, 3)
     return row
 
 
@@ -226,7 +236,8 @@ def main(argv: list[str] | None = None) -> int:
                         f"  {connections:3d} conns: {row['ok']:7,} ok ({row['rps']:,}/s, p99 {row['p99_ms']} ms, "
                         f"{row['errors']} errors); CPU ms per notification: {split}{db_part} = "
                         f"{row['total_ms']:.3f} ({row['us_per_sample']} us per sample); wrk {row['wrk_ms']:.3f}"
-                        + (f"; {row['samples_per_apply']:,} samples per apply" if row["samples_per_apply"] else ""),
+                        + (f"; {row['samples_per_apply']:,} samples per apply" if row["samples_per_apply"] else "")
+                        + (f"; {row['relayed_share']:.0%} relayed by acceptors" if row["relayed_share"] else ""),
                         flush=True,
                     )
                 if args.profile:

@@ -93,7 +93,7 @@ def create_app(
         metrics.attach(app.state.store)
         log.info("tsdb-service %s opened the %s", __version__, describe_database(settings))
         try:
-            async with consuming(app, mqtt, metrics), accepting(app, settings, relay_dir):
+            async with consuming(app, mqtt, metrics), accepting(app, settings, relay_dir, metrics):
                 yield
         finally:
             metrics.detach()
@@ -181,7 +181,7 @@ async def consuming(app: FastAPI, config, metrics: telemetry.Metrics):
 
 
 @asynccontextmanager
-async def accepting(app: FastAPI, settings: Settings, relay_dir: str | None):
+async def accepting(app: FastAPI, settings: Settings, relay_dir: str | None, metrics: telemetry.Metrics):
     """With ``--ingest-processes`` N > 1: the relay (``ingest.relay``) and
     its N-1 acceptor processes (``ingest.processes``) while the app runs,
     once the store is open; the acceptors stop before the relay and the
@@ -199,14 +199,16 @@ async def accepting(app: FastAPI, settings: Settings, relay_dir: str | None):
 
     relay = RelayServer(store.write, values_layout, max_frame=2 * settings.max_body_bytes + 65536)
     await relay.start(str(Path(relay_dir) / RELAY_SOCKET))
-    acceptors = Acceptors(settings.ingest_processes - 1, relay_dir)
+    acceptors = Acceptors(settings.ingest_processes - 1, relay_dir, relayed=lambda: relay.relayed)
     app.state.acceptors = acceptors
+    metrics.attach_ingest_processes(acceptors)
     try:
         await acceptors.start()
         yield
     finally:
         await acceptors.stop()
         await relay.close()
+        metrics.detach_ingest_processes()
 
 
 def create_acceptor_app(settings: Settings, relay_dir: str):

@@ -446,6 +446,31 @@ class MqttCollector(Collector):
             yield GaugeMetricFamily(name, text, value=numbers[key])
 
 
+class IngestProcessesCollector(Collector):
+    """The acceptor processes of ``--ingest-processes`` (``ingest.processes``)
+    and the writes they relayed (``ingest.relay``), from memory at scrape time:
+    anything with ``snapshot()`` giving the numbers below."""
+
+    def __init__(self, source):
+        self._source = source
+
+    def collect(self):
+        n = self._source.snapshot()
+        yield GaugeMetricFamily(
+            "tsdb_ingest_processes_running",
+            "Acceptor processes running now (--ingest-processes - 1).",
+            value=n["alive"],
+        )
+        yield CounterMetricFamily(
+            "tsdb_ingest_process_restarts", "Acceptor processes started again after they died.", value=n["restarts"]
+        )
+        yield CounterMetricFamily(
+            "tsdb_ingest_relayed_writes",
+            "Writes acceptor processes relayed to this process (samples and refusals), answered.",
+            value=n["relayed"],
+        )
+
+
 class ReadPoolCollector(Collector):
     """The reads in flight (``core.budget.ReadPool``), from memory at scrape time."""
 
@@ -514,6 +539,7 @@ class Metrics:
         self.retention = RetentionMetrics(self.registry, self.tenants)
         self._retention_collector: RetentionLagCollector | None = None
         self._mqtt_collector: MqttCollector | None = None
+        self._ingest_collector: IngestProcessesCollector | None = None
 
     def attach(self, store: Store) -> None:
         """Observe ``store``'s writers and report its sizes (called once the store is open).
@@ -549,6 +575,16 @@ class Metrics:
         """Report the MQTT consumer (``ingest.mqtt``) while it runs."""
         self._mqtt_collector = MqttCollector(consumer)
         self.registry.register(self._mqtt_collector)
+
+    def attach_ingest_processes(self, source) -> None:
+        """Report the acceptor processes (``ingest.processes``) while they run."""
+        self._ingest_collector = IngestProcessesCollector(source)
+        self.registry.register(self._ingest_collector)
+
+    def detach_ingest_processes(self) -> None:
+        if self._ingest_collector is not None:
+            self.registry.unregister(self._ingest_collector)
+            self._ingest_collector = None
 
     def detach_mqtt(self) -> None:
         if self._mqtt_collector is not None:

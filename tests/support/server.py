@@ -180,6 +180,16 @@ class ServerProcess:
             time.sleep(0.05)
         raise ServerError(self._describe(f"server not healthy after {self.startup_timeout:g} s (last: {last})"))
 
+    def children(self) -> list[int]:
+        """The server's child processes (``--ingest-processes``: its acceptors)."""
+        if self.proc is None or self.proc.poll() is not None:
+            return []
+        try:
+            text = Path(f"/proc/{self.proc.pid}/task/{self.proc.pid}/children").read_text()
+        except OSError:
+            return []
+        return [int(pid) for pid in text.split()]
+
     def kill(self) -> int | None:
         """SIGKILL (a crash: no drain, no checkpoint) and reap."""
         if self.proc is None:

@@ -15,8 +15,10 @@ def main() -> int:
     from tsdb_service.app import create_acceptor_app
     from tsdb_service.cli.main import tune_collector
     from tsdb_service.core.config import Settings
-    from tsdb_service.http.server import GuardedHttpToolsProtocol, log_config, raise_fd_limit, shared_socket
-    from tsdb_service.ingest.processes import RELAY_DIR_VARIABLE
+    from tsdb_service.http.handoff import HandOver, handing_over
+    from tsdb_service.http.server import log_config, raise_fd_limit, shared_socket
+    from tsdb_service.ingest.http_notify import NOTIFY_PATHS
+    from tsdb_service.ingest.processes import HANDOVER_SOCKET, RELAY_DIR_VARIABLE
 
     relay_dir = os.environ.get(RELAY_DIR_VARIABLE)
     if not relay_dir:
@@ -32,12 +34,17 @@ def main() -> int:
         log_config=log_config(settings.log_level),
         access_log=settings.access_log,
         loop="uvloop",
-        http=GuardedHttpToolsProtocol,
+        # Notifications served here; any other request's connection goes to the owner (http.handoff).
+        http=handing_over(frozenset(p.encode() for p in NOTIFY_PATHS), HandOver(f"{relay_dir}/{HANDOVER_SOCKET}")),
         timeout_keep_alive=settings.keep_alive_s,
         timeout_graceful_shutdown=30,
     )
     server = uvicorn.Server(config)
-    app.on_owner_lost = lambda: setattr(server, "should_exit", True)
+
+    def owner_lost() -> None:  # what it holds can no longer be written: answer it 503 and go at once
+        server.should_exit = server.force_exit = True
+
+    app.on_owner_lost = owner_lost
     tune_collector()
     server.run(sockets=[shared_socket(settings.host, settings.port)])
     return 0 if server.started else 3

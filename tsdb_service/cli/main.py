@@ -209,8 +209,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def serve_with_acceptors(settings: Settings, options: dict[str, Any]) -> int:
     """``serve --ingest-processes N``: this process owns the database and
     serves everything, on the port it shares with N-1 acceptor processes
-    (started by the app's lifespan, ``ingest.processes``), and on a private
-    Unix socket for the requests they pass on (``ingest.acceptor``)."""
+    (started by the app's lifespan, ``ingest.processes``), on a private Unix
+    socket for the requests they pass on (``ingest.acceptor``), and the
+    connections they hand over (``http.handoff``)."""
     import shutil
     import tempfile
     from pathlib import Path
@@ -218,7 +219,7 @@ def serve_with_acceptors(settings: Settings, options: dict[str, Any]) -> int:
     import uvicorn
 
     from tsdb_service.http.server import private_socket, shared_socket
-    from tsdb_service.ingest.processes import OWNER_HTTP_SOCKET, RELAY_DIR_VARIABLE
+    from tsdb_service.ingest.processes import HANDOVER_SOCKET, OWNER_HTTP_SOCKET, RELAY_DIR_VARIABLE
 
     relay_dir = tempfile.mkdtemp(prefix="tsdb-ingest-")  # 0700: this user only
     os.environ[RELAY_DIR_VARIABLE] = relay_dir
@@ -227,11 +228,49 @@ def serve_with_acceptors(settings: Settings, options: dict[str, Any]) -> int:
             shared_socket(settings.host, settings.port),
             private_socket(str(Path(relay_dir) / OWNER_HTTP_SOCKET)),
         ]
-        server = uvicorn.Server(uvicorn.Config("tsdb_service.cli.main:serve_app", factory=True, **options))
+        config = uvicorn.Config("tsdb_service.cli.main:serve_app", factory=True, **options)
+        server = owner_server(config, str(Path(relay_dir) / HANDOVER_SOCKET))
+        print(
+            f"tsdb-service listens on http://{settings.host}:{settings.port} with {settings.ingest_processes} "
+            "ingest processes",
+            file=sys.stderr,
+        )
         server.run(sockets=sockets)
     finally:
         shutil.rmtree(relay_dir, ignore_errors=True)
     return 0 if server.started else 3
+
+
+def owner_server(config, handover_path: str):
+    """uvicorn's server, also serving the connections acceptors hand over
+    (``http.handoff``) once the app has started, with the same protocol."""
+    from functools import partial
+    from typing import cast
+
+    import uvicorn
+
+    from tsdb_service.http.handoff import Adopter
+
+    class OwnerServer(uvicorn.Server):
+        adopter: Adopter | None = None
+
+        async def startup(self, sockets=None) -> None:
+            await super().startup(sockets)
+            make = partial(
+                cast(Any, self.config.http_protocol_class),
+                config=self.config,
+                server_state=self.server_state,
+                app_state=self.lifespan.state,
+            )
+            self.adopter = Adopter(handover_path, make)
+            self.adopter.start()
+
+        async def shutdown(self, sockets=None) -> None:
+            if self.adopter is not None:
+                self.adopter.close()
+            await super().shutdown(sockets)
+
+    return OwnerServer(config)
 
 
 WRITER_SWITCH_INTERVAL_S = 0.0002

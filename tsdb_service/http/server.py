@@ -76,8 +76,22 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         self._head_bytes = 0
         self._tail = b""  # the last bytes seen, in case the head's end is split between reads
         self._refused = False
+        self._first = b""  # bytes of this connection another process read (first_bytes)
+
+    def first_bytes(self, data: bytes) -> None:
+        """Serve ``data`` before anything read from the socket: the bytes an
+        acceptor read of this connection before it handed it over
+        (``http.handoff``)."""
+        self._first = data
+
+    def _feed_first(self) -> None:
+        if self._first and not self.transport.is_closing():
+            data, self._first = self._first, b""
+            self.data_received(data)
 
     def data_received(self, data: bytes) -> None:
+        if self._first:  # handed-over bytes first, whatever the socket brought since
+            data, self._first = self._first + data, b""
         if self._refused:
             return
         if self._in_head:
@@ -112,6 +126,8 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
             transport.close()
             return
         self._arm(self._header_timeout, "headers")
+        if self._first:
+            self.loop.call_soon(self._feed_first)
 
     def connection_lost(self, exc) -> None:
         self._disarm()

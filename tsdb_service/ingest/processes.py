@@ -23,23 +23,27 @@ import logging
 import os
 import signal
 import sys
+from collections.abc import Callable
 
 log = logging.getLogger(__name__)
 
 RELAY_DIR_VARIABLE = "TSDB_INTERNAL_RELAY_DIR"
 RELAY_SOCKET = "relay.sock"  # frames (ingest.relay)
 OWNER_HTTP_SOCKET = "http.sock"  # the owner's HTTP, for requests an acceptor passes on
+HANDOVER_SOCKET = "handover.sock"  # connections an acceptor hands to the owner (http.handoff)
 FIRST_PAUSE_S = 0.5
 MAX_PAUSE_S = 10.0
 STOP_TIMEOUT_S = 30.0
+STEADY_S = 60.0
 
 
 class Acceptors:
     """``count`` acceptor processes, kept running until ``stop``."""
 
-    def __init__(self, count: int, relay_dir: str):
+    def __init__(self, count: int, relay_dir: str, relayed: Callable[[], int] = lambda: 0):
         self.count = count
         self.relay_dir = relay_dir
+        self._relayed = relayed
         self.restarts = 0
         self._processes: dict[int, asyncio.subprocess.Process] = {}
         self._watchers: list[asyncio.Task] = []
@@ -52,6 +56,21 @@ class Acceptors:
     @property
     def pids(self) -> list[int]:
         return [p.pid for p in self._processes.values() if p.returncode is None]
+
+    def snapshot(self) -> dict[str, int]:
+        """For ``/metrics``: running, restarted, writes relayed."""
+        return {"alive": self.alive, "restarts": self.restarts, "relayed": self._relayed()}
+
+    def health(self) -> str | None:
+        """Why ``/health`` warns: an acceptor is not running (the others,
+        and this process, take its share of new connections meanwhile)."""
+        missing = self.count - self.alive
+        if missing <= 0 or self._stopping:
+            return None
+        return (
+            f"{missing} of {self.count} ingest processes not running (started again {self.restarts} times so far); "
+            "the others take their connections"
+        )
 
     async def start(self) -> None:
         for slot in range(self.count):
@@ -68,9 +87,13 @@ class Acceptors:
 
     async def _keep(self, slot: int) -> None:
         pause = FIRST_PAUSE_S
+        loop = asyncio.get_running_loop()
         while True:
             process = self._processes[slot]
+            started = loop.time()
             status = await process.wait()
+            if loop.time() - started > STEADY_S:
+                pause = FIRST_PAUSE_S  # it had run well: not a death in a row
             if self._stopping:
                 return
             log.error(

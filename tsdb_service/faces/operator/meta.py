@@ -33,11 +33,12 @@ _HEALTH_KEYS = ("status", "output")
 @reports_store
 def health(request: Request) -> JSON:
     report = store_of(request).health()
-    mqtt = getattr(request.app.state, "mqtt", None)  # the MQTT consumer (ingest.mqtt), when on
-    problem = mqtt.health() if mqtt is not None else None
-    if problem is not None and report["status"] == "pass":
-        # Still serving: HTTP ingest and reads work while the broker is away.
-        report = {**report, "status": "warn", "output": problem}
+    # The MQTT consumer (ingest.mqtt) and the acceptor processes (ingest.processes), when on.
+    for part in (getattr(request.app.state, "mqtt", None), getattr(request.app.state, "acceptors", None)):
+        problem = part.health() if part is not None else None
+        if problem is not None and report["status"] == "pass":
+            # Still serving: HTTP ingest and reads work while the broker or an acceptor is away.
+            report = {**report, "status": "warn", "output": problem}
     status = 503 if report["status"] == "fail" else 200
     public = {key: report[key] for key in _HEALTH_KEYS if key in report}
     return JSON(public, status_code=status, headers={"Content-Type": "application/health+json"})
