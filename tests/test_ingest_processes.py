@@ -54,6 +54,14 @@ def _metric(server: ServerProcess, name: str) -> float:
     return float(found.group(1))
 
 
+def _notify_answers(server: ServerProcess) -> float:
+    with urllib.request.urlopen(server.url + "/metrics", timeout=10) as answer:
+        text = answer.read().decode()
+    pattern = r'^tsdb_http_request_duration_seconds_count\{method="POST",route="/v2/notify",status="200"\} (\S+)$'
+    found = re.search(pattern, text, re.M)
+    return float(found.group(1)) if found else 0.0
+
+
 def _once(port: int, method: str, path: str, body: bytes | None = None, headers: dict | None = None):
     """One request on a connection of its own: (status, headers, body)."""
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
@@ -128,6 +136,8 @@ def test_every_notification_is_stored_once_and_read_at_once_whichever_process_to
     assert not errors, errors[:5]
     relayed = _metric(server, "tsdb_ingest_relayed_writes")
     assert relayed > 0, "the acceptor took none of 240 connections"
+    # Every answer is in the owner's /metrics, whichever process gave it (the acceptor's within a second).
+    _wait(lambda: _notify_answers(server) == 240, 10, "the acceptor's answers in /metrics")
     assert _metric(server, "tsdb_ingest_processes_running") == 1
     server.terminate()
     rows = _stored(db_path, "relay", "level")

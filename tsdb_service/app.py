@@ -189,7 +189,7 @@ async def accepting(app: FastAPI, settings: Settings, relay_dir: str | None, met
     if relay_dir is None or settings.ingest_processes < 2:
         yield
         return
-    from tsdb_service.ingest.processes import RELAY_SOCKET, Acceptors
+    from tsdb_service.ingest.processes import LISTEN_FDS_VARIABLE, RELAY_SOCKET, Acceptors
     from tsdb_service.ingest.relay import RelayServer
 
     store = app.state.store
@@ -197,9 +197,13 @@ async def accepting(app: FastAPI, settings: Settings, relay_dir: str | None, met
     async def values_layout(tenant: str, subscription_id: str):
         return await store.read(partial(store.values_layout, tenant, subscription_id), consistent=False)
 
-    relay = RelayServer(store.write, values_layout, max_frame=2 * settings.max_body_bytes + 65536)
+    def observe(route: str, method: str, status: int, seconds: float) -> None:
+        metrics.requests.observe({"method": method}, status, seconds, route)
+
+    relay = RelayServer(store.write, values_layout, max_frame=2 * settings.max_body_bytes + 65536, observe=observe)
     await relay.start(str(Path(relay_dir) / RELAY_SOCKET))
-    acceptors = Acceptors(settings.ingest_processes - 1, relay_dir, relayed=lambda: relay.relayed)
+    listen_fds = [int(fd) for fd in os.environ[LISTEN_FDS_VARIABLE].split(",")]
+    acceptors = Acceptors(relay_dir, listen_fds, relayed=lambda: relay.relayed)
     app.state.acceptors = acceptors
     metrics.attach_ingest_processes(acceptors)
     try:

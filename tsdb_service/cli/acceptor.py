@@ -1,11 +1,13 @@
 """An acceptor process of ``serve --ingest-processes`` (``ingest.acceptor``):
 started by the serving process (``ingest.processes``), never by hand. It
-reads the settings from the ``TSDB_*`` variables ``serve`` set, listens on
-the shared port and stops when the serving process goes."""
+reads the settings from the ``TSDB_*`` variables ``serve`` set, accepts
+from the listening socket the serving process gave it (one of the port's,
+``http.server.listening_sockets``) and stops when the serving process goes."""
 
 from __future__ import annotations
 
 import os
+import socket
 import sys
 
 
@@ -16,12 +18,13 @@ def main() -> int:
     from tsdb_service.cli.main import tune_collector
     from tsdb_service.core.config import Settings
     from tsdb_service.http.handoff import HandOver, handing_over
-    from tsdb_service.http.server import log_config, raise_fd_limit, shared_socket
+    from tsdb_service.http.server import log_config, raise_fd_limit
     from tsdb_service.ingest.http_notify import NOTIFY_PATHS
-    from tsdb_service.ingest.processes import HANDOVER_SOCKET, RELAY_DIR_VARIABLE
+    from tsdb_service.ingest.processes import HANDOVER_SOCKET, LISTEN_FDS_VARIABLE, RELAY_DIR_VARIABLE
 
     relay_dir = os.environ.get(RELAY_DIR_VARIABLE)
-    if not relay_dir:
+    listen_fd = os.environ.get(LISTEN_FDS_VARIABLE)
+    if not relay_dir or not listen_fd:
         print("error: an ingest process is started by 'tsdb-service serve --ingest-processes N'", file=sys.stderr)
         return 2
     settings = Settings()
@@ -46,7 +49,7 @@ def main() -> int:
 
     app.on_owner_lost = owner_lost
     tune_collector()
-    server.run(sockets=[shared_socket(settings.host, settings.port)])
+    server.run(sockets=[socket.socket(fileno=int(listen_fd))])  # its own socket on the port, from the serving process
     return 0 if server.started else 3
 
 

@@ -218,16 +218,20 @@ def serve_with_acceptors(settings: Settings, options: dict[str, Any]) -> int:
 
     import uvicorn
 
-    from tsdb_service.http.server import private_socket, shared_socket
-    from tsdb_service.ingest.processes import HANDOVER_SOCKET, OWNER_HTTP_SOCKET, RELAY_DIR_VARIABLE
+    from tsdb_service.http.server import listening_sockets, private_socket
+    from tsdb_service.ingest.processes import (
+        HANDOVER_SOCKET,
+        LISTEN_FDS_VARIABLE,
+        OWNER_HTTP_SOCKET,
+        RELAY_DIR_VARIABLE,
+    )
 
     relay_dir = tempfile.mkdtemp(prefix="tsdb-ingest-")  # 0700: this user only
     os.environ[RELAY_DIR_VARIABLE] = relay_dir
     try:
-        sockets = [
-            shared_socket(settings.host, settings.port),
-            private_socket(str(Path(relay_dir) / OWNER_HTTP_SOCKET)),
-        ]
+        public, *theirs = listening_sockets(settings.host, settings.port, settings.ingest_processes)
+        os.environ[LISTEN_FDS_VARIABLE] = ",".join(str(s.fileno()) for s in theirs)  # handed to the acceptors
+        sockets = [public, private_socket(str(Path(relay_dir) / OWNER_HTTP_SOCKET))]
         config = uvicorn.Config("tsdb_service.cli.main:serve_app", factory=True, **options)
         server = owner_server(config, str(Path(relay_dir) / HANDOVER_SOCKET))
         print(

@@ -247,25 +247,31 @@ def log_config(level: str) -> dict:
     return config
 
 
-def shared_socket(host: str, port: int):
-    """A listening TCP socket on ``host:port`` that other processes of ours
-    may listen on too (``SO_REUSEPORT``: the kernel spreads new connections
-    over them; ``--ingest-processes``). Only processes of the same user can
-    join it."""
+def listening_sockets(host: str, port: int, count: int) -> list:
+    """``count`` listening TCP sockets on the same ``host:port`` for
+    ``serve --ingest-processes`` (the first for the serving process, one per
+    acceptor, handed to it): ``SO_REUSEPORT`` lets the kernel spread new
+    connections evenly over them. They are bound one after the other, right
+    after ``serve`` checked that nothing holds the port (``check_bind``,
+    without ``SO_REUSEPORT``, so a second service started on the port is
+    refused); an acceptor that dies leaves its socket with the serving
+    process, whose queue waits for the acceptor started again."""
     import socket
 
     family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)[
         0
     ]
-    sock = socket.socket(family, kind, proto)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
-    if family == socket.AF_INET6:
-        sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 0)
-    sock.bind(address)
-    sock.listen(2048)
-    sock.set_inheritable(False)
-    return sock
+    sockets = []
+    for _ in range(count):
+        sock = socket.socket(family, kind, proto)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+        if family == socket.AF_INET6:
+            sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 0)
+        sock.bind(address)
+        sock.listen(2048)
+        sockets.append(sock)
+    return sockets
 
 
 def private_socket(path: str):

@@ -29,6 +29,7 @@ import asyncio
 import contextvars
 import logging
 import os
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -58,6 +59,7 @@ _HOP_BY_HOP = frozenset(
 _OWNER_GONE = (
     b'{"error":"ServiceUnavailable","description":"the process that owns the database is not reachable; try again"}'
 )
+REPORT_AT = 1000  # answers kept before they are reported to the owner (and at least once a second)
 # Layouts the owner gave for the parse being retried (see RelayedStore.read).
 _FETCHED: contextvars.ContextVar[dict[tuple[str, str], ValuesLayout | None] | None] = contextvars.ContextVar(
     "tsdb_fetched_layouts", default=None
@@ -122,14 +124,14 @@ class AcceptorApp:
         )
         self.notify: Callable[[Any, Any, Any], Any] | None = None  # set by app.create_acceptor_app
         self.on_owner_lost: Callable[[], None] = lambda: None
+        self._timings: list[tuple[str, str, int, float]] = []  # answered, not yet reported to the owner
 
     async def __call__(self, scope, receive, send) -> None:
         kind = scope["type"]
         if kind == "lifespan":
             await self._lifespan(receive, send)
         elif kind == "http" and scope["method"] == "POST" and scope["path"] in NOTIFY_PATHS:
-            assert self.notify is not None
-            await self.notify(scope, receive, send)
+            await self._timed_notify(scope, receive, send)
         elif kind == "http":
             await self.pass_to_owner(scope, receive, send)
         # websockets: none are served
@@ -143,13 +145,46 @@ class AcceptorApp:
                 except OSError as exc:
                     await send({"type": "lifespan.startup.failed", "message": f"the owner's relay: {exc}"})
                     return
-                asyncio.get_running_loop().create_task(self._watch_owner())
+                loop = asyncio.get_running_loop()
+                self._background = [loop.create_task(self._watch_owner()), loop.create_task(self._report_every(1.0))]
                 await send({"type": "lifespan.startup.complete"})
             elif message["type"] == "lifespan.shutdown":
+                self._report_soon()
+                await asyncio.sleep(0)  # the last timings leave before the connection closes
                 self.relay.close()
                 await self.owner.aclose()
                 await send({"type": "lifespan.shutdown.complete"})
                 return
+
+    async def _timed_notify(self, scope, receive, send) -> None:
+        """The notify path, each answer's status and time kept for the owner's ``/metrics``."""
+        assert self.notify is not None
+        status = 500
+
+        async def send_status(message) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+            await send(message)
+
+        start = time.perf_counter()
+        try:
+            await self.notify(scope, receive, send_status)
+        finally:
+            self._timings.append((scope["path"], "POST", status, time.perf_counter() - start))
+            if len(self._timings) >= REPORT_AT:
+                self._report_soon()
+
+    def _report_soon(self) -> None:
+        timings, self._timings = self._timings, []
+        if timings and not self.relay.lost.is_set():
+            task = asyncio.get_running_loop().create_task(self.relay.report(timings))
+            task.add_done_callback(_ignore_failure)
+
+    async def _report_every(self, seconds: float) -> None:
+        while not self.relay.lost.is_set():
+            await asyncio.sleep(seconds)
+            self._report_soon()
 
     async def _watch_owner(self) -> None:
         await self.relay.lost.wait()
@@ -188,6 +223,11 @@ class AcceptorApp:
             await send({"type": "http.response.body", "body": b""})
         finally:
             await response.aclose()
+
+
+def _ignore_failure(task: asyncio.Task) -> None:
+    if not task.cancelled():
+        task.exception()  # timings are lost with the owner; nothing else is
 
 
 async def _body(receive):

@@ -12,7 +12,10 @@ Invariants:
   logged with its exit status; ``alive`` and ``restarts`` say how they
   fare (``/health``, ``/metrics``).
 * **They inherit the settings** through the ``TSDB_*`` variables ``serve``
-  sets, and the relay's directory through ``RELAY_DIR_VARIABLE``.
+  sets, the relay's directory through ``RELAY_DIR_VARIABLE``, and their
+  listening socket itself (``LISTEN_FDS_VARIABLE``; ``serve`` bound one per
+  process, ``http.server.listening_sockets``): a new acceptor takes over
+  the socket of the one it replaces, and the connections waiting in it.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from collections.abc import Callable
 log = logging.getLogger(__name__)
 
 RELAY_DIR_VARIABLE = "TSDB_INTERNAL_RELAY_DIR"
+LISTEN_FDS_VARIABLE = "TSDB_INTERNAL_LISTEN_FDS"  # the acceptors' HTTP listening sockets, one each
 RELAY_SOCKET = "relay.sock"  # frames (ingest.relay)
 OWNER_HTTP_SOCKET = "http.sock"  # the owner's HTTP, for requests an acceptor passes on
 HANDOVER_SOCKET = "handover.sock"  # connections an acceptor hands to the owner (http.handoff)
@@ -38,11 +42,12 @@ STEADY_S = 60.0
 
 
 class Acceptors:
-    """``count`` acceptor processes, kept running until ``stop``."""
+    """One acceptor process per listening socket in ``listen_fds``, kept running until ``stop``."""
 
-    def __init__(self, count: int, relay_dir: str, relayed: Callable[[], int] = lambda: 0):
-        self.count = count
+    def __init__(self, relay_dir: str, listen_fds: list[int], relayed: Callable[[], int] = lambda: 0):
+        self.count = len(listen_fds)
         self.relay_dir = relay_dir
+        self.listen_fds = listen_fds
         self._relayed = relayed
         self.restarts = 0
         self._processes: dict[int, asyncio.subprocess.Process] = {}
@@ -78,9 +83,15 @@ class Acceptors:
             self._watchers.append(asyncio.get_running_loop().create_task(self._keep(slot)))
 
     async def _spawn(self, slot: int) -> None:
-        env = {**os.environ, RELAY_DIR_VARIABLE: self.relay_dir}
+        fd = self.listen_fds[slot]
+        env = {**os.environ, RELAY_DIR_VARIABLE: self.relay_dir, LISTEN_FDS_VARIABLE: str(fd)}
         process = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "tsdb_service.cli.acceptor", env=env, stdin=asyncio.subprocess.DEVNULL
+            sys.executable,
+            "-m",
+            "tsdb_service.cli.acceptor",
+            env=env,
+            stdin=asyncio.subprocess.DEVNULL,
+            pass_fds=(fd,),
         )
         self._processes[slot] = process
         log.info("ingest process %d started (pid %d)", slot + 1, process.pid)

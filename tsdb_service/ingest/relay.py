@@ -66,7 +66,7 @@ log = logging.getLogger(__name__)
 
 REQUEST = struct.Struct("<IQB")
 ANSWER = struct.Struct("<IQH")
-APPEND, REJECTED, LAYOUT = 1, 2, 3
+APPEND, REJECTED, LAYOUT, TIMINGS = 1, 2, 3, 4
 OK = 200
 _OWNER_GONE = "the process that owns the database is not reachable; nothing was stored"
 
@@ -131,11 +131,13 @@ class RelayServer:
         write: Callable[[AppendSamples | RecordRejected], Awaitable[None]],
         values_layout: Callable[[str, str], Awaitable[ValuesLayout | None]],
         max_frame: int,
+        observe: Callable[[str, str, int, float], None] = lambda route, method, status, seconds: None,
     ):
         self.write = write
         self.values_layout = values_layout
         self.max_frame = max_frame
-        self.relayed = 0  # frames answered, for /metrics and the tests
+        self.observe = observe  # one request an acceptor answered: route, method, status, seconds (/metrics)
+        self.relayed = 0  # writes stored for acceptors (samples and refusals), for /metrics
         self._server: asyncio.AbstractServer | None = None
         self._tasks: set[asyncio.Task] = set()
 
@@ -162,12 +164,18 @@ class RelayServer:
             if kind == APPEND:
                 await self.write(codec.decode(payload))
                 answer = b""
+                self.relayed += 1
             elif kind == REJECTED:
                 await self.write(decode_rejected(payload))
                 answer = b""
+                self.relayed += 1
             elif kind == LAYOUT:
                 tenant, subscription = orjson.loads(payload)
                 answer = layout_answer(await self.values_layout(tenant, subscription))
+            elif kind == TIMINGS:
+                for route, method, status, seconds in orjson.loads(payload):
+                    self.observe(route, method, status, seconds)
+                answer = b""
             else:
                 raise TsdbError(f"an ingest process sent a frame of unknown kind {kind}")
             status = OK
@@ -176,7 +184,6 @@ class RelayServer:
         except Exception:
             log.exception("a write relayed by an ingest process failed")
             status, answer = 500, error_answer(TsdbError("the relayed write failed; see the service log"))
-        self.relayed += 1
         side.answer(frame_id, status, answer)
 
 
@@ -267,6 +274,10 @@ class RelayClient:
 
     async def values_layout(self, tenant: str, subscription_id: str) -> ValuesLayout | None:
         return layout_of(await self.call(LAYOUT, orjson.dumps([tenant, subscription_id])))
+
+    async def report(self, timings: list[tuple[str, str, int, float]]) -> None:
+        """Requests answered here (route, method, status, seconds), for the owner's ``/metrics``."""
+        await self.call(TIMINGS, orjson.dumps(timings))
 
 
 class _AcceptorSide(asyncio.Protocol):
