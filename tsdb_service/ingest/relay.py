@@ -191,6 +191,7 @@ class _OwnerSide(asyncio.Protocol):
     def __init__(self, server: RelayServer):
         self.server = server
         self.buffer = bytearray()
+        self.outgoing: list[bytes] = []
         self.transport: asyncio.Transport | None = None
 
     def connection_made(self, transport) -> None:
@@ -222,8 +223,16 @@ class _OwnerSide(asyncio.Protocol):
             del buffer[:start]
 
     def answer(self, frame_id: int, status: int, payload: bytes) -> None:
+        """Queue an answer; the answers of one turn of the loop leave in one write."""
+        self.outgoing.append(ANSWER.pack(len(payload), frame_id, status) + payload)
+        if len(self.outgoing) == 1:
+            asyncio.get_running_loop().call_soon(self._flush)
+
+    def _flush(self) -> None:
+        data = b"".join(self.outgoing)
+        self.outgoing.clear()
         if self.transport is not None and not self.transport.is_closing():
-            self.transport.write(ANSWER.pack(len(payload), frame_id, status) + payload)
+            self.transport.write(data)
 
 
 # --- an acceptor's side ---------------------------------------------------------------------
@@ -286,6 +295,7 @@ class _AcceptorSide(asyncio.Protocol):
         self.buffer = bytearray()
         self.transport: asyncio.Transport | None = None
         self.waiting: dict[int, asyncio.Future] = {}
+        self.outgoing: list[bytes] = []
         self.next_id = 0
 
     def connection_made(self, transport) -> None:
@@ -293,6 +303,7 @@ class _AcceptorSide(asyncio.Protocol):
 
     def connection_lost(self, exc) -> None:
         self.transport = None
+        self.outgoing.clear()
         for future in self.waiting.values():
             if not future.done():
                 future.set_exception(Unavailable(_OWNER_GONE))
@@ -300,12 +311,21 @@ class _AcceptorSide(asyncio.Protocol):
         self.lost.set()
 
     async def call(self, kind: int, payload: bytes) -> tuple[int, bytes]:
-        assert self.transport is not None
+        """Send one frame (the frames of one turn of the loop leave in one write) and await its answer."""
+        loop = asyncio.get_running_loop()
         self.next_id += 1
-        future = asyncio.get_running_loop().create_future()
+        future = loop.create_future()
         self.waiting[self.next_id] = future
-        self.transport.write(REQUEST.pack(len(payload), self.next_id, kind) + payload)
+        self.outgoing.append(REQUEST.pack(len(payload), self.next_id, kind) + payload)
+        if len(self.outgoing) == 1:
+            loop.call_soon(self._flush)
         return await future
+
+    def _flush(self) -> None:
+        data = b"".join(self.outgoing)
+        self.outgoing.clear()
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.write(data)
 
     def data_received(self, data: bytes) -> None:
         buffer = self.buffer
