@@ -44,7 +44,7 @@ from tsdb_service.storage.ld_ingest import (
     with_deletions,
     without_dropped,
 )
-from tsdb_service.storage.rollups import HOT, fold_sql, partial_rows
+from tsdb_service.storage.rollups import HOT, batch_partials
 from tsdb_service.storage.sql.writes import delete_statements, instance_statements
 from tsdb_service.storage.staging import StagingAppender, WriteTarget
 from tsdb_service.write.ops import DeleteInstance, DeleteSamples, Delivery, LogPosition, PutLayout, ReplaceInstance
@@ -79,6 +79,10 @@ SAMPLE_SCHEMA = pa.schema(
 )
 
 
+# What the rollups read of a batch (``rollups.batch_partials``).
+ROLLUP_SCHEMA = pa.schema([SAMPLE_SCHEMA.field(name) for name in ("sid", "rid", "t", "kind", "num")])
+
+
 REQUIRED = frozenset({"rid", "sid", "t", "kind", "iid"})
 
 
@@ -90,7 +94,6 @@ INSERT_SERIES = (
 
 
 _DIALECT = DuckDBDialect()
-FOLD_SQL = fold_sql(_DIALECT, "_rollup_batch")
 
 
 # Above this many rows a batch goes in as one Arrow batch and its rollups by
@@ -350,10 +353,11 @@ class DuckDBAppender(StagingAppender):
 
         Under load the event loop holds the GIL, and every return from
         DuckDB into Python waits for it. A small batch is therefore appended
-        and flushed by a DuckDB appender, its rollups folded by one statement
-        over the same columns (``_fold_rollups``), in one transaction. Big
-        batches (bulk loads) go through Arrow instead, where the per-row
-        conversion cost matters more than the GIL. New series
+        and flushed by a DuckDB appender; big batches (bulk loads) go
+        through Arrow instead, where the per-row conversion cost matters
+        more than the GIL. Either way the batch's rollups are computed with
+        numpy (``rollups.batch_partials``) and inserted as one Arrow batch,
+        in the same transaction. New series
         rows are committed first; if the samples then fail, an unused series
         row is harmless. The ingest log's position goes in the samples'
         transaction (or, with no sample left to store, in the other one):
@@ -408,47 +412,35 @@ class DuckDBAppender(StagingAppender):
             # ones (geometry, metadata...) would hold the GIL for nothing.
             names = tuple(n for n in SAMPLE_SCHEMA.names if n in REQUIRED or any(v is not None for v in self._cols[n]))
             self._append_rows(cur, names)
+            batch = self._arrow_batch(ROLLUP_SCHEMA)
         else:
-            self._insert_arrow(cur)
-        self._fold_rollups(cur)
+            batch = self._arrow_batch(SAMPLE_SCHEMA)
+            self._insert(cur, "samples_hot", batch)
+        self._insert(cur, HOT, batch_partials(batch))
         for sql, params in delivery_statements("?", deliveries):
             cur.execute(sql, params)
         if position is not None:
             cur.execute(ADVANCE_SQL, [position.seq, position.rid])
         self._durable(cur, "COMMIT")
 
-    def _fold_rollups(self, cur: duckdb.DuckDBPyConnection) -> None:
-        """The batch's minute and hour partials into ``rollups_hot``, in the
-        samples' transaction (``storage.rollups``): a small batch aggregated
-        here and appended, a big one by one statement over its columns."""
+    def _arrow_batch(self, schema: pa.Schema) -> pa.Table:
+        """The staged columns of ``schema`` as one Arrow table (times from
+        epoch microseconds, no datetime objects)."""
         cols = self._cols
-        if len(cols["rid"]) <= ARROW_MIN_ROWS:
-            rows = partial_rows(cols["sid"], cols["rid"], cols["t"], cols["kind"], cols["num"])
-            appender = cur.appender(HOT)
-            try:
-                appender.append_rows(rows)
-                appender.flush()
-            except BaseException:
-                with contextlib.suppress(duckdb.Error):  # no row may reach a later flush
-                    appender.clear()
-                raise
-            return
-        batch = pa.Table.from_arrays(
-            [
-                pa.array(cols["sid"], pa.int32()),
-                pa.array(cols["rid"], pa.int64()),
-                pa.array(cols["t"], pa.int64()).cast(pa.timestamp("us")),
-                pa.array(cols["kind"], pa.uint8()),
-                pa.array(cols["num"], pa.float64()),
-            ],
-            names=["sid", "rid", "t", "kind", "num"],
-        )
-        cur.register("_rollup_batch", batch)
-        try:
-            cur.execute(FOLD_SQL)
-        finally:
-            with contextlib.suppress(duckdb.Error):  # fails on an invalid instance
-                cur.unregister("_rollup_batch")
+        arrays = [
+            pa.array(cols[f.name], pa.int64()).cast(f.type)
+            if f.name in TIME_COLUMNS
+            else pa.array(cols[f.name], f.type)
+            for f in schema
+        ]
+        return pa.Table.from_arrays(arrays, schema=schema)
+
+    def _insert(self, cur: duckdb.DuckDBPyConnection, table: str, arrow_rows: pa.Table) -> None:
+        """``arrow_rows`` into ``table`` by column name, in the open
+        transaction: one statement, which DuckDB plans and runs without the
+        GIL. It reads the local variable by its name (DuckDB's replacement
+        scan: no view to register and drop, which cost as much again)."""
+        cur.execute(f"INSERT INTO {table} BY NAME SELECT * FROM arrow_rows")
 
     def _append_rows(self, cur: duckdb.DuckDBPyConnection, names: tuple[str, ...]) -> None:
         """The staged rows of ``names`` through a DuckDB appender, flushed
@@ -478,21 +470,6 @@ class DuckDBAppender(StagingAppender):
                 appender.clear()
             if not (isinstance(exc, duckdb.Error) and self._committed_anyway(exc)):
                 raise
-
-    def _insert_arrow(self, cur: duckdb.DuckDBPyConnection) -> None:
-        cols = self._cols
-        arrays = [
-            pa.array(cols[f.name], pa.int64()).cast(f.type)
-            if f.name in TIME_COLUMNS
-            else pa.array(cols[f.name], f.type)
-            for f in SAMPLE_SCHEMA
-        ]
-        cur.register("_batch", pa.Table.from_arrays(arrays, schema=SAMPLE_SCHEMA))
-        try:
-            self._durable(cur, "INSERT INTO samples_hot BY NAME SELECT * FROM _batch")
-        finally:
-            with contextlib.suppress(duckdb.Error):  # fails on an invalid instance
-                cur.unregister("_batch")
 
     def _commit_other(self, cur: duckdb.DuckDBPyConnection) -> None:
         cur.execute("BEGIN")
