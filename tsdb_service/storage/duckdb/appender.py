@@ -1,6 +1,6 @@
 """The DuckDB writer: stages a group's operations as columns and commits
-them in one transaction (a DuckDB appender flushed in autocommit mode, or an
-Arrow batch for bulk loads), then publishes what it wrote to memory.
+them in one transaction (the samples and their rollups as Arrow batches),
+then publishes what it wrote to memory.
 
 The shape is ``storage.staging``'s, shared with the PostgreSQL writer. The
 store is reached through ``DuckDBTarget``: its ids (``ids.SeriesIds``), its
@@ -23,7 +23,7 @@ from tsdb_service.core.errors import Unavailable, first_line
 from tsdb_service.core.model import EntitySample, RejectedNotification
 from tsdb_service.core.query import TimeRange
 from tsdb_service.storage import rejected as rejected_store
-from tsdb_service.storage.columns import LD_TIME_COLUMNS, SAMPLE_COLUMNS, naive_timestamps, to_micros
+from tsdb_service.storage.columns import LD_TIME_COLUMNS, SAMPLE_COLUMNS, to_micros
 from tsdb_service.storage.deliveries import delivery_statements
 from tsdb_service.storage.duckdb.connection import (
     MAYBE_STORED,
@@ -79,13 +79,6 @@ SAMPLE_SCHEMA = pa.schema(
 )
 
 
-# What the rollups read of a batch (``rollups.batch_partials``).
-ROLLUP_SCHEMA = pa.schema([SAMPLE_SCHEMA.field(name) for name in ("sid", "rid", "t", "kind", "num")])
-
-
-REQUIRED = frozenset({"rid", "sid", "t", "kind", "iid"})
-
-
 INSERT_SERIES = (
     "INSERT INTO series BY NAME SELECT unnest($1::INTEGER[]) AS sid, unnest($2::VARCHAR[]) AS tenant, "
     "unnest($3::VARCHAR[]) AS service_path, unnest($4::VARCHAR[]) AS entity_id, "
@@ -94,19 +87,6 @@ INSERT_SERIES = (
 
 
 _DIALECT = DuckDBDialect()
-
-
-# Above this many rows a batch goes in as one Arrow batch and its rollups by
-# one statement (the ingest log's applier under load, bulk loads, copies),
-# below it through DuckDB appenders: in process, of the Lawnmower workload
-# with rollups, the appenders cost 25-40 % less CPU per sample at 720 rows,
-# both the same at 1,200-1,500, Arrow 5-25 % less at 1,800-2,040.
-ARROW_MIN_ROWS = 1536
-
-
-# Appenders a writer keeps, one per set of columns its groups filled (about
-# 55 KB each): a few shapes cover ordinary traffic.
-MAX_ROW_APPENDERS = 16
 
 
 def micros_or_none(moment: datetime | None) -> int | None:
@@ -145,8 +125,6 @@ class DuckDBAppender(StagingAppender):
         self._store = store
         self._generation = store.generation
         self._cur = store.new_cursor()
-        # DuckDB appenders on self._cur, one per set of columns a group fills
-        self._row_appenders: dict[tuple[str, ...], Any] = {}
         self._reset()
 
     def _current_cursor(self) -> duckdb.DuckDBPyConnection:
@@ -156,7 +134,6 @@ class DuckDBAppender(StagingAppender):
         if self._generation != store.generation:
             self._generation = store.generation
             self._cur = store.new_cursor()
-            self._row_appenders = {}
         return self._cur
 
     def _reset(self) -> None:
@@ -352,12 +329,15 @@ class DuckDBAppender(StagingAppender):
         """Make the staged ops durable with as few database calls as possible.
 
         Under load the event loop holds the GIL, and every return from
-        DuckDB into Python waits for it. A small batch is therefore appended
-        and flushed by a DuckDB appender; big batches (bulk loads) go
-        through Arrow instead, where the per-row conversion cost matters
-        more than the GIL. Either way the batch's rollups are computed with
-        numpy (``rollups.batch_partials``) and inserted as one Arrow batch,
-        in the same transaction. New series
+        DuckDB into Python waits for it; the writer holds it as little as it
+        can. The staged columns become one Arrow batch (``_arrow_batch``:
+        one C conversion a column, times from epoch microseconds), inserted
+        by one statement that DuckDB plans and runs without the GIL; its
+        rollups are computed from the same batch with numpy
+        (``rollups.batch_partials``) and inserted the same way, in the same
+        transaction. At every batch size this costs less CPU and far less
+        GIL than DuckDB's row appender did (``benchmarks/apply_cpu.py``).
+        New series
         rows are committed first; if the samples then fail, an unused series
         row is harmless. The ingest log's position goes in the samples'
         transaction (or, with no sample left to store, in the other one):
@@ -406,34 +386,29 @@ class DuckDBAppender(StagingAppender):
         # replayed batch is neither stored nor rolled up twice.
         deliveries, self._deliveries = self._deliveries, []
         position, self._position = self._position, None
+        batch = self._arrow_batch()
+        partials = batch_partials(batch)
         cur.execute("BEGIN")
-        if len(self._cols["rid"]) <= ARROW_MIN_ROWS:
-            # Only columns that carry a value: converting the all-NULL
-            # ones (geometry, metadata...) would hold the GIL for nothing.
-            names = tuple(n for n in SAMPLE_SCHEMA.names if n in REQUIRED or any(v is not None for v in self._cols[n]))
-            self._append_rows(cur, names)
-            batch = self._arrow_batch(ROLLUP_SCHEMA)
-        else:
-            batch = self._arrow_batch(SAMPLE_SCHEMA)
-            self._insert(cur, "samples_hot", batch)
-        self._insert(cur, HOT, batch_partials(batch))
+        self._insert(cur, "samples_hot", batch)
+        self._insert(cur, HOT, partials)
         for sql, params in delivery_statements("?", deliveries):
             cur.execute(sql, params)
         if position is not None:
             cur.execute(ADVANCE_SQL, [position.seq, position.rid])
         self._durable(cur, "COMMIT")
 
-    def _arrow_batch(self, schema: pa.Schema) -> pa.Table:
-        """The staged columns of ``schema`` as one Arrow table (times from
-        epoch microseconds, no datetime objects)."""
+    def _arrow_batch(self) -> pa.Table:
+        """The staged columns as one Arrow table (times from epoch
+        microseconds, no datetime objects). A value a column cannot hold
+        raises a plain Python error (``refuses``), before any statement."""
         cols = self._cols
         arrays = [
             pa.array(cols[f.name], pa.int64()).cast(f.type)
             if f.name in TIME_COLUMNS
             else pa.array(cols[f.name], f.type)
-            for f in schema
+            for f in SAMPLE_SCHEMA
         ]
-        return pa.Table.from_arrays(arrays, schema=schema)
+        return pa.Table.from_arrays(arrays, schema=SAMPLE_SCHEMA)
 
     def _insert(self, cur: duckdb.DuckDBPyConnection, table: str, arrow_rows: pa.Table) -> None:
         """``arrow_rows`` into ``table`` by column name, in the open
@@ -441,35 +416,6 @@ class DuckDBAppender(StagingAppender):
         GIL. It reads the local variable by its name (DuckDB's replacement
         scan: no view to register and drop, which cost as much again)."""
         cur.execute(f"INSERT INTO {table} BY NAME SELECT * FROM arrow_rows")
-
-    def _append_rows(self, cur: duckdb.DuckDBPyConnection, names: tuple[str, ...]) -> None:
-        """The staged rows of ``names`` through a DuckDB appender, flushed
-        inside the transaction that also records the rows' rollups, MQTT
-        deliveries and ingest-log position. A third cheaper in CPU than the INSERT ...
-        SELECT unnest($1..$n) it replaces (binding and planning that
-        statement was most of a small group's cost), at 8 to 100
-        notifications a group (``benchmarks/README.md``).
-
-        An appender keeps the rows buffered before a failure, and a later
-        flush would store them: after any error its buffer is cleared and
-        it is dropped, so a retry starts from nothing."""
-        appender = self._row_appenders.get(names)
-        if appender is None:
-            if len(self._row_appenders) >= MAX_ROW_APPENDERS:  # payloads of many shapes: the oldest goes
-                del self._row_appenders[next(iter(self._row_appenders))]
-            appender = self._row_appenders[names] = cur.appender("samples_hot", columns=list(names))
-        cols = self._cols
-        try:
-            appender.append_rows(
-                zip(*(naive_timestamps(cols[n]) if n in TIME_COLUMNS else cols[n] for n in names), strict=True)
-            )
-            appender.flush()
-        except BaseException as exc:  # a value it cannot convert raises a plain Python error
-            del self._row_appenders[names]
-            with contextlib.suppress(duckdb.Error):
-                appender.clear()
-            if not (isinstance(exc, duckdb.Error) and self._committed_anyway(exc)):
-                raise
 
     def _commit_other(self, cur: duckdb.DuckDBPyConnection) -> None:
         cur.execute("BEGIN")
@@ -541,6 +487,5 @@ class DuckDBAppender(StagingAppender):
         self._reset()
 
     def close(self) -> None:
-        self._row_appenders = {}
         with contextlib.suppress(duckdb.Error):
             self._cur.close()
