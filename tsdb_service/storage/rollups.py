@@ -237,7 +237,6 @@ def fold_sql(d: SqlDialect, source: str) -> str:
     )
 
 
-_NUMERIC_KINDS = np.array([int(Kind.NUMBER), int(Kind.INTEGER)], np.uint8)
 _TIMESTAMP = pa.timestamp("us")
 
 
@@ -260,7 +259,7 @@ def batch_partials(batch: pa.Table) -> pa.Table:
     kind = np.tile(batch["kind"].to_numpy(), 2)
     num = batch["num"]
     value = np.tile(num.to_numpy(), 2)  # NaN where null: only read where numeric
-    numeric = np.isin(kind, _NUMERIC_KINDS)
+    numeric = (kind == int(Kind.NUMBER)) | (kind == int(Kind.INTEGER))
     if num.null_count:
         numeric &= np.tile(num.is_valid().to_numpy(), 2)
     level = np.repeat(np.array([MINUTE.code, HOUR.code], np.uint8), n)
