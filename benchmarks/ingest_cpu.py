@@ -18,9 +18,8 @@ server on PostgreSQL, and of wrk. It prints, per window, the CPU
 milliseconds per acknowledged notification of each process and in all, and
 per stored sample (a notification stores 6: ``TimeInstant`` and five
 attributes), and on DuckDB how many samples each transaction of the ingest
-log's applier took (``/metrics``: below ``ARROW_MIN_ROWS`` they go through
-DuckDB's row appender, above it as one Arrow batch); then the median over
-the windows. The server is stopped with
+log's applier took (``/metrics``; ``apply_cpu.py`` measures that step alone
+by batch size); then the median over the windows. The server is stopped with
 SIGTERM and the store must hold every acknowledged notification once.
 
 ``--profile`` also samples every process of the server with py-spy (the
@@ -207,6 +206,9 @@ def main(argv: list[str] | None = None) -> int:
     env = dict(item.split("=", 1) for item in args.server_env)
     if args.tree is not None:
         env["PYTHONPATH"] = str(args.tree.resolve())
+        # ``python -m`` puts the working directory ahead of PYTHONPATH: run
+        # from a checkout, the server would import that checkout instead.
+        env["PYTHONSAFEPATH"] = "1"
     cluster = None
     rows: list[dict] = []
     profiles: dict = {}

@@ -10,7 +10,6 @@ is not) are written once, here.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from datetime import UTC, datetime, timedelta
 
 from tsdb_service.core.buckets import epoch_micros
@@ -26,7 +25,6 @@ NO_GEO = (None,) * len(GEO_COLUMNS)
 
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 ONE_US = timedelta(microseconds=1)
-_NAIVE_EPOCH = datetime(1970, 1, 1)
 
 
 def content_values(a: AttrSample) -> tuple:
@@ -39,14 +37,6 @@ def content_values(a: AttrSample) -> tuple:
 
 
 to_micros = epoch_micros  # exact microseconds since the epoch (float timestamps lose precision)
-
-
-def naive_timestamps(micros: Iterable[int | None]) -> list[datetime | None]:
-    """``to_micros``' inverse over a column, as the naive UTC datetimes a
-    TIMESTAMP column holds (a DuckDB appender takes no integers there);
-    exact, unlike a float division."""
-    epoch, delta = _NAIVE_EPOCH, timedelta
-    return [None if v is None else epoch + delta(microseconds=v) for v in micros]
 
 
 def naive_utc(moment: datetime) -> datetime:

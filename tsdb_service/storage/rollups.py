@@ -28,9 +28,9 @@ Invariants:
 
 * **Never behind.** Every statement inserting samples appends their
   partials in its own transaction: on DuckDB the writer folds each batch
-  (``partial_rows`` for a small one, ``fold_sql`` over a big one) in the
-  transaction that also moves the ingest-log position, so a replayed batch
-  is folded exactly once; on
+  (``batch_partials``: ``fold_sql`` vectorised) in the transaction that
+  also moves the ingest-log position, so a replayed batch is folded
+  exactly once; on
   PostgreSQL the trigger ``rollups_fold`` (migration 0014, the same SQL)
   folds each statement's new rows, whoever inserts them. ``copy`` and
   ``import quantumleap`` write through the writers.
@@ -62,6 +62,9 @@ import time as _time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
+
+import numpy as np
+import pyarrow as pa
 
 from tsdb_service.core.buckets import bucket_start
 from tsdb_service.core.model import Kind
@@ -234,51 +237,96 @@ def fold_sql(d: SqlDialect, source: str) -> str:
     )
 
 
-_NUMBER, _INTEGER, _NULL = int(Kind.NUMBER), int(Kind.INTEGER), int(Kind.NULL)
-_NAIVE_EPOCH = datetime(1970, 1, 1)
+_TIMESTAMP = pa.timestamp("us")
 
 
-def partial_rows(
-    sids: Sequence[int], rids: Sequence[int], times: Sequence[int], kinds: Sequence[int], nums: Sequence
-) -> list[tuple]:
-    """``fold_sql`` in Python, for a writer's small batch (a few hundred
-    samples: one statement costs DuckDB several ms of CPU, this loop a few
-    hundred µs): the ``rollups_hot`` rows (level, ``COLUMNS``) of the samples
-    given as columns (times in epoch µs), the same partials to the last
-    tie: the smallest and largest number with the earliest time holding
-    it, the first and last by (time, row id)."""
-    cells: dict[tuple[int, int, int], list] = {}
-    widths = [(level.code, level.width // _US) for level in LEVELS]
-    for sid, rid, t, kind, num in zip(sids, rids, times, kinds, nums, strict=True):
-        number = num if kind in (_NUMBER, _INTEGER) and num is not None else None
-        for code, width in widths:
-            key = (code, sid, t - t % width)
-            c = cells.get(key)
-            if c is None:
-                # n_present, n_numeric, n_integer, sum, min, min_t, max, max_t, first, first_t,
-                # first_rid, last, last_t, last_rid
-                c = cells[key] = [0, 0, 0, None, None, None, None, None, None, None, None, None, None, None]
-            if kind != _NULL:
-                c[0] += 1
-            if number is None:
-                continue
-            c[1] += 1
-            if kind == _INTEGER:
-                c[2] += 1
-            if c[1] == 1:
-                c[3:] = [number, number, t, number, t, number, t, rid, number, t, rid]
-                continue
-            c[3] += number
-            if number < c[4] or (number == c[4] and t < c[5]):
-                c[4], c[5] = number, t
-            if number > c[6] or (number == c[6] and t < c[7]):
-                c[6], c[7] = number, t
-            if (t, rid) < (c[9], c[10]):
-                c[8], c[9], c[10] = number, t, rid
-            if (t, rid) > (c[12], c[13]):
-                c[11], c[12], c[13] = number, t, rid
-    epoch, delta = _NAIVE_EPOCH, timedelta
-    return [(code, sid, epoch + delta(microseconds=bucket), *c) for (code, sid, bucket), c in cells.items()]
+def batch_partials(batch: pa.Table) -> pa.Table:
+    """``fold_sql`` over a writer's batch, vectorised (numpy, holding the
+    interpreter lock for a few numpy calls rather than a loop per sample,
+    and no statement to plan): the ``rollups_hot`` rows (level,
+    ``COLUMNS``) of the samples of ``batch`` (an Arrow table with sid, rid,
+    t, kind, num; t a timestamp), the same partials to the last tie: the
+    smallest and largest number with the earliest time holding it, the
+    first and last number by (time, row id), and among samples equal in
+    all that the one earlier in the batch. Sums add in the batch's order.
+
+    Both levels are grouped at once: every sample twice, keyed (level,
+    sid, bucket); each pick is the head of its group in one stable sort."""
+    n = batch.num_rows
+    sid = np.tile(batch["sid"].to_numpy(), 2)
+    rid = np.tile(batch["rid"].to_numpy(), 2)
+    t = np.tile(batch["t"].to_numpy().view(np.int64), 2)
+    kind = np.tile(batch["kind"].to_numpy(), 2)
+    num = batch["num"]
+    value = np.tile(num.to_numpy(), 2)  # NaN where null: only read where numeric
+    numeric = (kind == int(Kind.NUMBER)) | (kind == int(Kind.INTEGER))
+    if num.null_count:
+        numeric &= np.tile(num.is_valid().to_numpy(), 2)
+    level = np.repeat(np.array([MINUTE.code, HOUR.code], np.uint8), n)
+    width = np.repeat(np.array([MINUTE.width // _US, HOUR.width // _US], np.int64), n)
+    bucket = t - t % width
+    order = np.lexsort((bucket, sid, level))
+    head = _heads(level[order], sid[order], bucket[order])
+    starts = order[head]
+    groups = len(starts)
+    group = np.empty(2 * n, np.intp)
+    group[order] = np.cumsum(head) - 1
+    present = kind != int(Kind.NULL)
+    counts = [
+        np.bincount(group[mask], minlength=groups) for mask in (present, numeric, numeric & (kind == int(Kind.INTEGER)))
+    ]
+    has = counts[1] > 0
+    rows = np.flatnonzero(numeric)
+    g, v, tn, rn = group[rows], value[rows], t[rows], rid[rows]
+    total = np.bincount(g, weights=v, minlength=groups)[has]
+    mn = rows[_picks(g, np.lexsort((tn, v, g)))]
+    mx = rows[_picks(g, np.lexsort((tn, -v, g)))]
+    first = rows[_picks(g, np.lexsort((rn, tn, g)))]
+    last = rows[_picks(g, np.lexsort((-rn, -tn, g)))]
+    absent = ~has
+    partial = [
+        total,
+        value[mn],
+        t[mn],
+        value[mx],
+        t[mx],
+        value[first],
+        t[first],
+        rid[first],
+        value[last],
+        t[last],
+        rid[last],
+    ]
+    arrays = [
+        pa.array(level[starts]),
+        pa.array(sid[starts]),
+        pa.array(bucket[starts]).cast(_TIMESTAMP),
+        *(pa.array(c) for c in counts),
+        *(pa.array(_spread(c, has), mask=absent) for c in partial),
+    ]
+    return pa.Table.from_arrays(arrays, names=["level", *COLUMNS])
+
+
+def _heads(*keys: np.ndarray) -> np.ndarray:
+    """Where a run of equal keys starts, over sorted ``keys``."""
+    head = np.zeros(len(keys[0]), bool)
+    if len(head):
+        head[0] = True
+        for key in keys:
+            head[1:] |= key[1:] != key[:-1]
+    return head
+
+
+def _picks(group: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """The first index of each group in ``order`` (groups sorted first)."""
+    return order[_heads(group[order])]
+
+
+def _spread(values: np.ndarray, has: np.ndarray) -> np.ndarray:
+    """``values`` of the groups where ``has``, at their places among all."""
+    out = np.zeros(len(has), values.dtype)
+    out[has] = values
+    return out
 
 
 MIGRATION = 14  # migrations/0014_rollup_levels.*.sql

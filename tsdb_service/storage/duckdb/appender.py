@@ -1,6 +1,6 @@
 """The DuckDB writer: stages a group's operations as columns and commits
-them in one transaction (a DuckDB appender flushed in autocommit mode, or an
-Arrow batch for bulk loads), then publishes what it wrote to memory.
+them in one transaction (the samples and their rollups as Arrow batches),
+then publishes what it wrote to memory.
 
 The shape is ``storage.staging``'s, shared with the PostgreSQL writer. The
 store is reached through ``DuckDBTarget``: its ids (``ids.SeriesIds``), its
@@ -23,7 +23,7 @@ from tsdb_service.core.errors import Unavailable, first_line
 from tsdb_service.core.model import EntitySample, RejectedNotification
 from tsdb_service.core.query import TimeRange
 from tsdb_service.storage import rejected as rejected_store
-from tsdb_service.storage.columns import LD_TIME_COLUMNS, SAMPLE_COLUMNS, naive_timestamps, to_micros
+from tsdb_service.storage.columns import LD_TIME_COLUMNS, SAMPLE_COLUMNS, to_micros
 from tsdb_service.storage.deliveries import delivery_statements
 from tsdb_service.storage.duckdb.connection import (
     MAYBE_STORED,
@@ -44,7 +44,7 @@ from tsdb_service.storage.ld_ingest import (
     with_deletions,
     without_dropped,
 )
-from tsdb_service.storage.rollups import HOT, fold_sql, partial_rows
+from tsdb_service.storage.rollups import HOT, batch_partials
 from tsdb_service.storage.sql.writes import delete_statements, instance_statements
 from tsdb_service.storage.staging import StagingAppender, WriteTarget
 from tsdb_service.write.ops import DeleteInstance, DeleteSamples, Delivery, LogPosition, PutLayout, ReplaceInstance
@@ -79,9 +79,6 @@ SAMPLE_SCHEMA = pa.schema(
 )
 
 
-REQUIRED = frozenset({"rid", "sid", "t", "kind", "iid"})
-
-
 INSERT_SERIES = (
     "INSERT INTO series BY NAME SELECT unnest($1::INTEGER[]) AS sid, unnest($2::VARCHAR[]) AS tenant, "
     "unnest($3::VARCHAR[]) AS service_path, unnest($4::VARCHAR[]) AS entity_id, "
@@ -90,20 +87,6 @@ INSERT_SERIES = (
 
 
 _DIALECT = DuckDBDialect()
-FOLD_SQL = fold_sql(_DIALECT, "_rollup_batch")
-
-
-# Above this many rows a batch goes in as one Arrow batch and its rollups by
-# one statement (the ingest log's applier under load, bulk loads, copies),
-# below it through DuckDB appenders: in process, of the Lawnmower workload
-# with rollups, the appenders cost 25-40 % less CPU per sample at 720 rows,
-# both the same at 1,200-1,500, Arrow 5-25 % less at 1,800-2,040.
-ARROW_MIN_ROWS = 1536
-
-
-# Appenders a writer keeps, one per set of columns its groups filled (about
-# 55 KB each): a few shapes cover ordinary traffic.
-MAX_ROW_APPENDERS = 16
 
 
 def micros_or_none(moment: datetime | None) -> int | None:
@@ -142,9 +125,11 @@ class DuckDBAppender(StagingAppender):
         self._store = store
         self._generation = store.generation
         self._cur = store.new_cursor()
-        # DuckDB appenders on self._cur, one per set of columns a group fills
-        self._row_appenders: dict[tuple[str, ...], Any] = {}
         self._reset()
+        # pyarrow imports pandas on its first array (about 0.2 s): at start-up
+        # (the committer builds its writers before serving), not in the first
+        # commit, which would keep the first notifications unapplied that long.
+        pa.array([], pa.int64())
 
     def _current_cursor(self) -> duckdb.DuckDBPyConnection:
         """This writer's cursor on the store's current connection (a reopen
@@ -153,7 +138,6 @@ class DuckDBAppender(StagingAppender):
         if self._generation != store.generation:
             self._generation = store.generation
             self._cur = store.new_cursor()
-            self._row_appenders = {}
         return self._cur
 
     def _reset(self) -> None:
@@ -349,11 +333,16 @@ class DuckDBAppender(StagingAppender):
         """Make the staged ops durable with as few database calls as possible.
 
         Under load the event loop holds the GIL, and every return from
-        DuckDB into Python waits for it. A small batch is therefore appended
-        and flushed by a DuckDB appender, its rollups folded by one statement
-        over the same columns (``_fold_rollups``), in one transaction. Big
-        batches (bulk loads) go through Arrow instead, where the per-row
-        conversion cost matters more than the GIL. New series
+        DuckDB into Python waits for it; the writer holds it as little as it
+        can. The staged columns become one Arrow batch (``_arrow_batch``:
+        one C conversion a column, times from epoch microseconds), inserted
+        by one statement that DuckDB plans and runs without the GIL; its
+        rollups are computed from the same batch with numpy
+        (``rollups.batch_partials``) and inserted the same way, in the same
+        transaction. Against DuckDB's row appender it used before, this
+        costs as much CPU at 60 samples a batch and half at 800, where
+        the appender converted every value under the GIL
+        (``benchmarks/apply_cpu.py``). New series
         rows are committed first; if the samples then fail, an unused series
         row is harmless. The ingest log's position goes in the samples'
         transaction (or, with no sample left to store, in the other one):
@@ -402,84 +391,21 @@ class DuckDBAppender(StagingAppender):
         # replayed batch is neither stored nor rolled up twice.
         deliveries, self._deliveries = self._deliveries, []
         position, self._position = self._position, None
+        batch = self._arrow_batch()
+        partials = batch_partials(batch)
         cur.execute("BEGIN")
-        if len(self._cols["rid"]) <= ARROW_MIN_ROWS:
-            # Only columns that carry a value: converting the all-NULL
-            # ones (geometry, metadata...) would hold the GIL for nothing.
-            names = tuple(n for n in SAMPLE_SCHEMA.names if n in REQUIRED or any(v is not None for v in self._cols[n]))
-            self._append_rows(cur, names)
-        else:
-            self._insert_arrow(cur)
-        self._fold_rollups(cur)
+        self._insert(cur, "samples_hot", batch)
+        self._insert(cur, HOT, partials)
         for sql, params in delivery_statements("?", deliveries):
             cur.execute(sql, params)
         if position is not None:
             cur.execute(ADVANCE_SQL, [position.seq, position.rid])
         self._durable(cur, "COMMIT")
 
-    def _fold_rollups(self, cur: duckdb.DuckDBPyConnection) -> None:
-        """The batch's minute and hour partials into ``rollups_hot``, in the
-        samples' transaction (``storage.rollups``): a small batch aggregated
-        here and appended, a big one by one statement over its columns."""
-        cols = self._cols
-        if len(cols["rid"]) <= ARROW_MIN_ROWS:
-            rows = partial_rows(cols["sid"], cols["rid"], cols["t"], cols["kind"], cols["num"])
-            appender = cur.appender(HOT)
-            try:
-                appender.append_rows(rows)
-                appender.flush()
-            except BaseException:
-                with contextlib.suppress(duckdb.Error):  # no row may reach a later flush
-                    appender.clear()
-                raise
-            return
-        batch = pa.Table.from_arrays(
-            [
-                pa.array(cols["sid"], pa.int32()),
-                pa.array(cols["rid"], pa.int64()),
-                pa.array(cols["t"], pa.int64()).cast(pa.timestamp("us")),
-                pa.array(cols["kind"], pa.uint8()),
-                pa.array(cols["num"], pa.float64()),
-            ],
-            names=["sid", "rid", "t", "kind", "num"],
-        )
-        cur.register("_rollup_batch", batch)
-        try:
-            cur.execute(FOLD_SQL)
-        finally:
-            with contextlib.suppress(duckdb.Error):  # fails on an invalid instance
-                cur.unregister("_rollup_batch")
-
-    def _append_rows(self, cur: duckdb.DuckDBPyConnection, names: tuple[str, ...]) -> None:
-        """The staged rows of ``names`` through a DuckDB appender, flushed
-        inside the transaction that also records the rows' rollups, MQTT
-        deliveries and ingest-log position. A third cheaper in CPU than the INSERT ...
-        SELECT unnest($1..$n) it replaces (binding and planning that
-        statement was most of a small group's cost), at 8 to 100
-        notifications a group (``benchmarks/README.md``).
-
-        An appender keeps the rows buffered before a failure, and a later
-        flush would store them: after any error its buffer is cleared and
-        it is dropped, so a retry starts from nothing."""
-        appender = self._row_appenders.get(names)
-        if appender is None:
-            if len(self._row_appenders) >= MAX_ROW_APPENDERS:  # payloads of many shapes: the oldest goes
-                del self._row_appenders[next(iter(self._row_appenders))]
-            appender = self._row_appenders[names] = cur.appender("samples_hot", columns=list(names))
-        cols = self._cols
-        try:
-            appender.append_rows(
-                zip(*(naive_timestamps(cols[n]) if n in TIME_COLUMNS else cols[n] for n in names), strict=True)
-            )
-            appender.flush()
-        except BaseException as exc:  # a value it cannot convert raises a plain Python error
-            del self._row_appenders[names]
-            with contextlib.suppress(duckdb.Error):
-                appender.clear()
-            if not (isinstance(exc, duckdb.Error) and self._committed_anyway(exc)):
-                raise
-
-    def _insert_arrow(self, cur: duckdb.DuckDBPyConnection) -> None:
+    def _arrow_batch(self) -> pa.Table:
+        """The staged columns as one Arrow table (times from epoch
+        microseconds, no datetime objects). A value a column cannot hold
+        raises a plain Python error (``refuses``), before any statement."""
         cols = self._cols
         arrays = [
             pa.array(cols[f.name], pa.int64()).cast(f.type)
@@ -487,12 +413,14 @@ class DuckDBAppender(StagingAppender):
             else pa.array(cols[f.name], f.type)
             for f in SAMPLE_SCHEMA
         ]
-        cur.register("_batch", pa.Table.from_arrays(arrays, schema=SAMPLE_SCHEMA))
-        try:
-            self._durable(cur, "INSERT INTO samples_hot BY NAME SELECT * FROM _batch")
-        finally:
-            with contextlib.suppress(duckdb.Error):  # fails on an invalid instance
-                cur.unregister("_batch")
+        return pa.Table.from_arrays(arrays, schema=SAMPLE_SCHEMA)
+
+    def _insert(self, cur: duckdb.DuckDBPyConnection, table: str, arrow_rows: pa.Table) -> None:
+        """``arrow_rows`` into ``table`` by column name, in the open
+        transaction: one statement, which DuckDB plans and runs without the
+        GIL. It reads the local variable by its name (DuckDB's replacement
+        scan: no view to register and drop, which cost as much again)."""
+        cur.execute(f"INSERT INTO {table} BY NAME SELECT * FROM arrow_rows")
 
     def _commit_other(self, cur: duckdb.DuckDBPyConnection) -> None:
         cur.execute("BEGIN")
@@ -564,6 +492,5 @@ class DuckDBAppender(StagingAppender):
         self._reset()
 
     def close(self) -> None:
-        self._row_appenders = {}
         with contextlib.suppress(duckdb.Error):
             self._cur.close()

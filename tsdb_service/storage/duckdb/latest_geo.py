@@ -97,14 +97,19 @@ class _Grid:
         self._large: set[int] = set()
 
     def put(self, sid: int, box: Box | None) -> None:
-        """Set (or with None remove) ``sid``'s box."""
+        """Set (or with None remove) ``sid``'s box. A box in the same cells
+        as the one it replaces (a robot moving within a cell) only replaces it."""
         old = self.boxes.pop(sid, None)
+        cells = None if box is None else _cells(*box)
         if old is not None:
-            cells = _cells(*old)
-            if cells is None:
+            old_cells = _cells(*old)
+            if box is not None and old_cells == cells:
+                self.boxes[sid] = box
+                return
+            if old_cells is None:
                 self._large.discard(sid)
             else:
-                for cell in cells:
+                for cell in old_cells:
                     members = self._cells.get(cell)
                     if members is not None:
                         members.discard(sid)
@@ -113,7 +118,6 @@ class _Grid:
         if box is None:
             return
         self.boxes[sid] = box
-        cells = _cells(*box)
         if cells is None:
             self._large.add(sid)
         else:

@@ -1,18 +1,17 @@
-"""DuckDB groups are written through a DuckDB appender flushed in autocommit
-mode (``DuckDBAppender._append_rows``).
+"""DuckDB groups are written as Arrow batches, their rollups computed from
+the same batch (``DuckDBAppender._commit_samples``, ``rollups.batch_partials``).
 
-An appender keeps the rows it buffered before a failure, and its next flush
-would store them. The writer retries a failed group one notification at a
-time, so a leftover row would be stored twice, or a sample of a failed
+The writer retries a failed group one notification at a time, so a row left
+over from the failed attempt would be stored twice, or a sample of a failed
 notification stored after its 503. These tests make a group fail for real
-(a value DuckDB cannot convert) and check what the table holds afterwards;
-they also pin that every time column and value reads back exactly.
+(a value a column cannot hold) and check what the table holds afterwards;
+they also pin that every time column and value reads back exactly, and that
+the writer's rollups are those the SQL fold computes over the stored rows.
 """
 
 from __future__ import annotations
 
 import contextlib
-import copy
 import dataclasses
 import json
 import time
@@ -26,11 +25,14 @@ from tsdb_service.core.config import Settings
 from tsdb_service.core.errors import Unavailable
 from tsdb_service.core.model import AttrSample, EntitySample, Kind
 from tsdb_service.storage import open_store
-from tsdb_service.storage.duckdb.appender import MAX_ROW_APPENDERS, DuckDBAppender
+from tsdb_service.storage.duckdb.appender import DuckDBAppender
+from tsdb_service.storage.duckdb.dialect import DuckDBDialect
 from tsdb_service.storage.duckdb.store import DuckDBStore
+from tsdb_service.storage.rollups import HOT, LEVELS, combine_partials, fold_sql
 from tsdb_service.write.ops import AppendSamples
 
 START = datetime(2026, 3, 1, 12, 0, 0, 123456, tzinfo=UTC)
+DIALECT = DuckDBDialect()
 
 
 def _entity(n: int, speed: object = None) -> EntitySample:
@@ -130,10 +132,9 @@ def test_every_time_column_reads_back_to_the_microsecond(store: DuckDBStore):
     assert [row[4] for row in got] == [0.1 + i for i in range(len(moments))]
 
 
-def test_groups_of_many_shapes_keep_a_bounded_set_of_appenders(store: DuckDBStore):
-    """Each set of filled columns has its own appender; past
-    ``MAX_ROW_APPENDERS`` shapes the oldest is dropped, and every row of
-    every shape is still stored once, exactly."""
+def test_groups_of_many_shapes_are_stored_exactly(store: DuckDBStore):
+    """Groups filling different sets of columns, one after the other: every
+    row of every shape is stored once, exactly."""
     appender = DuckDBAppender(store)
     expected = []
     try:
@@ -151,7 +152,6 @@ def test_groups_of_many_shapes_keep_a_bounded_set_of_appenders(store: DuckDBStor
             )
             appender.stage(AppendSamples([EntitySample("rows", "/", f"urn:x:{shape}", "X", moment, [attr])]))
             appender.commit()
-            assert len(appender._row_appenders) <= MAX_ROW_APPENDERS
             expected.append((moment.replace(tzinfo=None), attr.num, attr.txt, attr.js, attr.md))
     finally:
         appender.close()
@@ -215,29 +215,30 @@ def _recorded_entities() -> list[EntitySample]:
     return out
 
 
-@pytest.mark.parametrize("arrow_min_rows", [0, 10**9], ids=["arrow", "appender"])
-def test_both_ways_into_the_table_store_the_same_rows(tmp_path: Path, monkeypatch, arrow_min_rows: int):
-    """A batch goes in as one Arrow batch (its rollups by one statement)
-    from ``ARROW_MIN_ROWS`` rows and through DuckDB's appenders below:
-    whichever way, the rows and their minute and hour partials read back
-    alike (compared with the other way's, written to a second file)."""
+def test_the_writer_s_rollups_are_the_sql_fold_of_its_rows(store: DuckDBStore):
+    """The partials the writer computes from each batch
+    (``rollups.batch_partials``) equal, bucket by bucket, those the SQL fold
+    (``rollups.fold_sql``, PostgreSQL's trigger) computes over the rows it
+    stored: every kind of recorded payload, in groups of several sizes."""
     entities = _recorded_entities()
+    start = 0
+    for size in (1, 7, 100, 1000, len(entities)):
+        if start < len(entities):
+            store.write_sync([AppendSamples(entities[start : start + size])])
+        start += size
+    cur = store.cursor()
 
-    def stored(name: str, min_rows: int) -> tuple[list[tuple], list[tuple]]:
-        monkeypatch.setattr("tsdb_service.storage.duckdb.appender.ARROW_MIN_ROWS", min_rows)
-        db = open_store(Settings(db=str(tmp_path / name), ingest_log=False))
-        assert isinstance(db, DuckDBStore)
-        try:
-            db.write_sync([AppendSamples(copy.deepcopy(entities))])
-            cur = db.cursor()
-            samples = cur.execute("SELECT * FROM samples_all ORDER BY ALL").fetchall()
-            rollups = cur.execute("SELECT * FROM rollups_hot ORDER BY ALL").fetchall()
-            return samples, rollups
-        finally:
-            db.close()
+    def rollups() -> dict[int, list[tuple]]:
+        return {
+            level.code: cur.execute(
+                combine_partials(DIALECT, f"(SELECT * FROM {HOT} WHERE level = {level.code})") + " ORDER BY ALL"
+            ).fetchall()
+            for level in LEVELS
+        }
 
-    samples, rollups = stored("this.duckdb", arrow_min_rows)
-    other_samples, other_rollups = stored("other.duckdb", 10**9 - arrow_min_rows)
-    assert len(samples) == sum(len(e.attrs) for e in entities) and rollups
-    assert samples == other_samples
-    assert rollups == other_rollups
+    written = rollups()
+    assert cur.execute("SELECT count(*) FROM samples_all").fetchone()[0] == sum(len(e.attrs) for e in entities)
+    assert all(written.values())
+    cur.execute(f"DELETE FROM {HOT}")
+    cur.execute(fold_sql(DIALECT, "samples_all"))
+    assert rollups() == written
