@@ -42,6 +42,9 @@ LD_FIELDS = (
 )  # after ATTR_FIELDS, when one is set
 
 
+_KINDS = {kind.value: kind for kind in Kind}
+
+
 class RecordError(ValueError):
     """A log record this version cannot read."""
 
@@ -117,7 +120,7 @@ def _attr(row: list[Any]) -> AttrSample:
     return AttrSample(
         name,
         ngsi_type,
-        Kind(kind),
+        _KINDS[kind] if kind in _KINDS else Kind(kind),  # Kind(code) is a Python call; ValueError if unknown
         num,
         txt,
         js,
