@@ -256,40 +256,39 @@ class _Overflow(bytes):
 
 async def _read_body(receive, declared: str | None, limit: int, keep: int) -> bytes:
     """The body, or past ``limit`` an ``_Overflow`` with its first ``keep``
-    bytes and its size, so an operator can still recover it. Read off the
-    ASGI ``receive`` as Starlette's ``Request.stream`` reads it (empty
-    chunks skipped; a disconnect is ``ClientDisconnect``)."""
+    bytes and its size, so an operator can still recover it."""
     chunks: list[bytes] = []
     size, more = 0, True
     while more:
-        message = await receive()
-        kind = message["type"]
-        if kind == "http.request":
-            more = message.get("more_body", False)
-            chunk = message.get("body", b"")
-            if chunk:
-                size += len(chunk)
-                chunks.append(chunk)
-                if size > limit:
-                    return await _overflow(_rest(receive, more), chunks, size, limit, keep, declared)
-        elif kind == "http.disconnect":
-            raise ClientDisconnect()
+        chunk, more = await _chunk(receive)
+        if chunk:
+            size += len(chunk)
+            chunks.append(chunk)
+            if size > limit:
+                return await _overflow(_rest(receive, more), chunks, size, limit, keep, declared)
     return chunks[0] if len(chunks) == 1 and type(chunks[0]) is bytes else b"".join(chunks)
 
 
-async def _rest(receive, more: bool) -> AsyncIterator[bytes]:
-    """The chunks after the one that went over the limit, then ``b""``, as
-    ``Request.stream`` yields them."""
-    while more:
+async def _chunk(receive) -> tuple[bytes, bool]:
+    """The next piece of the body and whether more follows, read off the ASGI
+    ``receive`` as Starlette's ``Request.stream`` reads it (a disconnect is
+    ``ClientDisconnect``; other messages are skipped)."""
+    while True:
         message = await receive()
         kind = message["type"]
         if kind == "http.request":
-            more = message.get("more_body", False)
-            chunk = message.get("body", b"")
-            if chunk:
-                yield chunk
-        elif kind == "http.disconnect":
+            return message.get("body", b""), message.get("more_body", False)
+        if kind == "http.disconnect":
             raise ClientDisconnect()
+
+
+async def _rest(receive, more: bool) -> AsyncIterator[bytes]:
+    """The pieces after the one that went over the limit, then ``b""``, as
+    ``Request.stream`` yields them."""
+    while more:
+        chunk, more = await _chunk(receive)
+        if chunk:
+            yield chunk
     yield b""
 
 
