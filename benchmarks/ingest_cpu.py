@@ -204,6 +204,8 @@ def main(argv: list[str] | None = None) -> int:
         db, cluster = common.fresh_database(args.backend, "ingestcpu", workdir)
         port = common.free_port()
         cmd = common.ours_cmd(db, port) + args.serve_arg
+        if args.tree is not None:  # python -m would put the working directory (this checkout) first
+            cmd.insert(1, "-P")
         server = common.spawned("ours", cmd, port, workdir, env)
         server.start()
         ledger: list[str] = []
