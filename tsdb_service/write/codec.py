@@ -115,12 +115,14 @@ def _entity(row: list[Any]) -> EntitySample:
 
 
 def _attr(row: list[Any]) -> AttrSample:
-    name, ngsi_type, kind, num, txt, js, geo, md = row[:8]
-    observed_at, created_at, modified_at, deleted_at, dataset_id = row[8:] or (None, None, None, None, None)
+    if len(row) == len(ATTR_FIELDS):  # no NGSI-LD field: the model's defaults
+        name, ngsi_type, kind, num, txt, js, geo, md = row
+        return AttrSample(name, ngsi_type, _kind(kind), num, txt, js, None if geo is None else Geometry(*geo), md)
+    name, ngsi_type, kind, num, txt, js, geo, md, observed_at, created_at, modified_at, deleted_at, dataset_id = row
     return AttrSample(
         name,
         ngsi_type,
-        _KINDS[kind] if kind in _KINDS else Kind(kind),  # Kind(code) is a Python call; ValueError if unknown
+        _kind(kind),
         num,
         txt,
         js,
@@ -132,6 +134,12 @@ def _attr(row: list[Any]) -> AttrSample:
         _time(deleted_at),
         dataset_id,
     )
+
+
+def _kind(code: int) -> Kind:
+    """``Kind(code)`` without its Python call for a known code; ValueError for an unknown one."""
+    kind = _KINDS.get(code)
+    return Kind(code) if kind is None else kind
 
 
 def _entity_object(e: dict[str, Any]) -> EntitySample:
