@@ -13,8 +13,9 @@ a fresh database of a private PostgreSQL cluster), warms it up with
 so every series exists before the measurement), then for each connection
 count runs ``--reps`` windows of ``--seconds`` and reads, before and after
 each, the user + system CPU of every process of the server (``/proc``,
-through psutil: the serving process and any it started), of the database
-server on PostgreSQL, and of wrk. It prints, per window, the CPU
+through psutil: the serving process and any it started; of the serving
+process's main thread, its event loop, apart), of the database server on
+PostgreSQL, and of wrk. It prints, per window, the CPU
 milliseconds per acknowledged notification of each process and in all, and
 per stored sample (a notification stores 6: ``TimeInstant`` and five
 attributes), and on DuckDB how many samples each transaction of the ingest
@@ -79,6 +80,21 @@ def process_cpu(server: common.Server) -> dict[str, float]:
     return out
 
 
+def loop_cpu(server: common.Server) -> float:
+    """CPU seconds so far of the serving process's main thread, where its
+    event loop runs (HTTP, parsing, answering): the figure least moved by how
+    busy the machine is, since the applier's batches (smaller when the
+    machine is busy) are on other threads."""
+    procs = server.processes()
+    try:
+        for thread in procs[0].threads() if procs else ():
+            if thread.id == procs[0].pid:
+                return thread.user_time + thread.system_time
+    except common.psutil.Error:
+        pass
+    return 0.0
+
+
 def _role(p) -> str:
     """A child's role: the uvicorn workers of ``--workers N`` (PostgreSQL)."""
     return "worker" if "multiprocessing" in " ".join(p.cmdline()) else "child"
@@ -111,10 +127,12 @@ def applied(url: str) -> tuple[float, float, float]:
 
 def one_window(server: common.Server, cluster, make, connections: int, seconds: float) -> dict:
     applied0 = applied(server.url)
+    loop0 = loop_cpu(server)
     cpu0, db0, wrk0 = process_cpu(server), cluster.cpu_seconds() if cluster else 0.0, _children_cpu()
     script, _ = make(f"c{connections}-{time.monotonic_ns() % 10**6}")
     stats = wrkrun.run(server.url, script, connections, seconds)
     cpu1, db1, wrk1 = process_cpu(server), cluster.cpu_seconds() if cluster else 0.0, _children_cpu()
+    loop1 = loop_cpu(server)
     applied1 = applied(server.url)
     ok = max(stats.ok, 1)
     per = {k: (cpu1[k] - cpu0.get(k, 0.0)) * 1000 / ok for k in cpu1}
@@ -126,6 +144,7 @@ def one_window(server: common.Server, cluster, make, connections: int, seconds: 
         "errors": stats.errors + stats.non_2xx,
         "ms_per_notification": {k: round(v, 4) for k, v in per.items()},
         "server_ms": round(sum(per.values()), 4),
+        "loop_ms": round((loop1 - loop0) * 1000 / ok, 4),
         "wrk_ms": round((wrk1 - wrk0) * 1000 / ok, 4),
     }
     if cluster:
@@ -216,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
         db, cluster = common.fresh_database(args.backend, "ingestcpu", workdir)
         port = common.free_port()
         cmd = common.ours_cmd(db, port) + args.serve_arg
+        if args.tree is not None:  # python -m would put the working directory (this checkout) first
+            cmd.insert(1, "-P")
         server = common.spawned("ours", cmd, port, workdir, env)
         server.start()
         ledger: list[str] = []
@@ -255,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
             cluster.stop()
         shutil.rmtree(workdir, ignore_errors=True)
     print(f"\n{label}: median over {args.reps} windows, CPU ms per notification (us per stored sample)")
-    header = ["connections", "notifications/s", "per process", "in all", "us per sample"]
+    header = ["connections", "notifications/s", "per process", "in all", "us per sample", "event loop thread"]
     table = []
     for connections in sorted({r["connections"] for r in rows}):
         mine = [r for r in rows if r["connections"] == connections]
@@ -272,6 +293,7 @@ def main(argv: list[str] | None = None) -> int:
                 split,
                 f"{statistics.median(r['total_ms'] for r in mine):.3f}",
                 f"{statistics.median(r['us_per_sample'] for r in mine):.1f}",
+                f"{statistics.median(r['loop_ms'] for r in mine):.3f}",
             ]
         )
     common.print_rows(header, table)

@@ -49,12 +49,12 @@ def metric(client: httpx.Client, name: str) -> float:
 
 def flip_byte_of(db_path, value: int) -> str:
     """Change one byte in the record carrying ``value``; the segment's name."""
-    needle = f'"num":{value + 0.25}'.encode()
+    needle = f",{value + 0.25},".encode()  # the sample's num, in the record's array (write.codec)
     for segment in segments(db_path):
         data = bytearray(segment.read_bytes())
         at = data.find(needle)
         if at >= 0:
-            data[at + len(needle) - 1] ^= 0x01  # 5.25 -> 5.24: the checksum no longer matches
+            data[at + len(needle) - 2] ^= 0x01  # 5.25 -> 5.24: the checksum no longer matches
             segment.write_bytes(bytes(data))
             return segment.name
     raise AssertionError(f"no record carries {value}")

@@ -9,8 +9,10 @@ from __future__ import annotations
 import struct
 import uuid
 import zlib
+from dataclasses import fields
 from datetime import UTC, datetime, timedelta
 
+import orjson
 import pytest
 
 from tests.support.tmpfs import fill, small_tmpfs
@@ -270,11 +272,49 @@ def test_the_codec_round_trips_mqtt_deliveries():
     assert codec.decode(codec.encode(op)) == op
 
 
+def _as_objects(op: AppendSamples, version: int) -> bytes:
+    """A record as versions 1 and 2 wrote it: the dataclasses as objects (orjson's own layout)."""
+    doc: dict = {"v": version, "dedup": op.dedup, "entities": op.entities}
+    if op.deliveries:
+        doc["deliveries"] = [
+            (d.client_id, d.seq, d.packet_id, d.digest.hex(), d.received_at, d.prune_below) for d in op.deliveries
+        ]
+    return orjson.dumps(doc)
+
+
 def test_a_record_of_version_1_still_reads():
-    """Written before MQTT deliveries: the same layout without them."""
+    """Written before MQTT deliveries: version 2's layout without them."""
     op = AppendSamples(_entities(), dedup=False)
-    old = codec.encode(op).replace(f'"v":{codec.VERSION}'.encode(), b'"v":1')
-    assert codec.decode(old) == op
+    assert codec.decode(_as_objects(op, 1)) == op
+
+
+def test_a_record_of_version_2_still_reads():
+    """Entities and attributes as objects, deliveries included."""
+    deliveries = (Delivery("tsdb-a", 7, 65535, bytes(range(16)), T0, prune_below=2),)
+    op = AppendSamples(_entities(), deliveries=deliveries)
+    assert codec.decode(_as_objects(op, 2)) == op
+
+
+def test_the_codec_layout_names_every_field_of_the_model():
+    """A field added to the model must be added to the record's arrays (and VERSION moved)."""
+    assert tuple(f.name for f in fields(EntitySample)) == codec.ENTITY_FIELDS
+    assert tuple(f.name for f in fields(AttrSample)) == codec.ATTR_FIELDS + codec.LD_FIELDS
+    assert tuple(f.name for f in fields(Geometry)) == (
+        "geojson",
+        "lon",
+        "lat",
+        "min_lon",
+        "min_lat",
+        "max_lon",
+        "max_lat",
+    )
+
+
+def test_an_ngsiv2_attribute_is_written_without_the_ngsi_ld_fields():
+    op = AppendSamples([EntitySample("", "/", "e", "T", T0, [AttrSample("v", "Number", Kind.NUMBER, num=1.0)], rid=1)])
+    record = orjson.loads(codec.encode(op))
+    assert record["entities"][0][5] == [["v", "Number", 1, 1.0, None, None, None, None]]
+    assert codec.decode(codec.encode(op)) == op
 
 
 def test_a_record_of_another_version_is_refused():

@@ -68,6 +68,11 @@ def store_of(request: Request) -> ServiceStore:
     return cast(ServiceStore, request.app.state.store)
 
 
+def app_store(app: Any) -> ServiceStore:
+    """``store_of`` for code that has the app but no ``Request`` (the notify fast path)."""
+    return cast(ServiceStore, app.state.store)
+
+
 def reads_store(route: Callable[P, R]) -> Callable[P, Awaitable[R]]:
     """Wrap a plain ``def`` route that takes ``request: Request``; its
     signature and docstring (the OpenAPI description) stay the route's. The

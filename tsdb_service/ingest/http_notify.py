@@ -11,8 +11,10 @@ dropped.
 from __future__ import annotations
 
 import logging
+from collections.abc import AsyncIterator, Iterator, Mapping
 from datetime import UTC, datetime
 from functools import partial
+from typing import Any
 
 import orjson
 from fastapi import APIRouter, Query, Request
@@ -26,7 +28,7 @@ from tsdb_service.core.timepaths import parse_time_paths
 from tsdb_service.http import openapi as oa
 from tsdb_service.http.errors import REQUEST_ID_HEADER, internal_error
 from tsdb_service.http.responses import JSON
-from tsdb_service.http.store import reads_store, store_of
+from tsdb_service.http.store import app_store, reads_store, store_of
 from tsdb_service.http.tenancy import require_every_tenant, tenant_header, tenant_of
 from tsdb_service.ingest import openapi as notify_oa
 from tsdb_service.parse import ValuesLayout, parse_notification
@@ -70,7 +72,7 @@ async def serve_notification(app, scope, receive, send) -> None:
     stack, which costs more per request than parsing a notification. The
     behaviour is the routes' above (same function); only the overhead goes."""
     scope["app"] = app
-    status, payload, extra = await receive_notification(Request(scope, receive))
+    status, payload, extra = await _answer(_Incoming(app, scope, receive))
     headers = [*_JSON_HEADERS, (b"content-length", str(len(payload)).encode())]
     if extra:
         headers += [(name.lower().encode(), value.encode()) for name, value in extra.items()]
@@ -79,17 +81,82 @@ async def serve_notification(app, scope, receive, send) -> None:
 
 
 async def receive_notification(request: Request) -> tuple[int, bytes, dict[str, str] | None]:
-    """Parse, store, then answer: ``(status, JSON body, extra headers)``, errors in the NGSI shape."""
+    """Parse, store, then answer: ``(status, JSON body, extra headers)``, errors in the NGSI shape.
+    The body is read off ``request.receive``: nothing may have read it before."""
+    return await _answer(_Incoming(request.app, request.scope, request.receive, request))
+
+
+class _Headers(Mapping[str, str]):
+    """A request's headers as Starlette's ``Headers`` reads them (names and
+    values decoded as latin-1; ``get`` the first of a name, ``items`` every
+    pair, repeats included), decoded once: the parser, the media type check
+    and the rejected store each read them."""
+
+    __slots__ = ("_pairs",)
+
+    def __init__(self, raw: list[tuple[bytes, bytes]]):
+        self._pairs = [(name.decode("latin-1"), value.decode("latin-1")) for name, value in raw]
+
+    def __getitem__(self, key: str) -> str:
+        key = key.lower()
+        for name, value in self._pairs:
+            if name == key:
+                return value
+        raise KeyError(key)
+
+    def get(self, key: str, default: Any = None) -> Any:
+        key = key.lower()
+        for name, value in self._pairs:
+            if name == key:
+                return value
+        return default
+
+    def items(self) -> list[tuple[str, str]]:  # type: ignore[override]
+        return self._pairs
+
+    def __iter__(self) -> Iterator[str]:
+        return iter([name for name, _ in self._pairs])
+
+    def __len__(self) -> int:
+        return len(self._pairs)
+
+
+class _Incoming:
+    """One notification being received: the ASGI scope, its headers decoded
+    once, the body read straight off ``receive``. A Starlette ``Request`` is
+    made only for the rare answers that need one (a refused notification's
+    tenant, which authorises the caller)."""
+
+    __slots__ = ("_request", "app", "headers", "receive", "scope")
+
+    def __init__(self, app, scope, receive, request: Request | None = None):
+        self.app = app
+        self.scope = scope
+        self.receive = receive
+        self.headers = _Headers(scope["headers"])
+        self._request = request
+
+    def request(self) -> Request:
+        if self._request is None:
+            self._request = Request(self.scope, self.receive)
+        return self._request
+
+    def peer(self) -> str:
+        client = self.scope.get("client")
+        return f"{client[0]}:{client[1]}" if client else "a client"
+
+
+async def _answer(incoming: _Incoming) -> tuple[int, bytes, dict[str, str] | None]:
     try:
-        await _receive(request)
+        await _receive(incoming)
     except TsdbError as exc:
         return exc.status, orjson.dumps(exc.body()), None
     except ClientDisconnect:  # nothing was stored and nobody is left to answer: one line, no traceback
         log.warning(
             "notification from %s abandoned: the client disconnected before sending the whole body "
             "(Content-Length %s); nothing was stored",
-            _peer(request),
-            request.headers.get("content-length"),
+            incoming.peer(),
+            incoming.headers.get("content-length"),
         )
         return 400, _DISCONNECTED, None
     except Exception:  # a bug: answered as api.handlers answers any other 500 (body and request id header)
@@ -98,22 +165,25 @@ async def receive_notification(request: Request) -> tuple[int, bytes, dict[str, 
     return 200, _OK_BODY, None
 
 
-async def _receive(request: Request) -> None:
-    state = request.app.state
-    store = store_of(request)
+async def _receive(incoming: _Incoming) -> None:
+    state = incoming.app.state
+    store = app_store(incoming.app)
     settings = state.settings
     received_at = datetime.now(UTC)
-    body = await _read_body(request, settings.max_body_bytes, settings.rejected_body_max_bytes)
+    headers = incoming.headers
+    body = await _read_body(
+        incoming.receive, headers.get("content-length"), settings.max_body_bytes, settings.rejected_body_max_bytes
+    )
     try:
         if type(body) is _Overflow:
             raise PayloadTooLarge(body.description(settings.max_body_bytes))
-        _check_content_type(request.headers.get("content-type"))
+        _check_content_type(headers.get("content-type"))
         # A read: a 'values' layout comes from the store (memory; on
         # PostgreSQL a miss looks in the database, off the loop).
         parse = partial(
             parse_notification,
             body,
-            request.headers,
+            headers,
             received_at=received_at,
             values_layout=store.values_layout,
             time_paths=parse_time_paths(settings.time_index_paths),
@@ -125,7 +195,7 @@ async def _receive(request: Request) -> None:
         await store.write(AppendSamples(entities))
     except TsdbError as exc:
         if exc.status < 500:
-            await _keep_rejected(request, store, received_at, exc, body, settings.rejected_body_max_bytes)
+            await _keep_rejected(incoming, store, received_at, exc, body, settings.rejected_body_max_bytes)
         raise
 
 
@@ -184,18 +254,42 @@ class _Overflow(bytes):
         )
 
 
-async def _read_body(request: Request, limit: int, keep: int) -> bytes:
+async def _read_body(receive, declared: str | None, limit: int, keep: int) -> bytes:
     """The body, or past ``limit`` an ``_Overflow`` with its first ``keep``
     bytes and its size, so an operator can still recover it."""
-    declared = request.headers.get("content-length")
-    chunks, size = [], 0
-    stream = request.stream()
-    async for chunk in stream:
-        size += len(chunk)
-        chunks.append(chunk)
-        if size > limit:
-            return await _overflow(stream, chunks, size, limit, keep, declared)
-    return b"".join(chunks)
+    chunks: list[bytes] = []
+    size, more = 0, True
+    while more:
+        chunk, more = await _chunk(receive)
+        if chunk:
+            size += len(chunk)
+            chunks.append(chunk)
+            if size > limit:
+                return await _overflow(_rest(receive, more), chunks, size, limit, keep, declared)
+    return chunks[0] if len(chunks) == 1 and type(chunks[0]) is bytes else b"".join(chunks)
+
+
+async def _chunk(receive) -> tuple[bytes, bool]:
+    """The next piece of the body and whether more follows, read off the ASGI
+    ``receive`` as Starlette's ``Request.stream`` reads it (a disconnect is
+    ``ClientDisconnect``; other messages are skipped)."""
+    while True:
+        message = await receive()
+        kind = message["type"]
+        if kind == "http.request":
+            return message.get("body", b""), message.get("more_body", False)
+        if kind == "http.disconnect":
+            raise ClientDisconnect()
+
+
+async def _rest(receive, more: bool) -> AsyncIterator[bytes]:
+    """The pieces after the one that went over the limit, then ``b""``, as
+    ``Request.stream`` yields them."""
+    while more:
+        chunk, more = await _chunk(receive)
+        if chunk:
+            yield chunk
+    yield b""
 
 
 async def _overflow(stream, chunks: list[bytes], size: int, limit: int, keep: int, declared: str | None) -> _Overflow:
@@ -220,27 +314,24 @@ async def _overflow(stream, chunks: list[bytes], size: int, limit: int, keep: in
 # --- rejected store -----------------------------------------------------------------
 
 
-async def _keep_rejected(request, store, received_at: datetime, exc: TsdbError, body: bytes, keep: int) -> None:
+async def _keep_rejected(
+    incoming: _Incoming, store, received_at: datetime, exc: TsdbError, body: bytes, keep: int
+) -> None:
     """Keep what the broker sent (headers, body, its size) before answering:
     Orion never sends a notification twice."""
     size = body.size if type(body) is _Overflow else len(body)
     kept = bytes(body[:keep])
     rejected = RejectedNotification(
-        tenant=_rejected_tenant(request),
+        tenant=_rejected_tenant(incoming.request()),
         received_at=received_at,
         error=exc.error,
         description=exc.description,
-        headers=orjson.dumps(redact_headers(request.headers, request.app.state.settings.api_key_header)).decode(),
+        headers=orjson.dumps(redact_headers(incoming.headers, incoming.app.state.settings.api_key_header)).decode(),
         body=kept,
         body_size=size,
         body_truncated=len(kept) < size,
     )
     await store.write(RecordRejected(rejected))
-
-
-def _peer(request: Request) -> str:
-    client = request.client
-    return f"{client.host}:{client.port}" if client else "a client"
 
 
 def _rejected_tenant(request) -> str:

@@ -149,10 +149,11 @@ def parse_document(
 ) -> list[EntitySample]:
     """``parse_notification`` of a body already decoded (``load_document``),
     e.g. the ``body`` member of an MQTT envelope (``ingest.mqtt``)."""
-    hdrs = _lower_headers(headers)
+    pairs = _header_pairs(headers)
+    hdrs = {name.lower(): value for name, value in pairs}  # the last of a repeated header
     format_header = hdrs.get("ngsiv2-attrsformat")
     layout = _layout(doc, format_header, hdrs.get("ngsild-attribute-format"))
-    tenant = notification_tenant((str(k), _header_text(v)) for k, v in headers.items())
+    tenant = notification_tenant(pairs)
     header_attr, header_steps = _time_index_header(hdrs.get("fiware-timeindex-attribute", "").strip() or None)
     ctx = _Context(watched_attributes(header_attr), header_attr, to_utc(received_at), header_steps, time_paths)
     layout, entities = _entities(doc, layout, tenant, values_layout)
@@ -183,9 +184,10 @@ def _time_index_header(text: str | None) -> tuple[str | None, Steps]:
 # --- envelope ------------------------------------------------------------------
 
 
-def _lower_headers(headers: Mapping[str, str]) -> dict[str, str]:
+def _header_pairs(headers: Mapping[str, str]) -> list[tuple[str, str]]:
+    """Every ``(name, value)`` as text, repeats included (the tenant rule sees them all)."""
     try:
-        return {str(k).lower(): v if type(v) is str else _header_text(v) for k, v in headers.items()}
+        return [(str(k), v if type(v) is str else _header_text(v)) for k, v in headers.items()]
     except AttributeError:
         raise ParseError("headers must be a mapping") from None
 

@@ -217,6 +217,10 @@ class TimeClues:
             self.date_modified_md.append(_meta_value(modified))
 
     def resolve(self, received_at: datetime) -> datetime:
+        if self.header_attr is None:  # the usual case first: a TimeInstant attribute that is a time
+            moment = parse_time(self.values.get("TimeInstant"))
+            if moment is not None:
+                return moment
         for n, (_, raw, read) in enumerate(self._candidates()):
             if raw is not None and raw != []:
                 moment = read(raw)

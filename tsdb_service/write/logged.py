@@ -139,7 +139,7 @@ class LoggedWriter:
             op = codec.decode(payload)
             highest = max([highest, *(e.rid for e in op.entities if e.rid is not None)])
             kept = _unapplied_part(op, held.rid)
-            self._queue(seq, kept, len(payload))  # even empty: the position must move past it
+            self._queue([_pending(seq, kept, payload)])  # even empty: the position must move past it
             replayed += len(kept.entities)
         self._seen_rid(highest)
         self.acked_seq = self.log.last_seq
@@ -198,17 +198,18 @@ class LoggedWriter:
             self.log_failure = str(exc)
             raise Unavailable(f"{exc}; nothing was stored") from None
         self.log_failure = None
-        seq = last - len(records)
-        for op, payload in records:
-            seq += 1
-            self._queue(seq, op, len(payload))
+        first = last - len(records) + 1
+        self._queue([_pending(first + n, op, payload) for n, (op, payload) in enumerate(records)])
 
-    def _queue(self, seq: int, op: AppendSamples, nbytes: int) -> None:
-        samples = sum(len(e.attrs) for e in op.entities)
+    def _queue(self, items: list[_Pending]) -> None:
+        """Hand acknowledged records (in log order) to the applier: one lock
+        and one wake-up for a whole group."""
+        if not items:
+            return
         with self._cond:
-            self._pending.append(_Pending(seq, op, nbytes, samples))
-            self.lag_bytes += nbytes
-            self.acked_seq = max(self.acked_seq, seq)
+            self._pending.extend(items)
+            self.lag_bytes += sum(item.nbytes for item in items)
+            self.acked_seq = max(self.acked_seq, items[-1].seq)
             self._cond.notify_all()
 
     def _wait_for_room(self) -> None:
@@ -409,6 +410,10 @@ class _LogAppender(Appender):
 
     def rollback(self) -> None:
         self._staged = []
+
+
+def _pending(seq: int, op: AppendSamples, payload: bytes) -> _Pending:
+    return _Pending(seq, op, len(payload), sum(len(e.attrs) for e in op.entities))
 
 
 def _merged(batch: list[_Pending]) -> AppendSamples:
