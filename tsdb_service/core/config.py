@@ -188,7 +188,7 @@ class IngestLogSettings(SettingsGroup):
         "its own database commit. PostgreSQL has no ingest log (see the docs, Architecture).",
     )
     ingest_log_lag_bytes: int = Field(
-        64 * 1024 * 1024,
+        32 * 1024 * 1024,
         ge=1024 * 1024,
         description="DuckDB: how far (encoded bytes) the ingest log may run ahead of the database before "
         "ingest waits for it.",
