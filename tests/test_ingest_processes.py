@@ -21,6 +21,7 @@ import sys
 import threading
 import time
 import urllib.request
+from pathlib import Path
 
 import duckdb
 import orjson
@@ -269,6 +270,8 @@ def test_the_owner_killed_takes_its_acceptor_along_and_a_restart_keeps_every_ack
     db_path = tmp_path / "owner-kill.duckdb"
     server = _ready(ServerProcess(db_path, args=ARGS).start())
     (acceptor,) = server.children()
+    environ = Path(f"/proc/{acceptor}/environ").read_bytes().split(b"\0")  # as the owner made it
+    relay_dir = next(v.split(b"=", 1)[1].decode() for v in environ if v.startswith(b"TSDB_INTERNAL_RELAY_DIR="))
     outcomes: dict[int, str] = {}
     stop = threading.Event()
     seqs = itertools.count()
@@ -283,6 +286,7 @@ def test_the_owner_killed_takes_its_acceptor_along_and_a_restart_keeps_every_ack
         stop.set()
         for t in threads:
             t.join(15)
+    _wait(lambda: not os.path.exists(relay_dir), 10, "the killed run's directory to go")
     again = ServerProcess(db_path, args=ARGS).start()
     again.terminate()
     _acked_stored_once(db_path, outcomes)

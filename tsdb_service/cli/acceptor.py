@@ -7,6 +7,7 @@ from the listening socket the serving process gave it (one of the port's,
 from __future__ import annotations
 
 import os
+import shutil
 import socket
 import sys
 
@@ -44,12 +45,17 @@ def main() -> int:
     )
     server = uvicorn.Server(config)
 
+    lost = []
+
     def owner_lost() -> None:  # what it holds can no longer be written: answer it 503 and go at once
+        lost.append(True)
         server.should_exit = server.force_exit = True
 
     app.on_owner_lost = owner_lost
     tune_collector()
     server.run(sockets=[socket.socket(fileno=int(listen_fd))])  # its own socket on the port, from the serving process
+    if lost:  # a serving process that was killed could not remove its run's directory
+        shutil.rmtree(relay_dir, ignore_errors=True)
     return 0 if server.started else 3
 
 
