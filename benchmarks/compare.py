@@ -105,6 +105,7 @@ LABELS = {
 OURS = {
     "duckdb": ("duckdb", 1, 1),
     "duckdb2": ("duckdb", 1, 2),
+    "duckdb3": ("duckdb", 1, 3),
     "postgresql": ("postgresql", 1, 1),
     "postgresql2": ("postgresql", 2, 1),
 }
@@ -242,6 +243,7 @@ def run_ours(key: str, runner: Runner, only: set[str], workdir: Path, env: dict[
     name = {
         "duckdb": "ours, DuckDB",
         "duckdb2": "ours, DuckDB (2 ingest processes)",
+        "duckdb3": "ours, DuckDB (3 ingest processes)",
         "postgresql": "ours, PostgreSQL",
         "postgresql2": "ours, PostgreSQL (2 workers)",
     }[key]
