@@ -71,7 +71,6 @@ class HandOver:
     def __init__(self, path: str):
         self.path = path
         self._sock: socket.socket | None = None
-        self.handed = 0
 
     def give(self, fd: int, head: bytes) -> bool:
         """Send the connection ``fd`` with its first bytes ``head``; False
@@ -87,7 +86,6 @@ class HandOver:
             log.debug("could not hand a connection to the serving process: %s", exc)
             self.close()
             return False
-        self.handed += 1
         return True
 
     def close(self) -> None:
@@ -154,7 +152,6 @@ class Adopter:
     def __init__(self, path: str, make_protocol: Callable[[], asyncio.Protocol]):
         self.path = path
         self.make_protocol = make_protocol
-        self.adopted = 0
         self._listener: socket.socket | None = None
         self._peers: list[socket.socket] = []
         self._closed = False
@@ -224,7 +221,6 @@ class Adopter:
             made.first_bytes(head)
             return made
 
-        self.adopted += 1
         asyncio.get_running_loop().create_task(_serve(sock, protocol))
 
 

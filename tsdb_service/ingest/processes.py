@@ -58,10 +58,6 @@ class Acceptors:
     def alive(self) -> int:
         return sum(1 for p in self._processes.values() if p.returncode is None)
 
-    @property
-    def pids(self) -> list[int]:
-        return [p.pid for p in self._processes.values() if p.returncode is None]
-
     def snapshot(self) -> dict[str, int]:
         """For ``/metrics``: running, restarted, writes relayed."""
         return {"alive": self.alive, "restarts": self.restarts, "relayed": self._relayed()}
