@@ -58,6 +58,7 @@ import orjson
 
 from tsdb_service.core.errors import TsdbError, Unavailable
 from tsdb_service.core.model import RejectedNotification
+from tsdb_service.http.server import CoalescingTransport
 from tsdb_service.parse import ValuesLayout
 from tsdb_service.write import codec
 from tsdb_service.write.ops import AppendSamples, RecordRejected
@@ -187,52 +188,72 @@ class RelayServer:
         side.answer(frame_id, status, answer)
 
 
-class _OwnerSide(asyncio.Protocol):
-    def __init__(self, server: RelayServer):
-        self.server = server
+class _Framed(asyncio.Protocol):
+    """One end of a relay connection: frames in (``incoming`` is their
+    header: length, id, a code), writes out through
+    ``http.server.CoalescingTransport`` (a turn's frames leave in one write)."""
+
+    incoming: struct.Struct
+
+    def __init__(self) -> None:
         self.buffer = bytearray()
-        self.outgoing: list[bytes] = []
-        self.transport: asyncio.Transport | None = None
+        self.transport: CoalescingTransport | None = None
 
     def connection_made(self, transport) -> None:
-        self.transport = transport
+        self.transport = CoalescingTransport(transport, asyncio.get_running_loop())
 
     def connection_lost(self, exc) -> None:
         self.transport = None
 
+    def send(self, data: bytes) -> None:
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.write(data)
+
     def data_received(self, data: bytes) -> None:
-        buffer = self.buffer
+        buffer, header = self.buffer, self.incoming
         buffer += data
         start = 0
-        while len(buffer) - start >= REQUEST.size:
-            length, frame_id, kind = REQUEST.unpack_from(buffer, start)
-            if length > self.server.max_frame:
-                log.error(
-                    "an ingest process sent a frame of %d bytes (at most %d): closing", length, self.server.max_frame
-                )
-                if self.transport is not None:
-                    self.transport.close()
+        while len(buffer) - start >= header.size:
+            length, frame_id, code = header.unpack_from(buffer, start)
+            if not self.acceptable(length):
                 buffer.clear()
                 return
-            end = start + REQUEST.size + length
+            end = start + header.size + length
             if len(buffer) < end:
                 break
-            self.server.handle(self, frame_id, kind, bytes(buffer[start + REQUEST.size : end]))
+            self.frame(frame_id, code, bytes(buffer[start + header.size : end]))
             start = end
         if start:
             del buffer[:start]
 
-    def answer(self, frame_id: int, status: int, payload: bytes) -> None:
-        """Queue an answer; the answers of one turn of the loop leave in one write."""
-        self.outgoing.append(ANSWER.pack(len(payload), frame_id, status) + payload)
-        if len(self.outgoing) == 1:
-            asyncio.get_running_loop().call_soon(self._flush)
+    def acceptable(self, length: int) -> bool:
+        """Whether a frame of ``length`` payload bytes may be read (else the connection goes)."""
+        return True
 
-    def _flush(self) -> None:
-        data = b"".join(self.outgoing)
-        self.outgoing.clear()
-        if self.transport is not None and not self.transport.is_closing():
-            self.transport.write(data)
+    def frame(self, frame_id: int, code: int, payload: bytes) -> None:
+        raise NotImplementedError
+
+
+class _OwnerSide(_Framed):
+    incoming = REQUEST
+
+    def __init__(self, server: RelayServer):
+        super().__init__()
+        self.server = server
+
+    def acceptable(self, length: int) -> bool:
+        if length <= self.server.max_frame:
+            return True
+        log.error("an ingest process sent a frame of %d bytes (at most %d): closing", length, self.server.max_frame)
+        if self.transport is not None:
+            self.transport.close()
+        return False
+
+    def frame(self, frame_id: int, code: int, payload: bytes) -> None:
+        self.server.handle(self, frame_id, code, payload)
+
+    def answer(self, frame_id: int, status: int, payload: bytes) -> None:
+        self.send(ANSWER.pack(len(payload), frame_id, status) + payload)
 
 
 # --- an acceptor's side ---------------------------------------------------------------------
@@ -289,21 +310,17 @@ class RelayClient:
         await self.call(TIMINGS, orjson.dumps(timings))
 
 
-class _AcceptorSide(asyncio.Protocol):
+class _AcceptorSide(_Framed):
+    incoming = ANSWER
+
     def __init__(self, lost: asyncio.Event):
+        super().__init__()
         self.lost = lost
-        self.buffer = bytearray()
-        self.transport: asyncio.Transport | None = None
         self.waiting: dict[int, asyncio.Future] = {}
-        self.outgoing: list[bytes] = []
         self.next_id = 0
 
-    def connection_made(self, transport) -> None:
-        self.transport = transport
-
     def connection_lost(self, exc) -> None:
-        self.transport = None
-        self.outgoing.clear()
+        super().connection_lost(exc)
         for future in self.waiting.values():
             if not future.done():
                 future.set_exception(Unavailable(_OWNER_GONE))
@@ -311,34 +328,14 @@ class _AcceptorSide(asyncio.Protocol):
         self.lost.set()
 
     async def call(self, kind: int, payload: bytes) -> tuple[int, bytes]:
-        """Send one frame (the frames of one turn of the loop leave in one write) and await its answer."""
-        loop = asyncio.get_running_loop()
+        """Send one frame and await its answer."""
         self.next_id += 1
-        future = loop.create_future()
+        future = asyncio.get_running_loop().create_future()
         self.waiting[self.next_id] = future
-        self.outgoing.append(REQUEST.pack(len(payload), self.next_id, kind) + payload)
-        if len(self.outgoing) == 1:
-            loop.call_soon(self._flush)
+        self.send(REQUEST.pack(len(payload), self.next_id, kind) + payload)
         return await future
 
-    def _flush(self) -> None:
-        data = b"".join(self.outgoing)
-        self.outgoing.clear()
-        if self.transport is not None and not self.transport.is_closing():
-            self.transport.write(data)
-
-    def data_received(self, data: bytes) -> None:
-        buffer = self.buffer
-        buffer += data
-        start = 0
-        while len(buffer) - start >= ANSWER.size:
-            length, frame_id, status = ANSWER.unpack_from(buffer, start)
-            end = start + ANSWER.size + length
-            if len(buffer) < end:
-                break
-            future = self.waiting.pop(frame_id, None)
-            if future is not None and not future.done():
-                future.set_result((status, bytes(buffer[start + ANSWER.size : end])))
-            start = end
-        if start:
-            del buffer[:start]
+    def frame(self, frame_id: int, code: int, payload: bytes) -> None:
+        future = self.waiting.pop(frame_id, None)
+        if future is not None and not future.done():
+            future.set_result((code, payload))
