@@ -48,6 +48,7 @@ from prometheus_client import (
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 
+from tsdb_service.core import asgitiming
 from tsdb_service.parse import timeindex
 from tsdb_service.parse.request_context import is_stored_tenant
 from tsdb_service.storage.store import Store
@@ -273,19 +274,9 @@ class RequestMetrics:
     async def timed(self, handler, scope, receive, send, route: str | None = None) -> None:
         """Run ``handler`` (an ASGI callable) and record how long it took;
         ``route`` names it when it bypasses the router (the notify fast path)."""
-        status = 500
-
-        async def send_status(message) -> None:
-            nonlocal status
-            if message["type"] == "http.response.start":
-                status = message["status"]
-            await send(message)
-
-        start = time.perf_counter()
-        try:
-            await handler(scope, receive, send_status)
-        finally:
-            self.observe(scope, status, time.perf_counter() - start, route)
+        await asgitiming.timed(
+            handler, scope, receive, send, lambda status, seconds: self.observe(scope, status, seconds, route)
+        )
 
 
 def _route_of(scope) -> str:

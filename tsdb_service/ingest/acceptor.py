@@ -29,13 +29,13 @@ import asyncio
 import contextvars
 import logging
 import os
-import time
 from collections.abc import Callable
 from typing import Any
 
 import httpx
 from starlette.datastructures import State
 
+from tsdb_service.core import asgitiming
 from tsdb_service.core.config import Settings
 from tsdb_service.core.errors import TsdbError
 from tsdb_service.ingest.http_notify import NOTIFY_PATHS
@@ -159,21 +159,13 @@ class AcceptorApp:
     async def _timed_notify(self, scope, receive, send) -> None:
         """The notify path, each answer's status and time kept for the owner's ``/metrics``."""
         assert self.notify is not None
-        status = 500
 
-        async def send_status(message) -> None:
-            nonlocal status
-            if message["type"] == "http.response.start":
-                status = message["status"]
-            await send(message)
-
-        start = time.perf_counter()
-        try:
-            await self.notify(scope, receive, send_status)
-        finally:
-            self._timings.append((scope["path"], "POST", status, time.perf_counter() - start))
+        def keep(status: int, seconds: float) -> None:
+            self._timings.append((scope["path"], "POST", status, seconds))
             if len(self._timings) >= REPORT_AT:
                 self._report_soon()
+
+        await asgitiming.timed(self.notify, scope, receive, send, keep)
 
     def _report_soon(self) -> None:
         timings, self._timings = self._timings, []
