@@ -16,9 +16,10 @@ from pathlib import Path
 
 import duckdb
 
+from tests.support.samples import numbered
 from tsdb_service import storage
 from tsdb_service.core.config import WAL_CHECKPOINT_BYTES, Settings
-from tsdb_service.core.model import AttrSample, EntitySample, Kind
+from tsdb_service.core.model import EntitySample
 from tsdb_service.storage import open_store
 from tsdb_service.storage.duckdb.connection import connect
 from tsdb_service.write.ops import AppendSamples
@@ -32,17 +33,7 @@ def _threshold(con: duckdb.DuckDBPyConnection) -> str:
 
 
 def _notifications(count: int, start: datetime) -> list[EntitySample]:
-    return [
-        EntitySample(
-            "walck",
-            "/",
-            f"urn:ngsi-ld:Lawnmower:{n % 50}",
-            "Lawnmower",
-            start + timedelta(milliseconds=n),
-            [AttrSample(name, "Number", Kind.NUMBER, num=float(n)) for name in ("speed", "left", "right")],
-        )
-        for n in range(count)
-    ]
+    return numbered("walck", "Lawnmower", ("speed", "left", "right"), start, count, series=50)
 
 
 def test_default_is_four_mib_not_duckdbs_sixteen():

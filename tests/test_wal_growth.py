@@ -11,11 +11,12 @@ had not checkpointed grew with everything written (1.9 GB for a 1 GB bag).
 from __future__ import annotations
 
 import time
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime
 from pathlib import Path
 
+from tests.support.samples import numbered
 from tsdb_service.core.config import Settings
-from tsdb_service.core.model import AttrSample, EntitySample, Kind
+from tsdb_service.core.model import EntitySample
 from tsdb_service.storage import open_store
 from tsdb_service.write.ops import AppendSamples
 
@@ -25,17 +26,7 @@ START = datetime(2024, 1, 1, tzinfo=UTC)
 
 
 def _batch(first: int, count: int) -> list[EntitySample]:
-    return [
-        EntitySample(
-            "walgrowth",
-            "/",
-            f"urn:ngsi-ld:Robot:{n % 20}",
-            "Robot",
-            START + timedelta(milliseconds=n),
-            [AttrSample(name, "Number", Kind.NUMBER, num=float(n)) for name in ("x", "y", "z")],
-        )
-        for n in range(first, first + count)
-    ]
+    return numbered("walgrowth", "Robot", ("x", "y", "z"), START, count, first=first, series=20)
 
 
 def _wal_bytes(path: Path) -> int:
